@@ -1,0 +1,427 @@
+"""The 19 physical parameters θ of a quadrotor: names, units, nominal values, priors,
+normalisation and validation.
+
+θ is a float array of shape (..., 19) in SI units, in the order of :data:`PARAM_NAMES`
+(DESIGN §2)::
+
+    0  mass                     kg
+    1  arm_length               m        centre of mass to rotor axis
+    2  thrust_coeff             N/(rad/s)^2        T_i = η_i k_t Ω_i²
+    3  torque_coeff             N·m/(rad/s)^2      yaw torque ±η_i k_τ Ω_i²
+    4-6  inertia[0..2]          kg·m²    J_xx, J_yy, J_zz (principal, body frame)
+    7-9  drag[0..2]             kg/s     body-frame linear drag D_xx, D_yy, D_zz
+    10 max_rotor_speed          rad/s    Ω_max
+    11-14 motor_effectiveness[0..3]  –   η_1..η_4
+    15 motor_time_constant      s        τ_m
+    16-18 external_torque[0..2] N·m      constant body-frame torque τ_ext
+
+Body frame: x forward, y left, z up (FLU). Rotors in X configuration, numbered (0-based in
+code, 1-based in prose) 1 front-right, 2 front-left, 3 back-left, 4 back-right; rotors 1 and
+3 spin counter-clockwise seen from above (reaction yaw torque −k_τΩ²), 2 and 4 clockwise
+(+k_τΩ²). See the README figure.
+
+Everything learned works in a normalised space (:class:`Normalizer`): log of positive scale
+parameters, then standardised. Public interfaces keep physical units.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+GRAVITY = 9.81  # m/s², must match assets/quadrotor.xml
+
+PARAM_NAMES: tuple[str, ...] = (
+    "mass", "arm_length", "thrust_coeff", "torque_coeff",
+    "inertia[0]", "inertia[1]", "inertia[2]",
+    "drag[0]", "drag[1]", "drag[2]",
+    "max_rotor_speed",
+    "motor_effectiveness[0]", "motor_effectiveness[1]",
+    "motor_effectiveness[2]", "motor_effectiveness[3]",
+    "motor_time_constant",
+    "external_torque[0]", "external_torque[1]", "external_torque[2]",
+)
+PARAM_UNITS: tuple[str, ...] = (
+    "kg", "m", "N/(rad/s)^2", "N m/(rad/s)^2",
+    "kg m^2", "kg m^2", "kg m^2",
+    "kg/s", "kg/s", "kg/s",
+    "rad/s", "-", "-", "-", "-", "s", "N m", "N m", "N m",
+)
+N_PARAMS = len(PARAM_NAMES)
+
+# Index helpers (slices into θ).
+MASS, ARM, KT, KTAU = 0, 1, 2, 3
+INERTIA = slice(4, 7)
+DRAG = slice(7, 10)
+OMEGA_MAX = 10
+ETA = slice(11, 15)
+TAU_M = 15
+TAU_EXT = slice(16, 19)
+
+# Vehicle-file schema: key -> (slice into θ, length or None for scalar).
+VEHICLE_KEYS: dict[str, tuple[slice, int | None]] = {
+    "mass": (slice(0, 1), None),
+    "arm_length": (slice(1, 2), None),
+    "thrust_coeff": (slice(2, 3), None),
+    "torque_coeff": (slice(3, 4), None),
+    "inertia": (INERTIA, 3),
+    "drag": (DRAG, 3),
+    "max_rotor_speed": (slice(10, 11), None),
+    "motor_effectiveness": (ETA, 4),
+    "motor_time_constant": (slice(15, 16), None),
+    "external_torque": (TAU_EXT, 3),
+}
+
+# Rotor layout (body frame FLU), X configuration: unit directions of the arms.
+_S = 1.0 / math.sqrt(2.0)
+ROTOR_DIRECTIONS = np.array([[_S, -_S], [_S, _S], [-_S, _S], [-_S, -_S]], np.float32)  # (4, 2)
+ROTOR_NAMES = ("front-right", "front-left", "back-left", "back-right")
+YAW_SIGNS = np.array([-1.0, 1.0, -1.0, 1.0], np.float32)  # reaction yaw torque sign per rotor
+
+PAPER_HARDWARE = np.array(
+    [0.925, 0.184, 7.64e-6, 1.07e-7, 8.5e-3, 7.5e-3, 15.5e-3, 0.20, 0.20, 0.85, 1360.0,
+     1.0, 1.0, 1.0, 1.0, 0.03, 0.0, 0.0, 0.0], np.float32)
+"""The paper's hardware vehicle (Table I): thrust-to-weight 4 k_t Ω_max²/(m g) ≈ 6.2."""
+
+
+# ----------------------------------------------------------------------------------------
+# Derived quantities
+# ----------------------------------------------------------------------------------------
+
+def rotor_positions(theta: jax.Array) -> jax.Array:
+    """Rotor centres in the body frame. θ (..., 19) -> (..., 4, 3), z = 0."""
+    theta = jnp.asarray(theta)
+    xy = theta[..., ARM, None, None] * jnp.asarray(ROTOR_DIRECTIONS)
+    return jnp.concatenate([xy, jnp.zeros(xy.shape[:-1] + (1,), xy.dtype)], -1)
+
+
+def thrust_to_weight(theta) -> jax.Array:
+    """4 k_t Ω_max² / (m g) with η = 1. θ (..., 19) -> (...)."""
+    theta = jnp.asarray(theta)
+    return 4.0 * theta[..., KT] * theta[..., OMEGA_MAX] ** 2 / (theta[..., MASS] * GRAVITY)
+
+
+def torque_ratio(theta) -> jax.Array:
+    """κ = k_τ / k_t in metres. θ (..., 19) -> (...)."""
+    theta = jnp.asarray(theta)
+    return theta[..., KTAU] / theta[..., KT]
+
+
+def angular_authority(theta) -> jax.Array:
+    """l k_t Ω_max² / J per axis (rad/s²): how hard the vehicle can be rotated.
+    θ (..., 19) -> (..., 3)."""
+    theta = jnp.asarray(theta)
+    num = theta[..., ARM] * theta[..., KT] * theta[..., OMEGA_MAX] ** 2
+    return num[..., None] / theta[..., INERTIA]
+
+
+IDENTIFIABLE_NAMES = ("thrust_to_weight", "torque_ratio",
+                      "angular_authority[0]", "angular_authority[1]", "angular_authority[2]")
+
+
+def identifiable(theta) -> jax.Array:
+    """The combinations a hover latent can reveal (DESIGN §6). θ (..., 19) -> (..., 5)."""
+    return jnp.concatenate([thrust_to_weight(theta)[..., None], torque_ratio(theta)[..., None],
+                            angular_authority(theta)], -1)
+
+
+# ----------------------------------------------------------------------------------------
+# Validation and vehicle files
+# ----------------------------------------------------------------------------------------
+
+def validate_theta(theta, *, what: str = "theta") -> np.ndarray:
+    """Check θ on the host and return it as float32 numpy (..., 19).
+
+    Raises ``ValueError`` naming the first offending parameter (and batch index): wrong shape,
+    non-finite entries, non-positive mass / arm / coefficients / inertia / Ω_max / η / τ_m,
+    negative drag, or inertia violating the triangle inequality.
+    """
+    arr = np.asarray(theta, dtype=np.float64)
+    if arr.ndim == 0 or arr.shape[-1] != N_PARAMS:
+        raise ValueError(f"{what} must have shape (..., {N_PARAMS}) in the order of "
+                         f"mjxsysid.params.PARAM_NAMES; got shape {arr.shape}")
+    flat = arr.reshape(-1, N_PARAMS)
+
+    def fail(mask, name, msg):
+        bad = np.argwhere(mask)
+        if bad.size:
+            i = int(bad[0][0])
+            loc = f" (batch element {i})" if flat.shape[0] > 1 else ""
+            raise ValueError(f"{what}: {name} {msg}{loc}; got {flat[i].tolist()}")
+
+    for j, name in enumerate(PARAM_NAMES):
+        fail(~np.isfinite(flat[:, j]), name, "is not finite")
+        positive = j in (MASS, ARM, KT, KTAU, OMEGA_MAX, TAU_M) or 4 <= j <= 6 or 11 <= j <= 14
+        if positive:
+            fail(flat[:, j] <= 0, name, "must be > 0")
+        if 7 <= j <= 9:
+            fail(flat[:, j] < 0, name, "must be >= 0")
+    j = flat[:, INERTIA]
+    for a in range(3):
+        others = j[:, (a + 1) % 3] + j[:, (a + 2) % 3]
+        fail(j[:, a] > others * (1 + 1e-6), f"inertia[{a}]",
+             "violates the triangle inequality J_a <= J_b + J_c")
+    return arr.astype(np.float32)
+
+
+def theta_from_dict(d: Mapping, *, source: str = "vehicle") -> np.ndarray:
+    """Vehicle dict (vehicle-file keys, SI units) -> θ (19,). Unknown or missing keys, wrong
+    lengths and non-physical values raise ``ValueError`` naming the key."""
+    if not isinstance(d, Mapping):
+        raise ValueError(f"{source}: expected a JSON object with keys {list(VEHICLE_KEYS)}")
+    unknown = sorted(set(d) - set(VEHICLE_KEYS))
+    missing = [k for k in VEHICLE_KEYS if k not in d]
+    if unknown:
+        raise ValueError(f"{source}: unknown key(s) {unknown}; allowed: {list(VEHICLE_KEYS)}")
+    if missing:
+        raise ValueError(f"{source}: missing key(s) {missing}")
+    theta = np.zeros(N_PARAMS, np.float64)
+    for key, (sl, n) in VEHICLE_KEYS.items():
+        v = d[key]
+        if n is None:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise ValueError(f"{source}: {key} must be a number, got {v!r}")
+            theta[sl] = v
+        else:
+            if (not isinstance(v, (list, tuple)) or len(v) != n
+                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
+                raise ValueError(f"{source}: {key} must be a list of {n} numbers, got {v!r}")
+            theta[sl] = v
+    return validate_theta(theta, what=source)
+
+
+def theta_to_dict(theta) -> dict:
+    """θ (19,) -> vehicle dict (plain Python floats)."""
+    theta = validate_theta(theta)
+    if theta.shape != (N_PARAMS,):
+        raise ValueError(f"theta_to_dict takes one vehicle, shape ({N_PARAMS},); got {theta.shape}")
+    t = theta.astype(np.float64)
+    return {k: (float(t[sl][0]) if n is None else [float(x) for x in t[sl]])
+            for k, (sl, n) in VEHICLE_KEYS.items()}
+
+
+def load_vehicle(path) -> np.ndarray:
+    """Read a vehicle JSON file -> θ (19,). Errors name the file and the key."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"vehicle file not found: {path}")
+    try:
+        d = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not valid JSON ({e})") from None
+    return theta_from_dict(d, source=str(path))
+
+
+def save_vehicle(theta, path) -> Path:
+    """Write θ (19,) as a vehicle JSON file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(theta_to_dict(theta), indent=2) + "\n")
+    return path
+
+
+def paper_hardware() -> np.ndarray:
+    """The paper's hardware vehicle θ (19,)."""
+    return PAPER_HARDWARE.copy()
+
+
+def vehicle_path(name: str) -> Path:
+    """Path of a shipped vehicle file (``mjxsysid/assets/vehicles/<name>.json``)."""
+    return Path(__file__).parent / "assets" / "vehicles" / f"{name}.json"
+
+
+# ----------------------------------------------------------------------------------------
+# Priors
+# ----------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class Prior:
+    """Correlated size-factor prior over θ (after Extreme-Adaptation, Zhang et al. 2025).
+
+    A size factor c ~ U[0, 1] sets the nominal geometry; each quantity then gets independent
+    multiplicative noise U[1 − noise, 1 + noise]:
+
+    - arm length  l = arm_min + (arm_max − arm_min) c
+    - mass        m = mass_base + mass_scale (l / 0.2)³               (m ∝ l³ plus avionics)
+    - inertia     J_xx,yy = inertia_xy m l²,  J_zz = inertia_z m l²  (J ∝ l⁵); J_zz is capped
+                  at 0.98 (J_xx + J_yy) (triangle inequality)
+    - thrust      k_t = kt_base exp(kt_rate c)                        (exponential in c)
+    - torque      k_τ = κ k_t, κ ~ U[kappa]
+    - drag        D = drag_xy/z (l / 0.184)² × U[drag_noise]          (∝ l²)
+    - Ω_max from a thrust-to-weight ratio r ~ U[twr]: Ω_max = √(r m g / (4 k_t)), with r clipped
+      so that every rotor alone has 4 η_i k_t Ω_max² / (m g) in [twr_min_eff, twr_max_eff]
+    - η_i ~ U[eta], τ_m ~ U[motor_time_constant]
+    - τ_ext ~ U[−1, 1] × (ext_torque_xy m g l, ext_torque_xy m g l, ext_torque_z m g κ):
+      a few per cent of the hover torque authority, so it can always be cancelled.
+
+    The paper vehicle corresponds to c ≈ 0.76 and lies well inside every marginal
+    (between the 15th and 85th percentiles of each; see docs/prior.md).
+    """
+    name: str = "default"
+    arm: tuple[float, float] = (0.04, 0.23)
+    mass_base: float = 0.04
+    mass_scale: float = 1.15
+    inertia_xy: float = 0.26
+    inertia_z: float = 0.46
+    kt_base: float = 2.5e-8
+    kt_rate: float = 7.55
+    kappa: tuple[float, float] = (0.0069, 0.0161)
+    drag_xy: float = 0.20
+    drag_z: float = 0.85
+    drag_noise: tuple[float, float] = (0.4, 1.6)
+    twr: tuple[float, float] = (2.2, 7.0)
+    twr_min_eff: float = 1.5
+    twr_max_eff: float = 8.5
+    eta: tuple[float, float] = (0.7, 1.3)
+    motor_time_constant: tuple[float, float] = (0.02, 0.04)
+    ext_torque_xy: float = 0.02
+    ext_torque_z: float = 0.1
+    noise: float = 0.2
+
+    def sample(self, key: jax.Array, n: int) -> jax.Array:
+        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static."""
+        return _sample_prior(self, key, n)
+
+    def replace(self, **kw) -> "Prior":
+        return dataclasses.replace(self, **kw)
+
+
+DEFAULT_PRIOR = Prior()
+SLOW_ACTUATOR_PRIOR = Prior(name="slow_actuators", motor_time_constant=(0.05, 0.10))
+PRIORS = {"default": DEFAULT_PRIOR, "slow_actuators": SLOW_ACTUATOR_PRIOR}
+
+
+def get_prior(name: str | Prior) -> Prior:
+    if isinstance(name, Prior):
+        return name
+    if name not in PRIORS:
+        raise ValueError(f"unknown prior {name!r}; choose from {sorted(PRIORS)}")
+    return PRIORS[name]
+
+
+def _sample_prior(p: Prior, key, n: int):
+    ks = jax.random.split(key, 16)
+
+    def u(k, lo, hi, shape=(n,)):
+        return jax.random.uniform(k, shape, jnp.float32, lo, hi)
+
+    def noise(k, shape=(n,)):
+        return u(k, 1.0 - p.noise, 1.0 + p.noise, shape)
+
+    c = u(ks[0], 0.0, 1.0)
+    arm = (p.arm[0] + (p.arm[1] - p.arm[0]) * c) * noise(ks[1])
+    mass = (p.mass_base + p.mass_scale * (arm / 0.2) ** 3) * noise(ks[2])
+    ml2 = mass * arm**2
+    jn = noise(ks[3], (n, 3))
+    jxx = p.inertia_xy * ml2 * jn[:, 0]
+    jyy = p.inertia_xy * ml2 * jn[:, 1]
+    jzz = jnp.minimum(p.inertia_z * ml2 * jn[:, 2], 0.98 * (jxx + jyy))
+    kt = p.kt_base * jnp.exp(p.kt_rate * c) * noise(ks[4])
+    kappa = u(ks[5], *p.kappa)
+    ktau = kappa * kt
+    dscale = (arm / 0.184) ** 2
+    dn = u(ks[6], *p.drag_noise, (n, 3))
+    drag = jnp.stack([p.drag_xy * dscale, p.drag_xy * dscale, p.drag_z * dscale], -1) * dn
+    eta = u(ks[7], *p.eta, (n, 4))
+    twr = u(ks[8], *p.twr)
+    twr = jnp.clip(twr, p.twr_min_eff / eta.min(-1), p.twr_max_eff / eta.max(-1))
+    omega_max = jnp.sqrt(twr * mass * GRAVITY / (4.0 * kt))
+    tau_m = u(ks[9], *p.motor_time_constant)
+    ext_scale = jnp.stack([p.ext_torque_xy * mass * GRAVITY * arm] * 2
+                          + [p.ext_torque_z * mass * GRAVITY * kappa], -1)
+    tau_ext = u(ks[10], -1.0, 1.0, (n, 3)) * ext_scale
+    cols = [mass, arm, kt, ktau, jxx, jyy, jzz, drag[:, 0], drag[:, 1], drag[:, 2], omega_max,
+            eta[:, 0], eta[:, 1], eta[:, 2], eta[:, 3], tau_m, tau_ext[:, 0], tau_ext[:, 1],
+            tau_ext[:, 2]]
+    return jnp.stack(cols, -1)
+
+
+def flyability(theta) -> dict[str, np.ndarray]:
+    """Per-vehicle flyability figures (host side). θ (..., 19) -> dict of (...) arrays:
+    ``twr_min``/``twr_max`` (4 min/max η k_t Ω_max² / m g), ``torque_margin`` (smallest ratio of
+    available roll/pitch/yaw torque at hover to |τ_ext|; inf if τ_ext = 0)."""
+    t = np.asarray(theta, np.float64)
+    eta = t[..., ETA]
+    tmax = t[..., KT] * t[..., OMEGA_MAX] ** 2
+    w = t[..., MASS] * GRAVITY
+    twr_min = 4 * eta.min(-1) * tmax / w
+    twr_max = 4 * eta.max(-1) * tmax / w
+    # Torque available around hover: each rotor can add (η_i T_max − w/4) of thrust.
+    spare = np.clip(eta.min(-1) * tmax - w / 4, 0, None)
+    arm_xy = t[..., ARM] / math.sqrt(2)
+    avail = np.stack([4 * arm_xy * spare, 4 * arm_xy * spare,
+                      4 * (t[..., KTAU] / t[..., KT]) * spare], -1)
+    ext = np.abs(t[..., TAU_EXT])
+    with np.errstate(divide="ignore"):
+        margin = np.where(ext > 0, avail / np.maximum(ext, 1e-30), np.inf).min(-1)
+    return {"twr_min": twr_min, "twr_max": twr_max, "torque_margin": margin}
+
+
+# ----------------------------------------------------------------------------------------
+# Normalisation
+# ----------------------------------------------------------------------------------------
+
+LOG_MASK = np.array([1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 1, 0, 0, 0], bool)
+"""Entries normalised in log space (positive scale parameters)."""
+_LOG_EPS = np.zeros(N_PARAMS, np.float32)
+_LOG_EPS[DRAG] = 1e-3  # drag may be 0: log(D + 1e-3 kg/s)
+
+
+@jax.tree_util.register_pytree_node_class
+@dataclasses.dataclass(frozen=True)
+class Normalizer:
+    """θ ↔ learning space: y = (f(θ) − shift) / scale, f = log(θ + eps) on :data:`LOG_MASK`
+    entries and identity elsewhere. shift, scale: (19,)."""
+    shift: jax.Array
+    scale: jax.Array
+
+    def tree_flatten(self):
+        return (self.shift, self.scale), None
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        return cls(*children)
+
+    @staticmethod
+    def _f(theta):
+        return jnp.where(LOG_MASK, jnp.log(jnp.where(LOG_MASK, theta + _LOG_EPS, 1.0)), theta)
+
+    def normalize(self, theta):
+        """θ (..., 19) physical -> (..., 19) normalised."""
+        return (self._f(jnp.asarray(theta)) - self.shift) / self.scale
+
+    def denormalize(self, y):
+        """(..., 19) normalised -> θ (..., 19) physical."""
+        f = jnp.asarray(y) * self.scale + self.shift
+        return jnp.where(LOG_MASK, jnp.exp(f) - _LOG_EPS, f)
+
+    @classmethod
+    def fit(cls, theta) -> "Normalizer":
+        """Mean / std of f(θ) over samples θ (n, 19)."""
+        f = np.asarray(cls._f(jnp.asarray(theta, jnp.float32)), np.float64)
+        return cls(jnp.asarray(f.mean(0), jnp.float32),
+                   jnp.asarray(np.maximum(f.std(0), 1e-6), jnp.float32))
+
+    def to_dict(self) -> dict:
+        return {"shift": np.asarray(self.shift).tolist(), "scale": np.asarray(self.scale).tolist()}
+
+    @classmethod
+    def from_dict(cls, d) -> "Normalizer":
+        return cls(jnp.asarray(d["shift"], jnp.float32), jnp.asarray(d["scale"], jnp.float32))
+
+
+def prior_normalizer(prior: str | Prior = "default", n: int = 100_000, seed: int = 0) -> Normalizer:
+    """Normaliser fitted to ``n`` samples of a prior (seeded, deterministic)."""
+    return Normalizer.fit(get_prior(prior).sample(jax.random.PRNGKey(seed), n))
+
+
+def as_batch(theta: Sequence | np.ndarray) -> np.ndarray:
+    """Validate and return θ as (n, 19)."""
+    arr = validate_theta(theta)
+    return arr.reshape(-1, N_PARAMS)

@@ -1,0 +1,296 @@
+"""Batched MJX quadrotor whose physics is rewritten per vehicle from θ.
+
+Everything here is *unbatched* and pure: one vehicle θ (19,), one state. Batching is one
+``jax.vmap`` at the caller (see :mod:`mjxsysid.sim.rollout`). θ is an argument of every function,
+never captured, so a new batch of vehicles re-uses the compiled code.
+
+What MuJoCo integrates: the free rigid body (mass, inertia, gravity, gyroscopic terms), the four
+thrust actuators at the rotor sites (their gear carries the yaw-torque ratio κ = k_τ / k_t),
+and the external wrench in ``xfrc_applied``. What is computed in JAX around ``mjx.step``: rotor
+first-order speed dynamics (integrated exactly), quadratic thrust η_i k_t Ω_i², body-frame linear
+drag −D v_body, the constant body-frame torque τ_ext, the world-frame disturbance force, the IMU
+(noise, bias, latency) and divergence detection.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+from mujoco import mjx
+
+from mjxsysid import params as P
+
+ASSET = Path(__file__).resolve().parent.parent / "assets" / "quadrotor.xml"
+BODY = 1  # body id of the quadrotor in assets/quadrotor.xml (0 is the world)
+
+
+@dataclasses.dataclass(frozen=True)
+class SimConfig:
+    """Simulator settings (static: changing them re-traces).
+
+    dt: control period (s); 500 Hz by default. substeps: physics steps per control step.
+    contacts: keep MuJoCo contacts (off for flight). gyro_noise / accel_noise: white-noise std
+    per control step (rad/s, m/s²). gyro_bias / accel_bias: std of a constant bias drawn at reset.
+    imu_latency: IMU delay in control steps. pos_limit (m), vel_limit (m/s), rate_limit (rad/s):
+    a vehicle beyond any of these, or with a non-finite state, is flagged ``diverged`` and frozen.
+    """
+    dt: float = 0.002
+    substeps: int = 1
+    contacts: bool = False
+    gyro_noise: float = 0.0
+    accel_noise: float = 0.0
+    gyro_bias: float = 0.0
+    accel_bias: float = 0.0
+    imu_latency: int = 0
+    pos_limit: float = 1.0e3
+    vel_limit: float = 100.0
+    rate_limit: float = 200.0
+
+    def __post_init__(self):
+        if not self.dt > 0:
+            raise ValueError(f"SimConfig.dt must be > 0, got {self.dt}")
+        if int(self.substeps) != self.substeps or self.substeps < 1:
+            raise ValueError(f"SimConfig.substeps must be an integer >= 1, got {self.substeps}")
+        if int(self.imu_latency) != self.imu_latency or self.imu_latency < 0:
+            raise ValueError(f"SimConfig.imu_latency must be an integer >= 0, got {self.imu_latency}")
+        for f in ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias"):
+            if getattr(self, f) < 0:
+                raise ValueError(f"SimConfig.{f} must be >= 0, got {getattr(self, f)}")
+
+    @property
+    def physics_dt(self) -> float:
+        return self.dt / self.substeps
+
+
+@struct.dataclass
+class SimState:
+    """State of one vehicle (add a leading batch axis under vmap).
+
+    data: MJX data (qpos (7) = world position + quaternion wxyz, qvel (6) = world linear velocity
+      + body angular velocity). rotor_speed: (4,) rad/s. imu: (6,) latest IMU output
+      [gyro (3) rad/s, specific force (3) m/s²], body frame, with noise / bias / latency.
+    imu_buffer: (imu_latency + 1, 6) true readings, oldest first. imu_bias: (6,).
+    key: PRNG key for IMU noise. diverged: () bool. step: () int32 control steps taken.
+    """
+    data: mjx.Data
+    rotor_speed: jax.Array
+    imu: jax.Array
+    imu_buffer: jax.Array
+    imu_bias: jax.Array
+    key: jax.Array
+    diverged: jax.Array
+    step: jax.Array
+
+    @property
+    def pos(self):
+        return self.data.qpos[..., 0:3]
+
+    @property
+    def quat(self):
+        return self.data.qpos[..., 3:7]
+
+    @property
+    def vel(self):
+        return self.data.qvel[..., 0:3]
+
+    @property
+    def omega(self):
+        return self.data.qvel[..., 3:6]
+
+    @property
+    def time(self):
+        return self.data.time
+
+
+class Frame(NamedTuple):
+    """One recorded control step (stacked over time by rollouts: leaves (T, ...)).
+
+    pos (3) m world; quat (4) wxyz; vel (3) m/s world; omega (3) rad/s body; rotor_speed (4);
+    imu (6) [gyro, specific force] as output; motor_cmd (4) normalised command applied;
+    force (3) N world disturbance applied; diverged () bool.
+    """
+    pos: jax.Array
+    quat: jax.Array
+    vel: jax.Array
+    omega: jax.Array
+    rotor_speed: jax.Array
+    imu: jax.Array
+    motor_cmd: jax.Array
+    force: jax.Array
+    diverged: jax.Array
+
+
+def quat_to_mat(q: jax.Array) -> jax.Array:
+    """Unit quaternion wxyz (..., 4) -> rotation matrix body→world (..., 3, 3)."""
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return jnp.stack([
+        jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+    ], -2)
+
+
+def hover_rotor_speed(theta) -> jax.Array:
+    """Rotor speeds that hold the vehicle at rest, η_i k_t Ω_i² = m g / 4. θ (..., 19) -> (..., 4)."""
+    theta = jnp.asarray(theta)
+    w = theta[..., P.MASS] * P.GRAVITY / 4.0
+    return jnp.sqrt(w[..., None] / (theta[..., P.ETA] * theta[..., P.KT, None]))
+
+
+def mean_square_speed(omega0, omega_cmd, tau_m, h):
+    """Exact mean of Ω(t)² over [0, h] for Ω̇ = (Ω_cmd − Ω)/τ_m, and Ω(h).
+
+    omega0, omega_cmd: (4,) rad/s; tau_m, h: scalars (s). Returns (mean Ω² (4,), Ω(h) (4,)).
+    """
+    a = jnp.exp(-h / tau_m)
+    d = omega0 - omega_cmd
+    r1 = tau_m / h * (1.0 - a)  # mean of e^{-t/τ}
+    r2 = tau_m / (2.0 * h) * (1.0 - a * a)  # mean of e^{-2t/τ}
+    return omega_cmd**2 + 2.0 * omega_cmd * d * r1 + d * d * r2, omega_cmd + d * a
+
+
+class Quadrotor:
+    """The MJX quadrotor simulator.
+
+    >>> sim = Quadrotor()
+    >>> theta = mjxsysid.params.paper_hardware()
+    >>> s = sim.init(theta, jax.random.PRNGKey(0))
+    >>> s = sim.step(theta, s, jnp.full(4, 0.5))
+
+    ``init``, ``step`` and ``model`` are pure and unbatched; vmap them (or use
+    :func:`mjxsysid.sim.rollout.rollout_batch`).
+    """
+
+    def __init__(self, config: SimConfig = SimConfig(), xml_path: str | Path = ASSET):
+        self.config = config
+        mj = mujoco.MjModel.from_xml_path(str(xml_path))
+        mj.opt.timestep = config.physics_dt
+        if config.contacts:
+            mj.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        else:
+            mj.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+        # The IMU is computed in JAX (below); skip MuJoCo's sensor stage in MJX.
+        mj.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
+        self.mj_model = mj
+        self.base = mjx.put_model(mj, impl="jax")
+        self._site_ids = np.array([mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_SITE, f"rotor{i}")
+                                   for i in range(1, 5)])
+        self._gravity = jnp.asarray(mj.opt.gravity, jnp.float32)
+        if abs(float(mj.opt.gravity[2]) + P.GRAVITY) > 1e-6:
+            raise ValueError(f"{xml_path}: gravity must be (0, 0, -{P.GRAVITY})")
+
+    # ------------------------------------------------------------------ model
+    def model(self, theta: jax.Array) -> mjx.Model:
+        """θ (19,) -> MJX model with this vehicle's mass, inertia, rotor sites and gear. Pure."""
+        theta = jnp.asarray(theta, jnp.float32)
+        m = self.base
+        mass = m.body_mass.at[BODY].set(theta[P.MASS])
+        inertia = m.body_inertia.at[BODY].set(theta[P.INERTIA])
+        site_pos = m.site_pos.at[self._site_ids].set(P.rotor_positions(theta))
+        kappa = theta[P.KTAU] / theta[P.KT]
+        gear = m.actuator_gear.at[:, 5].set(jnp.asarray(P.YAW_SIGNS) * kappa)
+        subtree = m.body_subtreemass.at[:].set(theta[P.MASS])
+        return m.replace(body_mass=mass, body_inertia=inertia, site_pos=site_pos,
+                         actuator_gear=gear, body_subtreemass=subtree)
+
+    # ------------------------------------------------------------------- init
+    def init(self, theta, key, *, pos=(0.0, 0.0, 1.0), quat=(1.0, 0.0, 0.0, 0.0),
+             vel=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), rotor_speed=None) -> SimState:
+        """Initial state of one vehicle: θ (19,), key; pos (3) m, quat (4) wxyz, vel (3) m/s world,
+        omega (3) rad/s body, rotor_speed (4) rad/s (default: the hover speeds)."""
+        theta = jnp.asarray(theta, jnp.float32)
+        c = self.config
+        k_bias, k_noise = jax.random.split(key)
+        quat = jnp.asarray(quat, jnp.float32)
+        quat = quat / jnp.linalg.norm(quat)
+        data = mjx.make_data(self.base)
+        data = data.replace(qpos=jnp.concatenate([jnp.asarray(pos, jnp.float32), quat]),
+                            qvel=jnp.concatenate([jnp.asarray(vel, jnp.float32),
+                                                  jnp.asarray(omega, jnp.float32)]))
+        speed = hover_rotor_speed(theta) if rotor_speed is None else jnp.asarray(rotor_speed, jnp.float32)
+        scale = jnp.array([c.gyro_bias] * 3 + [c.accel_bias] * 3, jnp.float32)
+        bias = scale * jax.random.normal(k_bias, (6,))
+        # Initial reading: the given rates and the hover specific force, +g along body z.
+        f0 = jnp.array([0.0, 0.0, P.GRAVITY], jnp.float32)
+        true0 = jnp.concatenate([jnp.asarray(omega, jnp.float32), f0])
+        buf = jnp.tile(true0, (c.imu_latency + 1, 1))
+        return SimState(data=data, rotor_speed=speed, imu=true0 + bias, imu_buffer=buf,
+                        imu_bias=bias, key=k_noise, diverged=jnp.array(False),
+                        step=jnp.array(0, jnp.int32))
+
+    # ------------------------------------------------------------------- step
+    def external_wrench(self, theta, data: mjx.Data, force_world) -> jax.Array:
+        """xfrc_applied row (6,) of the quadrotor body: drag −R D Rᵀ v + force_world, and torque
+        R τ_ext (world frame, applied at the centre of mass)."""
+        rot = quat_to_mat(data.qpos[3:7])
+        v_body = rot.T @ data.qvel[0:3]
+        drag = rot @ (-theta[P.DRAG] * v_body)
+        return jnp.concatenate([drag + force_world, rot @ theta[P.TAU_EXT]])
+
+    def specific_force(self, theta, data: mjx.Data, rotor_speed, force_world) -> jax.Array:
+        """What an ideal accelerometer at the centre of mass reads, body frame (3,) m/s²:
+        (thrust + drag + disturbance) / m, at the state in ``data`` (no contacts)."""
+        rot = quat_to_mat(data.qpos[3:7])
+        thrust = jnp.sum(theta[P.ETA] * theta[P.KT] * rotor_speed**2)
+        drag = -theta[P.DRAG] * (rot.T @ data.qvel[0:3])
+        return (drag + rot.T @ force_world + jnp.array([0.0, 0.0, 1.0]) * thrust) / theta[P.MASS]
+
+    def step(self, theta, state: SimState, motor_cmd, force_world=None) -> SimState:
+        """Advance one control step (dt). θ (19,); motor_cmd (4,) normalised rotor-speed commands
+        Ω_cmd/Ω_max (clipped to [0, 1]); force_world (3,) N disturbance held over the step."""
+        theta = jnp.asarray(theta, jnp.float32)
+        c = self.config
+        h = c.physics_dt
+        model = self.model(theta)
+        force_world = jnp.zeros(3, jnp.float32) if force_world is None else jnp.asarray(force_world, jnp.float32)
+        cmd = jnp.clip(jnp.asarray(motor_cmd, jnp.float32), 0.0, 1.0)
+        omega_cmd = cmd * theta[P.OMEGA_MAX]
+        gain = theta[P.ETA] * theta[P.KT]
+
+        def substep(carry, _):
+            data, speed = carry
+            msq, speed = mean_square_speed(speed, omega_cmd, theta[P.TAU_M], h)
+            xfrc = data.xfrc_applied.at[BODY].set(self.external_wrench(theta, data, force_world))
+            data = data.replace(ctrl=gain * msq, xfrc_applied=xfrc)
+            data = mjx.step(model, data)
+            return (data, speed), None
+
+        if c.substeps == 1:
+            (data, speed), _ = substep((state.data, state.rotor_speed), None)
+        else:
+            (data, speed), _ = jax.lax.scan(substep, (state.data, state.rotor_speed), None,
+                                            length=c.substeps)
+
+        true = jnp.concatenate([data.qvel[3:6], self.specific_force(theta, data, speed, force_world)])
+        buf = jnp.concatenate([state.imu_buffer[1:], true[None]], 0)
+        key, k = jax.random.split(state.key)
+        sigma = jnp.array([c.gyro_noise] * 3 + [c.accel_noise] * 3, jnp.float32)
+        imu = buf[0] + state.imu_bias + sigma * jax.random.normal(k, (6,))
+
+        new = state.replace(data=data, rotor_speed=speed, imu=imu, imu_buffer=buf, key=key,
+                            step=state.step + 1)
+        bad = state.diverged | self._diverged(new)
+        # A diverged vehicle is frozen at its last good state: no NaN leaves the step.
+        out = jax.tree.map(lambda a, b: jnp.where(bad, a, b), state, new)
+        return out.replace(diverged=bad, step=state.step + 1)
+
+    def _diverged(self, s: SimState) -> jax.Array:
+        c = self.config
+        finite = (jnp.all(jnp.isfinite(s.data.qpos)) & jnp.all(jnp.isfinite(s.data.qvel))
+                  & jnp.all(jnp.isfinite(s.rotor_speed)) & jnp.all(jnp.isfinite(s.imu)))
+        inside = ((jnp.max(jnp.abs(s.pos)) < c.pos_limit) & (jnp.linalg.norm(s.vel) < c.vel_limit)
+                  & (jnp.linalg.norm(s.omega) < c.rate_limit))
+        return ~(finite & inside)
+
+    def frame(self, state: SimState, motor_cmd, force_world) -> Frame:
+        """Record of one step (unbatched)."""
+        return Frame(pos=state.pos, quat=state.quat, vel=state.vel, omega=state.omega,
+                     rotor_speed=state.rotor_speed, imu=state.imu,
+                     motor_cmd=jnp.clip(motor_cmd, 0.0, 1.0), force=force_world,
+                     diverged=state.diverged)
