@@ -201,8 +201,8 @@ def theta_to_dict(theta) -> dict:
     theta = validate_theta(theta)
     if theta.shape != (N_PARAMS,):
         raise ValueError(f"theta_to_dict takes one vehicle, shape ({N_PARAMS},); got {theta.shape}")
-    t = theta.astype(np.float64)
-    return {k: (float(t[sl][0]) if n is None else [float(x) for x in t[sl]])
+    t = [float(f"{x:.7g}") for x in theta.astype(np.float64)]  # float32 precision, clean JSON
+    return {k: (t[sl][0] if n is None else t[sl])
             for k, (sl, n) in VEHICLE_KEYS.items()}
 
 

@@ -50,7 +50,7 @@ def deriv(x, theta, omega_cmd, force_world):
     return np.concatenate([v, acc, qdot, wdot, sdot])
 
 
-def simulate(theta, x0, motor_cmds, forces, dt=0.002, h=1e-4):
+def simulate(theta, x0, motor_cmds, forces, dt=0.002, h=5e-4):
     """theta (19,), x0 (17,) = [p, v, q(wxyz), ω_body, Ω]; motor_cmds (T, 4) normalised held
     for dt; forces (T, 3). Returns states after each control step (T, 17)."""
     theta = np.asarray(theta, np.float64)

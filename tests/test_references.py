@@ -148,11 +148,15 @@ def test_steps():
 
 
 def test_lemniscate_formula_and_derivatives():
-    ref = Lemniscate.make(period=4.0, size=(1.5, 1.0, 0.4), center=(0.5, -0.5, 1.0), yaw_amplitude=0.6, yaw=0.1)
+    ref = Lemniscate.make(
+        period=4.0, size=(1.5, 1.0, 0.4), center=(0.5, -0.5, 1.0), yaw_amplitude=0.6, yaw=0.1
+    )
     w = 2 * np.pi / 4.0
     ts = np.array([0.0, 0.37, 1.9, 3.3])
     phi = w * ts
-    expect = np.stack([0.5 + 1.5 * np.sin(phi), -0.5 + 0.5 * np.sin(2 * phi), 1.0 + 0.4 * np.sin(3 * phi)], -1)
+    expect = np.stack(
+        [0.5 + 1.5 * np.sin(phi), -0.5 + 0.5 * np.sin(2 * phi), 1.0 + 0.4 * np.sin(3 * phi)], -1
+    )
     np.testing.assert_allclose(jsample(ref, jnp.asarray(ts, jnp.float32)).pos, expect, atol=1e-6)
     np.testing.assert_allclose(ref.at(0.0).pos, [0.5, -0.5, 1.0], atol=1e-7)
     check_against_autodiff(ref, [0.0, 0.37, 1.1, 1.9, 2.6, 3.3, 5.05])
@@ -296,28 +300,84 @@ def test_minsnap_derivatives_vs_autodiff():
 
 def test_minsnap_is_optimal():
     """Would fail if the QP were set up or solved wrongly."""
-    C = min_snap_coefficients(WP, DUR)
+    C = min_snap_coefficients(WP, DUR)  # default: Hermite / interior-derivative solver
     J = integrated_squared_derivative(C, DUR, order=4)
-    # (1) The C^4-constrained optimum equals the solution of the square C^6 system (the
-    #     natural optimality condition of minimum snap with free interior derivatives).
-    C6 = min_snap_coefficients(WP, DUR, continuity_order=6)
-    np.testing.assert_allclose(C, C6, atol=1e-8 * np.max(np.abs(C)))
-    # (2) Minimum-jerk 7th-order polynomials satisfy the same constraints but have more snap.
-    Cj = min_snap_coefficients(WP, DUR, cost_order=3)
+    # (1) Two independent solvers agree: the KKT system with Mellinger & Kumar's C^4
+    #     constraints, and the square C^6 system (C^6 is the natural optimality condition
+    #     of minimum snap with free interior derivatives, so the optimum must satisfy it).
+    Ck4 = min_snap_coefficients(WP, DUR, method="kkt", continuity_order=4)
+    Ck6 = min_snap_coefficients(WP, DUR, method="kkt", continuity_order=6)
+    np.testing.assert_allclose(C, Ck4, atol=1e-9 * np.max(np.abs(C)))
+    np.testing.assert_allclose(C, Ck6, atol=1e-8 * np.max(np.abs(C)))
+    # (2) Minimum-jerk 7th-order polynomials satisfy the same (C^4, waypoint, static-end)
+    #     constraints but have more snap, and conversely less jerk.
+    Cj = min_snap_coefficients(WP, DUR, method="kkt", continuity_order=4, cost_order=3)
     Jj = integrated_squared_derivative(Cj, DUR, order=4)
     assert np.max(np.abs(Cj - C)) > 1e-3  # genuinely different
     assert Jj > J * (1 + 1e-6), (Jj, J)
-    # ... and conversely min-jerk has less jerk than min-snap.
     assert integrated_squared_derivative(Cj, DUR, order=3) < integrated_squared_derivative(C, DUR, order=3)
-    # (3) Every feasible perturbation (convex combination of the two feasible solutions,
-    #     extrapolated either way) increases the snap cost; the cost is quadratic with its
-    #     minimum at 0 along this line.
+    # (3) Every feasible perturbation along the line through both feasible solutions
+    #     increases the snap cost, which is quadratic with its vertex at the optimum:
+    #     J(C + e (Cj - C)) - J(C) = e^2 (Jj - J) (no linear term <=> first-order optimal).
     for eps in (-1.0, -0.1, -1e-3, 1e-3, 0.1, 1.0):
         Je = integrated_squared_derivative(C + eps * (Cj - C), DUR, order=4)
         assert Je > J, (eps, Je, J)
-    # quadratic along the line with vertex at eps = 0: J(e) - J(0) = e^2 (Jj - J)
-    Je = integrated_squared_derivative(C + 0.3 * (Cj - C), DUR, order=4)
-    np.testing.assert_allclose(Je - J, 0.09 * (Jj - J), rtol=1e-6)
+        np.testing.assert_allclose(Je - J, eps**2 * (Jj - J), rtol=1e-5)
+    # (4) Random perturbations in the null space of the constraints (waypoints, static
+    #     ends, C^4 at interior knots) all increase the cost.
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        Cr = C + 0.1 * _feasible_direction(rng)
+        assert integrated_squared_derivative(Cr, DUR, order=4) > J
+
+
+def _feasible_direction(rng):
+    """(4, 8, 3) random coefficient direction keeping the C^4 min-snap constraints of (WP, DUR)."""
+    n = len(DUR)
+    rows = []
+
+    def row(parts):
+        r = np.zeros(8 * n)
+        for i, v in parts:
+            r[8 * i : 8 * i + 8] += v
+        rows.append(r)
+
+    def drow(d, tau):
+        return np.array([math.perm(j, d) * tau ** (j - d) if j >= d else 0.0 for j in range(8)])
+
+    for i in range(n):
+        row([(i, drow(0, 0.0))])
+        row([(i, drow(0, 1.0))])
+    for d in (1, 2, 3):
+        row([(0, drow(d, 0.0))])
+        row([(n - 1, drow(d, 1.0))])
+    for i in range(n - 1):
+        for d in range(1, 5):
+            row([(i, drow(d, 1.0) / DUR[i] ** d), (i + 1, -drow(d, 0.0) / DUR[i + 1] ** d)])
+    A = np.stack(rows)
+    _, sv, vt = np.linalg.svd(A)
+    Z = vt[np.sum(sv > 1e-10 * sv[0]) :].T  # null-space basis
+    assert Z.shape[1] == 2 * (n - 1)
+    return (Z @ rng.normal(size=(Z.shape[1], 3))).reshape(n, 8, 3)
+
+
+def test_minsnap_badly_scaled_durations():
+    """Durations differing by ~100x: the default solver still meets the constraints."""
+    rng = np.random.default_rng(1)
+    n = 30
+    wp = rng.uniform(-1, 1, (n + 1, 3))
+    dur = np.exp(rng.uniform(np.log(0.05), np.log(5.0), n))
+    C = min_snap_coefficients(wp, dur)
+    for i in range(n):
+        np.testing.assert_allclose(np_eval(C, dur, i, 0.0, 0), wp[i], atol=1e-9)
+        np.testing.assert_allclose(np_eval(C, dur, i, 1.0, 0), wp[i + 1], atol=1e-9)
+    for k in range(1, n):  # C^3 by construction, C^4 from optimality
+        for d in range(1, 5):
+            left, right = np_eval(C, dur, k - 1, 1.0, d), np_eval(C, dur, k, 0.0, d)
+            np.testing.assert_allclose(left, right, atol=1e-6 * max(1.0, np.max(np.abs(left))))
+    for d in (1, 2, 3):
+        np.testing.assert_allclose(np_eval(C, dur, 0, 0.0, d), 0.0, atol=1e-9)
+        np.testing.assert_allclose(np_eval(C, dur, n - 1, 1.0, d), 0.0, atol=1e-9 * np.max(np.abs(C)))
 
 
 def test_minsnap_single_segment():
@@ -338,10 +398,12 @@ def test_minsnap_random_deterministic_and_in_box():
     assert wp1.shape == (7, 3) and d1.shape == (6,)
     assert np.all(wp1 >= np.array(box[0])) and np.all(wp1 <= np.array(box[1]))
     np.testing.assert_allclose(d1.sum(), 8.0)
-    # durations proportional to length (floor of 10% of the mean length)
+    # durations proportional to length (floor of 50% of the mean length by default)
     L = np.linalg.norm(np.diff(wp1, axis=0), axis=1)
-    w = np.maximum(L, 0.1 * L.mean())
+    w = np.maximum(L, 0.5 * L.mean())
     np.testing.assert_allclose(d1, 8.0 * w / w.sum())
+    _, d0 = MinSnap.random_waypoints(7, n_segments=6, box=box, duration=8.0, min_segment_fraction=0.0)
+    np.testing.assert_allclose(d0, 8.0 * L / L.sum())
     wp3, _ = MinSnap.random_waypoints(8, n_segments=6, box=box, duration=8.0)
     assert not np.allclose(wp1, wp3)
 
@@ -372,6 +434,9 @@ def test_minsnap_random_deterministic_and_in_box():
         (lambda: MinSnap.random(0, box=((1, 1, 1), (0, 0, 0))), "box"),
         (lambda: MinSnap.random(0, box=((0, 0), (1, 1))), "box"),
         (lambda: MinSnap.random(0, start=(0.0, 1.0)), "start"),
+        (lambda: MinSnap.random(0, min_segment_fraction=-0.1), "min_segment_fraction"),
+        (lambda: min_snap_coefficients(WP, DUR, method="qp"), "method"),
+        (lambda: min_snap_coefficients(WP, DUR, cost_order=5), "cost_order"),
     ],
 )
 def test_minsnap_bad_args(call, name):
@@ -396,7 +461,8 @@ def test_stacked_batch_jit_vmap_matches_individual():
         ind = jsample(r, ts)  # individual, un-stacked ref
         for name in RefPoint._fields:
             np.testing.assert_allclose(getattr(out, name)[b], getattr(ind, name), rtol=1e-5, atol=1e-5)
-            np.testing.assert_allclose(getattr(out1, name)[b], getattr(r.at(t1[b]), name), rtol=1e-5, atol=1e-5)
+            single = getattr(r.at(t1[b]), name)
+            np.testing.assert_allclose(getattr(out1, name)[b], single, rtol=1e-5, atol=1e-5)
 
     lem = stack([Lemniscate.make(period=p) for p in (3.0, 5.0)])
     o = jax.jit(jax.vmap(evaluate, in_axes=(0, None)))(lem, 1.0)

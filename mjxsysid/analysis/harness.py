@@ -1,0 +1,195 @@
+"""Closed-loop harness: (high-level controller, low-level controller, vehicle, reference,
+disturbance) -> time series and metrics.
+
+``fly`` is unbatched and pure; ``fly_batch`` is the one vmap boundary (over vehicles,
+controllers, references and disturbance realisations), jitted once per structure and length.
+"""
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from mjxsysid import params as P
+from mjxsysid.control.high_level import Cascade, Estimate
+from mjxsysid.control.low_level import Command
+from mjxsysid.sim.quadrotor import Frame, Quadrotor, hover_rotor_speed
+
+
+@struct.dataclass
+class Disturbance:
+    """External disturbances of one flight (batch with a leading axis).
+
+    step_force: (3,) N world, applied from ``step_time`` (s) on. sigma: (3,) N, std of an i.i.d.
+    Gaussian world force drawn per control step. torque: (3,) N·m extra constant body torque
+    (added to the vehicle's τ_ext).
+    """
+    step_force: jax.Array
+    step_time: jax.Array
+    sigma: jax.Array
+    torque: jax.Array
+
+    @classmethod
+    def make(cls, step_force=(0.0, 0.0, 0.0), step_time=0.0, sigma=0.0, torque=(0.0, 0.0, 0.0)):
+        f = np.broadcast_to(np.asarray(step_force, np.float32), (3,))
+        s = np.broadcast_to(np.asarray(sigma, np.float32), (3,))
+        tq = np.broadcast_to(np.asarray(torque, np.float32), (3,))
+        if not (np.all(np.isfinite(f)) and np.all(np.isfinite(tq)) and np.isfinite(step_time)):
+            raise ValueError("disturbance values must be finite")
+        if np.any(s < 0) or not np.all(np.isfinite(s)):
+            raise ValueError(f"disturbance sigma must be finite and >= 0, got {sigma}")
+        return cls(jnp.asarray(f), jnp.float32(step_time), jnp.asarray(s), jnp.asarray(tq))
+
+    def forces(self, key, steps: int, dt: float) -> jax.Array:
+        """World force sequence (steps, 3) N."""
+        t = dt * jnp.arange(steps)
+        step = jnp.where((t >= self.step_time)[:, None], self.step_force, 0.0)
+        return step + self.sigma * jax.random.normal(key, (steps, 3))
+
+
+class Flight(NamedTuple):
+    """Time series of one flight (leaves (T, ...); (B, T, ...) batched).
+
+    frame: the simulator record after each step; ref_pos (3), ref_vel (3), ref_yaw ();
+    a_cmd (), omega_cmd (3): the high-level command of that step; time (): s after the step.
+    """
+    frame: Frame
+    ref_pos: jax.Array
+    ref_vel: jax.Array
+    ref_yaw: jax.Array
+    a_cmd: jax.Array
+    omega_cmd: jax.Array
+    time: jax.Array
+
+
+def fly(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance, key,
+        steps: int) -> Flight:
+    """Fly one vehicle θ (19,) for ``steps`` control steps from rest at the reference start.
+
+    low: a low-level controller (``init(key)``, ``step(carry, imu, Command)``); high: a
+    :class:`Cascade`; ref: a reference pytree with ``at(t)``; key: PRNG key (IMU noise and
+    disturbance realisation). The high-level controller sees the true state.
+    """
+    dt = sim.config.dt
+    k_sim, k_dist, k_low = jax.random.split(key, 3)
+    theta = jnp.asarray(theta, jnp.float32)
+    theta = theta.at[P.TAU_EXT].add(disturbance.torque)
+    r0 = ref.at(jnp.float32(0.0))
+    half = 0.5 * r0.yaw
+    quat0 = jnp.array([jnp.cos(half), 0.0, 0.0, jnp.sin(half)])
+    state = sim.init(theta, k_sim, pos=r0.pos, quat=quat0, rotor_speed=hover_rotor_speed(theta))
+    forces = disturbance.forces(k_dist, steps, dt)
+
+    def body(carry, inp):
+        s, hc, lc = carry
+        i, f = inp
+        t = i.astype(jnp.float32) * dt
+        r = ref.at(t)
+        est = Estimate(s.pos, s.vel, s.quat, s.omega)
+        hc, cmd = high.step(hc, est, r, dt)
+        lc, u = low.step(lc, s.imu, cmd)
+        s = sim.step(theta, s, u, f)
+        out = (sim.frame(s, u, f), r.pos, r.vel, r.yaw, cmd.a_cmd, cmd.omega_cmd, t + dt)
+        return (s, hc, lc), out
+
+    carry0 = (state, high.init(), low.init(k_low))
+    _, out = jax.lax.scan(body, carry0, (jnp.arange(steps), forces))
+    return Flight(*out)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 7))
+def _fly_batch(sim, theta, low, high, ref, disturbance, keys, steps):
+    return jax.vmap(lambda *a: fly(sim, *a, steps))(theta, low, high, ref, disturbance, keys)
+
+
+def fly_batch(sim: Quadrotor, theta, low, high, ref, disturbance, key, steps: int) -> Flight:
+    """Batched :func:`fly`: θ (B, 19) and every pytree argument with leading axis B."""
+    theta = jnp.asarray(theta, jnp.float32)
+    keys = jax.random.split(key, theta.shape[0])
+    return _fly_batch(sim, theta, low, high, ref, disturbance, keys, int(steps))
+
+
+# ---------------------------------------------------------------------------------------
+# Metrics
+# ---------------------------------------------------------------------------------------
+
+METRIC_KEYS = ("pos_rmse_m", "max_pos_err_m", "heading_rmse_deg", "lateral_rmse_m",
+               "vertical_rmse_m", "saturation_frac", "failed", "fail_time_s")
+
+
+def yaw_of(quat):
+    """Yaw (rad) of wxyz quaternions (..., 4) -> (...)."""
+    w, x, y, z = quat[..., 0], quat[..., 1], quat[..., 2], quat[..., 3]
+    return jnp.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def wrap_angle(a):
+    return (a + jnp.pi) % (2 * jnp.pi) - jnp.pi
+
+
+def failure_mask(flight: Flight, *, box: float = 3.0, ground: float = 0.0):
+    """Per step (T,): has the flight failed by now? Crash (z below ``ground``), divergence, or
+    leaving a ``box``-metre tube around the reference."""
+    fr = flight.frame
+    err = jnp.linalg.norm(fr.pos - flight.ref_pos, axis=-1)
+    bad = fr.diverged | (fr.pos[..., 2] < ground) | (err > box)
+    return jnp.cumsum(bad.astype(jnp.int32), axis=-1) > 0
+
+
+def metrics(flight: Flight, *, box: float = 3.0, ground: float = 0.0, sat_tol: float = 1e-3):
+    """Tracking metrics of one flight (leaves (T, ...)); vmap for a batch.
+
+    RMSEs and maxima are over the steps before failure (all steps if none). Saturation is the
+    fraction of motor commands within ``sat_tol`` of 0 or 1. Returns a dict of scalars keyed
+    by :data:`METRIC_KEYS`.
+    """
+    fr = flight.frame
+    failed_by = failure_mask(flight, box=box, ground=ground)
+    ok = (~failed_by).astype(jnp.float32)
+    n = jnp.maximum(ok.sum(), 1.0)
+    e = fr.pos - flight.ref_pos
+    e2 = jnp.sum(e**2, -1)
+    lat2 = jnp.sum(e[..., :2] ** 2, -1)
+    head = wrap_angle(yaw_of(fr.quat) - flight.ref_yaw)
+    sat = ((fr.motor_cmd <= sat_tol) | (fr.motor_cmd >= 1 - sat_tol)).mean(-1)
+    fail_step = jnp.argmax(failed_by)
+    failed = failed_by[-1]
+    return {
+        "pos_rmse_m": jnp.sqrt(jnp.sum(ok * e2) / n),
+        "max_pos_err_m": jnp.sqrt(jnp.max(ok * e2)),
+        "heading_rmse_deg": jnp.rad2deg(jnp.sqrt(jnp.sum(ok * head**2) / n)),
+        "lateral_rmse_m": jnp.sqrt(jnp.sum(ok * lat2) / n),
+        "vertical_rmse_m": jnp.sqrt(jnp.sum(ok * e[..., 2] ** 2) / n),
+        "saturation_frac": jnp.sum(ok * sat) / n,
+        "failed": failed,
+        "fail_time_s": jnp.where(failed, flight.time[fail_step], jnp.nan),
+    }
+
+
+def metrics_to_host(m: dict) -> dict:
+    """jnp metric dict (scalars or (B,) arrays) -> plain Python floats / lists (JSON-ready)."""
+    out = {}
+    for k, v in m.items():
+        a = np.asarray(v)
+        if a.dtype == bool:
+            out[k] = a.tolist()
+        else:
+            out[k] = None if a.ndim == 0 and not np.isfinite(a) else (
+                float(a) if a.ndim == 0 else [None if not np.isfinite(x) else float(x) for x in a])
+    return out
+
+
+def summarize(m: dict) -> dict:
+    """Batch metrics (B,) -> success rate and mean ± std over successful flights."""
+    failed = np.asarray(m["failed"], bool)
+    out = {"n": int(failed.size), "success_rate": float(1 - failed.mean())}
+    for k in ("pos_rmse_m", "max_pos_err_m", "heading_rmse_deg", "lateral_rmse_m",
+              "vertical_rmse_m", "saturation_frac"):
+        v = np.asarray(m[k], np.float64)[~failed]
+        out[k] = {"mean": float(v.mean()) if v.size else None, "std": float(v.std()) if v.size else None,
+                  "median": float(np.median(v)) if v.size else None}
+    return out

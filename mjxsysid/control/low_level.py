@@ -1,0 +1,98 @@
+"""Low-level controllers: (IMU, command) -> normalised motor speeds.
+
+The parametric controller K_θ (paper appendix) and the interface every low-level controller
+(K_θ now, neural policies later) implements, so that any low-level controller sits under any
+high-level controller:
+
+    carry = ctrl.init(key)                                   # per-episode memory
+    carry, motor_cmd = ctrl.step(carry, imu, command)        # imu (6,), motor_cmd (4,)
+
+A controller is a pytree (``flax.struct.dataclass``): its numeric parameters are leaves, so a
+batch of controllers (one per vehicle, e.g. K_θ with each vehicle's own θ) is vmapped like any
+other argument and never re-traces.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple, Protocol
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from mjxsysid import params as P
+
+
+class Command(NamedTuple):
+    """High-level command to a low-level controller.
+
+    a_cmd: () mass-normalised collective thrust, m/s² (≈ g at hover).
+    omega_cmd: (3,) body rates, rad/s (body frame FLU).
+    """
+    a_cmd: jax.Array
+    omega_cmd: jax.Array
+
+
+class LowLevel(Protocol):
+    def init(self, key: jax.Array): ...
+
+    def step(self, carry, imu: jax.Array, command: Command) -> tuple[object, jax.Array]: ...
+
+
+def allocation_matrix(theta) -> jax.Array:
+    """B_alloc(θ) (4, 4): [T; τ_x; τ_y; τ_z] = B f, f the per-rotor thrusts (N).
+
+    Columns are rotors 1..4 (front-right, front-left, back-left, back-right) at (x_i, y_i):
+    rows 1, y_i, −x_i, s_i κ with s_i the yaw reaction sign and κ = k_τ / k_t.
+    θ (..., 19) -> (..., 4, 4).
+    """
+    theta = jnp.asarray(theta)
+    r = P.rotor_positions(theta)  # (..., 4, 3)
+    kappa = P.torque_ratio(theta)[..., None]
+    ones = jnp.ones_like(r[..., 0])
+    return jnp.stack([ones, r[..., 1], -r[..., 0], jnp.asarray(P.YAW_SIGNS) * kappa], -2)
+
+
+def allocate(theta, collective_thrust, torque) -> jax.Array:
+    """Squared rotor speeds Ω²_cmd (4,) = (1/k_t) diag(1/η) B⁻¹ [T; τ] (paper eq. app-alloc).
+
+    theta (19,); collective_thrust () N; torque (3,) N·m."""
+    wrench = jnp.concatenate([jnp.reshape(collective_thrust, (1,)), torque])
+    f = jnp.linalg.solve(allocation_matrix(theta), wrench)
+    return f / (theta[P.KT] * theta[P.ETA])
+
+
+DEFAULT_RATE_GAINS = (20.0, 20.0, 8.0)
+"""K_ω (1/s), shared across platforms: rate-loop bandwidth below the motor bandwidth 1/τ_m."""
+
+
+@struct.dataclass
+class KTheta:
+    """The parametric controller K_θ (paper appendix).
+
+    τ_cmd = J K_ω (ω_cmd − ω);  Ω²_cmd = (1/k_t) diag(1/η) B_alloc(θ)⁻¹ [m a_cmd; τ_cmd];
+    Ω_norm = clip(√Ω²_cmd / Ω_max, 0, 1).  ω is the measured (gyro) body rate.
+
+    theta: (19,) the vehicle the controller *believes* it flies. rate_gains: (3,) K_ω diagonal.
+    """
+    theta: jax.Array
+    rate_gains: jax.Array
+
+    @classmethod
+    def make(cls, theta, rate_gains=DEFAULT_RATE_GAINS) -> "KTheta":
+        """θ (..., 19) -> a controller (batched if θ is); K_ω broadcast to (..., 3)."""
+        theta = jnp.asarray(theta, jnp.float32)
+        gains = jnp.broadcast_to(jnp.asarray(rate_gains, jnp.float32), theta.shape[:-1] + (3,))
+        return cls(theta, gains)
+
+    def init(self, key=None):
+        return ()
+
+    def motor_command(self, command: Command, omega: jax.Array) -> jax.Array:
+        """(command, measured body rate (3,)) -> Ω_norm (4,) in [0, 1]."""
+        th = self.theta
+        tau = th[P.INERTIA] * self.rate_gains * (command.omega_cmd - omega)
+        sq = allocate(th, th[P.MASS] * command.a_cmd, tau)
+        return jnp.clip(jnp.sqrt(jnp.maximum(sq, 0.0)) / th[P.OMEGA_MAX], 0.0, 1.0)
+
+    def step(self, carry, imu, command: Command):
+        return carry, self.motor_command(command, imu[0:3])

@@ -1,0 +1,122 @@
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from mjxsysid import params as P
+
+
+def test_names_units_and_nominal():
+    assert len(P.PARAM_NAMES) == len(P.PARAM_UNITS) == P.N_PARAMS == 19
+    assert P.PARAM_NAMES[P.OMEGA_MAX] == "max_rotor_speed"
+    # The paper vehicle: 4 k_t Ω_max² / (m g) ≈ 6.2 (DESIGN §2), κ = 0.014 m.
+    np.testing.assert_allclose(P.thrust_to_weight(P.PAPER_HARDWARE), 6.2, atol=0.05)
+    np.testing.assert_allclose(P.torque_ratio(P.PAPER_HARDWARE), 0.014, atol=1e-4)
+
+
+def test_shipped_vehicle_file_is_the_paper_vehicle():
+    np.testing.assert_allclose(P.load_vehicle(P.vehicle_path("paper_hardware")), P.PAPER_HARDWARE,
+                               rtol=1e-6)
+
+
+def test_vehicle_file_round_trip(tmp_path):
+    th = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 1))[0]
+    path = P.save_vehicle(th, tmp_path / "v.json")
+    assert set(json.loads(path.read_text())) == set(P.VEHICLE_KEYS)
+    np.testing.assert_allclose(P.load_vehicle(path), th, rtol=1e-6)
+
+
+@pytest.mark.parametrize("edit,match", [
+    (lambda d: d.pop("mass"), "missing key.*mass"),
+    (lambda d: d.update(colour="red"), "unknown key.*colour"),
+    (lambda d: d.update(inertia=[1e-3, 1e-3]), "inertia must be a list of 3"),
+    (lambda d: d.update(mass=-1.0), "mass must be > 0"),
+    (lambda d: d.update(mass="heavy"), "mass must be a number"),
+    (lambda d: d.update(inertia=[1e-3, 1e-3, 5e-3]), "inertia\\[2\\] violates the triangle"),
+    (lambda d: d.update(motor_effectiveness=[1, 1, 0, 1]), "motor_effectiveness\\[2\\] must be > 0"),
+    (lambda d: d.update(drag=[0.1, -0.1, 0.1]), "drag\\[1\\] must be >= 0"),
+    (lambda d: d.update(thrust_coeff=float("nan")), "thrust_coeff is not finite"),
+])
+def test_vehicle_file_errors_name_the_key(tmp_path, edit, match):
+    d = P.theta_to_dict(P.PAPER_HARDWARE)
+    edit(d)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(ValueError, match=match):
+        P.load_vehicle(path)
+
+
+def test_file_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.json"):
+        P.load_vehicle(tmp_path / "nope.json")
+    (tmp_path / "x.json").write_text("{not json")
+    with pytest.raises(ValueError, match="not valid JSON"):
+        P.load_vehicle(tmp_path / "x.json")
+
+
+def test_validate_shape_and_batch_index():
+    with pytest.raises(ValueError, match="shape"):
+        P.validate_theta(np.ones(18))
+    th = np.tile(P.PAPER_HARDWARE, (3, 1))
+    th[2, P.MASS] = 0.0
+    with pytest.raises(ValueError, match="mass must be > 0 \\(batch element 2\\)"):
+        P.validate_theta(th)
+
+
+@pytest.fixture(scope="module")
+def prior_samples():
+    return {name: np.asarray(p.sample(jax.random.PRNGKey(0), 20_000)) for name, p in P.PRIORS.items()}
+
+
+def test_every_prior_sample_is_valid_and_flyable(prior_samples):
+    for name, th in prior_samples.items():
+        P.validate_theta(th)
+        f = P.flyability(th)
+        assert f["twr_min"].min() >= 1.5 - 1e-4, name
+        assert f["twr_max"].max() <= 8.5 + 1e-3, name
+        # Every vehicle can cancel its external torque with a wide margin.
+        assert f["torque_margin"].min() > 2.0, name
+
+
+def test_paper_vehicle_well_inside_default_prior(prior_samples):
+    th = prior_samples["default"]
+    pv = P.PAPER_HARDWARE
+    for j, name in enumerate(P.PARAM_NAMES):
+        lo, hi = np.percentile(th[:, j], [5, 95])
+        assert lo <= pv[j] <= hi, (name, lo, pv[j], hi)
+    twr = np.asarray(P.thrust_to_weight(th))
+    assert np.percentile(twr, 5) < P.thrust_to_weight(pv) < np.percentile(twr, 95)
+
+
+def test_prior_is_seeded_and_slow_actuator_range(prior_samples):
+    a = P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(3), 10)
+    b = P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(3), 10)
+    np.testing.assert_array_equal(a, b)
+    tm = prior_samples["slow_actuators"][:, P.TAU_M]
+    assert tm.min() >= 0.05 and tm.max() <= 0.10
+    tm = prior_samples["default"][:, P.TAU_M]
+    assert tm.min() >= 0.02 and tm.max() <= 0.04
+
+
+def test_prior_covers_released_policy_range(prior_samples):
+    """The released xadap policy was trained on m 0.04–1.16 kg, l 0.03–0.20 m (its README):
+    most of that box is covered."""
+    th = prior_samples["default"]
+    assert th[:, P.MASS].min() < 0.06 and th[:, P.MASS].max() > 1.16
+    assert th[:, P.ARM].min() < 0.04 and th[:, P.ARM].max() > 0.20
+
+
+def test_normalizer_round_trip(prior_samples):
+    th = prior_samples["default"][:1000]
+    norm = P.prior_normalizer(n=20_000)
+    y = np.asarray(norm.normalize(th))
+    assert np.abs(y.mean(0)).max() < 0.2 and np.abs(y.std(0) - 1).max() < 0.2
+    np.testing.assert_allclose(np.asarray(norm.denormalize(y)), th, rtol=2e-4, atol=1e-7)
+    back = P.Normalizer.from_dict(json.loads(json.dumps(norm.to_dict())))
+    np.testing.assert_allclose(np.asarray(back.normalize(th)), y, rtol=1e-6)
+
+
+def test_unknown_prior():
+    with pytest.raises(ValueError, match="unknown prior"):
+        P.get_prior("fast")
