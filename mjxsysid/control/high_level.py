@@ -38,7 +38,7 @@ PRESETS = {
     "naive": np.array([2.0, 2.0, 2.0, 2.0, 0.0, 0.0, 4.0, 1.0], np.float32),
     # Hand-tuned on the paper vehicle with K_θ(true θ): coordinate search over the lemniscate
     # (10 s) and random min-snap (5 s) references (benchmarks/tune_baseline.py, BENCHMARKS.md).
-    "baseline": np.array([20.0, 20.0, 12.0, 12.0, 0.53, 5.0, 11.25, 4.0], np.float32),
+    "baseline": np.array([20.0, 20.0, 12.0, 12.0, 0.53, 0.94, 8.43, 2.83], np.float32),
 }
 INTEGRAL_LIMIT = 1.0  # m·s
 MAX_TILT = np.deg2rad(60.0)

@@ -61,7 +61,7 @@ def allocate(theta, collective_thrust, torque) -> jax.Array:
     return f / (theta[P.KT] * theta[P.ETA])
 
 
-DEFAULT_RATE_GAINS = (20.0, 20.0, 8.0)
+DEFAULT_RATE_GAINS = (40.0, 40.0, 16.0)
 """K_ω (1/s), shared across platforms: rate-loop bandwidth below the motor bandwidth 1/τ_m."""
 
 

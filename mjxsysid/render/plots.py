@@ -13,6 +13,7 @@ import numpy as np
 from mjxsysid import params as P
 
 ROTOR_COLORS = ("#d9472b", "#2f6fd6", "#e8963a", "#35a3c4")  # ccw red-ish, cw blue-ish
+ROTOR_STYLES = ("-", "-", "--", "--")  # rotors 3, 4 dashed so overlapping curves stay visible
 AXIS_COLORS = ("#1f77b4", "#2ca02c", "#d62728")
 
 
@@ -141,7 +142,8 @@ def plot_trajectory(frames, path, *, reference=None, title=None, dt: float = 0.0
     ax = fig.add_subplot(gs[1, 1])
     if cmd is not None:
         for k in range(4):
-            ax.plot(t, cmd[:, k], color=ROTOR_COLORS[k], lw=1.1, label=f"rotor {k + 1}")
+            ax.plot(t, cmd[:, k], color=ROTOR_COLORS[k], ls=ROTOR_STYLES[k], lw=1.2,
+                    label=f"rotor {k + 1}")
         ax.set_ylim(-0.03, 1.03)
     else:
         _na(ax)
@@ -151,7 +153,8 @@ def plot_trajectory(frames, path, *, reference=None, title=None, dt: float = 0.0
     if speed is not None:
         scale = 1.0 if omega_max is None else omega_max
         for k in range(4):
-            ax.plot(t, speed[:, k] / scale, color=ROTOR_COLORS[k], lw=1.1, label=f"rotor {k + 1}")
+            ax.plot(t, speed[:, k] / scale, color=ROTOR_COLORS[k], ls=ROTOR_STYLES[k], lw=1.2,
+                    label=f"rotor {k + 1}")
         if omega_max is not None:
             ax.set_ylim(-0.03, 1.03)
     else:
@@ -186,6 +189,22 @@ def _equal_3d(ax, pts):
     ax.set_xlim(mid[0] - half, mid[0] + half)
     ax.set_ylim(mid[1] - half, mid[1] + half)
     ax.set_zlim(mid[2] - half, mid[2] + half)
+
+
+def _log_ticks(ax, lo, hi):
+    """Readable log-axis ticks: plain labels at 1-2-5 (1-2 decades) or at round linear values
+    (< 1 decade) instead of crowded minor-tick labels."""
+    from matplotlib import ticker
+    decades = np.log10(hi / lo)
+    if decades >= 2:
+        ax.xaxis.set_minor_formatter(ticker.NullFormatter())
+        return
+    if decades >= 1:
+        ax.xaxis.set_major_locator(ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    else:
+        ax.xaxis.set_major_locator(ticker.MaxNLocator(nbins=4))
+    ax.xaxis.set_major_formatter(ticker.FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(ticker.NullFormatter())
 
 
 def plot_prior_marginals(theta_samples, path, *, mark=None, names: Sequence[str] | None = None,
@@ -229,10 +248,11 @@ def plot_prior_marginals(theta_samples, path, *, mark=None, names: Sequence[str]
         ax.hist(x, bins=edges, color="#4c78a8", alpha=0.85, edgecolor="white", linewidth=0.3)
         if log:
             ax.set_xscale("log")
+            _log_ticks(ax, lo, hi)
         if mark is not None:
             ax.axvline(mark[j], color="#d62728", lw=1.6)
             q = 100.0 * float(np.mean(x < mark[j]))
-            ax.text(0.98, 0.95, f"{q:.0f}th pct", transform=ax.transAxes, ha="right", va="top",
+            ax.text(0.98, 0.95, f"percentile {q:.0f}", transform=ax.transAxes, ha="right", va="top",
                     fontsize=8, color="#d62728")
         ax.set_title(names[j], fontsize=10)
         ax.set_yticks([])

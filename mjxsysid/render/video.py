@@ -135,17 +135,39 @@ def _load_context_class(backend: str):
     return GLContext
 
 
+def _probe_context(cls):
+    """Create and make current a 16x16 context of class ``cls``; raise if it is unusable.
+
+    GLFW does not raise: it warns (e.g. "X11: The DISPLAY environment variable is missing") and
+    returns no window, so a missing window or any GLFW warning counts as failure. No MuJoCo
+    render context is made here: a failed ``mjr_makeContext`` can leave MuJoCo's GL loader
+    unusable for the rest of the process, which would defeat the fallback.
+    """
+    error = None
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ctx = cls(16, 16)
+        try:
+            if hasattr(ctx, "_context") and not ctx._context:
+                error = "no GL context/window was created"
+            else:
+                ctx.make_current()
+        finally:
+            ctx.free()
+    glfw_errors = [str(w.message) for w in caught if type(w.message).__name__ == "GLFWError"]
+    if error or glfw_errors:
+        raise RuntimeError("; ".join(([error] if error else []) + glfw_errors[:1]))
+    for w in caught:  # re-emit unrelated warnings
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+
+
 def _probe(backend: str):
     """Return a working GLContext class for ``backend`` or raise with the reason."""
     had_opengl = "OpenGL" in sys.modules
     env_before = os.environ.get("PYOPENGL_PLATFORM")
     try:
         cls = _load_context_class(backend)
-        ctx = cls(16, 16)
-        try:
-            ctx.make_current()
-        finally:
-            ctx.free()
+        _probe_context(cls)
         if env_before is None and os.environ.get("PYOPENGL_PLATFORM") is not None:
             _GL_STATE["pyopengl_env_ours"] = True
         return cls
@@ -161,6 +183,10 @@ def _probe(backend: str):
             else:
                 os.environ["PYOPENGL_PLATFORM"] = env_before
         msg = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        if isinstance(e, AttributeError) and "NoneType" in msg and backend in ("egl", "osmesa"):
+            # PyOpenGL's way of saying that it could not load the platform library.
+            lib = {"egl": "libEGL", "osmesa": "libOSMesa"}[backend]
+            raise RuntimeError(f"{lib} could not be loaded by PyOpenGL ({msg})") from e
         raise RuntimeError(f"{type(e).__name__}: {msg}"[:300]) from e
 
 
@@ -173,8 +199,14 @@ def ensure_gl() -> str:
     """
     if _GL_STATE["backend"] is not None:
         return _GL_STATE["backend"]
-    import mujoco
-    from mujoco.rendering.classic import gl_context
+    try:
+        import mujoco
+        from mujoco.rendering.classic import gl_context
+    except Exception as e:  # import mujoco itself fails for a MUJOCO_GL that cannot load
+        raise RuntimeError(
+            f"import mujoco failed with MUJOCO_GL={os.environ.get('MUJOCO_GL')!r} ({type(e).__name__}: "
+            f"{e}); unset MUJOCO_GL or set it to a backend that exists here: 'egl' (GPU or Mesa "
+            "EGL, headless), 'osmesa' (software) or 'glfw' (needs a display)") from e
 
     requested = os.environ.get("MUJOCO_GL", "").lower().strip()
     if requested in _DISABLED:
@@ -200,9 +232,10 @@ def ensure_gl() -> str:
             if backend == "default":
                 if current is None:
                     raise RuntimeError("mujoco has no GLContext on this platform")
-                ctx = current(16, 16)
-                ctx.make_current()
-                ctx.free()
+                try:
+                    _probe_context(current)
+                except Exception as e:  # noqa: BLE001
+                    raise RuntimeError(f"{type(e).__name__}: {e}"[:300]) from e
                 cls = current
             else:
                 cls = _probe(backend)
@@ -237,6 +270,12 @@ def _mediapy():
     return mediapy
 
 
+def _quiet_fork_warning():
+    # mediapy runs ffmpeg through subprocess (fork + exec at once); JAX's "os.fork() was called"
+    # warning does not apply. Call inside warnings.catch_warnings().
+    warnings.filterwarnings("ignore", message=r"os\.fork\(\) was called", category=RuntimeWarning)
+
+
 def read_video(path) -> np.ndarray:
     """Decode a video into uint8 frames (N, H, W, 3).
 
@@ -248,16 +287,18 @@ def read_video(path) -> np.ndarray:
     if not path.is_file():
         raise FileNotFoundError(f"video not found: {path}")
     mediapy = _mediapy()
-    try:
-        return np.asarray(mediapy.read_video(path))
-    except RuntimeError as e:
-        if "vsync" not in str(e):
-            raise
-    import imageio_ffmpeg
-    reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24")
-    meta = next(reader)
-    w, h = meta["size"]
-    frames = [np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in reader]
+    with warnings.catch_warnings():
+        _quiet_fork_warning()
+        try:
+            return np.asarray(mediapy.read_video(path))
+        except RuntimeError as e:
+            if "vsync" not in str(e):
+                raise
+        import imageio_ffmpeg
+        reader = imageio_ffmpeg.read_frames(str(path), pix_fmt="rgb24")
+        meta = next(reader)
+        w, h = meta["size"]
+        frames = [np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in reader]
     return np.stack(frames) if frames else np.zeros((0, h, w, 3), np.uint8)
 
 
@@ -632,14 +673,17 @@ def render_rollout(theta, frames, path, *, fps: float = 50, camera="chase", widt
     scene = _Scene(theta, camera=camera, width=width, height=height, ghosts=ghost_list,
                    ghost_alpha=ghost_alpha, base_xml=base_xml)
     try:
-        with mediapy.VideoWriter(path, shape=(int(height), int(width)), fps=float(fps)) as writer:
-            for i in idx:
-                trail_pts = None
-                if trail_n > 0 and i > 0:
-                    lo = max(0, i - trail_n)
-                    trail_pts = np.concatenate([pos[lo:i:trail_stride], pos[i:i + 1]])
-                writer.add_image(scene.draw(pos[i], quat[i], i, trail_pts=trail_pts,
-                                            ref_pts=ref_pts, line_scale=line_scale))
+        with warnings.catch_warnings():
+            _quiet_fork_warning()
+            with mediapy.VideoWriter(path, shape=(int(height), int(width)),
+                                     fps=float(fps)) as writer:
+                for i in idx:
+                    trail_pts = None
+                    if trail_n > 0 and i > 0:
+                        lo = max(0, i - trail_n)
+                        trail_pts = np.concatenate([pos[lo:i:trail_stride], pos[i:i + 1]])
+                    writer.add_image(scene.draw(pos[i], quat[i], i, trail_pts=trail_pts,
+                                                ref_pts=ref_pts, line_scale=line_scale))
     except Exception as e:
         raise RuntimeError(f"rendering {path} with the {backend} GL backend failed: {e}") from e
     finally:

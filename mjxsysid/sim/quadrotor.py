@@ -13,7 +13,9 @@ drag −D v_body, the constant body-frame torque τ_ext, the world-frame disturb
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import sys
 from pathlib import Path
 from typing import NamedTuple
 
@@ -22,7 +24,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx
+
+with contextlib.redirect_stdout(sys.stderr):  # MJX prints "Failed to import warp" on stdout
+    from mujoco import mjx
 
 from mjxsysid import params as P
 

@@ -1,0 +1,116 @@
+"""Scripted flights: build controllers and references from names, fly, save, evaluate.
+
+Used by ``mjxsysid fly`` and ``mjxsysid demo``; the same functions serve notebooks.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxsysid import params as P
+from mjxsysid.analysis.harness import (Disturbance, Flight, fly_batch, metrics, metrics_to_host,
+                                       summarize)
+from mjxsysid.control.high_level import Cascade
+from mjxsysid.control.low_level import KTheta
+from mjxsysid.control.references import Hover, Lemniscate, MinSnap, stack
+from mjxsysid.sim import Quadrotor, SimConfig
+
+CONTROLLERS = ("oracle", "nominal")
+REFERENCES = ("hover", "lemniscate", "minsnap")
+
+
+def make_reference(name: str, *, period: float = 10.0, duration: float | None = None,
+                   seed: int = 0, size=(1.0, 1.0, 0.3), start=(0.0, 0.0, 1.0)):
+    """A reference by name. Returns (reference, default duration in s)."""
+    if name == "hover":
+        return Hover.make(pos=start), 5.0
+    if name == "lemniscate":
+        return Lemniscate.make(period=period, size=size, center=start), period
+    if name == "minsnap":
+        d = 5.0 if duration is None else duration
+        return MinSnap.random(seed=seed, duration=d, start=start), d
+    raise ValueError(f"unknown reference {name!r}; choose from {REFERENCES}")
+
+
+def make_low_level(name: str, theta):
+    """'oracle': K_θ with each vehicle's true θ; 'nominal': K_θ with the paper vehicle's θ
+    whatever is flown (non-adaptive). θ (B, 19) -> batched controller."""
+    theta = np.asarray(theta, np.float32)
+    if name == "oracle":
+        return KTheta.make(theta)
+    if name == "nominal":
+        return KTheta.make(np.broadcast_to(P.PAPER_HARDWARE, theta.shape))
+    raise ValueError(f"unknown controller {name!r}; choose from {CONTROLLERS}")
+
+
+def broadcast(tree, b: int):
+    """Give every leaf of an unbatched pytree a leading axis of size b."""
+    return jax.tree.map(lambda a: jnp.broadcast_to(a, (b,) + jnp.shape(a)), tree)
+
+
+def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=10.0,
+                 duration=None, gains="baseline", force_step=(0.0, 0.0, 0.0), force_step_time=1.0,
+                 force_sigma=0.0, seed=0, sim: Quadrotor | None = None, refs=None):
+    """Fly a batch θ (B, 19) (or one vehicle (19,)) under one controller and reference.
+
+    Returns (Flight with (B, T, ...) leaves, metrics dict of (B,) arrays, duration s).
+    ``refs`` may pass a pre-built batched reference (e.g. one min-snap per vehicle).
+    """
+    theta = P.as_batch(theta)
+    b = theta.shape[0]
+    if duration is not None and not duration > 0:
+        raise ValueError(f"duration must be > 0 s, got {duration}")
+    if refs is None:
+        ref, d0 = make_reference(reference, period=period, duration=duration, seed=seed)
+        refs = broadcast(ref, b)
+    else:
+        d0 = float(np.max(np.asarray(refs.duration)))
+    duration = d0 if duration is None else duration
+    sim = sim or Quadrotor(SimConfig())
+    steps = int(round(duration / sim.config.dt))
+    low = make_low_level(controller, theta)
+    high = broadcast(Cascade.make(gains), b)
+    dist = broadcast(Disturbance.make(step_force=force_step, step_time=force_step_time,
+                                      sigma=force_sigma), b)
+    flight = fly_batch(sim, theta, low, high, refs, dist, jax.random.PRNGKey(seed), steps)
+    return flight, jax.vmap(metrics)(flight), duration
+
+
+def random_minsnaps(n: int, seed: int, duration: float = 5.0):
+    """n seeded random min-snap references stacked into one batch."""
+    return stack([MinSnap.random(seed=seed * 100_003 + i, duration=duration,
+                                 start=(0.0, 0.0, 1.0)) for i in range(n)])
+
+
+def save_flight(flight: Flight, theta, path, index: int = 0) -> Path:
+    """Write one flight of a batch to an .npz (plain arrays, no pickle)."""
+    f = jax.tree.map(lambda a: np.asarray(a[index]), flight)
+    fr = f.frame
+    path = Path(path)
+    np.savez_compressed(path, time=f.time, pos=fr.pos, quat=fr.quat, vel=fr.vel, omega=fr.omega,
+                        rotor_speed=fr.rotor_speed, imu=fr.imu, motor_cmd=fr.motor_cmd,
+                        force=fr.force, diverged=fr.diverged, ref_pos=f.ref_pos, ref_vel=f.ref_vel,
+                        ref_yaw=f.ref_yaw, a_cmd=f.a_cmd, omega_cmd=f.omega_cmd,
+                        theta=np.asarray(P.as_batch(theta)[index]))
+    return path
+
+
+def one_flight(flight: Flight, index: int = 0) -> Flight:
+    return jax.tree.map(lambda a: np.asarray(a[index]), flight)
+
+
+def write_metrics(m: dict, path, index: int | None = 0, extra: dict | None = None) -> dict:
+    """metrics of flight ``index`` (or the batch summary if index is None) -> JSON file."""
+    if index is None:
+        d = summarize(m)
+    else:
+        d = metrics_to_host({k: np.asarray(v)[index] for k, v in m.items()})
+        d["failed"] = bool(d["failed"])
+    if extra:
+        d.update(extra)
+    Path(path).write_text(json.dumps(d, indent=2) + "\n")
+    return d
