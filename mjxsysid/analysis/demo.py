@@ -71,7 +71,8 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     if video:
         print("[3/3] rendering the video (offscreen)", flush=True)
         from mjxsysid.render.video import render_rollout
-        render_rollout(theta[0], one.frame, out / "demo.mp4", reference=one.ref_pos)
+        render_rollout(theta[0], one.frame, out / "demo.mp4", reference=one.ref_pos, fps=25,
+                       width=480, height=360)
     else:
         print("[3/3] video skipped (--no-video)", flush=True)
 

@@ -32,7 +32,7 @@ import os
 import sys
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -685,6 +685,7 @@ def render_rollout(theta, frames, path, *, fps: float = 50, camera="chase", widt
                     writer.add_image(scene.draw(pos[i], quat[i], i, trail_pts=trail_pts,
                                                 ref_pts=ref_pts, line_scale=line_scale))
     except Exception as e:
+        path.unlink(missing_ok=True)  # no half-written video left behind
         raise RuntimeError(f"rendering {path} with the {backend} GL backend failed: {e}") from e
     finally:
         scene.close()
