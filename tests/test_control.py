@@ -204,3 +204,14 @@ def test_cli_argument_errors(capsys, argv, match):
         main(argv)
     assert e.value.code == 2
     assert match in capsys.readouterr().err
+
+
+def test_demo_runs(tmp_path):
+    """The quick-start demo end to end (no video here: tests/test_render.py covers rendering)."""
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--no-video", "--vehicles", "3"]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert s["oracle"]["paper_vehicle"]["pos_rmse_m"] < 0.05
+    assert s["oracle"]["prior_vehicles"]["success_rate"] == 1.0
+    for f in ("tracking.png", "oracle_vs_nominal.png", "summary.md", "flight.npz"):
+        assert (out / f).exists(), f
