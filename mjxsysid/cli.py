@@ -78,7 +78,41 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--video", action="store_true", help="also render DIR/flight.mp4")
     f.add_argument("--out", type=Path, required=True, help="output folder")
+    t = sub.add_parser("train-policy", help="train the unified adaptive policy (GPU recommended)")
+    t.add_argument("--config", type=Path, default=None,
+                   help="JSON file of TrainConfig overrides (default: the shipped policy's config)")
+    t.add_argument("--out", type=Path, default=Path("runs/policy"), help="run folder (checkpoints, log, policy.npz)")
+    t.add_argument("--iterations", type=int, default=None, help="override config.iterations")
+    t.add_argument("--num-envs", type=int, default=None, help="override config.num_envs")
+    t.add_argument("--seed", type=int, default=None, help="override config.seed")
+    t.add_argument("--no-resume", action="store_true", help="start afresh even if DIR/checkpoint.npz exists")
     return p
+
+
+def cmd_train_policy(args) -> int:
+    from mjxsysid.policy.train import TrainConfig, train
+    cfg_dict = TrainConfig().to_dict()
+    if args.config is not None:
+        if not args.config.is_file():
+            raise FileNotFoundError(f"config file not found: {args.config}")
+        try:
+            over = json.loads(args.config.read_text())
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{args.config}: not valid JSON ({e})") from None
+        env = dict(cfg_dict["env"], **over.pop("env", {}))
+        cfg_dict.update(over)
+        cfg_dict["env"] = env
+    for k, v in (("iterations", args.iterations), ("num_envs", args.num_envs), ("seed", args.seed)):
+        if v is not None:
+            cfg_dict[k] = v
+    cfg = TrainConfig.from_dict(cfg_dict)
+    print(f"training: {cfg.num_envs} envs × {cfg.unroll} steps × {cfg.iterations} iterations "
+          f"= {cfg.num_envs * cfg.unroll * cfg.iterations / 1e6:.1f} M env steps -> {args.out}", flush=True)
+    res = train(cfg, args.out, resume=not args.no_resume, log=lambda m: print(m, flush=True))
+    print(json.dumps({"wall_s": res["wall_s"], **{k: res["stats"][k] for k in
+                      ("reward", "rate_err", "thrust_err", "latent_err_rel", "latent_min_std")}}))
+    print(f"wrote {args.out}/policy.npz", file=sys.stderr)
+    return 0
 
 
 def _prepare_render():
@@ -170,7 +204,7 @@ def cmd_demo(args) -> int:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    handlers = {"fly": cmd_fly, "demo": cmd_demo}
+    handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy}
     try:
         return handlers[args.command](args)
     except (ValueError, FileNotFoundError) as e:

@@ -1,0 +1,74 @@
+"""The trained adaptive policy as a low-level controller (the interface of
+:mod:`mjxsysid.control.low_level`): ``init(key)``, ``step(carry, imu, command)``, plus
+``latent(carry)`` -> the current ẑ, so downstream tools (decoding, experiments) can read it.
+
+Deployment mirrors training exactly (:mod:`mjxsysid.policy.env`): observation from the IMU and
+the command, policy state [obs, r_{t−1}], the deterministic action (the mean), history push, and
+ẑ = φ(history) refreshed every ``phi_every`` steps (0 until the first refresh).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from mjxsysid.control.low_level import Command
+from mjxsysid.policy import networks as N
+
+PRETRAINED = Path(__file__).resolve().parent.parent / "pretrained" / "policy.npz"
+
+
+class PolicyCarry(NamedTuple):
+    history: jax.Array   # (100, 14)
+    last_raw: jax.Array  # (4,)
+    zhat: jax.Array      # (8,)
+    count: jax.Array     # () int32 steps taken
+    started: jax.Array   # () bool: history initialised from the first observation
+
+
+@struct.dataclass
+class PolicyController:
+    """params: {'mu', 'phi', 'pi', ...}. z_override: (8,) latent to use instead of ẑ when
+    ``use_override`` (e.g. z^θ = μ(θ) for the privileged policy)."""
+    params: dict
+    z_override: jax.Array
+    use_override: jax.Array
+    phi_every: int = struct.field(pytree_node=False, default=10)
+
+    @classmethod
+    def load(cls, path=None, *, phi_every: int | None = None) -> "PolicyController":
+        from mjxsysid.policy.train import load_policy_params
+        path = Path(path) if path else PRETRAINED
+        if path.is_dir():
+            path = path / "policy.npz"
+        params, meta = load_policy_params(path)
+        pe = phi_every or meta.get("config", {}).get("env", {}).get("phi_every", 10)
+        return cls(params=params, z_override=jnp.zeros(N.LATENT), use_override=jnp.array(False),
+                   phi_every=int(pe))
+
+    def with_privileged(self, theta_norm) -> "PolicyController":
+        """The same policy conditioned on z^θ = μ(θ_norm) instead of ẑ."""
+        z = N.Networks().encode(self.params, jnp.asarray(theta_norm, jnp.float32))
+        return self.replace(z_override=z, use_override=jnp.array(True))
+
+    def init(self, key=None) -> PolicyCarry:
+        return PolicyCarry(history=jnp.zeros((N.HISTORY, N.STATE)), last_raw=jnp.zeros(N.ACT),
+                           zhat=jnp.zeros(N.LATENT), count=jnp.int32(0), started=jnp.array(False))
+
+    def latent(self, carry: PolicyCarry) -> jax.Array:
+        return carry.zhat
+
+    def step(self, carry: PolicyCarry, imu, command: Command):
+        nets = N.Networks()
+        obs = N.observation(imu, command.a_cmd, command.omega_cmd)
+        history = jnp.where(carry.started, carry.history, N.initial_history(obs))
+        s = jnp.concatenate([obs, carry.last_raw])
+        z = jnp.where(self.use_override, self.z_override, carry.zhat)
+        raw, _ = nets.act(self.params, s, z)
+        history = N.push_history(history, obs, raw)
+        count = carry.count + 1
+        zhat = jnp.where(count % self.phi_every == 0, nets.adapt(self.params, history), carry.zhat)
+        return PolicyCarry(history, raw, zhat, count, jnp.array(True)), N.to_motor(raw)

@@ -1,0 +1,335 @@
+"""Unified training of μ, φ, π (paper §III-A): PPO + alignment + auxiliary losses, with
+scheduled substitution and optional behaviour cloning from K_θ(true θ).
+
+Joint loss per minibatch (shapes: B samples of the rollout, S snapshots of histories)::
+
+    L = L_PPO(π, μ, V)                      clipped surrogate + value + entropy
+      + λ1 ‖z^θ − sg[ẑ]‖² + λ2 ‖sg[z^θ] − ẑ‖²     on S (θ, history) snapshots
+      + c_var Σ_d relu(γ − std_d(z^θ))             variance regulariser against collapse
+      + c_rec ‖aux(z^θ) − θ_norm‖²                 reconstruction
+      + β(t) ‖mean π(s, z) − r_expert‖²            behaviour cloning from K_θ(true θ), decaying
+
+The policy sees z^θ = μ(θ) or, with probability p(t) per episode, ẑ = φ(history) (held,
+stop-gradient); p(t) = 0 during warm-up, then rises linearly to p_max. The whole iteration
+(rollout scan, GAE, epochs × minibatches scans) is one jitted function; the host loop prints
+progress and checkpoints between iterations.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from mjxsysid.policy import networks as N
+from mjxsysid.policy.checkpoint import load_meta, load_tree, save_tree
+from mjxsysid.policy.env import EnvConfig, EnvState, TrainEnv
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """Defaults reproduce the shipped weights (see mjxsysid/pretrained/policy.json)."""
+    seed: int = 0
+    num_envs: int = 4096
+    unroll: int = 32
+    iterations: int = 600
+    epochs: int = 4
+    minibatches: int = 8
+    learning_rate: float = 3e-4
+    gamma: float = 0.98
+    gae_lambda: float = 0.95
+    clip: float = 0.2
+    value_coef: float = 0.5
+    entropy_coef: float = 0.0
+    max_grad_norm: float = 1.0
+    lambda1: float = 0.1
+    lambda2: float = 1.0
+    var_coef: float = 1.0
+    var_target: float = 0.3
+    rec_coef: float = 0.1
+    bc_coef: float = 2.0
+    bc_final: float = 0.05
+    bc_decay: float = 0.7          # fraction of training over which β decays to bc_final
+    warmup: float = 0.2            # fraction with p = 0
+    ramp: float = 0.3              # fraction over which p rises to p_max
+    p_max: float = 0.5
+    checkpoint_every: int = 50
+    log_every: int = 10
+    env: EnvConfig = EnvConfig()
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainConfig":
+        d = dict(d)
+        env = EnvConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.pop("env", {}).items()})
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown training config key(s) {unknown}; known: {sorted(known)}")
+        cfg = cls(**d, env=env)
+        for k in ("num_envs", "unroll", "iterations", "epochs", "minibatches"):
+            if getattr(cfg, k) < 1:
+                raise ValueError(f"config {k} must be >= 1, got {getattr(cfg, k)}")
+        if (cfg.num_envs * cfg.unroll) % cfg.minibatches or cfg.num_envs % cfg.minibatches:
+            raise ValueError("num_envs and num_envs × unroll must be divisible by minibatches")
+        return cfg
+
+
+@struct.dataclass
+class TrainState:
+    params: dict
+    opt_state: optax.OptState
+    iteration: jax.Array
+    key: jax.Array
+
+
+class Batch(NamedTuple):
+    state: jax.Array      # (..., 14)
+    theta_norm: jax.Array  # (..., 19)
+    zhat: jax.Array       # (..., 8)
+    use_zhat: jax.Array   # (...)
+    raw: jax.Array        # (..., 4)
+    logp: jax.Array
+    value: jax.Array
+    reward: jax.Array
+    done: jax.Array
+    expert: jax.Array     # (..., 4)
+    failed: jax.Array
+    rate_err: jax.Array
+    thrust_err: jax.Array
+
+
+def gaussian_logp(x, mean, log_std):
+    """log N(x; mean, diag exp(log_std)²), summed over the last axis."""
+    return jnp.sum(-0.5 * ((x - mean) / jnp.exp(log_std)) ** 2 - log_std - 0.5 * jnp.log(2 * jnp.pi), -1)
+
+
+def gae(reward, value, done, last_value, gamma, lam):
+    """Generalised advantage estimation. reward, value, done: (T, N); last_value (N,).
+    Returns (advantages, returns), (T, N). ``done`` at t means the episode ended after step t."""
+    def body(carry, x):
+        adv_next, v_next = carry
+        r, v, d = x
+        nd = 1.0 - d.astype(jnp.float32)
+        delta = r + gamma * v_next * nd - v
+        adv = delta + gamma * lam * nd * adv_next
+        return (adv, v), adv
+
+    _, adv = jax.lax.scan(body, (jnp.zeros_like(last_value), last_value), (reward, value, done), reverse=True)
+    return adv, adv + value
+
+
+def schedules(cfg: TrainConfig, it):
+    """(p(t), β(t)) at iteration ``it`` (jnp scalars)."""
+    frac = it / cfg.iterations
+    p = cfg.p_max * jnp.clip((frac - cfg.warmup) / max(cfg.ramp, 1e-9), 0.0, 1.0)
+    beta = cfg.bc_final + (cfg.bc_coef - cfg.bc_final) * jnp.clip(1.0 - frac / max(cfg.bc_decay, 1e-9), 0.0, 1.0)
+    return p, beta
+
+
+def alignment_losses(nets, params, theta_norm, history):
+    """(λ1 term, λ2 term) before weighting, each a mean over snapshots.
+    λ1: ‖z^θ − sg[ẑ]‖² (gradient to μ only); λ2: ‖sg[z^θ] − ẑ‖² (gradient to φ only)."""
+    z_theta = nets.encode(params, theta_norm)
+    zhat = nets.adapt(params, history)
+    l1 = jnp.mean(jnp.sum((z_theta - jax.lax.stop_gradient(zhat)) ** 2, -1))
+    l2 = jnp.mean(jnp.sum((jax.lax.stop_gradient(z_theta) - zhat) ** 2, -1))
+    return l1, l2
+
+
+def variance_loss(z, target):
+    """Σ_d relu(target − std_d(z)) over a batch z (B, 8): penalises collapse."""
+    return jnp.sum(jax.nn.relu(target - jnp.sqrt(jnp.var(z, 0) + 1e-6)))
+
+
+def loss_fn(params, nets, cfg: TrainConfig, mb: Batch, adv, ret, snap_theta, snap_hist, beta):
+    """Joint loss of one minibatch (mb leaves (B, ...), snapshots (S, ...)). Returns (loss, aux)."""
+    z_theta = nets.encode(params, mb.theta_norm)
+    z = jnp.where(mb.use_zhat[:, None], jax.lax.stop_gradient(mb.zhat), z_theta)
+    mean, log_std = nets.act(params, mb.state, z)
+    logp = gaussian_logp(mb.raw, mean, log_std)
+    ratio = jnp.exp(logp - mb.logp)
+    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    pg = -jnp.mean(jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv))
+    v = nets.value(params, mb.state, mb.theta_norm, jax.lax.stop_gradient(z))
+    vf = 0.5 * jnp.mean((v - ret) ** 2)
+    ent = jnp.sum(log_std) + 0.5 * N.ACT * (1 + jnp.log(2 * jnp.pi))
+    bc = jnp.mean(jnp.sum((mean - mb.expert) ** 2, -1))
+    l1, l2 = alignment_losses(nets, params, snap_theta, snap_hist)
+    var = variance_loss(z_theta, cfg.var_target)
+    rec = jnp.mean(jnp.sum((nets.decode(params, z_theta) - mb.theta_norm) ** 2, -1))
+    loss = (pg + cfg.value_coef * vf - cfg.entropy_coef * ent + beta * bc
+            + cfg.lambda1 * l1 + cfg.lambda2 * l2 + cfg.var_coef * var + cfg.rec_coef * rec)
+    return loss, {"pg": pg, "vf": vf, "bc": bc, "align1": l1, "align2": l2, "var": var, "rec": rec,
+                  "approx_kl": jnp.mean(mb.logp - logp), "log_std": jnp.mean(log_std)}
+
+
+class Trainer:
+    """Builds the jitted iteration for a config. ``init(key)``, ``iteration(ts, env_state)``."""
+
+    def __init__(self, cfg: TrainConfig = TrainConfig()):
+        self.cfg = cfg
+        self.env = TrainEnv(cfg.env)
+        self.nets = self.env.nets
+        self.opt = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.learning_rate))
+        self.iteration = jax.jit(self._iteration)
+        self.reset = jax.jit(self._reset)
+
+    def init(self, key) -> TrainState:
+        params = self.nets.init(key)
+        return TrainState(params=params, opt_state=self.opt.init(params), iteration=jnp.int32(0),
+                          key=jax.random.fold_in(key, 1))
+
+    def _reset(self, key, p):
+        keys = jax.random.split(key, self.cfg.num_envs)
+        st = jax.vmap(lambda k: self.env.reset(k, p))(keys)
+        # Desynchronise episodes so resets spread over time.
+        offs = jax.random.randint(jax.random.fold_in(key, 7), (self.cfg.num_envs,), 0, self.cfg.env.episode_steps)
+        return st.replace(step=offs)
+
+    def _rollout(self, params, env_state: EnvState, key, p, it):
+        cfg, env = self.cfg, self.env
+
+        def one(st, k, refresh):
+            s, z, z_theta, obs = env.policy_input(params, st)
+            mean, log_std = self.nets.act(params, s, z)
+            raw = mean + jnp.exp(log_std) * jax.random.normal(k, mean.shape)
+            logp = gaussian_logp(raw, mean, log_std)
+            value = self.nets.value(params, s, st.theta_norm, z)
+            expert = env.expert_raw(st)
+            new, tr = env.step(params, st, raw, obs, p, refresh)
+            b = Batch(state=s, theta_norm=st.theta_norm, zhat=st.zhat, use_zhat=st.use_zhat, raw=raw,
+                      logp=logp, value=value, reward=tr.reward, done=tr.done, expert=expert,
+                      failed=tr.failed, rate_err=tr.rate_err, thrust_err=tr.thrust_err)
+            return new, b
+
+        def body(st, x):
+            k, t = x
+            refresh = (it * cfg.unroll + t) % cfg.env.phi_every == 0
+            keys = jax.random.split(k, cfg.num_envs)
+            return jax.vmap(one, in_axes=(0, 0, None))(st, keys, refresh)
+
+        keys = jax.random.split(key, cfg.unroll)
+        env_state, batch = jax.lax.scan(body, env_state, (keys, jnp.arange(cfg.unroll)))
+        s, z, _, _ = jax.vmap(lambda st: env.policy_input(params, st))(env_state)
+        last_value = self.nets.value(params, s, env_state.theta_norm, z)
+        return env_state, batch, last_value
+
+    def _iteration(self, ts: TrainState, env_state: EnvState):
+        cfg = self.cfg
+        p, beta = schedules(cfg, ts.iteration)
+        key, k_roll, k_perm = jax.random.split(ts.key, 3)
+        env_state, batch, last_value = self._rollout(ts.params, env_state, k_roll, p, ts.iteration)
+        adv, ret = gae(batch.reward, batch.value, batch.done, last_value, cfg.gamma, cfg.gae_lambda)
+        flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), (batch, adv, ret))
+        snap_theta, snap_hist = env_state.theta_norm, env_state.history  # (N, 19), (N, 100, 14)
+        n = cfg.num_envs * cfg.unroll
+        m = cfg.minibatches
+
+        def epoch(carry, k):
+            params, opt_state = carry
+            perm = jax.random.permutation(k, n).reshape(m, -1)
+            sperm = jax.random.permutation(jax.random.fold_in(k, 1), cfg.num_envs).reshape(m, -1)
+
+            def minibatch(carry, idx):
+                params, opt_state = carry
+                i, si = idx
+                mb, a, r = jax.tree.map(lambda x: x[i], flat)
+                (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(
+                    params, self.nets, cfg, mb, a, r, snap_theta[si], snap_hist[si], beta)
+                updates, opt_state = self.opt.update(grads, opt_state, params)
+                return (optax.apply_updates(params, updates), opt_state), dict(aux, loss=loss)
+
+            return jax.lax.scan(minibatch, (params, opt_state), (perm, sperm))
+
+        (params, opt_state), aux = jax.lax.scan(epoch, (ts.params, ts.opt_state),
+                                                jax.random.split(k_perm, cfg.epochs))
+        # Latent health on the snapshots: alignment error relative to the spread of z^θ.
+        z_theta = self.nets.encode(params, snap_theta)
+        zhat = self.nets.adapt(params, snap_hist)
+        spread = jnp.sqrt(jnp.sum(jnp.var(z_theta, 0)))
+        stats = {k: v.mean() for k, v in aux.items()}
+        stats.update(reward=batch.reward.mean(), fail_rate=batch.failed.mean(),
+                     rate_err=batch.rate_err.mean(), thrust_err=batch.thrust_err.mean(),
+                     p_zhat=p, bc_weight=beta,
+                     latent_err_rel=jnp.sqrt(jnp.mean(jnp.sum((z_theta - zhat) ** 2, -1))) / spread,
+                     latent_min_std=jnp.sqrt(jnp.var(z_theta, 0)).min())
+        ts = TrainState(params=params, opt_state=opt_state, iteration=ts.iteration + 1, key=key)
+        return ts, env_state, stats
+
+
+POLICY_MODULES = ("mu", "phi", "pi", "aux")
+
+
+def export_policy(params, path, meta: dict) -> Path:
+    """Ship the deployable part (μ, φ, π, aux decoder) of ``params`` with its metadata."""
+    return save_tree(path, {k: params[k] for k in POLICY_MODULES}, meta)
+
+
+def load_policy_params(path):
+    """Read shipped policy weights -> (params dict {'mu','phi','pi','aux'}, meta)."""
+    template = N.Networks().init(jax.random.PRNGKey(0))
+    params = load_tree(path, {k: template[k] for k in POLICY_MODULES})
+    return params, load_meta(path)
+
+
+def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print) -> dict:
+    """Train with checkpoints in ``out_dir`` (``checkpoint.npz``; resumed if present and
+    ``resume``). Writes ``policy.npz`` (shipped format) and ``train_log.jsonl``. Returns the
+    last stats and wall time."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    trainer = Trainer(cfg)
+    ts = trainer.init(jax.random.PRNGKey(cfg.seed))
+    ckpt = out / "checkpoint.npz"
+    if resume and ckpt.exists():
+        meta = load_meta(ckpt)
+        if meta.get("config") != json.loads(json.dumps(cfg.to_dict())):
+            raise ValueError(f"{ckpt} was written with a different config; use a new --out or --no-resume")
+        ts = load_tree(ckpt, ts)
+        log(f"resumed from {ckpt} at iteration {int(ts.iteration)}")
+    p0, _ = schedules(cfg, ts.iteration)
+    env_state = trainer.reset(jax.random.fold_in(ts.key, 123), p0)
+    steps_per_it = cfg.num_envs * cfg.unroll
+    t_start = time.time()
+    wall_prev = load_meta(ckpt).get("wall_s", 0.0) if (resume and ckpt.exists()) else 0.0
+    logf = open(out / "train_log.jsonl", "a")
+    stats = {}
+    t_log, it_log = time.time(), int(ts.iteration)
+    while int(ts.iteration) < cfg.iterations:
+        ts, env_state, stats = trainer.iteration(ts, env_state)
+        it = int(ts.iteration)
+        if it % cfg.log_every == 0 or it == cfg.iterations or it == 1:
+            stats = {k: float(v) for k, v in stats.items()}
+            now = time.time()
+            sps = (it - it_log) * steps_per_it / max(now - t_log, 1e-9)
+            t_log, it_log = now, it
+            rec = dict(iteration=it, env_steps=it * steps_per_it, steps_per_s=sps,
+                       wall_s=wall_prev + now - t_start, **stats)
+            logf.write(json.dumps(rec) + "\n")
+            logf.flush()
+            log(f"it {it:5d}/{cfg.iterations} | {sps / 1e6:6.2f} M steps/s | reward {stats['reward']:+.3f} "
+                f"| rate err {stats['rate_err']:.3f} rad/s | thrust err {stats['thrust_err']:.2f} | "
+                f"fail {stats['fail_rate'] * 1e3:.2f}‰ | bc {stats['bc']:.4f} | "
+                f"‖z−ẑ‖/spread {stats['latent_err_rel']:.3f} | min std z {stats['latent_min_std']:.2f} "
+                f"| p {stats['p_zhat']:.2f}")
+        if it % cfg.checkpoint_every == 0 or it == cfg.iterations:
+            save_tree(ckpt, ts, {"config": cfg.to_dict(), "iteration": it,
+                                 "wall_s": wall_prev + time.time() - t_start})
+    logf.close()
+    wall = wall_prev + time.time() - t_start
+    export_policy(ts.params, out / "policy.npz", {
+        "config": cfg.to_dict(), "normalizer": trainer.env.normalizer.to_dict(),
+        "iterations": int(ts.iteration), "env_steps": int(ts.iteration) * steps_per_it,
+        "wall_s": wall, "final_stats": {k: float(v) for k, v in stats.items()},
+        "device": str(jax.devices()[0]), "jax": jax.__version__})
+    return {"stats": {k: float(v) for k, v in stats.items()}, "wall_s": wall}

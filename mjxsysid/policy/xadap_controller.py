@@ -1,0 +1,339 @@
+"""The released Extreme-Adaptation ("Xadap") policy as an mjxsysid low-level controller.
+
+:class:`XAdapController` wraps the pure-JAX networks of :mod:`mjxsysid.policy.xadap` in the
+low-level interface of :mod:`mjxsysid.control.low_level`, so that the released policy flies
+under any high-level controller (e.g. :class:`~mjxsysid.control.high_level.Cascade`) in the
+unchanged harness (:func:`~mjxsysid.analysis.harness.fly_batch`)::
+
+    low = make_xadap_low_level(XADAP_DIR, batch_size=B)          # rate 500 Hz, filter on
+    flight = fly_batch(sim, theta, low, high, refs, dist, key, steps)
+
+Conventions (released files' README, the published wrapper ``Xadap_NN_control.py``, and
+closed-loop checks in mjxsysid; see docs in the lead's BENCHMARKS/README):
+
+* **state** s (8) = [ω (3) gyro, rad/s body FLU; specific force along body z (1), m/s²,
+  low-passed (below); ω_cmd (3) rad/s; a_cmd (1) m/s² mass-normalised collective thrust].
+  mjxsysid's body frame (x forward, y left, z up) is the network's frame: no sign change.
+* **policy input** (20) = [normalize_state([s_k, r_{k−1}]) (12), ẑ_k (8)].
+* **adaptation input** (1200) = :func:`~mjxsysid.policy.xadap.build_history_input` of the
+  last 100 *previous* policy steps (oldest first): at step k the history holds
+  s_{k−100..k−1} and r_{k−100..k−1}; s_k and r_k are appended *after* φ and π ran (as the
+  wrapper does). ẑ_k = φ(history) is recomputed at every policy step.
+* **history at reset**: zeros in physical units (as the wrapper), unless
+  ``history_init="hover"`` (state rows [0, 0, 0, a, 0, 0, 0, a] with a the first a_cmd
+  reading... see :meth:`XAdapController.init`).
+* **action**: raw r ∈ [−1, 1] (network order 0 front-right, 1 back-left, 2 back-right,
+  3 front-left); normalised rotor speed Ω_cmd/Ω_max = 0.5 r + 0.5, reordered to mjxsysid
+  order (front-right, front-left, back-left, back-right) = nn[[0, 3, 1, 2]]. The yaw signs
+  agree (FR −, FL +, BL −, BR + in both). Ω_max is not needed: the harness takes
+  normalised commands.
+* **rate**: a static ``decimation`` (simulator steps per policy step). The motor command is
+  held between policy steps (zero-order hold); the high-level controller keeps running at the
+  simulator rate.
+* **accelerometer filter**: 2nd-order Butterworth low-pass on the z specific force, 30 Hz
+  cut-off, designed (bilinear transform with pre-warping, as ``scipy.signal.butter``) for the
+  *policy* rate actually used, run once per policy step, started at steady state on the first
+  reading. ``accel_filter="wrapper"`` reproduces the published wrapper's filter instead, which
+  feeds past *inputs* where a Butterworth feeds past outputs — in effect the 3-tap FIR
+  y = b0 x_k + (b1 − a1) x_{k−1} + (b2 − a2) x_{k−2} designed for 100 Hz, started from zeros.
+  ``accel_filter=False`` passes the raw reading.
+
+:func:`xadap_training_prior` returns a :class:`~mjxsysid.params.Prior` whose samples match the
+released policy's training statistics (mean.csv/var.csv; README) — an in-distribution test set.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import struct
+
+from mjxsysid import params as P
+from mjxsysid.control.low_level import Command
+from mjxsysid.policy.xadap import (ACTION_DIM, HISTORY_LEN, LATENT_DIM, STATE_DIM, XAdapWeights,
+                                   build_history_input, load_npz, load_xadap, normalize_state,
+                                   xadap_encoder, xadap_policy)
+
+__all__ = [
+    "XAdapController",
+    "XAdapCarry",
+    "make_xadap_low_level",
+    "xadap_training_prior",
+    "XAdapPrior",
+    "butterworth2",
+    "NN_TO_MJX",
+    "ACCEL_FILTERS",
+    "HISTORY_INITS",
+]
+
+NN_TO_MJX = np.array([0, 3, 1, 2])
+"""mjxsysid rotor i (FR, FL, BL, BR) is network motor NN_TO_MJX[i] (0 FR, 1 BL, 2 BR, 3 FL)."""
+
+ACCEL_FILTERS = ("butter", "wrapper", "none")
+HISTORY_INITS = ("zeros", "hover")
+DEFAULT_SIM_DT = 0.002  # mjxsysid.sim.SimConfig().dt: 500 Hz
+
+
+def butterworth2(cutoff_hz: float, sample_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """2nd-order low-pass Butterworth, bilinear transform with pre-warping (as
+    ``scipy.signal.butter(2, cutoff_hz / (sample_hz / 2))``). Returns (b (3,), a (3,)), a[0] = 1."""
+    if not 0.0 < cutoff_hz < 0.5 * sample_hz:
+        raise ValueError(f"Butterworth cut-off {cutoff_hz} Hz must lie in (0, {0.5 * sample_hz}) "
+                         f"Hz for a {sample_hz} Hz sample rate")
+    k = math.tan(math.pi * cutoff_hz / sample_hz)
+    q = math.sqrt(2.0)
+    norm = 1.0 / (1.0 + q * k + k * k)
+    b0 = k * k * norm
+    b = np.array([b0, 2.0 * b0, b0])
+    a = np.array([1.0, 2.0 * (k * k - 1.0) * norm, (1.0 - q * k + k * k) * norm])
+    return b, a
+
+
+class XAdapCarry(NamedTuple):
+    """Per-episode memory of :class:`XAdapController` (add a leading batch axis under vmap).
+
+    s_hist (100, 8), r_hist (100, 4): physical-unit state / raw-action histories, oldest first
+    (the last 100 policy steps *before* the current one). r_last (4,): previous raw action.
+    filt (2,): accelerometer filter state (Butterworth: transposed direct-form-II registers;
+    wrapper: the two previous raw readings). count (): simulator steps taken (int32; the
+    policy runs when count % decimation == 0). z (8,): current latent ẑ. motor (4,): held
+    normalised motor command, mjxsysid order. fz (): last (filtered) specific force fed to π.
+    """
+    s_hist: jax.Array
+    r_hist: jax.Array
+    r_last: jax.Array
+    filt: jax.Array
+    count: jax.Array
+    z: jax.Array
+    motor: jax.Array
+    fz: jax.Array
+
+
+def _as_f32_weights(w: XAdapWeights) -> XAdapWeights:
+    return jax.tree.map(lambda a: jnp.asarray(np.asarray(a, np.float32)), w)
+
+
+@struct.dataclass
+class XAdapController:
+    """The released Xadap policy as a low-level controller (a pytree: ``weights`` are leaves).
+
+    decimation: simulator steps per policy step (1: policy at the simulator rate, 500 Hz with
+    the default simulator; 5: 100 Hz). sim_dt: simulator control period (s) the controller is
+    built for (only used to design the filter). accel_filter: "butter" | "wrapper" | "none".
+    accel_cutoff_hz: Butterworth cut-off. history_init: "zeros" | "hover". All static.
+    """
+    weights: XAdapWeights
+    decimation: int = struct.field(pytree_node=False, default=1)
+    sim_dt: float = struct.field(pytree_node=False, default=DEFAULT_SIM_DT)
+    accel_filter: str = struct.field(pytree_node=False, default="butter")
+    accel_cutoff_hz: float = struct.field(pytree_node=False, default=30.0)
+    history_init: str = struct.field(pytree_node=False, default="zeros")
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def load(cls, weights, *, rate_hz: float = 500.0, sim_dt: float = DEFAULT_SIM_DT,
+             accel_filter: bool | str = True, accel_cutoff_hz: float = 30.0,
+             history_init: str = "zeros") -> "XAdapController":
+        """Build from a directory of the released files (``encoder.onnx`` ...; needs ``onnx``),
+        an ``.npz`` from :func:`~mjxsysid.policy.xadap.save_npz`, or :class:`XAdapWeights`.
+
+        rate_hz: policy rate; must divide the simulator rate 1/sim_dt. accel_filter: True /
+        "butter" (Butterworth designed for rate_hz), "wrapper" (the published wrapper's
+        filter), False / "none".
+        """
+        if isinstance(weights, XAdapWeights):
+            w = weights
+        else:
+            p = Path(weights).expanduser()
+            w = load_npz(p) if (p.suffix == ".npz" or p.is_file()) else load_xadap(p)
+        if not sim_dt > 0 or not rate_hz > 0:
+            raise ValueError(f"rate_hz and sim_dt must be > 0, got {rate_hz}, {sim_dt}")
+        ratio = 1.0 / (rate_hz * sim_dt)
+        dec = int(round(ratio))
+        if dec < 1 or abs(ratio - dec) > 1e-6 * max(1.0, ratio):
+            raise ValueError(f"policy rate {rate_hz} Hz must divide the simulator rate "
+                             f"{1.0 / sim_dt:g} Hz (sim_dt {sim_dt} s)")
+        filt = {True: "butter", False: "none", None: "none"}.get(accel_filter, accel_filter)
+        if filt not in ACCEL_FILTERS:
+            raise ValueError(f"accel_filter must be True, False or one of {ACCEL_FILTERS}, "
+                             f"got {accel_filter!r}")
+        if history_init not in HISTORY_INITS:
+            raise ValueError(f"history_init must be one of {HISTORY_INITS}, got {history_init!r}")
+        if filt == "butter":
+            butterworth2(accel_cutoff_hz, rate_hz)  # validates the cut-off
+        return cls(_as_f32_weights(w), decimation=dec, sim_dt=float(sim_dt), accel_filter=filt,
+                   accel_cutoff_hz=float(accel_cutoff_hz), history_init=history_init)
+
+    @property
+    def rate_hz(self) -> float:
+        return 1.0 / (self.sim_dt * self.decimation)
+
+    # ------------------------------------------------------------------ interface
+    def init(self, key=None) -> XAdapCarry:
+        """Empty memory: zero histories (filled on the first step if history_init='hover')."""
+        f = jnp.float32
+        return XAdapCarry(
+            s_hist=jnp.zeros((HISTORY_LEN, STATE_DIM), f),
+            r_hist=jnp.zeros((HISTORY_LEN, ACTION_DIM), f),
+            r_last=jnp.zeros(ACTION_DIM, f),
+            filt=jnp.zeros(2, f),
+            count=jnp.array(0, jnp.int32),
+            z=jnp.zeros(LATENT_DIM, f),
+            motor=jnp.zeros(4, f),
+            fz=jnp.array(0.0, f),
+        )
+
+    def step(self, carry: XAdapCarry, imu, command: Command) -> tuple[XAdapCarry, jax.Array]:
+        """imu (6,) [gyro, specific force], command -> (carry, motor_cmd (4,) in [0, 1])."""
+        imu = jnp.asarray(imu, jnp.float32)
+        if self.decimation == 1:
+            new = self._policy_step(carry, imu, command)
+        else:
+            new = jax.lax.cond(carry.count % self.decimation == 0,
+                               lambda c: self._policy_step(c, imu, command), lambda c: c, carry)
+        new = new._replace(count=carry.count + 1)
+        return new, new.motor
+
+    def latent(self, carry: XAdapCarry) -> jax.Array:
+        """The current latent ẑ (8,) (φ of the history at the latest policy step)."""
+        return carry.z
+
+    # ------------------------------------------------------------------ internals
+    def _filter(self, carry: XAdapCarry, x):
+        """Filtered z specific force and new filter state; starts at steady state (Butterworth)."""
+        first = carry.count == 0
+        if self.accel_filter == "none":
+            return x, carry.filt
+        if self.accel_filter == "butter":
+            b, a = butterworth2(self.accel_cutoff_hz, self.rate_hz)
+            b = b.astype(np.float32)
+            a = a.astype(np.float32)
+            z2_ss = (b[2] - a[2]) * x
+            z1_ss = (b[1] - a[1]) * x + z2_ss
+            z1 = jnp.where(first, z1_ss, carry.filt[0])
+            z2 = jnp.where(first, z2_ss, carry.filt[1])
+            y = b[0] * x + z1
+            return y, jnp.stack([b[1] * x - a[1] * y + z2, b[2] * x - a[2] * y])
+        # "wrapper": scipy butter(2, 30/50) coefficients, but the recursion reads past inputs
+        # (its buffer is initialised to zeros): a 3-tap FIR with unit DC gain.
+        b, a = butterworth2(30.0, 100.0)
+        x1, x2 = carry.filt[0], carry.filt[1]
+        y = b[0] * x + (b[1] - a[1]) * x1 + (b[2] - a[2]) * x2
+        return y.astype(jnp.float32), jnp.stack([x, x1])
+
+    def _policy_step(self, carry: XAdapCarry, imu, command: Command) -> XAdapCarry:
+        w = self.weights
+        fz, filt = self._filter(carry, imu[5])
+        a_cmd = jnp.reshape(jnp.asarray(command.a_cmd, jnp.float32), (1,))
+        s = jnp.concatenate([imu[0:3], fz[None], jnp.asarray(command.omega_cmd, jnp.float32),
+                             a_cmd])
+        s_hist, r_hist = carry.s_hist, carry.r_hist
+        if self.history_init == "hover":
+            g = jnp.float32(P.GRAVITY)
+            hover = jnp.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], jnp.float32) * g
+            s_hist = jnp.where(carry.count == 0, jnp.broadcast_to(hover, s_hist.shape), s_hist)
+        z = xadap_encoder(w, build_history_input(w, s_hist, r_hist))
+        obs = normalize_state(w, jnp.concatenate([s, carry.r_last]))
+        r = xadap_policy(w, jnp.concatenate([obs, z]))
+        motor = jnp.clip(0.5 * r + 0.5, 0.0, 1.0)[NN_TO_MJX]
+        return XAdapCarry(
+            s_hist=jnp.concatenate([s_hist[1:], s[None]], 0),
+            r_hist=jnp.concatenate([r_hist[1:], r[None]], 0),
+            r_last=r, filt=filt, count=carry.count, z=z, motor=motor, fz=fz)
+
+
+def make_xadap_low_level(weights_dir, batch_size: int, **kw) -> XAdapController:
+    """:meth:`XAdapController.load` ``(weights_dir, **kw)`` broadcast to a batch of
+    ``batch_size`` vehicles (every leaf gets a leading axis), ready for ``fly_batch``."""
+    from mjxsysid.analysis.flight import broadcast
+
+    return broadcast(XAdapController.load(weights_dir, **kw), int(batch_size))
+
+
+# ----------------------------------------------------------------------------------------
+# The released policy's training distribution
+# ----------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class XAdapPrior(P.Prior):
+    """A :class:`~mjxsysid.params.Prior` fitted to the released policy's training statistics.
+
+    The released mean.csv / var.csv give mean ± std of the privileged parameters (README):
+    mass 0.60 ± 0.33 kg and arm 0.113 ± 0.049 m are uniform-like (so mass is *linear* in the
+    size factor here, not ∝ l³ as in the default prior), J ≈ 0.19 m l² (std/mean ≈ 1.2),
+    k_t exponential in c (mean 3.7e-6, std 6.3e-6), κ ≈ U[0.0062, 0.016], drag ≈ isotropic,
+    Ω_max 3379 ± 2435 rad/s, η U[0.7, 1.3]. Sampling, with c ~ U[0, 1] and noise n ~ U[1 ± noise]:
+
+    - l = (arm_lo + (arm_hi − arm_lo) c) n, clipped to ``arm``; m likewise from ``mass_range``
+    - J_xx,yy = inertia_xy m l² n, J_zz = inertia_z m l² n (≤ 0.98 (J_xx + J_yy))
+    - k_t = kt_base exp(kt_rate c) n, κ ~ U[kappa], k_τ = κ k_t
+    - D_xx = D_yy = D_zz = drag_iso (l / 0.2)² n
+    - Ω_max from thrust-to-weight r ~ U[twr] clipped to [twr_min_eff, twr_max_eff] / η
+    - η ~ U[eta], τ_m ~ U[motor_time_constant], τ_ext as :class:`~mjxsysid.params.Prior`.
+
+    Moment match (400k samples): mass 0.60 ± 0.32, arm 0.113 ± 0.048, J_xx 2.2e-3 ± 2.2e-3,
+    J_zz 3.3e-3 ± 3.4e-3, k_t 3.6e-6 ± 6.2e-6, drag 0.31 ± 0.23, Ω_max ≈ 3400 ± 2300.
+    The joint structure (one size factor) is a guess: only marginals are published.
+    """
+    name: str = "xadap_training"
+    arm: tuple[float, float] = (0.03, 0.20)
+    mass_range: tuple[float, float] = (0.04, 1.16)
+    inertia_xy: float = 0.175
+    inertia_z: float = 0.265
+    kt_base: float = 1.1e-8
+    kt_rate: float = 7.86
+    kappa: tuple[float, float] = (0.0062, 0.016)
+    drag_iso: float = 0.75
+    twr: tuple[float, float] = (2.0, 4.5)
+    twr_min_eff: float = 1.5
+    twr_max_eff: float = 8.0
+    noise: float = 0.1
+
+    def sample(self, key: jax.Array, n: int) -> jax.Array:
+        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32."""
+        return _sample_xadap(self, key, n)
+
+
+def _sample_xadap(p: XAdapPrior, key, n: int):
+    ks = jax.random.split(key, 16)
+
+    def u(k, lo, hi, shape=(n,)):
+        return jax.random.uniform(k, shape, jnp.float32, lo, hi)
+
+    def noise(k, shape=(n,)):
+        return u(k, 1.0 - p.noise, 1.0 + p.noise, shape)
+
+    c = u(ks[0], 0.0, 1.0)
+    arm = jnp.clip((p.arm[0] + (p.arm[1] - p.arm[0]) * c) * noise(ks[1]), *p.arm)
+    m_lo, m_hi = p.mass_range
+    mass = jnp.clip((m_lo + (m_hi - m_lo) * c) * noise(ks[2]), m_lo, m_hi)
+    ml2 = mass * arm**2
+    jn = noise(ks[3], (n, 3))
+    jxx = p.inertia_xy * ml2 * jn[:, 0]
+    jyy = p.inertia_xy * ml2 * jn[:, 1]
+    jzz = jnp.minimum(p.inertia_z * ml2 * jn[:, 2], 0.98 * (jxx + jyy))
+    kt = p.kt_base * jnp.exp(p.kt_rate * c) * noise(ks[4])
+    kappa = u(ks[5], *p.kappa)
+    drag = p.drag_iso * (arm / 0.2) ** 2 * noise(ks[6])
+    eta = u(ks[7], *p.eta, (n, 4))
+    twr = jnp.clip(u(ks[8], *p.twr), p.twr_min_eff / eta.min(-1), p.twr_max_eff / eta.max(-1))
+    omega_max = jnp.sqrt(twr * mass * P.GRAVITY / (4.0 * kt))
+    tau_m = u(ks[9], *p.motor_time_constant)
+    ext_scale = jnp.stack([p.ext_torque_xy * mass * P.GRAVITY * arm] * 2
+                          + [p.ext_torque_z * mass * P.GRAVITY * kappa], -1)
+    tau_ext = u(ks[10], -1.0, 1.0, (n, 3)) * ext_scale
+    cols = [mass, arm, kt, kappa * kt, jxx, jyy, jzz, drag, drag, drag, omega_max,
+            eta[:, 0], eta[:, 1], eta[:, 2], eta[:, 3], tau_m, tau_ext[:, 0], tau_ext[:, 1],
+            tau_ext[:, 2]]
+    return jnp.stack(cols, -1)
+
+
+def xadap_training_prior(**overrides) -> XAdapPrior:
+    """The released Xadap policy's training distribution (moment-matched; see
+    :class:`XAdapPrior`), optionally with fields replaced (e.g. ``ext_torque_xy=0``)."""
+    return XAdapPrior(**overrides)
