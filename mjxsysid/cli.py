@@ -86,7 +86,29 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--num-envs", type=int, default=None, help="override config.num_envs")
     t.add_argument("--seed", type=int, default=None, help="override config.seed")
     t.add_argument("--no-resume", action="store_true", help="start afresh even if DIR/checkpoint.npz exists")
+    e = sub.add_parser("evaluate-policy", help="evaluate an adaptive policy (tracking, lemniscate, latent health)")
+    e.add_argument("--weights", type=Path, default=None, help="policy.npz or run folder (default: shipped)")
+    e.add_argument("--vehicles", type=int, default=1000)
+    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--out", type=Path, required=True, help="writes OUT/eval.json")
     return p
+
+
+def cmd_evaluate_policy(args) -> int:
+    from mjxsysid.policy.evaluate import evaluate_policy
+    if args.vehicles < 10:
+        raise ValueError(f"--vehicles must be >= 10 (linear probes need data), got {args.vehicles}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    res = evaluate_policy(args.weights, n=args.vehicles, seed=args.seed, log=lambda m: print(m, flush=True))
+    (args.out / "eval.json").write_text(json.dumps(res, indent=2) + "\n")
+    lem = res["lemniscate"]
+    print(json.dumps({"success_policy": lem["policy"]["success_rate"],
+                      "pos_rmse_policy": lem["policy"]["pos_rmse_m"]["mean"],
+                      "pos_rmse_oracle": lem["oracle"]["pos_rmse_m"]["mean"],
+                      "rmse_ratio": lem.get("rmse_ratio_policy_over_oracle"),
+                      "z_err_rel": res["latent"]["z_err_rel"]}))
+    print(f"wrote {args.out}/eval.json", file=sys.stderr)
+    return 0
 
 
 def cmd_train_policy(args) -> int:
@@ -204,7 +226,8 @@ def cmd_demo(args) -> int:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy}
+    handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy,
+                "evaluate-policy": cmd_evaluate_policy}
     try:
         return handlers[args.command](args)
     except (ValueError, FileNotFoundError) as e:
