@@ -39,7 +39,7 @@ class TrainConfig:
     seed: int = 0
     num_envs: int = 4096
     unroll: int = 32
-    iterations: int = 1500
+    iterations: int = 2500
     epochs: int = 4
     minibatches: int = 8
     learning_rate: float = 3e-4
@@ -49,8 +49,9 @@ class TrainConfig:
     value_coef: float = 0.5
     entropy_coef: float = 0.0
     max_grad_norm: float = 1.0
-    lambda1: float = 1.0
-    lambda2: float = 1.0
+    lambda1: float = 0.2
+    lambda2: float = 0.2
+    align_scale_invariant: bool = True
     var_coef: float = 1.0
     var_target: float = 0.1
     rec_coef: float = 0.1
@@ -136,13 +137,17 @@ def schedules(cfg: TrainConfig, it):
     return p, beta
 
 
-def alignment_losses(nets, params, theta_norm, history):
-    """(λ1 term, λ2 term) before weighting, each a mean over snapshots.
-    λ1: ‖z^θ − sg[ẑ]‖² (gradient to μ only); λ2: ‖sg[z^θ] − ẑ‖² (gradient to φ only)."""
+def alignment_losses(nets, params, theta_norm, history, scale_invariant: bool = True):
+    """(λ1 term, λ2 term) before weighting, each a mean over snapshots (S, ...).
+
+    λ1: ‖z^θ − sg[ẑ]‖² (gradient to μ only); λ2: ‖sg[z^θ] − ẑ‖² (gradient to φ only).
+    With ``scale_invariant`` both are measured in units of sg[std_d(z^θ)] over the snapshots,
+    so shrinking the latent cannot lower them: alignment, not collapse."""
     z_theta = nets.encode(params, theta_norm)
     zhat = nets.adapt(params, history)
-    l1 = jnp.mean(jnp.sum((z_theta - jax.lax.stop_gradient(zhat)) ** 2, -1))
-    l2 = jnp.mean(jnp.sum((jax.lax.stop_gradient(z_theta) - zhat) ** 2, -1))
+    scale = jax.lax.stop_gradient(jnp.std(z_theta, 0) + 1e-3) if scale_invariant else 1.0
+    l1 = jnp.mean(jnp.sum(((z_theta - jax.lax.stop_gradient(zhat)) / scale) ** 2, -1))
+    l2 = jnp.mean(jnp.sum(((jax.lax.stop_gradient(z_theta) - zhat) / scale) ** 2, -1))
     return l1, l2
 
 
@@ -164,7 +169,7 @@ def loss_fn(params, nets, cfg: TrainConfig, mb: Batch, adv, ret, snap_theta, sna
     vf = 0.5 * jnp.mean((v - ret) ** 2)
     ent = jnp.sum(log_std) + 0.5 * N.ACT * (1 + jnp.log(2 * jnp.pi))
     bc = jnp.mean(jnp.sum((mean - mb.expert) ** 2, -1))
-    l1, l2 = alignment_losses(nets, params, snap_theta, snap_hist)
+    l1, l2 = alignment_losses(nets, params, snap_theta, snap_hist, cfg.align_scale_invariant)
     var = variance_loss(z_theta, cfg.var_target)
     rec = jnp.mean(jnp.sum((nets.decode(params, z_theta) - mb.theta_norm) ** 2, -1))
     loss = (pg + cfg.value_coef * vf - cfg.entropy_coef * ent + beta * bc
