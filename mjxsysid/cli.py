@@ -63,8 +63,11 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--prior", choices=("default", "slow_actuators"), default=None,
                    help="instead of --vehicle: fly --vehicles vehicles drawn from this prior (seeded)")
     f.add_argument("--vehicles", type=int, default=100, help="with --prior: how many (default 100)")
-    f.add_argument("--controller", choices=("oracle", "nominal"), default="oracle",
-                   help="oracle: K_θ with the true θ; nominal: K_θ with the paper vehicle's θ")
+    f.add_argument("--controller", choices=("oracle", "nominal", "policy"), default="oracle",
+                   help="oracle: K_θ with the true θ; nominal: K_θ with the paper vehicle's θ; "
+                        "policy: the adaptive policy (shipped weights or --weights)")
+    f.add_argument("--weights", type=Path, default=None,
+                   help="with --controller policy: a policy.npz or training run folder")
     f.add_argument("--reference", choices=("hover", "lemniscate", "minsnap"), default="lemniscate")
     f.add_argument("--period", type=_positive, default=10.0, help="lemniscate period, s (default 10)")
     f.add_argument("--duration", type=_positive, default=None,
@@ -162,7 +165,8 @@ def cmd_fly(args) -> int:
     flight, m, duration = fly_vehicles(
         theta, controller=args.controller, reference=args.reference, period=args.period,
         duration=args.duration, gains=args.gains, force_step=args.force_step,
-        force_step_time=args.force_step_time, force_sigma=args.force_sigma, seed=args.seed)
+        force_step_time=args.force_step_time, force_sigma=args.force_sigma, seed=args.seed,
+        weights=args.weights)
     save_flight(flight, theta, out / "flight.npz")
     info = {"vehicle": str(args.vehicle or "paper_hardware"), "controller": args.controller,
             "reference": args.reference, "duration_s": duration, "gains": args.gains,
@@ -170,7 +174,7 @@ def cmd_fly(args) -> int:
     d = write_metrics(m, out / "metrics.json", extra=info)
     one = one_flight(flight)
     plot_trajectory(one.frame, out / "tracking.png", reference=one.ref_pos,
-                    title=f"{args.controller} K_θ, {args.reference}, {Path(info['vehicle']).stem}")
+                    title=f"{args.controller}, {args.reference}, {Path(info['vehicle']).stem}")
     if args.video:
         from mjxsysid.render.video import render_rollout
         render_rollout(theta, one.frame, out / "flight.mp4", reference=one.ref_pos)
@@ -200,7 +204,8 @@ def _fly_prior(args) -> int:
     flight, m, duration = fly_vehicles(
         theta, controller=args.controller, reference=args.reference, period=args.period,
         duration=args.duration, gains=args.gains, force_step=args.force_step,
-        force_step_time=args.force_step_time, force_sigma=args.force_sigma, seed=args.seed, refs=refs)
+        force_step_time=args.force_step_time, force_sigma=args.force_sigma, seed=args.seed, refs=refs,
+        weights=args.weights)
     save_flight(flight, theta, out / "flight.npz")
     info = {"prior": args.prior, "vehicles": args.vehicles, "controller": args.controller,
             "reference": args.reference, "duration_s": duration, "gains": args.gains, "seed": args.seed,

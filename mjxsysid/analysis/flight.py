@@ -19,7 +19,7 @@ from mjxsysid.control.low_level import KTheta
 from mjxsysid.control.references import Hover, Lemniscate, MinSnap, stack
 from mjxsysid.sim import Quadrotor, SimConfig
 
-CONTROLLERS = ("oracle", "nominal")
+CONTROLLERS = ("oracle", "nominal", "policy")
 REFERENCES = ("hover", "lemniscate", "minsnap")
 
 
@@ -36,14 +36,20 @@ def make_reference(name: str, *, period: float = 10.0, duration: float | None = 
     raise ValueError(f"unknown reference {name!r}; choose from {REFERENCES}")
 
 
-def make_low_level(name: str, theta):
+def make_low_level(name: str, theta, weights=None):
     """'oracle': K_θ with each vehicle's true θ; 'nominal': K_θ with the paper vehicle's θ
-    whatever is flown (non-adaptive). θ (B, 19) -> batched controller."""
+    whatever is flown (non-adaptive); 'policy': the adaptive policy (shipped weights, or
+    ``weights``: a policy.npz or run folder). θ (B, 19) -> batched controller."""
     theta = np.asarray(theta, np.float32)
+    if weights is not None and name != "policy":
+        raise ValueError("--weights only applies to --controller policy")
     if name == "oracle":
         return KTheta.make(theta)
     if name == "nominal":
         return KTheta.make(np.broadcast_to(P.PAPER_HARDWARE, theta.shape))
+    if name == "policy":
+        from mjxsysid.policy.controller import PolicyController
+        return broadcast(PolicyController.load(weights), theta.shape[0])
     raise ValueError(f"unknown controller {name!r}; choose from {CONTROLLERS}")
 
 
@@ -54,7 +60,7 @@ def broadcast(tree, b: int):
 
 def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=10.0,
                  duration=None, gains="baseline", force_step=(0.0, 0.0, 0.0), force_step_time=1.0,
-                 force_sigma=0.0, seed=0, sim: Quadrotor | None = None, refs=None):
+                 force_sigma=0.0, seed=0, sim: Quadrotor | None = None, refs=None, weights=None):
     """Fly a batch θ (B, 19) (or one vehicle (19,)) under one controller and reference.
 
     Returns (Flight with (B, T, ...) leaves, metrics dict of (B,) arrays, duration s).
@@ -72,7 +78,7 @@ def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=1
     duration = d0 if duration is None else duration
     sim = sim or Quadrotor(SimConfig())
     steps = int(round(duration / sim.config.dt))
-    low = make_low_level(controller, theta)
+    low = make_low_level(controller, theta, weights)
     high = broadcast(Cascade.make(gains), b)
     dist = broadcast(Disturbance.make(step_force=force_step, step_time=force_step_time,
                                       sigma=force_sigma), b)

@@ -19,9 +19,8 @@ closed-loop checks in mjxsysid; see docs in the lead's BENCHMARKS/README):
   last 100 *previous* policy steps (oldest first): at step k the history holds
   s_{k−100..k−1} and r_{k−100..k−1}; s_k and r_k are appended *after* φ and π ran (as the
   wrapper does). ẑ_k = φ(history) is recomputed at every policy step.
-* **history at reset**: zeros in physical units (as the wrapper), unless
-  ``history_init="hover"`` (state rows [0, 0, 0, a, 0, 0, 0, a] with a the first a_cmd
-  reading... see :meth:`XAdapController.init`).
+* **history at reset**: zeros in physical units, as the wrapper (filling it with hover
+  values instead made no measurable difference: the 100-step window is flushed in 0.2 s).
 * **action**: raw r ∈ [−1, 1] (network order 0 front-right, 1 back-left, 2 back-right,
   3 front-left); normalised rotor speed Ω_cmd/Ω_max = 0.5 r + 0.5, reordered to mjxsysid
   order (front-right, front-left, back-left, back-right) = nn[[0, 3, 1, 2]]. The yaw signs
@@ -68,14 +67,12 @@ __all__ = [
     "butterworth2",
     "NN_TO_MJX",
     "ACCEL_FILTERS",
-    "HISTORY_INITS",
 ]
 
 NN_TO_MJX = np.array([0, 3, 1, 2])
 """mjxsysid rotor i (FR, FL, BL, BR) is network motor NN_TO_MJX[i] (0 FR, 1 BL, 2 BR, 3 FL)."""
 
 ACCEL_FILTERS = ("butter", "wrapper", "none")
-HISTORY_INITS = ("zeros", "hover")
 DEFAULT_SIM_DT = 0.002  # mjxsysid.sim.SimConfig().dt: 500 Hz
 
 
@@ -125,20 +122,19 @@ class XAdapController:
     decimation: simulator steps per policy step (1: policy at the simulator rate, 500 Hz with
     the default simulator; 5: 100 Hz). sim_dt: simulator control period (s) the controller is
     built for (only used to design the filter). accel_filter: "butter" | "wrapper" | "none".
-    accel_cutoff_hz: Butterworth cut-off. history_init: "zeros" | "hover". All static.
+    accel_cutoff_hz: Butterworth cut-off. All static.
     """
     weights: XAdapWeights
     decimation: int = struct.field(pytree_node=False, default=1)
     sim_dt: float = struct.field(pytree_node=False, default=DEFAULT_SIM_DT)
     accel_filter: str = struct.field(pytree_node=False, default="butter")
     accel_cutoff_hz: float = struct.field(pytree_node=False, default=30.0)
-    history_init: str = struct.field(pytree_node=False, default="zeros")
 
     # ------------------------------------------------------------------ construction
     @classmethod
     def load(cls, weights, *, rate_hz: float = 500.0, sim_dt: float = DEFAULT_SIM_DT,
-             accel_filter: bool | str = True, accel_cutoff_hz: float = 30.0,
-             history_init: str = "zeros") -> "XAdapController":
+             accel_filter: bool | str = True,
+             accel_cutoff_hz: float = 30.0) -> "XAdapController":
         """Build from a directory of the released files (``encoder.onnx`` ...; needs ``onnx``),
         an ``.npz`` from :func:`~mjxsysid.policy.xadap.save_npz`, or :class:`XAdapWeights`.
 
@@ -162,12 +158,10 @@ class XAdapController:
         if filt not in ACCEL_FILTERS:
             raise ValueError(f"accel_filter must be True, False or one of {ACCEL_FILTERS}, "
                              f"got {accel_filter!r}")
-        if history_init not in HISTORY_INITS:
-            raise ValueError(f"history_init must be one of {HISTORY_INITS}, got {history_init!r}")
         if filt == "butter":
             butterworth2(accel_cutoff_hz, rate_hz)  # validates the cut-off
         return cls(_as_f32_weights(w), decimation=dec, sim_dt=float(sim_dt), accel_filter=filt,
-                   accel_cutoff_hz=float(accel_cutoff_hz), history_init=history_init)
+                   accel_cutoff_hz=float(accel_cutoff_hz))
 
     @property
     def rate_hz(self) -> float:
@@ -175,7 +169,7 @@ class XAdapController:
 
     # ------------------------------------------------------------------ interface
     def init(self, key=None) -> XAdapCarry:
-        """Empty memory: zero histories (filled on the first step if history_init='hover')."""
+        """Empty memory: zero histories (physical units), zero last action, ẑ = 0."""
         f = jnp.float32
         return XAdapCarry(
             s_hist=jnp.zeros((HISTORY_LEN, STATE_DIM), f),
@@ -233,10 +227,6 @@ class XAdapController:
         s = jnp.concatenate([imu[0:3], fz[None], jnp.asarray(command.omega_cmd, jnp.float32),
                              a_cmd])
         s_hist, r_hist = carry.s_hist, carry.r_hist
-        if self.history_init == "hover":
-            g = jnp.float32(P.GRAVITY)
-            hover = jnp.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], jnp.float32) * g
-            s_hist = jnp.where(carry.count == 0, jnp.broadcast_to(hover, s_hist.shape), s_hist)
         z = xadap_encoder(w, build_history_input(w, s_hist, r_hist))
         obs = normalize_state(w, jnp.concatenate([s, carry.r_last]))
         r = xadap_policy(w, jnp.concatenate([obs, z]))

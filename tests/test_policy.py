@@ -1,0 +1,172 @@
+"""The unified adaptive policy: networks, losses, schedules, a tiny learning run, checkpoints,
+deployment = training, and the shipped weights."""
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from mjxsysid import params as P
+from mjxsysid.policy import networks as N
+from mjxsysid.policy.checkpoint import load_tree, save_tree
+from mjxsysid.policy.controller import PRETRAINED, PolicyCarry, PolicyController
+from mjxsysid.policy.env import EnvConfig, TrainEnv
+from mjxsysid.policy.train import (TrainConfig, alignment_losses, gae, gaussian_logp, schedules,
+                                   train, variance_loss)
+
+NETS = N.Networks()
+
+
+@pytest.fixture(scope="module")
+def params():
+    return NETS.init(jax.random.PRNGKey(0))
+
+
+def test_network_shapes_and_jit(params):
+    th = jnp.zeros((5, 19))
+    hist = jnp.zeros((5, N.HISTORY, N.STATE))
+    s = jnp.zeros((5, N.STATE))
+    z = jax.jit(NETS.encode)(params, th)
+    zh = jax.jit(NETS.adapt)(params, hist)
+    mean, log_std = jax.jit(NETS.act)(params, s, z)
+    assert z.shape == zh.shape == (5, 8) and mean.shape == (5, 4) and log_std.shape == (4,)
+    assert NETS.value(params, s, th, z).shape == (5,)
+    assert NETS.decode(params, z).shape == (5, 19)
+    assert np.all(np.abs(np.asarray(mean)) <= 1) and np.all(np.abs(np.asarray(zh)) <= 1)
+    # φ mirrors the XAdap layout: 100 steps -> conv lengths 24, 20, 16 -> 512 features.
+    assert params["phi"]["Dense_1"]["kernel"].shape == (512, 8)
+
+
+def test_gaussian_logp_closed_form():
+    x, m, ls = jnp.array([0.3, -0.2, 0.0, 1.0]), jnp.array([0.1, 0.0, 0.5, 1.0]), jnp.log(jnp.array([0.5, 1.0, 2.0, 0.1]))
+    sd = np.exp(np.asarray(ls))
+    expect = np.sum(-0.5 * ((np.asarray(x) - np.asarray(m)) / sd) ** 2 - np.log(sd) - 0.5 * np.log(2 * np.pi))
+    np.testing.assert_allclose(float(gaussian_logp(x, m, ls)), expect, rtol=1e-6)
+
+
+def test_gae_against_loop():
+    rng = np.random.default_rng(0)
+    T, n = 7, 3
+    r, v = rng.normal(size=(T, n)), rng.normal(size=(T, n))
+    d = rng.random((T, n)) < 0.2
+    last = rng.normal(size=n)
+    adv, ret = gae(jnp.asarray(r), jnp.asarray(v), jnp.asarray(d), jnp.asarray(last), 0.9, 0.8)
+    exp = np.zeros((T, n))
+    nxt_adv, nxt_v = np.zeros(n), last
+    for t in reversed(range(T)):
+        nd = 1 - d[t]
+        delta = r[t] + 0.9 * nxt_v * nd - v[t]
+        nxt_adv = delta + 0.9 * 0.8 * nd * nxt_adv
+        exp[t] = nxt_adv
+        nxt_v = v[t]
+    np.testing.assert_allclose(np.asarray(adv), exp, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(ret), exp + v, rtol=1e-5, atol=1e-6)
+
+
+def test_variance_loss_hand_computed():
+    z = jnp.array([[0.0, 1.0], [0.0, -1.0]])  # std 0 and 1
+    np.testing.assert_allclose(float(variance_loss(z, 0.5)), 0.5 - np.sqrt(1e-6), rtol=1e-4)
+
+
+@pytest.mark.parametrize("scale_invariant", [False, True])
+def test_alignment_terms_and_stop_gradients(params, scale_invariant):
+    key = jax.random.PRNGKey(3)
+    th = jax.random.normal(key, (16, 19))
+    hist = jax.random.normal(jax.random.fold_in(key, 1), (16, N.HISTORY, N.STATE))
+    l1, l2 = alignment_losses(NETS, params, th, hist, scale_invariant)
+    z, zh = NETS.encode(params, th), NETS.adapt(params, hist)
+    scale = np.asarray(jnp.std(z, 0) + 1e-3) if scale_invariant else 1.0
+    expect = np.mean(np.sum(((np.asarray(z) - np.asarray(zh)) / scale) ** 2, -1))
+    np.testing.assert_allclose([float(l1), float(l2)], [expect, expect], rtol=1e-5)
+    g1 = jax.grad(lambda p: alignment_losses(NETS, p, th, hist, scale_invariant)[0])(params)
+    g2 = jax.grad(lambda p: alignment_losses(NETS, p, th, hist, scale_invariant)[1])(params)
+    norm = lambda t: float(sum(jnp.sum(x**2) for x in jax.tree.leaves(t)))
+    assert norm(g1["mu"]) > 0 and norm(g1["phi"]) == 0   # λ1 moves μ towards sg[ẑ]
+    assert norm(g2["phi"]) > 0 and norm(g2["mu"]) == 0   # λ2 moves φ towards sg[z^θ]
+
+
+def test_schedules():
+    cfg = TrainConfig(iterations=100, warmup=0.2, ramp=0.3, p_max=0.5, bc_coef=2.0, bc_final=0.1, bc_decay=0.5)
+    p = [float(schedules(cfg, i)[0]) for i in (0, 20, 35, 50, 100)]
+    np.testing.assert_allclose(p, [0, 0, 0.25, 0.5, 0.5], atol=1e-6)
+    b = [float(schedules(cfg, i)[1]) for i in (0, 25, 50, 100)]
+    np.testing.assert_allclose(b, [2.0, 1.05, 0.1, 0.1], atol=1e-6)
+
+
+def test_config_errors():
+    with pytest.raises(ValueError, match="unknown training config key"):
+        TrainConfig.from_dict({"learning_rat": 1e-3})
+    with pytest.raises(ValueError, match="divisible"):
+        TrainConfig.from_dict({"num_envs": 30, "minibatches": 4})
+
+
+TINY = dict(num_envs=64, unroll=16, epochs=2, minibatches=4, log_every=1, checkpoint_every=4,
+            warmup=0.3, ramp=0.3)
+
+
+def test_tiny_training_improves_tracking_and_resumes(tmp_path):
+    """12 iterations × 1024 steps (seconds after compile) cut the body-rate tracking error of the
+    untrained policy by more than half; an interrupted run resumes from its checkpoint."""
+    cfg = TrainConfig(iterations=12, **TINY)
+
+    class Stop(Exception):
+        pass
+
+    def interrupt(msg):
+        if msg.startswith("it     6/"):
+            raise Stop
+
+    with pytest.raises(Stop):
+        train(cfg, tmp_path, resume=False, log=interrupt)
+    assert (tmp_path / "checkpoint.npz").exists() and not (tmp_path / "policy.npz").exists()
+    lines = []
+    res = train(cfg, tmp_path, resume=True, log=lines.append)
+    assert any("resumed from" in m and "iteration 4" in m for m in lines), lines[:2]
+    log = [json.loads(x) for x in (tmp_path / "train_log.jsonl").read_text().splitlines()]
+    assert log[-1]["iteration"] == 12
+    first, last = log[0]["rate_err"], np.mean([r["rate_err"] for r in log[-3:]])
+    assert last < 0.5 * first, (first, last)
+    assert res["stats"]["latent_min_std"] > 0.02  # no collapse (hinge at 0.1 holds it up)
+    ctrl = PolicyController.load(tmp_path / "policy.npz")
+    assert ctrl.phi_every == cfg.env.phi_every
+    with pytest.raises(ValueError, match="different config"):
+        train(TrainConfig(iterations=13, **TINY), tmp_path, resume=True)
+
+
+def test_checkpoint_round_trip_and_errors(tmp_path, params):
+    path = save_tree(tmp_path / "p.npz", params, {"note": "x"})
+    back = load_tree(path, params)
+    for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(back)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    with pytest.raises(ValueError, match="missing array|unexpected arrays"):
+        load_tree(path, {"mu": params["mu"]})
+    with pytest.raises(FileNotFoundError, match="not found"):
+        load_tree(tmp_path / "nope.npz", params)
+
+
+def test_deployed_controller_equals_training_policy(params):
+    """The low-level controller computes exactly the action the training env's policy takes
+    on the same history, last action, command and ẑ."""
+    env = TrainEnv(EnvConfig())
+    st = env.reset(jax.random.PRNGKey(5), 1.0)
+    st = st.replace(zhat=jnp.linspace(-0.5, 0.5, 8), last_raw=jnp.array([0.1, -0.2, 0.3, 0.0]),
+                    history=jax.random.normal(jax.random.PRNGKey(6), (N.HISTORY, N.STATE)))
+    s, z, _, obs = env.policy_input(params, st)
+    mean, _ = NETS.act(params, s, z)
+    ctrl = PolicyController(params=params, z_override=jnp.zeros(8), use_override=jnp.array(False))
+    carry = PolicyCarry(st.history, st.last_raw, st.zhat, jnp.int32(3), jnp.array(True))
+    carry2, u = ctrl.step(carry, st.sim.imu, st.command)
+    np.testing.assert_allclose(np.asarray(u), np.asarray(N.to_motor(mean)), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(carry2.history), np.asarray(N.push_history(st.history, obs, mean)), atol=1e-6)
+
+
+@pytest.mark.skipif(not PRETRAINED.exists(), reason="no shipped policy weights")
+def test_pretrained_policy_hovers_and_tracks_paper_vehicle():
+    from mjxsysid.analysis.flight import fly_vehicles
+    _, m, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", reference="hover", duration=3.0)
+    assert not bool(m["failed"][0])
+    assert float(m["max_pos_err_m"][0]) < 0.05, float(m["max_pos_err_m"][0])
+    meta = json.loads((PRETRAINED.parent / "policy.json").read_text())
+    for k in ("config", "seed", "commit", "device", "wall_s", "evaluation"):
+        assert k in meta, k
