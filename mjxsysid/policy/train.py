@@ -39,7 +39,7 @@ class TrainConfig:
     seed: int = 0
     num_envs: int = 4096
     unroll: int = 32
-    iterations: int = 2500
+    iterations: int = 1500
     epochs: int = 4
     minibatches: int = 8
     learning_rate: float = 3e-4
@@ -49,9 +49,9 @@ class TrainConfig:
     value_coef: float = 0.5
     entropy_coef: float = 0.0
     max_grad_norm: float = 1.0
-    lambda1: float = 0.2
-    lambda2: float = 0.2
-    align_scale_invariant: bool = True
+    lambda1: float = 1.0
+    lambda2: float = 1.0
+    align_scale_invariant: bool = False   # True collapsed a latent dimension in a 2500-it trial
     var_coef: float = 1.0
     var_target: float = 0.1
     rec_coef: float = 0.1
