@@ -213,5 +213,6 @@ def test_demo_runs(tmp_path):
     s = json.loads((out / "summary.json").read_text())
     assert s["oracle"]["paper_vehicle"]["pos_rmse_m"] < 0.05
     assert s["oracle"]["prior_vehicles"]["success_rate"] == 1.0
+    assert s["policy"]["paper_vehicle"]["pos_rmse_m"] < 0.05
     for f in ("tracking.png", "oracle_vs_nominal.png", "summary.md", "flight.npz"):
         assert (out / f).exists(), f

@@ -49,7 +49,7 @@ def make_low_level(name: str, theta, weights=None):
         return KTheta.make(np.broadcast_to(P.PAPER_HARDWARE, theta.shape))
     if name == "policy":
         from mjxsysid.policy.controller import PolicyController
-        return broadcast(PolicyController.load(weights), theta.shape[0])
+        return PolicyController.load(weights).batched(theta.shape[0])
     raise ValueError(f"unknown controller {name!r}; choose from {CONTROLLERS}")
 
 

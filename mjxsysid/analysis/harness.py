@@ -91,7 +91,8 @@ def fly(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance
         r = ref.at(t)
         est = Estimate(s.pos, s.vel, s.quat, s.omega)
         hc, cmd = high.step(hc, est, r, dt)
-        lc, u = low.step(lc, s.imu, cmd)
+        # Controllers that run something periodically take the (unbatched) step index.
+        lc, u = low.step_at(lc, s.imu, cmd, i) if hasattr(low, "step_at") else low.step(lc, s.imu, cmd)
         s = sim.step(theta, s, u, f)
         out = (sim.frame(s, u, f), r.pos, r.vel, r.yaw, cmd.a_cmd, cmd.omega_cmd, t + dt)
         return (s, hc, lc), out
@@ -101,16 +102,26 @@ def fly(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance
     return Flight(*out)
 
 
-@functools.partial(jax.jit, static_argnums=(0, 7))
-def _fly_batch(sim, theta, low, high, ref, disturbance, keys, steps):
-    return jax.vmap(lambda *a: fly(sim, *a, steps))(theta, low, high, ref, disturbance, keys)
+@functools.lru_cache(maxsize=64)
+def _fly_batch(sim, steps, low_axes_def, low_axes_leaves):
+    low_axes = jax.tree_util.tree_unflatten(low_axes_def, low_axes_leaves)
+    return jax.jit(jax.vmap(lambda *a: fly(sim, *a, steps), in_axes=(0, low_axes, 0, 0, 0, 0)))
+
+
+def low_level_axes(low):
+    """vmap axes of a low-level controller: ``low.batch_axes()`` if it defines one (e.g. network
+    weights shared by the whole batch: None), else 0 for every leaf."""
+    return low.batch_axes() if hasattr(low, "batch_axes") else 0
 
 
 def fly_batch(sim: Quadrotor, theta, low, high, ref, disturbance, key, steps: int) -> Flight:
-    """Batched :func:`fly`: θ (B, 19) and every pytree argument with leading axis B."""
+    """Batched :func:`fly`: θ (B, 19) and every pytree argument with leading axis B (the
+    low-level controller's shared leaves, per its ``batch_axes()``, unbatched)."""
     theta = jnp.asarray(theta, jnp.float32)
     keys = jax.random.split(key, theta.shape[0])
-    return _fly_batch(sim, theta, low, high, ref, disturbance, keys, int(steps))
+    leaves, treedef = jax.tree_util.tree_flatten(low_level_axes(low), is_leaf=lambda x: x is None)
+    fn = _fly_batch(sim, int(steps), treedef, tuple(leaves))
+    return fn(theta, low, high, ref, disturbance, keys)
 
 
 # ---------------------------------------------------------------------------------------

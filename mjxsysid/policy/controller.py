@@ -50,9 +50,19 @@ class PolicyController:
                    phi_every=int(pe))
 
     def with_privileged(self, theta_norm) -> "PolicyController":
-        """The same policy conditioned on z^θ = μ(θ_norm) instead of ẑ."""
+        """The same policy conditioned on z^θ = μ(θ_norm) instead of ẑ; θ_norm (19,) or
+        (n, 19) (then a batch for ``fly_batch``)."""
         z = N.Networks().encode(self.params, jnp.asarray(theta_norm, jnp.float32))
-        return self.replace(z_override=z, use_override=jnp.array(True))
+        return self.replace(z_override=z, use_override=jnp.ones(z.shape[:-1], bool))
+
+    def batch_axes(self):
+        """vmap axes for a batch built by :meth:`batched`: weights shared, latents per vehicle."""
+        return PolicyController(params=None, z_override=0, use_override=0, phi_every=self.phi_every)
+
+    def batched(self, n: int) -> "PolicyController":
+        """n vehicles sharing these weights (for ``fly_batch``)."""
+        return self.replace(z_override=jnp.broadcast_to(self.z_override, (n, N.LATENT)),
+                            use_override=jnp.broadcast_to(self.use_override, (n,)))
 
     def init(self, key=None) -> PolicyCarry:
         return PolicyCarry(history=jnp.zeros((N.HISTORY, N.STATE)), last_raw=jnp.zeros(N.ACT),
@@ -62,6 +72,12 @@ class PolicyController:
         return carry.zhat
 
     def step(self, carry: PolicyCarry, imu, command: Command):
+        return self.step_at(carry, imu, command, carry.count)
+
+    def step_at(self, carry: PolicyCarry, imu, command: Command, index):
+        """:meth:`step` with the step index given by the caller (the harness passes its scan
+        index, unbatched, so the every-``phi_every`` refresh of ẑ is a real branch under vmap
+        instead of φ evaluated every step)."""
         nets = N.Networks()
         obs = N.observation(imu, command.a_cmd, command.omega_cmd)
         history = jnp.where(carry.started, carry.history, N.initial_history(obs))
@@ -70,5 +86,6 @@ class PolicyController:
         raw, _ = nets.act(self.params, s, z)
         history = N.push_history(history, obs, raw)
         count = carry.count + 1
-        zhat = jnp.where(count % self.phi_every == 0, nets.adapt(self.params, history), carry.zhat)
+        zhat = jax.lax.cond((index + 1) % self.phi_every == 0, lambda h: nets.adapt(self.params, h),
+                            lambda h: carry.zhat, history)
         return PolicyCarry(history, raw, zhat, count, jnp.array(True)), N.to_motor(raw)

@@ -81,7 +81,7 @@ def closed_loop(controller: PolicyController, theta, *, period=10.0, seed=0, sim
     n = len(theta)
     sim = sim or Quadrotor()
     steps = int(round(period / sim.config.dt))
-    low = broadcast(controller, n)
+    low = controller.batched(n)
     high = broadcast(Cascade.make("baseline"), n)
     ref = broadcast(Lemniscate.make(period=period), n)
     dist = broadcast(Disturbance.make(), n)
