@@ -23,7 +23,8 @@ from mjxsysid.policy.xadap_controller import (NN_TO_MJX, XAdapController, XAdapP
                                               xadap_training_prior)
 
 REPO = Path(__file__).resolve().parents[1]
-XADAP_DIR = Path(os.environ.get("MJXSYSID_XADAP_DIR", REPO.parent / "shared" / "external" / "xadap"))
+XADAP_DIR = Path(os.environ.get("MJXSYSID_XADAP_DIR",
+                               REPO.parent / "shared" / "external" / "xadap"))
 G = np.float32(P.GRAVITY)
 HOVER_IMU = jnp.array([0.0, 0.0, 0.0, 0.0, 0.0, G], jnp.float32)
 HOVER_CMD = Command(jnp.float32(G), jnp.zeros(3, jnp.float32))
@@ -156,7 +157,8 @@ def test_decimation_and_filter(weights):
         np.testing.assert_array_equal(u[k], u[5 * (k // 5)])
     assert not np.array_equal(u[0], u[5])
     assert int(carry.count) == 12
-    assert np.all(np.asarray(carry.s_hist[:-3]) == 0) and np.all(np.asarray(carry.s_hist[-3:, 3]) != 0)
+    s_hist = np.asarray(carry.s_hist)
+    assert np.all(s_hist[:-3] == 0) and np.all(s_hist[-3:, 3] != 0)
     np.testing.assert_allclose(fz, G, rtol=1e-5)  # constant input: filter output = input
     wrap = XAdapController.load(weights, rate_hz=100.0, accel_filter="wrapper")
     c1, _ = wrap.step(wrap.init(), HOVER_IMU, HOVER_CMD)

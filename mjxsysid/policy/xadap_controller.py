@@ -9,33 +9,45 @@ unchanged harness (:func:`~mjxsysid.analysis.harness.fly_batch`)::
     flight = fly_batch(sim, theta, low, high, refs, dist, key, steps)
 
 Conventions (released files' README, the published wrapper ``Xadap_NN_control.py``, and
-closed-loop checks in mjxsysid; see docs in the lead's BENCHMARKS/README):
+closed-loop checks in mjxsysid):
 
 * **state** s (8) = [ω (3) gyro, rad/s body FLU; specific force along body z (1), m/s²,
   low-passed (below); ω_cmd (3) rad/s; a_cmd (1) m/s² mass-normalised collective thrust].
-  mjxsysid's body frame (x forward, y left, z up) is the network's frame: no sign change.
+  mjxsysid's body frame (x forward, y left, z up) is the network's frame: no sign change
+  (positive roll / pitch / yaw-rate commands produce positive body rates in closed loop).
 * **policy input** (20) = [normalize_state([s_k, r_{k−1}]) (12), ẑ_k (8)].
 * **adaptation input** (1200) = :func:`~mjxsysid.policy.xadap.build_history_input` of the
   last 100 *previous* policy steps (oldest first): at step k the history holds
   s_{k−100..k−1} and r_{k−100..k−1}; s_k and r_k are appended *after* φ and π ran (as the
-  wrapper does). ẑ_k = φ(history) is recomputed at every policy step.
+  wrapper does; appending s_k first flies identically). ẑ_k = φ(history) is recomputed at
+  every policy step.
 * **history at reset**: zeros in physical units, as the wrapper (filling it with hover
   values instead made no measurable difference: the 100-step window is flushed in 0.2 s).
 * **action**: raw r ∈ [−1, 1] (network order 0 front-right, 1 back-left, 2 back-right,
   3 front-left); normalised rotor speed Ω_cmd/Ω_max = 0.5 r + 0.5, reordered to mjxsysid
   order (front-right, front-left, back-left, back-right) = nn[[0, 3, 1, 2]]. The yaw signs
-  agree (FR −, FL +, BL −, BR + in both). Ω_max is not needed: the harness takes
+  agree (FR −, FL +, BL −, BR + in both). Of the 24 possible orders only this one flies (the
+  other 23 crash every vehicle within 2 s). Ω_max is not needed: the harness takes
   normalised commands.
-* **rate**: a static ``decimation`` (simulator steps per policy step). The motor command is
-  held between policy steps (zero-order hold); the high-level controller keeps running at the
-  simulator rate.
+* **rate**: a static ``decimation`` (simulator steps per policy step); default 500 Hz
+  (decimation 1 under the default 500 Hz simulator). The motor command is held between
+  policy steps (zero-order hold); the high-level controller keeps running at the simulator
+  rate. 500 Hz and 100 Hz fly in-distribution vehicles equally well (lemniscate RMSE 5.0 vs
+  5.3 cm on 64 vehicles); 500 Hz is clearly better on the paper vehicle (9.2 vs 15.0 cm).
 * **accelerometer filter**: 2nd-order Butterworth low-pass on the z specific force, 30 Hz
   cut-off, designed (bilinear transform with pre-warping, as ``scipy.signal.butter``) for the
-  *policy* rate actually used, run once per policy step, started at steady state on the first
-  reading. ``accel_filter="wrapper"`` reproduces the published wrapper's filter instead, which
-  feeds past *inputs* where a Butterworth feeds past outputs — in effect the 3-tap FIR
-  y = b0 x_k + (b1 − a1) x_{k−1} + (b2 − a2) x_{k−2} designed for 100 Hz, started from zeros.
-  ``accel_filter=False`` passes the raw reading.
+  *policy* rate actually used, run once per policy step on the sampled reading, started at
+  steady state on the first reading. ``accel_filter="wrapper"`` reproduces the published
+  wrapper's filter instead, which feeds past *inputs* where a Butterworth feeds past
+  outputs — in effect the 3-tap FIR y = b0 x_k + (b1 − a1) x_{k−1} + (b2 − a2) x_{k−2}
+  designed for 100 Hz, started from zeros. ``accel_filter=False`` passes the raw reading.
+  The choice makes no measurable difference (≤ 1 mm RMSE), even with 1 m/s² accelerometer
+  noise: the policy leans little on this input.
+* **high-level gains**: the ``baseline`` Cascade preset works. ``naive`` (no integral) leaves
+  the policy's collective-thrust bias (it delivers a few to ~15 % more or less than a_cmd)
+  uncorrected: 0.5–1 m errors. Attitude gains katt_xy above ~10/s (the wrapper's 1/0.05 s
+  = 20/s) destabilise vehicles with motor time constants ≥ 0.02 s (16 in-distribution
+  vehicles, lemniscate: katt_xy 8.4 → 0 failures, 12 → 1, 16 → 4, 20 → 8).
 
 :func:`xadap_training_prior` returns a :class:`~mjxsysid.params.Prior` whose samples match the
 released policy's training statistics (mean.csv/var.csv; README) — an in-distribution test set.
@@ -121,8 +133,9 @@ class XAdapController:
 
     decimation: simulator steps per policy step (1: policy at the simulator rate, 500 Hz with
     the default simulator; 5: 100 Hz). sim_dt: simulator control period (s) the controller is
-    built for (only used to design the filter). accel_filter: "butter" | "wrapper" | "none".
-    accel_cutoff_hz: Butterworth cut-off. All static.
+    built for (sets rate_hz = 1 / (sim_dt decimation), for which the filter is designed).
+    accel_filter: "butter" | "wrapper" | "none". accel_cutoff_hz: Butterworth cut-off (Hz).
+    All four are static (changing them re-traces).
     """
     weights: XAdapWeights
     decimation: int = struct.field(pytree_node=False, default=1)
@@ -239,7 +252,12 @@ class XAdapController:
 
 def make_xadap_low_level(weights_dir, batch_size: int, **kw) -> XAdapController:
     """:meth:`XAdapController.load` ``(weights_dir, **kw)`` broadcast to a batch of
-    ``batch_size`` vehicles (every leaf gets a leading axis), ready for ``fly_batch``."""
+    ``batch_size`` vehicles (every leaf gets a leading axis), ready for ``fly_batch``.
+
+    ``weights_dir``: directory of the released files, a converted ``.npz`` or
+    :class:`XAdapWeights`. ``kw``: ``rate_hz`` (default 500), ``sim_dt`` (pass
+    ``sim.config.dt`` for a non-default simulator), ``accel_filter``, ``accel_cutoff_hz``.
+    Use with the ``baseline`` Cascade gains (see the module notes)."""
     from mjxsysid.analysis.flight import broadcast
 
     return broadcast(XAdapController.load(weights_dir, **kw), int(batch_size))
@@ -257,7 +275,8 @@ class XAdapPrior(P.Prior):
     mass 0.60 ± 0.33 kg and arm 0.113 ± 0.049 m are uniform-like (so mass is *linear* in the
     size factor here, not ∝ l³ as in the default prior), J ≈ 0.19 m l² (std/mean ≈ 1.2),
     k_t exponential in c (mean 3.7e-6, std 6.3e-6), κ ≈ U[0.0062, 0.016], drag ≈ isotropic,
-    Ω_max 3379 ± 2435 rad/s, η U[0.7, 1.3]. Sampling, with c ~ U[0, 1] and noise n ~ U[1 ± noise]:
+    Ω_max 3379 ± 2435 rad/s, η U[0.7, 1.3]. Sampling, with c ~ U[0, 1] and noise
+    n ~ U[1 ± noise]:
 
     - l = (arm_lo + (arm_hi − arm_lo) c) n, clipped to ``arm``; m likewise from ``mass_range``
     - J_xx,yy = inertia_xy m l² n, J_zz = inertia_z m l² n (≤ 0.98 (J_xx + J_yy))
@@ -266,9 +285,14 @@ class XAdapPrior(P.Prior):
     - Ω_max from thrust-to-weight r ~ U[twr] clipped to [twr_min_eff, twr_max_eff] / η
     - η ~ U[eta], τ_m ~ U[motor_time_constant], τ_ext as :class:`~mjxsysid.params.Prior`.
 
-    Moment match (400k samples): mass 0.60 ± 0.32, arm 0.113 ± 0.048, J_xx 2.2e-3 ± 2.2e-3,
-    J_zz 3.3e-3 ± 3.4e-3, k_t 3.6e-6 ± 6.2e-6, drag 0.31 ± 0.23, Ω_max ≈ 3400 ± 2300.
-    The joint structure (one size factor) is a guess: only marginals are published.
+    Moment match (200k samples; README in brackets): mass 0.60 ± 0.32 (0.60 ± 0.33), arm
+    0.115 ± 0.049 (0.113 ± 0.049), J_xx 2.3e-3 ± 2.3e-3 (2.2e-3 ± 2.5e-3), J_zz 3.4e-3 ±
+    3.5e-3 (3.3e-3 ± 4.1e-3), κ 0.0111 ± 0.0028 (same), k_t 3.6e-6 ± 6.2e-6 (3.7e-6 ± 6.3e-6),
+    drag 0.29 ± 0.22 (0.30 ± 0.27), Ω_max 3420 ± 2280 (3379 ± 2435) rad/s. Thrust-to-weight
+    ratio spans 1.5 – 5.8 (with η), angular authority 85 – 2300 rad/s². The joint structure
+    (one size factor) is a guess: only marginals are published. Not in the statistics, taken
+    from the default prior: τ_m ~ U[0.02, 0.04] s (the policy prefers faster motors: see the
+    module notes) and τ_ext; the training's centre-of-mass offsets are not modelled.
     """
     name: str = "xadap_training"
     arm: tuple[float, float] = (0.03, 0.20)
