@@ -63,11 +63,12 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--prior", choices=("default", "slow_actuators"), default=None,
                    help="instead of --vehicle: fly --vehicles vehicles drawn from this prior (seeded)")
     f.add_argument("--vehicles", type=int, default=100, help="with --prior: how many (default 100)")
-    f.add_argument("--controller", choices=("oracle", "nominal", "policy"), default="oracle",
+    f.add_argument("--controller", choices=("oracle", "nominal", "policy", "xadap"), default="oracle",
                    help="oracle: K_θ with the true θ; nominal: K_θ with the paper vehicle's θ; "
-                        "policy: the adaptive policy (shipped weights or --weights)")
+                        "policy: the adaptive policy (shipped weights or --weights); xadap: the "
+                        "released Extreme-Adaptation policy (--weights DIR of its files)")
     f.add_argument("--weights", type=Path, default=None,
-                   help="with --controller policy: a policy.npz or training run folder")
+                   help="--controller policy: a policy.npz or run folder; xadap: the folder of its files")
     f.add_argument("--reference", choices=("hover", "lemniscate", "minsnap"), default="lemniscate")
     f.add_argument("--period", type=_positive, default=10.0, help="lemniscate period, s (default 10)")
     f.add_argument("--duration", type=_positive, default=None,
@@ -94,7 +95,27 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--vehicles", type=int, default=1000)
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--out", type=Path, required=True, help="writes OUT/eval.json")
+    c = sub.add_parser("collect", help="collect (θ, ẑ) pairs from a frozen policy in closed-loop flight")
+    c.add_argument("--out", type=Path, required=True, help="writes OUT/pairs.npz")
+    c.add_argument("--policy", default="policy", choices=("policy", "xadap"),
+                   help="policy: mjxsysid's (shipped or --weights); xadap: the released policy (--weights DIR)")
+    c.add_argument("--weights", type=Path, default=None)
+    c.add_argument("--train", type=int, default=20_000, help="training pairs (default 20000)")
+    c.add_argument("--test", type=int, default=2_000, help="held-out pairs (default 2000)")
+    c.add_argument("--prior", choices=("default", "slow_actuators"), default="default")
+    c.add_argument("--batch", type=int, default=2_000, help="vehicles per batched flight")
+    c.add_argument("--seed", type=int, default=0)
     return p
+
+
+def cmd_collect(args) -> int:
+    from mjxsysid.policy.collect import collect
+    print(f"collecting {args.train} + {args.test} (θ, ẑ) pairs with {args.policy}", flush=True)
+    path = collect(args.out, controller=args.policy, weights=args.weights, n_train=args.train,
+                   n_test=args.test, prior=args.prior, seed=args.seed, batch=args.batch,
+                   log=lambda m: print(m, flush=True))
+    print(f"wrote {path}", file=sys.stderr)
+    return 0
 
 
 def cmd_evaluate_policy(args) -> int:
@@ -232,7 +253,7 @@ def cmd_demo(args) -> int:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy,
-                "evaluate-policy": cmd_evaluate_policy}
+                "evaluate-policy": cmd_evaluate_policy, "collect": cmd_collect}
     try:
         return handlers[args.command](args)
     except (ValueError, FileNotFoundError) as e:

@@ -172,3 +172,17 @@ def test_pretrained_policy_hovers_and_tracks_paper_vehicle():
     meta = json.loads((PRETRAINED.parent / "policy.json").read_text())
     for k in ("config", "seed", "commit", "device", "wall_s", "evaluation"):
         assert k in meta, k
+
+
+def test_collect_pairs_tiny(tmp_path):
+    from mjxsysid.cli import main
+    from mjxsysid.policy.collect import load_pairs
+    if not PRETRAINED.exists():
+        pytest.skip("no shipped policy weights")
+    assert main(["collect", "--out", str(tmp_path), "--train", "6", "--test", "2", "--batch", "4"]) == 0
+    arrays, meta = load_pairs(tmp_path)
+    assert arrays["theta_train"].shape == (6, 19) and arrays["zhat_test"].shape == (2, 8)
+    assert np.all(np.abs(arrays["zhat_train"]) <= 1) and not arrays["failed_train"].any()
+    assert len(meta["weights_sha256"]) == 64 and meta["prior"] == "default"
+    with pytest.raises(FileNotFoundError):
+        load_pairs(tmp_path / "nope")

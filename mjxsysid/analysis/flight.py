@@ -19,7 +19,7 @@ from mjxsysid.control.low_level import KTheta
 from mjxsysid.control.references import Hover, Lemniscate, MinSnap, stack
 from mjxsysid.sim import Quadrotor, SimConfig
 
-CONTROLLERS = ("oracle", "nominal", "policy")
+CONTROLLERS = ("oracle", "nominal", "policy", "xadap")
 REFERENCES = ("hover", "lemniscate", "minsnap")
 
 
@@ -41,8 +41,8 @@ def make_low_level(name: str, theta, weights=None):
     whatever is flown (non-adaptive); 'policy': the adaptive policy (shipped weights, or
     ``weights``: a policy.npz or run folder). θ (B, 19) -> batched controller."""
     theta = np.asarray(theta, np.float32)
-    if weights is not None and name != "policy":
-        raise ValueError("--weights only applies to --controller policy")
+    if weights is not None and name not in ("policy", "xadap"):
+        raise ValueError("--weights only applies to --controller policy or xadap")
     if name == "oracle":
         return KTheta.make(theta)
     if name == "nominal":
@@ -50,6 +50,12 @@ def make_low_level(name: str, theta, weights=None):
     if name == "policy":
         from mjxsysid.policy.controller import PolicyController
         return PolicyController.load(weights).batched(theta.shape[0])
+    if name == "xadap":
+        if weights is None:
+            raise ValueError("--controller xadap needs --weights DIR (a copy of the released "
+                             "policy: encoder.onnx, mlp.onnx, mean.csv, var.csv, or a converted .npz)")
+        from mjxsysid.policy.xadap_controller import make_xadap_low_level
+        return make_xadap_low_level(weights, theta.shape[0])
     raise ValueError(f"unknown controller {name!r}; choose from {CONTROLLERS}")
 
 

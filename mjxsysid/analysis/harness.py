@@ -55,7 +55,8 @@ class Flight(NamedTuple):
     """Time series of one flight (leaves (T, ...); (B, T, ...) batched).
 
     frame: the simulator record after each step; ref_pos (3), ref_vel (3), ref_yaw ();
-    a_cmd (), omega_cmd (3): the high-level command of that step; time (): s after the step.
+    a_cmd (), omega_cmd (3): the high-level command of that step; time (): s after the step;
+    latent (8): the low-level controller's latent ẑ after the step, if it has one (else None).
     """
     frame: Frame
     ref_pos: jax.Array
@@ -64,6 +65,7 @@ class Flight(NamedTuple):
     a_cmd: jax.Array
     omega_cmd: jax.Array
     time: jax.Array
+    latent: jax.Array | None = None
 
 
 def fly(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance, key,
@@ -94,7 +96,8 @@ def fly(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance
         # Controllers that run something periodically take the (unbatched) step index.
         lc, u = low.step_at(lc, s.imu, cmd, i) if hasattr(low, "step_at") else low.step(lc, s.imu, cmd)
         s = sim.step(theta, s, u, f)
-        out = (sim.frame(s, u, f), r.pos, r.vel, r.yaw, cmd.a_cmd, cmd.omega_cmd, t + dt)
+        lat = low.latent(lc) if hasattr(low, "latent") else None
+        out = (sim.frame(s, u, f), r.pos, r.vel, r.yaw, cmd.a_cmd, cmd.omega_cmd, t + dt, lat)
         return (s, hc, lc), out
 
     carry0 = (state, high.init(), low.init(k_low))
