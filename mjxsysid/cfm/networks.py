@@ -20,7 +20,7 @@ before the output layer).
 one point estimate (d).
 
 At paper size (W = 512, B = 4, E = 256, time_dim = 128, d = 19, z_dim = 8) VelocityNet has
-5,178,675 parameters and RegressionNet 4,746,771.
+5,179,667 parameters and RegressionNet 4,747,795.
 """
 from __future__ import annotations
 

@@ -1,0 +1,331 @@
+"""Training of the decoder p(θ | ẑ) (paper §IV-A, DESIGN §6): CFM and the Regression baseline.
+
+Both work on normalised θ (``theta_norm`` (n, 19), e.g. ``Normalizer.normalize(θ)``) and
+latents z (n, 8). Losses (mean over the batch *and* the dimensions, torchcfm convention)::
+
+    CFM:        x0 ~ N(0, I), τ ~ U[0, τ_max], ε ~ N(0, I)
+                L = mean ‖v(x_τ, τ, z) − (x1 − x0)‖² / d,  x_τ = (1 − τ) x0 + τ x1 + σ ε
+    Regression: L = mean ‖r(z) − x1‖² / d
+
+Optimiser: gradient clipping (global norm) then AdamW with a cosine decay of the learning
+rate to 0 over ``epochs`` × (n // batch) steps. One epoch (shuffle + scan over minibatches,
+the last incomplete minibatch dropped) is a single jitted function; the host prints
+progress between epochs. Validation loss (if ``val`` is given) uses a fixed key, so its
+values are comparable across epochs.
+
+Weights are stored with :mod:`mjxsysid.policy.checkpoint` (npz + JSON meta, no pickle); the
+meta holds the kind, the config and the normaliser, so a saved decoder is self-contained.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Callable, Mapping, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxsysid.cfm.networks import RegressionNet, VelocityNet
+from mjxsysid.cfm.path import GaussianSmoothedLinearPath
+
+KINDS = ("cfm", "regression")
+FORMAT = "mjxsysid.cfm.decoder/1"
+
+
+@dataclasses.dataclass(frozen=True)
+class CFMConfig:
+    """Hyper-parameters of the decoder (defaults: the paper's, DESIGN §6)."""
+    lr: float = 5e-4
+    weight_decay: float = 1e-5
+    grad_clip: float = 1.0
+    epochs: int = 100
+    batch: int = 256
+    sigma: float = 0.05
+    tau_max: float = 0.95
+    width: int = 512
+    blocks: int = 4
+    embed_width: int = 0      # θ / τ embedding width; 0 -> width // 2
+    time_dim: int = 128       # sinusoidal τ features
+    theta_dim: int = 19
+    z_dim: int = 8
+    seed: int = 0
+
+    def __post_init__(self):
+        for k in ("epochs", "batch", "width", "blocks", "time_dim", "theta_dim", "z_dim"):
+            if int(getattr(self, k)) < 1:
+                raise ValueError(f"CFMConfig.{k} must be >= 1, got {getattr(self, k)}")
+        if self.embed_width < 0:
+            raise ValueError(f"CFMConfig.embed_width must be >= 0, got {self.embed_width}")
+        if not self.lr > 0:
+            raise ValueError(f"CFMConfig.lr must be > 0, got {self.lr}")
+        GaussianSmoothedLinearPath(self.sigma, self.tau_max)  # validates sigma, tau_max
+
+    @property
+    def path(self) -> GaussianSmoothedLinearPath:
+        return GaussianSmoothedLinearPath(self.sigma, self.tau_max)
+
+    def replace(self, **kw) -> "CFMConfig":
+        return dataclasses.replace(self, **kw)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping) -> "CFMConfig":
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ValueError(f"unknown CFMConfig key(s) {unknown}; known: {sorted(known)}")
+        return cls(**d)
+
+
+# ----------------------------------------------------------------------------------------
+# Networks and checks
+# ----------------------------------------------------------------------------------------
+
+def make_network(cfg: CFMConfig, kind: str = "cfm"):
+    """The flax module of a decoder kind ("cfm" -> VelocityNet, "regression" -> RegressionNet)."""
+    _check_kind(kind)
+    if kind == "cfm":
+        return VelocityNet(cfg.theta_dim, cfg.width, cfg.blocks, cfg.embed_width, cfg.time_dim)
+    return RegressionNet(cfg.theta_dim, cfg.width, cfg.blocks)
+
+
+def init_params(cfg: CFMConfig, kind: str = "cfm", key: jax.Array | None = None):
+    """Freshly initialised parameters (key defaults to PRNGKey(cfg.seed))."""
+    key = jax.random.PRNGKey(cfg.seed) if key is None else key
+    net = make_network(cfg, kind)
+    z = jnp.zeros((1, cfg.z_dim), jnp.float32)
+    if kind == "cfm":
+        th = jnp.zeros((1, cfg.theta_dim), jnp.float32)
+        return net.init(key, th, jnp.zeros((1,), jnp.float32), z)["params"]
+    return net.init(key, z)["params"]
+
+
+def _check_kind(kind):
+    if kind not in KINDS:
+        raise ValueError(f"unknown decoder kind {kind!r}; choose from {KINDS}")
+
+
+def check_latents(z, cfg: CFMConfig, what: str = "z"):
+    """z must be (m, z_dim); returns it as float32 (jnp or tracer)."""
+    shape = np.shape(z)
+    if len(shape) != 2 or shape[1] != cfg.z_dim:
+        raise ValueError(f"{what} must have shape (m, {cfg.z_dim}); got {tuple(shape)}")
+    return jnp.asarray(z, jnp.float32)
+
+
+def _check_pairs(theta_norm, z, cfg: CFMConfig, what: str):
+    th = np.asarray(theta_norm, np.float32)
+    zz = np.asarray(z, np.float32)
+    if th.ndim != 2 or th.shape[1] != cfg.theta_dim:
+        raise ValueError(f"{what}: theta_norm must have shape (n, {cfg.theta_dim}) (normalised θ); "
+                         f"got {th.shape}")
+    if zz.ndim != 2 or zz.shape[1] != cfg.z_dim:
+        raise ValueError(f"{what}: z must have shape (n, {cfg.z_dim}); got {zz.shape}")
+    if th.shape[0] != zz.shape[0]:
+        raise ValueError(f"{what}: theta_norm and z have different lengths ({th.shape[0]} vs {zz.shape[0]})")
+    if th.shape[0] == 0:
+        raise ValueError(f"{what}: empty data set")
+    if not (np.isfinite(th).all() and np.isfinite(zz).all()):
+        raise ValueError(f"{what}: theta_norm / z contain non-finite values")
+    return th, zz
+
+
+# ----------------------------------------------------------------------------------------
+# Losses
+# ----------------------------------------------------------------------------------------
+
+def _per_sample_loss(kind: str, cfg: CFMConfig, net, params, theta, z, key):
+    """(n,) per-sample losses (mean over dimensions)."""
+    if kind == "cfm":
+        x_tau, tau, u = cfg.path.sample(key, theta)
+        pred = net.apply({"params": params}, x_tau, tau, z)
+        return jnp.mean((pred - u) ** 2, -1)
+    pred = net.apply({"params": params}, z)
+    return jnp.mean((pred - theta) ** 2, -1)
+
+
+def loss(params, cfg: CFMConfig, theta_norm, z, key, kind: str = "cfm"):
+    """Mean training loss of a batch (jit-able; cfg and kind static)."""
+    return jnp.mean(_per_sample_loss(kind, cfg, make_network(cfg, kind), params, theta_norm, z, key))
+
+
+# ----------------------------------------------------------------------------------------
+# Training loop
+# ----------------------------------------------------------------------------------------
+
+def _optimizer(cfg: CFMConfig, total_steps: int):
+    import optax
+    sched = optax.cosine_decay_schedule(cfg.lr, max(total_steps, 1))
+    return optax.chain(optax.clip_by_global_norm(cfg.grad_clip),
+                       optax.adamw(sched, weight_decay=cfg.weight_decay))
+
+
+def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None):
+    import optax
+
+    _check_kind(kind)
+    tag = f"[{kind}]"
+    theta, zz = _check_pairs(theta_norm, z, cfg, "train")
+    n = theta.shape[0]
+    bs = min(cfg.batch, n)
+    spe = n // bs
+    net = make_network(cfg, kind)
+    key = jax.random.PRNGKey(cfg.seed)
+    k_init, k_train = jax.random.split(key)
+    if params is None:
+        params = init_params(cfg, kind, k_init)
+    tx = _optimizer(cfg, cfg.epochs * spe)
+    opt_state = tx.init(params)
+
+    def batch_loss(p, th, zb, k):
+        return jnp.mean(_per_sample_loss(kind, cfg, net, p, th, zb, k))
+
+    @jax.jit
+    def epoch(params, opt_state, key, theta, zz):
+        kp, ks = jax.random.split(key)
+        perm = jax.random.permutation(kp, n)[: spe * bs].reshape(spe, bs)
+        keys = jax.random.split(ks, spe)
+
+        def step(carry, x):
+            p, o = carry
+            idx, k = x
+            l, g = jax.value_and_grad(batch_loss)(p, theta[idx], zz[idx], k)
+            upd, o = tx.update(g, o, p)
+            return (optax.apply_updates(p, upd), o), l
+
+        (params, opt_state), losses = jax.lax.scan(step, (params, opt_state), (perm, keys))
+        return params, opt_state, jnp.mean(losses)
+
+    val_fn = None
+    if val is not None:
+        vth, vz = _check_pairs(val[0], val[1], cfg, "val")
+        val_fn = _make_eval(kind, cfg, net, vth, vz)
+
+    theta_d, z_d = jnp.asarray(theta), jnp.asarray(zz)
+    hist = {"epoch": [], "train_loss": [], "val_loss": [], "steps_per_s": [], "epoch_s": [],
+            "steps_per_epoch": spe, "batch": bs}
+    t_start = time.perf_counter()
+    for e in range(cfg.epochs):
+        t0 = time.perf_counter()
+        params, opt_state, tl = epoch(params, opt_state, jax.random.fold_in(k_train, e), theta_d, z_d)
+        tl = float(tl)  # blocks
+        dt = time.perf_counter() - t0
+        vl = float(val_fn(params)) if val_fn is not None else None
+        sps = spe / max(dt, 1e-9)
+        hist["epoch"].append(e + 1)
+        hist["train_loss"].append(tl)
+        hist["val_loss"].append(vl)
+        hist["steps_per_s"].append(sps)
+        hist["epoch_s"].append(dt)
+        if log is not None:
+            vs = f" val {vl:.4f}" if vl is not None else ""
+            note = " (incl. compile)" if e == 0 else ""
+            log(f"{tag} epoch {e + 1}/{cfg.epochs} train {tl:.4f}{vs} {sps:.1f} steps/s{note}")
+        if not np.isfinite(tl):
+            raise FloatingPointError(f"{tag} training loss is not finite at epoch {e + 1}")
+    hist["wall_s"] = time.perf_counter() - t_start
+    if val is None:
+        hist["val_loss"] = None
+    return params, hist
+
+
+def _make_eval(kind, cfg, net, theta, z, chunk: int = 1024):
+    """Jitted mean loss over a fixed data set, in padded chunks, with a fixed key."""
+    n = theta.shape[0]
+    c = min(chunk, n)
+    nc = -(-n // c)
+    pad = nc * c - n
+    th = jnp.asarray(np.concatenate([theta, np.zeros((pad, theta.shape[1]), np.float32)]))
+    zz = jnp.asarray(np.concatenate([z, np.zeros((pad, z.shape[1]), np.float32)]))
+    mask = jnp.asarray(np.arange(nc * c) < n, jnp.float32)
+    keys = jax.random.split(jax.random.PRNGKey(cfg.seed + 1), nc)
+
+    @jax.jit
+    def ev(params):
+        def one(x):
+            t, zb, k = x
+            return _per_sample_loss(kind, cfg, net, params, t, zb, k)
+        per = jax.lax.map(one, (th.reshape(nc, c, -1), zz.reshape(nc, c, -1), keys)).reshape(-1)
+        return jnp.sum(per * mask) / n
+
+    return ev
+
+
+def train_cfm(theta_norm, z, cfg: CFMConfig = CFMConfig(), log: Callable | None = print,
+              val: tuple | None = None):
+    """Train the CFM velocity field v(θ_τ, τ, z).
+
+    theta_norm: (n, theta_dim) normalised θ; z: (n, z_dim); val: optional (theta_norm, z)
+    held-out pair. Returns (params, history) with history keys ``epoch``, ``train_loss``,
+    ``val_loss`` (list or None), ``steps_per_s`` (epoch 1 includes compilation), ``epoch_s``,
+    ``steps_per_epoch``, ``batch``, ``wall_s``.
+    """
+    return _fit("cfm", theta_norm, z, cfg, log, val)
+
+
+def train_regression(theta_norm, z, cfg: CFMConfig = CFMConfig(), log: Callable | None = print,
+                     val: tuple | None = None):
+    """Train the Regression baseline r(z) (MSE, same architecture and optimiser). Same I/O
+    as :func:`train_cfm`."""
+    return _fit("regression", theta_norm, z, cfg, log, val)
+
+
+# ----------------------------------------------------------------------------------------
+# Save / load
+# ----------------------------------------------------------------------------------------
+
+class LoadedDecoder(NamedTuple):
+    kind: str
+    params: dict
+    cfg: CFMConfig
+    normalizer: object      # mjxsysid.params.Normalizer or None
+    meta: dict
+
+
+def _normalizer_dict(normalizer):
+    if normalizer is None:
+        return None
+    if hasattr(normalizer, "to_dict"):
+        return normalizer.to_dict()
+    d = {k: [float(x) for x in np.asarray(normalizer[k], np.float64).ravel()] for k in ("shift", "scale")}
+    return d
+
+
+def save_decoder(path, kind: str, params, cfg: CFMConfig, normalizer_dict=None,
+                 meta: dict | None = None) -> Path:
+    """Write a decoder to ``path`` (.npz). ``normalizer_dict``: a Normalizer or its
+    ``to_dict()`` (shift/scale lists; None only for non-θ toy problems); ``meta``: any
+    JSON-serialisable extras (data provenance, history, ...)."""
+    from mjxsysid.policy.checkpoint import save_tree
+
+    _check_kind(kind)
+    nd = _normalizer_dict(normalizer_dict)
+    if nd is not None:
+        for k in ("shift", "scale"):
+            if len(nd[k]) != cfg.theta_dim:
+                raise ValueError(f"normalizer {k} has {len(nd[k])} entries, expected {cfg.theta_dim}")
+    full = {"format": FORMAT, "kind": kind, "config": cfg.to_dict(), "normalizer": nd,
+            "meta": dict(meta or {})}
+    return save_tree(path, params, full)
+
+
+def load_decoder(path) -> LoadedDecoder:
+    """Read a decoder written by :func:`save_decoder` -> (kind, params, cfg, normalizer, meta)."""
+    from mjxsysid.policy.checkpoint import load_meta, load_tree
+
+    full = load_meta(path)
+    if full.get("format") != FORMAT:
+        raise ValueError(f"{path}: not a decoder file (format {full.get('format')!r}, expected {FORMAT!r})")
+    kind = full["kind"]
+    _check_kind(kind)
+    cfg = CFMConfig.from_dict(full["config"])
+    params = load_tree(path, init_params(cfg, kind))
+    norm = None
+    if full.get("normalizer") is not None:
+        from mjxsysid.params import Normalizer
+        norm = Normalizer.from_dict(full["normalizer"])
+    return LoadedDecoder(kind, jax.tree_util.tree_map(jnp.asarray, params), cfg, norm, full.get("meta", {}))
