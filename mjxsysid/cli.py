@@ -105,7 +105,51 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--prior", choices=("default", "slow_actuators"), default="default")
     c.add_argument("--batch", type=int, default=2_000, help="vehicles per batched flight")
     c.add_argument("--seed", type=int, default=0)
+    tc = sub.add_parser("train-cfm", help="train the CFM and Regression decoders on (θ, ẑ) pairs")
+    tc.add_argument("--pairs", type=Path, required=True, help="pairs.npz from `mjxsysid collect` (or its folder)")
+    tc.add_argument("--out", type=Path, required=True, help="writes OUT/cfm.npz, OUT/regression.npz")
+    tc.add_argument("--epochs", type=int, default=None, help="override CFMConfig.epochs (default 100)")
+    tc.add_argument("--width", type=int, default=None, help="override CFMConfig.width (default 512)")
+    tc.add_argument("--batch", type=int, default=None, help="override CFMConfig.batch (default 256)")
+    ed = sub.add_parser("evaluate-decoder", help="calibration of the decoders on held-out pairs")
+    ed.add_argument("--decoders", type=Path, required=True, help="folder with cfm.npz and regression.npz")
+    ed.add_argument("--pairs", type=Path, required=True)
+    ed.add_argument("--cases", type=int, default=1000)
+    ed.add_argument("--samples", type=int, default=200)
+    ed.add_argument("--policy", default="policy", choices=("policy", "xadap"),
+                    help="policy whose latent of the paper vehicle is decoded for the marginals plot")
+    ed.add_argument("--weights", type=Path, default=None)
     return p
+
+
+def cmd_train_cfm(args) -> int:
+    import dataclasses
+
+    from mjxsysid.cfm.pipeline import train_decoders
+    from mjxsysid.cfm.train import CFMConfig
+    over = {k: v for k, v in (("epochs", args.epochs), ("width", args.width), ("batch", args.batch)) if v is not None}
+    cfg = dataclasses.replace(CFMConfig(), **over)
+    res = train_decoders(args.pairs, args.out, cfg, log=lambda m: print(m, flush=True))
+    print(json.dumps({k: {kk: v[kk] for kk in ("wall_s", "final_train_loss", "final_val_loss", "steps_per_s")}
+                      for k, v in res.items()}))
+    return 0
+
+
+def cmd_evaluate_decoder(args) -> int:
+    import numpy as np
+
+    from mjxsysid import params as P
+    from mjxsysid.cfm.pipeline import evaluate_decoders
+    from mjxsysid.policy.collect import latents_in_flight
+    import jax
+    z, failed = latents_in_flight(args.policy, np.repeat(P.PAPER_HARDWARE[None], 2, 0), jax.random.PRNGKey(0),
+                                  weights=args.weights)
+    rep = evaluate_decoders(args.decoders, args.pairs, n_cases=args.cases, n_samples=args.samples,
+                            paper_zhat=z[0], log=lambda m: print(m, flush=True))
+    print(json.dumps({"coverage_mean": rep["coverage_mean"], "calibrated": rep["calibrated_within_5_points"],
+                      "energy_score": rep["energy_score"], "c2st": rep["c2st_nearby_latents"]["mean_accuracy"]}))
+    print(f"wrote {args.decoders}/decoder_eval.json, sbc_ranks.png, paper_vehicle_posterior.png", file=sys.stderr)
+    return 0
 
 
 def cmd_collect(args) -> int:
@@ -253,7 +297,8 @@ def cmd_demo(args) -> int:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy,
-                "evaluate-policy": cmd_evaluate_policy, "collect": cmd_collect}
+                "evaluate-policy": cmd_evaluate_policy, "collect": cmd_collect,
+                "train-cfm": cmd_train_cfm, "evaluate-decoder": cmd_evaluate_decoder}
     try:
         return handlers[args.command](args)
     except (ValueError, FileNotFoundError) as e:
