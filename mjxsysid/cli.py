@@ -119,7 +119,36 @@ def build_parser() -> argparse.ArgumentParser:
     ed.add_argument("--policy", default="policy", choices=("policy", "xadap"),
                     help="policy whose latent of the paper vehicle is decoded for the marginals plot")
     ed.add_argument("--weights", type=Path, default=None)
+    dc = sub.add_parser("decode", help="fly a vehicle (or replay a log) with the policy and decode its latent")
+    dc.add_argument("--vehicle", type=Path, default=None, help="vehicle JSON (default: the paper vehicle)")
+    dc.add_argument("--log", type=Path, default=None, help="decode a recorded flight instead (CSV, see README)")
+    dc.add_argument("--reference", choices=("hover", "lemniscate", "minsnap"), default="lemniscate")
+    dc.add_argument("--period", type=_positive, default=10.0)
+    dc.add_argument("--duration", type=_positive, default=None)
+    dc.add_argument("--samples", type=int, default=100, help="decoded models per latent (default 100)")
+    dc.add_argument("--rate", type=_positive, default=10.0, help="decoding rate, Hz (default 10)")
+    dc.add_argument("--weights", type=Path, default=None, help="policy weights (default: shipped)")
+    dc.add_argument("--seed", type=int, default=0)
+    dc.add_argument("--video", action="store_true", help="render the true vehicle with decoded ghosts")
+    dc.add_argument("--out", type=Path, required=True)
     return p
+
+
+def cmd_decode(args) -> int:
+    if args.video:
+        _prepare_render()
+    from mjxsysid import params as P
+    from mjxsysid.analysis.decode import run_decode
+    if args.log is not None and args.vehicle is not None:
+        raise ValueError("give either --vehicle or --log, not both")
+    theta = None if args.log else (P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware())
+    summary = run_decode(args.out, theta=theta, log=args.log, reference=args.reference, period=args.period,
+                         duration=args.duration, samples=args.samples, rate=args.rate, weights=args.weights,
+                         seed=args.seed, video=args.video, echo=lambda m: print(m, file=sys.stderr))
+    print(json.dumps({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES}))
+    print(f"wrote {args.out}/decoded.npz, summary.json, marginals.png, decoded_over_time.png"
+          + (", decoded.mp4" if args.video else ""), file=sys.stderr)
+    return 0
 
 
 def cmd_train_cfm(args) -> int:
@@ -298,7 +327,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy,
                 "evaluate-policy": cmd_evaluate_policy, "collect": cmd_collect,
-                "train-cfm": cmd_train_cfm, "evaluate-decoder": cmd_evaluate_decoder}
+                "train-cfm": cmd_train_cfm, "evaluate-decoder": cmd_evaluate_decoder, "decode": cmd_decode}
     try:
         return handlers[args.command](args)
     except (ValueError, FileNotFoundError) as e:

@@ -170,6 +170,23 @@ def validate_theta(theta, *, what: str = "theta") -> np.ndarray:
     return arr.astype(np.float32)
 
 
+def project_valid(theta) -> tuple[np.ndarray, np.ndarray]:
+    """Make decoded/perturbed θ (..., 19) physically valid for simulation: inertia clipped to
+    the triangle inequality (J_a ≤ 0.999 (J_b + J_c)), positive entries floored at 1e-9, drag at 0.
+    Returns (valid θ, mask (...) of rows that needed changing)."""
+    t = np.array(theta, np.float64)
+    orig = t.copy()
+    pos = [MASS, ARM, KT, KTAU, OMEGA_MAX, TAU_M, 4, 5, 6, 11, 12, 13, 14]
+    t[..., pos] = np.maximum(t[..., pos], 1e-9)
+    t[..., DRAG] = np.maximum(t[..., DRAG], 0.0)
+    for _ in range(3):
+        j = t[..., INERTIA]
+        for a in range(3):
+            t[..., 4 + a] = np.minimum(j[..., a], 0.999 * (j[..., (a + 1) % 3] + j[..., (a + 2) % 3]))
+    changed = np.any(~np.isclose(t, orig, rtol=1e-7, atol=0), -1)
+    return t.astype(np.float32), changed
+
+
 def theta_from_dict(d: Mapping, *, source: str = "vehicle") -> np.ndarray:
     """Vehicle dict (vehicle-file keys, SI units) -> θ (19,). Unknown or missing keys, wrong
     lengths and non-physical values raise ``ValueError`` naming the key."""

@@ -1,0 +1,203 @@
+"""`mjxsysid decode`: fly (or replay) a vehicle with the frozen policy, read its latent ẑ at a
+given rate and decode each into a distribution of physical models.
+
+Flight-log CSV format (``--log``), one row per control step at 500 Hz, header required::
+
+    t, gyro_x, gyro_y, gyro_z, acc_x, acc_y, acc_z, a_cmd, omega_cmd_x, omega_cmd_y, omega_cmd_z,
+    motor_1, motor_2, motor_3, motor_4
+
+SI units, body frame x forward / y left / z up: gyro (rad/s), specific force acc (m/s², ≈ +9.81
+on z at hover), commanded mass-normalised collective thrust a_cmd (m/s²) and body rates (rad/s),
+motor commands Ω_cmd/Ω_max ∈ [0, 1] in mjxsysid's rotor order (1 front-right, 2 front-left,
+3 back-left, 4 back-right). The policy's history is rebuilt from the logged IMU, commands and
+motor commands (the logged motor commands stand in for the policy's actions).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxsysid import params as P
+from mjxsysid.cfm.sample import Decoder
+from mjxsysid.control.low_level import Command
+from mjxsysid.policy import networks as N
+from mjxsysid.policy.controller import PolicyController
+
+PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
+LOG_COLUMNS = ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "a_cmd", "omega_cmd_x",
+               "omega_cmd_y", "omega_cmd_z", "motor_1", "motor_2", "motor_3", "motor_4")
+
+
+def read_log(path) -> dict:
+    """Read a flight-log CSV -> dict of arrays (imu (T, 6), a_cmd (T,), omega_cmd (T, 3),
+    motor (T, 4), t (T,)). Errors name the file, column or row."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"flight log not found: {path}")
+    with open(path) as f:
+        header = [h.strip() for h in f.readline().strip().split(",")]
+    missing = [c for c in LOG_COLUMNS if c not in header]
+    if missing:
+        raise ValueError(f"{path}: missing column(s) {missing}; expected {list(LOG_COLUMNS)}")
+    try:
+        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    except ValueError as e:
+        raise ValueError(f"{path}: not numeric CSV ({e})") from None
+    if data.shape[1] != len(header):
+        raise ValueError(f"{path}: rows have {data.shape[1]} values, header has {len(header)}")
+    col = {h: data[:, i] for i, h in enumerate(header)}
+    bad = [c for c in LOG_COLUMNS if not np.all(np.isfinite(col[c]))]
+    if bad:
+        raise ValueError(f"{path}: non-finite values in column(s) {bad}")
+    if len(data) < N.HISTORY:
+        raise ValueError(f"{path}: {len(data)} rows; need at least {N.HISTORY} (0.2 s at 500 Hz)")
+    motor = np.stack([col[f"motor_{i}"] for i in range(1, 5)], -1)
+    if motor.min() < -1e-6 or motor.max() > 1 + 1e-6:
+        raise ValueError(f"{path}: motor commands must be normalised to [0, 1]")
+    return {"t": col["t"], "imu": np.stack([col[c] for c in LOG_COLUMNS[1:7]], -1),
+            "a_cmd": col["a_cmd"], "omega_cmd": np.stack([col[c] for c in LOG_COLUMNS[8:11]], -1),
+            "motor": motor}
+
+
+def write_log(path, t, imu, a_cmd, omega_cmd, motor) -> Path:
+    """Write a flight log in the documented CSV format."""
+    arr = np.column_stack([t, imu, a_cmd, omega_cmd, motor])
+    np.savetxt(path, arr, delimiter=",", header=",".join(LOG_COLUMNS), comments="", fmt="%.7g")
+    return Path(path)
+
+
+def replay_latents(ctrl: PolicyController, imu, a_cmd, omega_cmd, motor) -> np.ndarray:
+    """ẑ after every logged step (T, 8): the policy's history rebuilt from the log."""
+    def body(carry, x):
+        im, a, w, u = x
+        obs = N.observation(im, a, w)
+        hist = jnp.where(carry.started, carry.history, N.initial_history(obs))
+        raw = 2.0 * u - 1.0
+        hist = N.push_history(hist, obs, raw)
+        count = carry.count + 1
+        zhat = jax.lax.cond(count % ctrl.phi_every == 0, lambda h: N.Networks().adapt(ctrl.params, h),
+                            lambda h: carry.zhat, hist)
+        new = carry._replace(history=hist, last_raw=raw, zhat=zhat, count=count, started=jnp.array(True))
+        return new, zhat
+
+    xs = tuple(jnp.asarray(a, jnp.float32) for a in (imu, a_cmd, omega_cmd, motor))
+    return np.asarray(jax.jit(lambda xs: jax.lax.scan(body, ctrl.init(), xs)[1])(xs))
+
+
+def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, decoder=None,
+                   regression=None, start: float = N.HISTORY * 0.002):
+    """Decode ẑ (T, 8) sampled at ``rate`` Hz after ``start`` s. Returns dict with times (K,),
+    zhat (K, 8), samples (K, S, 19) physical, regression (K, 19) physical."""
+    if not rate > 0:
+        raise ValueError(f"--rate must be > 0 Hz, got {rate}")
+    if samples < 2:
+        raise ValueError(f"--samples must be >= 2, got {samples}")
+    dt = float(times[1] - times[0]) if len(times) > 1 else 0.002
+    every = max(int(round(1.0 / (rate * dt))), 1)
+    idx = np.arange(len(times))
+    idx = idx[(times >= start - 1e-9) & ((idx - idx[times >= start - 1e-9][0]) % every == 0)] if np.any(times >= start) else idx[-1:]
+    cfm = decoder or Decoder.load(PRETRAINED_DIR / "cfm.npz")
+    reg = regression or Decoder.load(PRETRAINED_DIR / "regression.npz")
+    z = np.asarray(zhat_t)[idx]
+    s = np.asarray(cfm.sample_theta(z, jax.random.PRNGKey(seed), samples))
+    return {"times": np.asarray(times)[idx], "zhat": z, "samples": s, "regression": np.asarray(reg.point(z))}
+
+
+def summarize_posterior(samples, truth=None) -> dict:
+    """samples (S, 19) (+ truth (19,)) -> {name: {mean, q05, q95[, true, inside]}} plus the
+    identifiable combinations."""
+    q05, q95 = np.percentile(samples, [5, 95], 0)
+    out = {}
+    for j, n in enumerate(P.PARAM_NAMES):
+        d = {"mean": float(samples[:, j].mean()), "q05": float(q05[j]), "q95": float(q95[j])}
+        if truth is not None:
+            d.update(true=float(truth[j]), inside=bool(q05[j] <= truth[j] <= q95[j]))
+        out[n] = d
+    ident = np.asarray(P.identifiable(samples))
+    iq05, iq95 = np.percentile(ident, [5, 95], 0)
+    ti = None if truth is None else np.asarray(P.identifiable(truth))
+    for j, n in enumerate(P.IDENTIFIABLE_NAMES):
+        d = {"mean": float(ident[:, j].mean()), "q05": float(iq05[j]), "q95": float(iq95[j])}
+        if ti is not None:
+            d.update(true=float(ti[j]), inside=bool(iq05[j] <= ti[j] <= iq95[j]))
+        out[n] = d
+    return out
+
+
+def plot_decoded_over_time(dec: dict, truth, path):
+    """ẑ and the identifiable combinations (median, 5–95 % band) over time."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    t = dec["times"]
+    ident = np.asarray(P.identifiable(dec["samples"]))  # (K, S, 5)
+    fig, ax = plt.subplots(2, 3, figsize=(14, 6.5))
+    ax = ax.flat
+    ax[0].plot(t, dec["zhat"])
+    ax[0].set_title("latent ẑ (8 dims)")
+    for j, n in enumerate(P.IDENTIFIABLE_NAMES):
+        a = ax[j + 1]
+        lo, med, hi = np.percentile(ident[:, :, j], [5, 50, 95], 1)
+        a.fill_between(t, lo, hi, alpha=0.3, label="CFM 5–95 %")
+        a.plot(t, med, label="CFM median")
+        a.plot(t, np.asarray(P.identifiable(dec["regression"]))[:, j], "--", label="regression")
+        if truth is not None:
+            a.axhline(float(np.asarray(P.identifiable(truth))[j]), color="k", label="true")
+        a.set_title(n)
+        if n != "torque_ratio":
+            a.set_yscale("log")
+    for a in ax:
+        a.set_xlabel("time (s)")
+        a.grid(alpha=0.3)
+    ax[1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
+               samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print) -> dict:
+    """Fly θ (or replay ``log``) with the pretrained policy, decode at ``rate`` Hz, write
+    out/decoded.npz, out/summary.json and plots (and out/decoded.mp4 with ``video``)."""
+    from mjxsysid.analysis.flight import fly_vehicles, one_flight
+    from mjxsysid.cfm.pipeline import plot_marginals
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    ctrl = PolicyController.load(weights)
+    flight = None
+    if log is not None:
+        rec = read_log(log)
+        zhat_t = replay_latents(ctrl, rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+        times = rec["t"] - rec["t"][0] + 0.002
+        truth = None
+    else:
+        flight, _, _ = fly_vehicles(theta, controller="policy", reference=reference, period=period,
+                                    duration=duration, seed=seed, weights=weights)
+        one = one_flight(flight)
+        zhat_t, times, truth = one.latent, one.time, np.asarray(theta, np.float32)
+    dec = decode_latents(zhat_t, times, rate=rate, samples=samples, seed=seed)
+    final = dec["samples"][-1]
+    summary = summarize_posterior(final, truth)
+    summary["_invalid_fraction"] = float(P.project_valid(final)[1].mean())  # e.g. J triangle violated
+    np.savez_compressed(out / "decoded.npz", **dec, theta_true=truth if truth is not None else np.full(19, np.nan))
+    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    plot_marginals(final, truth if truth is not None else np.full(19, np.nan), out / "marginals.png",
+                   point=dec["regression"][-1], title=f"decoded p(θ | ẑ) at t = {dec['times'][-1]:.1f} s")
+    plot_decoded_over_time(dec, truth, out / "decoded_over_time.png")
+    if video and flight is not None:
+        from mjxsysid.render.video import render_rollout
+        gth, _ = P.project_valid(final[:ghosts])
+        gfl, _, _ = fly_vehicles(gth, controller="policy", reference=reference, period=period,
+                                 duration=duration, seed=seed, weights=weights)
+        g = [(gth[i], np.asarray(gfl.frame.pos[i]), np.asarray(gfl.frame.quat[i])) for i in range(len(gth))]
+        render_rollout(truth, one.frame, out / "decoded.mp4", ghosts=g, reference=one.ref_pos, fps=25,
+                       width=480, height=360)
+    if truth is not None:
+        n_in = sum(v["inside"] for k, v in summary.items() if k in P.PARAM_NAMES)
+        echo(f"true θ inside the decoded 5–95 % interval for {n_in}/{P.N_PARAMS} parameters")
+    return summary

@@ -1,0 +1,84 @@
+"""`mjxsysid decode`: flight-log replay, decoding at a rate, the summary, error paths."""
+import json
+
+import jax
+import numpy as np
+import pytest
+
+from mjxsysid import params as P
+from mjxsysid.analysis.decode import (LOG_COLUMNS, PRETRAINED_DIR, decode_latents, read_log,
+                                      replay_latents, summarize_posterior, write_log)
+from mjxsysid.cli import main
+
+pytestmark = pytest.mark.skipif(not (PRETRAINED_DIR / "cfm.npz").exists(), reason="no shipped decoder")
+
+
+@pytest.fixture(scope="module")
+def paper_flight():
+    from mjxsysid.analysis.flight import fly_vehicles, one_flight
+    fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", reference="lemniscate", duration=1.0)
+    return one_flight(fl)
+
+
+def _log_from_flight(f):
+    """The IMU the controller saw at each step is the previous step's output."""
+    imu0 = np.array([0, 0, 0, 0, 0, P.GRAVITY], np.float32)
+    imu = np.concatenate([imu0[None], f.frame.imu[:-1]])
+    return f.time - 0.002, imu, f.a_cmd, f.omega_cmd, f.frame.motor_cmd
+
+
+def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
+    path = write_log(tmp_path / "flight.csv", *_log_from_flight(paper_flight))
+    rec = read_log(path)
+    from mjxsysid.policy.controller import PolicyController
+    z = replay_latents(PolicyController.load(), rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+    np.testing.assert_allclose(z, paper_flight.latent, atol=2e-4)
+    # End to end through the CLI.
+    out = tmp_path / "dec"
+    assert main(["decode", "--log", str(path), "--samples", "20", "--out", str(out)]) == 0
+    s = json.loads((out / "summary.json").read_text())
+    assert set(P.PARAM_NAMES) <= set(s) and "true" not in s["mass"]
+
+
+def test_decode_summary_brackets_the_paper_vehicle(paper_flight):
+    dec = decode_latents(paper_flight.latent, paper_flight.time, rate=10, samples=200)
+    assert dec["samples"].shape == (9, 200, 19) and dec["regression"].shape == (9, 19)
+    np.testing.assert_allclose(dec["times"][1] - dec["times"][0], 0.1, atol=1e-6)
+    s = summarize_posterior(dec["samples"][-1], P.PAPER_HARDWARE)
+    for n in P.PARAM_NAMES:
+        assert s[n]["q05"] <= s[n]["mean"] <= s[n]["q95"]
+    inside = sum(s[n]["inside"] for n in P.PARAM_NAMES)
+    assert inside >= 15, inside  # calibrated 90 % intervals: most of 19 contain the truth
+    with pytest.raises(ValueError, match="rate"):
+        decode_latents(paper_flight.latent, paper_flight.time, rate=0, samples=10)
+
+
+def test_read_log_errors(tmp_path):
+    p = tmp_path / "bad.csv"
+    p.write_text("t,gyro_x\n0,0\n")
+    with pytest.raises(ValueError, match="missing column"):
+        read_log(p)
+    rows = np.zeros((50, len(LOG_COLUMNS)))
+    np.savetxt(p, rows, delimiter=",", header=",".join(LOG_COLUMNS), comments="")
+    with pytest.raises(ValueError, match="at least 100"):
+        read_log(p)
+    rows = np.zeros((120, len(LOG_COLUMNS)))
+    rows[5, -1] = 3.0
+    np.savetxt(p, rows, delimiter=",", header=",".join(LOG_COLUMNS), comments="")
+    with pytest.raises(ValueError, match="normalised"):
+        read_log(p)
+    with pytest.raises(FileNotFoundError):
+        read_log(tmp_path / "nope.csv")
+
+
+def test_project_valid():
+    th = np.tile(P.PAPER_HARDWARE, (2, 1))
+    th[1, 6] = 1.0  # J_zz > J_xx + J_yy
+    ok, changed = P.project_valid(th)
+    assert changed.tolist() == [False, True]
+    P.validate_theta(ok)
+
+
+def test_decode_cli_errors(tmp_path, capsys):
+    assert main(["decode", "--vehicle", "v.json", "--log", "l.csv", "--out", str(tmp_path)]) == 2
+    assert "either --vehicle or --log" in capsys.readouterr().err
