@@ -214,5 +214,7 @@ def test_demo_runs(tmp_path):
     assert s["oracle"]["paper_vehicle"]["pos_rmse_m"] < 0.05
     assert s["oracle"]["prior_vehicles"]["success_rate"] == 1.0
     assert s["policy"]["paper_vehicle"]["pos_rmse_m"] < 0.05
-    for f in ("tracking.png", "oracle_vs_nominal.png", "summary.md", "flight.npz"):
+    assert sum(s["paper_vehicle_posterior"][n]["inside"] for n in P.PARAM_NAMES) >= 15
+    for f in ("tracking.png", "oracle_vs_nominal.png", "summary.md", "flight.npz", "marginals.png",
+              "decoded_over_time.png"):
         assert (out / f).exists(), f
