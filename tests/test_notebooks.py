@@ -1,0 +1,21 @@
+"""Notebooks run end to end on fast settings."""
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.mark.parametrize("name", ["01_decode_latents.ipynb"])
+def test_notebook_executes(name, tmp_path):
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    pytest.importorskip("ipykernel")
+    if not (ROOT / "mjxsysid" / "pretrained" / "cfm.npz").exists():
+        pytest.skip("no shipped decoder")
+    nb = nbformat.read(ROOT / "notebooks" / name, as_version=4)
+    os.environ["MJXSYSID_NOTEBOOK_FAST"] = "1"
+    nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
+    outputs = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+    assert "inside=" in outputs and (tmp_path / "decoded_marginals.png").exists()
