@@ -82,3 +82,14 @@ def test_project_valid():
 def test_decode_cli_errors(tmp_path, capsys):
     assert main(["decode", "--vehicle", "v.json", "--log", "l.csv", "--out", str(tmp_path)]) == 2
     assert "either --vehicle or --log" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_closed_loop_fidelity_runs():
+    """Slow (≈ 1 min of compiles on CPU): envelopes are computed and bounded."""
+    from mjxsysid.analysis.fidelity import closed_loop_fidelity
+    r = closed_loop_fidelity(P.PAPER_HARDWARE, n_models=8, reference="hover", duration=1.0,
+                             force_step=(1.0, 1.0, 0.0))
+    m = r["mean"]
+    assert 0.0 <= m["inside_decoded"] <= 1.0 and m["width_decoded_m"] >= 0.0
+    assert m["width_pm20_m"] >= 0.0
