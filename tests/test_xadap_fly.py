@@ -23,28 +23,17 @@ from mjxsysid.policy.xadap_controller import (NN_TO_MJX, XAdapController, XAdapP
                                               xadap_training_prior)
 
 REPO = Path(__file__).resolve().parents[1]
-XADAP_DIR = Path(os.environ.get("MJXSYSID_XADAP_DIR",
-                               REPO.parent / "shared" / "external" / "xadap"))
 G = np.float32(P.GRAVITY)
 HOVER_IMU = jnp.array([0.0, 0.0, 0.0, 0.0, 0.0, G], jnp.float32)
 HOVER_CMD = Command(jnp.float32(G), jnp.zeros(3, jnp.float32))
 
 
-def _have(mod: str) -> bool:
-    try:
-        __import__(mod)
-        return True
-    except ImportError:
-        return False
+from conftest import XADAP_DIR, have as _have  # noqa: E402
 
 
 @pytest.fixture(scope="module")
-def weights():
-    if not XADAP_DIR.is_dir():
-        pytest.skip(f"Xadap policy files not found at {XADAP_DIR} (set MJXSYSID_XADAP_DIR)")
-    if not _have("onnx"):
-        pytest.skip("onnx not installed (pip install onnx)")
-    return load_xadap(XADAP_DIR)
+def weights(xadap_weights):
+    return xadap_weights
 
 
 def test_butterworth_matches_scipy():

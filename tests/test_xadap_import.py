@@ -27,17 +27,11 @@ from mjxsysid.policy.xadap import (
 )
 
 REPO = Path(__file__).resolve().parents[1]
-XADAP_DIR = Path(os.environ.get("MJXSYSID_XADAP_DIR", REPO.parent / "shared" / "external" / "xadap"))
 N_SAMPLES = 64
 TOL = 1e-5
 
 
-def _have(mod: str) -> bool:
-    try:
-        __import__(mod)
-        return True
-    except ImportError:
-        return False
+from conftest import XADAP_DIR, have as _have  # noqa: E402
 
 
 needs_files = pytest.mark.skipif(
@@ -49,12 +43,8 @@ needs_ort = pytest.mark.skipif(
 
 
 @pytest.fixture(scope="module")
-def weights():
-    if not XADAP_DIR.is_dir():
-        pytest.skip(f"Xadap policy files not found at {XADAP_DIR} (set MJXSYSID_XADAP_DIR)")
-    if not _have("onnx"):
-        pytest.skip("onnx not installed (pip install onnx)")
-    return load_xadap(XADAP_DIR)
+def weights(xadap_weights):
+    return xadap_weights
 
 
 @pytest.fixture(scope="module")

@@ -9,12 +9,11 @@ envelope's mean width against the one from ±20 % uniform perturbations of θ*.
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
 from mjxsysid.analysis.flight import broadcast, make_low_level, make_reference
-from mjxsysid.analysis.harness import Disturbance, _fly_batch, low_level_axes
+from mjxsysid.analysis.harness import Disturbance, fly_batch
 from mjxsysid.cfm.sample import Decoder
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.sim import Quadrotor
@@ -31,10 +30,8 @@ def fly_same_disturbance(theta, *, reference="lemniscate", period=10.0, duration
     ref, _ = make_reference(reference, period=period, duration=duration)
     low = make_low_level("policy", theta)
     dist = broadcast(Disturbance.make(step_force=force_step, step_time=0.5, sigma=force_sigma), n)
-    leaves, treedef = jax.tree_util.tree_flatten(low_level_axes(low), is_leaf=lambda x: x is None)
-    fn = _fly_batch(sim, steps, treedef, tuple(leaves))
-    keys = jnp.broadcast_to(key if key is not None else jax.random.PRNGKey(0), (n, 2))
-    return fn(jnp.asarray(theta), low, broadcast(Cascade.make("baseline"), n), broadcast(ref, n), dist, keys)
+    return fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), broadcast(ref, n), dist,
+                     key if key is not None else jax.random.PRNGKey(0), steps, same_key=True)
 
 
 def envelope_stats(true_err, ens_err):

@@ -117,11 +117,14 @@ def low_level_axes(low):
     return low.batch_axes() if hasattr(low, "batch_axes") else 0
 
 
-def fly_batch(sim: Quadrotor, theta, low, high, ref, disturbance, key, steps: int) -> Flight:
+def fly_batch(sim: Quadrotor, theta, low, high, ref, disturbance, key, steps: int, *,
+              same_key: bool = False) -> Flight:
     """Batched :func:`fly`: θ (B, 19) and every pytree argument with leading axis B (the
-    low-level controller's shared leaves, per its ``batch_axes()``, unbatched)."""
+    low-level controller's shared leaves, per its ``batch_axes()``, unbatched). ``same_key``:
+    every vehicle gets ``key`` itself, i.e. the same disturbance and noise realisation."""
     theta = jnp.asarray(theta, jnp.float32)
-    keys = jax.random.split(key, theta.shape[0])
+    n = theta.shape[0]
+    keys = jnp.broadcast_to(key, (n,) + key.shape) if same_key else jax.random.split(key, n)
     leaves, treedef = jax.tree_util.tree_flatten(low_level_axes(low), is_leaf=lambda x: x is None)
     fn = _fly_batch(sim, int(steps), treedef, tuple(leaves))
     return fn(theta, low, high, ref, disturbance, keys)
