@@ -5,6 +5,12 @@
                  [--period S] [--duration S] [--force-step FX,FY,FZ] [--force-sigma S]
                  [--seed N] [--gains naive|baseline] [--video] --out DIR
     mjxsysid fly --prior default --vehicles 100 --controller oracle ...   a batch from the prior
+    mjxsysid fly --policy xadap --weights DIR ...   any frozen latent policy (NAME or a path)
+    mjxsysid collect | train-cfm | evaluate-decoder | decode | replay | demo  [--policy NAME|PATH]
+
+Policies: ``--policy mjxsysid`` (the shipped one; the default), ``--policy xadap --weights DIR``
+(the released Extreme-Adaptation policy: its folder or a converted .npz; $MJXSYSID_XADAP_DIR is
+the fallback), or ``--policy PATH`` (recognised from its contents).
 
 Errors in inputs (files, arguments) are reported in one line on stderr with exit status 2.
 Heavy imports happen after argument parsing, so ``--help`` is instant.
@@ -48,6 +54,17 @@ def _nonneg(text: str):
     return v
 
 
+def _add_policy(p, what="the frozen latent policy"):
+    p.add_argument("--policy", default=None, metavar="NAME|PATH",
+                   help=f"{what}: mjxsysid (shipped, default), xadap (with --weights DIR), or a path")
+    p.add_argument("--weights", type=Path, default=None,
+                   help="weights of the named policy (mjxsysid: policy.npz or run folder; xadap: the "
+                        "folder of the released files or a converted .npz)")
+
+
+PRIOR_CHOICES = ("default", "slow_actuators", "xadap")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="mjxsysid", description=__doc__.split("\n\n")[0])
     sub = p.add_subparsers(dest="command", required=True)
@@ -56,19 +73,20 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     d.add_argument("--no-video", action="store_true", help="skip the offscreen video")
     d.add_argument("--vehicles", type=int, default=16, help="prior vehicles in the comparison (default 16)")
+    _add_policy(d)
 
     f = sub.add_parser("fly", help="fly one vehicle under a controller and reference")
     f.add_argument("--vehicle", type=Path, default=None,
                    help="vehicle JSON file (default: the paper's hardware vehicle)")
-    f.add_argument("--prior", choices=("default", "slow_actuators"), default=None,
-                   help="instead of --vehicle: fly --vehicles vehicles drawn from this prior (seeded)")
+    f.add_argument("--prior", choices=PRIOR_CHOICES, default=None,
+                   help="instead of --vehicle: fly --vehicles vehicles drawn from this prior (seeded; "
+                        "xadap: the released policy's training distribution)")
     f.add_argument("--vehicles", type=int, default=100, help="with --prior: how many (default 100)")
-    f.add_argument("--controller", choices=("oracle", "nominal", "policy", "xadap"), default="oracle",
-                   help="oracle: K_θ with the true θ; nominal: K_θ with the paper vehicle's θ; "
-                        "policy: the adaptive policy (shipped weights or --weights); xadap: the "
-                        "released Extreme-Adaptation policy (--weights DIR of its files)")
-    f.add_argument("--weights", type=Path, default=None,
-                   help="--controller policy: a policy.npz or run folder; xadap: the folder of its files")
+    f.add_argument("--controller", choices=("oracle", "nominal", "policy", "xadap"), default=None,
+                   help="oracle: K_θ with the true θ (default without --policy); nominal: K_θ with "
+                        "the paper vehicle's θ; policy: the latent policy named by --policy (default "
+                        "with --policy); xadap: short for --controller policy --policy xadap")
+    _add_policy(f)
     f.add_argument("--reference", choices=("hover", "lemniscate", "minsnap"), default="lemniscate")
     f.add_argument("--period", type=_positive, default=10.0, help="lemniscate period, s (default 10)")
     f.add_argument("--duration", type=_positive, default=None,
@@ -91,18 +109,18 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--seed", type=int, default=None, help="override config.seed")
     t.add_argument("--no-resume", action="store_true", help="start afresh even if DIR/checkpoint.npz exists")
     e = sub.add_parser("evaluate-policy", help="evaluate an adaptive policy (tracking, lemniscate, latent health)")
-    e.add_argument("--weights", type=Path, default=None, help="policy.npz or run folder (default: shipped)")
+    e.add_argument("--weights", type=Path, default=None, help="policy.npz or run folder (default: shipped); "
+                   "mjxsysid's policies only (training diagnostics need its μ encoder)")
     e.add_argument("--vehicles", type=int, default=1000)
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--out", type=Path, required=True, help="writes OUT/eval.json")
     c = sub.add_parser("collect", help="collect (θ, ẑ) pairs from a frozen policy in closed-loop flight")
     c.add_argument("--out", type=Path, required=True, help="writes OUT/pairs.npz")
-    c.add_argument("--policy", default="policy", choices=("policy", "xadap"),
-                   help="policy: mjxsysid's (shipped or --weights); xadap: the released policy (--weights DIR)")
-    c.add_argument("--weights", type=Path, default=None)
+    _add_policy(c)
     c.add_argument("--train", type=int, default=20_000, help="training pairs (default 20000)")
     c.add_argument("--test", type=int, default=2_000, help="held-out pairs (default 2000)")
-    c.add_argument("--prior", choices=("default", "slow_actuators"), default="default")
+    c.add_argument("--prior", choices=PRIOR_CHOICES, default=None,
+                   help="vehicle prior (default: the policy's own: default for mjxsysid, xadap for xadap)")
     c.add_argument("--batch", type=int, default=2_000, help="vehicles per batched flight")
     c.add_argument("--seed", type=int, default=0)
     tc = sub.add_parser("train-cfm", help="train the CFM and Regression decoders on (θ, ẑ) pairs")
@@ -111,14 +129,14 @@ def build_parser() -> argparse.ArgumentParser:
     tc.add_argument("--epochs", type=int, default=None, help="override CFMConfig.epochs (default 100)")
     tc.add_argument("--width", type=int, default=None, help="override CFMConfig.width (default 512)")
     tc.add_argument("--batch", type=int, default=None, help="override CFMConfig.batch (default 256)")
+    _add_policy(tc, "check that the pairs come from this policy")
     ed = sub.add_parser("evaluate-decoder", help="calibration of the decoders on held-out pairs")
     ed.add_argument("--decoders", type=Path, required=True, help="folder with cfm.npz and regression.npz")
     ed.add_argument("--pairs", type=Path, required=True)
     ed.add_argument("--cases", type=int, default=1000)
     ed.add_argument("--samples", type=int, default=200)
-    ed.add_argument("--policy", default="policy", choices=("policy", "xadap"),
-                    help="policy whose latent of the paper vehicle is decoded for the marginals plot")
-    ed.add_argument("--weights", type=Path, default=None)
+    _add_policy(ed, "policy whose latent of the paper vehicle is decoded for the marginals plot "
+                    "(default: the one that made the pairs)")
     dc = sub.add_parser("decode", help="fly a vehicle (or replay a log) with the policy and decode its latent")
     dc.add_argument("--vehicle", type=Path, default=None, help="vehicle JSON (default: the paper vehicle)")
     dc.add_argument("--log", type=Path, default=None, help="decode a recorded flight instead (CSV, see README)")
@@ -127,11 +145,48 @@ def build_parser() -> argparse.ArgumentParser:
     dc.add_argument("--duration", type=_positive, default=None)
     dc.add_argument("--samples", type=int, default=100, help="decoded models per latent (default 100)")
     dc.add_argument("--rate", type=_positive, default=10.0, help="decoding rate, Hz (default 10)")
-    dc.add_argument("--weights", type=Path, default=None, help="policy weights (default: shipped)")
+    _add_policy(dc)
+    dc.add_argument("--decoders", type=Path, default=None,
+                    help="folder with cfm.npz and regression.npz (default: the policy's shipped decoders)")
     dc.add_argument("--seed", type=int, default=0)
     dc.add_argument("--video", action="store_true", help="render the true vehicle with decoded ghosts")
     dc.add_argument("--out", type=Path, required=True)
+    rp = sub.add_parser("replay", help="action replay: K_θ̂ from decoded θ̂ vs the policy's motor commands")
+    _add_policy(rp)
+    rp.add_argument("--decoders", type=Path, default=None,
+                    help="folder with cfm.npz and regression.npz (default: the policy's shipped decoders)")
+    rp.add_argument("--flights", default=",".join(FLIGHT_NAMES),
+                    help=f"comma-separated subset of {','.join(FLIGHT_NAMES)} (default: all)")
+    rp.add_argument("--vehicles", type=int, default=0,
+                    help="also replay this many vehicles of the policy's own prior (default 0: paper vehicle only)")
+    rp.add_argument("--samples", type=int, default=16, help="CFM samples per update for the mean action (default 16)")
+    rp.add_argument("--rate", type=_positive, default=10.0, help="decoder update rate, Hz (default 10)")
+    rp.add_argument("--cutoff", type=_positive, default=5.0, help="low-pass cut-off for the PCC, Hz (default 5)")
+    rp.add_argument("--seed", type=int, default=0)
+    rp.add_argument("--out", type=Path, required=True)
     return p
+
+
+FLIGHT_NAMES = ("lemniscate_5s", "lemniscate_10s", "lemniscate_15s", "hover")
+
+
+def _policy_ref(args, default="mjxsysid"):
+    from mjxsysid.policy.interface import resolve_policy
+    return resolve_policy(args.policy or default, args.weights)
+
+
+def cmd_replay(args) -> int:
+    from mjxsysid.analysis.replay import run_replay
+    flights = tuple(f.strip() for f in args.flights.split(",") if f.strip())
+    bad = [f for f in flights if f not in FLIGHT_NAMES]
+    if bad or not flights:
+        raise ValueError(f"--flights: unknown {bad or 'empty'}; choose from {','.join(FLIGHT_NAMES)}")
+    res = run_replay(args.out, policy=_policy_ref(args), decoders=args.decoders, vehicles=args.vehicles,
+                     flights=flights, rate=args.rate, samples=args.samples, cutoff_hz=args.cutoff,
+                     seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
+    print(json.dumps({n: e["paper_vehicle"] for n, e in res["flights"].items()}))
+    print(f"wrote {args.out}/replay.json, replay.md, replay_summary.png, replay_<flight>.png", file=sys.stderr)
+    return 0
 
 
 def cmd_decode(args) -> int:
@@ -143,8 +198,9 @@ def cmd_decode(args) -> int:
         raise ValueError("give either --vehicle or --log, not both")
     theta = None if args.log else (P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware())
     summary = run_decode(args.out, theta=theta, log=args.log, reference=args.reference, period=args.period,
-                         duration=args.duration, samples=args.samples, rate=args.rate, weights=args.weights,
-                         seed=args.seed, video=args.video, echo=lambda m: print(m, file=sys.stderr))
+                         duration=args.duration, samples=args.samples, rate=args.rate, policy=_policy_ref(args),
+                         decoders=args.decoders, seed=args.seed, video=args.video,
+                         echo=lambda m: print(m, file=sys.stderr))
     print(json.dumps({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES}))
     print(f"wrote {args.out}/decoded.npz, summary.json, marginals.png, decoded_over_time.png"
           + (", decoded.mp4" if args.video else ""), file=sys.stderr)
@@ -156,6 +212,12 @@ def cmd_train_cfm(args) -> int:
 
     from mjxsysid.cfm.pipeline import train_decoders
     from mjxsysid.cfm.train import CFMConfig
+    if args.policy is not None or args.weights is not None:
+        from mjxsysid.policy.collect import load_pairs
+        want = _policy_ref(args)
+        got = load_pairs(args.pairs)[1].get("weights_sha256")
+        if got != want.sha256():
+            raise ValueError(f"{args.pairs}: these pairs were not collected with {want.label}")
     over = {k: v for k, v in (("epochs", args.epochs), ("width", args.width), ("batch", args.batch)) if v is not None}
     cfg = dataclasses.replace(CFMConfig(), **over)
     res = train_decoders(args.pairs, args.out, cfg, log=lambda m: print(m, flush=True))
@@ -169,10 +231,22 @@ def cmd_evaluate_decoder(args) -> int:
 
     from mjxsysid import params as P
     from mjxsysid.cfm.pipeline import evaluate_decoders
-    from mjxsysid.policy.collect import latents_in_flight
+    from mjxsysid.policy.collect import latents_in_flight, load_pairs
+    from mjxsysid.policy.interface import resolve_policy
     import jax
-    z, failed = latents_in_flight(args.policy, np.repeat(P.PAPER_HARDWARE[None], 2, 0), jax.random.PRNGKey(0),
-                                  weights=args.weights)
+    if args.policy is None and args.weights is None:
+        meta = load_pairs(args.pairs)[1]
+        kind = meta.get("policy", "mjxsysid")
+        w = meta.get("weights")
+        if w is not None and not Path(w).exists():
+            if kind != "mjxsysid":
+                raise ValueError(f"{args.pairs} was collected with {kind} weights at {w}, not found here: "
+                                 f"pass --policy {kind} --weights PATH")
+            w = None
+        ref = resolve_policy(kind, w)
+    else:
+        ref = _policy_ref(args)
+    z, failed = latents_in_flight(ref, np.repeat(P.PAPER_HARDWARE[None], 2, 0), jax.random.PRNGKey(0))
     rep = evaluate_decoders(args.decoders, args.pairs, n_cases=args.cases, n_samples=args.samples,
                             paper_zhat=z[0], log=lambda m: print(m, flush=True))
     print(json.dumps({"coverage_mean": rep["coverage_mean"], "calibrated": rep["calibrated_within_5_points"],
@@ -183,8 +257,9 @@ def cmd_evaluate_decoder(args) -> int:
 
 def cmd_collect(args) -> int:
     from mjxsysid.policy.collect import collect
-    print(f"collecting {args.train} + {args.test} (θ, ẑ) pairs with {args.policy}", flush=True)
-    path = collect(args.out, controller=args.policy, weights=args.weights, n_train=args.train,
+    ref = _policy_ref(args)
+    print(f"collecting {args.train} + {args.test} (θ, ẑ) pairs with {ref.label}", flush=True)
+    path = collect(args.out, policy=ref, n_train=args.train,
                    n_test=args.test, prior=args.prior, seed=args.seed, batch=args.batch,
                    log=lambda m: print(m, flush=True))
     print(f"wrote {path}", file=sys.stderr)
@@ -246,6 +321,16 @@ def cmd_fly(args) -> int:
     from mjxsysid.analysis.flight import fly_vehicles, one_flight, save_flight, write_metrics
     from mjxsysid.render.plots import plot_trajectory
 
+    if args.controller is None:
+        args.controller = "policy" if (args.policy or args.weights) else "oracle"
+    if args.controller == "xadap":
+        args.controller, args.policy = "policy", args.policy or "xadap"
+        if args.policy != "xadap":
+            raise ValueError(f"--controller xadap conflicts with --policy {args.policy}")
+    if args.controller == "policy":
+        args.policy = _policy_ref(args)
+    elif args.policy is not None or args.weights is not None:
+        raise ValueError(f"--policy / --weights do not apply to --controller {args.controller}")
     if args.prior is not None:
         if args.vehicle is not None:
             raise ValueError("give either --vehicle or --prior, not both")
@@ -260,15 +345,15 @@ def cmd_fly(args) -> int:
         theta, controller=args.controller, reference=args.reference, period=args.period,
         duration=args.duration, gains=args.gains, force_step=args.force_step,
         force_step_time=args.force_step_time, force_sigma=args.force_sigma, seed=args.seed,
-        weights=args.weights)
+        policy=args.policy)
     save_flight(flight, theta, out / "flight.npz")
-    info = {"vehicle": str(args.vehicle or "paper_hardware"), "controller": args.controller,
+    info = {"vehicle": str(args.vehicle or "paper_hardware"), "controller": _ctrl_label(args),
             "reference": args.reference, "duration_s": duration, "gains": args.gains,
             "seed": args.seed}
     d = write_metrics(m, out / "metrics.json", extra=info)
     one = one_flight(flight)
     plot_trajectory(one.frame, out / "tracking.png", reference=one.ref_pos,
-                    title=f"{args.controller}, {args.reference}, {Path(info['vehicle']).stem}")
+                    title=f"{_ctrl_label(args)}, {args.reference}, {Path(info['vehicle']).stem}")
     if args.video:
         from mjxsysid.render.video import render_rollout
         render_rollout(theta, one.frame, out / "flight.mp4", reference=one.ref_pos)
@@ -278,6 +363,10 @@ def cmd_fly(args) -> int:
     print(f"wrote {out}/flight.npz, tracking.png, metrics.json"
           + (", flight.mp4" if args.video else "") + f" ({time.time() - t0:.1f} s)", file=sys.stderr)
     return 0
+
+
+def _ctrl_label(args) -> str:
+    return f"policy {args.policy.label}" if args.controller == "policy" else f"{args.controller} K_θ"
 
 
 def _fly_prior(args) -> int:
@@ -299,15 +388,15 @@ def _fly_prior(args) -> int:
         theta, controller=args.controller, reference=args.reference, period=args.period,
         duration=args.duration, gains=args.gains, force_step=args.force_step,
         force_step_time=args.force_step_time, force_sigma=args.force_sigma, seed=args.seed, refs=refs,
-        weights=args.weights)
+        policy=args.policy)
     save_flight(flight, theta, out / "flight.npz")
-    info = {"prior": args.prior, "vehicles": args.vehicles, "controller": args.controller,
+    info = {"prior": args.prior, "vehicles": args.vehicles, "controller": _ctrl_label(args),
             "reference": args.reference, "duration_s": duration, "gains": args.gains, "seed": args.seed,
             "per_vehicle": metrics_to_host(m), "theta": theta.tolist()}
     d = write_metrics(m, out / "metrics.json", index=None, extra=info)
     one = one_flight(flight)
     plot_trajectory(one.frame, out / "tracking.png", reference=one.ref_pos,
-                    title=f"{args.controller} K_θ, {args.reference}, first of {args.vehicles} {args.prior}-prior vehicles")
+                    title=f"{_ctrl_label(args)}, {args.reference}, first of {args.vehicles} {args.prior}-prior vehicles")
     print(json.dumps({k: d[k] for k in ("n", "success_rate", "pos_rmse_m", "heading_rmse_deg",
                                          "saturation_frac")}))
     print(f"wrote {out}/metrics.json (summary + per-vehicle), flight.npz and tracking.png (first vehicle)",
@@ -319,7 +408,7 @@ def cmd_demo(args) -> int:
     if not args.no_video:
         _prepare_render()
     from mjxsysid.analysis.demo import run_demo
-    run_demo(args.out, video=not args.no_video, n_vehicles=args.vehicles)
+    run_demo(args.out, video=not args.no_video, n_vehicles=args.vehicles, policy=_policy_ref(args))
     return 0
 
 
@@ -327,7 +416,8 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy,
                 "evaluate-policy": cmd_evaluate_policy, "collect": cmd_collect,
-                "train-cfm": cmd_train_cfm, "evaluate-decoder": cmd_evaluate_decoder, "decode": cmd_decode}
+                "train-cfm": cmd_train_cfm, "evaluate-decoder": cmd_evaluate_decoder, "decode": cmd_decode,
+                "replay": cmd_replay}
     try:
         return handlers[args.command](args)
     except (ValueError, FileNotFoundError) as e:

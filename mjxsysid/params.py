@@ -311,7 +311,100 @@ class Prior:
 
 DEFAULT_PRIOR = Prior()
 SLOW_ACTUATOR_PRIOR = Prior(name="slow_actuators", motor_time_constant=(0.05, 0.10))
-PRIORS = {"default": DEFAULT_PRIOR, "slow_actuators": SLOW_ACTUATOR_PRIOR}
+
+
+# ----------------------------------------------------------------------------------------
+# The released policy's training distribution
+# ----------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class XAdapPrior(Prior):
+    """A :class:`~mjxsysid.params.Prior` fitted to the released policy's training statistics.
+
+    The released mean.csv / var.csv give mean ± std of the privileged parameters (README):
+    mass 0.60 ± 0.33 kg and arm 0.113 ± 0.049 m are uniform-like (so mass is *linear* in the
+    size factor here, not ∝ l³ as in the default prior), J ≈ 0.19 m l² (std/mean ≈ 1.2),
+    k_t exponential in c (mean 3.7e-6, std 6.3e-6), κ ≈ U[0.0062, 0.016], drag ≈ isotropic,
+    Ω_max 3379 ± 2435 rad/s, η U[0.7, 1.3]. Sampling, with c ~ U[0, 1] and noise
+    n ~ U[1 ± noise]:
+
+    - l = (arm_lo + (arm_hi − arm_lo) c) n, clipped to ``arm``; m likewise from ``mass_range``
+    - J_xx,yy = inertia_xy m l² n, J_zz = inertia_z m l² n (≤ 0.98 (J_xx + J_yy))
+    - k_t = kt_base exp(kt_rate c) n, κ ~ U[kappa], k_τ = κ k_t
+    - D_xx = D_yy = D_zz = drag_iso (l / 0.2)² n
+    - Ω_max from thrust-to-weight r ~ U[twr] clipped to [twr_min_eff, twr_max_eff] / η
+    - η ~ U[eta], τ_m ~ U[motor_time_constant], τ_ext as :class:`~mjxsysid.params.Prior`.
+
+    Moment match (200k samples; README in brackets): mass 0.60 ± 0.32 (0.60 ± 0.33), arm
+    0.115 ± 0.049 (0.113 ± 0.049), J_xx 2.3e-3 ± 2.3e-3 (2.2e-3 ± 2.5e-3), J_zz 3.4e-3 ±
+    3.5e-3 (3.3e-3 ± 4.1e-3), κ 0.0111 ± 0.0028 (same), k_t 3.6e-6 ± 6.2e-6 (3.7e-6 ± 6.3e-6),
+    drag 0.29 ± 0.22 (0.30 ± 0.27), Ω_max 3420 ± 2280 (3379 ± 2435) rad/s. Thrust-to-weight
+    ratio spans 1.5 – 5.8 (with η), angular authority 85 – 2300 rad/s². The joint structure
+    (one size factor) is a guess: only marginals are published. Not in the statistics, taken
+    from the default prior: τ_m ~ U[0.02, 0.04] s (the policy prefers faster motors: see the
+    module notes) and τ_ext; the training's centre-of-mass offsets are not modelled.
+    """
+    name: str = "xadap"
+    arm: tuple[float, float] = (0.03, 0.20)
+    mass_range: tuple[float, float] = (0.04, 1.16)
+    inertia_xy: float = 0.175
+    inertia_z: float = 0.265
+    kt_base: float = 1.1e-8
+    kt_rate: float = 7.86
+    kappa: tuple[float, float] = (0.0062, 0.016)
+    drag_iso: float = 0.75
+    twr: tuple[float, float] = (2.0, 4.5)
+    twr_min_eff: float = 1.5
+    twr_max_eff: float = 8.0
+    noise: float = 0.1
+
+    def sample(self, key: jax.Array, n: int) -> jax.Array:
+        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32."""
+        return _sample_xadap(self, key, n)
+
+
+def _sample_xadap(p: XAdapPrior, key, n: int):
+    ks = jax.random.split(key, 16)
+
+    def u(k, lo, hi, shape=(n,)):
+        return jax.random.uniform(k, shape, jnp.float32, lo, hi)
+
+    def noise(k, shape=(n,)):
+        return u(k, 1.0 - p.noise, 1.0 + p.noise, shape)
+
+    c = u(ks[0], 0.0, 1.0)
+    arm = jnp.clip((p.arm[0] + (p.arm[1] - p.arm[0]) * c) * noise(ks[1]), *p.arm)
+    m_lo, m_hi = p.mass_range
+    mass = jnp.clip((m_lo + (m_hi - m_lo) * c) * noise(ks[2]), m_lo, m_hi)
+    ml2 = mass * arm**2
+    jn = noise(ks[3], (n, 3))
+    jxx = p.inertia_xy * ml2 * jn[:, 0]
+    jyy = p.inertia_xy * ml2 * jn[:, 1]
+    jzz = jnp.minimum(p.inertia_z * ml2 * jn[:, 2], 0.98 * (jxx + jyy))
+    kt = p.kt_base * jnp.exp(p.kt_rate * c) * noise(ks[4])
+    kappa = u(ks[5], *p.kappa)
+    drag = p.drag_iso * (arm / 0.2) ** 2 * noise(ks[6])
+    eta = u(ks[7], *p.eta, (n, 4))
+    twr = jnp.clip(u(ks[8], *p.twr), p.twr_min_eff / eta.min(-1), p.twr_max_eff / eta.max(-1))
+    omega_max = jnp.sqrt(twr * mass * GRAVITY / (4.0 * kt))
+    tau_m = u(ks[9], *p.motor_time_constant)
+    ext_scale = jnp.stack([p.ext_torque_xy * mass * GRAVITY * arm] * 2
+                          + [p.ext_torque_z * mass * GRAVITY * kappa], -1)
+    tau_ext = u(ks[10], -1.0, 1.0, (n, 3)) * ext_scale
+    cols = [mass, arm, kt, kappa * kt, jxx, jyy, jzz, drag, drag, drag, omega_max,
+            eta[:, 0], eta[:, 1], eta[:, 2], eta[:, 3], tau_m, tau_ext[:, 0], tau_ext[:, 1],
+            tau_ext[:, 2]]
+    return jnp.stack(cols, -1)
+
+
+def xadap_training_prior(**overrides) -> XAdapPrior:
+    """The released Xadap policy's training distribution (moment-matched; see
+    :class:`XAdapPrior`), optionally with fields replaced (e.g. ``ext_torque_xy=0``)."""
+    return XAdapPrior(**overrides)
+
+
+XADAP_PRIOR = XAdapPrior()
+PRIORS = {"default": DEFAULT_PRIOR, "slow_actuators": SLOW_ACTUATOR_PRIOR, "xadap": XADAP_PRIOR}
 
 
 def get_prior(name: str | Prior) -> Prior:

@@ -22,9 +22,8 @@ def paper_flight():
 
 def _log_from_flight(f):
     """The IMU the controller saw at each step is the previous step's output."""
-    imu0 = np.array([0, 0, 0, 0, 0, P.GRAVITY], np.float32)
-    imu = np.concatenate([imu0[None], f.frame.imu[:-1]])
-    return f.time - 0.002, imu, f.a_cmd, f.omega_cmd, f.frame.motor_cmd
+    from mjxsysid.analysis.flight import seen_imu
+    return f.time - 0.002, seen_imu(f.frame.imu), f.a_cmd, f.omega_cmd, f.frame.motor_cmd
 
 
 def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):

@@ -171,7 +171,7 @@ def test_hovers_in_distribution_vehicles(weights, sim):
     n = 4
     theta = np.asarray(xadap_training_prior().sample(jax.random.PRNGKey(0), n))
     low = make_xadap_low_level(XADAP_DIR, n)
-    assert low.weights.pi_out_w.shape == (n, 4, 256) and low.decimation == 1
+    assert low.weights.pi_out_w.shape == (4, 256) and low.decimation == 1  # shared, not copied per vehicle
     ref, _ = make_reference("hover")
     flight = fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), broadcast(ref, n),
                        broadcast(Disturbance.make(), n), jax.random.PRNGKey(1), 1000)

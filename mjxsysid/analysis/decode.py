@@ -25,9 +25,8 @@ from mjxsysid import params as P
 from mjxsysid.cfm.sample import Decoder
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy import networks as N
-from mjxsysid.policy.controller import PolicyController
+from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
 
-PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
 LOG_COLUMNS = ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "a_cmd", "omega_cmd_x",
                "omega_cmd_y", "omega_cmd_z", "motor_1", "motor_2", "motor_3", "motor_4")
 
@@ -70,41 +69,62 @@ def write_log(path, t, imu, a_cmd, omega_cmd, motor) -> Path:
     return Path(path)
 
 
-def replay_latents(ctrl: PolicyController, imu, a_cmd, omega_cmd, motor) -> np.ndarray:
-    """ẑ after every logged step (T, 8): the policy's history rebuilt from the log."""
-    def body(carry, x):
-        im, a, w, u = x
-        obs = N.observation(im, a, w)
-        hist = jnp.where(carry.started, carry.history, N.initial_history(obs))
-        raw = 2.0 * u - 1.0
-        hist = N.push_history(hist, obs, raw)
-        count = carry.count + 1
-        zhat = jax.lax.cond(count % ctrl.phi_every == 0, lambda h: N.Networks().adapt(ctrl.params, h),
-                            lambda h: carry.zhat, hist)
-        new = carry._replace(history=hist, last_raw=raw, zhat=zhat, count=count, started=jnp.array(True))
-        return new, zhat
+def replay_latents(ctrl, imu, a_cmd, omega_cmd, motor) -> np.ndarray:
+    """ẑ after every logged step (T, 8): any latent policy's ``replay`` (its history rebuilt
+    from the log)."""
+    return ctrl.replay(imu, a_cmd, omega_cmd, motor)
 
-    xs = tuple(jnp.asarray(a, jnp.float32) for a in (imu, a_cmd, omega_cmd, motor))
-    return np.asarray(jax.jit(lambda xs: jax.lax.scan(body, ctrl.init(), xs)[1])(xs))
+
+def load_decoders(decoders=None, policy=None, *, warn=None) -> tuple[Decoder, Decoder]:
+    """(CFM, Regression) decoders from the folder ``decoders`` (default: the folder where the
+    policy's decoders ship; see :class:`~mjxsysid.policy.interface.PolicyRef`). ``warn(msg)``
+    is told when the decoders were trained on another policy's latents than ``policy``'s."""
+    ref = resolve_policy(policy) if policy is not None else None
+    d = Path(decoders) if decoders is not None else (ref.decoders_dir if ref else PRETRAINED_DIR)
+    for f in ("cfm.npz", "regression.npz"):
+        if not (d / f).is_file():
+            hint = "" if decoders is not None else (
+                f" (no shipped decoders for {ref.label}: train them with `mjxsysid collect "
+                f"--policy ...` and `mjxsysid train-cfm`, then pass --decoders DIR)" if ref else "")
+            raise FileNotFoundError(f"decoder not found: {d / f}{hint}")
+    cfm, reg = Decoder.load(d / "cfm.npz"), Decoder.load(d / "regression.npz")
+    if ref is not None and warn is not None:
+        trained_on = cfm.meta.get("data", {}).get("pairs_meta", {}).get("weights_sha256")
+        if trained_on and trained_on != ref.sha256():
+            warn(f"warning: the decoders in {d} were trained on the latents of another policy "
+                 f"(weights sha256 {trained_on[:12]}…), not {ref.label}")
+    return cfm, reg
 
 
 def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, decoder=None,
                    regression=None, start: float = N.HISTORY * 0.002):
     """Decode ẑ (T, 8) sampled at ``rate`` Hz after ``start`` s. Returns dict with times (K,),
-    zhat (K, 8), samples (K, S, 19) physical, regression (K, 19) physical."""
+    zhat (K, 8), samples (K, S, 19) physical, regression (K, 19) physical. Decoders default to
+    the shipped ones of mjxsysid's policy."""
     if not rate > 0:
         raise ValueError(f"--rate must be > 0 Hz, got {rate}")
     if samples < 2:
         raise ValueError(f"--samples must be >= 2, got {samples}")
+    idx = decode_indices(times, rate, start)
+    if decoder is None or regression is None:
+        cfm0, reg0 = load_decoders()
+        decoder, regression = decoder or cfm0, regression or reg0
+    z = np.asarray(zhat_t)[idx]
+    s = np.asarray(decoder.sample_theta(z, jax.random.PRNGKey(seed), samples))
+    return {"times": np.asarray(times)[idx], "zhat": z, "samples": s,
+            "regression": np.asarray(regression.point(z))}
+
+
+def decode_indices(times, rate: float, start: float = N.HISTORY * 0.002) -> np.ndarray:
+    """Indices (K,) of the steps at which a ``rate`` Hz decoder reads ẑ: every 1/rate s from the
+    first step at or after ``start`` s (the last step if the flight is shorter)."""
+    times = np.asarray(times)
     dt = float(times[1] - times[0]) if len(times) > 1 else 0.002
     every = max(int(round(1.0 / (rate * dt))), 1)
-    idx = np.arange(len(times))
-    idx = idx[(times >= start - 1e-9) & ((idx - idx[times >= start - 1e-9][0]) % every == 0)] if np.any(times >= start) else idx[-1:]
-    cfm = decoder or Decoder.load(PRETRAINED_DIR / "cfm.npz")
-    reg = regression or Decoder.load(PRETRAINED_DIR / "regression.npz")
-    z = np.asarray(zhat_t)[idx]
-    s = np.asarray(cfm.sample_theta(z, jax.random.PRNGKey(seed), samples))
-    return {"times": np.asarray(times)[idx], "zhat": z, "samples": s, "regression": np.asarray(reg.point(z))}
+    after = np.flatnonzero(times >= start - 1e-9)
+    if len(after) == 0:
+        return np.array([len(times) - 1])
+    return after[(after - after[0]) % every == 0]
 
 
 def summarize_posterior(samples, truth=None) -> dict:
@@ -161,26 +181,31 @@ def plot_decoded_over_time(dec: dict, truth, path):
 
 
 def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
-               samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print) -> dict:
-    """Fly θ (or replay ``log``) with the pretrained policy, decode at ``rate`` Hz, write
-    out/decoded.npz, out/summary.json and plots (and out/decoded.mp4 with ``video``)."""
+               samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print,
+               policy="mjxsysid", decoders=None) -> dict:
+    """Fly θ (or replay ``log``) with a frozen latent policy (``policy``, ``weights``: see
+    :func:`~mjxsysid.policy.interface.resolve_policy`; default the shipped one), decode at
+    ``rate`` Hz with that policy's decoders (or those in ``decoders``), write out/decoded.npz,
+    out/summary.json and plots (and out/decoded.mp4 with ``video``)."""
     from mjxsysid.analysis.flight import fly_vehicles, one_flight
     from mjxsysid.cfm.pipeline import plot_marginals
+    ref = resolve_policy(policy, weights)
+    cfm, reg = load_decoders(decoders, ref, warn=echo)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    ctrl = PolicyController.load(weights)
     flight = None
     if log is not None:
         rec = read_log(log)
-        zhat_t = replay_latents(ctrl, rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+        zhat_t = replay_latents(ref.load(), rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
         times = rec["t"] - rec["t"][0] + 0.002
         truth = None
     else:
-        flight, _, _ = fly_vehicles(theta, controller="policy", reference=reference, period=period,
-                                    duration=duration, seed=seed, weights=weights)
+        flight, _, _ = fly_vehicles(theta, controller="policy", policy=ref, reference=reference,
+                                    period=period, duration=duration, seed=seed)
         one = one_flight(flight)
         zhat_t, times, truth = one.latent, one.time, np.asarray(theta, np.float32)
-    dec = decode_latents(zhat_t, times, rate=rate, samples=samples, seed=seed)
+    dec = decode_latents(zhat_t, times, rate=rate, samples=samples, seed=seed, decoder=cfm,
+                         regression=reg)
     final = dec["samples"][-1]
     summary = summarize_posterior(final, truth)
     summary["_invalid_fraction"] = float(P.project_valid(final)[1].mean())  # e.g. J triangle violated
@@ -192,8 +217,8 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     if video and flight is not None:
         from mjxsysid.render.video import render_rollout
         gth, _ = P.project_valid(final[:ghosts])
-        gfl, _, _ = fly_vehicles(gth, controller="policy", reference=reference, period=period,
-                                 duration=duration, seed=seed, weights=weights)
+        gfl, _, _ = fly_vehicles(gth, controller="policy", policy=ref, reference=reference,
+                                 period=period, duration=duration, seed=seed)
         g = [(gth[i], np.asarray(gfl.frame.pos[i]), np.asarray(gfl.frame.quat[i])) for i in range(len(gth))]
         render_rollout(truth, one.frame, out / "decoded.mp4", ghosts=g, reference=one.ref_pos, fps=25,
                        width=480, height=360)

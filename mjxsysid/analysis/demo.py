@@ -18,32 +18,41 @@ from mjxsysid.analysis.flight import fly_vehicles, one_flight, save_flight
 from mjxsysid.analysis.harness import metrics_to_host
 
 
-def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int = 0) -> dict:
+def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int = 0,
+             policy="mjxsysid") -> dict:
+    """The quick start. ``policy``: the latent policy flown and decoded (a name, path or
+    :class:`~mjxsysid.policy.interface.PolicyRef`; default the shipped one); its shipped
+    decoders decode it and the comparison vehicles come from its own prior."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from mjxsysid.render.plots import plot_trajectory
 
+    from mjxsysid.analysis.decode import load_decoders
+    from mjxsysid.policy.interface import resolve_policy
+    ref = resolve_policy(policy)
+    cfm, reg = load_decoders(None, ref, warn=print)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     if n_vehicles < 1:
         raise ValueError(f"--vehicles must be >= 1, got {n_vehicles}")
     theta = np.concatenate([P.PAPER_HARDWARE[None],
-                            np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(seed), n_vehicles))])
+                            np.asarray(P.get_prior(ref.prior).sample(jax.random.PRNGKey(seed), n_vehicles))])
     print(f"[1/4] flying the paper vehicle and {n_vehicles} prior vehicles on the 10 s lemniscate "
-          "(shipped adaptive policy, oracle and nominal K_θ; each first run compiles, ~20 s on CPU)",
+          f"(policy {ref.label}, oracle and nominal K_θ; each first run compiles, ~20 s on CPU)",
           flush=True)
     res = {}
     for ctrl in ("policy", "oracle", "nominal"):
-        flight, m, _ = fly_vehicles(theta, controller=ctrl, reference="lemniscate", period=10.0)
+        flight, m, _ = fly_vehicles(theta, controller=ctrl, reference="lemniscate", period=10.0,
+                                    policy=ref if ctrl == "policy" else None)
         res[ctrl] = (flight, {k: np.asarray(v) for k, v in m.items()})
     flight, m = res["policy"]
     save_flight(flight, theta, out / "flight.npz")
     one = one_flight(flight)
     plot_trajectory(one.frame, out / "tracking.png", reference=one.ref_pos,
-                    title="paper vehicle, shipped adaptive policy, 10 s lemniscate")
+                    title=f"paper vehicle, policy {ref.label}, 10 s lemniscate")
 
     print("[2/4] plotting the policy / oracle / nominal comparison", flush=True)
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
@@ -74,7 +83,8 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
           flush=True)
     from mjxsysid.analysis.decode import decode_latents, plot_decoded_over_time, summarize_posterior
     from mjxsysid.cfm.pipeline import plot_marginals
-    dec = decode_latents(one.latent, one.time, rate=10.0, samples=200, seed=seed)
+    dec = decode_latents(one.latent, one.time, rate=10.0, samples=200, seed=seed, decoder=cfm,
+                         regression=reg)
     post = summarize_posterior(dec["samples"][-1], theta[0])
     plot_marginals(dec["samples"][-1], theta[0], out / "marginals.png", point=dec["regression"][-1],
                    title="paper vehicle: decoded p(θ | ẑ) at t = 10 s (black: true, orange: regression)")
@@ -84,7 +94,8 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
         print("[4/4] flying 4 decoded models and rendering them as ghosts (offscreen)", flush=True)
         from mjxsysid.render.video import render_rollout
         gth, _ = P.project_valid(dec["samples"][-1][:4])
-        gfl, _, _ = fly_vehicles(gth, controller="policy", reference="lemniscate", period=10.0)
+        gfl, _, _ = fly_vehicles(gth, controller="policy", reference="lemniscate", period=10.0,
+                                 policy=ref)
         ghosts = [(gth[i], np.asarray(gfl.frame.pos[i]), np.asarray(gfl.frame.quat[i])) for i in range(len(gth))]
         render_rollout(theta[0], one.frame, out / "demo.mp4", reference=one.ref_pos, fps=25,
                        width=480, height=360, ghosts=ghosts)
@@ -104,9 +115,9 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
 Paper hardware vehicle (m = 0.925 kg, l = 0.184 m, thrust-to-weight 6.2), 10 s 3-D lemniscate,
 baseline high-level gains, 500 Hz, MJX simulator on CPU.
 
-| controller | paper vehicle pos RMSE (m) | heading RMSE (deg) | {n_vehicles} prior vehicles: success | median pos RMSE (m) |
+| controller | paper vehicle pos RMSE (m) | heading RMSE (deg) | {n_vehicles} {ref.prior}-prior vehicles: success | median pos RMSE (m) |
 |---|---|---|---|---|
-| adaptive policy (shipped, ẑ from history) | {pp['paper_vehicle']['pos_rmse_m']:.3f} | {pp['paper_vehicle']['heading_rmse_deg']:.2f} | {pp['prior_vehicles']['success_rate']:.0%} | {pp['prior_vehicles']['pos_rmse_m_median']:.3f} |
+| adaptive policy {ref.label} (ẑ from history) | {pp['paper_vehicle']['pos_rmse_m']:.3f} | {pp['paper_vehicle']['heading_rmse_deg']:.2f} | {pp['prior_vehicles']['success_rate']:.0%} | {pp['prior_vehicles']['pos_rmse_m_median']:.3f} |
 | oracle K_θ (true θ) | {po['paper_vehicle']['pos_rmse_m']:.3f} | {po['paper_vehicle']['heading_rmse_deg']:.2f} | {po['prior_vehicles']['success_rate']:.0%} | {po['prior_vehicles']['pos_rmse_m_median']:.3f} |
 | nominal K_θ (paper θ) | {pn['paper_vehicle']['pos_rmse_m']:.3f} | {pn['paper_vehicle']['heading_rmse_deg']:.2f} | {pn['prior_vehicles']['success_rate']:.0%} | {pn['prior_vehicles']['pos_rmse_m_median']:.3f} |
 

@@ -36,26 +36,26 @@ def make_reference(name: str, *, period: float = 10.0, duration: float | None = 
     raise ValueError(f"unknown reference {name!r}; choose from {REFERENCES}")
 
 
-def make_low_level(name: str, theta, weights=None):
+def make_low_level(name: str, theta, weights=None, policy=None):
     """'oracle': K_θ with each vehicle's true θ; 'nominal': K_θ with the paper vehicle's θ
-    whatever is flown (non-adaptive); 'policy': the adaptive policy (shipped weights, or
-    ``weights``: a policy.npz or run folder). θ (B, 19) -> batched controller."""
+    whatever is flown (non-adaptive); 'policy': a frozen latent policy, ``policy`` a name
+    ('mjxsysid', the default, or 'xadap'), a path or a
+    :class:`~mjxsysid.policy.interface.PolicyRef`, with ``weights`` (see
+    :func:`~mjxsysid.policy.interface.resolve_policy`); 'xadap' = 'policy' with policy 'xadap'.
+    θ (B, 19) -> batched controller."""
     theta = np.asarray(theta, np.float32)
-    if weights is not None and name not in ("policy", "xadap"):
-        raise ValueError("--weights only applies to --controller policy or xadap")
+    if name in ("oracle", "nominal") and (weights is not None or policy is not None):
+        raise ValueError(f"--policy / --weights do not apply to the {name} K_θ controller")
     if name == "oracle":
         return KTheta.make(theta)
     if name == "nominal":
         return KTheta.make(np.broadcast_to(P.PAPER_HARDWARE, theta.shape))
-    if name == "policy":
-        from mjxsysid.policy.controller import PolicyController
-        return PolicyController.load(weights).batched(theta.shape[0])
-    if name == "xadap":
-        if weights is None:
-            raise ValueError("--controller xadap needs --weights DIR (a copy of the released "
-                             "policy: encoder.onnx, mlp.onnx, mean.csv, var.csv, or a converted .npz)")
-        from mjxsysid.policy.xadap_controller import make_xadap_low_level
-        return make_xadap_low_level(weights, theta.shape[0])
+    if name in ("policy", "xadap"):
+        from mjxsysid.policy.interface import resolve_policy
+        if name == "xadap" and policy not in (None, "xadap"):
+            raise ValueError(f"--controller xadap conflicts with --policy {policy}")
+        ref = resolve_policy("xadap" if name == "xadap" else (policy or "mjxsysid"), weights)
+        return ref.batched(theta.shape[0])
     raise ValueError(f"unknown controller {name!r}; choose from {CONTROLLERS}")
 
 
@@ -66,7 +66,8 @@ def broadcast(tree, b: int):
 
 def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=10.0,
                  duration=None, gains="baseline", force_step=(0.0, 0.0, 0.0), force_step_time=1.0,
-                 force_sigma=0.0, seed=0, sim: Quadrotor | None = None, refs=None, weights=None):
+                 force_sigma=0.0, seed=0, sim: Quadrotor | None = None, refs=None, weights=None,
+                 policy=None):
     """Fly a batch θ (B, 19) (or one vehicle (19,)) under one controller and reference.
 
     Returns (Flight with (B, T, ...) leaves, metrics dict of (B,) arrays, duration s).
@@ -84,7 +85,7 @@ def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=1
     duration = d0 if duration is None else duration
     sim = sim or Quadrotor(SimConfig())
     steps = int(round(duration / sim.config.dt))
-    low = make_low_level(controller, theta, weights)
+    low = make_low_level(controller, theta, weights, policy)
     high = broadcast(Cascade.make(gains), b)
     dist = broadcast(Disturbance.make(step_force=force_step, step_time=force_step_time,
                                       sigma=force_sigma), b)
@@ -109,6 +110,16 @@ def save_flight(flight: Flight, theta, path, index: int = 0) -> Path:
                         ref_yaw=f.ref_yaw, a_cmd=f.a_cmd, omega_cmd=f.omega_cmd,
                         theta=np.asarray(P.as_batch(theta)[index]))
     return path
+
+
+def seen_imu(imu) -> np.ndarray:
+    """The IMU reading the controller acted on at each step (T, 6): a Flight's ``frame.imu`` is
+    the reading *after* each step, so the controller saw the previous row; the first row is the
+    at-rest hover reading [0, 0, 0, 0, 0, g]."""
+    imu = np.asarray(imu, np.float32)
+    imu0 = np.zeros_like(imu[..., :1, :])
+    imu0[..., 5] = P.GRAVITY
+    return np.concatenate([imu0, imu[..., :-1, :]], -2)
 
 
 def one_flight(flight: Flight, index: int = 0) -> Flight:

@@ -36,16 +36,16 @@ def random_lemniscates(key, n: int):
                       yaw_amplitude=u(ks[2], -0.5, 0.5), duration=jnp.full((n,), jnp.inf))
 
 
-def latents_in_flight(controller: str, theta, key, *, weights=None, steps: int = 750, sim=None):
-    """Fly θ (n, 19) with ``controller`` ('policy' or 'xadap') under excitation.
+def latents_in_flight(policy, theta, key, *, weights=None, steps: int = 750, sim=None):
+    """Fly θ (n, 19) with a latent policy (a name, path or PolicyRef; see
+    :func:`~mjxsysid.policy.interface.resolve_policy`) under excitation.
     Returns (ẑ at the last step (n, 8), failed (n,))."""
+    from mjxsysid.policy.interface import resolve_policy
     theta = np.asarray(theta, np.float32)
     n = len(theta)
     sim = sim or Quadrotor()
     k_ref, k_force, k_fly = jax.random.split(key, 3)
-    low = make_low_level(controller, theta, weights)
-    if not hasattr(low, "latent"):
-        raise ValueError(f"controller {controller!r} has no latent to collect")
+    low = resolve_policy(policy, weights).batched(n)
     sigma = jax.random.uniform(k_force, (n, 1), minval=0.0, maxval=0.1) * theta[:, P.MASS, None] * P.GRAVITY
     dist = broadcast(Disturbance.make(), n).replace(sigma=jnp.broadcast_to(sigma, (n, 3)))
     fl = fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), random_lemniscates(k_ref, n),
@@ -64,13 +64,18 @@ def file_sha256(path) -> str:
     return h.hexdigest()
 
 
-def collect(out, *, controller: str = "policy", weights=None, n_train: int = 20_000,
-            n_test: int = 2_000, prior: str = "default", seed: int = 0, batch: int = 2_000,
+def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
+            n_test: int = 2_000, prior: str | None = None, seed: int = 0, batch: int = 2_000,
             steps: int = 750, log=print) -> Path:
     """Write ``out/pairs.npz``: theta_train (n_train, 19), zhat_train (n_train, 8), failed_train,
-    and the same for the held-out test split, plus metadata (policy weights hash, prior, seed)."""
+    and the same for the held-out test split, plus metadata (policy weights hash, prior, seed).
+    ``prior`` defaults to the policy's own training prior ('default' for mjxsysid's policy,
+    'xadap' for the released one)."""
+    from mjxsysid.policy.interface import resolve_policy
     if n_train < 1 or n_test < 1 or batch < 1:
         raise ValueError("n_train, n_test and batch must be >= 1")
+    ref = resolve_policy(policy, weights)
+    prior = prior or ref.prior
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     total = n_train + n_test
@@ -80,9 +85,9 @@ def collect(out, *, controller: str = "policy", weights=None, n_train: int = 20_
     zs, fs = [], []
     t0 = time.time()
     for i in range(nb):
-        z, f = latents_in_flight(controller, theta[i * batch:(i + 1) * batch],
+        z, f = latents_in_flight(ref, theta[i * batch:(i + 1) * batch],
                                  jax.random.fold_in(jax.random.PRNGKey(seed + 1), i),
-                                 weights=weights, steps=steps, sim=sim)
+                                 steps=steps, sim=sim)
         zs.append(z)
         fs.append(f)
         done = (i + 1) * batch
@@ -91,12 +96,7 @@ def collect(out, *, controller: str = "policy", weights=None, n_train: int = 20_
     z = np.concatenate(zs)[:total]
     f = np.concatenate(fs)[:total]
     theta = theta[:total]
-    if weights is None and controller == "policy":
-        from mjxsysid.policy.controller import PRETRAINED
-        wpath = PRETRAINED
-    else:
-        wpath = weights
-    meta = {"controller": controller, "weights": str(wpath), "weights_sha256": file_sha256(wpath),
+    meta = {**ref.to_dict(), "controller": "policy" if ref.kind == "mjxsysid" else ref.kind,
             "prior": prior, "seed": seed, "steps": steps, "excitation": __doc__.split("\n\n")[1],
             "n_train": n_train, "n_test": n_test, "wall_s": time.time() - t0,
             "device": str(jax.devices()[0])}

@@ -64,6 +64,11 @@ class PolicyController:
         return self.replace(z_override=jnp.broadcast_to(self.z_override, (n, N.LATENT)),
                             use_override=jnp.broadcast_to(self.use_override, (n,)))
 
+    @property
+    def rate_hz(self) -> float:
+        """The policy acts at every simulator step (500 Hz); ẑ refreshes every ``phi_every``."""
+        return 500.0
+
     def init(self, key=None) -> PolicyCarry:
         return PolicyCarry(history=jnp.zeros((N.HISTORY, N.STATE)), last_raw=jnp.zeros(N.ACT),
                            zhat=jnp.zeros(N.LATENT), count=jnp.int32(0), started=jnp.array(False))
@@ -89,3 +94,30 @@ class PolicyController:
         zhat = jax.lax.cond((index + 1) % self.phi_every == 0, lambda h: nets.adapt(self.params, h),
                             lambda h: carry.zhat, history)
         return PolicyCarry(history, raw, zhat, count, jnp.array(True)), N.to_motor(raw)
+
+    def replay(self, imu, a_cmd, omega_cmd, motor):
+        """ẑ after every step of a recorded flight (T, 8), the history rebuilt from the logged
+        IMU (T, 6), a_cmd (T,), omega_cmd (T, 3) and motor commands (T, 4) in [0, 1] (which
+        stand in for the policy's own actions)."""
+        import numpy as np
+        xs = tuple(jnp.asarray(a, jnp.float32) for a in (imu, a_cmd, omega_cmd, motor))
+        return np.asarray(_replay(self, xs))
+
+
+@jax.jit
+def _replay(ctrl: PolicyController, xs):
+    nets = N.Networks()
+
+    def body(carry, x):
+        im, a, w, u = x
+        obs = N.observation(im, a, w)
+        hist = jnp.where(carry.started, carry.history, N.initial_history(obs))
+        raw = 2.0 * u - 1.0
+        hist = N.push_history(hist, obs, raw)
+        count = carry.count + 1
+        zhat = jax.lax.cond(count % ctrl.phi_every == 0, lambda h: nets.adapt(ctrl.params, h),
+                            lambda h: carry.zhat, hist)
+        new = carry._replace(history=hist, last_raw=raw, zhat=zhat, count=count, started=jnp.array(True))
+        return new, zhat
+
+    return jax.lax.scan(body, ctrl.init(), xs)[1]

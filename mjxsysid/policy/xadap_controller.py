@@ -54,7 +54,6 @@ released policy's training statistics (mean.csv/var.csv; README) — an in-distr
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from pathlib import Path
 from typing import NamedTuple
@@ -65,6 +64,7 @@ import numpy as np
 from flax import struct
 
 from mjxsysid import params as P
+from mjxsysid.params import XAdapPrior, xadap_training_prior  # noqa: F401  (re-exported)
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy.xadap import (ACTION_DIM, HISTORY_LEN, LATENT_DIM, STATE_DIM, XAdapWeights,
                                    build_history_input, load_npz, load_xadap, normalize_state,
@@ -210,6 +210,21 @@ class XAdapController:
         """The current latent ẑ (8,) (φ of the history at the latest policy step)."""
         return carry.z
 
+    def batched(self, n: int) -> "XAdapController":
+        """n vehicles sharing these weights (nothing is per vehicle: see :meth:`batch_axes`)."""
+        return self
+
+    def batch_axes(self):
+        """vmap axes for ``fly_batch``: every leaf (the weights) shared by the batch."""
+        return jax.tree.map(lambda _: None, self)
+
+    def replay(self, imu, a_cmd, omega_cmd, motor):
+        """ẑ after every step of a recorded flight (T, 8): the history rebuilt from the logged
+        IMU (T, 6), a_cmd (T,), omega_cmd (T, 3) and motor commands (T, 4) in [0, 1],
+        mjxsysid order (they stand in for the policy's actions; mapped back to network order)."""
+        xs = tuple(jnp.asarray(a, jnp.float32) for a in (imu, a_cmd, omega_cmd, motor))
+        return np.asarray(_xadap_replay(self, xs))
+
     # ------------------------------------------------------------------ internals
     def _filter(self, carry: XAdapCarry, x):
         """Filtered z specific force and new filter state; starts at steady state (Butterworth)."""
@@ -233,7 +248,9 @@ class XAdapController:
         y = b[0] * x + (b[1] - a[1]) * x1 + (b[2] - a[2]) * x2
         return y.astype(jnp.float32), jnp.stack([x, x1])
 
-    def _policy_step(self, carry: XAdapCarry, imu, command: Command) -> XAdapCarry:
+    def _policy_step(self, carry: XAdapCarry, imu, command: Command, motor=None) -> XAdapCarry:
+        """One policy step; ``motor`` (4,) in [0, 1], mjxsysid order: a recorded command that
+        replaces π's action in the history (replay)."""
         w = self.weights
         fz, filt = self._filter(carry, imu[5])
         a_cmd = jnp.reshape(jnp.asarray(command.a_cmd, jnp.float32), (1,))
@@ -242,112 +259,39 @@ class XAdapController:
         s_hist, r_hist = carry.s_hist, carry.r_hist
         z = xadap_encoder(w, build_history_input(w, s_hist, r_hist))
         obs = normalize_state(w, jnp.concatenate([s, carry.r_last]))
-        r = xadap_policy(w, jnp.concatenate([obs, z]))
-        motor = jnp.clip(0.5 * r + 0.5, 0.0, 1.0)[NN_TO_MJX]
+        if motor is None:
+            r = xadap_policy(w, jnp.concatenate([obs, z]))
+            motor = jnp.clip(0.5 * r + 0.5, 0.0, 1.0)[NN_TO_MJX]
+        else:
+            r = jnp.zeros(ACTION_DIM, jnp.float32).at[NN_TO_MJX].set(2.0 * motor - 1.0)
         return XAdapCarry(
             s_hist=jnp.concatenate([s_hist[1:], s[None]], 0),
             r_hist=jnp.concatenate([r_hist[1:], r[None]], 0),
             r_last=r, filt=filt, count=carry.count, z=z, motor=motor, fz=fz)
 
 
+@jax.jit
+def _xadap_replay(ctrl: XAdapController, xs):
+    def body(carry, x):
+        imu, a, w, u = x
+        cmd = Command(a, w)
+        if ctrl.decimation == 1:
+            new = ctrl._policy_step(carry, imu, cmd, u)
+        else:
+            new = jax.lax.cond(carry.count % ctrl.decimation == 0,
+                               lambda c: ctrl._policy_step(c, imu, cmd, u), lambda c: c, carry)
+        new = new._replace(count=carry.count + 1)
+        return new, new.z
+
+    return jax.lax.scan(body, ctrl.init(), xs)[1]
+
+
 def make_xadap_low_level(weights_dir, batch_size: int, **kw) -> XAdapController:
-    """:meth:`XAdapController.load` ``(weights_dir, **kw)`` broadcast to a batch of
-    ``batch_size`` vehicles (every leaf gets a leading axis), ready for ``fly_batch``.
+    """:meth:`XAdapController.load` ``(weights_dir, **kw)`` for a batch of ``batch_size``
+    vehicles sharing the weights, ready for ``fly_batch``.
 
     ``weights_dir``: directory of the released files, a converted ``.npz`` or
     :class:`XAdapWeights`. ``kw``: ``rate_hz`` (default 500), ``sim_dt`` (pass
     ``sim.config.dt`` for a non-default simulator), ``accel_filter``, ``accel_cutoff_hz``.
     Use with the ``baseline`` Cascade gains (see the module notes)."""
-    from mjxsysid.analysis.flight import broadcast
-
-    return broadcast(XAdapController.load(weights_dir, **kw), int(batch_size))
-
-
-# ----------------------------------------------------------------------------------------
-# The released policy's training distribution
-# ----------------------------------------------------------------------------------------
-
-@dataclasses.dataclass(frozen=True)
-class XAdapPrior(P.Prior):
-    """A :class:`~mjxsysid.params.Prior` fitted to the released policy's training statistics.
-
-    The released mean.csv / var.csv give mean ± std of the privileged parameters (README):
-    mass 0.60 ± 0.33 kg and arm 0.113 ± 0.049 m are uniform-like (so mass is *linear* in the
-    size factor here, not ∝ l³ as in the default prior), J ≈ 0.19 m l² (std/mean ≈ 1.2),
-    k_t exponential in c (mean 3.7e-6, std 6.3e-6), κ ≈ U[0.0062, 0.016], drag ≈ isotropic,
-    Ω_max 3379 ± 2435 rad/s, η U[0.7, 1.3]. Sampling, with c ~ U[0, 1] and noise
-    n ~ U[1 ± noise]:
-
-    - l = (arm_lo + (arm_hi − arm_lo) c) n, clipped to ``arm``; m likewise from ``mass_range``
-    - J_xx,yy = inertia_xy m l² n, J_zz = inertia_z m l² n (≤ 0.98 (J_xx + J_yy))
-    - k_t = kt_base exp(kt_rate c) n, κ ~ U[kappa], k_τ = κ k_t
-    - D_xx = D_yy = D_zz = drag_iso (l / 0.2)² n
-    - Ω_max from thrust-to-weight r ~ U[twr] clipped to [twr_min_eff, twr_max_eff] / η
-    - η ~ U[eta], τ_m ~ U[motor_time_constant], τ_ext as :class:`~mjxsysid.params.Prior`.
-
-    Moment match (200k samples; README in brackets): mass 0.60 ± 0.32 (0.60 ± 0.33), arm
-    0.115 ± 0.049 (0.113 ± 0.049), J_xx 2.3e-3 ± 2.3e-3 (2.2e-3 ± 2.5e-3), J_zz 3.4e-3 ±
-    3.5e-3 (3.3e-3 ± 4.1e-3), κ 0.0111 ± 0.0028 (same), k_t 3.6e-6 ± 6.2e-6 (3.7e-6 ± 6.3e-6),
-    drag 0.29 ± 0.22 (0.30 ± 0.27), Ω_max 3420 ± 2280 (3379 ± 2435) rad/s. Thrust-to-weight
-    ratio spans 1.5 – 5.8 (with η), angular authority 85 – 2300 rad/s². The joint structure
-    (one size factor) is a guess: only marginals are published. Not in the statistics, taken
-    from the default prior: τ_m ~ U[0.02, 0.04] s (the policy prefers faster motors: see the
-    module notes) and τ_ext; the training's centre-of-mass offsets are not modelled.
-    """
-    name: str = "xadap_training"
-    arm: tuple[float, float] = (0.03, 0.20)
-    mass_range: tuple[float, float] = (0.04, 1.16)
-    inertia_xy: float = 0.175
-    inertia_z: float = 0.265
-    kt_base: float = 1.1e-8
-    kt_rate: float = 7.86
-    kappa: tuple[float, float] = (0.0062, 0.016)
-    drag_iso: float = 0.75
-    twr: tuple[float, float] = (2.0, 4.5)
-    twr_min_eff: float = 1.5
-    twr_max_eff: float = 8.0
-    noise: float = 0.1
-
-    def sample(self, key: jax.Array, n: int) -> jax.Array:
-        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32."""
-        return _sample_xadap(self, key, n)
-
-
-def _sample_xadap(p: XAdapPrior, key, n: int):
-    ks = jax.random.split(key, 16)
-
-    def u(k, lo, hi, shape=(n,)):
-        return jax.random.uniform(k, shape, jnp.float32, lo, hi)
-
-    def noise(k, shape=(n,)):
-        return u(k, 1.0 - p.noise, 1.0 + p.noise, shape)
-
-    c = u(ks[0], 0.0, 1.0)
-    arm = jnp.clip((p.arm[0] + (p.arm[1] - p.arm[0]) * c) * noise(ks[1]), *p.arm)
-    m_lo, m_hi = p.mass_range
-    mass = jnp.clip((m_lo + (m_hi - m_lo) * c) * noise(ks[2]), m_lo, m_hi)
-    ml2 = mass * arm**2
-    jn = noise(ks[3], (n, 3))
-    jxx = p.inertia_xy * ml2 * jn[:, 0]
-    jyy = p.inertia_xy * ml2 * jn[:, 1]
-    jzz = jnp.minimum(p.inertia_z * ml2 * jn[:, 2], 0.98 * (jxx + jyy))
-    kt = p.kt_base * jnp.exp(p.kt_rate * c) * noise(ks[4])
-    kappa = u(ks[5], *p.kappa)
-    drag = p.drag_iso * (arm / 0.2) ** 2 * noise(ks[6])
-    eta = u(ks[7], *p.eta, (n, 4))
-    twr = jnp.clip(u(ks[8], *p.twr), p.twr_min_eff / eta.min(-1), p.twr_max_eff / eta.max(-1))
-    omega_max = jnp.sqrt(twr * mass * P.GRAVITY / (4.0 * kt))
-    tau_m = u(ks[9], *p.motor_time_constant)
-    ext_scale = jnp.stack([p.ext_torque_xy * mass * P.GRAVITY * arm] * 2
-                          + [p.ext_torque_z * mass * P.GRAVITY * kappa], -1)
-    tau_ext = u(ks[10], -1.0, 1.0, (n, 3)) * ext_scale
-    cols = [mass, arm, kt, kappa * kt, jxx, jyy, jzz, drag, drag, drag, omega_max,
-            eta[:, 0], eta[:, 1], eta[:, 2], eta[:, 3], tau_m, tau_ext[:, 0], tau_ext[:, 1],
-            tau_ext[:, 2]]
-    return jnp.stack(cols, -1)
-
-
-def xadap_training_prior(**overrides) -> XAdapPrior:
-    """The released Xadap policy's training distribution (moment-matched; see
-    :class:`XAdapPrior`), optionally with fields replaced (e.g. ``ext_torque_xy=0``)."""
-    return XAdapPrior(**overrides)
+    return XAdapController.load(weights_dir, **kw).batched(int(batch_size))
