@@ -3,6 +3,7 @@ import os
 from pathlib import Path
 
 import pytest
+from conftest import XADAP_DIR, have
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -16,6 +17,12 @@ def test_notebook_executes(name, tmp_path):
         pytest.skip("no shipped decoder")
     nb = nbformat.read(ROOT / "notebooks" / name, as_version=4)
     os.environ["MJXSYSID_NOTEBOOK_FAST"] = "1"
+    with_xadap = XADAP_DIR.is_dir() and have("onnx")
+    if with_xadap:
+        os.environ["MJXSYSID_XADAP_DIR"] = str(XADAP_DIR)
     nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
     outputs = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
     assert "inside=" in outputs and (tmp_path / "decoded_marginals.png").exists()
+    if with_xadap:  # the released policy's section ran: decoded, plotted, replayed
+        assert "Xadap: position RMSE" in outputs and (tmp_path / "xadap_marginals.png").exists()
+        assert "CFM (mean action)" in outputs

@@ -94,6 +94,7 @@ N_STATS = 46  # 12 policy-input entries + 34 privileged parameters
 NORM_EPS = 1e-8
 _LEAKY_ALPHA = np.float32(0.01)  # stored in the graph as float32 0.009999999776482582
 _HIGHEST = jax.lax.Precision.HIGHEST
+PRECISIONS = ("highest", "default")
 _NPZ_FORMAT = "mjxsysid.xadap/1"
 
 # Weight field name -> (ONNX initializer name, shape). Encoder first, then policy.
@@ -202,18 +203,24 @@ def _check_last_dim(x: jax.Array, n: int, what: str) -> None:
         raise ValueError(f"{what}: expected shape (..., {n}), got {tuple(x.shape)}")
 
 
-def _gemm(x: jax.Array, w, b) -> jax.Array:
+def _precision(name: str):
+    if name not in PRECISIONS:
+        raise ValueError(f"precision must be one of {PRECISIONS}, got {name!r}")
+    return jax.lax.Precision.HIGHEST if name == "highest" else jax.lax.Precision.DEFAULT
+
+
+def _gemm(x: jax.Array, w, b, precision=_HIGHEST) -> jax.Array:
     """ONNX Gemm(alpha=1, beta=1, transB=1): x @ Wᵀ + b."""
     w = jnp.asarray(w, x.dtype)
-    return jnp.matmul(x, w.T, precision=_HIGHEST) + jnp.asarray(b, x.dtype)
+    return jnp.matmul(x, w.T, precision=precision) + jnp.asarray(b, x.dtype)
 
 
-def _conv1d(x: jax.Array, w, b, stride: int) -> jax.Array:
+def _conv1d(x: jax.Array, w, b, stride: int, precision=_HIGHEST) -> jax.Array:
     """ONNX Conv, NCW layout, no padding, dilation 1, group 1."""
     w = jnp.asarray(w, x.dtype)
     y = jax.lax.conv_general_dilated(
         x, w, window_strides=(stride,), padding="VALID",
-        dimension_numbers=("NCH", "OIH", "NCH"), precision=_HIGHEST,
+        dimension_numbers=("NCH", "OIH", "NCH"), precision=precision,
     )
     return y + jnp.asarray(b, x.dtype)[None, :, None]
 
@@ -222,34 +229,36 @@ def _leaky_relu(x: jax.Array) -> jax.Array:
     return jnp.where(x >= 0, x, jnp.asarray(_LEAKY_ALPHA, x.dtype) * x)
 
 
-def _encoder_batched(w: XAdapWeights, x: jax.Array) -> jax.Array:
+def _encoder_batched(w: XAdapWeights, x: jax.Array, pr=_HIGHEST) -> jax.Array:
     """(B, 1200) -> (B, 8); per sample, exactly the node list of encoder.onnx."""
     bsz = x.shape[0]
     h = x.reshape(bsz, HISTORY_LEN, OBS_DIM)  # Reshape [100, -1]
-    h = jnp.tanh(_gemm(h, w.enc_in_w, w.enc_in_b))  # (B, 100, 32)
+    h = jnp.tanh(_gemm(h, w.enc_in_w, w.enc_in_b, pr))  # (B, 100, 32)
     h = h.reshape(bsz, -1, HISTORY_LEN)  # Reshape [1, -1, 100]: plain reshape, NOT a transpose
-    h = _leaky_relu(_conv1d(h, w.enc_conv0_w, w.enc_conv0_b, 4))  # (B, 32, 24)
-    h = _leaky_relu(_conv1d(h, w.enc_conv1_w, w.enc_conv1_b, 1))  # (B, 32, 20)
-    h = _leaky_relu(_conv1d(h, w.enc_conv2_w, w.enc_conv2_b, 1))  # (B, 32, 16)
+    h = _leaky_relu(_conv1d(h, w.enc_conv0_w, w.enc_conv0_b, 4, pr))  # (B, 32, 24)
+    h = _leaky_relu(_conv1d(h, w.enc_conv1_w, w.enc_conv1_b, 1, pr))  # (B, 32, 20)
+    h = _leaky_relu(_conv1d(h, w.enc_conv2_w, w.enc_conv2_b, 1, pr))  # (B, 32, 16)
     h = h.reshape(bsz, -1)  # Flatten(axis=1), channel-major -> (B, 512)
-    return jnp.tanh(_gemm(h, w.enc_out_w, w.enc_out_b))
+    return jnp.tanh(_gemm(h, w.enc_out_w, w.enc_out_b, pr))
 
 
-def xadap_encoder(w: XAdapWeights, history_flat) -> jax.Array:
+def xadap_encoder(w: XAdapWeights, history_flat, precision: str = "highest") -> jax.Array:
     """Adaptation module φ: normalised history ``(1200,)`` -> latent ẑ ``(8,)`` in (−1, 1).
 
     ``history_flat`` is the output of :func:`build_history_input` (already normalised).
     Leading batch dimensions ``(..., 1200) -> (..., 8)`` are also accepted; the function is
-    pure and works under ``jax.jit`` / ``jax.vmap``.
+    pure and works under ``jax.jit`` / ``jax.vmap``. ``precision``: "highest" (float32
+    products, matches onnxruntime to < 1e-6) or "default" (the backend's fast path, e.g. TF32
+    on NVIDIA GPUs: about 1e-3 from onnxruntime).
     """
     x = _as_float(history_flat)
     _check_last_dim(x, HISTORY_DIM, "xadap_encoder history_flat")
     lead = x.shape[:-1]
-    out = _encoder_batched(w, x.reshape(-1, HISTORY_DIM))
+    out = _encoder_batched(w, x.reshape(-1, HISTORY_DIM), _precision(precision))
     return out.reshape(*lead, LATENT_DIM)
 
 
-def xadap_policy(w: XAdapWeights, policy_input) -> jax.Array:
+def xadap_policy(w: XAdapWeights, policy_input, precision: str = "highest") -> jax.Array:
     """Policy π (mean head): ``(20,) -> (4,)`` raw action r in (−1, 1).
 
     ``policy_input = [normalize_state(w, [s, r_last]) (12), ẑ (8)]``. Normalised motor speed
@@ -258,15 +267,16 @@ def xadap_policy(w: XAdapWeights, policy_input) -> jax.Array:
     """
     x = _as_float(policy_input)
     _check_last_dim(x, POLICY_INPUT_DIM, "xadap_policy policy_input")
+    pr = _precision(precision)
     obs = x[..., :-LATENT_DIM]  # Slice [0:-8]
     z = x[..., -LATENT_DIM:]  # Slice [-8:]
-    f = jnp.tanh(_gemm(obs, w.pi_feat0_w, w.pi_feat0_b))
-    f = jnp.tanh(_gemm(f, w.pi_feat1_w, w.pi_feat1_b))
-    f = jnp.tanh(_gemm(f, w.pi_feat2_w, w.pi_feat2_b))
+    f = jnp.tanh(_gemm(obs, w.pi_feat0_w, w.pi_feat0_b, pr))
+    f = jnp.tanh(_gemm(f, w.pi_feat1_w, w.pi_feat1_b, pr))
+    f = jnp.tanh(_gemm(f, w.pi_feat2_w, w.pi_feat2_b, pr))
     h = jnp.concatenate([f, z], axis=-1)  # Concat(axis=1): [features, latent]
-    h = jnp.tanh(_gemm(h, w.pi_h0_w, w.pi_h0_b))
-    h = jnp.tanh(_gemm(h, w.pi_h1_w, w.pi_h1_b))
-    return jnp.tanh(_gemm(h, w.pi_out_w, w.pi_out_b))
+    h = jnp.tanh(_gemm(h, w.pi_h0_w, w.pi_h0_b, pr))
+    h = jnp.tanh(_gemm(h, w.pi_h1_w, w.pi_h1_b, pr))
+    return jnp.tanh(_gemm(h, w.pi_out_w, w.pi_out_b, pr))
 
 
 def normalize_state(w: XAdapWeights, s12) -> jax.Array:

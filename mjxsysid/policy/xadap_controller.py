@@ -66,7 +66,7 @@ from flax import struct
 from mjxsysid import params as P
 from mjxsysid.params import XAdapPrior, xadap_training_prior  # noqa: F401  (re-exported)
 from mjxsysid.control.low_level import Command
-from mjxsysid.policy.xadap import (ACTION_DIM, HISTORY_LEN, LATENT_DIM, STATE_DIM, XAdapWeights,
+from mjxsysid.policy.xadap import (ACTION_DIM, HISTORY_LEN, LATENT_DIM, PRECISIONS, STATE_DIM, XAdapWeights,
                                    build_history_input, load_npz, load_xadap, normalize_state,
                                    xadap_encoder, xadap_policy)
 
@@ -142,12 +142,13 @@ class XAdapController:
     sim_dt: float = struct.field(pytree_node=False, default=DEFAULT_SIM_DT)
     accel_filter: str = struct.field(pytree_node=False, default="butter")
     accel_cutoff_hz: float = struct.field(pytree_node=False, default=30.0)
+    precision: str = struct.field(pytree_node=False, default="highest")
 
     # ------------------------------------------------------------------ construction
     @classmethod
     def load(cls, weights, *, rate_hz: float = 500.0, sim_dt: float = DEFAULT_SIM_DT,
              accel_filter: bool | str = True,
-             accel_cutoff_hz: float = 30.0) -> "XAdapController":
+             accel_cutoff_hz: float = 30.0, precision: str = "highest") -> "XAdapController":
         """Build from a directory of the released files (``encoder.onnx`` ...; needs ``onnx``),
         an ``.npz`` from :func:`~mjxsysid.policy.xadap.save_npz`, or :class:`XAdapWeights`.
 
@@ -173,8 +174,10 @@ class XAdapController:
                              f"got {accel_filter!r}")
         if filt == "butter":
             butterworth2(accel_cutoff_hz, rate_hz)  # validates the cut-off
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {PRECISIONS}, got {precision!r}")
         return cls(_as_f32_weights(w), decimation=dec, sim_dt=float(sim_dt), accel_filter=filt,
-                   accel_cutoff_hz=float(accel_cutoff_hz))
+                   accel_cutoff_hz=float(accel_cutoff_hz), precision=precision)
 
     @property
     def rate_hz(self) -> float:
@@ -257,10 +260,10 @@ class XAdapController:
         s = jnp.concatenate([imu[0:3], fz[None], jnp.asarray(command.omega_cmd, jnp.float32),
                              a_cmd])
         s_hist, r_hist = carry.s_hist, carry.r_hist
-        z = xadap_encoder(w, build_history_input(w, s_hist, r_hist))
+        z = xadap_encoder(w, build_history_input(w, s_hist, r_hist), self.precision)
         obs = normalize_state(w, jnp.concatenate([s, carry.r_last]))
         if motor is None:
-            r = xadap_policy(w, jnp.concatenate([obs, z]))
+            r = xadap_policy(w, jnp.concatenate([obs, z]), self.precision)
             motor = jnp.clip(0.5 * r + 0.5, 0.0, 1.0)[NN_TO_MJX]
         else:
             r = jnp.zeros(ACTION_DIM, jnp.float32).at[NN_TO_MJX].set(2.0 * motor - 1.0)

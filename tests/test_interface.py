@@ -1,0 +1,88 @@
+"""One interface for frozen latent policies: names, paths, errors, replay, CLI --policy."""
+import json
+
+import numpy as np
+import pytest
+from conftest import XADAP_DIR
+
+from mjxsysid import params as P
+from mjxsysid.cli import main
+from mjxsysid.policy.interface import PRETRAINED_DIR, LatentPolicy, resolve_policy
+
+
+def test_resolve_names_and_paths(tmp_path):
+    r = resolve_policy("mjxsysid")
+    assert r.kind == "mjxsysid" and r.weights == PRETRAINED_DIR / "policy.npz"
+    assert resolve_policy("policy") == r
+    assert resolve_policy(str(PRETRAINED_DIR / "policy.npz")) == r           # a path
+    assert resolve_policy("mjxsysid", PRETRAINED_DIR).weights == r.weights   # a folder with policy.npz
+    assert r.decoders_dir == PRETRAINED_DIR and r.prior == "default"
+    assert isinstance(r.load(), LatentPolicy)
+
+
+@pytest.mark.parametrize("policy, weights, match", [
+    ("bogus", None, "unknown policy 'bogus'"),
+    ("xadap", None, "needs --weights"),
+    ("mjxsysid", "missing.npz", "not found"),
+    ("xadap", "missing_dir", "not found"),
+    ("xadap", str(PRETRAINED_DIR / "policy.npz"), "not the released Xadap policy"),
+    (str(PRETRAINED_DIR / "policy.npz"), str(PRETRAINED_DIR / "policy.npz"), "not both"),
+])
+def test_resolve_errors(policy, weights, match, monkeypatch):
+    monkeypatch.delenv("MJXSYSID_XADAP_DIR", raising=False)
+    with pytest.raises((ValueError, FileNotFoundError), match=match):
+        resolve_policy(policy, weights)
+
+
+def test_resolve_rejects_a_folder_that_is_no_policy(tmp_path):
+    with pytest.raises(ValueError, match="not a policy"):
+        resolve_policy(str(tmp_path))
+
+
+def test_cli_policy_errors(tmp_path, capsys):
+    assert main(["fly", "--controller", "oracle", "--policy", "xadap", "--out", str(tmp_path)]) == 2
+    assert "do not apply" in capsys.readouterr().err
+    assert main(["decode", "--policy", "nope", "--out", str(tmp_path)]) == 2
+    assert "unknown policy 'nope'" in capsys.readouterr().err
+    assert main(["replay", "--flights", "lemniscate_5s,loop", "--out", str(tmp_path)]) == 2
+    assert "--flights" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- the released policy
+
+@pytest.fixture(scope="module")
+def xadap_npz(xadap_weights, tmp_path_factory):
+    from mjxsysid.policy.xadap import save_npz
+    p = tmp_path_factory.mktemp("xadap") / "xadap.npz"
+    save_npz(xadap_weights, p)
+    return p
+
+
+def test_xadap_by_name_path_and_environment(xadap_npz, monkeypatch):
+    by_dir = resolve_policy("xadap", XADAP_DIR)
+    by_npz = resolve_policy(str(xadap_npz))
+    assert by_dir.kind == by_npz.kind == "xadap"
+    assert by_dir.sha256() == by_npz.sha256()       # a digest of the weights, not of the files
+    monkeypatch.setenv("MJXSYSID_XADAP_DIR", str(XADAP_DIR))
+    assert resolve_policy("xadap") == by_dir
+    assert by_dir.decoders_dir == PRETRAINED_DIR / "xadap" and by_dir.prior == "xadap"
+    assert isinstance(by_dir.load(), LatentPolicy)
+    # The shipped Xadap decoders were trained on exactly these weights' latents.
+    meta = json.loads((by_dir.decoders_dir / "cfm.json").read_text())
+    assert meta["data"]["pairs_meta"]["weights_sha256"] == by_dir.sha256()
+
+
+def test_xadap_replay_reproduces_the_flight_latent(xadap_npz):
+    """Rebuilding the history from a recorded flight (IMU the policy saw, commands, motor
+    commands) gives the latents the policy had in flight."""
+    from mjxsysid.analysis.flight import fly_vehicles, one_flight, seen_imu
+    ref = resolve_policy("xadap", xadap_npz)
+    fl, m, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference="lemniscate",
+                            duration=0.5)
+    f = one_flight(fl)
+    z = ref.load().replay(seen_imu(f.frame.imu), f.a_cmd, f.omega_cmd, f.frame.motor_cmd)
+    assert np.abs(f.latent).max() > 0.1
+    np.testing.assert_allclose(z, f.latent, atol=1e-5)
+    # A one-step misalignment of the IMU is detected (the test can fail).
+    z_off = ref.load().replay(f.frame.imu, f.a_cmd, f.omega_cmd, f.frame.motor_cmd)
+    assert np.abs(z_off - f.latent).max() > 1e-3
