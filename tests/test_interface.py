@@ -72,17 +72,13 @@ def test_xadap_by_name_path_and_environment(xadap_npz, monkeypatch):
     assert meta["data"]["pairs_meta"]["weights_sha256"] == by_dir.sha256()
 
 
-def test_xadap_replay_reproduces_the_flight_latent(xadap_npz):
+def test_xadap_replay_reproduces_the_flight_latent(xadap_paper_recording):
     """Rebuilding the history from a recorded flight (IMU the policy saw, commands, motor
     commands) gives the latents the policy had in flight."""
-    from mjxsysid.analysis.flight import fly_vehicles, one_flight, seen_imu
-    ref = resolve_policy("xadap", xadap_npz)
-    fl, m, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference="lemniscate",
-                            duration=0.5)
-    f = one_flight(fl)
-    z = ref.load().replay(seen_imu(f.frame.imu), f.a_cmd, f.omega_cmd, f.frame.motor_cmd)
-    assert np.abs(f.latent).max() > 0.1
-    np.testing.assert_allclose(z, f.latent, atol=1e-5)
+    ref, r = xadap_paper_recording
+    z = ref.load().replay(r["imu"], r["a_cmd"], r["omega_cmd"], r["motor_cmd"])
+    assert np.abs(r["latent"]).max() > 0.1
+    np.testing.assert_allclose(z, r["latent"], atol=1e-5)
     # A one-step misalignment of the IMU is detected (the test can fail).
-    z_off = ref.load().replay(f.frame.imu, f.a_cmd, f.omega_cmd, f.frame.motor_cmd)
-    assert np.abs(z_off - f.latent).max() > 1e-3
+    z_off = ref.load().replay(r["imu_after"], r["a_cmd"], r["omega_cmd"], r["motor_cmd"])
+    assert np.abs(z_off - r["latent"]).max() > 1e-3

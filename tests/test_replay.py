@@ -80,6 +80,20 @@ def test_perfect_decoder_scores_like_the_truth(oracle_recording):
     assert r["theta_hat"]["random"].shape == (len(r["update_times"]), P.N_PARAMS)
 
 
+def test_shipped_xadap_decoders_explain_its_commands(xadap_paper_recording):
+    """On a recorded flight of the released policy, K_θ̂ from its shipped decoders tracks its
+    motor commands far better than the Random baseline."""
+    from mjxsysid.analysis.decode import load_decoders
+    ref, rec = xadap_paper_recording
+    cfm, reg = load_decoders(None, ref)
+    r = replay_flight(rec, P.PAPER_HARDWARE, cfm, reg, jax.random.PRNGKey(0), samples=8)
+    m = r["metrics"]
+    assert len(r["update_times"]) == 14  # 0.2, 0.3, …, 1.5 s
+    assert m["cfm_mean"]["rmse"] < 0.8 * m["random"]["rmse"]
+    assert m["regression"]["rmse"] < 0.8 * m["random"]["rmse"]
+
+
+@pytest.mark.slow
 def test_replay_cli_on_the_released_policy(xadap_weights, tmp_path):
     """`mjxsysid replay --policy xadap`: the shipped Xadap decoders explain its hover commands
     better than Random, and CFM's mean action better than Regression."""
