@@ -82,3 +82,15 @@ def test_xadap_replay_reproduces_the_flight_latent(xadap_paper_recording):
     # A one-step misalignment of the IMU is detected (the test can fail).
     z_off = ref.load().replay(r["imu_after"], r["a_cmd"], r["omega_cmd"], r["motor_cmd"])
     assert np.abs(z_off - r["latent"]).max() > 1e-3
+
+
+def test_cli_fly_with_the_released_policy(xadap_paper_recording, tmp_path):
+    """`mjxsysid fly --policy xadap --weights DIR` (same flight as the shared recording, so the
+    compiled rollout is reused) writes its outputs and names the policy."""
+    out = tmp_path / "fly"
+    assert main(["fly", "--policy", "xadap", "--weights", str(XADAP_DIR), "--period", "10",
+                 "--duration", "1.5", "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["controller"].startswith("policy xadap") and not m["failed"] and m["pos_rmse_m"] < 0.3
+    with np.load(out / "flight.npz") as f:
+        np.testing.assert_allclose(f["motor_cmd"], xadap_paper_recording[1]["motor_cmd"], atol=1e-6)
