@@ -365,36 +365,13 @@ class XAdapPrior(Prior):
 
 def _sample_xadap(p: XAdapPrior, key, n: int):
     ks = jax.random.split(key, 16)
-
-    def u(k, lo, hi, shape=(n,)):
-        return jax.random.uniform(k, shape, jnp.float32, lo, hi)
-
-    def noise(k, shape=(n,)):
-        return u(k, 1.0 - p.noise, 1.0 + p.noise, shape)
-
+    u, noise = _uniforms(p, n)
     c = u(ks[0], 0.0, 1.0)
     arm = jnp.clip((p.arm[0] + (p.arm[1] - p.arm[0]) * c) * noise(ks[1]), *p.arm)
     m_lo, m_hi = p.mass_range
     mass = jnp.clip((m_lo + (m_hi - m_lo) * c) * noise(ks[2]), m_lo, m_hi)
-    ml2 = mass * arm**2
-    jn = noise(ks[3], (n, 3))
-    jxx = p.inertia_xy * ml2 * jn[:, 0]
-    jyy = p.inertia_xy * ml2 * jn[:, 1]
-    jzz = jnp.minimum(p.inertia_z * ml2 * jn[:, 2], 0.98 * (jxx + jyy))
-    kt = p.kt_base * jnp.exp(p.kt_rate * c) * noise(ks[4])
-    kappa = u(ks[5], *p.kappa)
     drag = p.drag_iso * (arm / 0.2) ** 2 * noise(ks[6])
-    eta = u(ks[7], *p.eta, (n, 4))
-    twr = jnp.clip(u(ks[8], *p.twr), p.twr_min_eff / eta.min(-1), p.twr_max_eff / eta.max(-1))
-    omega_max = jnp.sqrt(twr * mass * GRAVITY / (4.0 * kt))
-    tau_m = u(ks[9], *p.motor_time_constant)
-    ext_scale = jnp.stack([p.ext_torque_xy * mass * GRAVITY * arm] * 2
-                          + [p.ext_torque_z * mass * GRAVITY * kappa], -1)
-    tau_ext = u(ks[10], -1.0, 1.0, (n, 3)) * ext_scale
-    cols = [mass, arm, kt, kappa * kt, jxx, jyy, jzz, drag, drag, drag, omega_max,
-            eta[:, 0], eta[:, 1], eta[:, 2], eta[:, 3], tau_m, tau_ext[:, 0], tau_ext[:, 1],
-            tau_ext[:, 2]]
-    return jnp.stack(cols, -1)
+    return _sample_rest(p, ks, n, c, arm, mass, jnp.stack([drag, drag, drag], -1))
 
 
 def xadap_training_prior(**overrides) -> XAdapPrior:
@@ -417,16 +394,32 @@ def get_prior(name: str | Prior) -> Prior:
 
 def _sample_prior(p: Prior, key, n: int):
     ks = jax.random.split(key, 16)
+    u, noise = _uniforms(p, n)
+    c = u(ks[0], 0.0, 1.0)
+    arm = (p.arm[0] + (p.arm[1] - p.arm[0]) * c) * noise(ks[1])
+    mass = (p.mass_base + p.mass_scale * (arm / 0.2) ** 3) * noise(ks[2])
+    dscale = (arm / 0.184) ** 2
+    dn = u(ks[6], *p.drag_noise, (n, 3))
+    drag = jnp.stack([p.drag_xy * dscale, p.drag_xy * dscale, p.drag_z * dscale], -1) * dn
+    return _sample_rest(p, ks, n, c, arm, mass, drag)
 
+
+def _uniforms(p: Prior, n: int):
+    """Samplers u(key, lo, hi, shape) ~ U[lo, hi] and noise(key, shape) ~ U[1 ± p.noise]."""
     def u(k, lo, hi, shape=(n,)):
         return jax.random.uniform(k, shape, jnp.float32, lo, hi)
 
     def noise(k, shape=(n,)):
         return u(k, 1.0 - p.noise, 1.0 + p.noise, shape)
 
-    c = u(ks[0], 0.0, 1.0)
-    arm = (p.arm[0] + (p.arm[1] - p.arm[0]) * c) * noise(ks[1])
-    mass = (p.mass_base + p.mass_scale * (arm / 0.2) ** 3) * noise(ks[2])
+    return u, noise
+
+
+def _sample_rest(p: Prior, ks, n: int, c, arm, mass, drag):
+    """What every size-factor prior shares, given size factor c, arm, mass (n,) and drag (n, 3):
+    inertia ∝ m l², k_t exponential in c, κ, η, Ω_max from the thrust-to-weight ratio, τ_m,
+    τ_ext. Keys ks[3], ks[4], ks[5], ks[7..10]. Returns θ (n, 19)."""
+    u, noise = _uniforms(p, n)
     ml2 = mass * arm**2
     jn = noise(ks[3], (n, 3))
     jxx = p.inertia_xy * ml2 * jn[:, 0]
@@ -434,19 +427,14 @@ def _sample_prior(p: Prior, key, n: int):
     jzz = jnp.minimum(p.inertia_z * ml2 * jn[:, 2], 0.98 * (jxx + jyy))
     kt = p.kt_base * jnp.exp(p.kt_rate * c) * noise(ks[4])
     kappa = u(ks[5], *p.kappa)
-    ktau = kappa * kt
-    dscale = (arm / 0.184) ** 2
-    dn = u(ks[6], *p.drag_noise, (n, 3))
-    drag = jnp.stack([p.drag_xy * dscale, p.drag_xy * dscale, p.drag_z * dscale], -1) * dn
     eta = u(ks[7], *p.eta, (n, 4))
-    twr = u(ks[8], *p.twr)
-    twr = jnp.clip(twr, p.twr_min_eff / eta.min(-1), p.twr_max_eff / eta.max(-1))
+    twr = jnp.clip(u(ks[8], *p.twr), p.twr_min_eff / eta.min(-1), p.twr_max_eff / eta.max(-1))
     omega_max = jnp.sqrt(twr * mass * GRAVITY / (4.0 * kt))
     tau_m = u(ks[9], *p.motor_time_constant)
     ext_scale = jnp.stack([p.ext_torque_xy * mass * GRAVITY * arm] * 2
                           + [p.ext_torque_z * mass * GRAVITY * kappa], -1)
     tau_ext = u(ks[10], -1.0, 1.0, (n, 3)) * ext_scale
-    cols = [mass, arm, kt, ktau, jxx, jyy, jzz, drag[:, 0], drag[:, 1], drag[:, 2], omega_max,
+    cols = [mass, arm, kt, kappa * kt, jxx, jyy, jzz, drag[:, 0], drag[:, 1], drag[:, 2], omega_max,
             eta[:, 0], eta[:, 1], eta[:, 2], eta[:, 3], tau_m, tau_ext[:, 0], tau_ext[:, 1],
             tau_ext[:, 2]]
     return jnp.stack(cols, -1)

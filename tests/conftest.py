@@ -32,36 +32,34 @@ def have(mod: str) -> bool:
         return False
 
 
-@pytest.fixture(scope="module")
-def xadap_weights():
+def require_xadap(*modules: str) -> Path:
+    """XADAP_DIR, or skip the test when the released files or the ``modules`` are missing."""
     if not XADAP_DIR.is_dir():
         pytest.skip(f"Xadap policy files not found at {XADAP_DIR} (set MJXSYSID_XADAP_DIR)")
-    if not have("onnx"):
-        pytest.skip("onnx not installed (pip install onnx)")
+    for mod in modules:
+        if not have(mod):
+            pytest.skip(f"{mod} not installed (pip install {mod})")
+    return XADAP_DIR
+
+
+@pytest.fixture(scope="module")
+def xadap_weights():
+    require_xadap("onnx")
     from mjxsysid.policy.xadap import load_xadap
     return load_xadap(XADAP_DIR)
 
 
 @pytest.fixture(scope="session")
-def xadap_paper_recording(xadap_weights_session):
+def xadap_paper_recording():
     """The released policy flying the paper vehicle 1.5 s on a 10 s lemniscate, recorded as
     action replay needs it (IMU the policy acted on, commands, motor commands, latents)."""
     from mjxsysid import params as P
     from mjxsysid.analysis.flight import fly_vehicles, one_flight, seen_imu
     from mjxsysid.policy.interface import resolve_policy
-    ref = resolve_policy("xadap", XADAP_DIR)
-    fl, m, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference="lemniscate",
+    ref = resolve_policy("xadap", require_xadap("onnx"))
+    fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference="lemniscate",
                             period=10.0, duration=1.5)
     f = one_flight(fl)
     return ref, {"time": f.time, "imu": seen_imu(f.frame.imu), "imu_after": f.frame.imu,
                  "a_cmd": f.a_cmd, "omega_cmd": f.omega_cmd, "motor_cmd": f.frame.motor_cmd,
                  "latent": f.latent}
-
-
-@pytest.fixture(scope="session")
-def xadap_weights_session():
-    if not XADAP_DIR.is_dir():
-        pytest.skip(f"Xadap policy files not found at {XADAP_DIR} (set MJXSYSID_XADAP_DIR)")
-    if not have("onnx"):
-        pytest.skip("onnx not installed (pip install onnx)")
-    return XADAP_DIR

@@ -7,7 +7,7 @@ import pytest
 
 from mjxsysid import params as P
 from mjxsysid.analysis.decode import (LOG_COLUMNS, PRETRAINED_DIR, decode_latents, read_log,
-                                      replay_latents, summarize_posterior, write_log)
+                                      summarize_posterior, write_log)
 from mjxsysid.cli import main
 
 pytestmark = pytest.mark.skipif(not (PRETRAINED_DIR / "cfm.npz").exists(), reason="no shipped decoder")
@@ -30,7 +30,7 @@ def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
     path = write_log(tmp_path / "flight.csv", *_log_from_flight(paper_flight))
     rec = read_log(path)
     from mjxsysid.policy.controller import PolicyController
-    z = replay_latents(PolicyController.load(), rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+    z = PolicyController.load().replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
     np.testing.assert_allclose(z, paper_flight.latent, atol=2e-4)
     # End to end through the CLI.
     out = tmp_path / "dec"

@@ -7,6 +7,7 @@ import pytest
 from conftest import XADAP_DIR
 
 from mjxsysid import params as P
+from mjxsysid.control.low_level import Command, KTheta
 from mjxsysid.analysis.replay import (METHODS, action_metrics, lowpass, pearson, replay_commands,
                                       replay_flight)
 
@@ -76,8 +77,17 @@ def test_perfect_decoder_scores_like_the_truth(oracle_recording):
     for m in ("true", "cfm", "cfm_mean", "regression"):
         assert r["metrics"][m]["rmse"] < 1e-5 and r["metrics"][m]["pcc"] > 0.9999
     assert r["metrics"]["random"]["rmse"] > 0.05          # ±50 % per entry is far from the truth
-    # θ̂ is held for 0.1 s: the Random method's θ̂ changes exactly at the update instants.
-    assert r["theta_hat"]["random"].shape == (len(r["update_times"]), P.N_PARAMS)
+    # θ̂ is held between updates: step j after update k uses the Random draw k.
+    rec, th = oracle_recording, r["theta_hat"]["random"]
+    assert th.shape == (len(r["update_times"]), P.N_PARAMS)
+    first = len(rec["time"]) - len(r["times"])  # replayed span starts at the first update
+    for k in (0, 3, len(th) - 2):
+        for off in (0, 49):  # the first and the last step of update k's 0.1 s
+            j = int(np.searchsorted(r["times"], r["update_times"][k])) + off
+            i = first + j
+            want = KTheta.make(th[k]).motor_command(Command(rec["a_cmd"][i], rec["omega_cmd"][i]),
+                                                    rec["imu"][i, :3])
+            np.testing.assert_allclose(r["random"][j], want, atol=1e-5)
 
 
 def test_shipped_xadap_decoders_explain_its_commands(xadap_paper_recording):

@@ -18,9 +18,9 @@ from mjxsysid import params as P
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy.xadap import (build_history_input, load_xadap, normalize_state,
                                    xadap_encoder, xadap_policy)
-from mjxsysid.policy.xadap_controller import (NN_TO_MJX, XAdapController, XAdapPrior,
-                                              butterworth2, make_xadap_low_level,
-                                              xadap_training_prior)
+from mjxsysid.params import XAdapPrior, xadap_training_prior
+from mjxsysid.policy.xadap_controller import (NN_TO_MJX, XAdapController, butterworth2,
+                                              make_xadap_low_level)
 
 REPO = Path(__file__).resolve().parents[1]
 G = np.float32(P.GRAVITY)

@@ -6,7 +6,6 @@ the tests that need them skip with a message otherwise.
 """
 from __future__ import annotations
 
-import os
 import shutil
 from pathlib import Path
 
@@ -31,7 +30,7 @@ N_SAMPLES = 64
 TOL = 1e-5
 
 
-from conftest import XADAP_DIR, have as _have  # noqa: E402
+from conftest import XADAP_DIR, have as _have, require_xadap  # noqa: E402
 
 
 needs_files = pytest.mark.skipif(
@@ -49,10 +48,7 @@ def weights(xadap_weights):
 
 @pytest.fixture(scope="module")
 def sessions():
-    if not XADAP_DIR.is_dir():
-        pytest.skip(f"Xadap policy files not found at {XADAP_DIR} (set MJXSYSID_XADAP_DIR)")
-    if not _have("onnxruntime"):
-        pytest.skip("onnxruntime not installed (pip install onnxruntime)")
+    require_xadap("onnxruntime")
     import onnxruntime as ort
 
     opts = ort.SessionOptions()

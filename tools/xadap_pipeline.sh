@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The released Xadap policy end to end (issue 6): fly 1,000 in-distribution vehicles beside the
 # oracle, collect (θ, ẑ) pairs from its adaptation module, train and calibrate its decoders, and
-# run the action replay. GPU recommended (about 6 min on one H200); every stage is a plain CLI call.
+# run the action replay. GPU recommended (about 7.5 min on one H100); every stage is a plain CLI call.
 #
 #   tools/xadap_pipeline.sh WEIGHTS OUT [STAGES]
 #

@@ -18,12 +18,10 @@ import json
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
 from mjxsysid.cfm.sample import Decoder
-from mjxsysid.control.low_level import Command
 from mjxsysid.policy import networks as N
 from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
 
@@ -67,12 +65,6 @@ def write_log(path, t, imu, a_cmd, omega_cmd, motor) -> Path:
     arr = np.column_stack([t, imu, a_cmd, omega_cmd, motor])
     np.savetxt(path, arr, delimiter=",", header=",".join(LOG_COLUMNS), comments="", fmt="%.7g")
     return Path(path)
-
-
-def replay_latents(ctrl, imu, a_cmd, omega_cmd, motor) -> np.ndarray:
-    """ẑ after every logged step (T, 8): any latent policy's ``replay`` (its history rebuilt
-    from the log)."""
-    return ctrl.replay(imu, a_cmd, omega_cmd, motor)
 
 
 def load_decoders(decoders=None, policy=None, *, warn=None) -> tuple[Decoder, Decoder]:
@@ -196,7 +188,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     flight = None
     if log is not None:
         rec = read_log(log)
-        zhat_t = replay_latents(ref.load(), rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+        zhat_t = ref.load().replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
         times = rec["t"] - rec["t"][0] + 0.002
         truth = None
     else:

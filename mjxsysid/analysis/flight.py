@@ -19,7 +19,7 @@ from mjxsysid.control.low_level import KTheta
 from mjxsysid.control.references import Hover, Lemniscate, MinSnap, stack
 from mjxsysid.sim import Quadrotor, SimConfig
 
-CONTROLLERS = ("oracle", "nominal", "policy", "xadap")
+CONTROLLERS = ("oracle", "nominal", "policy")
 REFERENCES = ("hover", "lemniscate", "minsnap")
 
 
@@ -41,8 +41,7 @@ def make_low_level(name: str, theta, weights=None, policy=None):
     whatever is flown (non-adaptive); 'policy': a frozen latent policy, ``policy`` a name
     ('mjxsysid', the default, or 'xadap'), a path or a
     :class:`~mjxsysid.policy.interface.PolicyRef`, with ``weights`` (see
-    :func:`~mjxsysid.policy.interface.resolve_policy`); 'xadap' = 'policy' with policy 'xadap'.
-    θ (B, 19) -> batched controller."""
+    :func:`~mjxsysid.policy.interface.resolve_policy`). θ (B, 19) -> batched controller."""
     theta = np.asarray(theta, np.float32)
     if name in ("oracle", "nominal") and (weights is not None or policy is not None):
         raise ValueError(f"--policy / --weights do not apply to the {name} K_θ controller")
@@ -50,12 +49,9 @@ def make_low_level(name: str, theta, weights=None, policy=None):
         return KTheta.make(theta)
     if name == "nominal":
         return KTheta.make(np.broadcast_to(P.PAPER_HARDWARE, theta.shape))
-    if name in ("policy", "xadap"):
+    if name == "policy":
         from mjxsysid.policy.interface import resolve_policy
-        if name == "xadap" and policy not in (None, "xadap"):
-            raise ValueError(f"--controller xadap conflicts with --policy {policy}")
-        ref = resolve_policy("xadap" if name == "xadap" else (policy or "mjxsysid"), weights)
-        return ref.batched(theta.shape[0])
+        return resolve_policy(policy or "mjxsysid", weights).batched(theta.shape[0])
     raise ValueError(f"unknown controller {name!r}; choose from {CONTROLLERS}")
 
 

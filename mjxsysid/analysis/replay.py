@@ -159,6 +159,9 @@ def run_replay(out, *, policy="mjxsysid", weights=None, decoders=None, vehicles:
         raise ValueError(f"--vehicles must be >= 0, got {vehicles}")
     if samples < 1:
         raise ValueError(f"--samples must be >= 1, got {samples}")
+    bad = [f for f in flights if f not in FLIGHTS]
+    if bad or not flights:
+        raise ValueError(f"--flights: unknown {bad or 'none given'}; choose from {','.join(FLIGHTS)}")
     ref = resolve_policy(policy, weights)
     cfm, reg = load_decoders(decoders, ref, warn=log)
     out = Path(out)
@@ -198,10 +201,11 @@ def run_replay(out, *, policy="mjxsysid", weights=None, decoders=None, vehicles:
                 "n_flown": int(ok.sum()), "n": vehicles,
                 **{m: {k: {"mean": float(np.nanmean(v)), "std": float(np.nanstd(v))}
                        for k, v in arr[m].items()} for m in METHODS},
-                "cfm_best_fraction": {k: float(np.mean(
-                    [(arr["cfm"][k][j] < min(arr["random"][k][j], arr["regression"][k][j])) if k == "rmse"
-                     else (arr["cfm"][k][j] > max(arr["random"][k][j], arr["regression"][k][j]))
-                     for j in range(len(arr["cfm"][k]))])) for k in ("rmse", "pcc")}}
+                "cfm_best_fraction": {
+                    "rmse": float(np.mean(arr["cfm"]["rmse"] < np.minimum(arr["random"]["rmse"],
+                                                                         arr["regression"]["rmse"]))),
+                    "pcc": float(np.mean(arr["cfm"]["pcc"] > np.maximum(arr["random"]["pcc"],
+                                                                       arr["regression"]["pcc"])))}}
         res["flights"][name] = entry
         log(f"  {name}: " + ", ".join(
             f"{LABELS[m]} RMSE {paper['metrics'][m]['rmse']:.3f} PCC {paper['metrics'][m]['pcc']:.2f}"

@@ -9,7 +9,6 @@ training by the decoder. Works with any low-level controller that has ``latent(c
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 from pathlib import Path
@@ -54,16 +53,6 @@ def latents_in_flight(policy, theta, key, *, weights=None, steps: int = 750, sim
     return np.asarray(fl.latent[:, -1]), failed
 
 
-def file_sha256(path) -> str:
-    h = hashlib.sha256()
-    p = Path(path)
-    files = sorted(p.glob("*")) if p.is_dir() else [p]
-    for f in files:
-        if f.is_file():
-            h.update(f.read_bytes())
-    return h.hexdigest()
-
-
 def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
             n_test: int = 2_000, prior: str | None = None, seed: int = 0, batch: int = 2_000,
             steps: int = 750, log=print) -> Path:
@@ -96,8 +85,7 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     z = np.concatenate(zs)[:total]
     f = np.concatenate(fs)[:total]
     theta = theta[:total]
-    meta = {**ref.to_dict(), "controller": "policy" if ref.kind == "mjxsysid" else ref.kind,
-            "prior": prior, "seed": seed, "steps": steps, "excitation": __doc__.split("\n\n")[1],
+    meta = {**ref.to_dict(), "prior": prior, "seed": seed, "steps": steps, "excitation": __doc__.split("\n\n")[1],
             "n_train": n_train, "n_test": n_test, "wall_s": time.time() - t0,
             "device": str(jax.devices()[0])}
     path = out / "pairs.npz"

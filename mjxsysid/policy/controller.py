@@ -79,16 +79,18 @@ class PolicyController:
     def step(self, carry: PolicyCarry, imu, command: Command):
         return self.step_at(carry, imu, command, carry.count)
 
-    def step_at(self, carry: PolicyCarry, imu, command: Command, index):
+    def step_at(self, carry: PolicyCarry, imu, command: Command, index, raw=None):
         """:meth:`step` with the step index given by the caller (the harness passes its scan
         index, unbatched, so the every-``phi_every`` refresh of ẑ is a real branch under vmap
-        instead of φ evaluated every step)."""
+        instead of φ evaluated every step). ``raw`` (4,): a recorded action in [−1, 1] that
+        stands in for π's (replay)."""
         nets = N.Networks()
         obs = N.observation(imu, command.a_cmd, command.omega_cmd)
         history = jnp.where(carry.started, carry.history, N.initial_history(obs))
-        s = jnp.concatenate([obs, carry.last_raw])
-        z = jnp.where(self.use_override, self.z_override, carry.zhat)
-        raw, _ = nets.act(self.params, s, z)
+        if raw is None:
+            s = jnp.concatenate([obs, carry.last_raw])
+            z = jnp.where(self.use_override, self.z_override, carry.zhat)
+            raw, _ = nets.act(self.params, s, z)
         history = N.push_history(history, obs, raw)
         count = carry.count + 1
         zhat = jax.lax.cond((index + 1) % self.phi_every == 0, lambda h: nets.adapt(self.params, h),
@@ -106,18 +108,9 @@ class PolicyController:
 
 @jax.jit
 def _replay(ctrl: PolicyController, xs):
-    nets = N.Networks()
-
     def body(carry, x):
-        im, a, w, u = x
-        obs = N.observation(im, a, w)
-        hist = jnp.where(carry.started, carry.history, N.initial_history(obs))
-        raw = 2.0 * u - 1.0
-        hist = N.push_history(hist, obs, raw)
-        count = carry.count + 1
-        zhat = jax.lax.cond(count % ctrl.phi_every == 0, lambda h: nets.adapt(ctrl.params, h),
-                            lambda h: carry.zhat, hist)
-        new = carry._replace(history=hist, last_raw=raw, zhat=zhat, count=count, started=jnp.array(True))
-        return new, zhat
+        imu, a, w, u = x
+        new, _ = ctrl.step_at(carry, imu, Command(a, w), carry.count, raw=2.0 * u - 1.0)
+        return new, new.zhat
 
     return jax.lax.scan(body, ctrl.init(), xs)[1]

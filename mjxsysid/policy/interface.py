@@ -29,6 +29,7 @@ decoders ship and which prior is its in-distribution test set.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import os
 from pathlib import Path
 from typing import Protocol, runtime_checkable
@@ -97,18 +98,23 @@ class PolicyRef:
     def sha256(self) -> str:
         """Digest of the weights. Xadap: of the converted arrays, so the released folder and a
         converted .npz of it agree; mjxsysid: of the file."""
-        if self.kind == "xadap":
-            return _xadap_digest(self.weights)
-        from mjxsysid.policy.collect import file_sha256
-        return file_sha256(self.weights)
+        return _xadap_digest(self.weights) if self.kind == "xadap" else file_sha256(self.weights)
 
     def to_dict(self) -> dict:
         return {"policy": self.kind, "weights": str(self.weights), "weights_sha256": self.sha256()}
 
 
-def _xadap_digest(path: Path) -> str:
-    import hashlib
+def file_sha256(path) -> str:
+    """sha256 of a file, or of the files of a folder in name order."""
+    h = hashlib.sha256()
+    p = Path(path)
+    for f in sorted(p.glob("*")) if p.is_dir() else [p]:
+        if f.is_file():
+            h.update(f.read_bytes())
+    return h.hexdigest()
 
+
+def _xadap_digest(path: Path) -> str:
     from mjxsysid.policy.xadap import _FIELDS, load_npz, load_xadap
     w = load_npz(path) if path.is_file() else load_xadap(path)
     h = hashlib.sha256()

@@ -49,7 +49,7 @@ closed-loop checks in mjxsysid):
   = 20/s) destabilise vehicles with motor time constants ≥ 0.02 s (16 in-distribution
   vehicles, lemniscate: katt_xy 8.4 → 0 failures, 12 → 1, 16 → 4, 20 → 8).
 
-:func:`xadap_training_prior` returns a :class:`~mjxsysid.params.Prior` whose samples match the
+:func:`mjxsysid.params.xadap_training_prior` (``get_prior("xadap")``) is a prior whose samples match the
 released policy's training statistics (mean.csv/var.csv; README) — an in-distribution test set.
 """
 from __future__ import annotations
@@ -63,8 +63,6 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mjxsysid import params as P
-from mjxsysid.params import XAdapPrior, xadap_training_prior  # noqa: F401  (re-exported)
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy.xadap import (ACTION_DIM, HISTORY_LEN, LATENT_DIM, PRECISIONS, STATE_DIM, XAdapWeights,
                                    build_history_input, load_npz, load_xadap, normalize_state,
@@ -74,8 +72,6 @@ __all__ = [
     "XAdapController",
     "XAdapCarry",
     "make_xadap_low_level",
-    "xadap_training_prior",
-    "XAdapPrior",
     "butterworth2",
     "NN_TO_MJX",
     "ACCEL_FILTERS",
@@ -200,14 +196,19 @@ class XAdapController:
 
     def step(self, carry: XAdapCarry, imu, command: Command) -> tuple[XAdapCarry, jax.Array]:
         """imu (6,) [gyro, specific force], command -> (carry, motor_cmd (4,) in [0, 1])."""
+        new = self._advance(carry, imu, command)
+        return new, new.motor
+
+    def _advance(self, carry: XAdapCarry, imu, command: Command, motor=None) -> XAdapCarry:
+        """One simulator step: the policy runs every ``decimation`` steps (else the carry is
+        held); ``motor``: a recorded command standing in for π's action (replay)."""
         imu = jnp.asarray(imu, jnp.float32)
         if self.decimation == 1:
-            new = self._policy_step(carry, imu, command)
+            new = self._policy_step(carry, imu, command, motor)
         else:
             new = jax.lax.cond(carry.count % self.decimation == 0,
-                               lambda c: self._policy_step(c, imu, command), lambda c: c, carry)
-        new = new._replace(count=carry.count + 1)
-        return new, new.motor
+                               lambda c: self._policy_step(c, imu, command, motor), lambda c: c, carry)
+        return new._replace(count=carry.count + 1)
 
     def latent(self, carry: XAdapCarry) -> jax.Array:
         """The current latent ẑ (8,) (φ of the history at the latest policy step)."""
@@ -277,13 +278,7 @@ class XAdapController:
 def _xadap_replay(ctrl: XAdapController, xs):
     def body(carry, x):
         imu, a, w, u = x
-        cmd = Command(a, w)
-        if ctrl.decimation == 1:
-            new = ctrl._policy_step(carry, imu, cmd, u)
-        else:
-            new = jax.lax.cond(carry.count % ctrl.decimation == 0,
-                               lambda c: ctrl._policy_step(c, imu, cmd, u), lambda c: c, carry)
-        new = new._replace(count=carry.count + 1)
+        new = ctrl._advance(carry, imu, Command(a, w), u)
         return new, new.z
 
     return jax.lax.scan(body, ctrl.init(), xs)[1]
