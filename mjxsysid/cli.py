@@ -164,6 +164,12 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--cutoff", type=_positive, default=5.0, help="low-pass cut-off for the PCC, Hz (default 5)")
     rp.add_argument("--seed", type=int, default=0)
     rp.add_argument("--out", type=Path, required=True)
+    ex = sub.add_parser("experiment", help="run one of the paper's experiments (results.json, results.md, PNGs)")
+    ex.add_argument("name", help="tune-nominal | tune-slow | tune-lemniscate | robustness | payload | replay")
+    ex.add_argument("--quick", action="store_true", help="small CPU version (minutes)")
+    ex.add_argument("--seed", type=int, default=0)
+    _add_policy(ex)
+    ex.add_argument("--out", type=Path, required=True)
     return p
 
 
@@ -401,6 +407,15 @@ def _fly_prior(args) -> int:
     return 0
 
 
+def cmd_experiment(args) -> int:
+    from mjxsysid.experiments import get_experiment
+    run = get_experiment(args.name)
+    res = run(args.out, quick=args.quick, policy=_policy_ref(args), seed=args.seed)
+    print(json.dumps(res.get("headline", {})))
+    print(f"wrote {args.out}/results.json, results.md and figures ({res['wall_s']:.0f} s)", file=sys.stderr)
+    return 0
+
+
 def cmd_demo(args) -> int:
     if not args.no_video:
         _prepare_render()
@@ -414,7 +429,7 @@ def main(argv=None) -> int:
     handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy,
                 "evaluate-policy": cmd_evaluate_policy, "collect": cmd_collect,
                 "train-cfm": cmd_train_cfm, "evaluate-decoder": cmd_evaluate_decoder, "decode": cmd_decode,
-                "replay": cmd_replay}
+                "replay": cmd_replay, "experiment": cmd_experiment}
     try:
         return handlers[args.command](args)
     except (ValueError, FileNotFoundError) as e:
