@@ -411,7 +411,7 @@ def cmd_experiment(args) -> int:
     from mjxsysid.experiments import get_experiment
     run = get_experiment(args.name)
     res = run(args.out, quick=args.quick, policy=_policy_ref(args), seed=args.seed)
-    print(json.dumps(res.get("headline", {})))
+    print(json.dumps(res["numbers"].get("headline", {})))
     print(f"wrote {args.out}/results.json, results.md and figures ({res['wall_s']:.0f} s)", file=sys.stderr)
     return 0
 

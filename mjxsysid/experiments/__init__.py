@@ -1,11 +1,12 @@
 """The paper's experiments as commands (`mjxsysid experiment NAME [--quick] --out DIR`).
 
 Every experiment is a function ``run(out: Path, *, quick: bool, policy: PolicyRef, seed: int,
-progress: bool) -> dict`` in its own module; it computes its numbers and hands them to
+progress: bool = True) -> dict`` in its own module; it computes its numbers and hands them to
 :func:`mjxsysid.experiments.common.write_results`, which writes ``results.json`` (config,
 seeds, policy / decoder hashes, device, wall time, numbers) and ``results.md`` (the paper's
 table with our numbers beside it). PNGs go next to them. ``--quick`` is a small CPU version
-(minutes); the full version is sized for one GPU.
+(minutes); the full version is sized for one GPU. ``numbers['headline']`` (a few key figures)
+is what the CLI prints.
 """
 from __future__ import annotations
 
