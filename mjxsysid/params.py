@@ -170,21 +170,39 @@ def validate_theta(theta, *, what: str = "theta") -> np.ndarray:
     return arr.astype(np.float32)
 
 
+_POSITIVE = [MASS, ARM, KT, KTAU, OMEGA_MAX, TAU_M, 4, 5, 6, 11, 12, 13, 14]
+
+
+def _project(t, xp):
+    """The projection of :func:`project_valid` in numpy or jax.numpy (``xp``); t (..., 19)."""
+    pos = np.array(_POSITIVE)
+    t = xp.concatenate([t[..., :0], t], -1)  # a copy in either library
+    if xp is np:
+        t[..., pos] = np.maximum(t[..., pos], 1e-9)
+        t[..., DRAG] = np.maximum(t[..., DRAG], 0.0)
+    else:
+        t = t.at[..., pos].max(1e-9).at[..., DRAG].max(0.0)
+    for _ in range(3):
+        j = t[..., INERTIA]
+        new = [xp.minimum(j[..., a], 0.999 * (j[..., (a + 1) % 3] + j[..., (a + 2) % 3])) for a in range(3)]
+        t = xp.concatenate([t[..., :4], xp.stack(new, -1), t[..., 7:]], -1)
+    return t
+
+
 def project_valid(theta) -> tuple[np.ndarray, np.ndarray]:
     """Make decoded/perturbed θ (..., 19) physically valid for simulation: inertia clipped to
     the triangle inequality (J_a ≤ 0.999 (J_b + J_c)), positive entries floored at 1e-9, drag at 0.
-    Returns (valid θ, mask (...) of rows that needed changing)."""
-    t = np.array(theta, np.float64)
-    orig = t.copy()
-    pos = [MASS, ARM, KT, KTAU, OMEGA_MAX, TAU_M, 4, 5, 6, 11, 12, 13, 14]
-    t[..., pos] = np.maximum(t[..., pos], 1e-9)
-    t[..., DRAG] = np.maximum(t[..., DRAG], 0.0)
-    for _ in range(3):
-        j = t[..., INERTIA]
-        for a in range(3):
-            t[..., 4 + a] = np.minimum(j[..., a], 0.999 * (j[..., (a + 1) % 3] + j[..., (a + 2) % 3]))
+    Returns (valid θ, mask (...) of rows that needed changing). Host-side (float64);
+    :func:`project_valid_jax` is the same projection inside jit."""
+    orig = np.array(theta, np.float64)
+    t = _project(orig.copy(), np)
     changed = np.any(~np.isclose(t, orig, rtol=1e-7, atol=0), -1)
     return t.astype(np.float32), changed
+
+
+def project_valid_jax(theta) -> jax.Array:
+    """:func:`project_valid` for traced arrays (no mask): θ (..., 19) -> valid θ (..., 19)."""
+    return _project(jnp.asarray(theta), jnp)
 
 
 def theta_from_dict(d: Mapping, *, source: str = "vehicle") -> np.ndarray:

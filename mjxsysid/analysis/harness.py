@@ -68,6 +68,53 @@ class Flight(NamedTuple):
     latent: jax.Array | None = None
 
 
+class LoopCarry(NamedTuple):
+    """Everything a closed loop carries between control steps: the simulator state, the
+    high-level controller's carry and the low-level controller's carry (unbatched)."""
+    sim: object
+    high: object
+    low: object
+
+
+def start_loop(sim: Quadrotor, theta, low, high: Cascade, ref, key) -> LoopCarry:
+    """Initial closed-loop carry: the vehicle θ (19,) at rest at the reference start (yaw
+    aligned, hover rotor speeds). key: the ``k_sim`` / ``k_low`` keys of :func:`fly`."""
+    k_sim, k_low = key
+    theta = jnp.asarray(theta, jnp.float32)
+    r0 = ref.at(jnp.float32(0.0))
+    half = 0.5 * r0.yaw
+    quat0 = jnp.array([jnp.cos(half), 0.0, 0.0, jnp.sin(half)])
+    state = sim.init(theta, k_sim, pos=r0.pos, quat=quat0, rotor_speed=hover_rotor_speed(theta))
+    return LoopCarry(state, high.init(), low.init(k_low))
+
+
+def run_loop(sim: Quadrotor, theta, low, high: Cascade, ref, carry: LoopCarry, forces, start,
+             steps: int) -> tuple[LoopCarry, Flight]:
+    """Advance a closed loop ``steps`` control steps from ``carry``, the first step having the
+    global index ``start`` (an unbatched int: time t = index · dt). θ (19,) the flown vehicle
+    (τ_ext disturbance already added); forces (steps, 3) N world. Returns the new carry and the
+    Flight of these steps (leaves (steps, ...))."""
+    dt = sim.config.dt
+
+    def body(c, inp):
+        s, hc, lc = c
+        i, f = inp
+        t = i.astype(jnp.float32) * dt
+        r = ref.at(t)
+        est = Estimate(s.pos, s.vel, s.quat, s.omega)
+        hc, cmd = high.step(hc, est, r, dt)
+        # Controllers that run something periodically take the (unbatched) step index.
+        lc, u = low.step_at(lc, s.imu, cmd, i) if hasattr(low, "step_at") else low.step(lc, s.imu, cmd)
+        s = sim.step(theta, s, u, f)
+        lat = low.latent(lc) if hasattr(low, "latent") else None
+        out = (sim.frame(s, u, f), r.pos, r.vel, r.yaw, cmd.a_cmd, cmd.omega_cmd, t + dt, lat)
+        return LoopCarry(s, hc, lc), out
+
+    idx = start + jnp.arange(steps)
+    carry, out = jax.lax.scan(body, carry, (idx, forces))
+    return carry, Flight(*out)
+
+
 def fly(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance, key,
         steps: int) -> Flight:
     """Fly one vehicle θ (19,) for ``steps`` control steps from rest at the reference start.
@@ -80,29 +127,9 @@ def fly(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance
     k_sim, k_dist, k_low = jax.random.split(key, 3)
     theta = jnp.asarray(theta, jnp.float32)
     theta = theta.at[P.TAU_EXT].add(disturbance.torque)
-    r0 = ref.at(jnp.float32(0.0))
-    half = 0.5 * r0.yaw
-    quat0 = jnp.array([jnp.cos(half), 0.0, 0.0, jnp.sin(half)])
-    state = sim.init(theta, k_sim, pos=r0.pos, quat=quat0, rotor_speed=hover_rotor_speed(theta))
+    carry0 = start_loop(sim, theta, low, high, ref, (k_sim, k_low))
     forces = disturbance.forces(k_dist, steps, dt)
-
-    def body(carry, inp):
-        s, hc, lc = carry
-        i, f = inp
-        t = i.astype(jnp.float32) * dt
-        r = ref.at(t)
-        est = Estimate(s.pos, s.vel, s.quat, s.omega)
-        hc, cmd = high.step(hc, est, r, dt)
-        # Controllers that run something periodically take the (unbatched) step index.
-        lc, u = low.step_at(lc, s.imu, cmd, i) if hasattr(low, "step_at") else low.step(lc, s.imu, cmd)
-        s = sim.step(theta, s, u, f)
-        lat = low.latent(lc) if hasattr(low, "latent") else None
-        out = (sim.frame(s, u, f), r.pos, r.vel, r.yaw, cmd.a_cmd, cmd.omega_cmd, t + dt, lat)
-        return (s, hc, lc), out
-
-    carry0 = (state, high.init(), low.init(k_low))
-    _, out = jax.lax.scan(body, carry0, (jnp.arange(steps), forces))
-    return Flight(*out)
+    return run_loop(sim, theta, low, high, ref, carry0, forces, 0, steps)[1]
 
 
 @functools.lru_cache(maxsize=64)

@@ -1,0 +1,294 @@
+"""Online predictive tuning of the high-level gains on an ensemble of models (paper §V-A).
+
+Every ``1/rate`` s of a flight the tuner
+
+1. draws K models θ_1..θ_K: from the decoder p(θ | ẑ) at the policy's current latent (``cfm``),
+   from the paper vehicle with independent ±20 % perturbations (``nominal_cem``, the paper's
+   ablation) or K copies of the true θ (``oracle_cem``, an upper reference), all projected to
+   valid θ;
+2. runs K × N predictive rollouts from the current state, each model flown by the *frozen*
+   policy (its current history and latent carried over) under one of N candidate gain vectors
+   of the cascade, over a horizon H of the upcoming reference, without disturbances;
+3. scores each candidate by the ensemble mean of :func:`rollout_cost` (position RMSE +
+   heading + motor saturation + failure) and runs CEM (:mod:`mjxsysid.tune.cem`), warm-started
+   from the last solution; the mean of the final distribution is applied until the next update.
+
+:func:`tuner_update` is one pure update for one vehicle; :class:`OnlineTuner` jits it once,
+vmapped over the vehicle batch (K and N are vmapped inside), and :func:`fly_tuned` flies a
+batch with the tuner in the loop. Fixed gains (``naive``, ``baseline``) fly through the same
+loop without updates, so every method sees identical physics, noise and disturbances.
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxsysid import params as P
+from mjxsysid.analysis.harness import (Disturbance, Flight, LoopCarry, low_level_axes, metrics,
+                                       run_loop, start_loop)
+from mjxsysid.control.high_level import Cascade, gains as gain_vector
+from mjxsysid.sim.quadrotor import Quadrotor, hover_rotor_speed
+from mjxsysid.tune.cem import CEMConfig, CEMState, cem_init, cem_minimize, cem_warm, mean_gains
+
+METHODS = ("naive", "baseline", "cfm", "nominal_cem", "oracle_cem")
+"""Fixed presets and the three CEM variants (model sources)."""
+CEM_METHODS = ("cfm", "nominal_cem", "oracle_cem")
+METHOD_LABELS = {"naive": "Naive", "baseline": "Baseline", "cfm": "CFM-tuned",
+                 "nominal_cem": "Nominal+CEM", "oracle_cem": "Oracle-CEM"}
+
+
+@dataclasses.dataclass(frozen=True)
+class CostWeights:
+    """Predictive cost = pos RMSE (m) + heading · heading RMSE (rad) + saturation · fraction of
+    motor commands at 0 or 1 + failure · [the rollout failed]. A rollout fails when it diverges,
+    hits the ground or strays ``fail_dist`` m from the reference (RMSEs count the steps before)."""
+    heading: float = 0.1
+    saturation: float = 0.5
+    failure: float = 5.0
+    fail_dist: float = 1.0
+
+
+@dataclasses.dataclass(frozen=True)
+class TunerConfig:
+    """Settings of the online tuner (static: a change re-traces).
+
+    models: K models per update. horizon: predictive horizon H (s). rate: updates per second.
+    warmup: no update before this time (s): the policy's history fills first (0.2 s).
+    cem: :class:`~mjxsysid.tune.cem.CEMConfig` (N = ``cem.candidates``). weights: the cost.
+    perturbation: half-width of the uniform relative perturbation of ``nominal_cem``.
+    decoder_steps: Euler steps of the CFM sampler. initial: gains before the first update
+    (and the first CEM mean): a preset name.
+    """
+    models: int = 16
+    horizon: float = 0.5
+    rate: float = 10.0
+    warmup: float = 0.2
+    cem: CEMConfig = CEMConfig()
+    weights: CostWeights = CostWeights()
+    perturbation: float = 0.2
+    decoder_steps: int = 50
+    initial: str = "naive"
+
+    def __post_init__(self):
+        if int(self.models) != self.models or self.models < 1:
+            raise ValueError(f"tuner models (K) must be an integer >= 1, got {self.models}")
+        if not (math.isfinite(self.horizon) and self.horizon > 0):
+            raise ValueError(f"tuner horizon must be > 0 s, got {self.horizon}")
+        if not (math.isfinite(self.rate) and self.rate > 0):
+            raise ValueError(f"tuner rate must be > 0 Hz, got {self.rate}")
+        if not self.warmup >= 0:
+            raise ValueError(f"tuner warmup must be >= 0 s, got {self.warmup}")
+        if not 0 <= self.perturbation < 1:
+            raise ValueError(f"perturbation must be in [0, 1), got {self.perturbation}")
+        gain_vector(self.initial)  # a known preset
+
+    def steps(self, dt: float) -> tuple[int, int]:
+        """(control steps between updates, control steps of the horizon)."""
+        return max(1, int(round(1.0 / (self.rate * dt)))), max(1, int(round(self.horizon / dt)))
+
+
+def rollout_cost(flight: Flight, w: CostWeights) -> jax.Array:
+    """Cost () of one predictive rollout (leaves (H, ...)); see :class:`CostWeights`."""
+    m = metrics(flight, box=w.fail_dist)
+    return (m["pos_rmse_m"] + w.heading * jnp.deg2rad(m["heading_rmse_deg"])
+            + w.saturation * m["saturation_frac"] + w.failure * m["failed"].astype(jnp.float32))
+
+
+def predict(sim: Quadrotor, theta, low, gains, max_rate, ref, carry: LoopCarry, motor_norm, start,
+            steps: int) -> Flight:
+    """One predictive rollout: model θ (19,) flown by ``low`` (its carry in ``carry``) under
+    the cascade with ``gains`` (8,) for ``steps`` steps from the current state, the first step
+    having global index ``start``. The rotors start at the model's steady state for the last
+    motor command ``motor_norm`` (4,) (the rotor speed itself is not observed); no disturbance."""
+    s = carry.sim.replace(rotor_speed=motor_norm * theta[P.OMEGA_MAX], diverged=jnp.array(False))
+    high = Cascade(gains, max_rate)
+    _, fl = run_loop(sim, theta, low, high, ref, carry._replace(sim=s), jnp.zeros((steps, 3)), start, steps)
+    return fl
+
+
+class DecoderArgs(NamedTuple):
+    """What the ``cfm`` model source needs inside jit: the CFM's params and normaliser
+    (pytrees) — its static config travels separately."""
+    params: object
+    normalizer: object
+
+
+def draw_models(method: str, key, theta_true, zhat, dec: DecoderArgs | None, dec_cfg, cfg: TunerConfig):
+    """K models (K, 19) for one update (see the module doc), projected to valid θ."""
+    k = cfg.models
+    if method == "oracle_cem":
+        th = jnp.broadcast_to(theta_true, (k, P.N_PARAMS))
+    elif method == "nominal_cem":
+        u = jax.random.uniform(key, (k, P.N_PARAMS), minval=1 - cfg.perturbation, maxval=1 + cfg.perturbation)
+        th = jnp.asarray(P.PAPER_HARDWARE) * u
+    elif method == "cfm":
+        from mjxsysid.cfm.sample import _sample
+        y = _sample(dec.params, dec_cfg, zhat[None], key, k, cfg.decoder_steps, "euler")[0]
+        th = dec.normalizer.denormalize(y)
+    else:
+        raise ValueError(f"no models for method {method!r}; CEM methods are {CEM_METHODS}")
+    return P.project_valid_jax(th)
+
+
+def tuner_update(sim: Quadrotor, low, method: str, cfg: TunerConfig, dec: DecoderArgs | None, dec_cfg,
+                 theta_true, ref, carry: LoopCarry, motor_norm, max_rate, start, state: CEMState, key):
+    """One tuner update for one vehicle. Returns (new CEM state, gains to apply (8,), info):
+    info = {'cost': ensemble-mean cost of every candidate of the last iteration (N,),
+    'models': the K models' thrust-to-weight (K,)}."""
+    _, horizon = cfg.steps(sim.config.dt)
+    k_models, k_cem = jax.random.split(key)
+    zhat = low.latent(carry.low) if hasattr(low, "latent") else None
+    thetas = draw_models(method, k_models, theta_true, zhat, dec, dec_cfg, cfg)
+
+    def cost_one(theta, g):
+        return rollout_cost(predict(sim, theta, low, g, max_rate, ref, carry, motor_norm, start, horizon),
+                            cfg.weights)
+
+    def cost_fn(gains, _k):
+        c = jax.vmap(lambda th: jax.vmap(lambda g: cost_one(th, g))(gains))(thetas)  # (K, N)
+        return c.mean(0)
+
+    state, hist = cem_minimize(cost_fn, state, k_cem, cfg.cem)
+    return state, mean_gains(state), {"cost": hist[-1], "models_twr": P.thrust_to_weight(thetas)}
+
+
+class TunedFlight(NamedTuple):
+    """A flight with the tuner in the loop: flight (B, T, ...), gains (B, U, 8) applied in each
+    of the U segments, update_times (U,) s (start of each segment), predicted (B, U): the
+    ensemble-mean predicted cost of the applied mean (NaN where no update ran)."""
+    flight: Flight
+    gains: np.ndarray
+    update_times: np.ndarray
+    predicted: np.ndarray
+
+
+@functools.lru_cache(maxsize=16)
+def _advance(sim: Quadrotor, steps: int, low_axes_def, low_axes_leaves):
+    low_axes = jax.tree_util.tree_unflatten(low_axes_def, low_axes_leaves)
+
+    def one(theta, low, gains, max_rate, ref, carry, forces, start):
+        return run_loop(sim, theta, low, Cascade(gains, max_rate), ref, carry, forces, start, steps)
+
+    return jax.jit(jax.vmap(one, in_axes=(0, low_axes, 0, None, 0, 0, 0, None)))
+
+
+@functools.lru_cache(maxsize=16)
+def _start(sim: Quadrotor, low_axes_def, low_axes_leaves):
+    low_axes = jax.tree_util.tree_unflatten(low_axes_def, low_axes_leaves)
+
+    def one(theta, low, ref, keys):
+        return start_loop(sim, theta, low, Cascade.make("naive"), ref, (keys[0], keys[1]))
+
+    return jax.jit(jax.vmap(one, in_axes=(0, low_axes, 0, 0)))
+
+
+@functools.lru_cache(maxsize=16)
+def _update(sim: Quadrotor, method: str, cfg: TunerConfig, dec_cfg, low_axes_def, low_axes_leaves):
+    low_axes = jax.tree_util.tree_unflatten(low_axes_def, low_axes_leaves)
+
+    def one(low, dec, theta_true, ref, carry, motor_norm, max_rate, start, state, key):
+        return tuner_update(sim, low, method, cfg, dec, dec_cfg, theta_true, ref, carry, motor_norm,
+                            max_rate, start, state, key)
+
+    return jax.jit(jax.vmap(one, in_axes=(low_axes, None, 0, 0, 0, 0, None, None, 0, 0)))
+
+
+def _axes(low):
+    leaves, treedef = jax.tree_util.tree_flatten(low_level_axes(low), is_leaf=lambda x: x is None)
+    return treedef, tuple(leaves)
+
+
+class OnlineTuner:
+    """Jitted, batched tuner updates for one method and config.
+
+    ``update(low, theta_true (B, 19), ref (batched), carry (batched), motor_norm (B, 4), start,
+    state (batched CEMState), key)`` -> (state, gains (B, 8), info). The decoder (a
+    :class:`~mjxsysid.cfm.sample.Decoder` of kind 'cfm') is needed for ``method='cfm'`` only.
+    """
+
+    def __init__(self, sim: Quadrotor, method: str, cfg: TunerConfig = TunerConfig(), decoder=None,
+                 max_rate: float = 12.0):
+        if method not in CEM_METHODS:
+            raise ValueError(f"unknown tuner method {method!r}; choose from {CEM_METHODS}")
+        if method == "cfm":
+            if decoder is None or decoder.kind != "cfm":
+                raise ValueError("method 'cfm' needs a CFM decoder (Decoder of kind 'cfm')")
+            self.dec, self.dec_cfg = DecoderArgs(decoder.params, decoder.normalizer), decoder.cfg
+        else:
+            self.dec, self.dec_cfg = None, None
+        self.sim, self.method, self.cfg, self.max_rate = sim, method, cfg, jnp.float32(max_rate)
+
+    def init(self, n: int) -> CEMState:
+        s = cem_init(gain_vector(self.cfg.initial), self.cfg.cem)
+        return jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), s)
+
+    def update(self, low, theta_true, ref, carry, motor_norm, start, state, key):
+        fn = _update(self.sim, self.method, self.cfg, self.dec_cfg, *_axes(low))
+        n = theta_true.shape[0]
+        return fn(low, self.dec, jnp.asarray(theta_true, jnp.float32), ref, carry, motor_norm,
+                  self.max_rate, jnp.int32(start), state, jax.random.split(key, n))
+
+
+def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method: str, key, steps: int, *,
+              cfg: TunerConfig = TunerConfig(), decoder=None, max_rate: float = 12.0,
+              progress=None) -> TunedFlight:
+    """Fly a batch θ (B, 19) with ``low`` (batched, e.g. ``PolicyRef.batched(B)``) on the
+    batched reference ``ref`` under ``disturbance`` (batched) for ``steps`` control steps, the
+    gains set by ``method``: a preset ('naive', 'baseline': fixed) or a CEM method updated
+    every ``1/cfg.rate`` s after ``cfg.warmup``. The key splits like :func:`~mjxsysid.analysis.
+    harness.fly` (per vehicle: simulator, disturbance, controller), so every method sees the
+    same noise and disturbance realisation for the same key. ``progress``: optional callable
+    ``progress(done, total)`` after each segment."""
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
+    theta = jnp.asarray(P.validate_theta(P.as_batch(theta)), jnp.float32)
+    b = theta.shape[0]
+    dt = sim.config.dt
+    seg, horizon = cfg.steps(dt)
+    if steps < 1:
+        raise ValueError(f"steps must be >= 1, got {steps}")
+    if method in CEM_METHODS and horizon > steps:
+        raise ValueError(f"tuner horizon {cfg.horizon} s is longer than the flight ({steps * dt:g} s)")
+    keys = jax.vmap(lambda k: jnp.stack(jax.random.split(k, 3)))(jax.random.split(key, b))  # (B, 3, 2)
+    k_sim, k_dist, k_low = keys[:, 0], keys[:, 1], keys[:, 2]
+    theta_fly = theta.at[:, P.TAU_EXT].add(disturbance.torque)
+    forces = jax.vmap(lambda d, k: d.forces(k, steps, dt))(disturbance, k_dist)   # (B, steps, 3)
+    carry = _start(sim, *_axes(low))(theta_fly, low, ref, jax.vmap(lambda a, c: jnp.stack([a, c]))(k_sim, k_low))
+    tuner = OnlineTuner(sim, method, cfg, decoder, max_rate) if method in CEM_METHODS else None
+    state = tuner.init(b) if tuner else None
+    gains = jnp.broadcast_to(gain_vector(cfg.initial if tuner else method), (b, 8))
+    motor = hover_rotor_speed(theta) / theta[:, P.OMEGA_MAX, None]
+    k_tune = jax.random.fold_in(key, 7919)
+    chunks, gain_log, times, pred = [], [], [], []
+    n_seg = -(-steps // seg)
+    mr = jnp.float32(max_rate)
+    updated = False
+    for u in range(n_seg):
+        i0 = u * seg
+        n = min(seg, steps - i0)
+        t = i0 * dt
+        cost = np.full(b, np.nan, np.float32)
+        if tuner is not None and t >= cfg.warmup - 1e-9:
+            state = cem_warm(state, cfg.cem) if updated else state
+            updated = True
+            state, gains, info = tuner.update(low, theta, ref, carry, motor, i0, state,
+                                              jax.random.fold_in(k_tune, u))
+            # candidate 0 of the last iteration is the mean entering it
+            cost = np.asarray(info["cost"][:, 0])
+        fn = _advance(sim, n, *_axes(low))
+        carry, fl = fn(theta_fly, low, gains, mr, ref, carry, forces[:, i0:i0 + n], jnp.int32(i0))
+        motor = fl.frame.motor_cmd[:, -1]
+        chunks.append(fl)
+        gain_log.append(np.asarray(gains))
+        times.append(t)
+        pred.append(cost)
+        if progress is not None:
+            progress(u + 1, n_seg)
+    flight = jax.tree.map(lambda *a: np.concatenate([np.asarray(x) for x in a], 1), *chunks)
+    return TunedFlight(flight, np.stack(gain_log, 1), np.asarray(times, np.float32), np.stack(pred, 1))
