@@ -164,6 +164,25 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("--cutoff", type=_positive, default=5.0, help="low-pass cut-off for the PCC, Hz (default 5)")
     rp.add_argument("--seed", type=int, default=0)
     rp.add_argument("--out", type=Path, required=True)
+    tn = sub.add_parser("tune", help="fly a vehicle with the online predictive tuner and compare methods")
+    tn.add_argument("--vehicle", type=Path, default=None, help="vehicle JSON (default: the paper vehicle)")
+    tn.add_argument("--reference", choices=("lemniscate", "minsnap"), default="lemniscate")
+    tn.add_argument("--period", type=_positive, default=10.0, help="lemniscate period, s (default 10)")
+    tn.add_argument("--duration", type=_positive, default=None,
+                    help="flight duration, s (default: one period / 5 s; --quick: 2 s)")
+    tn.add_argument("--methods", default="naive,baseline,cfm,nominal_cem,oracle_cem",
+                    help="comma-separated subset of naive,baseline,cfm,nominal_cem,oracle_cem")
+    tn.add_argument("--models", type=int, default=None, help="K decoded models per update (default 16; quick 4)")
+    tn.add_argument("--candidates", type=int, default=None, help="N candidate gains per CEM iteration (default 32; quick 8)")
+    tn.add_argument("--iterations", type=int, default=None, help="CEM iterations per update (default 2)")
+    tn.add_argument("--horizon", type=_positive, default=None, help="predictive horizon, s (default 0.5; quick 0.3)")
+    tn.add_argument("--rate", type=_positive, default=10.0, help="tuner updates per second (default 10)")
+    tn.add_argument("--quick", action="store_true", help="small settings for a CPU run of minutes")
+    tn.add_argument("--seed", type=int, default=0)
+    _add_policy(tn)
+    tn.add_argument("--decoders", type=Path, default=None, help="folder with cfm.npz (default: the policy's)")
+    tn.add_argument("--video", action="store_true", help="also render the tuned vs untuned (naive) flight side by side")
+    tn.add_argument("--out", type=Path, required=True)
     ex = sub.add_parser("experiment", help="run one of the paper's experiments (results.json, results.md, PNGs)")
     ex.add_argument("name", help="tune-nominal | tune-slow | tune-lemniscate | robustness | payload | replay")
     ex.add_argument("--quick", action="store_true", help="small CPU version (minutes)")
@@ -407,6 +426,80 @@ def _fly_prior(args) -> int:
     return 0
 
 
+def cmd_tune(args) -> int:
+    import dataclasses
+
+    if args.video:
+        _prepare_render()
+    from mjxsysid import params as P
+    from mjxsysid.analysis.flight import broadcast, make_reference
+    from mjxsysid.experiments.tuning import FULL_TUNER, QUICK_TUNER
+    from mjxsysid.sim import Quadrotor
+    from mjxsysid.tune.compare import check_methods, compare_methods, plot_gains, plot_tracking, results_dict
+
+    methods = check_methods(m.strip() for m in args.methods.split(",") if m.strip())
+    base = QUICK_TUNER if args.quick else FULL_TUNER
+    cem = base.cem
+    if args.candidates is not None or args.iterations is not None:
+        cem = dataclasses.replace(cem, **{k: v for k, v in (("candidates", args.candidates),
+                                                            ("iterations", args.iterations)) if v is not None})
+    over = {k: v for k, v in (("models", args.models), ("horizon", args.horizon), ("rate", args.rate)) if v is not None}
+    cfg = dataclasses.replace(base, cem=cem, **over)
+    theta = P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware()
+    duration = args.duration or (2.0 if args.quick else (args.period if args.reference == "lemniscate" else 5.0))
+    if cfg.horizon > duration:
+        raise ValueError(f"--horizon {cfg.horizon:g} s is longer than the flight ({duration:g} s)")
+    policy = _policy_ref(args)
+    decoder = None
+    if "cfm" in methods:
+        from mjxsysid.analysis.decode import load_decoders
+        decoder = load_decoders(args.decoders, policy, warn=lambda m: print(m, file=sys.stderr))[0]
+    ref, _ = make_reference(args.reference, period=args.period, duration=duration, seed=args.seed)
+    sim = Quadrotor()
+    steps = int(round(duration / sim.config.dt))
+    args.out.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    res = compare_methods(theta[None], broadcast(ref, 1), steps=steps, methods=methods, cfg=cfg, policy=policy,
+                          decoder=decoder, sim=sim, seed=args.seed, progress=True,
+                          log=lambda m: print(m, file=sys.stderr, flush=True))
+    d = results_dict(res, index=0)
+    info = {"vehicle": str(args.vehicle or "paper_hardware"), "reference": args.reference,
+            "period_s": args.period, "duration_s": duration, "policy": policy.label, "seed": args.seed,
+            "tuner": dataclasses.asdict(cfg), "wall_s": round(time.time() - t0, 1)}
+    (args.out / "metrics.json").write_text(json.dumps({**d, "config": info}, indent=2) + "\n")
+    name = Path(info["vehicle"]).stem
+    plot_gains(res, args.out / "gains.png", title=f"gains over time, {name}, {args.reference}")
+    plot_tracking(res, args.out / "tracking.png", title=f"tracking, {name}, {args.reference}")
+    wrote = "metrics.json, gains.png, tracking.png"
+    if args.video:
+        _tune_video(res, theta, args.out)
+        wrote += ", tuned_vs_untuned.mp4"
+    print(json.dumps({k: {m: v[m] for m in ("pos_rmse_m", "max_pos_err_m", "heading_rmse_deg", "failed")}
+                      for k, v in d.items()}))
+    print(f"wrote {args.out}/{wrote}", file=sys.stderr)
+    return 0
+
+
+def _tune_video(res, theta, out):
+    """The tuned flight (CFM-tuned, else the first CEM method) beside the untuned (naive) one."""
+    import tempfile
+
+    from mjxsysid.render.video import render_rollout, side_by_side
+    from mjxsysid.tune.tuner import CEM_METHODS
+    tuned = next((m for m in ("cfm",) + CEM_METHODS if m in res), None)
+    untuned = "naive" if "naive" in res else ("baseline" if "baseline" in res else None)
+    if tuned is None or untuned is None:
+        raise ValueError("--video needs a tuned method (cfm, nominal_cem or oracle_cem) and naive or baseline")
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = []
+        for m in (untuned, tuned):
+            fl = res[m]["tuned"].flight
+            frames = type(fl.frame)(*[a[0] for a in fl.frame])
+            paths.append(render_rollout(theta, frames, Path(tmp) / f"{m}.mp4", width=480, height=360,
+                                        reference=fl.ref_pos[0]))
+        side_by_side(paths, out / "tuned_vs_untuned.mp4")
+
+
 def cmd_experiment(args) -> int:
     from mjxsysid.experiments import get_experiment
     run = get_experiment(args.name)
@@ -429,7 +522,8 @@ def main(argv=None) -> int:
     handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy,
                 "evaluate-policy": cmd_evaluate_policy, "collect": cmd_collect,
                 "train-cfm": cmd_train_cfm, "evaluate-decoder": cmd_evaluate_decoder, "decode": cmd_decode,
-                "replay": cmd_replay, "experiment": cmd_experiment}
+                "replay": cmd_replay, "experiment": cmd_experiment,
+                "tune": cmd_tune}
     try:
         return handlers[args.command](args)
     except (ValueError, FileNotFoundError) as e:

@@ -726,3 +726,22 @@ def render_frame(theta, frames=None, *, index: int = -1, camera="chase", width: 
         return scene.draw(pos[i], quat[i], i, trail_pts=trail_pts,
                           ref_pts=None if ref is None else _decimate(ref, 400),
                           line_scale=max(1.0, height / 480))
+
+
+def side_by_side(videos, path, *, fps: float = 50) -> Path:
+    """Place videos (paths of equal frame size and rate) next to each other in one mp4; the
+    shorter ones hold their last frame."""
+    mediapy = _mediapy()
+    clips = [read_video(v) for v in videos]
+    if not clips:
+        raise ValueError("side_by_side needs at least one video")
+    h = {c.shape[1] for c in clips}
+    if len(h) != 1:
+        raise ValueError(f"videos must have the same height, got {sorted(h)}")
+    n = max(len(c) for c in clips)
+    clips = [np.concatenate([c, np.repeat(c[-1:], n - len(c), 0)]) if len(c) < n else c for c in clips]
+    path = Path(path)
+    with warnings.catch_warnings():
+        _quiet_fork_warning()
+        mediapy.write_video(path, np.concatenate(clips, 2), fps=float(fps))
+    return path

@@ -119,32 +119,52 @@ class DecoderArgs(NamedTuple):
     normalizer: object
 
 
-def draw_models(method: str, key, theta_true, zhat, dec: DecoderArgs | None, dec_cfg, cfg: TunerConfig):
-    """K models (K, 19) for one update (see the module doc), projected to valid θ."""
+def _model_sources(dec_cfg, cfg: TunerConfig) -> tuple[tuple[str, ...], list]:
+    """The model sources compiled into an update (those without a decoder when there is none):
+    (method names, branch functions ``f(key, theta_true (19,), zhat (8,) | None, dec) -> (K, 19)``)."""
     k = cfg.models
-    if method == "oracle_cem":
-        th = jnp.broadcast_to(theta_true, (k, P.N_PARAMS))
-    elif method == "nominal_cem":
+
+    def oracle(key, theta_true, zhat, dec):
+        return jnp.broadcast_to(theta_true, (k, P.N_PARAMS))
+
+    def nominal(key, theta_true, zhat, dec):
         u = jax.random.uniform(key, (k, P.N_PARAMS), minval=1 - cfg.perturbation, maxval=1 + cfg.perturbation)
-        th = jnp.asarray(P.PAPER_HARDWARE) * u
-    elif method == "cfm":
+        return jnp.asarray(P.PAPER_HARDWARE) * u
+
+    def cfm(key, theta_true, zhat, dec):
         from mjxsysid.cfm.sample import _sample
         y = _sample(dec.params, dec_cfg, zhat[None], key, k, cfg.decoder_steps, "euler")[0]
-        th = dec.normalizer.denormalize(y)
-    else:
-        raise ValueError(f"no models for method {method!r}; CEM methods are {CEM_METHODS}")
-    return P.project_valid_jax(th)
+        return dec.normalizer.denormalize(y)
+
+    if dec_cfg is None:
+        return ("oracle_cem", "nominal_cem"), [oracle, nominal]
+    return ("oracle_cem", "nominal_cem", "cfm"), [oracle, nominal, cfm]
 
 
-def tuner_update(sim: Quadrotor, low, method: str, cfg: TunerConfig, dec: DecoderArgs | None, dec_cfg,
+def draw_models(method: str, key, theta_true, zhat, dec: DecoderArgs | None, dec_cfg, cfg: TunerConfig):
+    """K models (K, 19) for one update (see the module doc), projected to valid θ."""
+    names, fns = _model_sources(dec_cfg, cfg)
+    if method not in names:
+        raise ValueError(f"no models for method {method!r} here; available: {names}"
+                         + ("" if dec_cfg is not None else " (method 'cfm' needs a decoder)"))
+    return P.project_valid_jax(fns[names.index(method)](key, theta_true, zhat, dec))
+
+
+def tuner_update(sim: Quadrotor, low, method, cfg: TunerConfig, dec: DecoderArgs | None, dec_cfg,
                  theta_true, ref, carry: LoopCarry, motor_norm, max_rate, start, state: CEMState, key):
-    """One tuner update for one vehicle. Returns (new CEM state, gains to apply (8,), info):
-    info = {'cost': ensemble-mean cost of every candidate of the last iteration (N,),
-    'models': the K models' thrust-to-weight (K,)}."""
+    """One tuner update for one vehicle. ``method``: a CEM method name, or its index in the
+    model sources of :func:`_model_sources` as an (unbatched) traced int — then one compiled
+    update serves every method (``lax.switch`` runs only the chosen source). Returns (new CEM
+    state, gains to apply (8,), info): info = {'cost': ensemble-mean cost of every candidate of
+    the last iteration (N,), 'models_twr': the K models' thrust-to-weight (K,)}."""
     _, horizon = cfg.steps(sim.config.dt)
     k_models, k_cem = jax.random.split(key)
     zhat = low.latent(carry.low) if hasattr(low, "latent") else None
-    thetas = draw_models(method, k_models, theta_true, zhat, dec, dec_cfg, cfg)
+    if isinstance(method, str):
+        thetas = draw_models(method, k_models, theta_true, zhat, dec, dec_cfg, cfg)
+    else:
+        _, fns = _model_sources(dec_cfg, cfg)
+        thetas = P.project_valid_jax(jax.lax.switch(method, fns, k_models, theta_true, zhat, dec))
 
     def cost_one(theta, g):
         return rollout_cost(predict(sim, theta, low, g, max_rate, ref, carry, motor_norm, start, horizon),
@@ -189,14 +209,14 @@ def _start(sim: Quadrotor, low_axes_def, low_axes_leaves):
 
 
 @functools.lru_cache(maxsize=16)
-def _update(sim: Quadrotor, method: str, cfg: TunerConfig, dec_cfg, low_axes_def, low_axes_leaves):
+def _update(sim: Quadrotor, cfg: TunerConfig, dec_cfg, low_axes_def, low_axes_leaves):
     low_axes = jax.tree_util.tree_unflatten(low_axes_def, low_axes_leaves)
 
-    def one(low, dec, theta_true, ref, carry, motor_norm, max_rate, start, state, key):
+    def one(method, low, dec, theta_true, ref, carry, motor_norm, max_rate, start, state, key):
         return tuner_update(sim, low, method, cfg, dec, dec_cfg, theta_true, ref, carry, motor_norm,
                             max_rate, start, state, key)
 
-    return jax.jit(jax.vmap(one, in_axes=(low_axes, None, 0, 0, 0, 0, None, None, 0, 0)))
+    return jax.jit(jax.vmap(one, in_axes=(None, low_axes, None, 0, 0, 0, 0, None, None, 0, 0)))
 
 
 def _axes(low):
@@ -209,19 +229,24 @@ class OnlineTuner:
 
     ``update(low, theta_true (B, 19), ref (batched), carry (batched), motor_norm (B, 4), start,
     state (batched CEMState), key)`` -> (state, gains (B, 8), info). The decoder (a
-    :class:`~mjxsysid.cfm.sample.Decoder` of kind 'cfm') is needed for ``method='cfm'`` only.
+    :class:`~mjxsysid.cfm.sample.Decoder` of kind 'cfm') is needed for ``method='cfm'``; with
+    one, every method shares one compiled update (the method is a runtime switch).
     """
 
     def __init__(self, sim: Quadrotor, method: str, cfg: TunerConfig = TunerConfig(), decoder=None,
                  max_rate: float = 12.0):
         if method not in CEM_METHODS:
             raise ValueError(f"unknown tuner method {method!r}; choose from {CEM_METHODS}")
-        if method == "cfm":
-            if decoder is None or decoder.kind != "cfm":
-                raise ValueError("method 'cfm' needs a CFM decoder (Decoder of kind 'cfm')")
+        if decoder is not None:
+            if decoder.kind != "cfm":
+                raise ValueError(f"the tuner needs a CFM decoder (kind 'cfm'), got {decoder.kind!r}")
             self.dec, self.dec_cfg = DecoderArgs(decoder.params, decoder.normalizer), decoder.cfg
+        elif method == "cfm":
+            raise ValueError("method 'cfm' needs a CFM decoder (Decoder of kind 'cfm')")
         else:
             self.dec, self.dec_cfg = None, None
+        names, _ = _model_sources(self.dec_cfg, cfg)
+        self.index = jnp.int32(names.index(method))
         self.sim, self.method, self.cfg, self.max_rate = sim, method, cfg, jnp.float32(max_rate)
 
     def init(self, n: int) -> CEMState:
@@ -229,9 +254,9 @@ class OnlineTuner:
         return jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), s)
 
     def update(self, low, theta_true, ref, carry, motor_norm, start, state, key):
-        fn = _update(self.sim, self.method, self.cfg, self.dec_cfg, *_axes(low))
+        fn = _update(self.sim, self.cfg, self.dec_cfg, *_axes(low))
         n = theta_true.shape[0]
-        return fn(low, self.dec, jnp.asarray(theta_true, jnp.float32), ref, carry, motor_norm,
+        return fn(self.index, low, self.dec, jnp.asarray(theta_true, jnp.float32), ref, carry, motor_norm,
                   self.max_rate, jnp.int32(start), state, jax.random.split(key, n))
 
 

@@ -1,0 +1,179 @@
+"""Fly the same vehicles under every tuning method and compare (``mjxsysid tune``, the
+``tune-*`` experiments): fixed ``naive`` / ``baseline`` gains and the online CEM tuner on the
+decoded ensemble (``cfm``), on ±20 % perturbations of the paper vehicle (``nominal_cem``) and on
+the true θ (``oracle_cem``). Every method flies the identical noise and disturbance realisation.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from mjxsysid import params as P
+from mjxsysid.analysis.flight import broadcast
+from mjxsysid.analysis.harness import Disturbance, metrics, metrics_to_host, summarize
+from mjxsysid.control.high_level import GAIN_NAMES
+from mjxsysid.sim import Quadrotor, SimConfig
+from mjxsysid.tune.tuner import CEM_METHODS, METHOD_LABELS, METHODS, TunedFlight, TunerConfig, fly_tuned
+
+RESULT_KEYS = {"naive": "naive", "baseline": "baseline", "cfm": "cfm_tuned", "nominal_cem": "nominal_cem",
+               "oracle_cem": "oracle_cem"}
+"""method -> key in metrics.json / results.json."""
+PER_VEHICLE = ("pos_rmse_m", "max_pos_err_m", "heading_rmse_deg", "saturation_frac", "failed")
+
+
+def check_methods(methods) -> tuple[str, ...]:
+    methods = tuple(methods)
+    bad = [m for m in methods if m not in METHODS]
+    if bad or not methods:
+        raise ValueError(f"unknown method(s) {bad or methods}; choose from {METHODS}")
+    return methods
+
+
+def compare_methods(theta, refs, *, steps: int, methods=METHODS, cfg: TunerConfig = TunerConfig(),
+                    policy="mjxsysid", decoder=None, sim: Quadrotor | None = None,
+                    disturbance: Disturbance | None = None, seed: int = 0, log=None,
+                    progress: bool = False) -> dict:
+    """Fly θ (B, 19) on the batched references ``refs`` for ``steps`` control steps under each
+    method. ``policy``: a name/path/:class:`~mjxsysid.policy.interface.PolicyRef` of the frozen
+    low-level policy; ``decoder``: its CFM (default: the policy's shipped one; needed for 'cfm').
+
+    Returns {method: {'metrics': per-vehicle dict of lists, 'summary': harness.summarize
+    (success rate and mean/std/median over successful flights), 'tuned': TunedFlight,
+    'wall_s': float}}.
+    """
+    from mjxsysid.policy.interface import resolve_policy
+    methods = check_methods(methods)
+    theta = P.validate_theta(P.as_batch(theta))
+    b = theta.shape[0]
+    sim = sim or Quadrotor(SimConfig())
+    ref = resolve_policy(policy)
+    low = ref.batched(b)
+    if decoder is None and any(m in CEM_METHODS for m in methods):
+        # With a decoder every CEM method shares one compiled update; it is required for 'cfm'.
+        from mjxsysid.analysis.decode import load_decoders
+        try:
+            decoder = load_decoders(policy=ref, warn=log)[0]
+        except FileNotFoundError:
+            if "cfm" in methods:
+                raise
+    dist = disturbance if disturbance is not None else broadcast(Disturbance.make(), b)
+    key = jax.random.PRNGKey(seed)
+    out = {}
+    for m in methods:
+        t0 = time.time()
+        bar = _bar(progress, m, -(-steps // cfg.steps(sim.config.dt)[0]))
+        tf = fly_tuned(sim, theta, low, refs, dist, m, key, steps, cfg=cfg, decoder=decoder,
+                       progress=(lambda d, n: bar.update(1)) if bar else None)
+        if bar:
+            bar.close()
+        mm = jax.vmap(metrics)(tf.flight)
+        out[m] = {"metrics": metrics_to_host(mm), "summary": summarize(mm), "tuned": tf,
+                  "wall_s": time.time() - t0}
+        if log:
+            s = out[m]["summary"]
+            log(f"{METHOD_LABELS[m]:>12}: success {s['success_rate']:.0%}, pos RMSE "
+                f"{_ms(s['pos_rmse_m'])} m, max {_ms(s['max_pos_err_m'])} m, heading "
+                f"{_ms(s['heading_rmse_deg'])} deg ({out[m]['wall_s']:.0f} s)")
+    return out
+
+
+def _bar(enabled: bool, method: str, total: int):
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+    return tqdm(total=total, desc=f"{METHOD_LABELS[method]} updates", leave=False, unit="seg")
+
+
+def _ms(d):
+    return "–" if d["mean"] is None else f"{d['mean']:.3f} ± {d['std']:.3f}"
+
+
+def results_dict(res: dict, index: int | None = None) -> dict:
+    """JSON-ready metrics per method (keys of :data:`RESULT_KEYS`): for one vehicle
+    (``index``) the per-vehicle values, else the summary plus per-vehicle lists; with the
+    applied gains at the end of the flight."""
+    out = {}
+    for m, r in res.items():
+        if index is not None:
+            d = {k: (r["metrics"][k][index] if isinstance(r["metrics"][k], list) else r["metrics"][k])
+                 for k in PER_VEHICLE}
+            d["failed"] = bool(d["failed"])
+            d["final_gains"] = dict(zip(GAIN_NAMES, np.asarray(r["tuned"].gains[index, -1]).round(4).tolist()))
+        else:
+            d = dict(r["summary"])
+            d["per_vehicle"] = {k: r["metrics"][k] for k in PER_VEHICLE}
+            d["final_gains_mean"] = dict(zip(GAIN_NAMES, np.asarray(r["tuned"].gains[:, -1]).mean(0).round(4).tolist()))
+        d["wall_s"] = round(r["wall_s"], 2)
+        out[RESULT_KEYS[m]] = d
+    return out
+
+
+def plot_gains(res: dict, path, *, title: str = "") -> Path:
+    """Gains over time of every CEM method (mean over vehicles, 5–95 % band if several)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mjxsysid.control.high_level import GAIN_BOUNDS, PRESETS
+    fig, axes = plt.subplots(2, 4, figsize=(14, 5.5), sharex=True)
+    for j, ax in enumerate(axes.ravel()):
+        for m, r in res.items():
+            tf: TunedFlight = r["tuned"]
+            g = tf.gains[..., j]                      # (B, U)
+            t = tf.update_times
+            if m in CEM_METHODS:
+                line, = ax.step(t, g.mean(0), where="post", label=METHOD_LABELS[m])
+                if g.shape[0] > 1:
+                    lo, hi = np.percentile(g, [5, 95], 0)
+                    ax.fill_between(t, lo, hi, step="post", alpha=0.15, color=line.get_color())
+        for name, ls in (("naive", ":"), ("baseline", "--")):
+            ax.axhline(PRESETS[name][j], color="k", ls=ls, lw=0.8, label=name if j == 0 else None)
+        ax.set_ylim(GAIN_BOUNDS[j, 0] - 0.05 * GAIN_BOUNDS[j, 1], GAIN_BOUNDS[j, 1] * 1.05)
+        ax.set_title(GAIN_NAMES[j])
+        if j >= 4:
+            ax.set_xlabel("time (s)")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(title or "high-level gains applied over time")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
+def plot_tracking(res: dict, path, *, index: int = 0, title: str = "") -> Path:
+    """Position error over time per method (vehicle ``index``; mean and 5–95 % over vehicles
+    if several) and the x–y path of vehicle ``index``."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, (a0, a1) = plt.subplots(1, 2, figsize=(13, 4.8), gridspec_kw={"width_ratios": [1.6, 1]})
+    ref_drawn = False
+    for m, r in res.items():
+        fl = r["tuned"].flight
+        err = np.linalg.norm(fl.frame.pos - fl.ref_pos, axis=-1)    # (B, T)
+        t = fl.time[0]
+        if err.shape[0] > 1:
+            line, = a0.plot(t, np.median(err, 0), label=f"{METHOD_LABELS[m]} (median)")
+            lo, hi = np.percentile(err, [5, 95], 0)
+            a0.fill_between(t, lo, hi, alpha=0.12, color=line.get_color())
+        else:
+            a0.plot(t, err[0], label=METHOD_LABELS[m])
+        if not ref_drawn:
+            a1.plot(fl.ref_pos[index, :, 0], fl.ref_pos[index, :, 1], "k--", lw=1, label="reference")
+            ref_drawn = True
+        a1.plot(fl.frame.pos[index, :, 0], fl.frame.pos[index, :, 1], lw=1, label=METHOD_LABELS[m])
+    a0.set_xlabel("time (s)")
+    a0.set_ylabel("position error (m)")
+    a0.set_yscale("log")
+    a0.legend(fontsize=8)
+    a1.set_aspect("equal", "datalim")
+    a1.set_xlabel("x (m)")
+    a1.set_ylabel("y (m)")
+    a1.legend(fontsize=7)
+    fig.suptitle(title or "tracking")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
