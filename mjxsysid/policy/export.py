@@ -397,10 +397,11 @@ def describe(paths: dict, *, ref, phi_every: int, opset: int) -> dict:
     }
 
 
-def run_export(ref, out, cfg: ExportConfig = ExportConfig(), log=print) -> dict:
+def run_export(ref, out, cfg: ExportConfig = ExportConfig(), log=print, rec: Recording | None = None) -> dict:
     """Write the fixed and dynamic-batch ONNX files, the test vectors and the JSON for the
     mjxsysid policy ``ref`` (a PolicyRef), check them in onnxruntime against the JAX controller
-    on a recorded flight, time them. Returns the JSON dict (with ``parity`` and ``latency``)."""
+    on a recorded flight (``rec``, else :func:`record_flight`), time them. Returns the JSON dict
+    (with ``parity`` and ``latency``)."""
     if ref.kind != "mjxsysid":
         raise ValueError(f"export writes mjxsysid's own policy; --policy {ref.kind} is not exportable "
                          "(the released Xadap policy already is ONNX: encoder.onnx, mlp.onnx)")
@@ -418,8 +419,9 @@ def run_export(ref, out, cfg: ExportConfig = ExportConfig(), log=print) -> dict:
         log(f"wrote {paths[key]} ({paths[key].stat().st_size / 1e3:.0f} kB)")
     desc["export_s"] = round(time.time() - t0, 1)
 
-    log(f"flying the paper vehicle {cfg.flight_seconds} s ({cfg.reference}) to record inputs")
-    rec = record_flight(ref, cfg)
+    if rec is None:
+        log(f"flying the paper vehicle {cfg.flight_seconds} s ({cfg.reference}) to record inputs")
+        rec = record_flight(ref, cfg)
     np.savez_compressed(paths["testvectors"], imu=rec.imu, command=rec.command, reset=rec.reset,
                         refresh=rec.refresh, motor=rec.motor, latent_next=rec.latent_next)
     fixed, dynamic = session(paths["fixed"], cfg.threads), session(paths["dynamic"], cfg.threads)
