@@ -60,7 +60,13 @@ def test_export_writes_both_files_and_a_complete_description(exported):
     assert meta["parity"]["ok"] and meta["parity"]["max_abs_diff"] <= TOL
     assert meta["parity"]["refresh_steps"] == 5  # 0.1 s = 50 steps, ẑ refreshed every 10th
     lat = meta["latency"]["batch_1"]
-    assert 0 < lat["step_us"]["median_us"] < lat["refresh_step_us"]["median_us"]  # φ only when refreshed
+    assert lat["step_us"]["median_us"] > 0 and lat["refresh_step_us"]["median_us"] > 0
+    # φ (the convolutions) lives only inside the If on `refresh`, so other steps skip it
+    g = onnx.load(out).graph
+    assert "Conv" not in {n.op_type for n in g.node}
+    (cond,) = [n for n in g.node if n.op_type == "If" and n.input[0] == "refresh"]
+    branches = {a.name: {n.op_type for n in a.g.node} for a in cond.attribute}
+    assert "Conv" in branches["then_branch"] and "Conv" not in branches["else_branch"]
     # the documented names, shapes and dtypes are the graphs' own
     dt = {1: "float32", 9: "bool"}
     for file, key, b in ((out, "shape", 1), (out.parent / "policy_dynamic.onnx", "dynamic_shape", "B")):
