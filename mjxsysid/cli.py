@@ -7,6 +7,7 @@
     mjxsysid fly --prior default --vehicles 100 --controller oracle ...   a batch from the prior
     mjxsysid fly --policy xadap --weights DIR ...   any frozen latent policy (NAME or a path)
     mjxsysid collect | train-cfm | evaluate-decoder | decode | replay | demo  [--policy NAME|PATH]
+    mjxsysid export [--weights policy.npz] --out policy.onnx   the policy as ONNX, checked in onnxruntime
 
 Policies: ``--policy mjxsysid`` (the shipped one; the default), ``--policy xadap --weights DIR``
 (the released Extreme-Adaptation policy: its folder or a converted .npz; $MJXSYSID_XADAP_DIR is
@@ -189,6 +190,13 @@ def build_parser() -> argparse.ArgumentParser:
     ex.add_argument("--seed", type=int, default=0)
     _add_policy(ex)
     ex.add_argument("--out", type=Path, required=True)
+    xp = sub.add_parser("export", help="write the policy as ONNX (fixed batch 1 + dynamic batch), check it in onnxruntime")
+    _add_policy(xp, "the policy to export")
+    xp.add_argument("--out", type=Path, required=True,
+                    help="NAME.onnx (batch 1); also writes NAME_dynamic.onnx, NAME.onnx.json, NAME_testvectors.npz")
+    xp.add_argument("--seconds", type=_positive, default=0.5,
+                    help="closed-loop flight of the paper vehicle whose inputs check the files (default 0.5)")
+    xp.add_argument("--calls", type=int, default=2000, help="onnxruntime calls per latency median (default 2000)")
     return p
 
 
@@ -517,12 +525,48 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_export(args) -> int:
+    from mjxsysid.policy.export import ExportConfig, check_out
+    check_out(args.out)
+    if args.calls < 10:
+        raise ValueError(f"--calls must be >= 10, got {args.calls}")
+    if args.seconds < 0.1:
+        raise ValueError(f"--seconds must be >= 0.1 (the check needs ẑ refreshes), got {args.seconds}")
+    ref = _policy_ref(args)
+    if ref.kind != "mjxsysid":
+        raise ValueError(f"--policy {ref.kind}: the released Xadap policy already is ONNX (encoder.onnx, "
+                         f"mlp.onnx); export writes mjxsysid's own policy")
+    try:
+        import jax2onnx  # noqa: F401
+        import onnxruntime  # noqa: F401
+    except ImportError as e:
+        raise ValueError(f"export needs jax2onnx and onnxruntime ({e.name} missing): "
+                         f"pip install 'mjxsysid[export]'") from None
+    from mjxsysid.policy.export import run_export
+    cfg = ExportConfig(flight_seconds=args.seconds, latency_calls=args.calls)
+    d = run_export(ref, args.out, cfg, log=lambda m: print(m, file=sys.stderr, flush=True))
+    par, lat = d["parity"], d["latency"]["batch_1"]
+    print(json.dumps({"max_abs_diff": par["max_abs_diff"], "parity_ok": par["ok"],
+                      "latency_us_batch1": lat["step_us"]["median_us"],
+                      "latency_us_batch1_refresh": lat["refresh_step_us"]["median_us"],
+                      "latency_us_batch1_mean": lat["mean_per_step_us"]}))
+    print(f"onnxruntime vs JAX controller on {par['steps']} recorded steps: max abs diff "
+          f"{par['max_abs_diff']:.2e} (target <= {par['tolerance']:g}); latency per step, batch 1: "
+          f"{lat['step_us']['median_us']:.1f} µs, with the ẑ refresh {lat['refresh_step_us']['median_us']:.1f} µs "
+          f"(median of {args.calls}; {d['latency']['runtime']})", file=sys.stderr)
+    if not par["ok"]:
+        print(f"mjxsysid export: parity target missed ({par['max_abs_diff']:.2e} > {par['tolerance']:g})",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy,
                 "evaluate-policy": cmd_evaluate_policy, "collect": cmd_collect,
                 "train-cfm": cmd_train_cfm, "evaluate-decoder": cmd_evaluate_decoder, "decode": cmd_decode,
-                "replay": cmd_replay, "experiment": cmd_experiment,
+                "replay": cmd_replay, "experiment": cmd_experiment, "export": cmd_export,
                 "tune": cmd_tune}
     try:
         return handlers[args.command](args)

@@ -1,0 +1,456 @@
+"""mjxsysid's trained policy as ONNX, for a robot (``mjxsysid export``, issue 12 §1).
+
+The exported graph is **one 500 Hz step** of :class:`~mjxsysid.policy.controller.PolicyController`,
+with the policy's memory passed in and out explicitly (like an RNN cell), so the robot keeps two
+arrays and nothing else::
+
+    inputs   imu (B, 6)            gyro [rad/s] (3), specific force [m/s²] (3), body frame FLU
+             command (B, 4)        a_cmd [m/s², collective thrust / mass], ω_cmd [rad/s] (3)
+             history (B, 100, 14)  policy memory (feed back ``history_next``; zeros with reset)
+             latent (B, 8)         held ẑ (feed back ``latent_next``; zeros at the start)
+             reset (B,) bool       first step of a flight: history := first observation repeated
+             refresh () bool       ẑ := φ(history_next) after this step (every ``phi_every``-th)
+    outputs  motor (B, 4)          Ω_cmd/Ω_max ∈ [0, 1], mjxsysid's rotor order
+             latent_next (B, 8)    φ(history_next) if refresh else latent
+             history_next (B, 100, 14)
+
+Inside: observation = fixed affine scaling of [imu, command] (:func:`normalisation`), policy
+state s = [obs, previous raw action] (the previous action is the last row of ``history``),
+r = π(s, latent) (deterministic mean), motor = clip((r + 1)/2, 0, 1), history push, then φ under
+an ONNX ``If`` on ``refresh``, so φ costs nothing on the other steps.
+
+Why one graph with ẑ in and out rather than φ and π as separate files: the controller's timing
+(π at step t uses the ẑ refreshed after step t − 1 at the latest; φ reads the history *after* the
+push) is then reproduced exactly by a loop that only feeds outputs back and sets ``refresh`` on
+every ``phi_every``-th step; the robot never builds the history or scales an observation itself,
+and still pays for φ only when it runs.
+
+The conversion uses jax2onnx (the same :mod:`mjxsysid.policy.networks` functions the controller
+runs, weights as initializers); :func:`run_export` then checks the files in onnxruntime against
+the JAX controller on inputs recorded in a closed-loop flight, and times them.
+"""
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import json
+import logging
+import platform
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxsysid.policy import networks as N
+
+INPUTS = ("imu", "command", "history", "latent", "reset", "refresh")
+OUTPUTS = ("motor", "latent_next", "history_next")
+OPSET = 17  # TensorRT 8.5+ (JetPack 5), onnxruntime ≥ 1.13
+OBS_FIELDS = ("gyro_x", "gyro_y", "gyro_z", "specific_force_x", "specific_force_y", "specific_force_z",
+              "a_cmd", "omega_cmd_x", "omega_cmd_y", "omega_cmd_z")
+MOTOR_ORDER = ("1 front-right (CCW)", "2 front-left (CW)", "3 back-left (CCW)", "4 back-right (CW)")
+
+
+@dataclasses.dataclass(frozen=True)
+class ExportConfig:
+    """flight_seconds: closed-loop flight of the paper vehicle whose inputs check the files;
+    reference/period: its reference; latency_calls: onnxruntime calls per timing (median);
+    threads: onnxruntime intra-op threads (1: one core, as on an embedded computer);
+    tolerance: parity target (max abs difference to the JAX controller)."""
+    flight_seconds: float = 0.5
+    reference: str = "lemniscate"
+    period: float = 10.0
+    latency_calls: int = 2000
+    threads: int = 1
+    tolerance: float = 1e-5
+    opset: int = OPSET
+
+
+def paths_for(out) -> dict:
+    """``--out DIR/NAME.onnx`` -> the files written: fixed batch 1 (``NAME.onnx``), dynamic batch
+    (``NAME_dynamic.onnx``), the description (``NAME.onnx.json``), the test vectors
+    (``NAME_testvectors.npz``)."""
+    out = Path(out)
+    stem = out.with_suffix("")
+    return {"fixed": out, "dynamic": stem.with_name(stem.name + "_dynamic.onnx"),
+            "json": out.with_name(out.name + ".json"),
+            "testvectors": stem.with_name(stem.name + "_testvectors.npz")}
+
+
+def check_out(out) -> Path:
+    """Validate ``--out`` before any work: a ``.onnx`` file name whose folder exists or can be
+    made, not a folder itself. Raises ValueError naming the path."""
+    out = Path(out)
+    if out.suffix != ".onnx":
+        raise ValueError(f"--out must be a file name ending in .onnx, got {out}")
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a folder; give a file name ending in .onnx")
+    parent = out.parent
+    for p in (parent, *parent.parents):
+        if p.exists():
+            if not p.is_dir():
+                raise ValueError(f"--out {out}: {p} exists and is not a folder")
+            break
+    return out
+
+
+def policy_step(params, imu, command, history, latent, reset, refresh):
+    """One step of the policy on a batch (the exported graph).
+
+    params: {'phi', 'pi', ...} of :class:`~mjxsysid.policy.networks.Networks`; imu (B, 6);
+    command (B, 4) [a_cmd, ω_cmd]; history (B, 100, 14); latent (B, 8); reset (B,) bool;
+    refresh () bool. Returns motor (B, 4), latent_next (B, 8), history_next (B, 100, 14).
+    Equal to :meth:`PolicyController.step_at` with carry (history, last_raw = history[-1, 10:],
+    zhat = latent, started = ~reset) and refresh = (index + 1) % phi_every == 0.
+    """
+    nets = N.Networks()
+    obs = N.observation(imu, command[..., 0], command[..., 1:4])
+    history = jnp.where(reset[..., None, None], N.initial_history(obs), history)
+    s = jnp.concatenate([obs, history[..., -1, N.OBS:]], -1)
+    raw, _ = nets.act(params, s, latent)
+    history = N.push_history(history, obs, raw)
+    latent = jax.lax.cond(refresh, lambda h: nets.adapt(params, h), lambda h: latent, history)
+    return N.to_motor(raw), latent, history
+
+
+def normalisation() -> dict:
+    """The observation's affine scaling, read off :func:`networks.observation`:
+    obs = (x − shift) / scale, x = [gyro (3), specific force (3), a_cmd, ω_cmd (3)]."""
+    def obs(x):
+        return np.asarray(N.observation(x[:6], x[6], x[7:10]), np.float64)
+    x0 = np.zeros(N.OBS, np.float32)
+    o0 = obs(x0)
+    jac = np.stack([obs(np.eye(N.OBS, dtype=np.float32)[i]) - o0 for i in range(N.OBS)], 1)
+    if not np.allclose(jac, np.diag(np.diag(jac)), atol=1e-7):
+        raise AssertionError("observation scaling is not per-field")
+    scale = 1.0 / np.diag(jac)
+    shift = -o0 * scale
+    return {"fields": list(OBS_FIELDS), "shift": [round(float(v), 5) + 0.0 for v in shift],
+            "scale": [round(float(v), 5) for v in scale],
+            "formula": "obs = (x - shift) / scale; x = [imu, command]"}
+
+
+def _if_subgraph_cleanup(model):
+    """Drop initializers of If branches that no node reads (jax2onnx leaves shape constants
+    there; onnxruntime warns about each)."""
+    def used(graph) -> set:
+        names = set()
+        for node in graph.node:
+            names.update(node.input)
+            for a in node.attribute:
+                for g in ([a.g] if a.HasField("g") else []) + list(a.graphs):
+                    names |= used(g)
+        names.update(o.name for o in graph.output)
+        return names
+
+    def clean(graph):
+        for node in graph.node:
+            for a in node.attribute:
+                for g in ([a.g] if a.HasField("g") else []) + list(a.graphs):
+                    keep = [t for t in g.initializer if t.name in used(g)]
+                    del g.initializer[:]
+                    g.initializer.extend(keep)
+                    clean(g)
+    clean(model.graph)
+    return model
+
+
+def to_onnx_model(params, *, batch, opset: int = OPSET, metadata: dict | None = None):
+    """The ONNX ModelProto of :func:`policy_step` with ``params`` as initializers; batch an int
+    (fixed) or a name (dynamic axis)."""
+    import types
+
+    from jax2onnx import to_onnx
+    params = jax.tree.map(lambda a: np.asarray(a, np.float32), params)
+
+    def spec(shape, dtype=np.float32):
+        return types.SimpleNamespace(shape=shape, dtype=np.dtype(dtype))
+
+    b = batch
+    # jax2onnx's IR logs a warning per intermediate value whose shape it leaves symbolic.
+    quiet = logging.getLogger("onnx_ir.serde")
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        model = to_onnx(lambda *a: policy_step(params, *a),
+                        [spec((b, 6)), spec((b, 4)), spec((b, N.HISTORY, N.STATE)), spec((b, N.LATENT)),
+                         spec((b,), bool), spec((), bool)],
+                        model_name="mjxsysid_policy_step", opset=opset,
+                        input_names=list(INPUTS), output_names=list(OUTPUTS))
+    finally:
+        quiet.setLevel(level)
+    model = _if_subgraph_cleanup(model)
+    model.doc_string = ("mjxsysid adaptive quadrotor policy, one 500 Hz step (adaptation module φ and "
+                        "policy π); see the .onnx.json beside this file")
+    for k, v in (metadata or {}).items():
+        e = model.metadata_props.add()
+        e.key, e.value = str(k), str(v)
+    import onnx
+    onnx.checker.check_model(model, full_check=True)
+    return model
+
+
+class Recording(NamedTuple):
+    """Inputs of every step of a recorded flight (T steps) and the JAX controller's state and
+    outputs there: imu (T, 6), command (T, 4), reset (T,), refresh (T,), history (T, 100, 14)
+    and latent (T, 8) before the step; motor (T, 4), latent_next (T, 8), history_next (T, 100, 14)
+    after; flown_motor (T, 4), flown_latent (T, 8) as the closed-loop flight recorded them."""
+    imu: np.ndarray
+    command: np.ndarray
+    reset: np.ndarray
+    refresh: np.ndarray
+    history: np.ndarray
+    latent: np.ndarray
+    motor: np.ndarray
+    latent_next: np.ndarray
+    history_next: np.ndarray
+    flown_motor: np.ndarray
+    flown_latent: np.ndarray
+
+
+def controller_steps(ctrl, imu, command):
+    """Run :class:`PolicyController` step by step on given inputs from its initial state:
+    imu (T, 6), command (T, 4) -> dict of its state before (history, latent, started) and its
+    outputs after each step (motor, latent_next, history_next), each with leading axis T."""
+    from mjxsysid.control.low_level import Command
+
+    def body(carry, x):
+        i, u, c = x
+        new, motor = ctrl.step_at(carry, u, Command(c[0], c[1:4]), i)
+        return new, dict(history=carry.history, latent=carry.zhat, started=carry.started,
+                         motor=motor, latent_next=new.zhat, history_next=new.history)
+
+    t = imu.shape[0]
+    xs = (jnp.arange(t), jnp.asarray(imu, jnp.float32), jnp.asarray(command, jnp.float32))
+    out = jax.jit(lambda xs: jax.lax.scan(body, ctrl.init(), xs)[1])(xs)
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+def record_flight(ref, cfg: ExportConfig = ExportConfig(), seed: int = 0) -> Recording:
+    """Fly the paper vehicle with the policy ``ref`` (a PolicyRef) in the closed loop, then
+    rebuild the inputs the controller saw at every step and its state there."""
+    from mjxsysid import params as P
+    from mjxsysid.analysis.flight import fly_vehicles, one_flight, seen_imu
+    fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference=cfg.reference,
+                            period=cfg.period, duration=cfg.flight_seconds, seed=seed)
+    f = one_flight(fl)
+    imu = seen_imu(f.frame.imu)
+    command = np.concatenate([np.asarray(f.a_cmd)[:, None], np.asarray(f.omega_cmd)], -1).astype(np.float32)
+    ctrl = ref.load()
+    s = controller_steps(ctrl, imu, command)
+    t = np.arange(imu.shape[0])
+    return Recording(imu=imu, command=command, reset=~s["started"], refresh=(t + 1) % ctrl.phi_every == 0,
+                     history=s["history"], latent=s["latent"], motor=s["motor"],
+                     latent_next=s["latent_next"], history_next=s["history_next"],
+                     flown_motor=np.asarray(f.frame.motor_cmd), flown_latent=np.asarray(f.latent))
+
+
+def session(path, threads: int = 1):
+    """An onnxruntime CPU session with ``threads`` intra-op threads."""
+    import onnxruntime as ort
+    so = ort.SessionOptions()
+    so.intra_op_num_threads = int(threads)
+    so.inter_op_num_threads = 1
+    return ort.InferenceSession(str(path), so, providers=["CPUExecutionProvider"])
+
+
+def feeds(rec: Recording, idx, refresh: bool | None = None) -> dict:
+    """Input dict for the steps ``idx`` (an index array: a batch of teacher-forced steps) of a
+    recording; ``refresh`` as recorded (the steps must then share it) unless given."""
+    idx = np.atleast_1d(idx)
+    if refresh is None:
+        if rec.refresh[idx].min() != rec.refresh[idx].max():
+            raise ValueError("steps of one batch must share refresh")
+        refresh = rec.refresh[idx][0]
+    return {"imu": rec.imu[idx], "command": rec.command[idx], "history": rec.history[idx],
+            "latent": rec.latent[idx], "reset": rec.reset[idx], "refresh": np.array(bool(refresh))}
+
+
+def run_chain(sess, rec: Recording):
+    """Run a batch-1 session over the whole recording from reset, feeding its own outputs back
+    (free running, as on the robot). Returns motor (T, 4), latent_next (T, 8)."""
+    history = np.zeros((1, N.HISTORY, N.STATE), np.float32)
+    latent = np.zeros((1, N.LATENT), np.float32)
+    motors, latents = [], []
+    for t in range(rec.imu.shape[0]):
+        motor, latent, history = sess.run(None, {
+            "imu": rec.imu[t:t + 1], "command": rec.command[t:t + 1], "history": history,
+            "latent": latent, "reset": np.array([t == 0]), "refresh": np.array(bool(rec.refresh[t]))})
+        motors.append(motor[0])
+        latents.append(latent[0])
+    return np.stack(motors), np.stack(latents)
+
+
+def _maxabs(a, b) -> float:
+    return float(np.max(np.abs(np.asarray(a, np.float64) - np.asarray(b, np.float64))))
+
+
+def parity(fixed, dynamic, rec: Recording, params) -> dict:
+    """Max abs differences of the ONNX sessions to the JAX controller on a recording.
+
+    teacher_forced: the batch-1 file fed the controller's own state at every step;
+    free_running: the batch-1 file feeding its outputs back over the whole flight;
+    dynamic_batch: the dynamic file on all steps at once (refresh false: motor and history;
+    refresh true: latent against φ(history_next) of every step);
+    rebuild_vs_flight: the controller re-run on the rebuilt inputs vs the motor commands and
+    latents the closed-loop flight recorded (checks the rebuild, not ONNX).
+    """
+    t = rec.imu.shape[0]
+    m = np.zeros((t, N.ACT), np.float32)
+    z = np.zeros((t, N.LATENT), np.float32)
+    h = np.zeros((t, N.HISTORY, N.STATE), np.float32)
+    for i in range(t):
+        m[i], z[i], h[i] = (o[0] for o in fixed.run(None, feeds(rec, i)))
+    tf = {"motor": _maxabs(m, rec.motor), "latent": _maxabs(z, rec.latent_next),
+          "history": _maxabs(h, rec.history_next)}
+    fm, fz = run_chain(fixed, rec)
+    fr = {"motor": _maxabs(fm, rec.motor), "latent": _maxabs(fz, rec.latent_next)}
+    f = feeds(rec, np.arange(t), refresh=False)
+    dm, dz0, dh = dynamic.run(None, f)
+    _, dz1, _ = dynamic.run(None, f | {"refresh": np.array(True)})
+    phi = np.asarray(jax.jit(N.Networks().adapt)(params, jnp.asarray(rec.history_next)))
+    db = {"batch": t, "motor": _maxabs(dm, rec.motor), "history": _maxabs(dh, rec.history_next),
+          "latent_held": _maxabs(dz0, rec.latent), "latent_phi": _maxabs(dz1, phi)}
+    rb = {"motor": _maxabs(rec.motor, rec.flown_motor), "latent": _maxabs(rec.latent_next, rec.flown_latent)}
+    worst = max(*tf.values(), *fr.values(), *(v for k, v in db.items() if k != "batch"))
+    return {"steps": t, "refresh_steps": int(rec.refresh.sum()), "teacher_forced": tf, "free_running": fr,
+            "dynamic_batch": db, "rebuild_vs_flight": rb, "max_abs_diff": worst}
+
+
+def latency(sess, inputs: dict, calls: int = 2000, warmup: int = 50) -> dict:
+    """Median and 90th percentile (µs) of ``sess.run`` on ``inputs`` over ``calls`` calls."""
+    for _ in range(warmup):
+        sess.run(None, inputs)
+    ts = np.empty(calls)
+    for i in range(calls):
+        t0 = time.perf_counter_ns()
+        sess.run(None, inputs)
+        ts[i] = time.perf_counter_ns() - t0
+    return {"median_us": round(float(np.median(ts)) / 1e3, 2), "p90_us": round(float(np.percentile(ts, 90)) / 1e3, 2),
+            "calls": int(calls)}
+
+
+def step_latency(sess, rec: Recording, batch: int, calls: int, phi_every: int) -> dict:
+    """Per-call latency of a session at ``batch`` on recorded steps: plain steps, steps with the
+    ẑ refresh, and the mean over one refresh cycle ((phi_every − 1) plain + 1 refresh)."""
+    idx = np.resize(np.flatnonzero(~rec.refresh & ~rec.reset), batch)
+    f = feeds(rec, idx, refresh=False)
+    plain = latency(sess, f, calls)
+    refresh = latency(sess, f | {"refresh": np.array(True)}, calls)
+    cycle = ((phi_every - 1) * plain["median_us"] + refresh["median_us"]) / phi_every
+    return {"batch": batch, "step_us": plain, "refresh_step_us": refresh, "mean_per_step_us": round(cycle, 2)}
+
+
+def describe(paths: dict, *, ref, phi_every: int, opset: int) -> dict:
+    """The JSON written beside the .onnx (without the measured numbers)."""
+    import importlib.metadata
+    nz = normalisation()
+
+    def io(name, shape, dtype, what):
+        fixed = [1 if d == "B" else d for d in shape]
+        return {"name": name, "shape": fixed, "dynamic_shape": list(shape), "dtype": dtype, "what": what}
+
+    hist = f"(B, {N.HISTORY}, {N.STATE})"
+    return {
+        "what": "mjxsysid adaptive quadrotor policy: one 500 Hz step (adaptation module φ + policy π)",
+        "files": {"fixed_batch_1": paths["fixed"].name, "dynamic_batch": paths["dynamic"].name,
+                  "testvectors": paths["testvectors"].name},
+        "inputs": [
+            io("imu", ("B", 6), "float32", "gyro [rad/s] (3), specific force [m/s²] (3), body frame FLU "
+                                           "(accelerometer: +9.81 on z at hover)"),
+            io("command", ("B", 4), "float32", "a_cmd [m/s², commanded collective thrust / mass], "
+                                               "ω_cmd [rad/s] (3), body frame"),
+            io("history", ("B", N.HISTORY, N.STATE), "float32",
+               f"policy memory {hist}: last {N.HISTORY} steps of [obs (10), raw action r (4)], oldest "
+               "first; feed back history_next; anything (zeros) when reset"),
+            io("latent", ("B", N.LATENT), "float32", "held ẑ; feed back latent_next; zeros at the start"),
+            io("reset", ("B",), "bool", "true on the first step of a flight: history := the first "
+                                        "observation repeated, zero actions"),
+            io("refresh", (), "bool", f"true on steps t (from 0 at reset) with (t + 1) % {phi_every} == 0: "
+                                      "latent_next := φ(history_next); shared by the batch"),
+        ],
+        "outputs": [
+            io("motor", ("B", 4), "float32", "normalised rotor speed commands Ω_cmd/Ω_max in [0, 1], "
+                                             "motor_order"),
+            io("latent_next", ("B", N.LATENT), "float32", "φ(history_next) if refresh else latent"),
+            io("history_next", ("B", N.HISTORY, N.STATE), "float32", "history with this step's "
+                                                                     "[obs, r] appended"),
+        ],
+        "observation": nz,
+        "history_row": list(OBS_FIELDS) + ["r_1", "r_2", "r_3", "r_4"],
+        "raw_action": "r = tanh output in [-1, 1]; motor = clip((r + 1) / 2, 0, 1)",
+        "motor_order": list(MOTOR_ORDER),
+        "body_frame": "x forward, y left, z up (FLU)",
+        "rate_hz": 500.0,
+        "phi_every": phi_every,
+        "history_len": N.HISTORY,
+        "latent_dim": N.LATENT,
+        "policy": ref.kind,
+        "weights": str(ref.weights),
+        "weights_sha256": ref.sha256(),
+        "converter": f"jax2onnx {importlib.metadata.version('jax2onnx')}",
+        "jax": jax.__version__,
+        "opset": opset,
+    }
+
+
+def run_export(ref, out, cfg: ExportConfig = ExportConfig(), log=print, rec: Recording | None = None) -> dict:
+    """Write the fixed and dynamic-batch ONNX files, the test vectors and the JSON for the
+    mjxsysid policy ``ref`` (a PolicyRef), check them in onnxruntime against the JAX controller
+    on a recorded flight (``rec``, else :func:`record_flight`), time them. Returns the JSON dict
+    (with ``parity`` and ``latency``)."""
+    if ref.kind != "mjxsysid":
+        raise ValueError(f"export writes mjxsysid's own policy; --policy {ref.kind} is not exportable "
+                         "(the released Xadap policy already is ONNX: encoder.onnx, mlp.onnx)")
+    import onnx
+
+    paths = paths_for(check_out(out))
+    paths["fixed"].parent.mkdir(parents=True, exist_ok=True)
+    ctrl = ref.load()
+    desc = describe(paths, ref=ref, phi_every=ctrl.phi_every, opset=cfg.opset)
+    meta = {k: desc[k] for k in ("rate_hz", "phi_every", "weights_sha256")} | {
+        "motor_order": ", ".join(MOTOR_ORDER), "io": "see " + paths["json"].name}
+    t0 = time.time()
+    for key, batch in (("fixed", 1), ("dynamic", "B")):
+        onnx.save(to_onnx_model(ctrl.params, batch=batch, opset=cfg.opset, metadata=meta), paths[key])
+        log(f"wrote {paths[key]} ({paths[key].stat().st_size / 1e3:.0f} kB)")
+    desc["export_s"] = round(time.time() - t0, 1)
+
+    if rec is None:
+        log(f"flying the paper vehicle {cfg.flight_seconds} s ({cfg.reference}) to record inputs")
+        rec = record_flight(ref, cfg)
+    np.savez_compressed(paths["testvectors"], imu=rec.imu, command=rec.command, reset=rec.reset,
+                        refresh=rec.refresh, motor=rec.motor, latent_next=rec.latent_next)
+    fixed, dynamic = session(paths["fixed"], cfg.threads), session(paths["dynamic"], cfg.threads)
+    par = parity(fixed, dynamic, rec, ctrl.params)
+    par["tolerance"] = cfg.tolerance
+    par["ok"] = bool(par["max_abs_diff"] <= cfg.tolerance)
+    desc["parity"] = par
+    import onnxruntime as ort
+    desc["latency"] = {
+        "runtime": f"onnxruntime {ort.__version__}, CPUExecutionProvider, {cfg.threads} intra-op thread(s)",
+        "machine": _machine(), "date": datetime.date.today().isoformat(),
+        "batch_1": step_latency(fixed, rec, 1, cfg.latency_calls, ctrl.phi_every)}
+    desc["testvectors"] = {"file": paths["testvectors"].name,
+                           "what": "a recorded flight's inputs (imu, command, reset, refresh per step) and "
+                                   "the JAX controller's outputs (motor, latent_next): run the batch-1 file "
+                                   "from reset, feeding history_next/latent_next back, and compare"}
+    paths["json"].write_text(json.dumps(desc, indent=2, ensure_ascii=False) + "\n")
+    log(f"wrote {paths['json']}, {paths['testvectors']}")
+    return desc
+
+
+def _machine() -> str:
+    import os
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{cpu}, {os.cpu_count()} cores visible"
