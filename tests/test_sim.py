@@ -252,3 +252,29 @@ def test_config_validation():
         SimConfig(dt=-1)
     with pytest.raises(ValueError, match="imu_latency"):
         SimConfig(imu_latency=1.5)
+
+
+def test_rigid_twin_matches_the_mjx_simulator(sim):
+    """The tuner's rigid-body twin (mjxsysid.sim.rigid) integrates the same equations with the
+    same semi-implicit Euler step: 250 steps of random commands and forces from a tumbling state
+    agree with MJX to float32 round-off."""
+    import jax
+    import jax.numpy as jnp
+    from mjxsysid import params as P
+    from mjxsysid.sim.rigid import RigidSim, from_sim_state
+    twin = RigidSim(sim.config)
+    th = jnp.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(4), 1)[0])
+    s = sim.init(th, jax.random.PRNGKey(0), vel=(0.5, -0.2, 0.1), omega=(1.0, -2.0, 0.5))
+    u = jax.random.uniform(jax.random.PRNGKey(1), (250, 4), minval=0.3, maxval=0.9)
+    f = jax.random.normal(jax.random.PRNGKey(2), (250, 3))
+
+    def run(model, st):
+        def body(c, x):
+            c = model.step(th, c, x[0], x[1])
+            return c, (c.pos, c.quat, c.omega, c.imu)
+        return jax.lax.scan(body, st, (u, f))[1]
+
+    a = jax.jit(lambda st: run(sim, st))(s)
+    b = jax.jit(lambda st: run(twin, st))(from_sim_state(s))
+    for name, x, y, tol in zip(("pos", "quat", "omega", "imu"), a, b, (2e-6, 2e-6, 2e-5, 5e-5)):
+        assert float(jnp.abs(x - y).max()) < tol * max(1.0, float(jnp.abs(x).max())), name

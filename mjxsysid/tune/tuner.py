@@ -8,7 +8,9 @@ Every ``1/rate`` s of a flight the tuner
    valid θ;
 2. runs K × N predictive rollouts from the current state, each model flown by the *frozen*
    policy (its current history and latent carried over) under one of N candidate gain vectors
-   of the cascade, over a horizon H of the upcoming reference, without disturbances;
+   of the cascade, over a horizon H of the upcoming reference, without disturbances, in the
+   deterministic rigid-body twin of the simulator (:mod:`mjxsysid.sim.rigid`: the same
+   equations and integrator as the MJX simulator without MuJoCo's generic machinery);
 3. scores each candidate by the ensemble mean of :func:`rollout_cost` (position RMSE +
    heading + motor saturation + failure) and runs CEM (:mod:`mjxsysid.tune.cem`), warm-started
    from the last solution; the mean of the final distribution is applied until the next update.
@@ -34,6 +36,7 @@ from mjxsysid.analysis.harness import (Disturbance, Flight, LoopCarry, low_level
                                        run_loop, start_loop)
 from mjxsysid.control.high_level import Cascade, gains as gain_vector
 from mjxsysid.sim.quadrotor import Quadrotor, hover_rotor_speed
+from mjxsysid.sim.rigid import RigidSim, from_sim_state
 from mjxsysid.tune.cem import CEMConfig, CEMState, cem_init, cem_minimize, cem_warm, mean_gains
 
 METHODS = ("naive", "baseline", "cfm", "nominal_cem", "oracle_cem")
@@ -100,15 +103,18 @@ def rollout_cost(flight: Flight, w: CostWeights) -> jax.Array:
             + w.saturation * m["saturation_frac"] + w.failure * m["failed"].astype(jnp.float32))
 
 
-def predict(sim: Quadrotor, theta, low, gains, max_rate, ref, carry: LoopCarry, motor_norm, start,
+def predict(sim, theta, low, gains, max_rate, ref, carry: LoopCarry, motor_norm, start,
             steps: int) -> Flight:
     """One predictive rollout: model θ (19,) flown by ``low`` (its carry in ``carry``) under
-    the cascade with ``gains`` (8,) for ``steps`` steps from the current state, the first step
-    having global index ``start``. The rotors start at the model's steady state for the last
-    motor command ``motor_norm`` (4,) (the rotor speed itself is not observed); no disturbance."""
-    s = carry.sim.replace(rotor_speed=motor_norm * theta[P.OMEGA_MAX], diverged=jnp.array(False))
+    the cascade with ``gains`` (8,) for ``steps`` steps from the current state of the (MJX) loop
+    ``carry``, the first step having global index ``start``, in the deterministic rigid-body twin
+    of the simulator (:class:`~mjxsysid.sim.rigid.RigidSim`; ``sim`` gives its config). The
+    rotors start at the model's steady state for the last motor command ``motor_norm`` (4,)
+    (the rotor speed itself is not observed); no disturbance."""
+    twin = sim if isinstance(sim, RigidSim) else RigidSim(sim.config)
+    s = from_sim_state(carry.sim, rotor_speed=motor_norm * theta[P.OMEGA_MAX])
     high = Cascade(gains, max_rate)
-    _, fl = run_loop(sim, theta, low, high, ref, carry._replace(sim=s), jnp.zeros((steps, 3)), start, steps)
+    _, fl = run_loop(twin, theta, low, high, ref, carry._replace(sim=s), jnp.zeros((steps, 3)), start, steps)
     return fl
 
 
