@@ -186,7 +186,9 @@ def build_parser() -> argparse.ArgumentParser:
     tn.add_argument("--out", type=Path, required=True)
     ex = sub.add_parser("experiment", help="run one of the paper's experiments (results.json, results.md, PNGs)")
     ex.add_argument("name", help="tune-nominal | tune-slow | tune-lemniscate | robustness | payload | replay")
-    ex.add_argument("--quick", action="store_true", help="small CPU version (minutes)")
+    ex.add_argument("--quick", action="store_true", help="small CPU version (minutes; a smoke test)")
+    ex.add_argument("--cpu", action="store_true",
+                    help="tune-*: the full protocol with fewer vehicles and smaller ensembles (tens of minutes on a CPU)")
     ex.add_argument("--seed", type=int, default=0)
     _add_policy(ex)
     ex.add_argument("--out", type=Path, required=True)
@@ -511,7 +513,12 @@ def _tune_video(res, theta, out):
 def cmd_experiment(args) -> int:
     from mjxsysid.experiments import get_experiment
     run = get_experiment(args.name)
-    res = run(args.out, quick=args.quick, policy=_policy_ref(args), seed=args.seed)
+    if args.cpu and args.quick:
+        raise ValueError("give either --quick or --cpu, not both")
+    if args.cpu and not args.name.startswith("tune-"):
+        raise ValueError(f"--cpu applies to the tune-* experiments, not {args.name}")
+    kw = {"cpu": True} if args.cpu else {}
+    res = run(args.out, quick=args.quick, policy=_policy_ref(args), seed=args.seed, **kw)
     print(json.dumps(res["numbers"].get("headline", {})))
     print(f"wrote {args.out}/results.json, results.md and figures ({res['wall_s']:.0f} s)", file=sys.stderr)
     return 0

@@ -7,8 +7,10 @@
 - tune-lemniscate: the paper vehicle ("hardware": IMU noise, bias and one step of latency),
   lemniscates of 15 / 10 / 7.5 s period, three cycles each; Baseline vs CFM-tuned (+ Oracle-CEM).
 
-Full settings are sized for one GPU; ``quick`` shrinks vehicles, durations, K, N and H to a
-CPU run of minutes (the numbers of a quick run are a smoke test, not results).
+Full settings are sized for one GPU (100 vehicles, K = 16 models, N = 32 candidates, H = 0.5 s,
+2 CEM iterations per update); ``cpu`` keeps the protocol (5 s min-snap flights, three
+lemniscate cycles, H = 0.5 s) with 12 vehicles, K = 4 and N = 12 (tens of minutes on two
+cores); ``quick`` shrinks everything to a smoke test of minutes (its numbers are not results).
 """
 from __future__ import annotations
 
@@ -29,6 +31,7 @@ from mjxsysid.tune.compare import RESULT_KEYS, compare_methods, plot_gains, plot
 from mjxsysid.tune.tuner import METHOD_LABELS, TunerConfig
 
 FULL_TUNER = TunerConfig(models=16, horizon=0.5, rate=10.0, cem=CEMConfig(candidates=32, iterations=2))
+CPU_TUNER = TunerConfig(models=4, horizon=0.5, rate=10.0, cem=CEMConfig(candidates=12, iterations=2))
 QUICK_TUNER = TunerConfig(models=4, horizon=0.3, rate=10.0, cem=CEMConfig(candidates=8, iterations=2),
                           decoder_steps=20)
 
@@ -74,10 +77,15 @@ def _ratio(res, a, b, k="pos_rmse_m"):
     return x["summary"][k]["mean"] / y["summary"][k]["mean"]
 
 
-def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress):
+def _size(quick, cpu):
+    return "quick" if quick else ("cpu" if cpu else "full")
+
+
+def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, cpu=False):
     t0 = time.time()
-    n, duration = (3, 2.0) if quick else (100, 5.0)
-    cfg = QUICK_TUNER if quick else FULL_TUNER
+    size = _size(quick, cpu)
+    n, duration = {"quick": (3, 2.0), "cpu": (12, 5.0), "full": (100, 5.0)}[size]
+    cfg = {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size]
     theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(seed), n))
     refs = random_minsnaps(n, seed, duration)
     sim = Quadrotor()
@@ -95,7 +103,7 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress):
     numbers["ratios"] = {"cfm_over_baseline": _ratio(res, "cfm", "baseline"),
                          "cfm_over_naive": _ratio(res, "cfm", "naive"),
                          "cfm_over_nominal_cem": _ratio(res, "cfm", "nominal_cem")}
-    config = {"quick": quick, "prior": prior, "vehicles": n, "duration_s": duration, "methods": list(methods),
+    config = {"quick": quick, "size": size, "prior": prior, "vehicles": n, "duration_s": duration, "methods": list(methods),
               "tuner": dataclasses.asdict(cfg), "reference": "random min-snap (5 segments, 2 m box)"}
     notes = ("Mean ± std over the successful flights of each method (the paper: over rollouts). "
              "Oracle-CEM tunes on K copies of the true θ: an upper reference, not in the paper.\n"
@@ -110,27 +118,28 @@ def _ref(policy):
     return resolve_policy(policy or "mjxsysid")
 
 
-def run_nominal(out, *, quick=False, policy=None, seed=0, progress=True, methods=None):
+def run_nominal(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False):
     """tune-nominal (see the module doc)."""
     return _prior_experiment("tune-nominal", "default", methods or ("naive", "baseline", "cfm", "oracle_cem"),
-                             out, quick, policy, seed, progress)
+                             out, quick, policy, seed, progress, cpu)
 
 
-def run_slow(out, *, quick=False, policy=None, seed=0, progress=True, methods=None):
+def run_slow(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False):
     """tune-slow (see the module doc)."""
     return _prior_experiment("tune-slow", "slow_actuators",
                              methods or ("baseline", "nominal_cem", "cfm", "oracle_cem"), out, quick, policy,
-                             seed, progress)
+                             seed, progress, cpu)
 
 
-def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, methods=None):
+def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False):
     """tune-lemniscate: the three periods fly as one batch of three copies of the paper vehicle
     (each flight's metrics over its own three cycles)."""
     t0 = time.time()
     methods = methods or ("baseline", "cfm", "oracle_cem")
     periods = (15.0, 10.0, 7.5)
     cycles = 3
-    cfg = QUICK_TUNER if quick else FULL_TUNER
+    size = _size(quick, cpu)
+    cfg = {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size]
     sim = Quadrotor(HARDWARE_SIM)
     duration = 2.0 if quick else cycles * max(periods)
     steps = int(round(duration / sim.config.dt))
@@ -170,7 +179,7 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
     if "cfm" in methods and "baseline" in methods:
         numbers["cfm_le_baseline"] = {str(p): per["cfm"][p]["pos_rmse_m"] <= per["baseline"][p]["pos_rmse_m"]
                                       for p in periods}
-    config = {"quick": quick, "periods_s": periods, "cycles": cycles, "duration_s": duration,
+    config = {"quick": quick, "size": size, "periods_s": periods, "cycles": cycles, "duration_s": duration,
               "methods": list(methods), "tuner": dataclasses.asdict(cfg), "sim": dataclasses.asdict(HARDWARE_SIM)}
     return write_results(out, "tune-lemniscate", config=config, seeds={"flight": seed}, numbers=numbers,
                          table_md=table, t0=t0, policy=_ref(policy), decoders=_ref(policy).decoders_dir,
