@@ -2,13 +2,13 @@
 
 MJX 3.17 probes for NVIDIA Warp when ``mujoco.mjx`` is imported and *prints* (to stdout)
 ``Failed to import warp: No module named 'warp'`` and ``Failed to import mujoco_warp: …`` when
-Warp is not installed. mjxsysid does not use Warp, so exactly those two lines are dropped; any
-other output of the import is passed on unchanged, and a failing import of MJX itself raises as
-usual.
+Warp is not installed. mjxsysid does not use Warp, so exactly those lines are dropped; any other
+output of the import is passed on unchanged, and a failing import of MJX itself raises as usual.
 """
 from __future__ import annotations
 
 import contextlib
+import importlib
 import io
 import re
 import sys
@@ -21,16 +21,21 @@ def is_probe_line(line: str) -> bool:
     return bool(_PROBE.match(line.strip()))
 
 
-def import_mjx():
-    """``from mujoco import mjx`` with the warp probe's message removed; returns the module."""
-    if "mujoco.mjx" in sys.modules:
-        return sys.modules["mujoco.mjx"]
+def quiet_import(name: str):
+    """``importlib.import_module(name)`` with the warp probe's lines removed from its stdout;
+    other output is printed afterwards, errors propagate."""
+    if sys.modules.get(name) is not None:
+        return sys.modules[name]
     buf = io.StringIO()
     try:
         with contextlib.redirect_stdout(buf):
-            from mujoco import mjx
+            return importlib.import_module(name)
     finally:
         rest = [ln for ln in buf.getvalue().splitlines() if not is_probe_line(ln)]
         if rest:
             print("\n".join(rest))
-    return mjx
+
+
+def import_mjx():
+    """``from mujoco import mjx`` without the warp probe's message; returns the module."""
+    return quiet_import("mujoco.mjx")

@@ -180,6 +180,30 @@ def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, d
             "regression": np.asarray(regression.point(z))}
 
 
+def decode_posterior(zhat_t, times, truth=None, *, decoder, regression, rate: float = 10.0,
+                     samples: int = 100, seed: int = 0) -> dict:
+    """What ``mjxsysid decode`` writes, in memory: ẑ (T, 8) over ``times`` (T,) decoded at
+    ``rate`` Hz -> dict with the arrays of ``decoded.npz`` (times (K,), zhat (K, 8), samples
+    (K, S, 19), regression (K, 19), theta_true (19,) or NaN) and ``summary`` (the content of
+    ``summary.json``: :func:`summarize_posterior` of the last decoded latent's samples, plus
+    ``_invalid_fraction``)."""
+    dec = decode_latents(zhat_t, times, rate=rate, samples=samples, seed=seed, decoder=decoder,
+                         regression=regression)
+    final = dec["samples"][-1]
+    summary = summarize_posterior(final, truth)
+    summary["_invalid_fraction"] = float(P.project_valid(final)[1].mean())  # e.g. J triangle violated
+    truth = np.full(P.N_PARAMS, np.nan, np.float32) if truth is None else np.asarray(truth, np.float32)
+    return dict(dec, theta_true=truth, summary=summary)
+
+
+def log_latents(policy, rec: dict):
+    """ẑ (T, 8) and times (T,) (s from the log's start, first step at 2 ms) of a flight log read
+    by :func:`read_log`, rebuilt by the frozen ``policy`` (a name, path or PolicyRef)."""
+    ref = resolve_policy(policy)
+    zhat_t = ref.load().replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+    return np.asarray(zhat_t), rec["t"] - rec["t"][0] + LOG_DT
+
+
 def decode_indices(times, rate: float, start: float = N.HISTORY * 0.002) -> np.ndarray:
     """Indices (K,) of the steps at which a ``rate`` Hz decoder reads ẑ: every 1/rate s from the
     first step at or after ``start`` s (the last step if the flight is shorter)."""
@@ -276,8 +300,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     st.start("flying" if log is None else "replaying the log")
     flight = None
     if log is not None:
-        zhat_t = ref.load().replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
-        times = rec["t"] - rec["t"][0] + 0.002
+        zhat_t, times = log_latents(ref, rec)
         truth = None
     else:
         flight, _, _ = fly_vehicles(theta, controller="policy", policy=ref, reference=reference,
@@ -285,12 +308,11 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
         one = one_flight(flight)
         zhat_t, times, truth = one.latent, one.time, np.asarray(theta, np.float32)
     st.start("decoding")
-    dec = decode_latents(zhat_t, times, rate=rate, samples=samples, seed=seed, decoder=cfm,
-                         regression=reg)
+    dec = decode_posterior(zhat_t, times, truth, decoder=cfm, regression=reg, rate=rate, samples=samples,
+                           seed=seed)
+    summary = dec.pop("summary")
     final = dec["samples"][-1]
-    summary = summarize_posterior(final, truth)
-    summary["_invalid_fraction"] = float(P.project_valid(final)[1].mean())  # e.g. J triangle violated
-    np.savez_compressed(out / "decoded.npz", **dec, theta_true=truth if truth is not None else np.full(19, np.nan))
+    np.savez_compressed(out / "decoded.npz", **dec)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     st.start("plots")
     plot_marginals(final, truth if truth is not None else np.full(19, np.nan), out / "marginals.png",

@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import struct
 import zipfile
 import zlib
 from pathlib import Path
@@ -40,7 +41,10 @@ def open_npz(path, what: str = "weights/checkpoint file"):
     ``FileNotFoundError``; an empty, truncated or corrupt file (or a plain .npy, or a read error
     while inside the block) raises ``ValueError("PATH: not a readable WHAT ...")``."""
     path = _existing(path, what)
-    bad = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, KeyError)
+    # zipfile and numpy raise many types on damaged files (BadZipFile, zlib.error, EOFError,
+    # OSError, ValueError, KeyError, NotImplementedError for a garbled version field, ...).
+    bad = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, KeyError, NotImplementedError,
+           IndexError, TypeError, struct.error, UnicodeDecodeError, OverflowError, MemoryError)
     try:
         f = np.load(path, allow_pickle=False)
     except bad as e:
@@ -70,10 +74,10 @@ def load_meta(path) -> dict:
         return meta
 
 
-def load_tree(path, template):
-    """Read a tree saved by :func:`save_tree` into the structure of ``template``. Every key,
-    shape and value is checked: a missing or unexpected array, a wrong shape or non-finite
-    weights raise ``ValueError`` naming the file and the array."""
+def load_tree(path, template, *, finite: bool = False):
+    """Read a tree saved by :func:`save_tree` into the structure of ``template``. Every key and
+    shape is checked: a missing or unexpected array or a wrong shape (and with ``finite``, for
+    weights, NaN/inf values) raise ``ValueError`` naming the file and the array."""
     with open_npz(path) as f:
         flat, treedef = jax.tree_util.tree_flatten_with_path(template)
         out = []
@@ -84,7 +88,7 @@ def load_tree(path, template):
             arr = f[name]
             if arr.shape != np.shape(leaf):
                 raise ValueError(f"{path}: {name} has shape {arr.shape}, expected {np.shape(leaf)}")
-            if np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
+            if finite and np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
                 raise ValueError(f"{path}: {name} has non-finite values (NaN/inf)")
             out.append(arr.astype(np.asarray(leaf).dtype))
         extra = set(f.files) - {jax.tree_util.keystr(k) for k, _ in flat} - {_META}

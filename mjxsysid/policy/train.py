@@ -283,7 +283,7 @@ def export_policy(params, path, meta: dict) -> Path:
 def load_policy_params(path):
     """Read shipped policy weights -> (params dict {'mu','phi','pi','aux'}, meta)."""
     template = N.Networks().init(jax.random.PRNGKey(0))
-    params = load_tree(path, {k: template[k] for k in POLICY_MODULES})
+    params = load_tree(path, {k: template[k] for k in POLICY_MODULES}, finite=True)
     return params, load_meta(path)
 
 
