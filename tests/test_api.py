@@ -64,8 +64,12 @@ def test_progress_bars_obey_quiet(capsys, monkeypatch):
     for _ in pg.progress(range(3), desc="unit-bar"):
         pass
     pg.echo("a message")
+    with pg.stages(["fly", "decode"], desc="unit-stages") as st:
+        st.start("fly")
+        st.start("decode")
     out = capsys.readouterr()
     assert "unit-bar" in out.err and "3/3" in out.err and out.out == "a message\n"
+    assert "unit-stages" in out.err and "2/2" in out.err and "decode" in out.err
     pg.set_quiet(True)
     try:
         for _ in pg.progress(range(3), desc="unit-bar"):

@@ -37,7 +37,7 @@ def _toy_pairs(n=256, seed=0):
     return th.astype(np.float32), z
 
 
-def test_cfm_resume_gives_the_uninterrupted_weights(tmp_path):
+def test_cfm_resume_gives_the_uninterrupted_weights(tmp_path, monkeypatch, capsys):
     th, z = _toy_pairs()
     ref, hist_ref = train_cfm(th, z, TINY_CFM, log=None)
     ckpt = tmp_path / "cfm.ckpt.npz"
@@ -45,7 +45,11 @@ def test_cfm_resume_gives_the_uninterrupted_weights(tmp_path):
         train_cfm(th, z, TINY_CFM, log=_interrupt_at("[cfm] epoch 5/"), checkpoint=ckpt, checkpoint_every=2)
     assert ckpt.is_file()
     lines = []
+    capsys.readouterr()
+    monkeypatch.setenv("MJXSYSID_PROGRESS", "1")  # the bar, as on a terminal: resumes at epoch 4 of 6
     got, hist = train_cfm(th, z, TINY_CFM, log=lines.append, checkpoint=ckpt, checkpoint_every=2)
+    err = capsys.readouterr().err
+    assert "train cfm" in err and "4/6" in err and "6/6" in err and "train=" in err, err
     assert any("resumed from" in m and "epoch 4" in m for m in lines), lines
     _leaves_equal(got, ref)
     assert hist["train_loss"] == hist_ref["train_loss"] and hist["epoch"] == list(range(1, 7))
