@@ -299,15 +299,20 @@ def cmd_train_policy(args) -> int:
             raise FileNotFoundError(f"config file not found: {args.config}")
         try:
             over = json.loads(args.config.read_text())
-        except json.JSONDecodeError as e:
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise ValueError(f"{args.config}: not valid JSON ({e})") from None
+        if not isinstance(over, dict) or not isinstance(over.get("env", {}), dict):
+            raise ValueError(f"{args.config}: expected a JSON object of TrainConfig keys (and an 'env' object)")
         env = dict(cfg_dict["env"], **over.pop("env", {}))
         cfg_dict.update(over)
         cfg_dict["env"] = env
     for k, v in (("iterations", args.iterations), ("num_envs", args.num_envs), ("seed", args.seed)):
         if v is not None:
             cfg_dict[k] = v
-    cfg = TrainConfig.from_dict(cfg_dict)
+    try:
+        cfg = TrainConfig.from_dict(cfg_dict)
+    except TypeError as e:  # e.g. an unknown key of the env section
+        raise ValueError(f"{args.config or 'training config'}: {e}") from None
     _echo(f"training: {cfg.num_envs} envs × {cfg.unroll} steps × {cfg.iterations} iterations "
           f"= {cfg.num_envs * cfg.unroll * cfg.iterations / 1e6:.1f} M env steps -> {args.out}")
     res = train(cfg, args.out, resume=not args.no_resume, log=_echo)

@@ -100,3 +100,14 @@ def echo(msg: str, *, file=None) -> None:
         return
     tqdm.write(str(msg), file=file or sys.stdout)
     (file or sys.stdout).flush()
+
+
+def tee(log, path):
+    """``log`` (a callable or None) that also appends each message to the file ``path`` (a run
+    folder's log, written even when the terminal is quiet)."""
+    def both(msg):
+        with open(path, "a") as f:
+            f.write(f"{msg}\n")
+        if log is not None:
+            log(msg)
+    return both

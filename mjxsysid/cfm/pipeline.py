@@ -42,8 +42,10 @@ def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, log=print, resum
     is written), and a decoder already written for the same config and pairs is kept."""
     from mjxsysid.policy.checkpoint import load_meta
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     arrays, meta = load_pairs(pairs)
+    out.mkdir(parents=True, exist_ok=True)
+    from mjxsysid.progress import tee
+    log = tee(log, out / "train_log.txt")
     norm = P.prior_normalizer(meta.get("prior", "default"))
     th, z = _usable(arrays, "train")
     tv, zv = _usable(arrays, "test")

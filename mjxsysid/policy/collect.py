@@ -67,6 +67,8 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     prior = prior or ref.prior
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    from mjxsysid.progress import tee
+    log = tee(log, out / "collect_log.txt")
     total = n_train + n_test
     nb = -(-total // batch)
     theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(seed), nb * batch))
