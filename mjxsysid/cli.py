@@ -442,7 +442,7 @@ def _echo(msg, file=None):
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from mjxsysid.progress import set_quiet
-    set_quiet(args.quiet)
+    set_quiet(True if args.quiet else None)
     handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy,
                 "evaluate-policy": cmd_evaluate_policy, "collect": cmd_collect,
                 "train-cfm": cmd_train_cfm, "evaluate-decoder": cmd_evaluate_decoder, "decode": cmd_decode,
@@ -453,10 +453,12 @@ def main(argv=None) -> int:
         print(f"mjxsysid {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"mjxsysid {args.command}: interrupted", file=sys.stderr)
+        again = (" (run the same command again to resume from the last checkpoint)"
+                 if args.command in ("train-policy", "train-cfm") else "")
+        print(f"mjxsysid {args.command}: interrupted{again}", file=sys.stderr)
         return 130
     finally:
-        set_quiet(False)
+        set_quiet(None)
 
 
 if __name__ == "__main__":

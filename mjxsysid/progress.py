@@ -21,10 +21,11 @@ from tqdm import tqdm
 _QUIET: bool | None = None
 
 
-def set_quiet(quiet: bool = True) -> None:
-    """Turn bars and progress messages off (``True``) or back to the default (``False``)."""
+def set_quiet(quiet: bool | None = True) -> None:
+    """Turn bars and progress messages off (``True``), on (``False``), or back to the default
+    (``None``: ``MJXSYSID_QUIET``)."""
     global _QUIET
-    _QUIET = bool(quiet)
+    _QUIET = None if quiet is None else bool(quiet)
 
 
 def quiet() -> bool:

@@ -79,7 +79,7 @@ def test_progress_bars_obey_quiet(capsys, monkeypatch):
             st.start("a")
             st.start("b")
     finally:
-        pg.set_quiet(False)
+        pg.set_quiet(None)
     out = capsys.readouterr()
     assert out.err == "" and out.out == ""
     monkeypatch.setenv("MJXSYSID_PROGRESS", "0")

@@ -340,3 +340,23 @@ def test_decoders_of_another_policy_are_an_error(tmp_path):
     load_decoders(xa, "mjxsysid", warn=told.append, allow_mismatch=True)
     assert told and "another policy" in told[0]
     load_decoders(None, "mjxsysid")  # the shipped pair matches
+
+
+def test_xadap_npz_and_pairs_files_named_errors(tmp_path):
+    from mjxsysid.policy.collect import load_pairs
+    from mjxsysid.policy.xadap import load_npz
+    x = tmp_path / "xadap.npz"
+    x.write_bytes(b"PK\x03\x04 truncated")
+    with pytest.raises(ValueError, match="xadap.npz: not a readable Xadap weights file"):
+        load_npz(x)
+    np.savez(x, something=np.ones(3))
+    with pytest.raises(ValueError, match="xadap.npz: not an Xadap weights file"):
+        load_npz(x)
+    p = tmp_path / "pairs.npz"
+    p.write_bytes(b"")
+    with pytest.raises(ValueError, match="pairs.npz: not a readable pairs file"):
+        load_pairs(p)
+    np.savez(p, theta_train=np.ones((5, 19)), zhat_train=np.ones((4, 8)), theta_test=np.ones((2, 19)),
+             zhat_test=np.ones((2, 8)))
+    with pytest.raises(ValueError, match=r"pairs.npz: theta_train \(5, 19\) and zhat_train \(4, 8\)"):
+        load_pairs(tmp_path)
