@@ -1,0 +1,28 @@
+"""mjxsysid: decode the latent of a frozen adaptive quadrotor policy into distributions of
+physical models (MuJoCo/MJX, JAX).
+
+The common path, as functions (imported lazily: ``import mjxsysid`` loads neither JAX nor
+MuJoCo and prints nothing)::
+
+    import mjxsysid
+    res = mjxsysid.fly(mjxsysid.paper_vehicle(), controller="policy")   # FlightResult
+    post = mjxsysid.decode(res)                     # or mjxsysid.decode("flight.csv")
+
+See :mod:`mjxsysid.api` and the README's "Python API" section.
+"""
+__version__ = "0.1.0"
+
+_API = ("FlightResult", "decode", "fly", "load_vehicle", "paper_vehicle", "prior_vehicles",
+        "save_vehicle", "to_theta")
+__all__ = list(_API) + ["__version__"]
+
+
+def __getattr__(name):
+    if name in _API:
+        from mjxsysid import api
+        return getattr(api, name)
+    raise AttributeError(f"module 'mjxsysid' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_API))

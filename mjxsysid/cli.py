@@ -130,6 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
     tc.add_argument("--epochs", type=int, default=None, help="override CFMConfig.epochs (default 100)")
     tc.add_argument("--width", type=int, default=None, help="override CFMConfig.width (default 512)")
     tc.add_argument("--batch", type=int, default=None, help="override CFMConfig.batch (default 256)")
+    tc.add_argument("--no-resume", action="store_true",
+                    help="start afresh even if OUT holds checkpoints or decoders of an earlier run")
     _add_policy(tc, "check that the pairs come from this policy")
     ed = sub.add_parser("evaluate-decoder", help="calibration of the decoders on held-out pairs")
     ed.add_argument("--decoders", type=Path, required=True, help="folder with cfm.npz and regression.npz")
@@ -199,6 +201,9 @@ def build_parser() -> argparse.ArgumentParser:
     xp.add_argument("--seconds", type=_positive, default=0.5,
                     help="closed-loop flight of the paper vehicle whose inputs check the files (default 0.5)")
     xp.add_argument("--calls", type=int, default=2000, help="onnxruntime calls per latency median (default 2000)")
+    for sp in sub.choices.values():
+        sp.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bars or progress messages (results and errors still print)")
     return p
 
 
@@ -215,7 +220,7 @@ def cmd_replay(args) -> int:
     flights = tuple(f.strip() for f in args.flights.split(",") if f.strip())
     res = run_replay(args.out, policy=_policy_ref(args), decoders=args.decoders, vehicles=args.vehicles,
                      flights=flights, rate=args.rate, samples=args.samples, cutoff_hz=args.cutoff,
-                     seed=args.seed, log=lambda m: print(m, file=sys.stderr, flush=True))
+                     seed=args.seed, log=lambda m: _echo(m, file=sys.stderr))
     print(json.dumps({n: e["paper_vehicle"] for n, e in res["flights"].items()}))
     print(f"wrote {args.out}/replay.json, replay.md, replay_summary.png, replay_<flight>.png", file=sys.stderr)
     return 0
@@ -232,7 +237,7 @@ def cmd_decode(args) -> int:
     summary = run_decode(args.out, theta=theta, log=args.log, reference=args.reference, period=args.period,
                          duration=args.duration, samples=args.samples, rate=args.rate, policy=_policy_ref(args),
                          decoders=args.decoders, seed=args.seed, video=args.video,
-                         echo=lambda m: print(m, file=sys.stderr))
+                         echo=lambda m: _echo(m, file=sys.stderr))
     print(json.dumps({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES}))
     print(f"wrote {args.out}/decoded.npz, summary.json, marginals.png, decoded_over_time.png"
           + (", decoded.mp4" if args.video else ""), file=sys.stderr)
@@ -252,7 +257,7 @@ def cmd_train_cfm(args) -> int:
             raise ValueError(f"{args.pairs}: these pairs were not collected with {want.label}")
     over = {k: v for k, v in (("epochs", args.epochs), ("width", args.width), ("batch", args.batch)) if v is not None}
     cfg = dataclasses.replace(CFMConfig(), **over)
-    res = train_decoders(args.pairs, args.out, cfg, log=lambda m: print(m, flush=True))
+    res = train_decoders(args.pairs, args.out, cfg, log=_echo, resume=not args.no_resume)
     print(json.dumps({k: {kk: v[kk] for kk in ("wall_s", "final_train_loss", "final_val_loss", "steps_per_s")}
                       for k, v in res.items()}))
     return 0
@@ -280,7 +285,7 @@ def cmd_evaluate_decoder(args) -> int:
         ref = _policy_ref(args)
     z, failed = latents_in_flight(ref, np.repeat(P.PAPER_HARDWARE[None], 2, 0), jax.random.PRNGKey(0))
     rep = evaluate_decoders(args.decoders, args.pairs, n_cases=args.cases, n_samples=args.samples,
-                            paper_zhat=z[0], log=lambda m: print(m, flush=True))
+                            paper_zhat=z[0], log=_echo)
     print(json.dumps({"coverage_mean": rep["coverage_mean"], "calibrated": rep["calibrated_within_5_points"],
                       "energy_score": rep["energy_score"], "c2st": rep["c2st_nearby_latents"]["mean_accuracy"]}))
     print(f"wrote {args.decoders}/decoder_eval.json, sbc_ranks.png, paper_vehicle_posterior.png", file=sys.stderr)
@@ -290,10 +295,10 @@ def cmd_evaluate_decoder(args) -> int:
 def cmd_collect(args) -> int:
     from mjxsysid.policy.collect import collect
     ref = _policy_ref(args)
-    print(f"collecting {args.train} + {args.test} (θ, ẑ) pairs with {ref.label}", flush=True)
+    _echo(f"collecting {args.train} + {args.test} (θ, ẑ) pairs with {ref.label}")
     path = collect(args.out, policy=ref, n_train=args.train,
                    n_test=args.test, prior=args.prior, seed=args.seed, batch=args.batch,
-                   log=lambda m: print(m, flush=True))
+                   log=_echo)
     print(f"wrote {path}", file=sys.stderr)
     return 0
 
@@ -303,7 +308,7 @@ def cmd_evaluate_policy(args) -> int:
     if args.vehicles < 10:
         raise ValueError(f"--vehicles must be >= 10 (linear probes need data), got {args.vehicles}")
     args.out.mkdir(parents=True, exist_ok=True)
-    res = evaluate_policy(args.weights, n=args.vehicles, seed=args.seed, log=lambda m: print(m, flush=True))
+    res = evaluate_policy(args.weights, n=args.vehicles, seed=args.seed, log=_echo)
     (args.out / "eval.json").write_text(json.dumps(res, indent=2) + "\n")
     lem = res["lemniscate"]
     print(json.dumps({"success_policy": lem["policy"]["success_rate"],
@@ -323,18 +328,23 @@ def cmd_train_policy(args) -> int:
             raise FileNotFoundError(f"config file not found: {args.config}")
         try:
             over = json.loads(args.config.read_text())
-        except json.JSONDecodeError as e:
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
             raise ValueError(f"{args.config}: not valid JSON ({e})") from None
+        if not isinstance(over, dict) or not isinstance(over.get("env", {}), dict):
+            raise ValueError(f"{args.config}: expected a JSON object of TrainConfig keys (and an 'env' object)")
         env = dict(cfg_dict["env"], **over.pop("env", {}))
         cfg_dict.update(over)
         cfg_dict["env"] = env
     for k, v in (("iterations", args.iterations), ("num_envs", args.num_envs), ("seed", args.seed)):
         if v is not None:
             cfg_dict[k] = v
-    cfg = TrainConfig.from_dict(cfg_dict)
-    print(f"training: {cfg.num_envs} envs × {cfg.unroll} steps × {cfg.iterations} iterations "
-          f"= {cfg.num_envs * cfg.unroll * cfg.iterations / 1e6:.1f} M env steps -> {args.out}", flush=True)
-    res = train(cfg, args.out, resume=not args.no_resume, log=lambda m: print(m, flush=True))
+    try:
+        cfg = TrainConfig.from_dict(cfg_dict)
+    except TypeError as e:  # e.g. an unknown key of the env section
+        raise ValueError(f"{args.config or 'training config'}: {e}") from None
+    _echo(f"training: {cfg.num_envs} envs × {cfg.unroll} steps × {cfg.iterations} iterations "
+          f"= {cfg.num_envs * cfg.unroll * cfg.iterations / 1e6:.1f} M env steps -> {args.out}")
+    res = train(cfg, args.out, resume=not args.no_resume, log=_echo)
     print(json.dumps({"wall_s": res["wall_s"], **{k: res["stats"][k] for k in
                       ("reward", "rate_err", "thrust_err", "latent_err_rel", "latent_min_std")}}))
     print(f"wrote {args.out}/policy.npz", file=sys.stderr)
@@ -568,8 +578,15 @@ def cmd_export(args) -> int:
     return 0
 
 
+def _echo(msg, file=None):
+    from mjxsysid.progress import echo
+    echo(msg, file=file)
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from mjxsysid.progress import set_quiet
+    set_quiet(True if args.quiet else None)
     handlers = {"fly": cmd_fly, "demo": cmd_demo, "train-policy": cmd_train_policy,
                 "evaluate-policy": cmd_evaluate_policy, "collect": cmd_collect,
                 "train-cfm": cmd_train_cfm, "evaluate-decoder": cmd_evaluate_decoder, "decode": cmd_decode,
@@ -577,9 +594,16 @@ def main(argv=None) -> int:
                 "tune": cmd_tune}
     try:
         return handlers[args.command](args)
-    except (ValueError, FileNotFoundError) as e:
+    except (ValueError, OSError) as e:  # bad inputs (FileNotFoundError is an OSError)
         print(f"mjxsysid {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        again = (" (run the same command again to resume from the last checkpoint)"
+                 if args.command in ("train-policy", "train-cfm") else "")
+        print(f"mjxsysid {args.command}: interrupted{again}", file=sys.stderr)
+        return 130
+    finally:
+        set_quiet(None)
 
 
 if __name__ == "__main__":

@@ -155,11 +155,15 @@ def validate_theta(theta, *, what: str = "theta") -> np.ndarray:
             loc = f" (batch element {i})" if flat.shape[0] > 1 else ""
             raise ValueError(f"{what}: {name} {msg}{loc}; got {flat[i].tolist()}")
 
+    with np.errstate(over="ignore", under="ignore"):
+        flat32 = flat.astype(np.float32)
     for j, name in enumerate(PARAM_NAMES):
         fail(~np.isfinite(flat[:, j]), name, "is not finite")
+        fail(~np.isfinite(flat32[:, j]), name, "is too large (beyond float32)")
         positive = j in (MASS, ARM, KT, KTAU, OMEGA_MAX, TAU_M) or 4 <= j <= 6 or 11 <= j <= 14
         if positive:
             fail(flat[:, j] <= 0, name, "must be > 0")
+            fail(flat32[:, j] <= 0, name, "is too small (rounds to 0 in float32)")
         if 7 <= j <= 9:
             fail(flat[:, j] < 0, name, "must be >= 0")
     j = flat[:, INERTIA]
@@ -205,30 +209,60 @@ def project_valid_jax(theta) -> jax.Array:
     return _project(jnp.asarray(theta), jnp)
 
 
+def check_flyable(theta, *, what: str = "vehicle") -> np.ndarray:
+    """Raise ``ValueError`` (naming ``what`` and the keys involved) for a valid θ (19,) that
+    cannot fly: total thrust at Ω_max not above its weight (Σ η_i k_t Ω_max² ≤ m g), or a
+    constant external torque larger than the rotors can counter at hover
+    (:func:`flyability`'s ``torque_margin`` < 1). Returns θ."""
+    t = np.asarray(theta, np.float64)
+    twr = float(t[ETA].sum() * t[KT] * t[OMEGA_MAX] ** 2 / (t[MASS] * GRAVITY))
+    if not twr > 1.0:
+        raise ValueError(f"{what}: cannot hover: thrust-to-weight Σ η_i k_t Ω_max² / (m g) = {twr:.3g} <= 1 "
+                         f"(keys thrust_coeff, max_rotor_speed, motor_effectiveness, mass)")
+    margin = float(flyability(t)["torque_margin"])
+    if not margin >= 1.0:
+        raise ValueError(f"{what}: external_torque {t[TAU_EXT].tolist()} is more than the rotors can "
+                         f"counter at hover (torque margin {margin:.3g} < 1)")
+    return theta
+
+
 def theta_from_dict(d: Mapping, *, source: str = "vehicle") -> np.ndarray:
     """Vehicle dict (vehicle-file keys, SI units) -> θ (19,). Unknown or missing keys, wrong
-    lengths and non-physical values raise ``ValueError`` naming the key."""
+    types or lengths, non-finite, non-physical (:func:`validate_theta`) or unflyable
+    (:func:`check_flyable`) values raise ``ValueError`` naming ``source`` and the key."""
     if not isinstance(d, Mapping):
         raise ValueError(f"{source}: expected a JSON object with keys {list(VEHICLE_KEYS)}")
-    unknown = sorted(set(d) - set(VEHICLE_KEYS))
+    unknown = sorted(map(str, set(d) - set(VEHICLE_KEYS)))
     missing = [k for k in VEHICLE_KEYS if k not in d]
     if unknown:
         raise ValueError(f"{source}: unknown key(s) {unknown}; allowed: {list(VEHICLE_KEYS)}")
     if missing:
         raise ValueError(f"{source}: missing key(s) {missing}")
     theta = np.zeros(N_PARAMS, np.float64)
+
+    def number(x) -> bool:
+        return isinstance(x, (int, float, np.integer, np.floating)) and not isinstance(x, (bool, np.bool_))
+
     for key, (sl, n) in VEHICLE_KEYS.items():
         v = d[key]
         if n is None:
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise ValueError(f"{source}: {key} must be a number, got {v!r}")
-            theta[sl] = v
+            if not number(v):
+                raise ValueError(f"{source}: {key} must be a number, got {_short(v)}")
+            vals = [v]
         else:
-            if (not isinstance(v, (list, tuple)) or len(v) != n
-                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in v)):
-                raise ValueError(f"{source}: {key} must be a list of {n} numbers, got {v!r}")
-            theta[sl] = v
-    return validate_theta(theta, what=source)
+            if not isinstance(v, (list, tuple)) or len(v) != n or not all(number(x) for x in v):
+                raise ValueError(f"{source}: {key} must be a list of {n} numbers, got {_short(v)}")
+            vals = list(v)
+        try:
+            theta[sl] = vals if n is not None else vals[0]
+        except OverflowError:
+            raise ValueError(f"{source}: {key} is too large (beyond float32), got {_short(v)}") from None
+    return check_flyable(validate_theta(theta, what=source), what=source)
+
+
+def _short(v, n: int = 80) -> str:
+    r = repr(v)
+    return r if len(r) <= n else r[: n - 1] + "…"
 
 
 def theta_to_dict(theta) -> dict:
@@ -246,10 +280,23 @@ def load_vehicle(path) -> np.ndarray:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"vehicle file not found: {path}")
+
+    def no_duplicates(pairs):
+        seen = set()
+        for k, _ in pairs:
+            if k in seen:
+                raise ValueError(f"{path}: key {k} appears twice")
+            seen.add(k)
+        return dict(pairs)
+
     try:
-        d = json.loads(path.read_text())
+        d = json.loads(path.read_bytes().decode("utf-8"), object_pairs_hook=no_duplicates)
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not a text (UTF-8) file") from None
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not valid JSON ({e})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: not valid JSON (nested too deeply)") from None
     return theta_from_dict(d, source=str(path))
 
 

@@ -62,6 +62,7 @@ def test_read_log_errors(tmp_path):
     with pytest.raises(ValueError, match="at least 100"):
         read_log(p)
     rows = np.zeros((120, len(LOG_COLUMNS)))
+    rows[:, 0] = np.arange(120) * 0.002
     rows[5, -1] = 3.0
     np.savetxt(p, rows, delimiter=",", header=",".join(LOG_COLUMNS), comments="")
     with pytest.raises(ValueError, match="normalised"):

@@ -38,11 +38,17 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     t0 = time.time()
     if n_vehicles < 1:
         raise ValueError(f"--vehicles must be >= 1, got {n_vehicles}")
+    from mjxsysid.progress import echo, stages
+    st = stages(["flying", "plotting", "decoding", "video"], desc="demo")
+
+    def stage(label, msg):
+        st.start(label)
+        echo(msg)
+
     theta = np.concatenate([P.PAPER_HARDWARE[None],
                             np.asarray(P.get_prior(ref.prior).sample(jax.random.PRNGKey(seed), n_vehicles))])
-    print(f"[1/4] flying the paper vehicle and {n_vehicles} prior vehicles on the 10 s lemniscate "
-          f"(policy {ref.label}, oracle and nominal K_θ; each first run compiles, ~20 s on CPU)",
-          flush=True)
+    stage("flying", f"[1/4] flying the paper vehicle and {n_vehicles} prior vehicles on the 10 s lemniscate "
+          f"(policy {ref.label}, oracle and nominal K_θ; each first run compiles, ~20 s on CPU)")
     res = {}
     for ctrl in ("policy", "oracle", "nominal"):
         flight, m, _ = fly_vehicles(theta, controller=ctrl, reference="lemniscate", period=10.0,
@@ -54,7 +60,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     plot_trajectory(one.frame, out / "tracking.png", reference=one.ref_pos,
                     title=f"paper vehicle, policy {ref.label}, 10 s lemniscate")
 
-    print("[2/4] plotting the policy / oracle / nominal comparison", flush=True)
+    stage("plotting", "[2/4] plotting the policy / oracle / nominal comparison")
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
     twr = np.asarray(P.thrust_to_weight(theta))
     labels = {"policy": "adaptive policy (ẑ)", "oracle": "oracle K_θ", "nominal": "nominal K_θ"}
@@ -79,8 +85,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     fig.savefig(out / "oracle_vs_nominal.png", dpi=120)
     plt.close(fig)
 
-    print("[3/4] decoding the policy's latent of the paper vehicle at 10 Hz with the shipped CFM",
-          flush=True)
+    stage("decoding", "[3/4] decoding the policy's latent of the paper vehicle at 10 Hz with the shipped CFM")
     from mjxsysid.analysis.decode import decode_latents, plot_decoded_over_time, summarize_posterior
     from mjxsysid.cfm.pipeline import plot_marginals
     dec = decode_latents(one.latent, one.time, rate=10.0, samples=200, seed=seed, decoder=cfm,
@@ -91,7 +96,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     plot_decoded_over_time(dec, theta[0], out / "decoded_over_time.png")
     np.savez_compressed(out / "decoded.npz", **dec, theta_true=theta[0])
     if video:
-        print("[4/4] flying 4 decoded models and rendering them as ghosts (offscreen)", flush=True)
+        stage("video", "[4/4] flying 4 decoded models and rendering them as ghosts (offscreen)")
         from mjxsysid.render.video import render_rollout
         gth, _ = P.project_valid(dec["samples"][-1][:4])
         gfl, _, _ = fly_vehicles(gth, controller="policy", reference="lemniscate", period=10.0,
@@ -100,7 +105,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
         render_rollout(theta[0], one.frame, out / "demo.mp4", reference=one.ref_pos, fps=25,
                        width=480, height=360, ghosts=ghosts)
     else:
-        print("[4/4] video skipped (--no-video)", flush=True)
+        stage("video", "[4/4] video skipped (--no-video)")
 
     summary = {c: {"paper_vehicle": {k: v for k, v in metrics_to_host(
         {k: v[0] for k, v in res[c][1].items()}).items()},
@@ -148,6 +153,7 @@ Wall time {time.time() - t0:.0f} s.
                       f"{post[n]['q95']:.4g} | {'yes' if post[n]['inside'] else 'no'} |" for n in names)
     n_in = sum(post[n]["inside"] for n in P.PARAM_NAMES)
     md = md.replace("{rows}", rows).replace("{n_in}", str(n_in))
+    st.close()
     summary["paper_vehicle_posterior"] = post
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     (out / "summary.md").write_text(md)

@@ -122,13 +122,18 @@ def one_flight(flight: Flight, index: int = 0) -> Flight:
     return jax.tree.map(lambda a: np.asarray(a[index]), flight)
 
 
+def metrics_dict(m: dict, index: int | None = 0) -> dict:
+    """metrics of flight ``index`` (or the batch summary if index is None), JSON-ready."""
+    if index is None:
+        return summarize(m)
+    d = metrics_to_host({k: np.asarray(v)[index] for k, v in m.items()})
+    d["failed"] = bool(d["failed"])
+    return d
+
+
 def write_metrics(m: dict, path, index: int | None = 0, extra: dict | None = None) -> dict:
     """metrics of flight ``index`` (or the batch summary if index is None) -> JSON file."""
-    if index is None:
-        d = summarize(m)
-    else:
-        d = metrics_to_host({k: np.asarray(v)[index] for k, v in m.items()})
-        d["failed"] = bool(d["failed"])
+    d = metrics_dict(m, index)
     if extra:
         d.update(extra)
     Path(path).write_text(json.dumps(d, indent=2) + "\n")

@@ -174,11 +174,15 @@ def run_replay(out, *, policy="mjxsysid", weights=None, decoders=None, vehicles:
     res = {"policy": ref.to_dict(), "decoders": str(decoders or ref.decoders_dir), "rate_hz": rate,
            "samples": samples, "cutoff_hz": cutoff_hz, "seed": seed, "vehicles": len(theta),
            "flights": {}}
+    from mjxsysid.progress import progress
+    bar = progress(total=len(flights) * len(theta), desc="replay", unit="flight")
     for fi, name in enumerate(flights):
+        bar.set_postfix_str(name)
         recs, fm = record_flights(ref, theta, name, seed=seed)
         per = {m: {"rmse": [], "pcc": []} for m in METHODS}
         paper = None
         for i, rec in enumerate(recs):
+            bar.update(1)
             if fm["failed"][i]:
                 continue
             r = replay_flight(rec, theta[i], cfm, reg, jax.random.fold_in(jax.random.PRNGKey(seed), 1000 * fi + i),
@@ -210,6 +214,7 @@ def run_replay(out, *, policy="mjxsysid", weights=None, decoders=None, vehicles:
         log(f"  {name}: " + ", ".join(
             f"{LABELS[m]} RMSE {paper['metrics'][m]['rmse']:.3f} PCC {paper['metrics'][m]['pcc']:.2f}"
             for m in METHODS) if paper else f"  {name}: the paper vehicle crashed")
+    bar.close()
     res["wall_s"] = time.time() - t0
     (out / "replay.json").write_text(json.dumps(res, indent=2) + "\n")
     (out / "replay.md").write_text(replay_table(res))

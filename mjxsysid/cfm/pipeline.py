@@ -33,11 +33,19 @@ def _usable(arrays, split):
     return arrays[f"theta_{split}"][ok], arrays[f"zhat_{split}"][ok]
 
 
-def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, log=print) -> dict:
-    """Train CFM and Regression on the training split (validation: the held-out split)."""
+def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, log=print, resume: bool = True,
+                   checkpoint_every: int = 10) -> dict:
+    """Train CFM and Regression on the training split (validation: the held-out split).
+
+    Interrupted runs resume (``resume``): each decoder checkpoints its training state to
+    ``out/<kind>.ckpt.npz`` every ``checkpoint_every`` epochs (removed once ``out/<kind>.npz``
+    is written), and a decoder already written for the same config and pairs is kept."""
+    from mjxsysid.policy.checkpoint import load_meta
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     arrays, meta = load_pairs(pairs)
+    out.mkdir(parents=True, exist_ok=True)
+    from mjxsysid.progress import tee
+    log = tee(log, out / "train_log.txt")
     norm = P.prior_normalizer(meta.get("prior", "default"))
     th, z = _usable(arrays, "train")
     tv, zv = _usable(arrays, "test")
@@ -46,17 +54,33 @@ def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, log=print) -> di
             "n_train": int(len(th)), "n_val": int(len(tv))}
     res = {}
     for kind, fit in (("cfm", train_cfm), ("regression", train_regression)):
+        final, ckpt = out / f"{kind}.npz", out / f"{kind}.ckpt.npz"
+        if not resume:
+            ckpt.unlink(missing_ok=True)
+        elif final.is_file() and not ckpt.is_file():
+            try:
+                done = load_meta(final)
+            except ValueError:
+                done = {}
+            info = done.get("meta", {})
+            if (done.get("config") == cfg.to_dict()
+                    and info.get("data", {}).get("pairs_sha256") == data["pairs_sha256"]):
+                log(f"{final} is already trained on these pairs with this config: kept")
+                res[kind] = info
+                continue
         log(f"training {kind} on {len(th)} pairs ({cfg.epochs} epochs, batch {cfg.batch})")
         t0 = time.time()
         params, hist = fit(np.asarray(norm.normalize(th)), z, cfg, log=log,
-                           val=(np.asarray(norm.normalize(tv)), zv))
+                           val=(np.asarray(norm.normalize(tv)), zv), checkpoint=ckpt,
+                           checkpoint_every=checkpoint_every)
         wall = time.time() - t0
         info = {"data": data, "wall_s": wall, "device": str(jax.devices()[0]), "jax": jax.__version__,
                 "final_train_loss": float(hist["train_loss"][-1]),
                 "final_val_loss": float(hist["val_loss"][-1]) if hist.get("val_loss") else None,
                 "steps_per_s": float(np.mean(hist["steps_per_s"][1:] or hist["steps_per_s"])),
                 "stored_dtype": "float16"}
-        save_decoder(out / f"{kind}.npz", kind, _half(params), cfg, norm, info)
+        save_decoder(final, kind, _half(params), cfg, norm, info)
+        ckpt.unlink(missing_ok=True)
         res[kind] = info
     return res
 
@@ -81,10 +105,15 @@ def evaluate_decoders(out, pairs, *, n_cases: int = 1000, n_samples: int = 200, 
     m = min(n_cases, len(tv))
     tv, zv = tv[:m], zv[:m]
     key = jax.random.PRNGKey(seed)
+    from mjxsysid.progress import stages
+    st = stages(["sampling", "coverage and SBC", "energy score", "C2ST", "paper vehicle"],
+                desc="evaluate-decoder")
+    st.start("sampling")
     t0 = time.time()
     s_norm = np.asarray(cfm.sample_norm(zv, key, n_samples))           # (m, S, 19)
     t_norm = np.asarray(norm.normalize(tv))                             # (m, 19)
     log(f"sampled {m} × {n_samples} in {time.time() - t0:.1f} s")
+    st.start("coverage and SBC")
     rep = C.calibration_report(s_norm, t_norm, names=P.PARAM_NAMES, seed=seed)
     ranks = C.sbc_ranks(s_norm, t_norm, seed)
     C.plot_rank_histograms(ranks, n_samples, out / "sbc_ranks.png", names=P.PARAM_NAMES)
@@ -94,6 +123,7 @@ def evaluate_decoders(out, pairs, *, n_cases: int = 1000, n_samples: int = 200, 
     cov_id = C.coverage(ident(s_phys), ident(tv))
     rep["coverage_identifiable"] = {n: cov_id[:, j].tolist() for j, n in enumerate(P.IDENTIFIABLE_NAMES)}
     # Energy score (normalised space) against Regression and Random.
+    st.start("energy score")
     reg_pt = np.asarray(reg.point_norm(zv))
     rnd = np.asarray(norm.normalize(random_baseline(jax.random.fold_in(key, 9), n_samples)))
     rep["energy_score"] = {
@@ -104,6 +134,7 @@ def evaluate_decoders(out, pairs, *, n_cases: int = 1000, n_samples: int = 200, 
     rep["rmse_norm"] = {"cfm_mean": float(np.sqrt(((s_norm.mean(1) - t_norm) ** 2).mean())),
                         "regression": float(np.sqrt(((reg_pt - t_norm) ** 2).mean()))}
     # C2ST: CFM samples for a latent vs the true θ of the 50 training pairs with the nearest latents.
+    st.start("C2ST")
     q = min(20, m)
     near = _nearby_theta(zv[:q], ztr, np.asarray(norm.normalize(ttr)), 50)
     acc = [C.c2st(s_norm[i, :50], near[i], seed=seed) for i in range(q)]
@@ -113,6 +144,7 @@ def evaluate_decoders(out, pairs, *, n_cases: int = 1000, n_samples: int = 200, 
     inside = np.abs(cov - np.array(rep["levels"])) <= 0.05
     rep["calibrated_within_5_points"] = {"50%": int(inside[:, 0].sum()), "90%": int(inside[:, 1].sum()),
                                          "of": len(P.PARAM_NAMES)}
+    st.start("paper vehicle")
     if paper_zhat is not None:
         ps = np.asarray(cfm.sample_theta(np.asarray(paper_zhat, np.float32), jax.random.fold_in(key, 3), 1000))
         plot_marginals(ps, P.PAPER_HARDWARE, out / "paper_vehicle_posterior.png",
@@ -122,6 +154,7 @@ def evaluate_decoders(out, pairs, *, n_cases: int = 1000, n_samples: int = 200, 
                                     "true": float(P.PAPER_HARDWARE[j]),
                                     "inside": bool(q05[j] <= P.PAPER_HARDWARE[j] <= q95[j])}
                                 for j, n in enumerate(P.PARAM_NAMES)}
+    st.close()
     (out / "decoder_eval.json").write_text(json.dumps(rep, indent=2) + "\n")
     return rep
 

@@ -164,7 +164,19 @@ def _optimizer(cfg: CFMConfig, total_steps: int):
                        optax.adamw(sched, weight_decay=cfg.weight_decay))
 
 
-def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None):
+def _data_digest(*arrays) -> str:
+    """sha256 of arrays' shapes and bytes: identifies the data a checkpoint was trained on."""
+    import hashlib
+    h = hashlib.sha256()
+    for a in arrays:
+        a = np.ascontiguousarray(a, np.float32)
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None, checkpoint=None,
+         checkpoint_every: int = 10):
     import optax
 
     _check_kind(kind)
@@ -208,8 +220,25 @@ def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None):
     theta_d, z_d = jnp.asarray(theta), jnp.asarray(zz)
     hist = {"epoch": [], "train_loss": [], "val_loss": [], "steps_per_s": [], "epoch_s": [],
             "steps_per_epoch": spe, "batch": bs}
+    start, wall_prev = 0, 0.0
+    ck_meta = None
+    if checkpoint is not None:
+        from mjxsysid.policy.checkpoint import load_meta, load_tree, save_tree
+        checkpoint = Path(checkpoint)
+        ck_meta = {"kind": kind, "config": cfg.to_dict(), "data": _data_digest(theta, zz)}
+        if checkpoint.is_file():
+            meta = load_meta(checkpoint)
+            if {k: meta.get(k) for k in ck_meta} != ck_meta:
+                raise ValueError(f"{checkpoint} was written for another config or data set; "
+                                 f"delete it or train into a new folder")
+            params, opt_state = load_tree(checkpoint, (params, opt_state))
+            start, wall_prev, hist = meta["epoch"], meta["wall_s"], meta["hist"]
+            if log is not None:
+                log(f"{tag} resumed from {checkpoint} at epoch {start}")
+    from mjxsysid.progress import progress
+    bar = progress(total=cfg.epochs, initial=start, desc=f"train {kind}", unit="epoch")
     t_start = time.perf_counter()
-    for e in range(cfg.epochs):
+    for e in range(start, cfg.epochs):
         t0 = time.perf_counter()
         params, opt_state, tl = epoch(params, opt_state, jax.random.fold_in(k_train, e), theta_d, z_d)
         tl = float(tl)  # blocks
@@ -226,8 +255,15 @@ def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None):
             note = " (incl. compile)" if e == 0 else ""
             log(f"{tag} epoch {e + 1}/{cfg.epochs} train {tl:.4f}{vs} {sps:.1f} steps/s{note}")
         if not np.isfinite(tl):
+            bar.close()
             raise FloatingPointError(f"{tag} training loss is not finite at epoch {e + 1}")
-    hist["wall_s"] = time.perf_counter() - t_start
+        bar.update(1)
+        bar.set_postfix(train=f"{tl:.4f}", **({"val": f"{vl:.4f}"} if vl is not None else {}), refresh=False)
+        if ck_meta is not None and ((e + 1) % checkpoint_every == 0 and e + 1 < cfg.epochs):
+            save_tree(checkpoint, (params, opt_state),
+                      dict(ck_meta, epoch=e + 1, hist=hist, wall_s=wall_prev + time.perf_counter() - t_start))
+    bar.close()
+    hist["wall_s"] = wall_prev + time.perf_counter() - t_start
     if val is None:
         hist["val_loss"] = None
     return params, hist
@@ -256,22 +292,27 @@ def _make_eval(kind, cfg, net, theta, z, chunk: int = 1024):
 
 
 def train_cfm(theta_norm, z, cfg: CFMConfig = CFMConfig(), log: Callable | None = print,
-              val: tuple | None = None):
+              val: tuple | None = None, checkpoint=None, checkpoint_every: int = 10):
     """Train the CFM velocity field v(θ_τ, τ, z).
 
     theta_norm: (n, theta_dim) normalised θ; z: (n, z_dim); val: optional (theta_norm, z)
     held-out pair. Returns (params, history) with history keys ``epoch``, ``train_loss``,
     ``val_loss`` (list or None), ``steps_per_s`` (epoch 1 includes compilation), ``epoch_s``,
     ``steps_per_epoch``, ``batch``, ``wall_s``.
+
+    ``checkpoint``: a file for the training state every ``checkpoint_every`` epochs; when it
+    exists (same kind, config and data), training resumes from it and ends with the same
+    weights as an uninterrupted run (epoch keys are ``fold_in(key, epoch)``).
     """
-    return _fit("cfm", theta_norm, z, cfg, log, val)
+    return _fit("cfm", theta_norm, z, cfg, log, val, checkpoint=checkpoint, checkpoint_every=checkpoint_every)
 
 
 def train_regression(theta_norm, z, cfg: CFMConfig = CFMConfig(), log: Callable | None = print,
-                     val: tuple | None = None):
+                     val: tuple | None = None, checkpoint=None, checkpoint_every: int = 10):
     """Train the Regression baseline r(z) (MSE, same architecture and optimiser). Same I/O
     as :func:`train_cfm`."""
-    return _fit("regression", theta_norm, z, cfg, log, val)
+    return _fit("regression", theta_norm, z, cfg, log, val, checkpoint=checkpoint,
+                checkpoint_every=checkpoint_every)
 
 
 # ----------------------------------------------------------------------------------------
@@ -320,12 +361,24 @@ def load_decoder(path) -> LoadedDecoder:
     full = load_meta(path)
     if full.get("format") != FORMAT:
         raise ValueError(f"{path}: not a decoder file (format {full.get('format')!r}, expected {FORMAT!r})")
-    kind = full["kind"]
-    _check_kind(kind)
-    cfg = CFMConfig.from_dict(full["config"])
-    params = load_tree(path, init_params(cfg, kind))
+    kind = full.get("kind")
+    if kind not in KINDS:
+        raise ValueError(f"{path}: decoder kind {kind!r} is not one of {KINDS}")
+    try:
+        cfg = CFMConfig.from_dict(full["config"])
+    except (KeyError, TypeError, ValueError) as e:
+        raise ValueError(f"{path}: bad decoder config ({type(e).__name__}: {e})") from None
+    params = load_tree(path, init_params(cfg, kind), finite=True)
     norm = None
     if full.get("normalizer") is not None:
         from mjxsysid.params import Normalizer
-        norm = Normalizer.from_dict(full["normalizer"])
+        try:
+            norm = Normalizer.from_dict(full["normalizer"])
+            bad = [k for k in ("shift", "scale") if np.shape(getattr(norm, k)) != (cfg.theta_dim,)
+                   or not np.all(np.isfinite(getattr(norm, k)))]
+        except (KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"{path}: bad normalizer ({type(e).__name__}: {e})") from None
+        if bad or not np.all(np.asarray(norm.scale) > 0):
+            raise ValueError(f"{path}: bad normalizer: shift and scale must be {cfg.theta_dim} finite values, "
+                             f"scale > 0")
     return LoadedDecoder(kind, jax.tree_util.tree_map(jnp.asarray, params), cfg, norm, full.get("meta", {}))

@@ -6,8 +6,12 @@ checks every key and shape, so a mismatched file fails with a message naming the
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import struct
+import zipfile
+import zlib
 from pathlib import Path
 
 import jax
@@ -31,15 +35,50 @@ def save_tree(path, tree, meta: dict | None = None) -> Path:
     return path
 
 
+@contextlib.contextmanager
+def open_npz(path, what: str = "weights/checkpoint file"):
+    """``np.load`` of an .npz (no pickle) whose failures name the file: a missing file raises
+    ``FileNotFoundError``; an empty, truncated or corrupt file (or a plain .npy, or a read error
+    while inside the block) raises ``ValueError("PATH: not a readable WHAT ...")``."""
+    path = _existing(path, what)
+    # zipfile and numpy raise many types on damaged files (BadZipFile, zlib.error, EOFError,
+    # OSError, ValueError, KeyError, NotImplementedError for a garbled version field, ...).
+    bad = (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError, KeyError, NotImplementedError,
+           IndexError, TypeError, struct.error, UnicodeDecodeError, OverflowError, MemoryError)
+    try:
+        f = np.load(path, allow_pickle=False)
+    except bad as e:
+        raise ValueError(f"{path}: not a readable {what} (empty, truncated or corrupt .npz: "
+                         f"{type(e).__name__}: {e})") from None
+    if not isinstance(f, np.lib.npyio.NpzFile):
+        raise ValueError(f"{path}: a single array (.npy), not a {what} (.npz)")
+    try:
+        yield f
+    except bad as e:
+        if isinstance(e, ValueError) and str(e).startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a readable {what} (truncated or corrupt: "
+                         f"{type(e).__name__}: {e})") from None
+    finally:
+        f.close()
+
+
 def load_meta(path) -> dict:
-    with np.load(_existing(path), allow_pickle=False) as f:
-        return json.loads(bytes(f[_META]).decode()) if _META in f.files else {}
+    """The JSON metadata saved with a tree ({} if none). Errors name the file."""
+    with open_npz(path) as f:
+        if _META not in f.files:
+            return {}
+        meta = json.loads(bytes(f[_META]).decode())
+        if not isinstance(meta, dict):
+            raise ValueError(f"{path}: metadata is not a JSON object")
+        return meta
 
 
-def load_tree(path, template):
-    """Read a tree saved by :func:`save_tree` into the structure of ``template``."""
-    path = _existing(path)
-    with np.load(path, allow_pickle=False) as f:
+def load_tree(path, template, *, finite: bool = False):
+    """Read a tree saved by :func:`save_tree` into the structure of ``template``. Every key and
+    shape is checked: a missing or unexpected array or a wrong shape (and with ``finite``, for
+    weights, NaN/inf values) raise ``ValueError`` naming the file and the array."""
+    with open_npz(path) as f:
         flat, treedef = jax.tree_util.tree_flatten_with_path(template)
         out = []
         for k, leaf in flat:
@@ -49,6 +88,8 @@ def load_tree(path, template):
             arr = f[name]
             if arr.shape != np.shape(leaf):
                 raise ValueError(f"{path}: {name} has shape {arr.shape}, expected {np.shape(leaf)}")
+            if finite and np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
+                raise ValueError(f"{path}: {name} has non-finite values (NaN/inf)")
             out.append(arr.astype(np.asarray(leaf).dtype))
         extra = set(f.files) - {jax.tree_util.keystr(k) for k, _ in flat} - {_META}
         if extra:
@@ -56,8 +97,8 @@ def load_tree(path, template):
     return jax.tree_util.tree_unflatten(treedef, out)
 
 
-def _existing(path) -> Path:
+def _existing(path, what: str = "weights/checkpoint file") -> Path:
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"weights/checkpoint file not found: {path}")
+        raise FileNotFoundError(f"{what} not found: {path}")
     return path

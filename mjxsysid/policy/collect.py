@@ -67,13 +67,16 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     prior = prior or ref.prior
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    from mjxsysid.progress import tee
+    log = tee(log, out / "collect_log.txt")
     total = n_train + n_test
     nb = -(-total // batch)
     theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(seed), nb * batch))
     sim = Quadrotor()
     zs, fs = [], []
     t0 = time.time()
-    for i in range(nb):
+    from mjxsysid.progress import progress
+    for i in progress(range(nb), desc="collect", unit="batch"):
         z, f = latents_in_flight(ref, theta[i * batch:(i + 1) * batch],
                                  jax.random.fold_in(jax.random.PRNGKey(seed + 1), i),
                                  steps=steps, sim=sim)
@@ -102,11 +105,19 @@ def load_pairs(path) -> tuple[dict, dict]:
         path = path / "pairs.npz"
     if not path.is_file():
         raise FileNotFoundError(f"dataset not found: {path}")
-    with np.load(path, allow_pickle=False) as f:
+    from mjxsysid.policy.checkpoint import open_npz
+    with open_npz(path, "pairs file") as f:
         need = {"theta_train", "zhat_train", "theta_test", "zhat_test"}
         missing = need - set(f.files)
         if missing:
             raise ValueError(f"{path}: missing arrays {sorted(missing)} (not a mjxsysid pairs file?)")
         arrays = {k: f[k] for k in f.files if k != "meta_json"}
         meta = json.loads(bytes(f["meta_json"]).decode()) if "meta_json" in f.files else {}
+    for split in ("train", "test"):
+        th, z = arrays[f"theta_{split}"], arrays[f"zhat_{split}"]
+        if th.ndim != 2 or th.shape[1] != P.N_PARAMS or z.ndim != 2 or len(z) != len(th):
+            raise ValueError(f"{path}: theta_{split} {th.shape} and zhat_{split} {z.shape} must be "
+                             f"(n, {P.N_PARAMS}) and (n, latent)")
+    if not isinstance(meta, dict):
+        raise ValueError(f"{path}: meta_json is not a JSON object")
     return arrays, meta

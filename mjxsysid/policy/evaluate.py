@@ -96,7 +96,10 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
     params = ctrl.params
     key = jax.random.PRNGKey(seed)
     out = {"n": n}
+    from mjxsysid.progress import stages
+    st = stages(["command tracking", "lemniscate", "paper vehicle", "slow actuators"], desc="evaluate-policy")
 
+    st.start("command tracking")
     log(f"[1/4] command tracking on {n} vehicles ({steps} steps, training-distribution commands)")
     res = {}
     for name, expert in (("policy", False), ("oracle_k_theta", True)):
@@ -112,6 +115,7 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
     ok = np.asarray(r["episode_step"]) >= 200  # no reset in the last 0.4 s
     out["latent"] = latent_health(r["z_theta"][ok], r["zhat"][ok], r["theta_norm"][ok], r["theta"][ok])
 
+    st.start("lemniscate")
     log(f"[2/4] closed loop, 10 s lemniscate, baseline gains, {n} prior vehicles")
     theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.fold_in(key, 1), n))
     cl = {"policy": closed_loop(ctrl, theta, seed=seed)}
@@ -124,9 +128,11 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
         out["lemniscate"]["rmse_ratio_policy_over_oracle"] = float(
             cl["policy"]["pos_rmse_m"][both].mean() / cl["oracle"]["pos_rmse_m"][both].mean())
 
+    st.start("paper vehicle")
     log("[3/4] paper vehicle")
     out["paper_vehicle"] = {k: float(v[0]) for k, v in closed_loop(ctrl, P.PAPER_HARDWARE[None], seed=seed).items()}
 
+    st.start("slow actuators")
     log("[4/4] slow actuators (τ_m ∈ [0.05, 0.10] s)")
     slow = np.asarray(P.SLOW_ACTUATOR_PRIOR.sample(jax.random.fold_in(key, 2), n))
     out["slow_actuators"] = {"policy": summarize(closed_loop(ctrl, slow, seed=seed)),
@@ -139,4 +145,5 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
     out["slow_actuators"]["paper_vehicle"] = {
         f"tau_m={t:.2f}": {"pos_rmse_m": float(m["pos_rmse_m"][i]), "failed": bool(m["failed"][i])}
         for i, t in enumerate(slow_paper[:, P.TAU_M])}
+    st.close()
     return out

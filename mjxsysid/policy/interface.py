@@ -131,7 +131,8 @@ def _kind_of_path(p: Path) -> str | None:
             return "mjxsysid"
         return None
     if p.is_file() and p.suffix == ".npz":
-        with np.load(p, allow_pickle=False) as z:
+        from mjxsysid.policy.checkpoint import open_npz
+        with open_npz(p, "policy weights file") as z:
             return "xadap" if "__format__" in z.files else "mjxsysid"
     return None
 

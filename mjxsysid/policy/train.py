@@ -283,36 +283,52 @@ def export_policy(params, path, meta: dict) -> Path:
 def load_policy_params(path):
     """Read shipped policy weights -> (params dict {'mu','phi','pi','aux'}, meta)."""
     template = N.Networks().init(jax.random.PRNGKey(0))
-    params = load_tree(path, {k: template[k] for k in POLICY_MODULES})
+    params = load_tree(path, {k: template[k] for k in POLICY_MODULES}, finite=True)
     return params, load_meta(path)
 
 
 def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print) -> dict:
-    """Train with checkpoints in ``out_dir`` (``checkpoint.npz``; resumed if present and
-    ``resume``). Writes ``policy.npz`` (shipped format) and ``train_log.jsonl``. Returns the
-    last stats and wall time."""
+    """Train with checkpoints in ``out_dir`` (``checkpoint.npz``: training state and the
+    environments' state, so an interrupted run resumed from it continues exactly as an
+    uninterrupted one; resumed if present and ``resume``). Writes ``policy.npz`` (shipped
+    format) and ``train_log.jsonl``. Returns the last stats and wall time. A progress bar
+    (:mod:`mjxsysid.progress`) advances per iteration with the key metrics."""
+    from mjxsysid.progress import progress
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     trainer = Trainer(cfg)
     ts = trainer.init(jax.random.PRNGKey(cfg.seed))
     ckpt = out / "checkpoint.npz"
+    env_state = None
     if resume and ckpt.exists():
         meta = load_meta(ckpt)
         if meta.get("config") != json.loads(json.dumps(cfg.to_dict())):
             raise ValueError(f"{ckpt} was written with a different config; use a new --out or --no-resume")
-        ts = load_tree(ckpt, ts)
+        if meta.get("with_env"):
+            p0, _ = schedules(cfg, ts.iteration)
+            ts, env_state = load_tree(ckpt, (ts, trainer.reset(jax.random.fold_in(ts.key, 123), p0)))
+        else:  # older checkpoints hold the training state only: environments restart
+            ts = load_tree(ckpt, ts)
         log(f"resumed from {ckpt} at iteration {int(ts.iteration)}")
-    p0, _ = schedules(cfg, ts.iteration)
-    env_state = trainer.reset(jax.random.fold_in(ts.key, 123), p0)
+    if env_state is None:
+        p0, _ = schedules(cfg, ts.iteration)
+        env_state = trainer.reset(jax.random.fold_in(ts.key, 123), p0)
     steps_per_it = cfg.num_envs * cfg.unroll
     t_start = time.time()
     wall_prev = load_meta(ckpt).get("wall_s", 0.0) if (resume and ckpt.exists()) else 0.0
     logf = open(out / "train_log.jsonl", "a")
     stats = {}
     t_log, it_log = time.time(), int(ts.iteration)
+    bar = progress(total=cfg.iterations, initial=int(ts.iteration), desc="train-policy", unit="it")
     while int(ts.iteration) < cfg.iterations:
         ts, env_state, stats = trainer.iteration(ts, env_state)
         it = int(ts.iteration)
+        bar.update(1)
+        if not bar.disable:
+            bar.set_postfix(reward=f"{float(stats['reward']):+.3f}", rate_err=f"{float(stats['rate_err']):.3f}",
+                            thrust_err=f"{float(stats['thrust_err']):.2f}",
+                            z_err=f"{float(stats['latent_err_rel']):.3f}", refresh=False)
         if it % cfg.log_every == 0 or it == cfg.iterations or it == 1:
             stats = {k: float(v) for k, v in stats.items()}
             now = time.time()
@@ -328,8 +344,9 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print) -> dict:
                 f"‖z−ẑ‖/spread {stats['latent_err_rel']:.3f} | min std z {stats['latent_min_std']:.2f} "
                 f"| p {stats['p_zhat']:.2f}")
         if it % cfg.checkpoint_every == 0 or it == cfg.iterations:
-            save_tree(ckpt, ts, {"config": cfg.to_dict(), "iteration": it,
-                                 "wall_s": wall_prev + time.time() - t_start})
+            save_tree(ckpt, (ts, env_state), {"config": cfg.to_dict(), "iteration": it, "with_env": True,
+                                              "wall_s": wall_prev + time.time() - t_start})
+    bar.close()
     logf.close()
     wall = wall_prev + time.time() - t_start
     export_policy(ts.params, out / "policy.npz", {

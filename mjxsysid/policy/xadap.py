@@ -599,7 +599,8 @@ def load_npz(path) -> XAdapWeights:
         p = p.with_name(p.name + ".npz")
     if not p.is_file():
         raise FileNotFoundError(f"Xadap weights file not found: {str(p)!r}")
-    with np.load(p, allow_pickle=False) as z:
+    from mjxsysid.policy.checkpoint import open_npz
+    with open_npz(p, "Xadap weights file") as z:
         keys = set(z.files)
         fmt = str(z["__format__"]) if "__format__" in keys else None
         if fmt != _NPZ_FORMAT:
@@ -613,4 +614,6 @@ def load_npz(path) -> XAdapWeights:
         if a.shape != _EXPECTED_SHAPES[k]:
             raise ValueError(f"{p.name}: array {k!r} has shape {a.shape}, expected "
                              f"{_EXPECTED_SHAPES[k]}")
+        if np.issubdtype(a.dtype, np.floating) and not np.all(np.isfinite(a)):
+            raise ValueError(f"{p.name}: array {k!r} has non-finite values (NaN/inf)")
     return XAdapWeights(**arrays)

@@ -13,9 +13,7 @@ drag −D v_body, the constant body-frame torque τ_ext, the world-frame disturb
 """
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import sys
 from pathlib import Path
 from typing import NamedTuple
 
@@ -25,10 +23,10 @@ import mujoco
 import numpy as np
 from flax import struct
 
-with contextlib.redirect_stdout(sys.stderr):  # MJX prints "Failed to import warp" on stdout
-    from mujoco import mjx
-
 from mjxsysid import params as P
+from mjxsysid._quiet import import_mjx
+
+mjx = import_mjx()  # without MJX's "Failed to import warp" probe message
 
 ASSET = Path(__file__).resolve().parent.parent / "assets" / "quadrotor.xml"
 BODY = 1  # body id of the quadrotor in assets/quadrotor.xml (0 is the world)

@@ -1,0 +1,164 @@
+"""The Python API for the common path (re-exported lazily by ``mjxsysid``)::
+
+    import mjxsysid
+    res = mjxsysid.fly(mjxsysid.paper_vehicle(), controller="policy", reference="lemniscate")
+    res.metrics["pos_rmse_m"]                     # what `mjxsysid fly` writes to metrics.json
+    post = mjxsysid.decode(res, samples=100)      # what `mjxsysid decode` writes
+    post["summary"]["thrust_to_weight"]           # {mean, q05, q95, true, inside}
+    post = mjxsysid.decode("my_flight.csv")       # a recorded flight log (README: log format)
+
+Thin wrappers over :func:`mjxsysid.analysis.flight.fly_vehicles`,
+:func:`mjxsysid.analysis.decode.decode_posterior` and the vehicle-file readers of
+:mod:`mjxsysid.params`: the same checks, the same numbers as the command line.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from mjxsysid import params as P
+
+__all__ = ["FlightResult", "decode", "fly", "load_vehicle", "paper_vehicle", "prior_vehicles",
+           "save_vehicle", "to_theta"]
+
+load_vehicle = P.load_vehicle
+save_vehicle = P.save_vehicle
+
+
+def paper_vehicle() -> np.ndarray:
+    """The paper's hardware vehicle θ (19,) (``mjxsysid/assets/vehicles/paper_hardware.json``)."""
+    return P.paper_hardware()
+
+
+def prior_vehicles(n: int, prior: str = "default", seed: int = 0) -> np.ndarray:
+    """n vehicles θ (n, 19) drawn from a named prior (``default``, ``slow_actuators``, ``xadap``)."""
+    import jax
+    if int(n) < 1:
+        raise ValueError(f"n must be >= 1, got {n}")
+    return np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(seed), int(n)))
+
+
+def to_theta(v=None) -> np.ndarray:
+    """θ from any vehicle description: None (the paper vehicle), a vehicle-file path, a vehicle
+    dict (vehicle-file keys), or θ (19,) / (B, 19). Files and dicts get the full vehicle-file
+    checks (keys, types, physics, flyability); arrays :func:`mjxsysid.params.validate_theta`."""
+    if v is None:
+        return P.paper_hardware()
+    if isinstance(v, (str, Path)):
+        return P.load_vehicle(v)
+    if isinstance(v, Mapping):
+        return P.theta_from_dict(v)
+    return P.validate_theta(v, what="vehicle")
+
+
+@dataclasses.dataclass(frozen=True)
+class FlightResult:
+    """What :func:`fly` returns.
+
+    flight: :class:`~mjxsysid.analysis.harness.Flight` with (B, T, ...) leaves (``latent`` set
+    for a policy); metrics: for one vehicle its ``metrics.json`` dict (``pos_rmse_m``,
+    ``failed``, …), for several the batch summary (success rate, mean/std/median) with
+    ``per_vehicle`` lists; theta (B, 19); duration (s); controller; reference; policy (the
+    resolved :class:`~mjxsysid.policy.interface.PolicyRef` or None)."""
+    flight: object
+    metrics: dict
+    theta: np.ndarray
+    duration: float
+    controller: str
+    reference: str
+    policy: object = None
+
+    def one(self, index: int = 0):
+        """The flight of vehicle ``index`` as host arrays (leaves (T, ...))."""
+        from mjxsysid.analysis.flight import one_flight
+        return one_flight(self.flight, index)
+
+    def save(self, out, index: int = 0) -> Path:
+        """Write ``out/flight.npz`` (vehicle ``index``) and ``out/metrics.json`` as ``mjxsysid fly``."""
+        import json
+
+        from mjxsysid.analysis.flight import save_flight
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        save_flight(self.flight, self.theta, out / "flight.npz", index)
+        (out / "metrics.json").write_text(json.dumps(self.metrics, indent=2) + "\n")
+        return out
+
+
+def fly(vehicle=None, controller: str = "policy", *, reference: str = "lemniscate", period: float = 10.0,
+        duration: float | None = None, policy="mjxsysid", weights=None, gains: str = "baseline",
+        force_step=(0.0, 0.0, 0.0), force_step_time: float = 1.0, force_sigma: float = 0.0,
+        seed: int = 0) -> FlightResult:
+    """Fly one vehicle or a batch (see :func:`to_theta` for what ``vehicle`` may be) under
+    ``controller``: ``"policy"`` (the frozen latent policy ``policy``/``weights``: ``"mjxsysid"``
+    — the shipped one —, ``"xadap"`` with ``weights``, or a path), ``"oracle"`` (K_θ with the
+    true θ) or ``"nominal"`` (K_θ with the paper vehicle's θ), on ``reference`` (``hover``,
+    ``lemniscate`` of ``period`` s, ``minsnap``) for ``duration`` s (default one period / 5 s),
+    with an optional world-force step and Gaussian force noise. Same as ``mjxsysid fly``."""
+    from mjxsysid.analysis.flight import CONTROLLERS, fly_vehicles, metrics_dict
+    from mjxsysid.analysis.harness import metrics_to_host
+    if controller not in CONTROLLERS:
+        raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
+    theta = P.as_batch(to_theta(vehicle))
+    ref = None
+    if controller == "policy":
+        from mjxsysid.policy.interface import resolve_policy
+        ref = resolve_policy(policy, weights)
+    flight, m, dur = fly_vehicles(theta, controller=controller, reference=reference, period=period,
+                                  duration=duration, gains=gains, force_step=tuple(force_step),
+                                  force_step_time=force_step_time, force_sigma=force_sigma, seed=seed,
+                                  policy=ref)
+    if len(theta) == 1:
+        met = metrics_dict(m, 0)
+    else:
+        met = dict(metrics_dict(m, None), per_vehicle=metrics_to_host(m))
+    return FlightResult(flight, met, np.asarray(theta), float(dur), controller, reference, ref)
+
+
+def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None, weights=None,
+           decoders=None, seed: int = 0, truth=None, index: int = 0, allow_mismatch: bool = False) -> dict:
+    """Decode a policy's latent into a distribution of vehicles, as ``mjxsysid decode``.
+
+    ``flight_or_log``: a :class:`FlightResult` of :func:`fly` with ``controller="policy"``
+    (vehicle ``index`` of it; its policy and true θ are used) or the path of a flight-log CSV
+    (replayed through ``policy``, default the shipped one; ``truth``: optionally the vehicle
+    that flew it, anything :func:`to_theta` takes). ẑ is read at ``rate`` Hz after the first
+    0.2 s and each decoded into ``samples`` models by the policy's CFM (or that in
+    ``decoders``). Returns the arrays of ``decoded.npz`` — times (K,), zhat (K, 8), samples
+    (K, S, 19), regression (K, 19), theta_true (19,) (NaN if unknown) — and ``summary``, the
+    dict of ``summary.json`` (per parameter and identifiable combination: mean, q05, q95,
+    and with a known truth, true and inside)."""
+    from mjxsysid.analysis.decode import decode_posterior, load_decoders, log_latents, read_log
+    from mjxsysid.policy.interface import resolve_policy
+    if not rate > 0:
+        raise ValueError(f"rate must be > 0 Hz, got {rate}")
+    if samples < 2:
+        raise ValueError(f"samples must be >= 2, got {samples}")
+    if isinstance(flight_or_log, FlightResult):
+        res = flight_or_log
+        if res.controller != "policy":
+            raise ValueError(f"decode needs a flight flown by a latent policy (controller='policy'), "
+                             f"this one was flown by {res.controller!r}")
+        if weights is not None or (policy is not None and resolve_policy(policy) != res.policy):
+            raise ValueError("this flight was flown by another policy than the one given; decode it "
+                             "with the policy that flew it (leave policy=None)")
+        ref = res.policy
+        one = res.one(index)
+        zhat_t, times = np.asarray(one.latent), np.asarray(one.time)
+        th = res.theta[index] if truth is None else to_theta(truth)
+    elif isinstance(flight_or_log, (str, Path)):
+        rec = read_log(flight_or_log)
+        th = None if truth is None else to_theta(truth)
+        ref = resolve_policy(policy or "mjxsysid", weights)
+        zhat_t, times = log_latents(ref, rec)
+    else:
+        raise ValueError(f"decode takes a FlightResult of mjxsysid.fly or a flight-log path, "
+                         f"got {type(flight_or_log).__name__}")
+    if th is not None and np.shape(th) != (P.N_PARAMS,):
+        raise ValueError(f"truth must be one vehicle, θ ({P.N_PARAMS},); got shape {np.shape(th)}")
+    cfm, reg = load_decoders(decoders, ref, allow_mismatch=allow_mismatch, warn=print)
+    return decode_posterior(zhat_t, times, th, decoder=cfm, regression=reg, rate=rate, samples=samples,
+                            seed=seed)
