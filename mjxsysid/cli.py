@@ -480,8 +480,8 @@ def cmd_tune(args) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.time()
     res = compare_methods(theta[None], broadcast(ref, 1), steps=steps, methods=methods, cfg=cfg, policy=policy,
-                          decoder=decoder, sim=sim, seed=args.seed, progress=True,
-                          log=lambda m: print(m, file=sys.stderr, flush=True))
+                          decoder=decoder, sim=sim, seed=args.seed,
+                          log=lambda m: _echo(m, file=sys.stderr))
     d = results_dict(res, index=0)
     info = {"vehicle": str(args.vehicle or "paper_hardware"), "reference": args.reference,
             "period_s": args.period, "duration_s": duration, "policy": policy.label, "seed": args.seed,

@@ -56,7 +56,9 @@ per-flight bias, 2 ms latency)."""
 
 def _log(msg):
     import sys
-    print(msg, file=sys.stderr, flush=True)
+
+    from mjxsysid.progress import echo
+    echo(msg, file=sys.stderr)
 
 
 def _prior_table(name, res, methods):

@@ -35,7 +35,7 @@ def check_methods(methods) -> tuple[str, ...]:
 def compare_methods(theta, refs, *, steps: int, methods=METHODS, cfg: TunerConfig = TunerConfig(),
                     policy="mjxsysid", decoder=None, sim: Quadrotor | None = None,
                     disturbance: Disturbance | None = None, seed: int = 0, log=None,
-                    progress: bool = False) -> dict:
+                    progress: bool = True) -> dict:
     """Fly θ (B, 19) on the batched references ``refs`` for ``steps`` control steps under each
     method. ``policy``: a name/path/:class:`~mjxsysid.policy.interface.PolicyRef` of the frozen
     low-level policy; ``decoder``: its CFM (default: the policy's shipped one; needed for 'cfm').
@@ -83,8 +83,8 @@ def compare_methods(theta, refs, *, steps: int, methods=METHODS, cfg: TunerConfi
 def _bar(enabled: bool, method: str, total: int):
     if not enabled:
         return None
-    from tqdm.auto import tqdm
-    return tqdm(total=total, desc=f"{METHOD_LABELS[method]} updates", leave=False, unit="seg")
+    from mjxsysid.progress import progress
+    return progress(total=total, desc=f"{METHOD_LABELS[method]} (tuner segments)")
 
 
 def _ms(d):
