@@ -517,7 +517,8 @@ def _tune_video(res, theta, out):
             frames = type(fl.frame)(*[a[0] for a in fl.frame])
             paths.append(render_rollout(theta, frames, Path(tmp) / f"{m}.mp4", width=480, height=360,
                                         reference=fl.ref_pos[0]))
-        side_by_side(paths, out / "tuned_vs_untuned.mp4")
+        from mjxsysid.tune.tuner import METHOD_LABELS
+        side_by_side(paths, out / "tuned_vs_untuned.mp4", labels=[METHOD_LABELS[untuned], METHOD_LABELS[tuned]])
 
 
 def cmd_experiment(args) -> int:
