@@ -193,6 +193,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="tune-*: the full protocol with fewer vehicles and smaller ensembles (tens of minutes on a CPU)")
     ex.add_argument("--seed", type=int, default=0)
     _add_policy(ex)
+    ex.add_argument("--decoders", type=Path, default=None,
+                    help="folder with cfm.npz and regression.npz (default: the policy's shipped decoders)")
     ex.add_argument("--out", type=Path, required=True)
     xp = sub.add_parser("export", help="write the policy as ONNX (fixed batch 1 + dynamic batch), check it in onnxruntime")
     _add_policy(xp, "the policy to export")
@@ -529,6 +531,13 @@ def cmd_experiment(args) -> int:
     if args.cpu and not args.name.startswith("tune-"):
         raise ValueError(f"--cpu applies to the tune-* experiments, not {args.name}")
     kw = {"cpu": True} if args.cpu else {}
+    if args.decoders is not None:
+        import inspect
+        if "decoders" not in inspect.signature(run).parameters:
+            raise ValueError(f"experiment {args.name} does not take --decoders")
+        if not args.decoders.is_dir():
+            raise FileNotFoundError(f"--decoders: folder not found: {args.decoders}")
+        kw["decoders"] = args.decoders
     res = run(args.out, quick=args.quick, policy=_policy_ref(args), seed=args.seed, **kw)
     print(json.dumps(res["numbers"].get("headline", {})))
     print(f"wrote {args.out}/results.json, results.md and figures ({res['wall_s']:.0f} s)", file=sys.stderr)
