@@ -159,7 +159,8 @@ def test_robustness_tiny(tmp_path):
         assert (tmp_path / f).stat().st_size > 0
     with np.load(tmp_path / "envelopes.npz") as z:
         assert z["step_f1_1_0_decoded"].shape == (2, 4, len(z["times"]))
-        assert z["mc_sigma5_decoded"].shape == (2, 3, 2, len(z["times"]))
+        assert z["mc_sigma5_decoded_q"].shape == (2, 3, len(z["times"]))
+        assert z["mc_sigma5_decoded_final"].shape == (2, 3 * 2) and z["mc_sigma5_true_final"].shape == (2, 3)
 
 
 def test_payload_tiny(tmp_path):

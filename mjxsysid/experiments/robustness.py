@@ -7,7 +7,8 @@ The protocol is :func:`mjxsysid.analysis.robustness.robustness_study` with
 or :data:`QUICK` (CPU, minutes). The decoders are a parameter (``decoders=DIR``, default the
 policy's shipped ones), so the experiment can be re-run when better decoders exist.
 
-Writes results.json, results.md, envelopes.npz (the paper vehicle's traces) and
+Writes results.json, results.md, envelopes.npz (the paper vehicle's step-test traces (axis, model,
+time), and per σ the 5/50/95 % population envelopes (axis, quantile, time) and final errors) and
 robustness_step_<force>.png, robustness_mc_envelopes.png, robustness_mc_final_hist.png,
 robustness_prior_vehicles.png.
 """
@@ -79,8 +80,11 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     np.savez_compressed(out / "envelopes.npz", times=times, onset=onset, zhat=res["zhat"][0],
                         **{f"step_{force_tag(f)}_{k}": pv_step[i][k] for i, f in enumerate(cfg.forces)
                            for k in ("true", "decoded", "pm20")},
-                        **{f"mc_sigma{s:g}_{k}": pv_mc[i][k] for i, s in enumerate(cfg.sigmas)
-                           for k in ("true", "decoded", "pm20")})
+                        **{f"mc_sigma{s:g}_{k}_q": np.percentile(
+                            pv_mc[i][k].reshape(2, -1, len(times)), [5, 50, 95], 1).swapaxes(0, 1)
+                           for i, s in enumerate(cfg.sigmas) for k in ("true", "decoded", "pm20")},
+                        **{f"mc_sigma{s:g}_{k}_final": pv_mc[i][k][..., -1].reshape(2, -1)
+                           for i, s in enumerate(cfg.sigmas) for k in ("true", "decoded", "pm20")})
     config = {"quick": quick, "n_prior_vehicles": n_prior, "prior": ref.prior, "gains": "baseline",
               "record_every_steps": 5, **dataclasses.asdict(cfg)}
     return write_results(out, "robustness", config=config,
@@ -245,7 +249,7 @@ def _plot_prior(path, cfg, steps, mcs):
     a.set_xscale("log")
     a.set_xlabel("lateral envelope width, decoded / ±20 %")
     a.set_ylabel("time fraction true lateral error inside decoded 5–95 %")
-    a.set_title("step disturbances (target: upper left quadrant)")
+    a.set_title("step disturbances, ★ paper vehicle (target: upper left)", fontsize=10)
     a.legend(fontsize=7)
     for j, s in enumerate(cfg.sigmas):
         x = [m[j]["lateral"]["energy_distance_pm20_m"] for m in mcs]
@@ -260,7 +264,7 @@ def _plot_prior(path, cfg, steps, mcs):
         b.set_yscale("log")
     b.set_xlabel("energy distance of final lateral error, ±20 % vs true (m)")
     b.set_ylabel("decoded vs true (m)")
-    b.set_title("Monte Carlo (★ paper vehicle; below the diagonal: decoded closer)")
+    b.set_title("Monte Carlo, ★ paper vehicle (below the diagonal: decoded closer)", fontsize=10)
     b.legend(fontsize=7)
     path = Path(path)
     fig.savefig(path, dpi=110)
