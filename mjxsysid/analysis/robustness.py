@@ -34,6 +34,7 @@ import numpy as np
 
 from mjxsysid import params as P
 from mjxsysid.analysis.fidelity import energy_distance, envelope, envelope_stats
+from mjxsysid.analysis.flight import broadcast
 from mjxsysid.analysis.harness import Disturbance, Flight, failure_mask, fly_batch
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Lemniscate
@@ -138,7 +139,6 @@ def fly_traces(policy, theta, refs, dist, keys, steps: int, *, chunk: int = 1638
     ``pad_to``: use exactly this chunk size instead (to share a compile with another call).
     Returns :class:`ErrorTrace` of numpy arrays with leading axis N.
     """
-    from mjxsysid.analysis.flight import broadcast
     from mjxsysid.policy.interface import resolve_policy
     theta = np.asarray(theta, np.float32)
     keys = np.asarray(keys)
