@@ -1,0 +1,167 @@
+"""Sharding the batch axis over several devices (mjxsysid.distributed) gives the one-device
+results. Two CPU devices are forced with XLA_FLAGS, which must be set before JAX starts: each
+check runs in a subprocess that computes both results (``limit_devices(1)``: the one-device path,
+no sharding; then both devices) and prints them as JSON.
+
+Tolerances: the partitioned programs reassociate float sums (e.g. the minibatch means of the
+training loss, whose gradients the compiler all-reduces over the devices), so results agree to
+float32 rounding amplified by the dynamics, not bit for bit: flights 1e-5 (m, rad/s, …, after
+0.2 s), latents 1e-5, one training iteration's loss and parameters 1e-5 relative.
+"""
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+
+PRELUDE = """
+import json, os, sys
+import jax, numpy as np
+jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+from mjxsysid import distributed as D
+assert len(jax.devices()) == 2, jax.devices()
+def maxdiff(a, b):
+    la, lb = jax.tree.leaves(a), jax.tree.leaves(b)
+    assert len(la) == len(lb)
+    return max(float(np.max(np.abs(np.asarray(x, np.float64) - np.asarray(y, np.float64)), initial=0.0))
+               for x, y in zip(la, lb))
+"""
+
+
+def run_two_devices(body: str) -> dict:
+    """Run PRELUDE + body on 2 forced CPU devices; the body prints one JSON line last."""
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
+               JAX_PLATFORMS="cpu", PYTHONPATH=str(ROOT),
+               MJXSYSID_JAX_CACHE=os.environ.get("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache")))
+    env.pop("MJXSYSID_DEVICES", None)
+    code = PRELUDE + textwrap.dedent(body)
+    p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=900)
+    assert p.returncode == 0, p.stderr[-3000:]
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def test_fly_batch_two_devices_equals_one_and_drops_padding():
+    r = run_two_devices("""
+        from mjxsysid import params as P
+        from mjxsysid.analysis.flight import fly_vehicles
+        theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 5))   # odd: one padded row
+        with D.limit_devices(1):
+            f1, m1, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.2, seed=3)
+        f2, m2, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.2, seed=3)
+        mesh = D.batch_mesh()
+        print(json.dumps({"mesh": mesh.size, "padded": D.padded_size(5, mesh),
+                          "shapes": [list(np.shape(x)[:2]) for x in jax.tree.leaves(f2)],
+                          "sharded_over": len(f2.frame.pos.sharding.device_set),
+                          "diff": maxdiff(f1, f2), "metric_diff": maxdiff(m1, m2),
+                          "moved": float(np.abs(np.asarray(f2.frame.pos[:, -1] - f2.frame.pos[:, 0])).max())}))
+    """)
+    assert r["mesh"] == 2 and r["padded"] == 6
+    assert all(s == [5, 100] for s in r["shapes"])          # padding dropped from every leaf
+    assert r["sharded_over"] == 2
+    assert r["moved"] > 1e-4                                 # the flights did something
+    assert r["diff"] <= 1e-5 and r["metric_diff"] <= 1e-5
+
+
+def test_collect_pairs_two_devices_equal_one():
+    r = run_two_devices("""
+        from mjxsysid import params as P
+        from mjxsysid.policy.collect import latents_in_flight
+        theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(1), 3))
+        with D.limit_devices(1):
+            z1, f1 = latents_in_flight("mjxsysid", theta, jax.random.PRNGKey(2), steps=120)
+        z2, f2 = latents_in_flight("mjxsysid", theta, jax.random.PRNGKey(2), steps=120)
+        print(json.dumps({"shape": list(z2.shape), "diff": maxdiff(z1, z2), "failed_equal": bool((f1 == f2).all()),
+                          "z_spread": float(np.std(z2, 0).max())}))
+    """)
+    assert r["shape"] == [3, 8]
+    assert r["failed_equal"]
+    assert r["z_spread"] > 1e-3                              # real latents, not a constant
+    assert r["diff"] <= 1e-5
+
+
+def test_training_iteration_two_devices_equals_one():
+    r = run_two_devices("""
+        from mjxsysid.policy.train import TrainConfig, Trainer
+        cfg = TrainConfig(num_envs=8, unroll=4, epochs=1, minibatches=2, iterations=10)
+        def one_iteration(mesh):
+            tr = Trainer(cfg, mesh)
+            ts = tr.place(tr.init(jax.random.PRNGKey(0)))
+            env = tr.reset(*tr.place((jax.random.PRNGKey(1), np.float32(0.0))))
+            ts, env, stats = tr.iteration(ts, env)
+            return ts, env, stats
+        with D.limit_devices(1):
+            ts1, env1, s1 = one_iteration(D.batch_mesh(divides=cfg.num_envs))
+        ts2, env2, s2 = one_iteration(D.batch_mesh(divides=cfg.num_envs))
+        p0 = Trainer(cfg).init(jax.random.PRNGKey(0)).params
+        rel = lambda a, b: maxdiff(a, b) / max(float(np.max(np.abs(np.asarray(x)))) for x in jax.tree.leaves(a))
+        print(json.dumps({"env_sharded_over": len(jax.tree.leaves(env2)[0].sharding.device_set),
+                          "loss1": float(s1["loss"]), "loss2": float(s2["loss"]),
+                          "param_rel_diff": rel(ts1.params, ts2.params),
+                          "param_change": maxdiff(ts1.params, p0),
+                          "env_diff": maxdiff(env1.theta, env2.theta)}))
+    """)
+    assert r["env_sharded_over"] == 2
+    assert np.isfinite(r["loss1"])
+    assert abs(r["loss1"] - r["loss2"]) <= 1e-5 * max(1.0, abs(r["loss1"]))
+    assert r["param_change"] > 1e-6                          # the update moved the parameters
+    assert r["param_rel_diff"] <= 1e-5
+    assert r["env_diff"] <= 1e-6
+
+
+def test_one_device_is_a_no_op():
+    """In this process (one CPU device): nothing padded, placed or copied."""
+    import jax
+    import jax.numpy as jnp
+    from mjxsysid import distributed as D
+    if len(jax.devices()) != 1:
+        pytest.skip("this process has several devices")
+    tree = {"a": jnp.arange(5.0), "w": jnp.ones(3)}
+    assert D.shard_batch(tree, 5, axes={"a": 0, "w": None}) is tree
+    assert D.unpad(tree["a"], 5) is tree["a"]
+    assert D.replicate(tree) is tree
+    assert D.padded_size(5, D.batch_mesh()) == 5
+
+
+def test_padding_and_unpad_helpers_on_a_fake_mesh():
+    """Padding repeats the last row (valid inputs, never NaN) and unpad drops it."""
+    import jax.numpy as jnp
+    from mjxsysid.distributed import _pad, unpad
+    x = jnp.arange(10.0).reshape(5, 2)
+    p = _pad(x, 8)
+    assert p.shape == (8, 2) and np.array_equal(p[5:], np.repeat(x[-1:], 3, 0))
+    assert np.array_equal(unpad({"x": p}, 5)["x"], x)
+    assert np.array_equal(unpad(jnp.swapaxes(p, 0, 1), 5, axis=1), x.T)
+
+
+def test_launcher_detection_and_bad_settings():
+    from mjxsysid.distributed import device_count, launcher_env
+    assert launcher_env({}) is None
+    assert launcher_env({"JAX_COORDINATOR_ADDRESS": "10.0.0.1:1234"}) == "jax"
+    slurm = {"SLURM_JOB_ID": "7", "SLURM_STEP_NODELIST": "n[1-2]", "SLURM_PROCID": "0",
+             "SLURM_LOCALID": "0", "SLURM_NTASKS": "2"}
+    assert launcher_env(slurm) == "slurm"
+    assert launcher_env({**slurm, "SLURM_NTASKS": "1"}) is None           # one task: nothing to join
+    assert launcher_env({k: v for k, v in slurm.items() if k != "SLURM_STEP_NODELIST"}) is None  # sbatch, no srun
+    assert launcher_env({**slurm, "MJXSYSID_DISTRIBUTED": "0"}) is None
+    assert launcher_env({"OMPI_MCA_orte_hnp_uri": "x", "OMPI_COMM_WORLD_SIZE": "4"}) == "ompi"
+    with pytest.raises(ValueError, match="SLURM_NTASKS"):
+        launcher_env({**slurm, "SLURM_NTASKS": "two"})
+    os.environ["MJXSYSID_DEVICES"] = "zero"
+    try:
+        with pytest.raises(ValueError, match="MJXSYSID_DEVICES"):
+            device_count()
+    finally:
+        del os.environ["MJXSYSID_DEVICES"]
+
+
+def test_maybe_initialize_names_a_missing_variable():
+    from mjxsysid.distributed import maybe_initialize
+    assert maybe_initialize({}) is False                      # no launcher: a plain run
+    with pytest.raises(ValueError, match="JAX_NUM_PROCESSES"):
+        maybe_initialize({"JAX_COORDINATOR_ADDRESS": "127.0.0.1:1234", "JAX_PROCESS_ID": "0"})
