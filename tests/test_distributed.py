@@ -212,3 +212,48 @@ def test_maybe_initialize_names_a_missing_variable():
     assert maybe_initialize({}) is False                      # no launcher: a plain run
     with pytest.raises(ValueError, match="JAX_NUM_PROCESSES"):
         maybe_initialize({"JAX_COORDINATOR_ADDRESS": "127.0.0.1:1234", "JAX_PROCESS_ID": "0"})
+
+
+@pytest.mark.slow
+def test_two_processes_equal_one(tmp_path):
+    """Multi-host path on one machine: 2 processes of 1 CPU device each, joined by
+    ``maybe_initialize`` through JAX_COORDINATOR_ADDRESS (gloo collectives), fly 5 vehicles;
+    both gather the result of one process alone."""
+    import socket
+    code = textwrap.dedent("""
+        import os, sys, numpy as np
+        from mjxsysid import distributed as D
+        joined = D.maybe_initialize()
+        import jax
+        jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
+        from mjxsysid import params as P
+        from mjxsysid.analysis.flight import fly_vehicles
+        theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 5))
+        f, m, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.1, seed=3)
+        np.save(sys.argv[1], np.asarray(f.frame.pos))
+        print(joined, jax.process_count(), len(jax.devices()), D.batch_mesh().size)
+    """)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    base = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=str(ROOT),
+                MJXSYSID_JAX_CACHE=os.environ.get("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache")))
+    for k in ("XLA_FLAGS", "MJXSYSID_DEVICES", "JAX_COORDINATOR_ADDRESS"):
+        base.pop(k, None)
+    procs = [subprocess.Popen([sys.executable, "-c", code, str(tmp_path / f"pos{i}.npy")], text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              env=dict(base, JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{port}",
+                                       JAX_NUM_PROCESSES="2", JAX_PROCESS_ID=str(i)))
+             for i in range(2)]
+    single = subprocess.run([sys.executable, "-c", code, str(tmp_path / "single.npy")], env=base,
+                            capture_output=True, text=True, timeout=900)
+    outs = [p.communicate(timeout=900) for p in procs]
+    for p, (o, e) in zip(procs, outs):
+        assert p.returncode == 0, e[-3000:]
+    assert single.returncode == 0, single.stderr[-3000:]
+    assert [o.split() for o, _ in outs] == [["True", "2", "2", "2"]] * 2   # joined, 2 processes, mesh of 2
+    assert single.stdout.split() == ["False", "1", "1", "1"]
+    ref = np.load(tmp_path / "single.npy")
+    assert ref.shape == (5, 50, 3)
+    for i in range(2):
+        np.testing.assert_allclose(np.load(tmp_path / f"pos{i}.npy"), ref, rtol=0, atol=1e-5)
