@@ -240,13 +240,13 @@ def test_two_processes_equal_one(tmp_path):
                 MJXSYSID_JAX_CACHE=os.environ.get("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache")))
     for k in ("XLA_FLAGS", "MJXSYSID_DEVICES", "JAX_COORDINATOR_ADDRESS"):
         base.pop(k, None)
+    single = subprocess.run([sys.executable, "-c", code, str(tmp_path / "single.npy")], env=base,
+                            capture_output=True, text=True, timeout=900)   # first: it also warms the cache
     procs = [subprocess.Popen([sys.executable, "-c", code, str(tmp_path / f"pos{i}.npy")], text=True,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               env=dict(base, JAX_COORDINATOR_ADDRESS=f"127.0.0.1:{port}",
                                        JAX_NUM_PROCESSES="2", JAX_PROCESS_ID=str(i)))
              for i in range(2)]
-    single = subprocess.run([sys.executable, "-c", code, str(tmp_path / "single.npy")], env=base,
-                            capture_output=True, text=True, timeout=900)
     outs = [p.communicate(timeout=900) for p in procs]
     for p, (o, e) in zip(procs, outs):
         assert p.returncode == 0, e[-3000:]
