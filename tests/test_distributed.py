@@ -50,7 +50,9 @@ def run_two_devices(body: str) -> dict:
     code = PRELUDE + textwrap.dedent(body)
     p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=900)
     assert p.returncode == 0, p.stderr[-3000:]
-    return json.loads(p.stdout.strip().splitlines()[-1])
+    r = json.loads(p.stdout.strip().splitlines()[-1])
+    print(r)  # the measured differences (pytest -s)
+    return r
 
 
 def test_fly_batch_two_devices_equals_one_and_drops_padding():
@@ -125,6 +127,37 @@ def test_training_iteration_two_devices_equals_one():
     assert r["param_change"] > 1e-6                          # the update moved the parameters
     assert r["param_rel_diff"] <= 1e-5
     assert r["env_diff"] <= 1e-6
+
+
+@pytest.mark.slow
+def test_evaluation_rollout_and_cfm_sampling_two_devices_equal_one():
+    """evaluate-policy's environment rollout (3 envs: padded, series on axis 1) and the CFM
+    sampling over cases of evaluate-decoder / decode (3 cases: padded)."""
+    r = run_two_devices("""
+        from mjxsysid.cfm.sample import Decoder
+        from mjxsysid.policy.controller import PolicyController
+        from mjxsysid.policy.env import EnvConfig, TrainEnv
+        from mjxsysid.policy.evaluate import env_rollout
+        from mjxsysid.analysis.decode import load_decoders
+        from mjxsysid.policy.interface import resolve_policy
+        ctrl = PolicyController.load(None)
+        env = TrainEnv(EnvConfig(episode_steps=31))
+        cfm, _ = load_decoders(None, resolve_policy("mjxsysid"))
+        z = np.asarray(jax.random.normal(jax.random.PRNGKey(4), (3, 8)) * 0.1, np.float32)
+        out = {}
+        for d in (1, 2):
+            with D.limit_devices(d):
+                out[d] = (env_rollout(env, ctrl.params, jax.random.PRNGKey(3), 3, 30, False),
+                          cfm.sample_norm(z, jax.random.PRNGKey(5), 4, steps=5))
+        print(json.dumps({"shapes": {k: list(np.shape(v)) for k, v in out[2][0].items()},
+                          "samples": list(np.shape(out[2][1])), "diff_rollout": maxdiff(out[1][0], out[2][0]),
+                          "diff_samples": maxdiff(out[1][1], out[2][1]),
+                          "rate_err": float(np.mean(out[2][0]["rate_err"]))}))
+    """)
+    assert r["shapes"]["rate_err"] == [30, 3] and r["shapes"]["theta"] == [3, 19]
+    assert r["samples"] == [3, 4, 19]
+    assert r["rate_err"] > 0
+    assert r["diff_rollout"] <= 1e-5 and r["diff_samples"] <= 1e-5
 
 
 def test_data_parallel_gradient_two_devices_equals_one():
@@ -251,8 +284,9 @@ def test_two_processes_equal_one(tmp_path):
     for p, (o, e) in zip(procs, outs):
         assert p.returncode == 0, e[-3000:]
     assert single.returncode == 0, single.stderr[-3000:]
-    assert [o.split() for o, _ in outs] == [["True", "2", "2", "2"]] * 2   # joined, 2 processes, mesh of 2
-    assert single.stdout.split() == ["False", "1", "1", "1"]
+    last = lambda text: text.strip().splitlines()[-1].split()     # Gloo prints to stdout too
+    assert [last(o) for o, _ in outs] == [["True", "2", "2", "2"]] * 2   # joined, 2 processes, mesh of 2
+    assert last(single.stdout) == ["False", "1", "1", "1"]
     ref = np.load(tmp_path / "single.npy")
     assert ref.shape == (5, 50, 3)
     for i in range(2):
