@@ -92,9 +92,20 @@ def _pad(x, target: int):
 
 def _place(x, sharding: NamedSharding):
     if jax.process_count() == 1:
-        return jax.device_put(x, sharding)
-    host = np.asarray(x)  # identical on every process (same seed): each supplies its own shards
+        return jax.device_put(x, sharding)  # also inside jit (a tracer): a placement request
+    try:
+        host = np.asarray(x)  # identical on every process (same seed): each supplies its own shards
+    except jax.errors.TracerArrayConversionError:
+        return jax.lax.with_sharding_constraint(x, sharding)  # inside jit
     return jax.make_array_from_callback(host.shape, sharding, lambda idx: host[idx])
+
+
+def _spread_over_processes(x) -> bool:
+    """Is x a concrete array whose values live partly in other processes?"""
+    try:
+        return isinstance(x, jax.Array) and not x.is_fully_addressable and not x.is_fully_replicated
+    except jax.errors.ConcretizationTypeError:
+        return False  # a tracer inside jit: the compiler places it
 
 
 def shard_batch(tree, n: int | None = None, *, axes=0, mesh: Mesh | None = None):
@@ -154,7 +165,7 @@ def unpad(tree, n: int, *, axis: int = 0):
     every leaf. Leaves spread over several processes are gathered first (host arrays then).
     A tree with nothing to drop and nothing to gather is returned as is (one device)."""
     def one(x):
-        if isinstance(x, jax.Array) and not x.is_fully_addressable and not x.is_fully_replicated:
+        if _spread_over_processes(x):
             from jax.experimental import multihost_utils
             x = multihost_utils.process_allgather(x, tiled=True)
         if x.shape[axis] == n:

@@ -56,14 +56,15 @@ def run_two_devices(body: str) -> dict:
 
 
 def test_fly_batch_two_devices_equals_one_and_drops_padding():
-    """The shipped policy (weights shared: replicated; latents per vehicle: sharded)."""
+    """K_θ under the cascade (the slow tier flies the shipped policy, whose weights are
+    replicated, through the same fly_batch: collect and evaluation tests below)."""
     r = run_two_devices("""
         from mjxsysid import params as P
         from mjxsysid.analysis.flight import fly_vehicles
         theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 5))   # odd: one padded row
         with D.limit_devices(1):
-            f1, m1, _ = fly_vehicles(theta, controller="policy", reference="lemniscate", duration=0.2, seed=3)
-        f2, m2, _ = fly_vehicles(theta, controller="policy", reference="lemniscate", duration=0.2, seed=3)
+            f1, m1, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.2, seed=3)
+        f2, m2, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.2, seed=3)
         mesh = D.batch_mesh()
         print(json.dumps({"mesh": mesh.size, "padded": D.padded_size(5, mesh),
                           "shapes": [list(np.shape(x)[:2]) for x in jax.tree.leaves(f2)],
@@ -178,17 +179,24 @@ def test_data_parallel_gradient_two_devices_equals_one():
         for d in (1, 2):
             with D.limit_devices(d):
                 mesh = D.batch_mesh(divides=64)
-                ws, xs = D.replicate(w, mesh), D.shard_batch((x, y), 64, mesh=mesh)
+                ws, xs, ys = D.shard_batch((w, x, y), 64, axes=(None, 0, 0), mesh=mesh)  # w replicated
                 f = jax.jit(lambda w, x, y: step(w, x, y, mesh))
-                res[d] = f(ws, *xs)
-                hlo = f.lower(ws, *xs).compile().as_text()
+                res[d] = f(ws, xs, ys)
+                hlo = f.lower(ws, xs, ys).compile().as_text()
                 res[f"allreduce{d}"] = "all-reduce" in hlo
-                res[f"in{d}"] = len(xs[0].sharding.device_set)
+                res[f"in{d}"] = len(xs.sharding.device_set)
+                res[f"w{d}"] = len(ws["a"].sharding.device_set)
+        # the helpers inside a caller's jit (padding 5 -> 6 rows over the 2 devices)
+        g = jax.jit(lambda v: D.unpad(jnp.sin(D.shard_batch(v, 5)), 5))(jnp.arange(5.0))
+        res["jit_ok"] = bool(np.allclose(np.asarray(g), np.sin(np.arange(5.0)), atol=1e-6))
         print(json.dumps({"diff": maxdiff(res[1], res[2]), "grad_norm": float(optax.global_norm(res[1][1])),
+                          "jit_ok": res["jit_ok"], "w2": res["w2"],
                           "allreduce1": res["allreduce1"], "allreduce2": res["allreduce2"],
                           "in1": res["in1"], "in2": res["in2"]}))
     """)
     assert r["in1"] == 1 and r["in2"] == 2
+    assert r["jit_ok"]
+    assert r["w2"] == 2                                      # the shared weights replicated on both
     assert r["allreduce2"] and not r["allreduce1"]          # the compiler inserted the all-reduce
     assert r["grad_norm"] > 1e-3
     assert r["diff"] <= 1e-5
@@ -291,3 +299,17 @@ def test_two_processes_equal_one(tmp_path):
     assert ref.shape == (5, 50, 3)
     for i in range(2):
         np.testing.assert_allclose(np.load(tmp_path / f"pos{i}.npy"), ref, rtol=0, atol=1e-5)
+
+
+def test_helpers_inside_jit():
+    """The sharded boundaries may sit inside a caller's jit (e.g. CFM sampling): tracers pass."""
+    import jax
+    import jax.numpy as jnp
+    from mjxsysid import distributed as D
+
+    @jax.jit
+    def f(x):
+        y = D.shard_batch(x, 5)
+        return D.unpad(y * 2.0, 5)
+
+    np.testing.assert_array_equal(f(jnp.arange(5.0)), 2.0 * np.arange(5.0))
