@@ -69,9 +69,11 @@ def batch_mesh(divides: int | None = None) -> Mesh:
     n = device_count()
     if divides is not None:
         n = max(d for d in range(1, n + 1) if int(divides) % d == 0)
-    if n < len(jax.devices()) and jax.process_count() > 1:
-        raise ValueError(f"a batch of {divides} cannot be split over the {len(jax.devices())} devices of "
-                         f"{jax.process_count()} processes; use a multiple of {len(jax.devices())}")
+    if n < len(jax.devices()) and jax.process_count() > 1:  # every process must hold a shard
+        what = (f"a batch of {divides} cannot be split evenly over" if divides is not None
+                else "$MJXSYSID_DEVICES / limit_devices cannot leave out any of")
+        raise ValueError(f"{what} the {len(jax.devices())} devices of {jax.process_count()} processes"
+                         + (f"; use a multiple of {len(jax.devices())}" if divides is not None else ""))
     return Mesh(np.asarray(jax.devices()[:n]), (AXIS,))
 
 
