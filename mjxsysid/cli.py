@@ -593,6 +593,20 @@ def _echo(msg, file=None):
     echo(msg, file=file)
 
 
+def _start_processes(args) -> None:
+    """Join a multi-process run if a cluster launcher started one (mjxsysid.distributed): every
+    process computes the same gathered results; only process 0 writes ``--out`` (the others
+    write to a scratch folder; train-policy guards its own writes and reads the shared run
+    folder to resume)."""
+    from mjxsysid import distributed
+    if not distributed.maybe_initialize():
+        return
+    import jax
+    if jax.process_index() > 0 and getattr(args, "out", None) is not None and args.command != "train-policy":
+        import tempfile
+        args.out = Path(tempfile.mkdtemp(prefix=f"mjxsysid_p{jax.process_index()}_"))
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from mjxsysid.progress import set_quiet
@@ -603,6 +617,7 @@ def main(argv=None) -> int:
                 "replay": cmd_replay, "experiment": cmd_experiment, "export": cmd_export,
                 "tune": cmd_tune}
     try:
+        _start_processes(args)
         return handlers[args.command](args)
     except (ValueError, OSError) as e:  # bad inputs (FileNotFoundError is an OSError)
         print(f"mjxsysid {args.command}: error: {e}", file=sys.stderr)

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from mjxsysid import distributed
 from mjxsysid import params as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.control.low_level import Command
@@ -204,7 +205,11 @@ def fly_batch(sim: Quadrotor, theta, low, high, ref, disturbance, key, steps: in
     every vehicle gets ``key`` itself, i.e. the same disturbance and noise realisation; a key
     batch (B, 2) gives vehicle b the key ``key[b]``. ``reduce``: a module-level function
     Flight -> pytree applied to each vehicle's flight inside the compiled function (so only
-    what it returns is kept, e.g. error traces of large ensembles); returns its batched result."""
+    what it returns is kept, e.g. error traces of large ensembles); returns its batched result.
+
+    The batch is sharded over every device (:mod:`mjxsysid.distributed`: padded to a multiple
+    of the device count, the padding dropped from the result); per-vehicle keys are drawn
+    before padding, so the flights do not depend on the device count."""
     theta = jnp.asarray(theta, jnp.float32)
     n = theta.shape[0]
     key = jnp.asarray(key)
@@ -215,9 +220,12 @@ def fly_batch(sim: Quadrotor, theta, low, high, ref, disturbance, key, steps: in
         keys = key
     else:
         keys = jnp.broadcast_to(key, (n,) + key.shape) if same_key else jax.random.split(key, n)
-    leaves, treedef = jax.tree_util.tree_flatten(low_level_axes(low), is_leaf=lambda x: x is None)
+    axes = low_level_axes(low)
+    leaves, treedef = jax.tree_util.tree_flatten(axes, is_leaf=lambda x: x is None)
     fn = _fly_batch(sim, int(steps), treedef, tuple(leaves), reduce)
-    return fn(theta, low, high, ref, disturbance, keys)
+    args = distributed.shard_batch((theta, low, high, ref, disturbance, keys), n,
+                                   axes=(0, axes, 0, 0, 0, 0))
+    return distributed.unpad(fn(*args), n)
 
 
 # ---------------------------------------------------------------------------------------

@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid import distributed
 from mjxsysid import params as P
 from mjxsysid.analysis.flight import broadcast, make_low_level
 from mjxsysid.analysis.harness import Disturbance, failure_mask, fly_batch
@@ -90,7 +91,7 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     theta = theta[:total]
     meta = {**ref.to_dict(), "prior": prior, "seed": seed, "steps": steps, "excitation": __doc__.split("\n\n")[1],
             "n_train": n_train, "n_test": n_test, "wall_s": time.time() - t0,
-            "device": str(jax.devices()[0])}
+            "device": str(jax.devices()[0]), "devices": distributed.device_count()}
     path = out / "pairs.npz"
     np.savez_compressed(path, theta_train=theta[:n_train], zhat_train=z[:n_train], failed_train=f[:n_train],
                         theta_test=theta[n_train:], zhat_test=z[n_train:], failed_test=f[n_train:],
