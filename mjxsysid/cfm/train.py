@@ -321,6 +321,8 @@ def load_decoder(path) -> LoadedDecoder:
     if full.get("format") != FORMAT:
         raise ValueError(f"{path}: not a decoder file (format {full.get('format')!r}, expected {FORMAT!r})")
     kind = full["kind"]
+    if kind == "cfm_seq":
+        raise ValueError(f"{path} is a sequence decoder: load it with mjxsysid.cfm.sequence.SequenceDecoder.load")
     _check_kind(kind)
     cfg = CFMConfig.from_dict(full["config"])
     params = load_tree(path, init_params(cfg, kind))
