@@ -217,3 +217,15 @@ def test_collect_latent_trajectories(tmp_path):
         from mjxsysid.policy.collect import collect
         collect(tmp_path / "x", n_train=2, n_test=1, seconds=0.1)
     assert main(["collect", "--out", str(tmp_path / "y"), "--manoeuvres", "loop"]) == 2
+
+
+def test_switch_reference_mixes_types_in_one_batch():
+    from mjxsysid.control.references import Lemniscate, MinSnap, Switch, stack
+    lem = stack([Lemniscate.make(period=5.0), Lemniscate.make(period=7.0)])
+    ms = stack([MinSnap.random(seed=1, duration=4.0, start=(0.0, 0.0, 1.0))] * 2)
+    ref = Switch(lem, ms, jax.numpy.array([False, True]))
+    pts = jax.vmap(lambda r: r.at(1.3))(ref)
+    np.testing.assert_allclose(pts.pos[0], Lemniscate.make(period=5.0).at(1.3).pos, atol=1e-6)
+    np.testing.assert_allclose(pts.pos[1], MinSnap.random(seed=1, duration=4.0, start=(0.0, 0.0, 1.0)).at(1.3).pos,
+                               atol=1e-6)
+    assert np.asarray(jax.vmap(lambda r: r.duration)(ref)).tolist() == [np.inf, 4.0]
