@@ -228,3 +228,36 @@ def test_loss_weight_options_share_the_compile_and_train(tiny_trainer, over):
     assert "mu" in moved, moved   # every option here acts on μ's gradient
     with pytest.raises(ValueError, match="beyond the loss weights.*learning_rate"):
         t0.reweighted(dataclasses.replace(t0.cfg, learning_rate=1e-3))
+
+
+def test_latent_health_and_trial_summary_on_a_synthetic_latent():
+    """A latent that linearly codes log T/W and log τ_m (and nothing about κ) probes as such;
+    trial_summary reads the headline numbers from it."""
+    from mjxsysid.policy.evaluate import latent_health, trial_summary
+    th = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(2), 600))
+    g = np.asarray(identifiable_log(th))
+    rng = np.random.default_rng(0)
+    z_theta = np.concatenate([g[:, [0, 5]], rng.normal(size=(600, 6))], 1) * 0.1
+    zhat = z_theta + 0.001 * rng.normal(size=z_theta.shape)
+    lat = latent_health(z_theta, zhat, np.asarray(P.prior_normalizer("default", n=2000).normalize(th)), th)
+    lem = {"policy": {"success_rate": 1.0}, "oracle": {"success_rate": 1.0}, "rmse_ratio_policy_over_oracle": 1.02}
+    s = trial_summary({"latent": lat, "latent_flight": lat, "lemniscate": lem})
+    assert s["train_cmds"]["r2_thrust_to_weight"] > 0.99 and s["flight"]["r2_tau_m"] > 0.99
+    assert s["train_cmds"]["r2_kappa"] < 0.1
+    np.testing.assert_allclose(s["train_cmds"]["z_err_rel"], 0.001 * np.sqrt(8) / np.sqrt(z_theta.var(0).sum()), rtol=0.1)
+    assert s["rmse_ratio"] == 1.02 and s["success_policy"] == 1.0
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not PRETRAINED.exists(), reason="no shipped policy weights")
+def test_fast_eval_tiny_on_shipped_policy():
+    """fast_eval end to end (tiny sizes; minutes of CPU compiles): all headline numbers present
+    and sane for the shipped policy, which flies every vehicle."""
+    from mjxsysid.policy.evaluate import fast_eval
+    ctrl = PolicyController.load()
+    ev = fast_eval(ctrl.params, n_probe=48, n_lem=4, steps=250, flight_steps=200, period=2.0, log=lambda m: None)
+    s = ev["summary"]
+    assert s["success_policy"] == 1.0 and 0.5 < s["rmse_ratio"] < 2.0
+    for k in ("train_cmds", "flight"):
+        assert 0.0 < s[k]["z_err_rel"] < 1.5 and s[k]["z_min_std"] > 0.02
+        assert all(np.isfinite(v) for v in s[k].values())

@@ -128,7 +128,12 @@ def main(argv=None) -> int:
     for name in names:
         what, ov = TRIALS[name]
         cfg = trial_config(base, ov)
-        est = max(durations) if durations else 0.0
+        # A trial costs about the cheapest one so far, plus the first one's compile overhead if it
+        # cannot reuse the shared compile (the GPU run of 2026-11-23 used max(): it skipped 3
+        # trials that would have fit).
+        est = min(durations) if durations else 0.0
+        if durations and (name not in shared or trainer0 is None):
+            est += max(durations) - min(durations)
         if durations and time.time() - t0 + est > args.budget_s:
             log(f"skip {name}: {est:.0f} s would overrun the budget")
             report["skipped"].append(name)
