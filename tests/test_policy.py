@@ -255,7 +255,7 @@ def test_fast_eval_tiny_on_shipped_policy():
     and sane for the shipped policy, which flies every vehicle."""
     from mjxsysid.policy.evaluate import fast_eval
     ctrl = PolicyController.load()
-    ev = fast_eval(ctrl.params, n_probe=48, n_lem=4, steps=250, flight_steps=200, period=2.0, log=lambda m: None)
+    ev = fast_eval(ctrl.params, n_probe=48, n_lem=4, steps=250, flight_steps=200, period=10.0, log=lambda m: None)
     s = ev["summary"]
     assert s["success_policy"] == 1.0 and 0.5 < s["rmse_ratio"] < 2.0
     for k in ("train_cmds", "flight"):
