@@ -114,6 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "mjxsysid's policies only (training diagnostics need its μ encoder)")
     e.add_argument("--vehicles", type=int, default=1000)
     e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--fast", action="store_true", help="the quick latent/lemniscate evaluation of training "
+                   "trials (probes on 2 x VEHICLES, lemniscate on VEHICLES)")
     e.add_argument("--out", type=Path, required=True, help="writes OUT/eval.json")
     c = sub.add_parser("collect", help="collect (θ, ẑ) pairs from a frozen policy in closed-loop flight")
     c.add_argument("--out", type=Path, required=True, help="writes OUT/pairs.npz")
@@ -355,6 +357,16 @@ def cmd_evaluate_policy(args) -> int:
     if args.vehicles < 10:
         raise ValueError(f"--vehicles must be >= 10 (linear probes need data), got {args.vehicles}")
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.fast:
+        from mjxsysid.policy.controller import PolicyController
+        from mjxsysid.policy.evaluate import fast_eval
+        ctrl = PolicyController.load(args.weights)
+        res = fast_eval(ctrl.params, n_probe=2 * args.vehicles, n_lem=args.vehicles, seed=args.seed,
+                        phi_every=ctrl.phi_every, log=_echo)
+        (args.out / "eval.json").write_text(json.dumps(res, indent=2) + "\n")
+        print(json.dumps(res["summary"]))
+        print(f"wrote {args.out}/eval.json", file=sys.stderr)
+        return 0
     res = evaluate_policy(args.weights, n=args.vehicles, seed=args.seed, log=_echo)
     (args.out / "eval.json").write_text(json.dumps(res, indent=2) + "\n")
     lem = res["lemniscate"]
