@@ -158,6 +158,23 @@ def test_decode_latents_with_a_window(tmp_path):
     assert load_sequence_decoder(tmp_path, echo=msgs.append) is None and "falling back" in msgs[0]
 
 
+
+def test_sequence_decoder_of_another_policy_is_an_error(tmp_path):
+    """As for the single-latent decoders: another policy's sequence decoder is refused unless
+    allow_mismatch (then a warning)."""
+    from mjxsysid.analysis.decode import load_sequence_decoder
+    from mjxsysid.cfm.sample import Decoder
+    d = _tiny_seq_decoders(tmp_path)
+    cfg = SeqCFMConfig(width=32, blocks=1, time_dim=8, set_width=16, heads=2, cond_dim=8, max_len=20)
+    save_seq_decoder(d / "cfm_seq.npz", init_params(cfg), cfg, Decoder.load(d / "cfm.npz").normalizer,
+                     {"traj_rate_hz": 10.0, "data": {"pairs_meta": {"weights_sha256": "0" * 64}}})
+    with pytest.raises(ValueError, match="cfm_seq.npz: trained on the latents of another policy"):
+        load_sequence_decoder(d, "mjxsysid")
+    told = []
+    assert load_sequence_decoder(d, "mjxsysid", echo=told.append, allow_mismatch=True) is not None
+    assert told and told[0].startswith("warning:")
+
+
 def test_decode_cli_windows(tmp_path, capsys):
     """Bad windows are one-line errors (exit 2) before anything flies; a log replay decodes with a
     window and falls back to instant without a sequence decoder."""
