@@ -214,6 +214,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="tune-*: the full protocol with fewer vehicles and smaller ensembles (tens of minutes on a CPU)")
     ex.add_argument("--seed", type=int, default=0)
     _add_policy(ex)
+    ex.add_argument("--decoders", type=Path, default=None,
+                    help="folder with cfm.npz and regression.npz (default: the policy's shipped decoders)")
     ex.add_argument("--out", type=Path, required=True)
     xp = sub.add_parser("export", help="write the policy as ONNX (fixed batch 1 + dynamic batch), check it in onnxruntime")
     _add_policy(xp, "the policy to export")
@@ -576,7 +578,8 @@ def _tune_video(res, theta, out):
             frames = type(fl.frame)(*[a[0] for a in fl.frame])
             paths.append(render_rollout(theta, frames, Path(tmp) / f"{m}.mp4", width=480, height=360,
                                         reference=fl.ref_pos[0]))
-        side_by_side(paths, out / "tuned_vs_untuned.mp4")
+        from mjxsysid.tune.tuner import METHOD_LABELS
+        side_by_side(paths, out / "tuned_vs_untuned.mp4", labels=[METHOD_LABELS[untuned], METHOD_LABELS[tuned]])
 
 
 def cmd_experiment(args) -> int:
@@ -587,6 +590,13 @@ def cmd_experiment(args) -> int:
     if args.cpu and not args.name.startswith("tune-"):
         raise ValueError(f"--cpu applies to the tune-* experiments, not {args.name}")
     kw = {"cpu": True} if args.cpu else {}
+    if args.decoders is not None:
+        import inspect
+        if "decoders" not in inspect.signature(run).parameters:
+            raise ValueError(f"experiment {args.name} does not take --decoders")
+        if not args.decoders.is_dir():
+            raise FileNotFoundError(f"--decoders: folder not found: {args.decoders}")
+        kw["decoders"] = args.decoders
     res = run(args.out, quick=args.quick, policy=_policy_ref(args), seed=args.seed, **kw)
     print(json.dumps(res["numbers"].get("headline", {})))
     print(f"wrote {args.out}/results.json, results.md and figures ({res['wall_s']:.0f} s)", file=sys.stderr)
@@ -642,6 +652,20 @@ def _echo(msg, file=None):
     echo(msg, file=file)
 
 
+def _start_processes(args) -> None:
+    """Join a multi-process run if a cluster launcher started one (mjxsysid.distributed): every
+    process computes the same gathered results; only process 0 writes ``--out`` (the others
+    write to a scratch folder; train-policy guards its own writes and reads the shared run
+    folder to resume)."""
+    from mjxsysid import distributed
+    if not distributed.maybe_initialize():
+        return
+    import jax
+    if jax.process_index() > 0 and getattr(args, "out", None) is not None and args.command != "train-policy":
+        import tempfile
+        args.out = Path(tempfile.mkdtemp(prefix=f"mjxsysid_p{jax.process_index()}_"))
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from mjxsysid.progress import set_quiet
@@ -652,6 +676,7 @@ def main(argv=None) -> int:
                 "replay": cmd_replay, "experiment": cmd_experiment, "export": cmd_export,
                 "tune": cmd_tune}
     try:
+        _start_processes(args)
         return handlers[args.command](args)
     except (ValueError, OSError) as e:  # bad inputs (FileNotFoundError is an OSError)
         print(f"mjxsysid {args.command}: error: {e}", file=sys.stderr)

@@ -181,3 +181,20 @@ def test_bad_inputs_raise(gl, flight, tmp_path):
     with pytest.raises(ValueError, match=r"shape \(n >= 2, 19\)"):
         plot_prior_marginals(np.ones((10, 18)), tmp_path / "p.png")
     assert not out.exists()
+
+
+def test_side_by_side_places_videos_next_to_each_other(tmp_path):
+    """Two clips of different length -> one clip of the longer length, twice the width, the
+    shorter one holding its last frame; captions drawn."""
+    from mjxsysid.render.video import _mediapy, read_video, side_by_side
+    mediapy = _mediapy()
+    a = np.full((6, 32, 48, 3), 200, np.uint8)
+    b = np.full((4, 32, 48, 3), 50, np.uint8)
+    mediapy.write_video(tmp_path / "a.mp4", a, fps=10)
+    mediapy.write_video(tmp_path / "b.mp4", b, fps=10)
+    out = side_by_side([tmp_path / "a.mp4", tmp_path / "b.mp4"], tmp_path / "ab.mp4", fps=10, labels=["A", "B"])
+    v = read_video(out)
+    assert v.shape[0] == 6 and v.shape[1:3] == (32, 96)
+    assert abs(float(v[-1, 20:, 60:].mean()) - 50) < 10       # the shorter clip holds its last frame
+    with pytest.raises(ValueError, match="labels"):
+        side_by_side([tmp_path / "a.mp4"], tmp_path / "x.mp4", labels=["A", "B"])

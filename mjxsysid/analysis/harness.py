@@ -14,10 +14,11 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from mjxsysid import distributed
 from mjxsysid import params as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.control.low_level import Command
-from mjxsysid.sim.quadrotor import Frame, Quadrotor, hover_rotor_speed
+from mjxsysid.sim.quadrotor import Frame, Quadrotor, hover_rotor_speed, quat_to_mat
 
 
 @struct.dataclass
@@ -27,14 +28,27 @@ class Disturbance:
     step_force: (3,) N world, applied from ``step_time`` (s) on. sigma: (3,) N, std of an i.i.d.
     Gaussian world force drawn per control step. torque: (3,) N·m extra constant body torque
     (added to the vehicle's τ_ext).
+
+    Payload (off by default): a point mass ``payload_mass`` () kg attached at ``payload_pos`` (3,)
+    m, body frame, from ``payload_time`` () s on (``inf``: never). From then on the vehicle flies
+    with :func:`payload_theta` (mass + m_p, inertia + the point mass's parallel-axis terms about
+    the body origin) plus the torque of the offset weight, :func:`payload_torque`, recomputed
+    every step from the attitude. Approximation: the body origin stays the reference point of
+    the dynamics (the centre of mass does not move), so the payload's weight acts through its
+    torque alone; exact in steady hover, it leaves out the coupling terms m_p r × a_body and
+    m_p ω̇ × r, which scale with the vehicle's own accelerations.
     """
     step_force: jax.Array
     step_time: jax.Array
     sigma: jax.Array
     torque: jax.Array
+    payload_mass: jax.Array = struct.field(default_factory=lambda: jnp.float32(0.0))
+    payload_pos: jax.Array = struct.field(default_factory=lambda: jnp.zeros(3, jnp.float32))
+    payload_time: jax.Array = struct.field(default_factory=lambda: jnp.float32(jnp.inf))
 
     @classmethod
-    def make(cls, step_force=(0.0, 0.0, 0.0), step_time=0.0, sigma=0.0, torque=(0.0, 0.0, 0.0)):
+    def make(cls, step_force=(0.0, 0.0, 0.0), step_time=0.0, sigma=0.0, torque=(0.0, 0.0, 0.0),
+             payload_mass=0.0, payload_pos=(0.0, 0.0, 0.0), payload_time=float("inf")):
         f = np.broadcast_to(np.asarray(step_force, np.float32), (3,))
         s = np.broadcast_to(np.asarray(sigma, np.float32), (3,))
         tq = np.broadcast_to(np.asarray(torque, np.float32), (3,))
@@ -42,13 +56,44 @@ class Disturbance:
             raise ValueError("disturbance values must be finite")
         if np.any(s < 0) or not np.all(np.isfinite(s)):
             raise ValueError(f"disturbance sigma must be finite and >= 0, got {sigma}")
-        return cls(jnp.asarray(f), jnp.float32(step_time), jnp.asarray(s), jnp.asarray(tq))
+        r = np.asarray(payload_pos, np.float32)
+        if r.shape != (3,) or not np.all(np.isfinite(r)):
+            raise ValueError(f"payload_pos must be 3 finite numbers (m, body frame), got {payload_pos}")
+        if not (np.isfinite(payload_mass) and payload_mass >= 0):
+            raise ValueError(f"payload_mass must be finite and >= 0 kg, got {payload_mass}")
+        if np.isnan(payload_time):
+            raise ValueError("payload_time must be a number of seconds (inf: never)")
+        return cls(jnp.asarray(f), jnp.float32(step_time), jnp.asarray(s), jnp.asarray(tq),
+                   jnp.float32(payload_mass), jnp.asarray(r), jnp.float32(payload_time))
 
     def forces(self, key, steps: int, dt: float) -> jax.Array:
         """World force sequence (steps, 3) N."""
         t = dt * jnp.arange(steps)
         step = jnp.where((t >= self.step_time)[:, None], self.step_force, 0.0)
         return step + self.sigma * jax.random.normal(key, (steps, 3))
+
+
+def payload_theta(theta, mass, pos):
+    """θ (..., 19) with a point mass ``mass`` (...) kg rigidly attached at ``pos`` (..., 3) m
+    (body frame): mass + m_p, J_aa + m_p (|r|² − r_a²) (parallel-axis terms about the body
+    origin; the products of inertia −m_p r_a r_b, zero for an offset along one axis, are
+    dropped since θ holds a diagonal J). τ_ext is left alone: see :func:`payload_torque`."""
+    theta = jnp.asarray(theta, jnp.float32)
+    mass = jnp.asarray(mass, jnp.float32)
+    pos = jnp.asarray(pos, jnp.float32)
+    j_add = mass[..., None] * (jnp.sum(pos**2, -1, keepdims=True) - pos**2)
+    theta = theta.at[..., P.MASS].add(mass)
+    return theta.at[..., P.INERTIA].add(j_add)
+
+
+def payload_torque(quat, mass, pos):
+    """Body-frame torque (..., 3) N·m of the weight of a point mass ``mass`` (...) kg at ``pos``
+    (..., 3) m (body frame) about the body origin, at attitude ``quat`` (..., 4) wxyz:
+    r × (Rᵀ [0, 0, −m_p g])."""
+    rot = quat_to_mat(jnp.asarray(quat, jnp.float32))
+    w_world = jnp.stack([jnp.zeros_like(mass), jnp.zeros_like(mass), -mass * P.GRAVITY], -1)
+    w_body = jnp.einsum("...ji,...j->...i", rot, w_world)
+    return jnp.cross(jnp.asarray(pos, jnp.float32), w_body)
 
 
 class Flight(NamedTuple):
@@ -89,12 +134,15 @@ def start_loop(sim: Quadrotor, theta, low, high: Cascade, ref, key) -> LoopCarry
 
 
 def run_loop(sim: Quadrotor, theta, low, high: Cascade, ref, carry: LoopCarry, forces, start,
-             steps: int) -> tuple[LoopCarry, Flight]:
+             steps: int, payload: Disturbance | None = None) -> tuple[LoopCarry, Flight]:
     """Advance a closed loop ``steps`` control steps from ``carry``, the first step having the
     global index ``start`` (an unbatched int: time t = index · dt). θ (19,) the flown vehicle
-    (τ_ext disturbance already added); forces (steps, 3) N world. Returns the new carry and the
-    Flight of these steps (leaves (steps, ...))."""
+    (τ_ext disturbance already added); forces (steps, 3) N world. ``payload``: a
+    :class:`Disturbance` whose payload fields apply from its ``payload_time`` on (None: no
+    payload). Returns the new carry and the Flight of these steps (leaves (steps, ...))."""
     dt = sim.config.dt
+    if payload is not None:
+        theta_payload = payload_theta(theta, payload.payload_mass, payload.payload_pos)
 
     def body(c, inp):
         s, hc, lc = c
@@ -105,7 +153,12 @@ def run_loop(sim: Quadrotor, theta, low, high: Cascade, ref, carry: LoopCarry, f
         hc, cmd = high.step(hc, est, r, dt)
         # Controllers that run something periodically take the (unbatched) step index.
         lc, u = low.step_at(lc, s.imu, cmd, i) if hasattr(low, "step_at") else low.step(lc, s.imu, cmd)
-        s = sim.step(theta, s, u, f)
+        th = theta
+        if payload is not None:  # after the event: the point mass and its offset weight
+            th_p = theta_payload.at[P.TAU_EXT].add(
+                payload_torque(s.quat, payload.payload_mass, payload.payload_pos))
+            th = jnp.where(t >= payload.payload_time, th_p, theta)
+        s = sim.step(th, s, u, f)
         lat = low.latent(lc) if hasattr(low, "latent") else None
         out = (sim.frame(s, u, f), r.pos, r.vel, r.yaw, cmd.a_cmd, cmd.omega_cmd, t + dt, lat)
         return LoopCarry(s, hc, lc), out
@@ -129,13 +182,14 @@ def fly(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance
     theta = theta.at[P.TAU_EXT].add(disturbance.torque)
     carry0 = start_loop(sim, theta, low, high, ref, (k_sim, k_low))
     forces = disturbance.forces(k_dist, steps, dt)
-    return run_loop(sim, theta, low, high, ref, carry0, forces, 0, steps)[1]
+    return run_loop(sim, theta, low, high, ref, carry0, forces, 0, steps, payload=disturbance)[1]
 
 
 @functools.lru_cache(maxsize=64)
-def _fly_batch(sim, steps, low_axes_def, low_axes_leaves):
+def _fly_batch(sim, steps, low_axes_def, low_axes_leaves, reduce=None):
     low_axes = jax.tree_util.tree_unflatten(low_axes_def, low_axes_leaves)
-    return jax.jit(jax.vmap(lambda *a: fly(sim, *a, steps), in_axes=(0, low_axes, 0, 0, 0, 0)))
+    one = (lambda *a: fly(sim, *a, steps)) if reduce is None else (lambda *a: reduce(fly(sim, *a, steps)))
+    return jax.jit(jax.vmap(one, in_axes=(0, low_axes, 0, 0, 0, 0)))
 
 
 def low_level_axes(low):
@@ -145,16 +199,33 @@ def low_level_axes(low):
 
 
 def fly_batch(sim: Quadrotor, theta, low, high, ref, disturbance, key, steps: int, *,
-              same_key: bool = False) -> Flight:
+              same_key: bool = False, reduce=None) -> Flight:
     """Batched :func:`fly`: θ (B, 19) and every pytree argument with leading axis B (the
     low-level controller's shared leaves, per its ``batch_axes()``, unbatched). ``same_key``:
-    every vehicle gets ``key`` itself, i.e. the same disturbance and noise realisation."""
+    every vehicle gets ``key`` itself, i.e. the same disturbance and noise realisation; a key
+    batch (B, 2) gives vehicle b the key ``key[b]``. ``reduce``: a module-level function
+    Flight -> pytree applied to each vehicle's flight inside the compiled function (so only
+    what it returns is kept, e.g. error traces of large ensembles); returns its batched result.
+
+    The batch is sharded over every device (:mod:`mjxsysid.distributed`: padded to a multiple
+    of the device count, the padding dropped from the result); per-vehicle keys are drawn
+    before padding, so the flights do not depend on the device count."""
     theta = jnp.asarray(theta, jnp.float32)
     n = theta.shape[0]
-    keys = jnp.broadcast_to(key, (n,) + key.shape) if same_key else jax.random.split(key, n)
-    leaves, treedef = jax.tree_util.tree_flatten(low_level_axes(low), is_leaf=lambda x: x is None)
-    fn = _fly_batch(sim, int(steps), treedef, tuple(leaves))
-    return fn(theta, low, high, ref, disturbance, keys)
+    key = jnp.asarray(key)
+    if key.ndim == 2:
+        if same_key or key.shape[0] != n:
+            raise ValueError(f"a key batch must have one key per vehicle ({n}, 2) and no same_key; "
+                             f"got shape {key.shape}")
+        keys = key
+    else:
+        keys = jnp.broadcast_to(key, (n,) + key.shape) if same_key else jax.random.split(key, n)
+    axes = low_level_axes(low)
+    leaves, treedef = jax.tree_util.tree_flatten(axes, is_leaf=lambda x: x is None)
+    fn = _fly_batch(sim, int(steps), treedef, tuple(leaves), reduce)
+    args = distributed.shard_batch((theta, low, high, ref, disturbance, keys), n,
+                                   axes=(0, axes, 0, 0, 0, 0))
+    return distributed.unpad(fn(*args), n)
 
 
 # ---------------------------------------------------------------------------------------

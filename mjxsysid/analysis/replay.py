@@ -103,16 +103,24 @@ def decode_for_replay(zhat_k, truth, cfm, reg, key, *, samples: int = 16) -> dic
 
 
 def replay_flight(rec: dict, truth, cfm, reg, key, *, rate: float = 10.0, samples: int = 16,
-                  cutoff_hz: float = 5.0) -> dict:
+                  cutoff_hz: float = 5.0, truth_k=None) -> dict:
     """Replay one recording. rec: time (T,), imu (T, 6), a_cmd (T,), omega_cmd (T, 3),
     motor_cmd (T, 4), latent (T, 8). Returns {'metrics': {method: {rmse, pcc}}, 'times' (T',),
-    'policy' (T', 4), method: (T', 4) commands, 'update_times' (K,), 'theta_hat': {method: (K, 19)}}."""
+    'policy' (T', 4), method: (T', 4) commands, 'update_times' (K,), 'theta_hat': {method: (K, 19)}}.
+    ``truth_k`` (K, 19): the true θ in force at each update, for the 'true' method when the
+    vehicle changes during the flight (default: ``truth`` throughout)."""
     from mjxsysid.analysis.decode import decode_indices
     t = np.asarray(rec["time"])
     idx = decode_indices(t, rate)
     first = idx[0]
     seg = np.searchsorted(idx, np.arange(first, len(t)), side="right") - 1
     th = decode_for_replay(np.asarray(rec["latent"])[idx], truth, cfm, reg, key, samples=samples)
+    if truth_k is not None:
+        truth_k = np.asarray(truth_k, np.float32)
+        if truth_k.shape != (len(idx), P.N_PARAMS):
+            raise ValueError(f"truth_k must have shape ({len(idx)}, {P.N_PARAMS}) (one θ per update); "
+                             f"got {truth_k.shape}")
+        th["true"] = truth_k
     span = slice(first, None)
     args = (jnp.asarray(seg), jnp.asarray(rec["imu"][span, 0:3]), jnp.asarray(rec["a_cmd"][span]),
             jnp.asarray(rec["omega_cmd"][span]))
@@ -238,9 +246,9 @@ def replay_table(res: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plot_replay(r: dict, rec: dict, path, *, title: str = ""):
+def plot_replay(r: dict, rec: dict, path, *, title: str = "", events=()):
     """The paper's action-replay figure: trajectory, latent, and per-motor commands of the
-    policy, CFM, Regression and Random over time."""
+    policy, CFM, Regression and Random over time. ``events``: times (s) marked on the time axes."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -258,6 +266,8 @@ def plot_replay(r: dict, rec: dict, path, *, title: str = ""):
     axl = fig.add_subplot(gs[2, 0])
     axl.plot(t, r["latent"], lw=0.8)
     axl.set_title("latent ẑ")
+    for te in events:
+        axl.axvline(te, color="m", lw=1.0, ls="--")
     axl.set_xlabel("time (s)")
     styles = {"policy": dict(color="k", lw=1.0), "true": dict(color="0.5", lw=0.8, ls=":"), "cfm": dict(color="C0", lw=0.9),
               "cfm_mean": dict(color="C2", lw=0.9), "regression": dict(color="C1", lw=0.9, ls="--"),
@@ -269,6 +279,8 @@ def plot_replay(r: dict, rec: dict, path, *, title: str = ""):
             lab = LABELS[m] + ("" if m == "policy" else
                                f" ({r['metrics'][m]['rmse']:.3f}, {r['metrics'][m]['pcc']:.2f})")
             a.plot(t, y[:, i], label=lab if i == 0 else None, **styles[m])
+        for te in events:
+            a.axvline(te, color="m", lw=1.0, ls="--")
         a.set_title(f"motor {i + 1} Ω/Ω_max")
         a.grid(alpha=0.3)
         if i == 0:

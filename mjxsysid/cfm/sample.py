@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid import distributed
 from mjxsysid.cfm.train import CFMConfig, check_latents, load_decoder, make_network, save_decoder
 
 METHODS = ("euler", "midpoint", "heun")
@@ -47,10 +48,10 @@ def integrate(v, x0, steps: int, method: str):
 
 
 @partial(jax.jit, static_argnames=("cfg", "n_samples", "steps", "method"))
-def _sample(params, cfg: CFMConfig, z, key, n_samples: int, steps: int, method: str):
+def _sample(params, cfg: CFMConfig, theta0, z, n_samples: int, steps: int, method: str):
+    """Integrate the flow from θ₀ (m, n_samples, d) for latents z (m, z_dim): the one vmap
+    boundary of sampling (over cases)."""
     net = make_network(cfg, "cfm")
-    m = z.shape[0]
-    theta0 = jax.random.normal(key, (m, n_samples, cfg.theta_dim), jnp.float32)
 
     def one(th, zi):
         zb = jnp.broadcast_to(zi, (n_samples, cfg.z_dim))
@@ -70,7 +71,12 @@ def sample(params, cfg: CFMConfig, z, key, n_samples: int, steps: int = 50,
     if int(steps) < 1 or int(n_samples) < 1:
         raise ValueError(f"steps and n_samples must be >= 1, got {steps}, {n_samples}")
     z = check_latents(z, cfg)
-    return _sample(params, cfg, z, key, int(n_samples), int(steps), method)
+    m = z.shape[0]
+    # Noise drawn for the m cases before the cases are sharded over the devices (and padded):
+    # the samples do not depend on the device count.
+    theta0 = jax.random.normal(key, (m, int(n_samples), cfg.theta_dim), jnp.float32)
+    params, theta0, z = distributed.shard_batch((params, theta0, z), m, axes=(None, 0, 0))
+    return distributed.unpad(_sample(params, cfg, theta0, z, int(n_samples), int(steps), method), m)
 
 
 @partial(jax.jit, static_argnames=("cfg",))

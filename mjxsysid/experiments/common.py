@@ -11,7 +11,11 @@ import numpy as np
 
 
 def git_commit() -> str | None:
-    """HEAD of the checkout mjxsysid runs from (None outside a git checkout)."""
+    """HEAD of the checkout mjxsysid runs from (None outside a git checkout); $MJXSYSID_COMMIT
+    overrides it (a copy of a branch run elsewhere, e.g. on the GPU machine)."""
+    import os
+    if os.environ.get("MJXSYSID_COMMIT"):
+        return os.environ["MJXSYSID_COMMIT"]
     try:
         root = Path(__file__).resolve().parents[2]
         out = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,

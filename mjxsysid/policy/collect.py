@@ -25,6 +25,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid import distributed
 from mjxsysid import params as P
 from mjxsysid.analysis.flight import broadcast, make_low_level
 from mjxsysid.analysis.harness import Disturbance, failure_mask, fly_batch
@@ -190,7 +191,7 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     excitation = __doc__.split("\n\n")[1 if seconds is None else 2]
     meta = {**ref.to_dict(), "prior": prior, "seed": seed, "steps": steps, "excitation": excitation,
             "n_train": n_train, "n_test": n_test, "wall_s": time.time() - t0,
-            "device": str(jax.devices()[0])}
+            "device": str(jax.devices()[0]), "devices": distributed.device_count()}
     extra = {}
     if seconds is not None:
         zt = np.concatenate(trajs)[:total]

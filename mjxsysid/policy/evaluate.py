@@ -17,10 +17,13 @@ lemniscate success / RMSE against the oracle on a few hundred vehicles, summaris
 """
 from __future__ import annotations
 
+from functools import partial
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid import distributed
 from mjxsysid import params as P
 from mjxsysid.analysis.flight import broadcast, fly_vehicles
 from mjxsysid.analysis.harness import Disturbance, fly_batch, metrics, summarize
@@ -31,11 +34,23 @@ from mjxsysid.policy.env import EnvConfig, TrainEnv
 from mjxsysid.sim import Quadrotor
 
 
+SERIES = ("rate_err", "thrust_err", "failed")  # (steps, n) outputs of env_rollout
+
+
 def env_rollout(env: TrainEnv, params, key, n: int, steps: int, expert: bool):
     """Roll the training environment with the deterministic policy on ẑ (expert=False) or with
     K_θ(true θ) (expert=True). Returns dict of (steps, n) errors/failures and, at the last step,
-    θ (n, 19), z^θ (n, 8), ẑ (n, 8)."""
+    θ (n, 19), z^θ (n, 8), ẑ (n, 8). The n environments are sharded over every device
+    (:mod:`mjxsysid.distributed`); the result does not depend on the device count."""
     keys = jax.random.split(key, n)
+    keys, params = distributed.shard_batch((keys, params), n, axes=(0, None))
+    r = _env_rollout(env, params, keys, steps, expert)
+    return {k: distributed.unpad(v, n, axis=1 if k in SERIES else 0) for k, v in r.items()}
+
+
+@partial(jax.jit, static_argnums=(0, 3, 4))
+def _env_rollout(env: TrainEnv, params, keys, steps: int, expert: bool):
+    """:func:`env_rollout` on per-environment keys (n, 2): the one vmap boundary."""
     st = jax.vmap(lambda k: env.reset(k, 1.0))(keys)  # policy sees ẑ everywhere
 
     def body(st, t):
@@ -50,9 +65,6 @@ def env_rollout(env: TrainEnv, params, key, n: int, steps: int, expert: bool):
     return {"rate_err": rate, "thrust_err": thrust, "failed": failed, "theta": st_end.theta,
             "theta_norm": st_end.theta_norm, "z_theta": env.nets.encode(params, st_end.theta_norm),
             "zhat": st_end.zhat, "episode_step": st_end.step}
-
-
-_env_rollout = jax.jit(env_rollout, static_argnums=(0, 3, 4, 5))
 
 
 def linear_probe_r2(x, y, train_frac=0.7, seed=0):
@@ -113,7 +125,7 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
     log(f"[1/4] command tracking on {n} vehicles ({steps} steps, training-distribution commands)")
     res = {}
     for name, expert in (("policy", False), ("oracle_k_theta", True)):
-        r = _env_rollout(env, params, key, n, steps, expert)
+        r = env_rollout(env, params, key, n, steps, expert)
         settle = 100  # history filled
         res[name] = r
         out[f"tracking_{name}"] = {
@@ -202,7 +214,7 @@ def fast_eval(params, *, n_probe: int = 2000, n_lem: int = 500, seed: int = 0, s
     st = stages(["training commands", "collect flight", "lemniscate"], desc="fast eval")
     st.start("training commands")
     log(f"  fast eval: training commands ({n_probe} vehicles, {steps} steps)")
-    r = _env_rollout(env, params, key, n_probe, steps, False)
+    r = env_rollout(env, params, key, n_probe, steps, False)
     ok = np.asarray(r["episode_step"]) >= min(200, steps)
     out["tracking"] = {"rate_err_mean_rad_s": float(np.mean(r["rate_err"][100:])),
                        "thrust_err_mean_m_s2": float(np.mean(r["thrust_err"][100:])),

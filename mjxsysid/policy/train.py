@@ -33,7 +33,9 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 from flax import struct
+from jax.sharding import NamedSharding, PartitionSpec
 
+from mjxsysid import distributed
 from mjxsysid import params as P
 from mjxsysid.policy import networks as N
 from mjxsysid.policy.checkpoint import load_meta, load_tree, save_tree
@@ -233,17 +235,38 @@ def loss_fn(params, nets, cfg: TrainConfig, w: LossWeights, ident_proj, mb: Batc
 
 class Trainer:
     """Builds the jitted iteration for a config. ``init(key)``, ``iteration(ts, env_state)``;
-    ``reweighted(cfg)``: the same compiled iteration under another config's loss weights."""
+    ``reweighted(cfg)``: the same compiled iteration under another config's loss weights.
 
-    def __init__(self, cfg: TrainConfig = TrainConfig()):
+    ``mesh`` (a 1-D ``'batch'`` mesh, :func:`mjxsysid.distributed.batch_mesh`): data-parallel
+    training. The environments (``num_envs``, which the mesh size must divide) are sharded over
+    its devices, the training state is replicated, and every minibatch is sharded, so the
+    compiler all-reduces the gradients; the update is that of one device up to float
+    reassociation. Pass states through :meth:`place` first. None or one device: unchanged."""
+
+    def __init__(self, cfg: TrainConfig = TrainConfig(), mesh=None):
         self.cfg = cfg
         self.env = TrainEnv(cfg.env)
         self.nets = self.env.nets
         self.opt = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.learning_rate))
-        self.weights = LossWeights.of(cfg)
         self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior)
-        self._iteration_jit = jax.jit(self._iteration)
-        self.reset = jax.jit(self._reset)
+        self.mesh = mesh if mesh is not None and mesh.size > 1 else None
+        if self.mesh is None:
+            self.weights = LossWeights.of(cfg)
+            self._iteration_jit = jax.jit(self._iteration)
+            self.reset = jax.jit(self._reset)
+            return
+        if cfg.num_envs % self.mesh.size:
+            raise ValueError(f"num_envs ({cfg.num_envs}) must be a multiple of the {self.mesh.size} devices")
+        shared = NamedSharding(self.mesh, PartitionSpec())
+        envs = NamedSharding(self.mesh, PartitionSpec(distributed.AXIS))
+        self.weights = self.place(LossWeights.of(cfg))
+        self._iteration_jit = jax.jit(self._iteration, in_shardings=(shared, envs, shared),
+                                      out_shardings=(shared, envs, shared))
+        self.reset = jax.jit(self._reset, in_shardings=(shared, shared), out_shardings=envs)
+
+    def place(self, tree):
+        """Replicate a training state (or any pytree of shared arrays) over the mesh."""
+        return distributed.replicate(tree, self.mesh) if self.mesh is not None else tree
 
     def iteration(self, ts: TrainState, env_state: EnvState):
         """One training iteration under ``self.weights`` -> (ts, env_state, stats)."""
@@ -257,7 +280,7 @@ class Trainer:
             diff = sorted(k for k, v in same.to_dict().items() if v != self.cfg.to_dict()[k])
             raise ValueError(f"reweighted: config differs beyond the loss weights in {diff}")
         new = copy.copy(self)
-        new.cfg, new.weights = cfg, LossWeights.of(cfg)
+        new.cfg, new.weights = cfg, new.place(LossWeights.of(cfg))
         return new
 
     def init(self, key) -> TrainState:
@@ -319,10 +342,11 @@ class Trainer:
             def minibatch(carry, idx):
                 params, opt_state = carry
                 i, si = idx
-                mb, a, r = jax.tree.map(lambda x: x[i], flat)
+                # Data parallel: each device takes a slice of the minibatch (no-op on one device).
+                mb, a, r, st, sh = distributed.constrain_batch(
+                    (*jax.tree.map(lambda x: x[i], flat), snap_theta[si], snap_hist[si]), self.mesh)
                 (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(
-                    params, self.nets, cfg, weights, self.ident_proj, mb, a, r, snap_theta[si],
-                    snap_hist[si], beta)
+                    params, self.nets, cfg, weights, self.ident_proj, mb, a, r, st, sh, beta)
                 updates, opt_state = self.opt.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), dict(aux, loss=loss)
 
@@ -373,7 +397,10 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     out.mkdir(parents=True, exist_ok=True)
     if trainer is not None and trainer.cfg != cfg:
         raise ValueError("train: the trainer was built for a different config")
-    trainer = trainer or Trainer(cfg)
+    mesh = distributed.batch_mesh(divides=cfg.num_envs)
+    if trainer is not None and (trainer.mesh.size if trainer.mesh is not None else 1) != mesh.size:
+        raise ValueError(f"train: the trainer was built for another device mesh than the {mesh.size} device(s)")
+    trainer = trainer or Trainer(cfg, mesh)
     ts = trainer.init(jax.random.PRNGKey(cfg.seed))
     ckpt = out / "checkpoint.npz"
     env_state = None
@@ -387,9 +414,14 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
         else:  # older checkpoints hold the training state only: environments restart
             ts = load_tree(ckpt, ts)
         log(f"resumed from {ckpt} at iteration {int(ts.iteration)}")
+    if mesh.size > 1:
+        log(f"{cfg.num_envs} environments sharded over {mesh.size} devices ({jax.process_count()} process(es))")
+    ts = trainer.place(ts)
     if env_state is None:
         p0, _ = schedules(cfg, ts.iteration)
-        env_state = trainer.reset(jax.random.fold_in(ts.key, 123), p0)
+        env_state = trainer.reset(*trainer.place((jax.random.fold_in(ts.key, 123), p0)))
+    else:  # resumed environments: shard their batch axis like a fresh reset's
+        env_state = distributed.shard_batch(env_state, cfg.num_envs, mesh=mesh)
     steps_per_it = cfg.num_envs * cfg.unroll
     t_start = time.time()
     wall_prev = load_meta(ckpt).get("wall_s", 0.0) if (resume and ckpt.exists()) else 0.0
@@ -419,15 +451,16 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
                 f"fail {stats['fail_rate'] * 1e3:.2f}‰ | bc {stats['bc']:.4f} | "
                 f"‖z−ẑ‖/spread {stats['latent_err_rel']:.3f} | min std z {stats['latent_min_std']:.2f} "
                 f"| p {stats['p_zhat']:.2f}")
-        if it % cfg.checkpoint_every == 0 or it == cfg.iterations:
+        if (it % cfg.checkpoint_every == 0 or it == cfg.iterations) and jax.process_index() == 0:
             save_tree(ckpt, (ts, env_state), {"config": cfg.to_dict(), "iteration": it, "with_env": True,
                                               "wall_s": wall_prev + time.time() - t_start})
     bar.close()
     logf.close()
     wall = wall_prev + time.time() - t_start
-    export_policy(ts.params, out / "policy.npz", {
-        "config": cfg.to_dict(), "normalizer": trainer.env.normalizer.to_dict(),
-        "iterations": int(ts.iteration), "env_steps": int(ts.iteration) * steps_per_it,
-        "wall_s": wall, "final_stats": {k: float(v) for k, v in stats.items()},
-        "device": str(jax.devices()[0]), "jax": jax.__version__})
+    if jax.process_index() == 0:
+        export_policy(ts.params, out / "policy.npz", {
+            "config": cfg.to_dict(), "normalizer": trainer.env.normalizer.to_dict(),
+            "iterations": int(ts.iteration), "env_steps": int(ts.iteration) * steps_per_it,
+            "wall_s": wall, "final_stats": {k: float(v) for k, v in stats.items()},
+            "device": str(jax.devices()[0]), "devices": mesh.size, "jax": jax.__version__})
     return {"stats": {k: float(v) for k, v in stats.items()}, "wall_s": wall}

@@ -272,3 +272,93 @@ def plot_prior_marginals(theta_samples, path, *, mark=None, names: Sequence[str]
     if title:
         fig.suptitle(title, fontsize=13)
     return _save(fig, path)
+
+
+ENSEMBLE_COLORS = {"true": "k", "decoded": "#1f77b4", "±20 %": "#ff7f0e"}
+
+
+def plot_error_envelopes(times, true, ensembles: dict, path, *, rows=("lateral error (m)", "vertical error (m)"),
+                         cols=None, onset=None, q=(5.0, 95.0), title=None, notes=None) -> Path:
+    """Error envelopes over time, R rows × C columns of panels.
+
+    times (T,) s; true (R, C, T) one true trace per panel (drawn on top), or (R, C, n, T) a true
+    ensemble (drawn as a grey q-band with its median); ensembles {label: (R, C, S, T)} drawn as
+    q[0]–q[1] % bands with their medians (colours from :data:`ENSEMBLE_COLORS`). onset: s, a
+    vertical marker; notes: (R, C) strings written in the panels.
+    """
+    times = np.asarray(times)
+    true = np.asarray(true)
+    r_n, c_n = true.shape[:2]
+    fig = _figure((4.6 * c_n + 0.6, 2.9 * r_n + 0.4))
+    axs = fig.subplots(r_n, c_n, squeeze=False)
+    for r in range(r_n):
+        for c in range(c_n):
+            ax = axs[r, c]
+            for i, (label, ens) in enumerate(ensembles.items()):
+                e = np.asarray(ens)[r, c]
+                lo, med, hi = np.percentile(e, [q[0], 50, q[1]], 0)
+                col = ENSEMBLE_COLORS.get(label, f"C{i + 2}")
+                ax.fill_between(times, lo, hi, color=col, alpha=0.25 if i else 0.35, lw=0,
+                                label=f"{label} {q[0]:g}–{q[1]:g} %")
+                ax.plot(times, med, color=col, lw=1.0, ls="--", label=f"{label} median")
+            tr = true[r, c]
+            if tr.ndim == 1:
+                ax.plot(times, tr, color="k", lw=1.6, label="true", zorder=5)
+            else:
+                lo, med, hi = np.percentile(tr, [q[0], 50, q[1]], 0)
+                ax.fill_between(times, lo, hi, color="0.4", alpha=0.3, lw=0, zorder=4,
+                                label=f"true {q[0]:g}–{q[1]:g} %")
+                ax.plot(times, med, color="k", lw=1.4, zorder=5, label="true median")
+            if onset is not None:
+                ax.axvline(onset, color="0.5", lw=0.8, ls=":")
+            if notes is not None:
+                ax.text(0.02, 0.97, notes[r][c], transform=ax.transAxes, va="top", fontsize=8,
+                        bbox=dict(boxstyle="round", fc="w", ec="0.8", alpha=0.85))
+            if cols is not None and r == 0:
+                ax.set_title(cols[c])
+            if c == 0:
+                ax.set_ylabel(rows[r])
+            if r == r_n - 1:
+                ax.set_xlabel("time (s)")
+            ax.grid(alpha=0.3)
+    axs[0, -1].legend(fontsize=7, loc="upper right")
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)
+
+
+def plot_final_histograms(finals: dict, path, *, rows=("final lateral error (m)", "final vertical error (m)"),
+                          cols=None, notes=None, title=None, bins: int = 30) -> Path:
+    """Histograms (densities) of final errors, R rows × C columns: finals {label: (R, C, S)}
+    ('true' drawn as a black outline on top); notes (R, C) strings written in the panels."""
+    labels = list(finals)
+    first = np.asarray(finals[labels[0]])
+    r_n, c_n = first.shape[:2]
+    fig = _figure((4.2 * c_n + 0.6, 2.7 * r_n + 0.4))
+    axs = fig.subplots(r_n, c_n, squeeze=False)
+    for r in range(r_n):
+        for c in range(c_n):
+            ax = axs[r, c]
+            allv = np.concatenate([np.asarray(finals[k])[r, c].ravel() for k in labels])
+            hi = np.percentile(allv, 99.5)
+            edges = np.linspace(0.0, hi if hi > 0 else 1e-3, bins + 1)
+            for i, k in enumerate(sorted(labels, key=lambda k: k == "true")):
+                v = np.clip(np.asarray(finals[k])[r, c].ravel(), 0, edges[-1])
+                col = ENSEMBLE_COLORS.get(k, f"C{i + 2}")
+                if k == "true":
+                    ax.hist(v, edges, density=True, histtype="step", color=col, lw=1.6, label=k, zorder=5)
+                else:
+                    ax.hist(v, edges, density=True, color=col, alpha=0.4, label=k)
+            if notes is not None:
+                ax.text(0.98, 0.97, notes[r][c], transform=ax.transAxes, va="top", ha="right", fontsize=8,
+                        bbox=dict(boxstyle="round", fc="w", ec="0.8", alpha=0.85))
+            if cols is not None and r == 0:
+                ax.set_title(cols[c])
+            ax.set_xlabel(rows[r])
+            if c == 0:
+                ax.set_ylabel("density")
+            ax.grid(alpha=0.3)
+    axs[0, 0].legend(fontsize=7, loc="center right")
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)

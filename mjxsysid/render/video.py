@@ -728,11 +728,25 @@ def render_frame(theta, frames=None, *, index: int = -1, camera="chase", width: 
                           line_scale=max(1.0, height / 480))
 
 
-def side_by_side(videos, path, *, fps: float = 50) -> Path:
+def side_by_side(videos, path, *, fps: float = 50, labels=None) -> Path:
     """Place videos (paths of equal frame size and rate) next to each other in one mp4; the
-    shorter ones hold their last frame."""
+    shorter ones hold their last frame. ``labels``: optional caption drawn on each panel."""
     mediapy = _mediapy()
     clips = [read_video(v) for v in videos]
+    if labels is not None:
+        if len(labels) != len(clips):
+            raise ValueError(f"got {len(labels)} labels for {len(clips)} videos")
+        from PIL import Image, ImageDraw
+
+        def caption(frames, text):
+            out = []
+            for f in frames:
+                im = Image.fromarray(np.ascontiguousarray(f))
+                ImageDraw.Draw(im).text((12, 10), text, fill=(20, 20, 20))
+                out.append(np.asarray(im))
+            return np.stack(out)
+
+        clips = [caption(c, t) for c, t in zip(clips, labels)]
     if not clips:
         raise ValueError("side_by_side needs at least one video")
     h = {c.shape[1] for c in clips}

@@ -180,7 +180,9 @@ class Quadrotor:
         # The IMU is computed in JAX (below); skip MuJoCo's sensor stage in MJX.
         mj.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_SENSOR)
         self.mj_model = mj
-        self.base = mjx.put_model(mj, impl="jax")
+        # This process's first device (MJX's default, jax.devices()[0], belongs to process 0 in a
+        # multi-process run, and the model is a constant of every jitted step).
+        self.base = mjx.put_model(mj, impl="jax", device=jax.local_devices()[0])
         self._site_ids = np.array([mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_SITE, f"rotor{i}")
                                    for i in range(1, 5)])
         self._gravity = jnp.asarray(mj.opt.gravity, jnp.float32)

@@ -1,0 +1,154 @@
+"""Scaling over the local devices: 1 device vs all of them, same process, same run.
+
+Two workloads, each timed on ``limit_devices(1)`` (the one-device path, no sharding) and on
+every device (:mod:`mjxsysid.distributed`), after a warm-up call that compiles:
+
+- ``collect``: ``latents_in_flight`` — the shipped policy flying ``--vehicles`` prior vehicles
+  ``--steps`` control steps under excitation (what ``mjxsysid collect`` does per batch);
+  env-steps/s = vehicles × steps / wall;
+- ``train``: iterations of the policy training (rollout + GAE + PPO/alignment updates) with
+  ``--envs`` environments × ``--unroll`` steps; env-steps/s = envs × unroll × iterations / wall.
+
+It also records how far the all-device results are from the one-device ones (latents; the
+training loss after the timed iterations), as a check that the sharded run computes the same.
+
+    # one GPU vs both GPUs of a 2-GPU machine (e.g. nvidia-h200-x2)
+    python benchmarks/scaling.py --vehicles 16384 --envs 4096 --out docs/runs/scaling.json
+    # correctness run on a CPU with 2 forced host devices (not a speed figure)
+    XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/scaling.py \\
+        --vehicles 8 --steps 100 --envs 16 --unroll 8 --iterations 2 --repeats 1 \\
+        --out docs/runs/scaling_cpu_forced2.json
+
+Prints a table and writes the JSON (machine, date, command, per workload and device count:
+wall seconds, env-steps/s, speed-up over one device).
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+
+def best_of(fn, repeats: int) -> float:
+    """Minimum wall time (s) of ``fn()`` (which blocks on its result) over ``repeats`` calls."""
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t)
+    return min(times)
+
+
+def bench_collect(devices: int, args) -> dict:
+    from mjxsysid import distributed as D
+    from mjxsysid import params as P
+    from mjxsysid.policy.collect import latents_in_flight
+    from mjxsysid.policy.interface import resolve_policy
+    from mjxsysid.sim import Quadrotor
+    ref, sim = resolve_policy("mjxsysid"), Quadrotor()
+    theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), args.vehicles))
+    key = jax.random.PRNGKey(1)
+    with D.limit_devices(devices):
+        run = lambda: latents_in_flight(ref, theta, key, steps=args.steps, sim=sim)  # host arrays: blocks
+        t0 = time.perf_counter()
+        z, _ = run()
+        first = time.perf_counter() - t0
+        wall = best_of(run, args.repeats)
+    return {"devices": D.device_count() if devices is None else devices, "first_call_s": first, "wall_s": wall,
+            "env_steps_per_s": args.vehicles * args.steps / wall, "_z": z}
+
+
+def bench_train(devices: int, args) -> dict:
+    from mjxsysid import distributed as D
+    from mjxsysid.policy.train import TrainConfig, Trainer
+    cfg = TrainConfig(num_envs=args.envs, unroll=args.unroll, minibatches=args.minibatches,
+                      iterations=1500)
+    with D.limit_devices(devices):
+        mesh = D.batch_mesh(divides=cfg.num_envs)
+        tr = Trainer(cfg, mesh)
+        ts = tr.place(tr.init(jax.random.PRNGKey(0)))
+        env = tr.reset(*tr.place((jax.random.PRNGKey(1), np.float32(0.0))))
+        t0 = time.perf_counter()
+        ts, env, stats = jax.block_until_ready(tr.iteration(ts, env))  # compile + 1 iteration
+        first = time.perf_counter() - t0
+        state = {"ts": ts, "env": env, "stats": stats}
+
+        def run():
+            s, e, st = state["ts"], state["env"], None
+            for _ in range(args.iterations):
+                s, e, st = tr.iteration(s, e)
+            jax.block_until_ready((s, e, st))
+            state.update(ts=s, env=e, stats=st)
+
+        wall = best_of(run, args.repeats)
+    return {"devices": mesh.size, "first_call_s": first, "wall_s": wall,
+            "iterations": args.iterations, "iterations_per_s": args.iterations / wall,
+            "env_steps_per_s": cfg.num_envs * cfg.unroll * args.iterations / wall,
+            "_loss": float(state["stats"]["loss"])}
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--vehicles", type=int, default=16384, help="collect: vehicles per batch")
+    ap.add_argument("--steps", type=int, default=750, help="collect: control steps per flight")
+    ap.add_argument("--envs", type=int, default=4096, help="training environments")
+    ap.add_argument("--unroll", type=int, default=32)
+    ap.add_argument("--minibatches", type=int, default=8)
+    ap.add_argument("--iterations", type=int, default=10, help="training iterations per timed repeat")
+    ap.add_argument("--repeats", type=int, default=3, help="timed repeats (best of) after the warm-up")
+    ap.add_argument("--out", type=Path, default=Path("docs/runs/scaling.json"))
+    args = ap.parse_args()
+    for k in ("vehicles", "steps", "envs", "unroll", "minibatches", "iterations", "repeats"):
+        if getattr(args, k) < 1:
+            ap.error(f"--{k} must be >= 1")
+
+    from mjxsysid import distributed as D
+    D.maybe_initialize()
+    n_all = D.device_count()
+    if n_all < 2:
+        print("only one device: the scaling run needs at least 2 (on a CPU, set "
+              "XLA_FLAGS=--xla_force_host_platform_device_count=2 for a correctness run)", file=sys.stderr)
+        return 2
+    dev = jax.devices()[0]
+    res = {"command": " ".join([os.path.basename(sys.executable), *sys.argv]),
+           "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+           "machine": {"platform": dev.platform, "device_kind": getattr(dev, "device_kind", ""),
+                       "devices": n_all, "processes": jax.process_count(), "host": platform.node(),
+                       "cpu_count": os.cpu_count(), "jax": jax.__version__,
+                       "xla_flags": os.environ.get("XLA_FLAGS", "")},
+           "config": {k: getattr(args, k) for k in ("vehicles", "steps", "envs", "unroll", "minibatches",
+                                                     "iterations", "repeats")}}
+    if dev.platform == "cpu":
+        res["note"] = ("CPU run: a correctness run of the sharded path end to end, not a speed figure "
+                       "(forced host devices share the same cores)")
+    for name, fn in (("collect", bench_collect), ("train", bench_train)):
+        one, many = fn(1, args), fn(None, args)
+        if name == "collect":
+            diff = float(np.max(np.abs(one.pop("_z") - many.pop("_z"))))
+            check = {"max_abs_latent_diff": diff}
+        else:
+            l1, l2 = one.pop("_loss"), many.pop("_loss")
+            check = {"loss_1_device": l1, "loss_all_devices": l2, "abs_loss_diff": abs(l1 - l2)}
+        res[name] = {"one_device": one, "all_devices": many,
+                     "speedup": one["wall_s"] / many["wall_s"],
+                     "check": check}
+        print(f"{name:8s} 1 device {one['env_steps_per_s'] / 1e6:8.3f} M env-steps/s | "
+              f"{many['devices']} devices {many['env_steps_per_s'] / 1e6:8.3f} M env-steps/s | "
+              f"speed-up {res[name]['speedup']:.2f}x | check {check}", flush=True)
+    if jax.process_index() == 0:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(res, indent=2) + "\n")
+        print(f"wrote {args.out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
