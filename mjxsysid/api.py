@@ -119,7 +119,8 @@ def fly(vehicle=None, controller: str = "policy", *, reference: str = "lemniscat
 
 
 def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None, weights=None,
-           decoders=None, seed: int = 0, truth=None, index: int = 0, allow_mismatch: bool = False) -> dict:
+           decoders=None, seed: int = 0, truth=None, index: int = 0, allow_mismatch: bool = False,
+           window="flight") -> dict:
     """Decode a policy's latent into a distribution of vehicles, as ``mjxsysid decode``.
 
     ``flight_or_log``: a :class:`FlightResult` of :func:`fly` with ``controller="policy"``
@@ -130,13 +131,22 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
     ``decoders``). Returns the arrays of ``decoded.npz`` — times (K,), zhat (K, 8), samples
     (K, S, 19), regression (K, 19), theta_true (19,) (NaN if unknown) — and ``summary``, the
     dict of ``summary.json`` (per parameter and identifiable combination: mean, q05, q95,
-    and with a known truth, true and inside)."""
-    from mjxsysid.analysis.decode import decode_posterior, load_decoders, log_latents, read_log
+    and with a known truth, true and inside).
+
+    ``window`` (as ``mjxsysid decode --window``): ``"flight"`` (default) — the summary is the
+    flight-level posterior given every latent so far (10 Hz, the sequence decoder
+    ``cfm_seq.npz`` beside the CFM), also returned as samples_window (K, S, 19) with n_window
+    (K,); a number of seconds — a sliding window of that length; ``"instant"`` — the
+    single-latent CFM alone. Without a sequence decoder it falls back to ``"instant"`` and
+    ``summary["_window"]`` says which was used."""
+    from mjxsysid.analysis.decode import (check_window, decode_posterior, load_decoders, load_sequence_decoder,
+                                          log_latents, parse_window, read_log)
     from mjxsysid.policy.interface import resolve_policy
     if not rate > 0:
         raise ValueError(f"rate must be > 0 Hz, got {rate}")
     if samples < 2:
         raise ValueError(f"samples must be >= 2, got {samples}")
+    window = parse_window(window)
     if isinstance(flight_or_log, FlightResult):
         res = flight_or_log
         if res.controller != "policy":
@@ -159,6 +169,9 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
                          f"got {type(flight_or_log).__name__}")
     if th is not None and np.shape(th) != (P.N_PARAMS,):
         raise ValueError(f"truth must be one vehicle, θ ({P.N_PARAMS},); got shape {np.shape(th)}")
+    check_window(window, float(times[-1]))
     cfm, reg = load_decoders(decoders, ref, allow_mismatch=allow_mismatch, warn=print)
+    seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=print,
+                                                                 allow_mismatch=allow_mismatch)
     return decode_posterior(zhat_t, times, th, decoder=cfm, regression=reg, rate=rate, samples=samples,
-                            seed=seed)
+                            seed=seed, window=window, seq_decoder=seq)

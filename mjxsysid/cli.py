@@ -114,6 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "mjxsysid's policies only (training diagnostics need its μ encoder)")
     e.add_argument("--vehicles", type=int, default=1000)
     e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--fast", action="store_true", help="the quick latent/lemniscate evaluation of training "
+                   "trials (probes on 2 x VEHICLES, lemniscate on VEHICLES)")
     e.add_argument("--out", type=Path, required=True, help="writes OUT/eval.json")
     c = sub.add_parser("collect", help="collect (θ, ẑ) pairs from a frozen policy in closed-loop flight")
     c.add_argument("--out", type=Path, required=True, help="writes OUT/pairs.npz")
@@ -124,19 +126,34 @@ def build_parser() -> argparse.ArgumentParser:
                    help="vehicle prior (default: the policy's own: default for mjxsysid, xadap for xadap)")
     c.add_argument("--batch", type=int, default=2_000, help="vehicles per batched flight")
     c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--seconds", type=_positive, default=10.0,
+                   help="flight length, s: the latent is recorded at 10 Hz over it (default 10)")
+    c.add_argument("--manoeuvres", default="lemniscate,minsnap,hover_step",
+                   help="comma-separated manoeuvres drawn per vehicle (default: lemniscate,minsnap,hover_step)")
+    c.add_argument("--single-latent", action="store_true",
+                   help="the shipped single-latent pairs instead: 1.5 s lemniscates, ẑ at the end, no trajectories")
     tc = sub.add_parser("train-cfm", help="train the CFM and Regression decoders on (θ, ẑ) pairs")
     tc.add_argument("--pairs", type=Path, required=True, help="pairs.npz from `mjxsysid collect` (or its folder)")
-    tc.add_argument("--out", type=Path, required=True, help="writes OUT/cfm.npz, OUT/regression.npz")
+    tc.add_argument("--out", type=Path, required=True,
+                    help="writes OUT/cfm.npz, OUT/regression.npz (and OUT/cfm_seq.npz, see --kinds)")
     tc.add_argument("--epochs", type=int, default=None, help="override CFMConfig.epochs (default 100)")
     tc.add_argument("--width", type=int, default=None, help="override CFMConfig.width (default 512)")
     tc.add_argument("--batch", type=int, default=None, help="override CFMConfig.batch (default 256)")
     tc.add_argument("--no-resume", action="store_true",
                     help="start afresh even if OUT holds checkpoints or decoders of an earlier run")
+    tc.add_argument("--kinds", default=None,
+                    help="comma-separated decoders to train: cfm, regression, cfm_seq (default: all three when "
+                         "the pairs hold latent trajectories, else cfm,regression)")
+    tc.add_argument("--seq-epochs", type=int, default=None, help="epochs of the sequence decoder (default: --epochs)")
     _add_policy(tc, "check that the pairs come from this policy")
     ed = sub.add_parser("evaluate-decoder", help="calibration of the decoders on held-out pairs")
-    ed.add_argument("--decoders", type=Path, required=True, help="folder with cfm.npz and regression.npz")
+    ed.add_argument("--decoders", type=Path, required=True,
+                    help="folder with cfm.npz and regression.npz and/or cfm_seq.npz (the sequence decoder; "
+                         "a cfm.npz alone is only its single-latent reference)")
     ed.add_argument("--pairs", type=Path, required=True)
     ed.add_argument("--cases", type=int, default=1000)
+    ed.add_argument("--no-paper-flight", action="store_true",
+                    help="skip flying the paper vehicle (its posterior plots / 10 s lemniscate figures)")
     ed.add_argument("--samples", type=int, default=200)
     _add_policy(ed, "policy whose latent of the paper vehicle is decoded for the marginals plot "
                     "(default: the one that made the pairs)")
@@ -148,9 +165,13 @@ def build_parser() -> argparse.ArgumentParser:
     dc.add_argument("--duration", type=_positive, default=None)
     dc.add_argument("--samples", type=int, default=100, help="decoded models per latent (default 100)")
     dc.add_argument("--rate", type=_positive, default=10.0, help="decoding rate, Hz (default 10)")
+    dc.add_argument("--window", default="flight",
+                    help="what each decoded posterior conditions on: 'flight' (default: every latent flown so far, "
+                         "sequence decoder), 'instant' (the current latent only) or SECONDS (a sliding window)")
     _add_policy(dc)
     dc.add_argument("--decoders", type=Path, default=None,
-                    help="folder with cfm.npz and regression.npz (default: the policy's shipped decoders)")
+                    help="folder with cfm.npz and regression.npz, and cfm_seq.npz for --window flight|SECONDS "
+                         "(default: the policy's shipped decoders)")
     dc.add_argument("--seed", type=int, default=0)
     dc.add_argument("--video", action="store_true", help="render the true vehicle with decoded ghosts")
     dc.add_argument("--out", type=Path, required=True)
@@ -235,10 +256,12 @@ def cmd_decode(args) -> int:
     from mjxsysid.analysis.decode import run_decode
     if args.log is not None and args.vehicle is not None:
         raise ValueError("give either --vehicle or --log, not both")
+    from mjxsysid.analysis.decode import parse_window
+    window = parse_window(args.window)
     theta = None if args.log else (P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware())
     summary = run_decode(args.out, theta=theta, log=args.log, reference=args.reference, period=args.period,
                          duration=args.duration, samples=args.samples, rate=args.rate, policy=_policy_ref(args),
-                         decoders=args.decoders, seed=args.seed, video=args.video,
+                         decoders=args.decoders, seed=args.seed, video=args.video, window=window,
                          echo=lambda m: _echo(m, file=sys.stderr))
     print(json.dumps({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES}))
     print(f"wrote {args.out}/decoded.npz, summary.json, marginals.png, decoded_over_time.png"
@@ -259,7 +282,10 @@ def cmd_train_cfm(args) -> int:
             raise ValueError(f"{args.pairs}: these pairs were not collected with {want.label}")
     over = {k: v for k, v in (("epochs", args.epochs), ("width", args.width), ("batch", args.batch)) if v is not None}
     cfg = dataclasses.replace(CFMConfig(), **over)
-    res = train_decoders(args.pairs, args.out, cfg, log=_echo, resume=not args.no_resume)
+    kinds = None if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
+    seq_cfg = {"epochs": args.seq_epochs} if args.seq_epochs is not None else None
+    res = train_decoders(args.pairs, args.out, cfg, kinds=kinds, seq_cfg=seq_cfg, log=_echo,
+                         resume=not args.no_resume)
     print(json.dumps({k: {kk: v[kk] for kk in ("wall_s", "final_train_loss", "final_val_loss", "steps_per_s")}
                       for k, v in res.items()}))
     return 0
@@ -285,12 +311,33 @@ def cmd_evaluate_decoder(args) -> int:
         ref = resolve_policy(kind, w)
     else:
         ref = _policy_ref(args)
-    z, failed = latents_in_flight(ref, np.repeat(P.PAPER_HARDWARE[None], 2, 0), jax.random.PRNGKey(0))
+    paper_zhat = paper_traj = None
+    if (args.decoders / "cfm.npz").is_file() and (args.decoders / "regression.npz").is_file() \
+            and not args.no_paper_flight:
+        z, failed = latents_in_flight(ref, np.repeat(P.PAPER_HARDWARE[None], 2, 0), jax.random.PRNGKey(0))
+        paper_zhat = z[0]
+    if (args.decoders / "cfm_seq.npz").is_file() and not args.no_paper_flight:  # the paper vehicle after a 10 s lemniscate, ẑ at 10 Hz
+        from mjxsysid.analysis.decode import decode_indices
+        from mjxsysid.analysis.flight import fly_vehicles, one_flight
+        one = one_flight(fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference="lemniscate",
+                                      period=10.0)[0])
+        idx = decode_indices(one.time, 10.0)
+        paper_traj = (np.asarray(one.latent)[idx], np.asarray(one.time)[idx])
     rep = evaluate_decoders(args.decoders, args.pairs, n_cases=args.cases, n_samples=args.samples,
-                            paper_zhat=z[0], log=_echo)
-    print(json.dumps({"coverage_mean": rep["coverage_mean"], "calibrated": rep["calibrated_within_5_points"],
-                      "energy_score": rep["energy_score"], "c2st": rep["c2st_nearby_latents"]["mean_accuracy"]}))
-    print(f"wrote {args.decoders}/decoder_eval.json, sbc_ranks.png, paper_vehicle_posterior.png", file=sys.stderr)
+                            paper_zhat=paper_zhat, paper_traj=paper_traj, log=_echo)
+    brief = {}
+    if "energy_score" in rep:
+        brief = {"coverage_mean": rep["coverage_mean"], "calibrated": rep["calibrated_within_5_points"],
+                 "energy_score": rep["energy_score"], "c2st": rep["c2st_nearby_latents"]["mean_accuracy"]}
+    if "sequence" in rep:
+        sq = rep["sequence"]
+        brief["sequence"] = {"energy_score": {k: v["energy_score"] for k, v in sq["windows"].items()},
+                             "energy_ratio_flight_vs_single": sq["energy_ratio_flight_vs_single"],
+                             "targets": sq["targets"],
+                             "paper_vehicle": sq.get("paper_vehicle", {}).get("targets")}
+    print(json.dumps(brief))
+    figs = ", sbc_ranks.png" + (", paper_vehicle_posterior.png" if paper_zhat is not None else "") if "energy_score" in rep else ""
+    print(f"wrote {args.decoders}/decoder_eval.json{figs}", file=sys.stderr)
     return 0
 
 
@@ -298,8 +345,10 @@ def cmd_collect(args) -> int:
     from mjxsysid.policy.collect import collect
     ref = _policy_ref(args)
     _echo(f"collecting {args.train} + {args.test} (θ, ẑ) pairs with {ref.label}")
+    manoeuvres = tuple(m.strip() for m in args.manoeuvres.split(",") if m.strip())
     path = collect(args.out, policy=ref, n_train=args.train,
                    n_test=args.test, prior=args.prior, seed=args.seed, batch=args.batch,
+                   seconds=None if args.single_latent else args.seconds, manoeuvres=manoeuvres,
                    log=_echo)
     print(f"wrote {path}", file=sys.stderr)
     return 0
@@ -310,6 +359,16 @@ def cmd_evaluate_policy(args) -> int:
     if args.vehicles < 10:
         raise ValueError(f"--vehicles must be >= 10 (linear probes need data), got {args.vehicles}")
     args.out.mkdir(parents=True, exist_ok=True)
+    if args.fast:
+        from mjxsysid.policy.controller import PolicyController
+        from mjxsysid.policy.evaluate import fast_eval
+        ctrl = PolicyController.load(args.weights)
+        res = fast_eval(ctrl.params, n_probe=2 * args.vehicles, n_lem=args.vehicles, seed=args.seed,
+                        phi_every=ctrl.phi_every, log=_echo)
+        (args.out / "eval.json").write_text(json.dumps(res, indent=2) + "\n")
+        print(json.dumps(res["summary"]))
+        print(f"wrote {args.out}/eval.json", file=sys.stderr)
+        return 0
     res = evaluate_policy(args.weights, n=args.vehicles, seed=args.seed, log=_echo)
     (args.out / "eval.json").write_text(json.dumps(res, indent=2) + "\n")
     lem = res["lemniscate"]

@@ -1,5 +1,6 @@
 """The unified adaptive policy: networks, losses, schedules, a tiny learning run, checkpoints,
 deployment = training, and the shipped weights."""
+import dataclasses
 import json
 
 import jax
@@ -12,7 +13,8 @@ from mjxsysid.policy import networks as N
 from mjxsysid.policy.checkpoint import load_tree, save_tree
 from mjxsysid.policy.controller import PRETRAINED, PolicyCarry, PolicyController
 from mjxsysid.policy.env import EnvConfig, TrainEnv
-from mjxsysid.policy.train import (TrainConfig, alignment_losses, gae, gaussian_logp, schedules,
+from mjxsysid.policy.train import (IDENT_TARGET_NAMES, Trainer, TrainConfig, alignment_losses, gae,
+                                   gaussian_logp, identifiable_log, identifiable_projection, schedules,
                                    train, variance_loss)
 
 NETS = N.Networks()
@@ -186,3 +188,76 @@ def test_collect_pairs_tiny(tmp_path):
     assert len(meta["weights_sha256"]) == 64 and meta["prior"] == "default"
     with pytest.raises(FileNotFoundError):
         load_pairs(tmp_path / "nope")
+
+
+def test_identifiable_projection_is_exact():
+    """(y − y') A equals the standardised difference of log T/W, log κ, log authority, log τ_m."""
+    norm = P.prior_normalizer("default", n=4000)
+    A = identifiable_projection(norm, P.DEFAULT_PRIOR, n=3000)
+    assert A.shape == (19, len(IDENT_TARGET_NAMES))
+    std = np.std(np.asarray(identifiable_log(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 3000))), 0)
+    th = P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(9), 65)
+    y, g = np.asarray(norm.normalize(th)), np.asarray(identifiable_log(th))
+    np.testing.assert_allclose((y[1:] - y[:-1]) @ np.asarray(A), (g[1:] - g[:-1]) / std, atol=2e-4)
+    np.testing.assert_allclose(np.exp(g[:, 0]), np.asarray(P.thrust_to_weight(th)), rtol=1e-5)
+    assert float(A[P.MASS, 0]) < 0 < float(A[P.OMEGA_MAX, 0]) and float(A[P.TAU_M, 5]) > 0
+
+
+@pytest.fixture(scope="module")
+def tiny_trainer():
+    return Trainer(TrainConfig(iterations=16, **TINY))  # the config of the tiny learning test: one compile (cached)
+
+
+@pytest.mark.parametrize("over", [{"rec_ident_coef": 1.0}, {"rec_ident_coef": 1.0, "rec_coef": 0.0},
+                                  {"lambda1": 0.1}, {"var_target": 0.3}])
+def test_loss_weight_options_share_the_compile_and_train(tiny_trainer, over):
+    """Every loss-weight trial option runs one tiny training step through the base config's
+    compiled iteration: finite losses, shapes kept, and weights that differ from the base step."""
+    t0 = tiny_trainer
+    ts, env = t0.init(jax.random.PRNGKey(0)), t0.reset(jax.random.PRNGKey(1), 0.0)
+    base, _, base_stats = t0.iteration(ts, env)
+    t = t0.reweighted(dataclasses.replace(t0.cfg, **over))
+    assert t._iteration_jit is t0._iteration_jit and t.cfg != t0.cfg
+    new, env2, stats = t.iteration(ts, env)
+    assert all(np.isfinite(float(v)) for v in stats.values()), stats
+    assert float(stats["rec_ident"]) > 0 and float(base_stats["rec_ident"]) > 0
+    assert env2.history.shape == env.history.shape
+    moved = [k for k in ("mu", "aux", "phi") if any(
+        not np.allclose(np.asarray(a), np.asarray(b)) for a, b in
+        zip(jax.tree.leaves(new.params[k]), jax.tree.leaves(base.params[k])))]
+    assert "mu" in moved, moved   # every option here acts on μ's gradient
+    with pytest.raises(ValueError, match="beyond the loss weights.*learning_rate"):
+        t0.reweighted(dataclasses.replace(t0.cfg, learning_rate=1e-3))
+
+
+def test_latent_health_and_trial_summary_on_a_synthetic_latent():
+    """A latent that linearly codes log T/W and log τ_m (and nothing about κ) probes as such;
+    trial_summary reads the headline numbers from it."""
+    from mjxsysid.policy.evaluate import latent_health, trial_summary
+    th = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(2), 600))
+    g = np.asarray(identifiable_log(th))
+    rng = np.random.default_rng(0)
+    z_theta = np.concatenate([g[:, [0, 5]], rng.normal(size=(600, 6))], 1) * 0.1
+    zhat = z_theta + 0.001 * rng.normal(size=z_theta.shape)
+    lat = latent_health(z_theta, zhat, np.asarray(P.prior_normalizer("default", n=2000).normalize(th)), th)
+    lem = {"policy": {"success_rate": 1.0}, "oracle": {"success_rate": 1.0}, "rmse_ratio_policy_over_oracle": 1.02}
+    s = trial_summary({"latent": lat, "latent_flight": lat, "lemniscate": lem})
+    assert s["train_cmds"]["r2_thrust_to_weight"] > 0.99 and s["flight"]["r2_tau_m"] > 0.99
+    assert s["train_cmds"]["r2_kappa"] < 0.1
+    np.testing.assert_allclose(s["train_cmds"]["z_err_rel"], 0.001 * np.sqrt(8) / np.sqrt(z_theta.var(0).sum()), rtol=0.1)
+    assert s["rmse_ratio"] == 1.02 and s["success_policy"] == 1.0
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not PRETRAINED.exists(), reason="no shipped policy weights")
+def test_fast_eval_tiny_on_shipped_policy():
+    """fast_eval end to end (tiny sizes; minutes of CPU compiles): all headline numbers present
+    and sane for the shipped policy, which flies every vehicle."""
+    from mjxsysid.policy.evaluate import fast_eval
+    ctrl = PolicyController.load()
+    ev = fast_eval(ctrl.params, n_probe=48, n_lem=4, steps=250, flight_steps=200, period=10.0, log=lambda m: None)
+    s = ev["summary"]
+    assert s["success_policy"] == 1.0 and 0.5 < s["rmse_ratio"] < 2.0
+    for k in ("train_cmds", "flight"):
+        assert 0.0 < s[k]["z_err_rel"] < 1.5 and s[k]["z_min_std"] > 0.02
+        assert all(np.isfinite(v) for v in s[k].values())

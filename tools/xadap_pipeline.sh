@@ -27,7 +27,7 @@ if has fly; then
   t $M fly --prior xadap --vehicles 1000 --controller oracle --reference hover --out "$OUT/hover_oracle"
 fi
 if has collect; then
-  t $M collect --policy xadap --weights "$W" --out "$OUT/data"
+  t $M collect --single-latent --policy xadap --weights "$W" --out "$OUT/data"  # the shipped decoders: 1.5 s pairs
 fi
 if has train; then
   t $M train-cfm --pairs "$OUT/data" --policy xadap --weights "$W" --out "$OUT/dec"

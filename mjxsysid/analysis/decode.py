@@ -11,6 +11,13 @@ on z at hover), commanded mass-normalised collective thrust a_cmd (m/s²) and bo
 motor commands Ω_cmd/Ω_max ∈ [0, 1] in mjxsysid's rotor order (1 front-right, 2 front-left,
 3 back-left, 4 back-right). The policy's history is rebuilt from the logged IMU, commands and
 motor commands (the logged motor commands stand in for the policy's actions).
+
+Windows (``--window``): at each decode time t the flight-level posterior p(θ | ẑ over a window)
+comes from the sequence decoder (``cfm_seq.npz``) given the latents it was trained on (10 Hz,
+from 0.2 s on) with times in the window: ``flight`` (default) everything flown so far
+(0.2 s … t), ``SECONDS`` a sliding window (t − SECONDS, t]; ``instant`` is the single-latent
+CFM p(θ | ẑ(t)) alone. The instant posterior is always computed too (``decoded.npz`` key
+``samples``; the window's are ``samples_window``).
 """
 from __future__ import annotations
 
@@ -161,37 +168,126 @@ def load_decoders(decoders=None, policy=None, *, warn=None,
     return cfm, reg
 
 
+def parse_window(text):
+    """``--window``: 'flight' (everything flown so far), 'instant' (one latent) or a number of
+    seconds (> 0) of a sliding window. Returns 'flight', 'instant' or a float."""
+    if isinstance(text, str) and text.strip().lower() in ("flight", "instant"):
+        return text.strip().lower()
+    try:
+        w = float(text)
+    except (TypeError, ValueError):
+        raise ValueError(f"--window must be 'flight', 'instant' or a number of seconds > 0, got {text!r}") from None
+    if not (np.isfinite(w) and w > 0):
+        raise ValueError(f"--window must be > 0 s (or 'flight' / 'instant'), got {text}")
+    return w
+
+
+def check_window(window, flight_s: float):
+    """A window (see :func:`parse_window`) must fit in a flight of ``flight_s`` s."""
+    window = parse_window(window)
+    if isinstance(window, float) and window > flight_s + 1e-6:
+        raise ValueError(f"--window {window:g} s is longer than the flight ({flight_s:.2f} s)")
+    return window
+
+
+def load_sequence_decoder(decoders=None, policy=None, *, echo=None, allow_mismatch: bool = False):
+    """The sequence decoder ``cfm_seq.npz`` beside the policy's decoders (or in ``decoders``),
+    or None (``echo`` is told, so callers can fall back to single-latent decoding). As for
+    :func:`load_decoders`, one trained on another policy's latents is an error unless
+    ``allow_mismatch`` (then a warning told to ``echo``)."""
+    from mjxsysid.cfm.sequence import SequenceDecoder
+    ref = resolve_policy(policy) if policy is not None else None
+    d = Path(decoders) if decoders is not None else (ref.decoders_dir if ref else PRETRAINED_DIR)
+    path = d / "cfm_seq.npz"
+    if not path.is_file():
+        if echo is not None:
+            echo(f"no sequence decoder {path}: falling back to --window instant (single-latent decoding); "
+                 "train one with `mjxsysid collect` and `mjxsysid train-cfm`")
+        return None
+    seq = SequenceDecoder.load(path)
+    if ref is not None:
+        trained_on = seq.meta.get("data", {}).get("pairs_meta", {}).get("weights_sha256")
+        if trained_on and trained_on != ref.sha256():
+            msg = (f"{path}: trained on the latents of another policy (weights sha256 {trained_on[:12]}…), "
+                   f"not {ref.label} ({ref.sha256()[:12]}…)")
+            if not allow_mismatch:
+                raise ValueError(msg + "; pass the decoders trained for this policy "
+                                 "(mjxsysid collect --seconds + train-cfm)")
+            if echo is not None:
+                echo("warning: " + msg)
+    return seq
+
+
+def window_masks(latent_times, report_times, window):
+    """Which latents (recorded at ``latent_times`` (L,)) each decode time (``report_times``
+    (K,)) conditions on: 'flight' all up to t, seconds W those in (t − W, t]. -> (K, L) bool."""
+    lt = np.asarray(latent_times)[None, :]
+    rt = np.asarray(report_times)[:, None]
+    mask = lt <= rt + 1e-6
+    if isinstance(window, float):
+        mask &= lt > rt - window + 1e-6
+    # The first decode time may precede the first recorded latent by less than a step: use it.
+    empty = ~mask.any(1)
+    if empty.any():
+        mask[empty, np.argmin(np.abs(lt - rt[empty]), 1)] = True
+    return mask
+
+
 def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, decoder=None,
-                   regression=None, start: float = N.HISTORY * 0.002):
+                   regression=None, start: float = N.HISTORY * 0.002, window="instant", seq_decoder=None):
     """Decode ẑ (T, 8) sampled at ``rate`` Hz after ``start`` s. Returns dict with times (K,),
-    zhat (K, 8), samples (K, S, 19) physical, regression (K, 19) physical. Decoders default to
-    the shipped ones of mjxsysid's policy."""
+    zhat (K, 8), samples (K, S, 19) physical (single latent), regression (K, 19) physical.
+    Decoders default to the shipped ones of mjxsysid's policy. With a ``window`` other than
+    'instant' and a ``seq_decoder``: also samples_window (K, S, 19), the flight-level posterior
+    given the latents at the sequence decoder's rate (10 Hz) in the window, and n_window (K,),
+    the number of latents in it."""
     if not rate > 0:
         raise ValueError(f"--rate must be > 0 Hz, got {rate}")
     if samples < 2:
         raise ValueError(f"--samples must be >= 2, got {samples}")
+    window = parse_window(window)
+    times = np.asarray(times)
     idx = decode_indices(times, rate, start)
     if decoder is None or regression is None:
         cfm0, reg0 = load_decoders()
         decoder, regression = decoder or cfm0, regression or reg0
     z = np.asarray(zhat_t)[idx]
     s = np.asarray(decoder.sample_theta(z, jax.random.PRNGKey(seed), samples))
-    return {"times": np.asarray(times)[idx], "zhat": z, "samples": s,
-            "regression": np.asarray(regression.point(z))}
+    out = {"times": times[idx], "zhat": z, "samples": s, "regression": np.asarray(regression.point(z))}
+    if window != "instant" and seq_decoder is not None:
+        lidx = decode_indices(times, float(seq_decoder.meta.get("traj_rate_hz", 10.0)), start)
+        mask = window_masks(times[lidx], out["times"], window)
+        zl = np.broadcast_to(np.asarray(zhat_t, np.float32)[lidx], (len(idx), len(lidx), z.shape[-1]))
+        out["samples_window"] = np.asarray(seq_decoder.sample_theta(zl, jax.random.PRNGKey(seed + 1), samples,
+                                                                    mask=mask))
+        out["n_window"] = mask.sum(1)
+    return out
 
 
 def decode_posterior(zhat_t, times, truth=None, *, decoder, regression, rate: float = 10.0,
-                     samples: int = 100, seed: int = 0) -> dict:
+                     samples: int = 100, seed: int = 0, window="instant", seq_decoder=None) -> dict:
     """What ``mjxsysid decode`` writes, in memory: ẑ (T, 8) over ``times`` (T,) decoded at
     ``rate`` Hz -> dict with the arrays of ``decoded.npz`` (times (K,), zhat (K, 8), samples
-    (K, S, 19), regression (K, 19), theta_true (19,) or NaN) and ``summary`` (the content of
-    ``summary.json``: :func:`summarize_posterior` of the last decoded latent's samples, plus
-    ``_invalid_fraction``)."""
+    (K, S, 19) instant, regression (K, 19), theta_true (19,) or NaN; with a window and a
+    ``seq_decoder`` also samples_window (K, S, 19) and n_window (K,), see
+    :func:`decode_latents`) and ``summary`` (the content of ``summary.json``:
+    :func:`summarize_posterior` of the last decode time's samples — the window's if decoded,
+    else the instant ones —, plus ``_invalid_fraction``, ``_window`` (window used, requested,
+    label, t_end_s, n_latents) and, for a window, ``_instant``). ``window`` other than
+    'instant' without a ``seq_decoder`` falls back to 'instant' (``_window`` says so)."""
+    window = parse_window(window)
+    used = window if seq_decoder is not None else "instant"
     dec = decode_latents(zhat_t, times, rate=rate, samples=samples, seed=seed, decoder=decoder,
-                         regression=regression)
-    final = dec["samples"][-1]
+                         regression=regression, window=used, seq_decoder=seq_decoder)
+    instant = dec["samples"][-1]
+    final = dec["samples_window"][-1] if "samples_window" in dec else instant
     summary = summarize_posterior(final, truth)
     summary["_invalid_fraction"] = float(P.project_valid(final)[1].mean())  # e.g. J triangle violated
+    label = {"flight": "flight-level", "instant": "instant"}[used] if isinstance(used, str) else f"last {used:g} s"
+    summary["_window"] = {"window": used, "requested": window, "label": label, "t_end_s": float(dec["times"][-1]),
+                          "n_latents": int(dec["n_window"][-1]) if "n_window" in dec else 1}
+    if used != "instant":
+        summary["_instant"] = summarize_posterior(instant, truth)
     truth = np.full(P.N_PARAMS, np.nan, np.float32) if truth is None else np.asarray(truth, np.float32)
     return dict(dec, theta_true=truth, summary=summary)
 
@@ -237,13 +333,15 @@ def summarize_posterior(samples, truth=None) -> dict:
     return out
 
 
-def plot_decoded_over_time(dec: dict, truth, path):
-    """ẑ and the identifiable combinations (median, 5–95 % band) over time."""
+def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-level"):
+    """ẑ and the identifiable combinations (median, 5–95 % band) over time: the single-latent
+    (instant) posterior and, if decoded, the window's (flight-level) one."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     t = dec["times"]
     ident = np.asarray(P.identifiable(dec["samples"]))  # (K, S, 5)
+    identw = np.asarray(P.identifiable(dec["samples_window"])) if "samples_window" in dec else None
     fig, ax = plt.subplots(2, 3, figsize=(14, 6.5))
     ax = ax.flat
     ax[0].plot(t, dec["zhat"])
@@ -251,8 +349,12 @@ def plot_decoded_over_time(dec: dict, truth, path):
     for j, n in enumerate(P.IDENTIFIABLE_NAMES):
         a = ax[j + 1]
         lo, med, hi = np.percentile(ident[:, :, j], [5, 50, 95], 1)
-        a.fill_between(t, lo, hi, alpha=0.3, label="CFM 5–95 %")
-        a.plot(t, med, label="CFM median")
+        a.fill_between(t, lo, hi, alpha=0.25, color="tab:blue", label="instant 5–95 %")
+        a.plot(t, med, color="tab:blue", label="instant median")
+        if identw is not None:
+            lo, med, hi = np.percentile(identw[:, :, j], [5, 50, 95], 1)
+            a.fill_between(t, lo, hi, alpha=0.35, color="tab:green", label=f"{window_label} 5–95 %")
+            a.plot(t, med, color="tab:green", label=f"{window_label} median")
         a.plot(t, np.asarray(P.identifiable(dec["regression"]))[:, j], "--", label="regression")
         if truth is not None:
             a.axhline(float(np.asarray(P.identifiable(truth))[j]), color="k", label="true")
@@ -271,12 +373,18 @@ def plot_decoded_over_time(dec: dict, truth, path):
 
 def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
                samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print,
-               policy="mjxsysid", decoders=None) -> dict:
+               policy="mjxsysid", decoders=None, window="flight") -> dict:
     """Fly θ (or replay ``log``) with a frozen latent policy (``policy``, ``weights``: see
     :func:`~mjxsysid.policy.interface.resolve_policy`; default the shipped one), decode at
     ``rate`` Hz with that policy's decoders (or those in ``decoders``), write out/decoded.npz,
-    out/summary.json and plots (and out/decoded.mp4 with ``video``)."""
-    from mjxsysid.analysis.flight import fly_vehicles, one_flight
+    out/summary.json and plots (and out/decoded.mp4 with ``video``).
+
+    ``window`` ('flight', 'instant' or seconds, see :func:`parse_window`): the top-level
+    entries of summary.json are the posterior at the end of the flight given the latents in
+    that window (the sequence decoder; 'instant': the single-latent CFM), ``_instant`` the
+    single-latent one, ``_window`` what was used. Without a sequence decoder, falls back to
+    'instant' and says so."""
+    from mjxsysid.analysis.flight import fly_vehicles, make_reference, one_flight
     from mjxsysid.cfm.pipeline import plot_marginals
     # Every input is checked before any work starts.
     if not rate > 0:
@@ -285,13 +393,20 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
         raise ValueError(f"--samples must be >= 2, got {samples}")
     if (log is None) == (theta is None):
         raise ValueError("give either a vehicle (theta) or a flight log, not both or neither")
+    window = parse_window(window)
     rec = read_log(log) if log is not None else None
     if theta is not None:
         theta = P.validate_theta(theta, what="vehicle")
         if theta.shape != (P.N_PARAMS,):
             raise ValueError(f"vehicle: one θ of shape ({P.N_PARAMS},) expected, got {theta.shape}")
+        # the window must fit in the flight: checked before flying
+        d0 = make_reference(reference, period=period, duration=duration, seed=seed)[1]
+        check_window(window, d0 if duration is None else duration)
+    else:
+        check_window(window, float(rec["t"][-1] - rec["t"][0] + LOG_DT))
     ref = resolve_policy(policy, weights)
     cfm, reg = load_decoders(decoders, ref, warn=echo)
+    seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=echo)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     from mjxsysid.progress import stages
@@ -309,15 +424,20 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
         zhat_t, times, truth = one.latent, one.time, np.asarray(theta, np.float32)
     st.start("decoding")
     dec = decode_posterior(zhat_t, times, truth, decoder=cfm, regression=reg, rate=rate, samples=samples,
-                           seed=seed)
+                           seed=seed, window=window, seq_decoder=seq)
     summary = dec.pop("summary")
-    final = dec["samples"][-1]
+    label = summary["_window"]["label"]
+    if seq is not None and summary["_window"]["n_latents"] > seq.max_len:
+        echo(f"note: the window holds {summary['_window']['n_latents']} latents, more than the sequence "
+             f"decoder saw in training ({seq.max_len}); beyond that it extrapolates")
+    final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     np.savez_compressed(out / "decoded.npz", **dec)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     st.start("plots")
     plot_marginals(final, truth if truth is not None else np.full(19, np.nan), out / "marginals.png",
-                   point=dec["regression"][-1], title=f"decoded p(θ | ẑ) at t = {dec['times'][-1]:.1f} s")
-    plot_decoded_over_time(dec, truth, out / "decoded_over_time.png")
+                   point=dec["regression"][-1],
+                   title=f"decoded p(θ | ẑ, {label}) at t = {dec['times'][-1]:.1f} s")
+    plot_decoded_over_time(dec, truth, out / "decoded_over_time.png", window_label=label)
     if video and flight is not None:
         st.start("video")
         from mjxsysid.render.video import render_rollout
@@ -330,5 +450,5 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     st.close()
     if truth is not None:
         n_in = sum(v["inside"] for k, v in summary.items() if k in P.PARAM_NAMES)
-        echo(f"true θ inside the decoded 5–95 % interval for {n_in}/{P.N_PARAMS} parameters")
+        echo(f"true θ inside the decoded ({label}) 5–95 % interval for {n_in}/{P.N_PARAMS} parameters")
     return summary

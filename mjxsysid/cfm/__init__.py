@@ -8,6 +8,8 @@ latent ẑ (8); physical units only at the :class:`Decoder` interface.
 - :mod:`~mjxsysid.cfm.train`       CFMConfig, train_cfm, train_regression, save/load_decoder
 - :mod:`~mjxsysid.cfm.sample`      sample (euler / midpoint / heun), Decoder, random_baseline
 - :mod:`~mjxsysid.cfm.calibration` coverage, SBC, C2ST, energy score (numpy / scipy)
+- :mod:`~mjxsysid.cfm.sequence`    flight-level decoder p(θ | ẑ_1..ẑ_W): SeqCFMConfig,
+                                   train_seq_cfm, SequenceDecoder
 
 Submodules are imported lazily (``from mjxsysid.cfm import train_cfm`` works). The sampler
 function shares its module's name, so import it from the module:
@@ -25,6 +27,7 @@ _EXPORTS = {
     "make_network": "train",
     "point": "sample", "Decoder": "sample", "random_baseline": "sample",
     "METHODS": "sample",
+    "SeqCFMConfig": "sequence", "train_seq_cfm": "sequence", "SequenceDecoder": "sequence",
 }
 __all__ = sorted(_EXPORTS)
 

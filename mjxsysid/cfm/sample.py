@@ -29,30 +29,33 @@ from mjxsysid.cfm.train import CFMConfig, check_latents, load_decoder, make_netw
 METHODS = ("euler", "midpoint", "heun")
 
 
+def integrate(v, x0, steps: int, method: str):
+    """Integrate dx/dτ = v(x, τ) from τ = 0 to 1 with ``steps`` fixed steps (see the module
+    docstring). v: (x (..., d), τ scalar) -> (..., d); x0 (..., d) -> x(1) (..., d)."""
+    h = 1.0 / steps
+
+    def body(k, x):
+        t = k * h
+        if method == "euler":
+            return x + h * v(x, t)
+        if method == "midpoint":
+            return x + h * v(x + 0.5 * h * v(x, t), t + 0.5 * h)
+        k1 = v(x, t)
+        k2 = v(x + h * k1, t + h)
+        return x + 0.5 * h * (k1 + k2)
+
+    return jax.lax.fori_loop(0, steps, body, x0)
+
+
 @partial(jax.jit, static_argnames=("cfg", "n_samples", "steps", "method"))
 def _sample(params, cfg: CFMConfig, theta0, z, n_samples: int, steps: int, method: str):
     """Integrate the flow from θ₀ (m, n_samples, d) for latents z (m, z_dim): the one vmap
     boundary of sampling (over cases)."""
     net = make_network(cfg, "cfm")
-    h = 1.0 / steps
 
     def one(th, zi):
         zb = jnp.broadcast_to(zi, (n_samples, cfg.z_dim))
-
-        def v(x, t):
-            return net.apply({"params": params}, x, t, zb)
-
-        def body(k, x):
-            t = k * h
-            if method == "euler":
-                return x + h * v(x, t)
-            if method == "midpoint":
-                return x + h * v(x + 0.5 * h * v(x, t), t + 0.5 * h)
-            k1 = v(x, t)
-            k2 = v(x + h * k1, t + h)
-            return x + 0.5 * h * (k1 + k2)
-
-        return jax.lax.fori_loop(0, steps, body, th)
+        return integrate(lambda x, t: net.apply({"params": params}, x, t, zb), th, steps, method)
 
     return jax.vmap(one)(theta0, z)
 

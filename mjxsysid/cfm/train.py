@@ -362,6 +362,8 @@ def load_decoder(path) -> LoadedDecoder:
     if full.get("format") != FORMAT:
         raise ValueError(f"{path}: not a decoder file (format {full.get('format')!r}, expected {FORMAT!r})")
     kind = full.get("kind")
+    if kind == "cfm_seq":
+        raise ValueError(f"{path} is a sequence decoder: load it with mjxsysid.cfm.sequence.SequenceDecoder.load")
     if kind not in KINDS:
         raise ValueError(f"{path}: decoder kind {kind!r} is not one of {KINDS}")
     try:

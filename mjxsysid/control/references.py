@@ -17,6 +17,7 @@ Types
 :class:`Lemniscate`  periodic 3-D figure eight with analytic derivatives up to snap.
 :class:`MinSnap`     piecewise 7th-order minimum-snap polynomials (Mellinger & Kumar 2011)
                      through waypoints, static at both ends.
+:class:`Switch`      one of two references, chosen per instance (mixed batches of types).
 
 Example::
 
@@ -43,6 +44,7 @@ __all__ = [
     "Steps",
     "Lemniscate",
     "MinSnap",
+    "Switch",
     "evaluate",
     "sample",
     "stack",
@@ -713,6 +715,37 @@ class MinSnap:
         snap = d4 * (inv**4 * scale)
         yaw = jnp.asarray(self.yaw, _DTYPE) + jnp.zeros_like(t)
         return RefPoint(p, vel, acc, jerk, snap, yaw, jnp.zeros_like(t))
+
+
+@struct.dataclass
+class Switch:
+    """One of two references of different types, chosen per instance by a flag, so that one
+    batch can mix reference types (e.g. lemniscates and minimum-snap trajectories).
+
+    ``at(t)`` evaluates both and returns ``second``'s point where ``use_second`` else
+    ``first``'s (both are evaluated: cost of the two). Batch it like any reference: every
+    leaf, ``use_second`` included, gains the leading (B,) axis (e.g. ``stack`` the two
+    reference batches separately and pass ``use_second`` (B,)).
+
+    Attributes:
+      first, second: reference pytrees with ``at(t)``.
+      use_second:    () bool.
+    """
+
+    first: object
+    second: object
+    use_second: jax.Array = False
+
+    @property
+    def duration(self):
+        d1 = jnp.asarray(self.first.duration, _DTYPE)
+        d2 = jnp.asarray(self.second.duration, _DTYPE)
+        return jnp.where(self.use_second, d2, d1)
+
+    def at(self, t) -> RefPoint:
+        a, b = self.first.at(t), self.second.at(t)
+        use = jnp.asarray(self.use_second, bool)
+        return jax.tree.map(lambda x, y: jnp.where(use, y, x), a, b)
 
 
 # --------------------------------------------------------------------------------------

@@ -6,6 +6,14 @@ filled) under the baseline cascade tracking a random 3-D lemniscate (period 5–
 1.5 × 1.5 × 0.3 m, yaw weave) with a random Gaussian world force (σ up to 0.1 m g per axis);
 ẑ is read at the last step. Failed flights are kept but flagged (``failed``) and left out of
 training by the decoder. Works with any low-level controller that has ``latent(carry)``.
+
+Latent trajectories (``collect(seconds=S)``, the CLI default S = 10): each vehicle flies S s
+of one manoeuvre drawn at random (``MANOEUVRES``): a random lemniscate as above (period 5–15 s)
+with a random Gaussian world force; a random 5-segment minimum-snap trajectory through
+waypoints in a 2 × 2 × 1 m box (a seeded pool of 512) with a random Gaussian force; or hover
+with a world force step (0.05–0.3 m g, random direction, at 0.5 s to 0.6 S) and a small
+Gaussian force (σ up to 0.03 m g). ẑ is recorded at 10 Hz from 0.2 s on (the decode times of
+``mjxsysid decode``), and the single-latent pair uses the last one.
 """
 from __future__ import annotations
 
@@ -22,7 +30,7 @@ from mjxsysid import params as P
 from mjxsysid.analysis.flight import broadcast, make_low_level
 from mjxsysid.analysis.harness import Disturbance, failure_mask, fly_batch
 from mjxsysid.control.high_level import Cascade
-from mjxsysid.control.references import Lemniscate
+from mjxsysid.control.references import Lemniscate, MinSnap, Switch, stack
 from mjxsysid.sim import Quadrotor
 
 
@@ -54,16 +62,97 @@ def latents_in_flight(policy, theta, key, *, weights=None, steps: int = 750, sim
     return np.asarray(fl.latent[:, -1]), failed
 
 
+MANOEUVRES = ("lemniscate", "minsnap", "hover_step")
+TRAJ_RATE_HZ = 10.0
+_MINSNAP_POOL = 512
+
+
+def trajectory_times(seconds: float, rate: float = TRAJ_RATE_HZ, dt: float = 0.002):
+    """(times (L,) s, step indices (L,), number of control steps) at which a ``seconds``-long
+    flight's latent is recorded at ``rate`` Hz (the decode times of
+    :func:`mjxsysid.analysis.decode.decode_indices`: from 0.2 s on, every 1/rate s). Raises ValueError for a flight shorter than
+    the policy history (0.2 s)."""
+    from mjxsysid.analysis.decode import decode_indices
+    steps = int(round(seconds / dt))
+    if not seconds > 0 or steps * dt < 0.2 - 1e-9:
+        raise ValueError(f"seconds must be >= 0.2 (the policy's history), got {seconds}")
+    times = dt * (np.arange(steps) + 1)
+    idx = decode_indices(times, rate)
+    return times[idx], idx, steps
+
+
+def random_manoeuvres(key, theta, seconds: float, manoeuvres=MANOEUVRES, seed: int = 0):
+    """Per-vehicle excitation of a trajectory flight: (reference batch (Switch of Lemniscate and
+    MinSnap, leaves (n, ...)), Disturbance batch, manoeuvre index (n,) into ``manoeuvres``)."""
+    bad = [m for m in manoeuvres if m not in MANOEUVRES]
+    if bad or not manoeuvres:
+        raise ValueError(f"unknown manoeuvre(s) {bad}; choose from {MANOEUVRES}")
+    theta = np.asarray(theta, np.float32)
+    n = len(theta)
+    ks = jax.random.split(key, 8)
+    kind = np.asarray(jnp.asarray([MANOEUVRES.index(m) for m in manoeuvres])[
+        jax.random.randint(ks[0], (n,), 0, len(manoeuvres))])
+    lem = random_lemniscates(ks[1], n)
+    hover = kind == MANOEUVRES.index("hover_step")
+    lem = lem.replace(size=jnp.where(hover[:, None], 0.0, lem.size),
+                      yaw_amplitude=jnp.where(hover, 0.0, lem.yaw_amplitude))
+    pool = [MinSnap.random(seed=seed * 7919 + i, duration=seconds, start=(0.0, 0.0, 1.0),
+                           box=((-1.0, -1.0, 0.5), (1.0, 1.0, 1.5))) for i in range(_MINSNAP_POOL)]
+    pick = np.asarray(jax.random.randint(ks[2], (n,), 0, _MINSNAP_POOL))
+    ms = jax.tree.map(lambda a: jnp.asarray(a)[pick], stack(pool))
+    ref = Switch(lem, ms, jnp.asarray(kind == MANOEUVRES.index("minsnap")))
+    mg = theta[:, P.MASS] * P.GRAVITY
+    u = lambda k, lo, hi, shape=(n,): np.asarray(jax.random.uniform(k, shape, jnp.float32, lo, hi))
+    sigma = np.where(hover, u(ks[3], 0.0, 0.03), u(ks[3], 0.0, 0.1)) * mg
+    direction = np.array(jax.random.normal(ks[4], (n, 3)))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True) + 1e-9
+    step = direction * (u(ks[5], 0.05, 0.3) * mg)[:, None] * hover[:, None]
+    step_time = u(ks[6], 0.5, max(0.6 * seconds, 0.5 + 1e-3))
+    dist = broadcast(Disturbance.make(), n).replace(
+        step_force=jnp.asarray(step, jnp.float32), step_time=jnp.asarray(step_time),
+        sigma=jnp.asarray(np.repeat(sigma[:, None], 3, 1), jnp.float32))
+    return ref, dist, kind
+
+
+def latent_trajectories_in_flight(policy, theta, key, *, seconds: float = 10.0, weights=None,
+                                  manoeuvres=MANOEUVRES, rate: float = TRAJ_RATE_HZ, sim=None,
+                                  seed: int = 0):
+    """Fly θ (n, 19) ``seconds`` s with a latent policy under random manoeuvres
+    (:func:`random_manoeuvres`). Returns (ẑ at ``rate`` Hz (n, L, 8), times (L,) s,
+    failed (n,), manoeuvre index (n,))."""
+    from mjxsysid.policy.interface import resolve_policy
+    theta = np.asarray(theta, np.float32)
+    n = len(theta)
+    times, idx, steps = trajectory_times(seconds, rate)
+    sim = sim or Quadrotor()
+    k_man, k_fly = jax.random.split(key)
+    ref, dist, kind = random_manoeuvres(k_man, theta, seconds, manoeuvres, seed)
+    low = resolve_policy(policy, weights).batched(n)
+    fl = fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), ref, dist, k_fly, steps)
+    failed = np.asarray(jax.vmap(failure_mask)(fl))[:, -1]
+    return np.asarray(fl.latent[:, idx]), times, failed, kind
+
+
 def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
             n_test: int = 2_000, prior: str | None = None, seed: int = 0, batch: int = 2_000,
-            steps: int = 750, log=print) -> Path:
+            steps: int = 750, seconds: float | None = None, manoeuvres=MANOEUVRES,
+            log=print) -> Path:
     """Write ``out/pairs.npz``: theta_train (n_train, 19), zhat_train (n_train, 8), failed_train,
     and the same for the held-out test split, plus metadata (policy weights hash, prior, seed).
     ``prior`` defaults to the policy's own training prior ('default' for mjxsysid's policy,
-    'xadap' for the released one)."""
+    'xadap' for the released one).
+
+    ``seconds`` None: the single-latent pairs (a ``steps``-step lemniscate, ẑ at its end).
+    ``seconds`` S: S-second flights of random ``manoeuvres`` with the latent recorded at 10 Hz:
+    also zhat_traj_train (n_train, L, 8), manoeuvre_train (n_train,) (index into
+    ``MANOEUVRES``), the same for the test split, and traj_times (L,) s; zhat = the last latent."""
     from mjxsysid.policy.interface import resolve_policy
     if n_train < 1 or n_test < 1 or batch < 1:
         raise ValueError("n_train, n_test and batch must be >= 1")
+    if seconds is not None:
+        trajectory_times(seconds)  # validates
+        if any(m not in MANOEUVRES for m in manoeuvres) or not manoeuvres:
+            raise ValueError(f"manoeuvres must be a non-empty subset of {MANOEUVRES}, got {manoeuvres}")
     ref = resolve_policy(policy, weights)
     prior = prior or ref.prior
     out = Path(out)
@@ -74,13 +163,23 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     nb = -(-total // batch)
     theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(seed), nb * batch))
     sim = Quadrotor()
-    zs, fs = [], []
+    zs, fs, trajs, kinds = [], [], [], []
+    times = None
+    if seconds is not None:
+        steps = trajectory_times(seconds)[2]
     t0 = time.time()
     from mjxsysid.progress import progress
     for i in progress(range(nb), desc="collect", unit="batch"):
-        z, f = latents_in_flight(ref, theta[i * batch:(i + 1) * batch],
-                                 jax.random.fold_in(jax.random.PRNGKey(seed + 1), i),
-                                 steps=steps, sim=sim)
+        k = jax.random.fold_in(jax.random.PRNGKey(seed + 1), i)
+        th = theta[i * batch:(i + 1) * batch]
+        if seconds is None:
+            z, f = latents_in_flight(ref, th, k, steps=steps, sim=sim)
+        else:
+            zt, times, f, kind = latent_trajectories_in_flight(ref, th, k, seconds=seconds, sim=sim,
+                                                               manoeuvres=tuple(manoeuvres), seed=seed)
+            z = zt[:, -1]
+            trajs.append(zt)
+            kinds.append(kind)
         zs.append(z)
         fs.append(f)
         done = (i + 1) * batch
@@ -89,13 +188,22 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     z = np.concatenate(zs)[:total]
     f = np.concatenate(fs)[:total]
     theta = theta[:total]
-    meta = {**ref.to_dict(), "prior": prior, "seed": seed, "steps": steps, "excitation": __doc__.split("\n\n")[1],
+    excitation = __doc__.split("\n\n")[1 if seconds is None else 2]
+    meta = {**ref.to_dict(), "prior": prior, "seed": seed, "steps": steps, "excitation": excitation,
             "n_train": n_train, "n_test": n_test, "wall_s": time.time() - t0,
             "device": str(jax.devices()[0]), "devices": distributed.device_count()}
+    extra = {}
+    if seconds is not None:
+        zt = np.concatenate(trajs)[:total]
+        kind = np.concatenate(kinds)[:total]
+        meta.update(seconds=float(seconds), traj_rate_hz=TRAJ_RATE_HZ, manoeuvres=list(MANOEUVRES),
+                    manoeuvres_used=list(manoeuvres))
+        extra = dict(zhat_traj_train=zt[:n_train], zhat_traj_test=zt[n_train:], traj_times=times,
+                     manoeuvre_train=kind[:n_train], manoeuvre_test=kind[n_train:])
     path = out / "pairs.npz"
     np.savez_compressed(path, theta_train=theta[:n_train], zhat_train=z[:n_train], failed_train=f[:n_train],
                         theta_test=theta[n_train:], zhat_test=z[n_train:], failed_test=f[n_train:],
-                        meta_json=np.frombuffer(json.dumps(meta).encode(), np.uint8))
+                        **extra, meta_json=np.frombuffer(json.dumps(meta).encode(), np.uint8))
     return path
 
 
@@ -121,4 +229,12 @@ def load_pairs(path) -> tuple[dict, dict]:
                              f"(n, {P.N_PARAMS}) and (n, latent)")
     if not isinstance(meta, dict):
         raise ValueError(f"{path}: meta_json is not a JSON object")
+    if "zhat_traj_train" in arrays:
+        L = len(arrays.get("traj_times", ()))
+        for split in ("train", "test"):
+            zt = arrays.get(f"zhat_traj_{split}")
+            if zt is None or zt.ndim != 3 or zt.shape[0] != len(arrays[f"theta_{split}"]) or zt.shape[1] != L:
+                raise ValueError(f"{path}: zhat_traj_{split} must have shape "
+                                 f"({len(arrays[f'theta_{split}'])}, {L}, z_dim) to match theta_{split} and "
+                                 f"traj_times; got {None if zt is None else zt.shape}")
     return arrays, meta

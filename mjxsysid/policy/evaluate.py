@@ -9,6 +9,11 @@
    spread of z^θ, per-dimension std (no collapse), linear-probe R² from ẑ to every normalised θ
    entry and to the identifiable combinations (held-out 30 %).
 4. The same closed loop on the slow-actuator prior (τ_m ∈ [0.05, 0.10] s): reported, no target.
+
+:func:`fast_eval` is the quick version for training trials (issue 11): latent health on the
+training commands and after a few seconds of collect-style closed-loop flight, and the
+lemniscate success / RMSE against the oracle on a few hundred vehicles, summarised in
+:func:`trial_summary` (probe R² of thrust-to-weight, κ, angular authority, τ_m; ‖z^θ − ẑ‖/spread).
 """
 from __future__ import annotations
 
@@ -104,11 +109,13 @@ def closed_loop(controller: PolicyController, theta, *, period=10.0, seed=0, sim
     return {k: np.asarray(v) for k, v in jax.vmap(metrics)(fl).items()}
 
 
-def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 1000, log=print) -> dict:
-    """All figures of issue 4 item 5 for the policy at ``path`` (default: the shipped one)."""
+def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 1000, sim=None, log=print) -> dict:
+    """All figures of issue 4 item 5 for the policy at ``path`` (default: the shipped one).
+    ``sim``: a Quadrotor to share compiled flights with earlier calls (default: a fresh one)."""
     ctrl = PolicyController.load(path)
     env = TrainEnv(EnvConfig(episode_steps=steps + 1))
     params = ctrl.params
+    sim = sim or Quadrotor()  # one instance, so flights of equal shape share their compile
     key = jax.random.PRNGKey(seed)
     out = {"n": n}
     from mjxsysid.progress import stages
@@ -133,9 +140,9 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
     st.start("lemniscate")
     log(f"[2/4] closed loop, 10 s lemniscate, baseline gains, {n} prior vehicles")
     theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.fold_in(key, 1), n))
-    cl = {"policy": closed_loop(ctrl, theta, seed=seed)}
+    cl = {"policy": closed_loop(ctrl, theta, seed=seed, sim=sim)}
     for c in ("oracle", "nominal"):
-        cl[c] = {k: np.asarray(v) for k, v in fly_vehicles(theta, controller=c, reference="lemniscate")[1].items()}
+        cl[c] = {k: np.asarray(v) for k, v in fly_vehicles(theta, controller=c, reference="lemniscate", sim=sim)[1].items()}
     out["lemniscate"] = {k: summarize(v) for k, v in cl.items()}
     po, oo = out["lemniscate"]["policy"], out["lemniscate"]["oracle"]
     if po["pos_rmse_m"]["mean"] is not None:
@@ -145,20 +152,114 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
 
     st.start("paper vehicle")
     log("[3/4] paper vehicle")
-    out["paper_vehicle"] = {k: float(v[0]) for k, v in closed_loop(ctrl, P.PAPER_HARDWARE[None], seed=seed).items()}
+    out["paper_vehicle"] = {k: float(v[0]) for k, v in closed_loop(ctrl, P.PAPER_HARDWARE[None], seed=seed, sim=sim).items()}
 
     st.start("slow actuators")
     log("[4/4] slow actuators (τ_m ∈ [0.05, 0.10] s)")
     slow = np.asarray(P.SLOW_ACTUATOR_PRIOR.sample(jax.random.fold_in(key, 2), n))
-    out["slow_actuators"] = {"policy": summarize(closed_loop(ctrl, slow, seed=seed)),
+    out["slow_actuators"] = {"policy": summarize(closed_loop(ctrl, slow, seed=seed, sim=sim)),
                              "oracle": summarize({k: np.asarray(v) for k, v in fly_vehicles(
-                                 slow, controller="oracle", reference="lemniscate")[1].items()})}
+                                 slow, controller="oracle", reference="lemniscate", sim=sim)[1].items()})}
     pv = P.PAPER_HARDWARE.copy()
     slow_paper = np.repeat(pv[None], 6, 0)
     slow_paper[:, P.TAU_M] = np.linspace(0.05, 0.10, 6)
-    m = closed_loop(ctrl, slow_paper, seed=seed)
+    m = closed_loop(ctrl, slow_paper, seed=seed, sim=sim)
     out["slow_actuators"]["paper_vehicle"] = {
         f"tau_m={t:.2f}": {"pos_rmse_m": float(m["pos_rmse_m"][i]), "failed": bool(m["failed"][i])}
         for i, t in enumerate(slow_paper[:, P.TAU_M])}
     st.close()
+    return out
+
+
+def flight_latents(ctrl: PolicyController, theta, key, *, steps: int = 1500, sim=None):
+    """ẑ after ``steps`` control steps of the decoder-data flight of :mod:`mjxsysid.policy.collect`
+    (baseline cascade on a random 3-D lemniscate, random world force up to 0.1 m g).
+    θ (n, 19) -> (ẑ (n, 8), failed (n,))."""
+    from mjxsysid.analysis.flight import broadcast
+    from mjxsysid.analysis.harness import failure_mask
+    from mjxsysid.policy.collect import random_lemniscates
+    theta = np.asarray(theta, np.float32)
+    n = len(theta)
+    sim = sim or Quadrotor()
+    k_ref, k_force, k_fly = jax.random.split(key, 3)
+    sigma = jax.random.uniform(k_force, (n, 1), minval=0.0, maxval=0.1) * theta[:, P.MASS, None] * P.GRAVITY
+    dist = broadcast(Disturbance.make(), n).replace(sigma=jnp.broadcast_to(sigma, (n, 3)))
+    fl = fly_batch(sim, theta, ctrl.batched(n), broadcast(Cascade.make("baseline"), n),
+                   random_lemniscates(k_ref, n), dist, k_fly, steps)
+    return np.asarray(fl.latent[:, -1]), np.asarray(jax.vmap(failure_mask)(fl))[:, -1]
+
+
+def fast_eval(params, *, n_probe: int = 2000, n_lem: int = 500, seed: int = 0, steps: int = 1000,
+              flight_steps: int = 1500, period: float = 10.0, phi_every: int = 10,
+              env: TrainEnv | None = None, sim=None,
+              cache: dict | None = None, log=print) -> dict:
+    """Quick evaluation of policy ``params`` ({'mu', 'phi', 'pi', ...}) for training trials.
+
+    - ``latent``: :func:`latent_health` after ``steps`` steps of the training commands
+      (n_probe vehicles, policy on ẑ, vehicles reset in the last 0.4 s left out), plus tracking;
+    - ``latent_flight``: :func:`latent_health` of ẑ after ``flight_steps`` of the collect flight
+      (what the decoders see), n_probe fresh vehicles;
+    - ``lemniscate``: lemniscate of ``period`` s, baseline gains, n_lem prior vehicles, policy
+      and oracle K_θ(true θ).
+    Pass the same ``env``, ``sim`` and ``cache`` (dict) to successive calls to share compiles
+    and the oracle flights. Returns the nested results and ``summary`` (:func:`trial_summary`)."""
+    env = env or TrainEnv(EnvConfig(episode_steps=steps + 1))
+    sim = sim or Quadrotor()
+    cache = {} if cache is None else cache
+    key = jax.random.PRNGKey(seed)
+    ctrl = PolicyController(params=params, z_override=jnp.zeros(8), use_override=jnp.array(False),
+                            phi_every=phi_every)
+    out = {"n_probe": n_probe, "n_lem": n_lem, "steps": steps, "flight_steps": flight_steps}
+    from mjxsysid.progress import stages
+    st = stages(["training commands", "collect flight", "lemniscate"], desc="fast eval")
+    st.start("training commands")
+    log(f"  fast eval: training commands ({n_probe} vehicles, {steps} steps)")
+    r = env_rollout(env, params, key, n_probe, steps, False)
+    ok = np.asarray(r["episode_step"]) >= min(200, steps)
+    out["tracking"] = {"rate_err_mean_rad_s": float(np.mean(r["rate_err"][100:])),
+                       "thrust_err_mean_m_s2": float(np.mean(r["thrust_err"][100:])),
+                       "failures": int(np.sum(r["failed"]))}
+    out["latent"] = latent_health(r["z_theta"][ok], r["zhat"][ok], r["theta_norm"][ok], r["theta"][ok])
+    st.start("collect flight")
+    log(f"  fast eval: collect flight ({n_probe} vehicles, {flight_steps} steps)")
+    theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.fold_in(key, 3), n_probe))
+    zhat, failed = flight_latents(ctrl, theta, jax.random.fold_in(key, 4), steps=flight_steps, sim=sim)
+    tn = env.normalizer.normalize(theta)
+    good = ~failed
+    out["latent_flight"] = latent_health(env.nets.encode(params, tn)[good], zhat[good], tn[good], theta[good])
+    out["latent_flight"]["failed"] = int(failed.sum())
+    st.start("lemniscate")
+    log(f"  fast eval: lemniscate ({n_lem} vehicles)")
+    theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.fold_in(key, 1), n_lem))
+    ck = ("oracle", n_lem, seed, period)
+    if ck not in cache:
+        cache[ck] = {k: np.asarray(v) for k, v in fly_vehicles(
+            theta, controller="oracle", reference="lemniscate", period=period, seed=seed, sim=sim)[1].items()}
+    cl = {"policy": closed_loop(ctrl, theta, period=period, seed=seed, sim=sim), "oracle": cache[ck]}
+    out["lemniscate"] = {k: summarize(v) for k, v in cl.items()}
+    both = ~cl["policy"]["failed"] & ~cl["oracle"]["failed"]
+    out["lemniscate"]["rmse_ratio_policy_over_oracle"] = (
+        float(cl["policy"]["pos_rmse_m"][both].mean() / cl["oracle"]["pos_rmse_m"][both].mean())
+        if both.any() else None)
+    st.close()
+    out["summary"] = trial_summary(out)
+    return out
+
+
+def trial_summary(ev: dict) -> dict:
+    """The headline numbers of a :func:`fast_eval` (or :func:`evaluate_policy`) result."""
+    def probes(lat):
+        idn, th = lat["probe_r2_identifiable"], lat["probe_r2_theta"]
+        return {"r2_thrust_to_weight": idn["thrust_to_weight"], "r2_kappa": idn["torque_ratio"],
+                "r2_authority": float(np.mean([idn[f"angular_authority[{i}]"] for i in range(3)])),
+                "r2_tau_m": th["motor_time_constant"], "z_err_rel": lat["z_err_rel"],
+                "z_min_std": float(min(lat["z_theta_std"]))}
+    lem = ev["lemniscate"]
+    out = {"train_cmds": probes(ev["latent"]),
+           "success_policy": lem["policy"]["success_rate"], "success_oracle": lem["oracle"]["success_rate"],
+           "rmse_ratio": lem.get("rmse_ratio_policy_over_oracle")}
+    if "latent_flight" in ev:
+        out["flight"] = probes(ev["latent_flight"])
+    if "tracking" in ev:
+        out.update(rate_err=ev["tracking"]["rate_err_mean_rad_s"], thrust_err=ev["tracking"]["thrust_err_mean_m_s2"])
     return out

@@ -7,15 +7,21 @@ Joint loss per minibatch (shapes: B samples of the rollout, S snapshots of histo
       + λ1 ‖z^θ − sg[ẑ]‖² + λ2 ‖sg[z^θ] − ẑ‖²     on S (θ, history) snapshots
       + c_var Σ_d relu(γ − std_d(z^θ))             variance regulariser against collapse
       + c_rec ‖aux(z^θ) − θ_norm‖²                 reconstruction
+      + c_id ‖(aux(z^θ) − θ_norm) A‖²               reconstruction of the identifiable combinations
+                                                   (log T/W, log κ, log authority, log τ_m;
+                                                   A: :func:`identifiable_projection`), off by default
       + β(t) ‖mean π(s, z) − r_expert‖²            behaviour cloning from K_θ(true θ), decaying
 
 The policy sees z^θ = μ(θ) or, with probability p(t) per episode, ẑ = φ(history) (held,
 stop-gradient); p(t) = 0 during warm-up, then rises linearly to p_max. The whole iteration
 (rollout scan, GAE, epochs × minibatches scans) is one jitted function; the host loop prints
-progress and checkpoints between iterations.
+progress and checkpoints between iterations. The loss weights travel into the jitted
+iteration as a traced :class:`LossWeights` pytree, so trials that differ only in them share one
+compile (:meth:`Trainer.reweighted`).
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import json
 import time
@@ -30,6 +36,7 @@ from flax import struct
 from jax.sharding import NamedSharding, PartitionSpec
 
 from mjxsysid import distributed
+from mjxsysid import params as P
 from mjxsysid.policy import networks as N
 from mjxsysid.policy.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.policy.env import EnvConfig, EnvState, TrainEnv
@@ -57,6 +64,7 @@ class TrainConfig:
     var_coef: float = 1.0
     var_target: float = 0.1
     rec_coef: float = 0.1
+    rec_ident_coef: float = 0.0    # weight of the identifiable-combination reconstruction (0: off)
     bc_coef: float = 2.0
     bc_final: float = 0.05
     bc_decay: float = 0.7          # fraction of training over which β decays to bc_final
@@ -158,8 +166,50 @@ def variance_loss(z, target):
     return jnp.sum(jax.nn.relu(target - jnp.sqrt(jnp.var(z, 0) + 1e-6)))
 
 
-def loss_fn(params, nets, cfg: TrainConfig, mb: Batch, adv, ret, snap_theta, snap_hist, beta):
-    """Joint loss of one minibatch (mb leaves (B, ...), snapshots (S, ...)). Returns (loss, aux)."""
+IDENT_TARGET_NAMES = ("log_thrust_to_weight", "log_torque_ratio", "log_angular_authority[0]",
+                      "log_angular_authority[1]", "log_angular_authority[2]", "log_motor_time_constant")
+
+
+def identifiable_log(theta) -> jax.Array:
+    """The identifiable combinations and τ_m in log space. θ (..., 19) physical -> (..., 6)
+    (order :data:`IDENT_TARGET_NAMES`)."""
+    theta = jnp.asarray(theta)
+    return jnp.log(jnp.concatenate([P.identifiable(theta), theta[..., P.TAU_M, None]], -1))
+
+
+def identifiable_projection(normalizer: P.Normalizer, prior: P.Prior, n: int = 20_000, seed: int = 0):
+    """A (19, 6) with (y − y') A = (identifiable_log(θ) − identifiable_log(θ')) / std_prior for
+    normalised y = normalizer.normalize(θ). Exact: every combination is a signed sum of logs of
+    log-normalised entries, so identifiable_log ∘ denormalize is affine in y. The prior std
+    (over ``n`` seeded samples) makes each target weigh the same."""
+    jac = jax.jacfwd(lambda y: identifiable_log(normalizer.denormalize(y)))(jnp.zeros(P.N_PARAMS))  # (6, 19)
+    std = jnp.std(identifiable_log(prior.sample(jax.random.PRNGKey(seed), n)), 0)  # (6,)
+    return (jac / std[:, None]).T
+
+
+LOSS_WEIGHT_FIELDS = ("lambda1", "lambda2", "var_coef", "var_target", "rec_coef", "rec_ident_coef")
+
+
+@struct.dataclass
+class LossWeights:
+    """The loss weights of :class:`TrainConfig` as traced scalars (so configs that differ only
+    here share one compiled iteration)."""
+    lambda1: jax.Array
+    lambda2: jax.Array
+    var_coef: jax.Array
+    var_target: jax.Array
+    rec_coef: jax.Array
+    rec_ident_coef: jax.Array
+
+    @classmethod
+    def of(cls, cfg: "TrainConfig") -> "LossWeights":
+        return cls(**{f: jnp.float32(getattr(cfg, f)) for f in LOSS_WEIGHT_FIELDS})
+
+
+def loss_fn(params, nets, cfg: TrainConfig, w: LossWeights, ident_proj, mb: Batch, adv, ret,
+            snap_theta, snap_hist, beta):
+    """Joint loss of one minibatch (mb leaves (B, ...), snapshots (S, ...)); ident_proj (19, 6)
+    from :func:`identifiable_projection`. Returns (loss, aux)."""
     z_theta = nets.encode(params, mb.theta_norm)
     z = jnp.where(mb.use_zhat[:, None], jax.lax.stop_gradient(mb.zhat), z_theta)
     mean, log_std = nets.act(params, mb.state, z)
@@ -172,16 +222,20 @@ def loss_fn(params, nets, cfg: TrainConfig, mb: Batch, adv, ret, snap_theta, sna
     ent = jnp.sum(log_std) + 0.5 * N.ACT * (1 + jnp.log(2 * jnp.pi))
     bc = jnp.mean(jnp.sum((mean - mb.expert) ** 2, -1))
     l1, l2 = alignment_losses(nets, params, snap_theta, snap_hist, cfg.align_scale_invariant)
-    var = variance_loss(z_theta, cfg.var_target)
-    rec = jnp.mean(jnp.sum((nets.decode(params, z_theta) - mb.theta_norm) ** 2, -1))
+    var = variance_loss(z_theta, w.var_target)
+    resid = nets.decode(params, z_theta) - mb.theta_norm           # (B, 19)
+    rec = jnp.mean(jnp.sum(resid ** 2, -1))
+    rec_id = jnp.mean(jnp.sum((resid @ ident_proj) ** 2, -1))
     loss = (pg + cfg.value_coef * vf - cfg.entropy_coef * ent + beta * bc
-            + cfg.lambda1 * l1 + cfg.lambda2 * l2 + cfg.var_coef * var + cfg.rec_coef * rec)
+            + w.lambda1 * l1 + w.lambda2 * l2 + w.var_coef * var + w.rec_coef * rec
+            + w.rec_ident_coef * rec_id)
     return loss, {"pg": pg, "vf": vf, "bc": bc, "align1": l1, "align2": l2, "var": var, "rec": rec,
-                  "approx_kl": jnp.mean(mb.logp - logp), "log_std": jnp.mean(log_std)}
+                  "rec_ident": rec_id, "approx_kl": jnp.mean(mb.logp - logp), "log_std": jnp.mean(log_std)}
 
 
 class Trainer:
-    """Builds the jitted iteration for a config. ``init(key)``, ``iteration(ts, env_state)``.
+    """Builds the jitted iteration for a config. ``init(key)``, ``iteration(ts, env_state)``;
+    ``reweighted(cfg)``: the same compiled iteration under another config's loss weights.
 
     ``mesh`` (a 1-D ``'batch'`` mesh, :func:`mjxsysid.distributed.batch_mesh`): data-parallel
     training. The environments (``num_envs``, which the mesh size must divide) are sharded over
@@ -194,22 +248,40 @@ class Trainer:
         self.env = TrainEnv(cfg.env)
         self.nets = self.env.nets
         self.opt = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.learning_rate))
+        self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior)
         self.mesh = mesh if mesh is not None and mesh.size > 1 else None
         if self.mesh is None:
-            self.iteration = jax.jit(self._iteration)
+            self.weights = LossWeights.of(cfg)
+            self._iteration_jit = jax.jit(self._iteration)
             self.reset = jax.jit(self._reset)
             return
         if cfg.num_envs % self.mesh.size:
             raise ValueError(f"num_envs ({cfg.num_envs}) must be a multiple of the {self.mesh.size} devices")
         shared = NamedSharding(self.mesh, PartitionSpec())
         envs = NamedSharding(self.mesh, PartitionSpec(distributed.AXIS))
-        self.iteration = jax.jit(self._iteration, in_shardings=(shared, envs),
-                                 out_shardings=(shared, envs, shared))
+        self.weights = self.place(LossWeights.of(cfg))
+        self._iteration_jit = jax.jit(self._iteration, in_shardings=(shared, envs, shared),
+                                      out_shardings=(shared, envs, shared))
         self.reset = jax.jit(self._reset, in_shardings=(shared, shared), out_shardings=envs)
 
     def place(self, tree):
         """Replicate a training state (or any pytree of shared arrays) over the mesh."""
         return distributed.replicate(tree, self.mesh) if self.mesh is not None else tree
+
+    def iteration(self, ts: TrainState, env_state: EnvState):
+        """One training iteration under ``self.weights`` -> (ts, env_state, stats)."""
+        return self._iteration_jit(ts, env_state, self.weights)
+
+    def reweighted(self, cfg: TrainConfig) -> "Trainer":
+        """A trainer for ``cfg`` sharing this one's compiled iteration; ``cfg`` may differ from
+        ``self.cfg`` only in :data:`LOSS_WEIGHT_FIELDS`."""
+        same = dataclasses.replace(cfg, **{f: getattr(self.cfg, f) for f in LOSS_WEIGHT_FIELDS})
+        if same != self.cfg:
+            diff = sorted(k for k, v in same.to_dict().items() if v != self.cfg.to_dict()[k])
+            raise ValueError(f"reweighted: config differs beyond the loss weights in {diff}")
+        new = copy.copy(self)
+        new.cfg, new.weights = cfg, new.place(LossWeights.of(cfg))
+        return new
 
     def init(self, key) -> TrainState:
         params = self.nets.init(key)
@@ -251,7 +323,7 @@ class Trainer:
         last_value = self.nets.value(params, s, env_state.theta_norm, z)
         return env_state, batch, last_value
 
-    def _iteration(self, ts: TrainState, env_state: EnvState):
+    def _iteration(self, ts: TrainState, env_state: EnvState, weights: LossWeights):
         cfg = self.cfg
         p, beta = schedules(cfg, ts.iteration)
         key, k_roll, k_perm = jax.random.split(ts.key, 3)
@@ -274,7 +346,7 @@ class Trainer:
                 mb, a, r, st, sh = distributed.constrain_batch(
                     (*jax.tree.map(lambda x: x[i], flat), snap_theta[si], snap_hist[si]), self.mesh)
                 (loss, aux), grads = jax.value_and_grad(loss_fn, has_aux=True)(
-                    params, self.nets, cfg, mb, a, r, st, sh, beta)
+                    params, self.nets, cfg, weights, self.ident_proj, mb, a, r, st, sh, beta)
                 updates, opt_state = self.opt.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), dict(aux, loss=loss)
 
@@ -311,18 +383,24 @@ def load_policy_params(path):
     return params, load_meta(path)
 
 
-def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print) -> dict:
+def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer: Trainer | None = None) -> dict:
     """Train with checkpoints in ``out_dir`` (``checkpoint.npz``: training state and the
     environments' state, so an interrupted run resumed from it continues exactly as an
     uninterrupted one; resumed if present and ``resume``). Writes ``policy.npz`` (shipped
     format) and ``train_log.jsonl``. Returns the last stats and wall time. A progress bar
-    (:mod:`mjxsysid.progress`) advances per iteration with the key metrics."""
+    (:mod:`mjxsysid.progress`) advances per iteration with the key metrics. ``trainer``: a
+    prebuilt :class:`Trainer` for ``cfg`` (e.g. from :meth:`Trainer.reweighted`, to share its
+    compile)."""
     from mjxsysid.progress import progress
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    if trainer is not None and trainer.cfg != cfg:
+        raise ValueError("train: the trainer was built for a different config")
     mesh = distributed.batch_mesh(divides=cfg.num_envs)
-    trainer = Trainer(cfg, mesh)
+    if trainer is not None and (trainer.mesh.size if trainer.mesh is not None else 1) != mesh.size:
+        raise ValueError(f"train: the trainer was built for another device mesh than the {mesh.size} device(s)")
+    trainer = trainer or Trainer(cfg, mesh)
     ts = trainer.init(jax.random.PRNGKey(cfg.seed))
     ckpt = out / "checkpoint.npz"
     env_state = None
