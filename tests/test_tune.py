@@ -167,3 +167,18 @@ def test_cli_tune_rejects_invalid_vehicle(tmp_path, capsys):
     assert main(["tune", "--vehicle", str(f), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "mass" in err[0] and "bad.json" in err[0], err
+
+
+def test_cfm_models_are_the_decoders_samples():
+    """The tuner's 'cfm' model source draws exactly what the decoder's public sampler draws for
+    the same latent and key (then projected to valid θ): (K, 19), finite, valid."""
+    from mjxsysid.analysis.decode import load_decoders
+    from mjxsysid.tune.tuner import DecoderArgs, draw_models
+    dec = load_decoders()[0]
+    cfg = TunerConfig(models=3, decoder_steps=4)
+    z = jnp.linspace(-0.5, 0.5, 8)
+    key = jax.random.PRNGKey(5)
+    th = jax.jit(lambda zz, k: draw_models("cfm", k, None, zz, DecoderArgs(dec.params, dec.normalizer), dec.cfg, cfg))(z, key)
+    ref = dec.sample_theta(z, key, 3, steps=4)
+    np.testing.assert_allclose(np.asarray(th), P.project_valid(np.asarray(ref))[0], rtol=2e-4, atol=1e-9)
+    assert th.shape == (3, P.N_PARAMS) and P.validate_theta(np.asarray(th)).shape == (3, P.N_PARAMS)
