@@ -41,8 +41,10 @@ def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
 
 
 def test_decode_summary_brackets_the_paper_vehicle(paper_flight):
-    dec = decode_latents(paper_flight.latent, paper_flight.time, rate=10, samples=200)
-    assert dec["samples"].shape == (19, 200, 19) and dec["regression"].shape == (9, 19)
+    # The first second of the flight (the 1 s flight this test was written for: same steps).
+    latent, time = paper_flight.latent[:500], paper_flight.time[:500]
+    dec = decode_latents(latent, time, rate=10, samples=200)
+    assert dec["samples"].shape == (9, 200, 19) and dec["regression"].shape == (9, 19)
     np.testing.assert_allclose(dec["times"][1] - dec["times"][0], 0.1, atol=1e-6)
     s = summarize_posterior(dec["samples"][-1], P.PAPER_HARDWARE)
     for n in P.PARAM_NAMES:
@@ -50,7 +52,7 @@ def test_decode_summary_brackets_the_paper_vehicle(paper_flight):
     inside = sum(s[n]["inside"] for n in P.PARAM_NAMES)
     assert inside >= 15, inside  # calibrated 90 % intervals: most of 19 contain the truth
     with pytest.raises(ValueError, match="rate"):
-        decode_latents(paper_flight.latent, paper_flight.time, rate=0, samples=10)
+        decode_latents(latent, time, rate=0, samples=10)
 
 
 def test_read_log_errors(tmp_path):
