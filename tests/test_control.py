@@ -215,8 +215,17 @@ def test_cli_argument_errors(capsys, argv, match):
     assert match in capsys.readouterr().err
 
 
-def test_demo_runs(tmp_path):
-    """The quick-start demo end to end (no video here: tests/test_render.py covers rendering)."""
+@pytest.mark.parametrize("decode_rate", [pytest.param(None, marks=pytest.mark.slow, id="10Hz"),
+                                         pytest.param(1 / 9.8, id="first_and_last")])
+def test_demo_runs(tmp_path, monkeypatch, decode_rate):
+    """The quick-start demo end to end (no video here: tests/test_render.py covers rendering).
+    Decoding all 99 latents of the 10 s flight (200 samples each) dominates this test on a CPU:
+    the default tier decodes only ẑ at 0.2 s and at 10 s (the posterior the summary reports);
+    `-m slow` runs the demo unchanged."""
+    if decode_rate is not None:
+        import mjxsysid.analysis.decode as D
+        decode_latents = D.decode_latents
+        monkeypatch.setattr(D, "decode_latents", lambda *a, **k: decode_latents(*a, **dict(k, rate=decode_rate)))
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--no-video", "--vehicles", "3"]) == 0
     s = json.loads((out / "summary.json").read_text())
