@@ -51,14 +51,15 @@ def xadap_weights():
 
 @pytest.fixture(scope="session")
 def xadap_paper_recording():
-    """The released policy flying the paper vehicle 1.5 s on a 10 s lemniscate, recorded as
-    action replay needs it (IMU the policy acted on, commands, motor commands, latents)."""
+    """The released policy flying the paper vehicle 2 s on a 10 s lemniscate, recorded as
+    action replay needs it (IMU the policy acted on, commands, motor commands, latents). 2 s:
+    the shape of notebook 01's Xadap flight, whose kernel then loads this compile from the cache."""
     from mjxsysid import params as P
     from mjxsysid.analysis.flight import fly_vehicles, one_flight, seen_imu
     from mjxsysid.policy.interface import resolve_policy
     ref = resolve_policy("xadap", require_xadap("onnx"))
     fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference="lemniscate",
-                            period=10.0, duration=1.5)
+                            period=10.0, duration=2.0)
     f = one_flight(fl)
     return ref, {"time": f.time, "imu": seen_imu(f.frame.imu), "imu_after": f.frame.imu,
                  "a_cmd": f.a_cmd, "omega_cmd": f.omega_cmd, "motor_cmd": f.frame.motor_cmd,

@@ -101,17 +101,19 @@ def test_fly_and_decode_api_match_the_cli(tmp_path, capsys):
     from mjxsysid import params as P
     from mjxsysid.cli import main
 
-    res = mjxsysid.fly(mjxsysid.paper_vehicle(), controller="policy", reference="hover", duration=1.0)
-    assert res.flight.latent.shape[:2] == (1, 500) and not res.metrics["failed"]
-    assert main(["fly", "--controller", "policy", "--reference", "hover", "--duration", "1",
-                 "--out", str(tmp_path / "fly"), "-q"]) == 0
+    # The 1.5 s lemniscate flight of notebook 04: its kernel loads this compile from the cache.
+    res = mjxsysid.fly(mjxsysid.paper_vehicle(), controller="policy", reference="lemniscate", period=10.0,
+                       duration=1.5)
+    assert res.flight.latent.shape[:2] == (1, 750) and not res.metrics["failed"]
+    assert main(["fly", "--controller", "policy", "--reference", "lemniscate", "--period", "10",
+                 "--duration", "1.5", "--out", str(tmp_path / "fly"), "-q"]) == 0
     cli = json.loads((tmp_path / "fly" / "metrics.json").read_text())
     for k in ("pos_rmse_m", "heading_rmse_deg", "saturation_frac"):
         np.testing.assert_allclose(res.metrics[k], cli[k], rtol=1e-6)
     post = mjxsysid.decode(res, samples=20, rate=2.0)
-    assert post["samples"].shape == (2, 20, 19) and post["zhat"].shape == (2, 8)
+    assert post["samples"].shape == (3, 20, 19) and post["zhat"].shape == (3, 8)
     np.testing.assert_array_equal(post["theta_true"], P.PAPER_HARDWARE)
-    assert main(["decode", "--reference", "hover", "--duration", "1", "--samples", "20", "--rate", "2",
+    assert main(["decode", "--reference", "lemniscate", "--period", "10", "--duration", "1.5", "--samples", "20", "--rate", "2",
                  "--out", str(tmp_path / "dec"), "--quiet"]) == 0
     capsys.readouterr()
     s = json.loads((tmp_path / "dec" / "summary.json").read_text())

@@ -54,31 +54,40 @@ def test_gain_presets_and_validation():
         gains(bad)
 
 
-@pytest.fixture(scope="module")
-def prior100():
-    return np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(42), 100))
+# Prior vehicles flown once per module on the 10 s lemniscate by the oracle and the nominal K_θ
+# (one compiled rollout shared by the tests below); the paper vehicle rides along at index 0.
+# The default tier flies 24 prior vehicles, `-m slow` the original 100.
+@pytest.fixture(scope="module", params=[24, pytest.param(100, marks=pytest.mark.slow)], ids=lambda n: f"prior{n}")
+def prior_lemniscate(request):
+    theta = np.concatenate([P.PAPER_HARDWARE[None],
+                            np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(42), request.param))])
+    _, mo, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", period=10.0)
+    _, mn, _ = fly_vehicles(theta, controller="nominal", reference="lemniscate", period=10.0)
+    return theta, jax.device_get(mo), jax.device_get(mn)
 
 
-def test_oracle_tracks_lemniscate_on_paper_vehicle():
+def test_oracle_tracks_lemniscate_on_paper_vehicle(prior_lemniscate):
     """Threshold 5 cm: the paper's hand-tuned *hardware* baseline reaches 4.6-6.0 cm on the 15 and
     10 s lemniscates; K_θ with the exact model in simulation must do at least as well."""
-    _, m, _ = fly_vehicles(P.PAPER_HARDWARE, controller="oracle", reference="lemniscate", period=10.0)
+    _, m, _ = prior_lemniscate
     assert not bool(m["failed"][0])
     assert float(m["pos_rmse_m"][0]) < 0.05, float(m["pos_rmse_m"][0])
     assert float(m["heading_rmse_deg"][0]) < 3.0
 
 
-def test_oracle_hovers_all_prior_vehicles(prior100):
-    _, m, _ = fly_vehicles(prior100, controller="oracle", reference="hover", duration=2.0)
+def test_oracle_hovers_all_prior_vehicles(prior_lemniscate):
+    theta = prior_lemniscate[0][1:]
+    _, m, _ = fly_vehicles(theta, controller="oracle", reference="hover", duration=2.0)
     assert not np.any(np.asarray(m["failed"]))
     assert np.asarray(m["max_pos_err_m"]).max() < 0.1  # τ_ext transients stay within 10 cm
 
 
-def test_adaptation_problem_is_real(prior100):
-    """On 100 prior vehicles (10 s lemniscate, baseline gains) the oracle flies all; the
+def test_adaptation_problem_is_real(prior_lemniscate):
+    """On prior vehicles (10 s lemniscate, baseline gains) the oracle flies all; the
     non-adaptive nominal K_θ fails some and is several times less accurate on the rest."""
-    _, mo, _ = fly_vehicles(prior100, controller="oracle", reference="lemniscate")
-    _, mn, _ = fly_vehicles(prior100, controller="nominal", reference="lemniscate")
+    theta, mo, mn = prior_lemniscate
+    prior = theta[1:]
+    mo, mn = ({k: np.asarray(v)[1:] for k, v in m.items()} for m in (mo, mn))
     so, sn = summarize(mo), summarize(mn)
     assert so["success_rate"] == 1.0
     assert so["pos_rmse_m"]["mean"] < 0.05
@@ -87,7 +96,7 @@ def test_adaptation_problem_is_real(prior100):
     assert ratio > 3.0, ratio
     # Nominal K_θ scales thrust by the vehicle's thrust-to-weight ratio relative to the paper
     # vehicle's: the further that ratio is from 1, the worse it tracks.
-    mismatch = np.abs(np.log(np.asarray(P.thrust_to_weight(prior100)) / P.thrust_to_weight(P.PAPER_HARDWARE)))
+    mismatch = np.abs(np.log(np.asarray(P.thrust_to_weight(prior)) / P.thrust_to_weight(P.PAPER_HARDWARE)))
     r = np.corrcoef(mismatch[ok], np.log(np.asarray(mn["pos_rmse_m"])[ok]))[0, 1]
     assert r > 0.6, r
 
@@ -206,8 +215,17 @@ def test_cli_argument_errors(capsys, argv, match):
     assert match in capsys.readouterr().err
 
 
-def test_demo_runs(tmp_path):
-    """The quick-start demo end to end (no video here: tests/test_render.py covers rendering)."""
+@pytest.mark.parametrize("decode_rate", [pytest.param(None, marks=pytest.mark.slow, id="10Hz"),
+                                         pytest.param(1 / 9.8, id="first_and_last")])
+def test_demo_runs(tmp_path, monkeypatch, decode_rate):
+    """The quick-start demo end to end (no video here: tests/test_render.py covers rendering).
+    Decoding all 99 latents of the 10 s flight (200 samples each) dominates this test on a CPU:
+    the default tier decodes only ẑ at 0.2 s and at 10 s (the posterior the summary reports);
+    `-m slow` runs the demo unchanged."""
+    if decode_rate is not None:
+        import mjxsysid.analysis.decode as D
+        decode_latents = D.decode_latents
+        monkeypatch.setattr(D, "decode_latents", lambda *a, **k: decode_latents(*a, **dict(k, rate=decode_rate)))
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--no-video", "--vehicles", "3"]) == 0
     s = json.loads((out / "summary.json").read_text())

@@ -92,7 +92,7 @@ def test_cli_fly_with_the_released_policy(xadap_paper_recording, tmp_path):
     compiled rollout is reused) writes its outputs and names the policy."""
     out = tmp_path / "fly"
     assert main(["fly", "--policy", "xadap", "--weights", str(XADAP_DIR), "--period", "10",
-                 "--duration", "1.5", "--out", str(out)]) == 0
+                 "--duration", "2", "--out", str(out)]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["controller"].startswith("policy xadap") and not m["failed"] and m["pos_rmse_m"] < 0.3
     with np.load(out / "flight.npz") as f:

@@ -8,6 +8,16 @@ from conftest import XADAP_DIR, have
 ROOT = Path(__file__).resolve().parent.parent
 
 
+def _share_compilation_cache(monkeypatch):
+    """The kernel imports this checkout and shares the suite's persistent compilation cache
+    (conftest.py): the notebooks' flights have the shapes of flights the tests compiled before
+    (tests/test_decode.py, test_api.py, conftest.xadap_paper_recording), so a kernel loads them."""
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", os.environ.get("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache")))
+    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+
+
 CHECKS = {
     "01_decode_latents.ipynb": lambda out, d: "inside=" in out and (d / "decoded_marginals.png").exists(),
     "02_tuning.ipynb": lambda out, d: "cfm_tuned: position RMSE" in out and (d / "tuning_gains.png").exists(),
@@ -15,7 +25,7 @@ CHECKS = {
 
 
 @pytest.mark.parametrize("name", sorted(CHECKS))
-def test_notebook_executes(name, tmp_path):
+def test_notebook_executes(name, tmp_path, monkeypatch):
     nbformat = pytest.importorskip("nbformat")
     nbclient = pytest.importorskip("nbclient")
     pytest.importorskip("ipykernel")
@@ -26,6 +36,7 @@ def test_notebook_executes(name, tmp_path):
     with_xadap = XADAP_DIR.is_dir() and have("onnx")
     if with_xadap:
         os.environ["MJXSYSID_XADAP_DIR"] = str(XADAP_DIR)
+    _share_compilation_cache(monkeypatch)
     nbclient.NotebookClient(nb, timeout=600, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}}).execute()
     outputs = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
     assert CHECKS[name](outputs, tmp_path), outputs[-2000:]
@@ -47,10 +58,7 @@ def test_newcomer_notebook_executes(name, expect, figure, tmp_path, monkeypatch)
         pytest.skip("no shipped decoder")
     nb = nbformat.read(ROOT / "notebooks" / name, as_version=4)
     monkeypatch.setenv("MJXSYSID_NOTEBOOK_FAST", "1")
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    # The kernel shares the suite's persistent compilation cache (conftest.py).
-    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", os.environ.get("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache")))
-    monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    _share_compilation_cache(monkeypatch)
     nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
                             resources={"metadata": {"path": str(tmp_path)}}).execute()
     outputs = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
