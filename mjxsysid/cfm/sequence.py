@@ -392,7 +392,7 @@ class SequenceDecoder:
             cfg = SeqCFMConfig.from_dict(full["config"])
         except (KeyError, TypeError, ValueError) as e:
             raise ValueError(f"{path}: bad sequence decoder config ({type(e).__name__}: {e})") from None
-        params = load_tree(path, init_params(cfg), finite=True)
+        params = load_tree(path, jax.eval_shape(lambda: init_params(cfg)), finite=True)
         norm = None
         if full.get("normalizer") is not None:
             from mjxsysid.params import Normalizer

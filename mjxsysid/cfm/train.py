@@ -370,7 +370,7 @@ def load_decoder(path) -> LoadedDecoder:
         cfg = CFMConfig.from_dict(full["config"])
     except (KeyError, TypeError, ValueError) as e:
         raise ValueError(f"{path}: bad decoder config ({type(e).__name__}: {e})") from None
-    params = load_tree(path, init_params(cfg, kind), finite=True)
+    params = load_tree(path, jax.eval_shape(lambda: init_params(cfg, kind)), finite=True)
     norm = None
     if full.get("normalizer") is not None:
         from mjxsysid.params import Normalizer

@@ -75,8 +75,9 @@ def load_meta(path) -> dict:
 
 
 def load_tree(path, template, *, finite: bool = False):
-    """Read a tree saved by :func:`save_tree` into the structure of ``template``. Every key and
-    shape is checked: a missing or unexpected array or a wrong shape (and with ``finite``, for
+    """Read a tree saved by :func:`save_tree` into the structure of ``template`` (arrays, or
+    ``jax.ShapeDtypeStruct`` leaves from ``jax.eval_shape``, which avoids initialising a model
+    just to load it). Every key and shape is checked: a missing or unexpected array or a wrong shape (and with ``finite``, for
     weights, NaN/inf values) raise ``ValueError`` naming the file and the array."""
     with open_npz(path) as f:
         flat, treedef = jax.tree_util.tree_flatten_with_path(template)
@@ -86,11 +87,12 @@ def load_tree(path, template, *, finite: bool = False):
             if name not in f.files:
                 raise ValueError(f"{path}: missing array {name} (not a checkpoint of this model?)")
             arr = f[name]
-            if arr.shape != np.shape(leaf):
-                raise ValueError(f"{path}: {name} has shape {arr.shape}, expected {np.shape(leaf)}")
+            shape = tuple(leaf.shape) if hasattr(leaf, "shape") else np.shape(leaf)
+            if arr.shape != shape:
+                raise ValueError(f"{path}: {name} has shape {arr.shape}, expected {shape}")
             if finite and np.issubdtype(arr.dtype, np.floating) and not np.all(np.isfinite(arr)):
                 raise ValueError(f"{path}: {name} has non-finite values (NaN/inf)")
-            out.append(arr.astype(np.asarray(leaf).dtype))
+            out.append(arr.astype(leaf.dtype if hasattr(leaf, "dtype") else np.asarray(leaf).dtype))
         extra = set(f.files) - {jax.tree_util.keystr(k) for k, _ in flat} - {_META}
         if extra:
             raise ValueError(f"{path}: unexpected arrays {sorted(extra)[:5]} (different architecture?)")

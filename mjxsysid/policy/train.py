@@ -378,7 +378,7 @@ def export_policy(params, path, meta: dict) -> Path:
 
 def load_policy_params(path):
     """Read shipped policy weights -> (params dict {'mu','phi','pi','aux'}, meta)."""
-    template = N.Networks().init(jax.random.PRNGKey(0))
+    template = jax.eval_shape(lambda: N.Networks().init(jax.random.PRNGKey(0)))   # shapes only
     params = load_tree(path, {k: template[k] for k in POLICY_MODULES}, finite=True)
     return params, load_meta(path)
 
