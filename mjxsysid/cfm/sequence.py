@@ -40,7 +40,7 @@ import numpy as np
 
 from mjxsysid.cfm.networks import VelocityNet
 from mjxsysid.cfm.sample import METHODS, integrate
-from mjxsysid.cfm.train import FORMAT, CFMConfig, _optimizer, _normalizer_dict
+from mjxsysid.cfm.train import FORMAT, CFMConfig, _normalizer_dict, _optimizer, make_epoch
 
 KIND = "cfm_seq"
 
@@ -195,7 +195,6 @@ def train_seq_cfm(theta_norm, zs, cfg: SeqCFMConfig, log: Callable | None = prin
     ``checkpoint``: a file for the training state every ``checkpoint_every`` epochs; when it
     exists (same config and data), training resumes from it and ends with the same weights as
     an uninterrupted run (epoch keys are ``fold_in(key, epoch)``), as for ``train_cfm``."""
-    import optax
 
     theta, zz = _check_data(theta_norm, zs, cfg, "train")
     n, L = zz.shape[:2]
@@ -212,21 +211,7 @@ def train_seq_cfm(theta_norm, zs, cfg: SeqCFMConfig, log: Callable | None = prin
         start, w = random_windows(kw, th.shape[0], L)
         return jnp.mean(_per_sample_loss(cfg, net, p, th, zb, window_mask(start, w, L), kl))
 
-    @jax.jit
-    def epoch(params, opt_state, key, theta, zz):
-        kp, ks = jax.random.split(key)
-        perm = jax.random.permutation(kp, n)[: spe * bs].reshape(spe, bs)
-        keys = jax.random.split(ks, spe)
-
-        def step(carry, x):
-            p, o = carry
-            idx, k = x
-            l, g = jax.value_and_grad(batch_loss)(p, theta[idx], zz[idx], k)
-            upd, o = tx.update(g, o, p)
-            return (optax.apply_updates(p, upd), o), l
-
-        (params, opt_state), losses = jax.lax.scan(step, (params, opt_state), (perm, keys))
-        return params, opt_state, jnp.mean(losses)
+    epoch = make_epoch(batch_loss, tx, n, spe, bs)
 
     val_fn = None
     if val is not None:

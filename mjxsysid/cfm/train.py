@@ -26,6 +26,7 @@ from typing import Callable, Mapping, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 
 from mjxsysid.cfm.networks import RegressionNet, VelocityNet
 from mjxsysid.cfm.path import GaussianSmoothedLinearPath
@@ -158,7 +159,6 @@ def loss(params, cfg: CFMConfig, theta_norm, z, key, kind: str = "cfm"):
 # ----------------------------------------------------------------------------------------
 
 def _optimizer(cfg: CFMConfig, total_steps: int):
-    import optax
     sched = optax.cosine_decay_schedule(cfg.lr, max(total_steps, 1))
     return optax.chain(optax.clip_by_global_norm(cfg.grad_clip),
                        optax.adamw(sched, weight_decay=cfg.weight_decay))
@@ -175,9 +175,32 @@ def _data_digest(*arrays) -> str:
     return h.hexdigest()
 
 
+def make_epoch(batch_loss, tx, n: int, spe: int, bs: int):
+    """One jitted training epoch: ``spe`` minibatches of ``bs`` of a random permutation of the
+    ``n`` examples, AdamW-style updates by ``tx``. batch_loss(params, θ (bs, d), z (bs, ...), key)
+    -> scalar. Returns epoch(params, opt_state, key, θ (n, d), z (n, ...)) -> (params,
+    opt_state, mean loss). Shared by the single-latent and sequence decoders."""
+    @jax.jit
+    def epoch(params, opt_state, key, theta, zz):
+        kp, ks = jax.random.split(key)
+        perm = jax.random.permutation(kp, n)[: spe * bs].reshape(spe, bs)
+        keys = jax.random.split(ks, spe)
+
+        def step(carry, x):
+            p, o = carry
+            idx, k = x
+            l, g = jax.value_and_grad(batch_loss)(p, theta[idx], zz[idx], k)
+            upd, o = tx.update(g, o, p)
+            return (optax.apply_updates(p, upd), o), l
+
+        (params, opt_state), losses = jax.lax.scan(step, (params, opt_state), (perm, keys))
+        return params, opt_state, jnp.mean(losses)
+
+    return epoch
+
+
 def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None, checkpoint=None,
          checkpoint_every: int = 10):
-    import optax
 
     _check_kind(kind)
     tag = f"[{kind}]"
@@ -196,21 +219,7 @@ def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None, checkpoint=
     def batch_loss(p, th, zb, k):
         return jnp.mean(_per_sample_loss(kind, cfg, net, p, th, zb, k))
 
-    @jax.jit
-    def epoch(params, opt_state, key, theta, zz):
-        kp, ks = jax.random.split(key)
-        perm = jax.random.permutation(kp, n)[: spe * bs].reshape(spe, bs)
-        keys = jax.random.split(ks, spe)
-
-        def step(carry, x):
-            p, o = carry
-            idx, k = x
-            l, g = jax.value_and_grad(batch_loss)(p, theta[idx], zz[idx], k)
-            upd, o = tx.update(g, o, p)
-            return (optax.apply_updates(p, upd), o), l
-
-        (params, opt_state), losses = jax.lax.scan(step, (params, opt_state), (perm, keys))
-        return params, opt_state, jnp.mean(losses)
+    epoch = make_epoch(batch_loss, tx, n, spe, bs)
 
     val_fn = None
     if val is not None:
