@@ -28,9 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 from functools import partial
-from pathlib import Path
 from typing import Callable, Mapping
 
 import flax.linen as nn
@@ -40,7 +38,7 @@ import numpy as np
 
 from mjxsysid.cfm.networks import VelocityNet
 from mjxsysid.cfm.sample import METHODS, integrate
-from mjxsysid.cfm.train import FORMAT, CFMConfig, _normalizer_dict, _optimizer, make_epoch
+from mjxsysid.cfm.train import FORMAT, CFMConfig, _normalizer_dict, _optimizer, fit_epochs, make_epoch
 
 KIND = "cfm_seq"
 
@@ -217,57 +215,9 @@ def train_seq_cfm(theta_norm, zs, cfg: SeqCFMConfig, log: Callable | None = prin
     if val is not None:
         vth, vz = _check_data(val[0], val[1], cfg, "val")
         val_fn = _make_eval(cfg, net, vth, vz)
-    theta_d, z_d = jnp.asarray(theta), jnp.asarray(zz)
-    hist = {"epoch": [], "train_loss": [], "val_loss": [], "steps_per_s": [], "epoch_s": [],
-            "steps_per_epoch": spe, "batch": bs}
-    start, wall_prev = 0, 0.0
-    ck_meta = None
-    if checkpoint is not None:
-        from mjxsysid.cfm.train import _data_digest
-        from mjxsysid.policy.checkpoint import load_meta, load_tree, save_tree
-        checkpoint = Path(checkpoint)
-        import json  # the config as it reads back from the checkpoint (tuples -> lists)
-        ck_meta = {"kind": KIND, "config": json.loads(json.dumps(cfg.to_dict())), "data": _data_digest(theta, zz)}
-        if checkpoint.is_file():
-            meta = load_meta(checkpoint)
-            if {k: meta.get(k) for k in ck_meta} != ck_meta:
-                raise ValueError(f"{checkpoint} was written for another config or data set; "
-                                 f"delete it or train into a new folder")
-            params, opt_state = load_tree(checkpoint, (params, opt_state))
-            start, wall_prev, hist = meta["epoch"], meta["wall_s"], meta["hist"]
-            if log is not None:
-                log(f"[{KIND}] resumed from {checkpoint} at epoch {start}")
-    from mjxsysid.progress import progress
-    bar = progress(total=cfg.epochs, initial=start, desc=f"train {KIND}", unit="epoch")
-    t_start = time.perf_counter()
-    for e in range(start, cfg.epochs):
-        t0 = time.perf_counter()
-        params, opt_state, tl = epoch(params, opt_state, jax.random.fold_in(k_train, e), theta_d, z_d)
-        tl = float(tl)
-        dt = time.perf_counter() - t0
-        vl = float(val_fn(params)) if val_fn is not None else None
-        hist["epoch"].append(e + 1)
-        hist["train_loss"].append(tl)
-        hist["val_loss"].append(vl)
-        hist["steps_per_s"].append(spe / max(dt, 1e-9))
-        hist["epoch_s"].append(dt)
-        if log is not None:
-            vs = f" val {vl:.4f}" if vl is not None else ""
-            note = " (incl. compile)" if e == 0 else ""
-            log(f"[{KIND}] epoch {e + 1}/{cfg.epochs} train {tl:.4f}{vs} {spe / max(dt, 1e-9):.1f} steps/s{note}")
-        if not np.isfinite(tl):
-            bar.close()
-            raise FloatingPointError(f"[{KIND}] training loss is not finite at epoch {e + 1}")
-        bar.update(1)
-        bar.set_postfix(train=f"{tl:.4f}", **({"val": f"{vl:.4f}"} if vl is not None else {}), refresh=False)
-        if ck_meta is not None and ((e + 1) % checkpoint_every == 0 and e + 1 < cfg.epochs):
-            save_tree(checkpoint, (params, opt_state),
-                      dict(ck_meta, epoch=e + 1, hist=hist, wall_s=wall_prev + time.perf_counter() - t_start))
-    bar.close()
-    hist["wall_s"] = wall_prev + time.perf_counter() - t_start
-    if val is None:
-        hist["val_loss"] = None
-    return params, hist
+    return fit_epochs(epoch, params, opt_state, k_train, theta, zz, cfg=cfg, kind=KIND, tag=f"[{KIND}]",
+                      spe=spe, bs=bs, val_fn=val_fn, log=log, checkpoint=checkpoint,
+                      checkpoint_every=checkpoint_every)
 
 
 def _make_eval(cfg, net, theta, zs, chunk: int = 512):

@@ -175,6 +175,67 @@ def _data_digest(*arrays) -> str:
     return h.hexdigest()
 
 
+def fit_epochs(epoch, params, opt_state, k_train, theta, zz, *, cfg, kind: str, tag: str, spe: int, bs: int,
+               val_fn=None, log=None, checkpoint=None, checkpoint_every: int = 10):
+    """The epoch loop every decoder shares: resume from ``checkpoint`` (refused if it was
+    written for another config or data set), ``cfg.epochs`` calls of ``epoch`` (see
+    :func:`make_epoch`) with a progress bar and a log line each, a non-finite-loss guard,
+    validation by ``val_fn(params)``, and a checkpoint every ``checkpoint_every`` epochs.
+    theta, zz: the host training arrays. Returns (params, history)."""
+    import json  # the config as it reads back from a checkpoint (tuples -> lists)
+
+    theta_d, z_d = jnp.asarray(theta), jnp.asarray(zz)
+    hist = {"epoch": [], "train_loss": [], "val_loss": [], "steps_per_s": [], "epoch_s": [],
+            "steps_per_epoch": spe, "batch": bs}
+    start, wall_prev = 0, 0.0
+    ck_meta = None
+    if checkpoint is not None:
+        from mjxsysid.policy.checkpoint import load_meta, load_tree, save_tree
+        checkpoint = Path(checkpoint)
+        ck_meta = {"kind": kind, "config": json.loads(json.dumps(cfg.to_dict())), "data": _data_digest(theta, zz)}
+        if checkpoint.is_file():
+            meta = load_meta(checkpoint)
+            if {k: meta.get(k) for k in ck_meta} != ck_meta:
+                raise ValueError(f"{checkpoint} was written for another config or data set; "
+                                 f"delete it or train into a new folder")
+            params, opt_state = load_tree(checkpoint, (params, opt_state))
+            start, wall_prev, hist = meta["epoch"], meta["wall_s"], meta["hist"]
+            if log is not None:
+                log(f"{tag} resumed from {checkpoint} at epoch {start}")
+    from mjxsysid.progress import progress
+    bar = progress(total=cfg.epochs, initial=start, desc=f"train {kind}", unit="epoch")
+    t_start = time.perf_counter()
+    for e in range(start, cfg.epochs):
+        t0 = time.perf_counter()
+        params, opt_state, tl = epoch(params, opt_state, jax.random.fold_in(k_train, e), theta_d, z_d)
+        tl = float(tl)  # blocks
+        dt = time.perf_counter() - t0
+        vl = float(val_fn(params)) if val_fn is not None else None
+        sps = spe / max(dt, 1e-9)
+        hist["epoch"].append(e + 1)
+        hist["train_loss"].append(tl)
+        hist["val_loss"].append(vl)
+        hist["steps_per_s"].append(sps)
+        hist["epoch_s"].append(dt)
+        if log is not None:
+            vs = f" val {vl:.4f}" if vl is not None else ""
+            note = " (incl. compile)" if e == 0 else ""
+            log(f"{tag} epoch {e + 1}/{cfg.epochs} train {tl:.4f}{vs} {sps:.1f} steps/s{note}")
+        if not np.isfinite(tl):
+            bar.close()
+            raise FloatingPointError(f"{tag} training loss is not finite at epoch {e + 1}")
+        bar.update(1)
+        bar.set_postfix(train=f"{tl:.4f}", **({"val": f"{vl:.4f}"} if vl is not None else {}), refresh=False)
+        if ck_meta is not None and ((e + 1) % checkpoint_every == 0 and e + 1 < cfg.epochs):
+            save_tree(checkpoint, (params, opt_state),
+                      dict(ck_meta, epoch=e + 1, hist=hist, wall_s=wall_prev + time.perf_counter() - t_start))
+    bar.close()
+    hist["wall_s"] = wall_prev + time.perf_counter() - t_start
+    if val_fn is None:
+        hist["val_loss"] = None
+    return params, hist
+
+
 def make_epoch(batch_loss, tx, n: int, spe: int, bs: int):
     """One jitted training epoch: ``spe`` minibatches of ``bs`` of a random permutation of the
     ``n`` examples, AdamW-style updates by ``tx``. batch_loss(params, θ (bs, d), z (bs, ...), key)
@@ -226,56 +287,9 @@ def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None, checkpoint=
         vth, vz = _check_pairs(val[0], val[1], cfg, "val")
         val_fn = _make_eval(kind, cfg, net, vth, vz)
 
-    theta_d, z_d = jnp.asarray(theta), jnp.asarray(zz)
-    hist = {"epoch": [], "train_loss": [], "val_loss": [], "steps_per_s": [], "epoch_s": [],
-            "steps_per_epoch": spe, "batch": bs}
-    start, wall_prev = 0, 0.0
-    ck_meta = None
-    if checkpoint is not None:
-        from mjxsysid.policy.checkpoint import load_meta, load_tree, save_tree
-        checkpoint = Path(checkpoint)
-        ck_meta = {"kind": kind, "config": cfg.to_dict(), "data": _data_digest(theta, zz)}
-        if checkpoint.is_file():
-            meta = load_meta(checkpoint)
-            if {k: meta.get(k) for k in ck_meta} != ck_meta:
-                raise ValueError(f"{checkpoint} was written for another config or data set; "
-                                 f"delete it or train into a new folder")
-            params, opt_state = load_tree(checkpoint, (params, opt_state))
-            start, wall_prev, hist = meta["epoch"], meta["wall_s"], meta["hist"]
-            if log is not None:
-                log(f"{tag} resumed from {checkpoint} at epoch {start}")
-    from mjxsysid.progress import progress
-    bar = progress(total=cfg.epochs, initial=start, desc=f"train {kind}", unit="epoch")
-    t_start = time.perf_counter()
-    for e in range(start, cfg.epochs):
-        t0 = time.perf_counter()
-        params, opt_state, tl = epoch(params, opt_state, jax.random.fold_in(k_train, e), theta_d, z_d)
-        tl = float(tl)  # blocks
-        dt = time.perf_counter() - t0
-        vl = float(val_fn(params)) if val_fn is not None else None
-        sps = spe / max(dt, 1e-9)
-        hist["epoch"].append(e + 1)
-        hist["train_loss"].append(tl)
-        hist["val_loss"].append(vl)
-        hist["steps_per_s"].append(sps)
-        hist["epoch_s"].append(dt)
-        if log is not None:
-            vs = f" val {vl:.4f}" if vl is not None else ""
-            note = " (incl. compile)" if e == 0 else ""
-            log(f"{tag} epoch {e + 1}/{cfg.epochs} train {tl:.4f}{vs} {sps:.1f} steps/s{note}")
-        if not np.isfinite(tl):
-            bar.close()
-            raise FloatingPointError(f"{tag} training loss is not finite at epoch {e + 1}")
-        bar.update(1)
-        bar.set_postfix(train=f"{tl:.4f}", **({"val": f"{vl:.4f}"} if vl is not None else {}), refresh=False)
-        if ck_meta is not None and ((e + 1) % checkpoint_every == 0 and e + 1 < cfg.epochs):
-            save_tree(checkpoint, (params, opt_state),
-                      dict(ck_meta, epoch=e + 1, hist=hist, wall_s=wall_prev + time.perf_counter() - t_start))
-    bar.close()
-    hist["wall_s"] = wall_prev + time.perf_counter() - t_start
-    if val is None:
-        hist["val_loss"] = None
-    return params, hist
+    return fit_epochs(epoch, params, opt_state, k_train, theta, zz, cfg=cfg, kind=kind, tag=tag, spe=spe,
+                      bs=bs, val_fn=val_fn, log=log, checkpoint=checkpoint,
+                      checkpoint_every=checkpoint_every)
 
 
 def _make_eval(kind, cfg, net, theta, z, chunk: int = 1024):
