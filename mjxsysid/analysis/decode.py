@@ -155,17 +155,24 @@ def load_decoders(decoders=None, policy=None, *, warn=None,
             raise ValueError(f"{d / f}: holds a {dec.kind} decoder, expected {kind}")
     if ref is not None:
         for dec, f in ((cfm, "cfm.npz"), (reg, "regression.npz")):
-            trained_on = dec.meta.get("data", {}).get("pairs_meta", {}).get("weights_sha256")
-            if trained_on and trained_on != ref.sha256():
-                msg = (f"{d / f}: trained on the latents of another policy (weights sha256 "
-                       f"{trained_on[:12]}…), not {ref.label} ({ref.sha256()[:12]}…)")
-                if not allow_mismatch:
-                    raise ValueError(msg + "; pass the decoders trained for this policy "
-                                     "(mjxsysid collect + train-cfm)")
-                if warn is not None:
-                    warn("warning: " + msg)
+            if not _trained_for(dec, d / f, ref, allow_mismatch, warn, "mjxsysid collect + train-cfm"):
                 break
     return cfm, reg
+
+
+def _trained_for(dec, path, ref, allow_mismatch: bool, warn, how: str) -> bool:
+    """Was ``dec`` (loaded from ``path``) trained on the latents of policy ``ref``? A mismatch is
+    a ValueError, or with ``allow_mismatch`` a warning told to ``warn`` (then False)."""
+    trained_on = dec.meta.get("data", {}).get("pairs_meta", {}).get("weights_sha256")
+    if not trained_on or trained_on == ref.sha256():
+        return True
+    msg = (f"{path}: trained on the latents of another policy (weights sha256 {trained_on[:12]}…), "
+           f"not {ref.label} ({ref.sha256()[:12]}…)")
+    if not allow_mismatch:
+        raise ValueError(msg + f"; pass the decoders trained for this policy ({how})")
+    if warn is not None:
+        warn("warning: " + msg)
+    return False
 
 
 def parse_window(text):
@@ -206,15 +213,7 @@ def load_sequence_decoder(decoders=None, policy=None, *, echo=None, allow_mismat
         return None
     seq = SequenceDecoder.load(path)
     if ref is not None:
-        trained_on = seq.meta.get("data", {}).get("pairs_meta", {}).get("weights_sha256")
-        if trained_on and trained_on != ref.sha256():
-            msg = (f"{path}: trained on the latents of another policy (weights sha256 {trained_on[:12]}…), "
-                   f"not {ref.label} ({ref.sha256()[:12]}…)")
-            if not allow_mismatch:
-                raise ValueError(msg + "; pass the decoders trained for this policy "
-                                 "(mjxsysid collect --seconds + train-cfm)")
-            if echo is not None:
-                echo("warning: " + msg)
+        _trained_for(seq, path, ref, allow_mismatch, echo, "mjxsysid collect --seconds + train-cfm")
     return seq
 
 
