@@ -9,6 +9,7 @@ Times the jitted, batched update (``OnlineTuner.update``) after a warm-up call; 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 
@@ -26,6 +27,8 @@ def main(argv=None):
     ap.add_argument("--horizon", type=float, default=0.5)
     ap.add_argument("--method", default="cfm")
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--unroll", type=int, nargs="+", default=[1],
+                    help="predictive-loop unroll factors to compare in the same run")
     ap.add_argument("--out", default=None, help="also write the results as JSON here")
     a = ap.parse_args(argv)
 
@@ -43,7 +46,8 @@ def main(argv=None):
                       cem=CEMConfig(candidates=a.candidates, iterations=a.iterations))
     dec = load_decoders()[0]
     rows = []
-    for b in a.vehicles:
+    for b, unroll in [(b, u) for b in a.vehicles for u in a.unroll]:
+        cfg = dataclasses.replace(cfg, unroll=unroll)
         theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(1), b))
         ref, _ = make_reference("lemniscate", period=10.0)
         refs = broadcast(ref, b)
@@ -67,7 +71,7 @@ def main(argv=None):
             jax.block_until_ready(out)
             best = min(best, time.perf_counter() - t0)
         steps = b * a.models * a.candidates * a.iterations * cfg.steps(sim.config.dt)[1]
-        row = {"vehicles": b, "models": a.models, "candidates": a.candidates, "iterations": a.iterations,
+        row = {"vehicles": b, "unroll": unroll, "models": a.models, "candidates": a.candidates, "iterations": a.iterations,
                "horizon_s": a.horizon, "method": a.method, "update_s": best, "updates_per_s": 1.0 / best,
                "predicted_env_steps_per_s": steps / best, "first_call_s": compile_s}
         rows.append(row)

@@ -474,3 +474,43 @@ def test_stacked_batch_jit_vmap_matches_individual():
         stack([MinSnap.random(0, n_segments=3), MinSnap.random(0, n_segments=4)])
     with pytest.raises(ValueError, match="non-empty"):
         stack([])
+
+
+def test_minsnap_min_height_keeps_the_whole_path_above_the_floor():
+    # seed 3 (start (0, 0, 1), 5 s) dips below the ground without the constraint
+    free = [MinSnap.random(seed=s, duration=5.0, start=(0.0, 0.0, 1.0)) for s in range(40)]
+    low = [s for s, r in enumerate(free) if r.lowest_height() < 0.2]
+    assert low, "no low draw among 40 seeds: the test lost its subject"
+    for s in low[:3]:
+        r = MinSnap.random(seed=s, duration=5.0, start=(0.0, 0.0, 1.0), min_height=0.2)
+        ts = np.linspace(0.0, 5.0, 2001)
+        z = np.asarray(sample(r, ts).pos[:, 2])
+        assert z.min() >= 0.2 - 1e-3
+        np.testing.assert_allclose(np.asarray(r.at(0.0).pos), [0.0, 0.0, 1.0], atol=1e-6)
+    # a draw that already stays above is unchanged
+    ok = next(s for s, r in enumerate(free) if r.lowest_height() >= 0.2)
+    a = MinSnap.random(seed=ok, duration=5.0, start=(0.0, 0.0, 1.0), min_height=0.2)
+    np.testing.assert_array_equal(np.asarray(a.coeffs), np.asarray(free[ok].coeffs))
+    with pytest.raises(ValueError, match="min_height"):
+        MinSnap.random(seed=0, start=(0.0, 0.0, 0.1), min_height=0.2)
+    with pytest.raises(ValueError, match="min_height"):
+        MinSnap.random(seed=0, start=(0.0, 0.0, 1.0), min_height=0.99, max_tries=3)
+
+
+def test_delayed_holds_the_start_then_flies_the_inner_reference():
+    from mjxsysid.control.references import Delayed
+    lem = Lemniscate.make(period=10.0)
+    d = Delayed.make(lem, 2.0)
+    before = d.at(1.0)
+    np.testing.assert_allclose(np.asarray(before.pos), np.asarray(lem.at(0.0).pos), atol=1e-6)
+    for k in ("vel", "acc", "jerk", "snap"):
+        assert np.all(np.asarray(getattr(before, k)) == 0.0)
+    after = d.at(5.5)
+    np.testing.assert_allclose(np.asarray(after.pos), np.asarray(lem.at(3.5).pos), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(after.vel), np.asarray(lem.at(3.5).vel), atol=1e-6)
+    batch = stack([Delayed.make(Lemniscate.make(period=p), 1.0) for p in (5.0, 10.0)])
+    pts = jax.jit(jax.vmap(lambda r: r.at(3.0)))(batch)
+    np.testing.assert_allclose(np.asarray(pts.pos[1]), np.asarray(Lemniscate.make(period=10.0).at(2.0).pos),
+                               atol=1e-6)
+    with pytest.raises(ValueError, match="delay"):
+        Delayed.make(lem, -1.0)

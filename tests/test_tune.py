@@ -182,3 +182,21 @@ def test_cfm_models_are_the_decoders_samples():
     ref = dec.sample_theta(z, key, 3, steps=4)
     np.testing.assert_allclose(np.asarray(th), P.project_valid(np.asarray(ref))[0], rtol=2e-4, atol=1e-9)
     assert th.shape == (3, P.N_PARAMS) and P.validate_theta(np.asarray(th)).shape == (3, P.N_PARAMS)
+
+
+def test_common_summary_scores_every_method_on_the_same_vehicles():
+    from mjxsysid.tune.compare import common_summary
+
+    def res(rmse, failed):
+        n = len(rmse)
+        return {"metrics": {"pos_rmse_m": rmse, "max_pos_err_m": [2 * r for r in rmse],
+                            "heading_rmse_deg": [1.0] * n, "saturation_frac": [0.0] * n, "failed": failed}}
+    # method a loses vehicle 2 (its hardest), b loses none: each over its own successes a looks better
+    r = {"a": res([0.1, 0.1, 9.0], [False, False, True]), "b": res([0.2, 0.2, 0.5], [False, False, False])}
+    c = common_summary(r)
+    assert c["n"] == 2 and c["vehicles"] == [0, 1]
+    assert c["a"]["pos_rmse_m"]["mean"] == pytest.approx(0.1)
+    assert c["b"]["pos_rmse_m"]["mean"] == pytest.approx(0.2)
+    assert c["b"]["max_pos_err_m"]["median"] == pytest.approx(0.4)
+    c0 = common_summary({"a": res([0.1], [True]), "b": res([0.2], [False])})
+    assert c0["n"] == 0 and c0["a"]["pos_rmse_m"]["mean"] is None

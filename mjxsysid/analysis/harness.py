@@ -134,12 +134,14 @@ def start_loop(sim: Quadrotor, theta, low, high: Cascade, ref, key) -> LoopCarry
 
 
 def run_loop(sim: Quadrotor, theta, low, high: Cascade, ref, carry: LoopCarry, forces, start,
-             steps: int, payload: Disturbance | None = None) -> tuple[LoopCarry, Flight]:
+             steps: int, payload: Disturbance | None = None, unroll: int = 1) -> tuple[LoopCarry, Flight]:
     """Advance a closed loop ``steps`` control steps from ``carry``, the first step having the
     global index ``start`` (an unbatched int: time t = index · dt). θ (19,) the flown vehicle
     (τ_ext disturbance already added); forces (steps, 3) N world. ``payload``: a
     :class:`Disturbance` whose payload fields apply from its ``payload_time`` on (None: no
-    payload). Returns the new carry and the Flight of these steps (leaves (steps, ...))."""
+    payload). ``unroll``: control steps per iteration of the compiled loop (``lax.scan``'s
+    unroll: fewer, larger kernels; the same result). Returns the new carry and the Flight of
+    these steps (leaves (steps, ...))."""
     dt = sim.config.dt
     if payload is not None:
         theta_payload = payload_theta(theta, payload.payload_mass, payload.payload_pos)
@@ -164,7 +166,7 @@ def run_loop(sim: Quadrotor, theta, low, high: Cascade, ref, carry: LoopCarry, f
         return LoopCarry(s, hc, lc), out
 
     idx = start + jnp.arange(steps)
-    carry, out = jax.lax.scan(body, carry, (idx, forces))
+    carry, out = jax.lax.scan(body, carry, (idx, forces), unroll=unroll)
     return carry, Flight(*out)
 
 

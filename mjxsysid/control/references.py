@@ -45,6 +45,7 @@ __all__ = [
     "Lemniscate",
     "MinSnap",
     "Switch",
+    "Delayed",
     "evaluate",
     "sample",
     "stack",
@@ -677,6 +678,8 @@ class MinSnap:
         start=None,
         yaw: float = 0.0,
         min_segment_fraction: float = 0.5,
+        min_height: float | None = None,
+        max_tries: int = 100,
     ) -> "MinSnap":
         """Seeded random minimum-snap trajectory (deterministic for a seed).
 
@@ -691,9 +694,36 @@ class MinSnap:
         worst excursion 2.1 m outside the xy box with the 0.5 floor, vs 40 m/s^2 and 6.8 m
         with a 0.1 floor). Only the waypoints are guaranteed to be in the box; the
         trajectory between them may leave it.
+
+        ``min_height`` (m): keep the whole trajectory (not only its waypoints) at or above this
+        height, e.g. clear of the ground: a draw whose path dips lower is redrawn (seeds
+        ``seed``, then ``(seed, 1)``, ``(seed, 2)``, … up to ``max_tries``; a draw that stays
+        above is the same as without ``min_height``). Without it, about 1 in 10 default draws
+        from ``start=(0, 0, 1)`` dips below z = 0.
         """
-        wp, dur = cls.random_waypoints(seed, n_segments, box, duration, start, min_segment_fraction)
-        return cls.through(wp, dur, yaw=yaw)
+        if min_height is None:
+            wp, dur = cls.random_waypoints(seed, n_segments, box, duration, start, min_segment_fraction)
+            return cls.through(wp, dur, yaw=yaw)
+        h = _scalar(min_height, "min_height")
+        if start is not None and _np_array(start, "start", shape=(3,))[2] < h:
+            raise ValueError(f"start height {start[2]} is below min_height {h}")
+        lowest = np.inf
+        for attempt in range(int(max_tries)):
+            sd = seed if attempt == 0 else np.random.SeedSequence([int(seed), attempt])
+            wp, dur = cls.random_waypoints(sd, n_segments, box, duration, start, min_segment_fraction)
+            ref = cls.through(wp, dur, yaw=yaw)
+            z = ref.lowest_height()
+            if z >= h:
+                return ref
+            lowest = min(lowest, z)
+        raise ValueError(f"no min-snap draw of seed {seed} stayed above min_height {h} m in {max_tries} tries "
+                         f"(lowest point {lowest:.2f} m): lower min_height or raise the box")
+
+    def lowest_height(self, samples_per_segment: int = 100) -> float:
+        """Lowest z (m) of the trajectory, sampled ``samples_per_segment`` times per segment."""
+        n = len(np.asarray(self.durations))
+        ts = np.linspace(0.0, float(self.duration), n * samples_per_segment + 1)
+        return float(np.min(np.asarray(jax.vmap(self.at)(jnp.asarray(ts, _DTYPE)).pos[:, 2])))
 
     def at(self, t) -> RefPoint:
         """Evaluate at scalar time ``t`` [s]."""
@@ -746,6 +776,39 @@ class Switch:
         a, b = self.first.at(t), self.second.at(t)
         use = jnp.asarray(self.use_second, bool)
         return jax.tree.map(lambda x, y: jnp.where(use, y, x), a, b)
+
+
+@struct.dataclass
+class Delayed:
+    """Hold ``inner``'s start point (zero velocity and higher derivatives, its initial yaw)
+    for ``delay`` s, then fly ``inner`` shifted by ``delay``: a hover lead-in, as a real flight
+    hovers after take-off before its trajectory starts.
+
+    Attributes:
+      inner: a reference pytree with ``at(t)`` and ``duration``.
+      delay: () s, >= 0.
+    """
+
+    inner: object
+    delay: jax.Array = 0.0
+
+    @classmethod
+    def make(cls, inner, delay: float) -> "Delayed":
+        return cls(inner=inner, delay=_f32(_scalar(delay, "delay", nonneg=True)))
+
+    @property
+    def duration(self):
+        return jnp.asarray(self.inner.duration, _DTYPE) + jnp.asarray(self.delay, _DTYPE)
+
+    def at(self, t) -> RefPoint:
+        t = jnp.asarray(t, _DTYPE)
+        delay = jnp.asarray(self.delay, _DTYPE)
+        p = self.inner.at(jnp.maximum(t - delay, 0.0))
+        moving = t >= delay
+        return p._replace(
+            vel=jnp.where(moving, p.vel, 0.0), acc=jnp.where(moving, p.acc, 0.0),
+            jerk=jnp.where(moving, p.jerk, 0.0), snap=jnp.where(moving, p.snap, 0.0),
+            yaw_rate=jnp.where(moving, p.yaw_rate, 0.0))
 
 
 # --------------------------------------------------------------------------------------

@@ -111,6 +111,24 @@ def results_dict(res: dict, index: int | None = None) -> dict:
     return out
 
 
+def common_summary(res: dict, keys=("pos_rmse_m", "max_pos_err_m", "heading_rmse_deg", "saturation_frac")) -> dict:
+    """Every method scored on the same vehicles: those that no method lost (a flight that fails
+    under one method drops out for all). Returns {'n': int, 'vehicles': indices, method: {metric:
+    {'mean', 'std', 'median'}}}; the per-method summaries average each method over its *own*
+    successful flights, which favours a method that loses its hardest vehicles."""
+    failed = np.stack([np.asarray(r["metrics"]["failed"], bool) for r in res.values()])   # (M, B)
+    ok = ~failed.any(0)
+    out = {"n": int(ok.sum()), "vehicles": np.flatnonzero(ok).tolist()}
+    for m, r in res.items():
+        d = {}
+        for k in keys:
+            v = np.asarray(r["metrics"][k], np.float64)[ok]
+            d[k] = ({"mean": float(v.mean()), "std": float(v.std()), "median": float(np.median(v))}
+                    if v.size else {"mean": None, "std": None, "median": None})
+        out[m] = d
+    return out
+
+
 def plot_gains(res: dict, path, *, title: str = "") -> Path:
     """Gains over time of every CEM method (mean over vehicles, 5–95 % band if several)."""
     import matplotlib
