@@ -65,6 +65,7 @@ class TrainConfig:
     var_target: float = 0.1
     rec_coef: float = 0.1
     rec_ident_coef: float = 0.0    # weight of the identifiable-combination reconstruction (0: off)
+    ident_yaw_authority: bool = False  # its κ target replaced by the yaw authority k_τ Ω_max²/J_zz
     bc_coef: float = 2.0
     bc_final: float = 0.05
     bc_decay: float = 0.7          # fraction of training over which β decays to bc_final
@@ -170,20 +171,27 @@ IDENT_TARGET_NAMES = ("log_thrust_to_weight", "log_torque_ratio", "log_angular_a
                       "log_angular_authority[1]", "log_angular_authority[2]", "log_motor_time_constant")
 
 
-def identifiable_log(theta) -> jax.Array:
+def identifiable_log(theta, yaw_authority: bool = False) -> jax.Array:
     """The identifiable combinations and τ_m in log space. θ (..., 19) physical -> (..., 6)
-    (order :data:`IDENT_TARGET_NAMES`)."""
+    (order :data:`IDENT_TARGET_NAMES`). ``yaw_authority``: replace κ (which flight cannot reveal
+    alone) by the yaw authority κ k_t Ω_max² / J_zz = k_τ Ω_max² / J_zz that the yaw response shows."""
     theta = jnp.asarray(theta)
-    return jnp.log(jnp.concatenate([P.identifiable(theta), theta[..., P.TAU_M, None]], -1))
+    ident = P.identifiable(theta)
+    if yaw_authority:
+        yaw = theta[..., P.KTAU] * theta[..., P.OMEGA_MAX] ** 2 / theta[..., P.INERTIA.stop - 1]
+        ident = ident.at[..., 1].set(yaw)
+    return jnp.log(jnp.concatenate([ident, theta[..., P.TAU_M, None]], -1))
 
 
-def identifiable_projection(normalizer: P.Normalizer, prior: P.Prior, n: int = 20_000, seed: int = 0):
+def identifiable_projection(normalizer: P.Normalizer, prior: P.Prior, n: int = 20_000, seed: int = 0,
+                            yaw_authority: bool = False):
     """A (19, 6) with (y − y') A = (identifiable_log(θ) − identifiable_log(θ')) / std_prior for
     normalised y = normalizer.normalize(θ). Exact: every combination is a signed sum of logs of
     log-normalised entries, so identifiable_log ∘ denormalize is affine in y. The prior std
     (over ``n`` seeded samples) makes each target weigh the same."""
-    jac = jax.jacfwd(lambda y: identifiable_log(normalizer.denormalize(y)))(jnp.zeros(P.N_PARAMS))  # (6, 19)
-    std = jnp.std(identifiable_log(prior.sample(jax.random.PRNGKey(seed), n)), 0)  # (6,)
+    jac = jax.jacfwd(lambda y: identifiable_log(normalizer.denormalize(y), yaw_authority))(
+        jnp.zeros(P.N_PARAMS))  # (6, 19)
+    std = jnp.std(identifiable_log(prior.sample(jax.random.PRNGKey(seed), n), yaw_authority), 0)  # (6,)
     return (jac / std[:, None]).T
 
 
@@ -248,7 +256,8 @@ class Trainer:
         self.env = TrainEnv(cfg.env)
         self.nets = self.env.nets
         self.opt = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.learning_rate))
-        self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior)
+        self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior,
+                                                  yaw_authority=cfg.ident_yaw_authority)
         self.mesh = mesh if mesh is not None and mesh.size > 1 else None
         if self.mesh is None:
             self.weights = LossWeights.of(cfg)
