@@ -201,6 +201,16 @@ def test_identifiable_projection_is_exact():
     np.testing.assert_allclose((y[1:] - y[:-1]) @ np.asarray(A), (g[1:] - g[:-1]) / std, atol=2e-4)
     np.testing.assert_allclose(np.exp(g[:, 0]), np.asarray(P.thrust_to_weight(th)), rtol=1e-5)
     assert float(A[P.MASS, 0]) < 0 < float(A[P.OMEGA_MAX, 0]) and float(A[P.TAU_M, 5]) > 0
+    # the yaw-authority variant: column 1 becomes log(k_τ Ω_max² / J_zz), still exact
+    Ay = np.asarray(identifiable_projection(norm, P.DEFAULT_PRIOR, n=3000, yaw_authority=True))
+    gy = np.asarray(identifiable_log(th, yaw_authority=True))
+    th_np = np.asarray(th, np.float64)
+    np.testing.assert_allclose(np.exp(gy[:, 1]), th_np[:, P.KTAU] * th_np[:, P.OMEGA_MAX] ** 2 / th_np[:, 6],
+                               rtol=1e-4)
+    np.testing.assert_array_equal(gy[:, [0, 2, 3, 4, 5]], g[:, [0, 2, 3, 4, 5]])
+    stdy = np.std(np.asarray(identifiable_log(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 3000), True)), 0)
+    np.testing.assert_allclose((y[1:] - y[:-1]) @ Ay, (gy[1:] - gy[:-1]) / stdy, atol=2e-4)
+    assert float(Ay[P.OMEGA_MAX, 1]) > 0 > float(Ay[6, 1]) and abs(float(Ay[P.KT, 1])) < 1e-6
 
 
 @pytest.fixture(scope="module")
