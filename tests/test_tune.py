@@ -200,3 +200,36 @@ def test_common_summary_scores_every_method_on_the_same_vehicles():
     assert c["b"]["max_pos_err_m"]["median"] == pytest.approx(0.4)
     c0 = common_summary({"a": res([0.1], [True]), "b": res([0.2], [False])})
     assert c0["n"] == 0 and c0["a"]["pos_rmse_m"]["mean"] is None
+
+
+@pytest.mark.slow
+def test_tune_experiments_tiny(tmp_path):
+    """tune-nominal and tune-lemniscate end to end at --quick size (3 vehicles each, one compiled
+    tuner update shared): files, the same-vehicle comparison, the lead-in window. Slow (50 s on
+    2 cores); the default tier keeps the pieces: common_summary, Delayed and min_height
+    (test_references), compare_methods end to end (notebook 02), the CLI's input checks."""
+    from mjxsysid.experiments.tuning import run_lemniscate, run_nominal
+    res = run_nominal(tmp_path / "nom", quick=True, progress=False, methods=("baseline", "oracle_cem"))
+    for f in ("results.json", "results.md", "gains.png", "tracking.png"):
+        assert (tmp_path / "nom" / f).is_file()
+    nb = res["numbers"]
+    common = nb["common_set"]
+    ok = [i for i in range(3) if not (nb["baseline"]["per_vehicle"]["failed"][i]
+                                      or nb["oracle_cem"]["per_vehicle"]["failed"][i])]
+    assert common["vehicles"] == ok and common["n"] == len(ok)
+    if ok:
+        want = np.mean([nb["baseline"]["per_vehicle"]["pos_rmse_m"][i] for i in ok])
+        assert common["baseline"]["pos_rmse_m"]["mean"] == pytest.approx(want, rel=1e-6)
+        assert nb["headline"]["baseline_pos_rmse"] == pytest.approx(want, rel=1e-6)
+    md = (tmp_path / "nom" / "results.md").read_text()
+    assert f"same {common['n']} vehicles" in md and "paper" in md
+    assert res["config"]["reference"].startswith("random min-snap (2 segments")
+
+    res = run_lemniscate(tmp_path / "lem", quick=True, progress=False, methods=("baseline", "oracle_cem"))
+    per = res["numbers"]["per_period"]
+    assert set(per) == {"baseline", "oracle_cem"} and set(per["baseline"]) == {"15.0", "10.0", "7.5"}
+    assert res["config"]["lead_in_s"] == 0.5
+    for m in per.values():
+        for d in m.values():
+            assert np.isfinite(d["pos_rmse_m"]) and d["lead_in_pos_rmse_m"] < 0.2   # hovering at the start
+    assert (tmp_path / "lem" / "results.md").read_text().count("| 7.5 s |") == 2

@@ -93,6 +93,7 @@ def _size(quick, cpu):
 
 def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, cpu=False):
     t0 = time.time()
+    policy = _ref(policy)
     size = _size(quick, cpu)
     n, duration = {"quick": (3, 2.0), "cpu": (12, 5.0), "full": (100, 5.0)}[size]
     cfg = {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size]
@@ -158,6 +159,7 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
     tuner already running) and then three cycles; each flight is scored over its own three cycles
     (the paper's window), and over its last cycle."""
     t0 = time.time()
+    policy = _ref(policy)
     methods = methods or ("baseline", "cfm", "oracle_cem")
     periods = (15.0, 10.0, 7.5)
     cycles = 3
