@@ -145,6 +145,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="comma-separated decoders to train: cfm, regression, cfm_seq (default: all three when "
                          "the pairs hold latent trajectories, else cfm,regression)")
     tc.add_argument("--seq-epochs", type=int, default=None, help="epochs of the sequence decoder (default: --epochs)")
+    tc.add_argument("--coords", choices=("theta", "identifiable"), default=None,
+                    help="coordinates the decoders learn in: normalised θ (default) or a log-linear "
+                         "reparametrisation with log thrust-to-weight and log angular authorities as axes")
     _add_policy(tc, "check that the pairs come from this policy")
     ed = sub.add_parser("evaluate-decoder", help="calibration of the decoders on held-out pairs")
     ed.add_argument("--decoders", type=Path, required=True,
@@ -280,7 +283,8 @@ def cmd_train_cfm(args) -> int:
         got = load_pairs(args.pairs)[1].get("weights_sha256")
         if got != want.sha256():
             raise ValueError(f"{args.pairs}: these pairs were not collected with {want.label}")
-    over = {k: v for k, v in (("epochs", args.epochs), ("width", args.width), ("batch", args.batch)) if v is not None}
+    over = {k: v for k, v in (("epochs", args.epochs), ("width", args.width), ("batch", args.batch),
+                              ("coords", args.coords)) if v is not None}
     cfg = dataclasses.replace(CFMConfig(), **over)
     kinds = None if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     seq_cfg = {"epochs": args.seq_epochs} if args.seq_epochs is not None else None

@@ -540,12 +540,19 @@ _LOG_EPS[DRAG] = 1e-3  # drag may be 0: log(D + 1e-3 kg/s)
 @dataclasses.dataclass(frozen=True)
 class Normalizer:
     """θ ↔ learning space: y = (f(θ) − shift) / scale, f = log(θ + eps) on :data:`LOG_MASK`
-    entries and identity elsewhere. shift, scale: (19,)."""
+    entries and identity elsewhere. shift, scale: (19,).
+
+    ``flow_map`` (19, 19) and ``flow_offset`` (19,), optional: the coordinates a decoder learns
+    in, v = y @ flow_map + flow_offset (:meth:`to_flow`, :meth:`from_flow`); None: v = y. See
+    :func:`identifiable_flow_map`. ``normalize`` / ``denormalize`` never apply it: decoders
+    return samples in the standard y space whatever their flow coordinates."""
     shift: jax.Array
     scale: jax.Array
+    flow_map: jax.Array | None = None
+    flow_offset: jax.Array | None = None
 
     def tree_flatten(self):
-        return (self.shift, self.scale), None
+        return (self.shift, self.scale, self.flow_map, self.flow_offset), None
 
     @classmethod
     def tree_unflatten(cls, aux, children):
@@ -564,6 +571,22 @@ class Normalizer:
         f = jnp.asarray(y) * self.scale + self.shift
         return jnp.where(LOG_MASK, jnp.exp(f) - _LOG_EPS, f)
 
+    def to_flow(self, y):
+        """Normalised y (..., 19) -> the decoder's flow coordinates v (..., 19)."""
+        if self.flow_map is None:
+            return jnp.asarray(y)
+        return jnp.asarray(y) @ self.flow_map + self.flow_offset
+
+    def from_flow(self, v):
+        """Flow coordinates v (..., 19) -> normalised y (..., 19) (exact inverse of :meth:`to_flow`)."""
+        if self.flow_map is None:
+            return jnp.asarray(v)
+        return jnp.linalg.solve(self.flow_map.T, (jnp.asarray(v) - self.flow_offset)[..., None])[..., 0]
+
+    def with_flow(self, flow_map, flow_offset) -> "Normalizer":
+        return Normalizer(self.shift, self.scale, jnp.asarray(flow_map, jnp.float32),
+                          jnp.asarray(flow_offset, jnp.float32))
+
     @classmethod
     def fit(cls, theta) -> "Normalizer":
         """Mean / std of f(θ) over samples θ (n, 19)."""
@@ -572,16 +595,73 @@ class Normalizer:
                    jnp.asarray(np.maximum(f.std(0), 1e-6), jnp.float32))
 
     def to_dict(self) -> dict:
-        return {"shift": np.asarray(self.shift).tolist(), "scale": np.asarray(self.scale).tolist()}
+        d = {"shift": np.asarray(self.shift).tolist(), "scale": np.asarray(self.scale).tolist()}
+        if self.flow_map is not None:
+            d["flow_map"] = np.asarray(self.flow_map).tolist()
+            d["flow_offset"] = np.asarray(self.flow_offset).tolist()
+        return d
 
     @classmethod
     def from_dict(cls, d) -> "Normalizer":
-        return cls(jnp.asarray(d["shift"], jnp.float32), jnp.asarray(d["scale"], jnp.float32))
+        norm = cls(jnp.asarray(d["shift"], jnp.float32), jnp.asarray(d["scale"], jnp.float32))
+        if d.get("flow_map") is not None:
+            fm, fo = np.asarray(d["flow_map"], np.float64), np.asarray(d.get("flow_offset"), np.float64)
+            n = norm.shift.shape[-1]
+            if fm.shape != (n, n) or fo.shape != (n,) or not (np.all(np.isfinite(fm)) and np.all(np.isfinite(fo))):
+                raise ValueError(f"normalizer flow_map must be ({n}, {n}) and flow_offset ({n},) finite values, "
+                                 f"got {fm.shape} and {fo.shape}")
+            if abs(np.linalg.det(fm)) < 1e-8:
+                raise ValueError("normalizer flow_map is singular")
+            norm = norm.with_flow(fm, fo)
+        return norm
 
 
-def prior_normalizer(prior: str | Prior = "default", n: int = 100_000, seed: int = 0) -> Normalizer:
-    """Normaliser fitted to ``n`` samples of a prior (seeded, deterministic)."""
-    return Normalizer.fit(get_prior(prior).sample(jax.random.PRNGKey(seed), n))
+DECODER_COORDS = ("theta", "identifiable")
+"""Coordinates a decoder can learn in: the normalised θ entries, or a log-linear
+reparametrisation whose axes are the identifiable combinations (:func:`identifiable_flow_map`)."""
+
+
+def identifiable_log_matrix() -> np.ndarray:
+    """M (19, 19): u = f(θ) @ M with f the normaliser's log/identity map, where u equals f except
+    u[Ω_max] = log k_t + 2 log Ω_max − log m + mean(η) (log thrust-to-weight up to a constant; the
+    mean η as the linearisation of log mean η) and u[J_a] = log l + log k_t + 2 log Ω_max − log J_a
+    (log angular authority a). Invertible (each replaced coordinate keeps its own entry with a
+    non-zero weight)."""
+    m = np.eye(N_PARAMS)
+    tw = np.zeros(N_PARAMS)
+    tw[KT], tw[OMEGA_MAX], tw[MASS] = 1.0, 2.0, -1.0
+    tw[ETA] = 0.25
+    m[:, OMEGA_MAX] = tw
+    for a in range(3):
+        col = np.zeros(N_PARAMS)
+        col[ARM], col[KT], col[OMEGA_MAX], col[INERTIA.start + a] = 1.0, 1.0, 2.0, -1.0
+        m[:, INERTIA.start + a] = col
+    return m
+
+
+def identifiable_flow_map(norm: "Normalizer", prior="default", n: int = 100_000, seed: int = 0) -> "Normalizer":
+    """``norm`` with the flow coordinates of :func:`identifiable_log_matrix`, standardised over
+    ``n`` seeded prior samples: v = y @ A + c has zero mean and unit std per axis; the axes of
+    Ω_max and J are log thrust-to-weight and log angular authorities, the others the normalised
+    θ entries."""
+    th = get_prior(prior).sample(jax.random.PRNGKey(seed), n)
+    y = np.asarray(norm.normalize(th), np.float64)
+    a0 = np.diag(np.asarray(norm.scale, np.float64)) @ identifiable_log_matrix()   # y -> u up to a constant
+    v0 = y @ a0
+    std = np.maximum(v0.std(0), 1e-6)
+    a = a0 / std
+    c = -(v0 / std).mean(0)
+    return norm.with_flow(a, c)
+
+
+def prior_normalizer(prior: str | Prior = "default", n: int = 100_000, seed: int = 0,
+                     coords: str = "theta") -> Normalizer:
+    """Normaliser fitted to ``n`` samples of a prior (seeded, deterministic); ``coords``
+    ("theta" | "identifiable", :data:`DECODER_COORDS`) sets its flow coordinates."""
+    if coords not in DECODER_COORDS:
+        raise ValueError(f"unknown decoder coordinates {coords!r}; choose from {DECODER_COORDS}")
+    norm = Normalizer.fit(get_prior(prior).sample(jax.random.PRNGKey(seed), n))
+    return identifiable_flow_map(norm, prior, n, seed) if coords == "identifiable" else norm
 
 
 def as_batch(theta: Sequence | np.ndarray) -> np.ndarray:

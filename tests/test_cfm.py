@@ -273,3 +273,45 @@ def test_random_baseline():
     r = raw / nom.clip(1e-30)
     assert np.all(np.abs(r[:, nom != 0] - 1) <= 0.5 + 1e-6)
     assert abs(np.mean(r[:, 0]) - 1.0) < 0.03 and abs(np.std(r[:, 0]) - 1 / np.sqrt(12)) < 0.02
+
+
+def test_identifiable_flow_coordinates(tmp_path):
+    """The 'identifiable' decoder coordinates: an exact, invertible log-linear map whose Ω_max and
+    J axes are log thrust-to-weight (up to the η linearisation) and log angular authorities,
+    standardised over the prior; saved with the decoder; samples come back in normalised θ."""
+    norm = P.prior_normalizer("default", n=20_000, coords="identifiable")
+    th = P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(5), 4000)
+    y = norm.normalize(th)
+    v = np.asarray(norm.to_flow(y))
+    np.testing.assert_allclose(np.asarray(norm.from_flow(v)), np.asarray(y), atol=1e-5)
+    assert np.all(np.abs(v.mean(0)) < 0.06) and np.all(np.abs(v.std(0) - 1) < 0.06)
+    auth = np.log(np.asarray(P.angular_authority(th)))
+    for a in range(3):   # exactly affine in the log authority
+        assert abs(np.corrcoef(v[:, P.INERTIA.start + a], auth[:, a])[0, 1]) > 0.99999
+    assert np.corrcoef(v[:, P.OMEGA_MAX], np.log(np.asarray(P.thrust_to_weight(th))))[0, 1] > 0.95
+    keep = [j for j in range(19) if j not in (P.OMEGA_MAX, 4, 5, 6)]   # the other axes: y itself, rescaled
+    for j in keep:
+        assert abs(np.corrcoef(v[:, j], np.asarray(y)[:, j])[0, 1]) > 0.99999
+    plain = P.prior_normalizer("default", n=20_000)
+    np.testing.assert_array_equal(np.asarray(plain.to_flow(y)), np.asarray(y))
+    with pytest.raises(ValueError, match="coordinates"):
+        P.prior_normalizer("default", n=100, coords="polar")
+    with pytest.raises(ValueError, match="coords"):
+        TINY.replace(coords="polar")
+
+    cfg = TINY.replace(coords="identifiable")
+    params = init_params(cfg)
+    f = save_decoder(tmp_path / "dec.npz", "cfm", params, cfg, norm, {})
+    dec = Decoder.load(f)
+    assert dec.cfg.coords == "identifiable" and dec.normalizer.flow_map is not None
+    z = np.random.default_rng(0).standard_normal((2, 8)).astype(np.float32)
+    key = jax.random.PRNGKey(3)
+    raw = sample(params, cfg, z, key, 4, steps=5)                     # the flow's coordinates
+    np.testing.assert_allclose(np.asarray(dec.sample_norm(z, key, 4, steps=5)),
+                               np.asarray(norm.from_flow(raw)), atol=1e-5)
+    np.testing.assert_allclose(np.asarray(dec.sample_theta(z, key, 4, steps=5)),
+                               np.asarray(norm.denormalize(norm.from_flow(raw))), rtol=1e-4)
+    bad = norm.to_dict()
+    bad["flow_map"] = np.zeros((19, 19)).tolist()
+    with pytest.raises(ValueError, match="singular"):
+        P.Normalizer.from_dict(bad)

@@ -87,7 +87,8 @@ def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, kinds=None, seq_
     out.mkdir(parents=True, exist_ok=True)
     from mjxsysid.progress import tee
     log = tee(log, out / "train_log.txt")
-    norm = P.prior_normalizer(meta.get("prior", "default"))
+    norm = P.prior_normalizer(meta.get("prior", "default"), coords=cfg.coords)
+    flow = lambda theta: np.asarray(norm.to_flow(norm.normalize(theta)))   # what the networks learn
     th, z = _usable(arrays, "train")
     tv, zv = _usable(arrays, "test")
     pairs_path = Path(pairs) / "pairs.npz" if Path(pairs).is_dir() else Path(pairs)
@@ -112,8 +113,8 @@ def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, kinds=None, seq_
         else:
             log(f"training cfm_seq on {len(ths)} flights × {zts.shape[1]} latents ({scfg.epochs} epochs, batch {scfg.batch})")
             t0 = time.time()
-            params, hist = train_seq_cfm(np.asarray(norm.normalize(ths)), zts, scfg, log=log,
-                                         val=(np.asarray(norm.normalize(tvs)), zvs), checkpoint=ckpt,
+            params, hist = train_seq_cfm(flow(ths), zts, scfg, log=log,
+                                         val=(flow(tvs), zvs), checkpoint=ckpt,
                                          checkpoint_every=checkpoint_every)
             wall = time.time() - t0
             info = {"data": data, "wall_s": wall, "device": str(jax.devices()[0]), "jax": jax.__version__,
@@ -139,8 +140,8 @@ def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, kinds=None, seq_
             continue
         log(f"training {kind} on {len(th)} pairs ({cfg.epochs} epochs, batch {cfg.batch})")
         t0 = time.time()
-        params, hist = fit(np.asarray(norm.normalize(th)), z, cfg, log=log,
-                           val=(np.asarray(norm.normalize(tv)), zv), checkpoint=ckpt,
+        params, hist = fit(flow(th), z, cfg, log=log,
+                           val=(flow(tv), zv), checkpoint=ckpt,
                            checkpoint_every=checkpoint_every)
         wall = time.time() - t0
         info = {"data": data, "wall_s": wall, "device": str(jax.devices()[0]), "jax": jax.__version__,

@@ -116,6 +116,10 @@ class Decoder:
             return check_latents(z[None], self.cfg, "z (single latent)"), True
         return check_latents(z, self.cfg), False
 
+    def _unflow(self, v):
+        """The network's outputs (its flow coordinates) -> normalised θ."""
+        return v if self.normalizer is None else self.normalizer.from_flow(v)
+
     def _denorm(self, y):
         if self.normalizer is None:
             raise ValueError("this decoder has no normaliser; use sample_norm / point_norm")
@@ -126,7 +130,7 @@ class Decoder:
         if self.kind != "cfm":
             raise ValueError(f"sample_theta needs a 'cfm' decoder, this one is {self.kind!r} (use .point)")
         zz, single = self._z(z)
-        out = sample(self.params, self.cfg, zz, key, n, steps, method)
+        out = self._unflow(sample(self.params, self.cfg, zz, key, n, steps, method))
         return out[0] if single else out
 
     def sample_theta(self, z, key, n: int, steps: int = 50, method: str = "euler"):
@@ -138,7 +142,7 @@ class Decoder:
             raise ValueError(f"point needs a 'regression' decoder, this one is {self.kind!r} "
                              "(use .sample_theta)")
         zz, single = self._z(z)
-        out = point(self.params, self.cfg, zz)
+        out = self._unflow(point(self.params, self.cfg, zz))
         return out[0] if single else out
 
     def point(self, z):

@@ -357,6 +357,8 @@ class SequenceDecoder:
                 raise ValueError("mask applies to a batch of windows (m, L, z_dim) only")
             zs = zs[None]
         out = sample(self.params, self.cfg, zs, key, n, steps, method, mask)
+        if self.normalizer is not None:
+            out = self.normalizer.from_flow(out)     # the flow's coordinates -> normalised θ
         return out[0] if single else out
 
     def sample_theta(self, zs, key, n: int, steps: int = 50, method: str = "euler", mask=None):

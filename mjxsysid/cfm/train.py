@@ -52,6 +52,7 @@ class CFMConfig:
     theta_dim: int = 19
     z_dim: int = 8
     seed: int = 0
+    coords: str = "theta"     # the flow's coordinates: params.DECODER_COORDS ("theta" | "identifiable")
 
     def __post_init__(self):
         for k in ("epochs", "batch", "width", "blocks", "time_dim", "theta_dim", "z_dim"):
@@ -62,6 +63,9 @@ class CFMConfig:
         if not self.lr > 0:
             raise ValueError(f"CFMConfig.lr must be > 0, got {self.lr}")
         GaussianSmoothedLinearPath(self.sigma, self.tau_max)  # validates sigma, tau_max
+        from mjxsysid.params import DECODER_COORDS
+        if self.coords not in DECODER_COORDS:
+            raise ValueError(f"CFMConfig.coords must be one of {DECODER_COORDS}, got {self.coords!r}")
 
     @property
     def path(self) -> GaussianSmoothedLinearPath:

@@ -145,8 +145,8 @@ def _model_sources(dec_cfg, cfg: TunerConfig) -> tuple[tuple[str, ...], list]:
     def cfm(key, theta_true, zhat, dec):
         from mjxsysid.cfm.sample import _sample
         theta0 = jax.random.normal(key, (1, k, dec_cfg.theta_dim), jnp.float32)   # as cfm.sample draws it
-        y = _sample(dec.params, dec_cfg, theta0, zhat[None], k, cfg.decoder_steps, "euler")[0]
-        return dec.normalizer.denormalize(y)
+        v = _sample(dec.params, dec_cfg, theta0, zhat[None], k, cfg.decoder_steps, "euler")[0]
+        return dec.normalizer.denormalize(dec.normalizer.from_flow(v))
 
     if dec_cfg is None:
         return ("oracle_cem", "nominal_cem"), [oracle, nominal]
