@@ -116,3 +116,16 @@ def run_notebook(name: str, cwd: Path, monkeypatch, *, kernel: bool = False, env
         shell.reset(new_session=False)
         matplotlib.use(backend)
     return "".join(text), rich
+
+
+@pytest.fixture(scope="session")
+def collected_pairs(tmp_path_factory):
+    """`mjxsysid collect` on tiny sizes with the shipped policy, run once for the tests that read
+    its pairs (tests/test_policy.py) and latent trajectories (tests/test_sequence.py)."""
+    from mjxsysid.cli import main
+    from mjxsysid.policy.controller import PRETRAINED
+    if not PRETRAINED.exists():
+        pytest.skip("no shipped policy weights")
+    out = tmp_path_factory.mktemp("collect")
+    assert main(["collect", "--out", str(out), "--train", "6", "--test", "2", "--batch", "4"]) == 0
+    return out

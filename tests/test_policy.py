@@ -107,7 +107,13 @@ TINY = dict(num_envs=64, unroll=16, epochs=2, minibatches=4, log_every=1, checkp
             warmup=0.3, ramp=0.3)
 
 
-def test_tiny_training_improves_tracking_and_resumes(tmp_path):
+@pytest.fixture(scope="module")
+def tiny_trainer():
+    """The trainer of the tiny learning test, shared with the loss-weight tests: one compile."""
+    return Trainer(TrainConfig(iterations=16, **TINY))
+
+
+def test_tiny_training_improves_tracking_and_resumes(tmp_path, tiny_trainer):
     """16 iterations × 1024 steps (seconds after compile) cut the body-rate tracking error of the
     untrained policy by 30 % or more (measured: 3.6 -> 2.2 rad/s with the interruption, 1.9
     without); an interrupted run resumes
@@ -122,10 +128,10 @@ def test_tiny_training_improves_tracking_and_resumes(tmp_path):
             raise Stop
 
     with pytest.raises(Stop):
-        train(cfg, tmp_path, resume=False, log=interrupt)
+        train(cfg, tmp_path, resume=False, log=interrupt, trainer=tiny_trainer)
     assert (tmp_path / "checkpoint.npz").exists() and not (tmp_path / "policy.npz").exists()
     lines = []
-    res = train(cfg, tmp_path, resume=True, log=lines.append)
+    res = train(cfg, tmp_path, resume=True, log=lines.append, trainer=tiny_trainer)
     assert any("resumed from" in m and "iteration 4" in m for m in lines), lines[:2]
     log = [json.loads(x) for x in (tmp_path / "train_log.jsonl").read_text().splitlines()]
     assert log[-1]["iteration"] == 16
@@ -176,13 +182,10 @@ def test_pretrained_policy_hovers_and_tracks_paper_vehicle():
         assert k in meta, k
 
 
-def test_collect_pairs_tiny(tmp_path):
-    from mjxsysid.cli import main
+def test_collect_pairs_tiny(collected_pairs, tmp_path):
+    """`mjxsysid collect --train 6 --test 2 --batch 4` (conftest.collected_pairs)."""
     from mjxsysid.policy.collect import load_pairs
-    if not PRETRAINED.exists():
-        pytest.skip("no shipped policy weights")
-    assert main(["collect", "--out", str(tmp_path), "--train", "6", "--test", "2", "--batch", "4"]) == 0
-    arrays, meta = load_pairs(tmp_path)
+    arrays, meta = load_pairs(collected_pairs)
     assert arrays["theta_train"].shape == (6, 19) and arrays["zhat_test"].shape == (2, 8)
     assert np.all(np.abs(arrays["zhat_train"]) <= 1) and not arrays["failed_train"].any()
     assert len(meta["weights_sha256"]) == 64 and meta["prior"] == "default"
@@ -201,11 +204,6 @@ def test_identifiable_projection_is_exact():
     np.testing.assert_allclose((y[1:] - y[:-1]) @ np.asarray(A), (g[1:] - g[:-1]) / std, atol=2e-4)
     np.testing.assert_allclose(np.exp(g[:, 0]), np.asarray(P.thrust_to_weight(th)), rtol=1e-5)
     assert float(A[P.MASS, 0]) < 0 < float(A[P.OMEGA_MAX, 0]) and float(A[P.TAU_M, 5]) > 0
-
-
-@pytest.fixture(scope="module")
-def tiny_trainer():
-    return Trainer(TrainConfig(iterations=16, **TINY))  # the config of the tiny learning test: one compile (cached)
 
 
 @pytest.mark.parametrize("over", [{"rec_ident_coef": 1.0}, {"rec_ident_coef": 1.0, "rec_coef": 0.0},
