@@ -14,6 +14,36 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
+# The default tier runs on two pytest-xdist workers (pyproject addopts: -n 2 --dist loadgroup).
+# A worker keeps its compiled functions, so tests that fly the same shapes or share session
+# fixtures run in one worker (a group); every other file is a group of its own. Groups are
+# queued longest first (measured CPU time), so the two workers finish together.
+XDIST_GROUPS = {
+    # the 2 s / 1.5 s policy flights, decoders and the released policy's recording, then the
+    # notebooks, whose cells run in-process and fly those shapes again
+    "policy-flights": ("test_api", "test_decode", "test_interface", "test_notebooks", "test_replay"),
+    # the tiny Trainer, and the collect run of conftest.collected_pairs
+    "policy-training": ("test_policy", "test_sequence"),
+}
+_GROUP_OF = {f: g for g, files in XDIST_GROUPS.items() for f in files}
+# Queue order, longest first (CPU seconds of the default tier, 2026-11-24); files not listed last.
+_QUEUE = ("policy-training", "policy-flights", "test_sim", "test_control", "test_experiments_robustness",
+          "test_tune", "test_resume", "test_distributed", "test_cfm", "test_xadap_fly", "test_export")
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "xdist_group(name): run in the xdist worker of that group")
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {g: i for i, g in enumerate(_QUEUE)}
+    for item in items:
+        stem = item.path.stem
+        item.add_marker(pytest.mark.xdist_group(_GROUP_OF.get(stem, stem)))
+    # stable: the order of the tests within a file (and of the files within a group) is kept
+    items.sort(key=lambda it: rank.get(_GROUP_OF.get(it.path.stem, it.path.stem), len(rank)))
+
+
 @pytest.fixture(scope="session")
 def sim():
     from mjxsysid.sim import Quadrotor
