@@ -212,7 +212,8 @@ def test_loss_weight_options_share_the_compile_and_train(tiny_trainer, over):
     """Every loss-weight trial option runs one tiny training step through the base config's
     compiled iteration: finite losses, shapes kept, and weights that differ from the base step."""
     t0 = tiny_trainer
-    ts, env = t0.init(jax.random.PRNGKey(0)), t0.reset(jax.random.PRNGKey(1), 0.0)
+    # p as train() passes it (a float32 array, not a Python float): the compiled reset is shared
+    ts, env = t0.init(jax.random.PRNGKey(0)), t0.reset(jax.random.PRNGKey(1), jnp.float32(0.0))
     base, _, base_stats = t0.iteration(ts, env)
     t = t0.reweighted(dataclasses.replace(t0.cfg, **over))
     assert t._iteration_jit is t0._iteration_jit and t.cfg != t0.cfg
