@@ -14,6 +14,36 @@ jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 
 
+# The default tier runs on two pytest-xdist workers (pyproject addopts: -n 2 --dist loadgroup).
+# A worker keeps its compiled functions, so tests that fly the same shapes or share session
+# fixtures run in one worker (a group); every other file is a group of its own. Groups are
+# queued longest first (measured CPU time), so the two workers finish together.
+XDIST_GROUPS = {
+    # the 2 s / 1.5 s policy flights, decoders and the released policy's recording, then the
+    # notebooks, whose cells run in-process and fly those shapes again
+    "policy-flights": ("test_api", "test_decode", "test_interface", "test_notebooks", "test_replay"),
+    # the tiny Trainer, and the collect run of conftest.collected_pairs
+    "policy-training": ("test_policy", "test_sequence"),
+}
+_GROUP_OF = {f: g for g, files in XDIST_GROUPS.items() for f in files}
+# Queue order, longest first (CPU seconds of the default tier, 2026-11-24); files not listed last.
+_QUEUE = ("policy-training", "policy-flights", "test_sim", "test_control", "test_experiments_robustness",
+          "test_tune", "test_resume", "test_distributed", "test_cfm", "test_xadap_fly", "test_export")
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "xdist_group(name): run in the xdist worker of that group")
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {g: i for i, g in enumerate(_QUEUE)}
+    for item in items:
+        stem = item.path.stem
+        item.add_marker(pytest.mark.xdist_group(_GROUP_OF.get(stem, stem)))
+    # stable: the order of the tests within a file (and of the files within a group) is kept
+    items.sort(key=lambda it: rank.get(_GROUP_OF.get(it.path.stem, it.path.stem), len(rank)))
+
+
 @pytest.fixture(scope="session")
 def sim():
     from mjxsysid.sim import Quadrotor
@@ -64,3 +94,68 @@ def xadap_paper_recording():
     return ref, {"time": f.time, "imu": seen_imu(f.frame.imu), "imu_after": f.frame.imu,
                  "a_cmd": f.a_cmd, "omega_cmd": f.omega_cmd, "motor_cmd": f.frame.motor_cmd,
                  "latent": f.latent}
+
+
+NOTEBOOKS = ROOT / "notebooks"
+
+
+def run_notebook(name: str, cwd: Path, monkeypatch, *, kernel: bool = False, env: dict | None = None):
+    """Execute every code cell of notebooks/``name`` with ``cwd`` as working directory and
+    ``env`` set; return (the text the cells printed, their rich display outputs: dicts of
+    MIME type -> data).
+
+    ``kernel=False`` (the default tier): the cells run in this interpreter, in a fresh IPython
+    namespace, so the notebooks share the jit caches of the tests (flights of the same shapes
+    are traced once); an exception in any cell fails the test. ``kernel=True`` (slow tier):
+    a Jupyter kernel in its own process executes the notebook as a user's would."""
+    nbformat = pytest.importorskip("nbformat")
+    pytest.importorskip("IPython")
+    nb = nbformat.read(NOTEBOOKS / name, as_version=4)
+    for k, v in (env or {}).items():
+        monkeypatch.setenv(k, v)
+    if kernel:
+        nbclient = pytest.importorskip("nbclient")
+        pytest.importorskip("ipykernel")
+        # The kernel imports this checkout and shares the suite's persistent compilation cache.
+        monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", os.environ.get("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache")))
+        monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+        monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
+        nbclient.NotebookClient(nb, timeout=900, kernel_name="python3",
+                                resources={"metadata": {"path": str(cwd)}}).execute()
+        outs = [o for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", [])]
+        return "".join(o.get("text", "") for o in outs), [o["data"] for o in outs if "data" in o]
+    import matplotlib
+    from IPython.core.interactiveshell import InteractiveShell
+    from IPython.utils.capture import capture_output
+    monkeypatch.chdir(cwd)
+    backend = matplotlib.get_backend()
+    shell = InteractiveShell.instance()
+    shell.reset(new_session=False)
+    text, rich = [], []
+    try:
+        for i, cell in enumerate(c for c in nb.cells if c.cell_type == "code"):
+            with capture_output() as cap:
+                res = shell.run_cell(cell.source, store_history=False, silent=False)
+            text.append(cap.stdout + cap.stderr)
+            rich += [o.data for o in cap.outputs]
+            if not res.success:
+                raise AssertionError(f"{name}: code cell {i} failed: {res.error_before_exec or res.error_in_exec!r}\n"
+                                     f"{cap.stdout[-3000:]}{cap.stderr[-3000:]}")
+    finally:
+        shell.reset(new_session=False)
+        matplotlib.use(backend)
+    return "".join(text), rich
+
+
+@pytest.fixture(scope="session")
+def collected_pairs(tmp_path_factory):
+    """`mjxsysid collect` on tiny sizes with the shipped policy, run once for the tests that read
+    its pairs (tests/test_policy.py) and latent trajectories (tests/test_sequence.py)."""
+    from mjxsysid.cli import main
+    from mjxsysid.policy.controller import PRETRAINED
+    if not PRETRAINED.exists():
+        pytest.skip("no shipped policy weights")
+    out = tmp_path_factory.mktemp("collect")
+    assert main(["collect", "--out", str(out), "--train", "6", "--test", "2", "--batch", "4"]) == 0
+    return out

@@ -1,7 +1,6 @@
 """Robustness, payload and replay experiments (issue 10 §2): energy distance, envelope statistics,
 the harness's payload event, tiny runs of each experiment, the CLI, notebook 03."""
 import json
-import os
 from pathlib import Path
 
 import jax
@@ -9,8 +8,6 @@ import numpy as np
 import pytest
 
 from mjxsysid import params as P
-
-ROOT = Path(__file__).resolve().parent.parent
 
 
 # ----------------------------------------------------------------------------- statistics
@@ -232,16 +229,13 @@ def test_config_validation():
 
 # ----------------------------------------------------------------------------- notebook
 
-def test_notebook_03_executes(tmp_path):
-    nbformat = pytest.importorskip("nbformat")
-    nbclient = pytest.importorskip("nbclient")
-    pytest.importorskip("ipykernel")
-    nb = nbformat.read(ROOT / "notebooks" / "03_robustness.ipynb", as_version=4)
-    os.environ["MJXSYSID_NOTEBOOK_FAST"] = "1"
-    nbclient.NotebookClient(nb, timeout=900, kernel_name="python3",
-                            resources={"metadata": {"path": str(tmp_path)}}).execute()
-    outputs = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+@pytest.mark.parametrize("kernel", [pytest.param(False, id="inprocess"),
+                                    pytest.param(True, id="kernel", marks=pytest.mark.slow)])
+def test_notebook_03_executes(kernel, tmp_path, monkeypatch):
+    """In this interpreter (default tier) or in a Jupyter kernel (slow): see conftest.run_notebook."""
+    from conftest import run_notebook
+    outputs, rich = run_notebook("03_robustness.ipynb", tmp_path, monkeypatch, kernel=kernel,
+                                 env={"MJXSYSID_NOTEBOOK_FAST": "1"})
     assert "inside decoded" in outputs and "energy distance" in outputs
     assert (tmp_path / "robustness" / "results.json").exists()
-    assert any(o.get("output_type") == "display_data" and "image/png" in o.get("data", {})
-               for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+    assert any("image/png" in d for d in rich)

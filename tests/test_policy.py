@@ -22,7 +22,7 @@ NETS = N.Networks()
 
 @pytest.fixture(scope="module")
 def params():
-    return NETS.init(jax.random.PRNGKey(0))
+    return jax.jit(NETS.init)(jax.random.PRNGKey(0))  # one compile, not one per eager op
 
 
 def test_network_shapes_and_jit(params):
@@ -81,8 +81,8 @@ def test_alignment_terms_and_stop_gradients(params, scale_invariant):
     scale = np.asarray(jnp.std(z, 0) + 1e-3) if scale_invariant else 1.0
     expect = np.mean(np.sum(((np.asarray(z) - np.asarray(zh)) / scale) ** 2, -1))
     np.testing.assert_allclose([float(l1), float(l2)], [expect, expect], rtol=1e-5)
-    g1 = jax.grad(lambda p: alignment_losses(NETS, p, th, hist, scale_invariant)[0])(params)
-    g2 = jax.grad(lambda p: alignment_losses(NETS, p, th, hist, scale_invariant)[1])(params)
+    g1 = jax.jit(jax.grad(lambda p: alignment_losses(NETS, p, th, hist, scale_invariant)[0]))(params)
+    g2 = jax.jit(jax.grad(lambda p: alignment_losses(NETS, p, th, hist, scale_invariant)[1]))(params)
     norm = lambda t: float(sum(jnp.sum(x**2) for x in jax.tree.leaves(t)))
     assert norm(g1["mu"]) > 0 and norm(g1["phi"]) == 0   # λ1 moves μ towards sg[ẑ]
     assert norm(g2["phi"]) > 0 and norm(g2["mu"]) == 0   # λ2 moves φ towards sg[z^θ]
@@ -107,7 +107,13 @@ TINY = dict(num_envs=64, unroll=16, epochs=2, minibatches=4, log_every=1, checkp
             warmup=0.3, ramp=0.3)
 
 
-def test_tiny_training_improves_tracking_and_resumes(tmp_path):
+@pytest.fixture(scope="module")
+def tiny_trainer():
+    """The trainer of the tiny learning test, shared with the loss-weight tests: one compile."""
+    return Trainer(TrainConfig(iterations=16, **TINY))
+
+
+def test_tiny_training_improves_tracking_and_resumes(tmp_path, tiny_trainer):
     """16 iterations × 1024 steps (seconds after compile) cut the body-rate tracking error of the
     untrained policy by 30 % or more (measured: 3.6 -> 2.2 rad/s with the interruption, 1.9
     without); an interrupted run resumes
@@ -122,10 +128,10 @@ def test_tiny_training_improves_tracking_and_resumes(tmp_path):
             raise Stop
 
     with pytest.raises(Stop):
-        train(cfg, tmp_path, resume=False, log=interrupt)
+        train(cfg, tmp_path, resume=False, log=interrupt, trainer=tiny_trainer)
     assert (tmp_path / "checkpoint.npz").exists() and not (tmp_path / "policy.npz").exists()
     lines = []
-    res = train(cfg, tmp_path, resume=True, log=lines.append)
+    res = train(cfg, tmp_path, resume=True, log=lines.append, trainer=tiny_trainer)
     assert any("resumed from" in m and "iteration 4" in m for m in lines), lines[:2]
     log = [json.loads(x) for x in (tmp_path / "train_log.jsonl").read_text().splitlines()]
     assert log[-1]["iteration"] == 16
@@ -176,13 +182,10 @@ def test_pretrained_policy_hovers_and_tracks_paper_vehicle():
         assert k in meta, k
 
 
-def test_collect_pairs_tiny(tmp_path):
-    from mjxsysid.cli import main
+def test_collect_pairs_tiny(collected_pairs, tmp_path):
+    """`mjxsysid collect --train 6 --test 2 --batch 4` (conftest.collected_pairs)."""
     from mjxsysid.policy.collect import load_pairs
-    if not PRETRAINED.exists():
-        pytest.skip("no shipped policy weights")
-    assert main(["collect", "--out", str(tmp_path), "--train", "6", "--test", "2", "--batch", "4"]) == 0
-    arrays, meta = load_pairs(tmp_path)
+    arrays, meta = load_pairs(collected_pairs)
     assert arrays["theta_train"].shape == (6, 19) and arrays["zhat_test"].shape == (2, 8)
     assert np.all(np.abs(arrays["zhat_train"]) <= 1) and not arrays["failed_train"].any()
     assert len(meta["weights_sha256"]) == 64 and meta["prior"] == "default"
@@ -213,18 +216,14 @@ def test_identifiable_projection_is_exact():
     assert float(Ay[P.OMEGA_MAX, 1]) > 0 > float(Ay[6, 1]) and abs(float(Ay[P.KT, 1])) < 1e-6
 
 
-@pytest.fixture(scope="module")
-def tiny_trainer():
-    return Trainer(TrainConfig(iterations=16, **TINY))  # the config of the tiny learning test: one compile (cached)
-
-
 @pytest.mark.parametrize("over", [{"rec_ident_coef": 1.0}, {"rec_ident_coef": 1.0, "rec_coef": 0.0},
                                   {"lambda1": 0.1}, {"var_target": 0.3}])
 def test_loss_weight_options_share_the_compile_and_train(tiny_trainer, over):
     """Every loss-weight trial option runs one tiny training step through the base config's
     compiled iteration: finite losses, shapes kept, and weights that differ from the base step."""
     t0 = tiny_trainer
-    ts, env = t0.init(jax.random.PRNGKey(0)), t0.reset(jax.random.PRNGKey(1), 0.0)
+    # p as train() passes it (a float32 array, not a Python float): the compiled reset is shared
+    ts, env = t0.init(jax.random.PRNGKey(0)), t0.reset(jax.random.PRNGKey(1), jnp.float32(0.0))
     base, _, base_stats = t0.iteration(ts, env)
     t = t0.reweighted(dataclasses.replace(t0.cfg, **over))
     assert t._iteration_jit is t0._iteration_jit and t.cfg != t0.cfg

@@ -209,17 +209,12 @@ def test_decode_cli_windows(tmp_path, capsys):
     assert s["_window"]["window"] == "instant" and "_instant" not in s
 
 
-def test_collect_latent_trajectories(tmp_path):
-    """collect records ẑ at 10 Hz over a 10 s flight of random manoeuvres (same sizes as
-    tests/test_policy.py::test_collect_pairs_tiny, so the flight compiles once)."""
-    import pathlib
-
+def test_collect_latent_trajectories(collected_pairs, tmp_path):
+    """collect records ẑ at 10 Hz over a 10 s flight of random manoeuvres (the collect run of
+    tests/test_policy.py::test_collect_pairs_tiny: conftest.collected_pairs)."""
     from mjxsysid.cli import main
     from mjxsysid.policy.collect import MANOEUVRES, load_pairs
-    if not (pathlib.Path(PRETRAINED) / "policy.npz").exists():
-        pytest.skip("no shipped policy weights")
-    assert main(["collect", "--out", str(tmp_path), "--train", "6", "--test", "2", "--batch", "4"]) == 0
-    arrays, meta = load_pairs(tmp_path)
+    arrays, meta = load_pairs(collected_pairs)
     times = arrays["traj_times"]
     assert times.shape == (99,)
     np.testing.assert_allclose(times, 0.2 + 0.1 * np.arange(99), atol=1e-5)   # 10 Hz from 0.2 s to 10 s

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from functools import partial
+from functools import lru_cache, partial
 from typing import Callable, Mapping
 
 import flax.linen as nn
@@ -184,6 +184,23 @@ def _per_sample_loss(cfg, net, params, theta, zs, mask, key):
     return jnp.mean((pred - u) ** 2, -1)
 
 
+@lru_cache(maxsize=8)
+def _epoch_for(cfg: SeqCFMConfig, n: int, L: int):
+    """(jitted epoch, optimizer) for ``cfg``, ``n`` flights of ``L`` latents, built once per
+    process (a resumed or repeated training re-uses the compiled epoch)."""
+    bs = min(cfg.batch, n)
+    spe = n // bs
+    net = SeqVelocityNet(cfg)
+    tx = _optimizer(cfg, cfg.epochs * spe)
+
+    def batch_loss(p, th, zb, k):
+        kw, kl = jax.random.split(k)
+        start, w = random_windows(kw, th.shape[0], L)
+        return jnp.mean(_per_sample_loss(cfg, net, p, th, zb, window_mask(start, w, L), kl))
+
+    return make_epoch(batch_loss, tx, n, spe, bs), tx
+
+
 def train_seq_cfm(theta_norm, zs, cfg: SeqCFMConfig, log: Callable | None = print, val: tuple | None = None,
                   checkpoint=None, checkpoint_every: int = 10):
     """Train the sequence CFM. theta_norm (n, d) normalised θ; zs (n, L, z_dim) the latent
@@ -201,15 +218,8 @@ def train_seq_cfm(theta_norm, zs, cfg: SeqCFMConfig, log: Callable | None = prin
     net = SeqVelocityNet(cfg)
     k_init, k_train = jax.random.split(jax.random.PRNGKey(cfg.seed))
     params = init_params(cfg, k_init)
-    tx = _optimizer(cfg, cfg.epochs * spe)
+    epoch, tx = _epoch_for(cfg, n, L)
     opt_state = tx.init(params)
-
-    def batch_loss(p, th, zb, k):
-        kw, kl = jax.random.split(k)
-        start, w = random_windows(kw, th.shape[0], L)
-        return jnp.mean(_per_sample_loss(cfg, net, p, th, zb, window_mask(start, w, L), kl))
-
-    epoch = make_epoch(batch_loss, tx, n, spe, bs)
 
     val_fn = None
     if val is not None:

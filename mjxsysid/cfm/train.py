@@ -19,6 +19,7 @@ meta holds the kind, the config and the normaliser, so a saved decoder is self-c
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from pathlib import Path
 from typing import Callable, Mapping, NamedTuple
@@ -264,6 +265,22 @@ def make_epoch(batch_loss, tx, n: int, spe: int, bs: int):
     return epoch
 
 
+@functools.lru_cache(maxsize=8)
+def _epoch_for(kind, cfg: CFMConfig, n: int):
+    """(jitted epoch, optimizer) of ``kind`` for ``cfg`` and ``n`` examples, built once per
+    process: a resumed or repeated training of the same config and data size re-uses the
+    compiled epoch."""
+    bs = min(cfg.batch, n)
+    spe = n // bs
+    net = make_network(cfg, kind)
+    tx = _optimizer(cfg, cfg.epochs * spe)
+
+    def batch_loss(p, th, zb, k):
+        return jnp.mean(_per_sample_loss(kind, cfg, net, p, th, zb, k))
+
+    return make_epoch(batch_loss, tx, n, spe, bs), tx
+
+
 def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None, checkpoint=None,
          checkpoint_every: int = 10):
 
@@ -278,13 +295,8 @@ def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None, checkpoint=
     k_init, k_train = jax.random.split(key)
     if params is None:
         params = init_params(cfg, kind, k_init)
-    tx = _optimizer(cfg, cfg.epochs * spe)
+    epoch, tx = _epoch_for(kind, cfg, n)
     opt_state = tx.init(params)
-
-    def batch_loss(p, th, zb, k):
-        return jnp.mean(_per_sample_loss(kind, cfg, net, p, th, zb, k))
-
-    epoch = make_epoch(batch_loss, tx, n, spe, bs)
 
     val_fn = None
     if val is not None:

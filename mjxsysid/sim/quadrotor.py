@@ -171,6 +171,7 @@ class Quadrotor:
 
     def __init__(self, config: SimConfig = SimConfig(), xml_path: str | Path = ASSET):
         self.config = config
+        self._key = (config, str(Path(xml_path).resolve()))
         mj = mujoco.MjModel.from_xml_path(str(xml_path))
         mj.opt.timestep = config.physics_dt
         if config.contacts:
@@ -188,6 +189,14 @@ class Quadrotor:
         self._gravity = jnp.asarray(mj.opt.gravity, jnp.float32)
         if abs(float(mj.opt.gravity[2]) + P.GRAVITY) > 1e-6:
             raise ValueError(f"{xml_path}: gravity must be (0, 0, -{P.GRAVITY})")
+
+    # Two simulators of the same config and model file are the same simulator: the compiled
+    # flights cached per simulator (rollout_batch, harness.fly_batch) are shared between them.
+    def __eq__(self, other):
+        return type(other) is type(self) and other._key == self._key
+
+    def __hash__(self):
+        return hash(self._key)
 
     # ------------------------------------------------------------------ model
     def model(self, theta: jax.Array) -> mjx.Model:
