@@ -23,6 +23,12 @@ CONTROLLERS = ("oracle", "nominal", "policy")
 REFERENCES = ("hover", "lemniscate", "minsnap")
 
 
+def minsnap_segments(duration: float) -> int:
+    """Segments of a random min-snap reference of ``duration`` s: one per second, 1 to 5 (five
+    2 m segments in 2 s ask for accelerations no vehicle of the prior has)."""
+    return int(min(5, max(1, round(float(duration)))))
+
+
 GROUND_CLEARANCE = 0.2
 """Random min-snap references of flights stay this high (m) or higher along their whole path
 (without it about 1 in 10 dipped below the ground and crashed every controller)."""
@@ -37,7 +43,8 @@ def make_reference(name: str, *, period: float = 10.0, duration: float | None = 
         return Lemniscate.make(period=period, size=size, center=start), period
     if name == "minsnap":
         d = 5.0 if duration is None else duration
-        return MinSnap.random(seed=seed, duration=d, start=start, min_height=GROUND_CLEARANCE), d
+        return MinSnap.random(seed=seed, n_segments=minsnap_segments(d), duration=d, start=start,
+                              min_height=GROUND_CLEARANCE), d
     raise ValueError(f"unknown reference {name!r}; choose from {REFERENCES}")
 
 
@@ -94,9 +101,11 @@ def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=1
     return flight, jax.vmap(metrics)(flight), duration
 
 
-def random_minsnaps(n: int, seed: int, duration: float = 5.0, n_segments: int = 5):
+def random_minsnaps(n: int, seed: int, duration: float = 5.0, n_segments: int | None = None):
     """n seeded random min-snap references stacked into one batch, each at least
-    :data:`GROUND_CLEARANCE` above the ground along its whole path."""
+    :data:`GROUND_CLEARANCE` above the ground along its whole path; ``n_segments`` defaults to
+    :func:`minsnap_segments` of the duration."""
+    n_segments = minsnap_segments(duration) if n_segments is None else n_segments
     return stack([MinSnap.random(seed=seed * 100_003 + i, n_segments=n_segments, duration=duration,
                                  start=(0.0, 0.0, 1.0), min_height=GROUND_CLEARANCE) for i in range(n)])
 

@@ -98,7 +98,7 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
     n, duration = {"quick": (3, 2.0), "cpu": (12, 5.0), "full": (100, 5.0)}[size]
     cfg = {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size]
     theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(seed), n))
-    refs = random_minsnaps(n, seed, duration, n_segments=2 if quick else 5)  # 5 segments in 2 s: unflyable
+    refs = random_minsnaps(n, seed, duration)   # one segment per second: 2 quick, 5 full
     sim = Quadrotor()
     steps = int(round(duration / sim.config.dt))
     _log(f"{name}: {n} {prior}-prior vehicles × {duration:g} s min-snap, methods {methods}")
