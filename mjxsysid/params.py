@@ -610,8 +610,8 @@ class Normalizer:
             if fm.shape != (n, n) or fo.shape != (n,) or not (np.all(np.isfinite(fm)) and np.all(np.isfinite(fo))):
                 raise ValueError(f"normalizer flow_map must be ({n}, {n}) and flow_offset ({n},) finite values, "
                                  f"got {fm.shape} and {fo.shape}")
-            if abs(np.linalg.det(fm)) < 1e-8:
-                raise ValueError("normalizer flow_map is singular")
+            if not np.linalg.cond(fm) < 1e8:
+                raise ValueError("normalizer flow_map is singular (condition number ≥ 1e8)")
             norm = norm.with_flow(fm, fo)
         return norm
 
@@ -639,13 +639,12 @@ def identifiable_log_matrix() -> np.ndarray:
     return m
 
 
-def identifiable_flow_map(norm: "Normalizer", prior="default", n: int = 100_000, seed: int = 0) -> "Normalizer":
+def identifiable_flow_map(norm: "Normalizer", theta) -> "Normalizer":
     """``norm`` with the flow coordinates of :func:`identifiable_log_matrix`, standardised over
-    ``n`` seeded prior samples: v = y @ A + c has zero mean and unit std per axis; the axes of
-    Ω_max and J are log thrust-to-weight and log angular authorities, the others the normalised
-    θ entries."""
-    th = get_prior(prior).sample(jax.random.PRNGKey(seed), n)
-    y = np.asarray(norm.normalize(th), np.float64)
+    the samples θ (n, 19) (e.g. those ``norm`` was fitted to): v = y @ A + c has zero mean and
+    unit std per axis; the axes of Ω_max and J are log thrust-to-weight and log angular
+    authorities, the others the normalised θ entries."""
+    y = np.asarray(norm.normalize(theta), np.float64)
     a0 = np.diag(np.asarray(norm.scale, np.float64)) @ identifiable_log_matrix()   # y -> u up to a constant
     v0 = y @ a0
     std = np.maximum(v0.std(0), 1e-6)
@@ -660,8 +659,9 @@ def prior_normalizer(prior: str | Prior = "default", n: int = 100_000, seed: int
     ("theta" | "identifiable", :data:`DECODER_COORDS`) sets its flow coordinates."""
     if coords not in DECODER_COORDS:
         raise ValueError(f"unknown decoder coordinates {coords!r}; choose from {DECODER_COORDS}")
-    norm = Normalizer.fit(get_prior(prior).sample(jax.random.PRNGKey(seed), n))
-    return identifiable_flow_map(norm, prior, n, seed) if coords == "identifiable" else norm
+    theta = get_prior(prior).sample(jax.random.PRNGKey(seed), n)
+    norm = Normalizer.fit(theta)
+    return identifiable_flow_map(norm, theta) if coords == "identifiable" else norm
 
 
 def as_batch(theta: Sequence | np.ndarray) -> np.ndarray:

@@ -132,6 +132,10 @@ def test_tuner_finds_known_good_gains(paper_policy):
         return rollout_cost(fl, cfg.weights)
 
     c_naive, c_base = float(cost_of(jnp.asarray(PRESETS["naive"]))), float(cost_of(jnp.asarray(PRESETS["baseline"])))
+    # TunerConfig.unroll (the experiments' unroll 5) flies the same rollout
+    unrolled = jax.jit(lambda g: rollout_cost(predict(sim, jnp.asarray(theta[0]), low0, g, jnp.float32(12.0), lem,
+                                                      one, motor, 0, hor, 5), cfg.weights))
+    assert float(unrolled(jnp.asarray(PRESETS["baseline"]))) == pytest.approx(c_base, rel=1e-4)
     tuner = OnlineTuner(sim, "oracle_cem", cfg)
     state = tuner.init(1)
     for u in range(4):

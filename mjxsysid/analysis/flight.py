@@ -101,12 +101,10 @@ def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=1
     return flight, jax.vmap(metrics)(flight), duration
 
 
-def random_minsnaps(n: int, seed: int, duration: float = 5.0, n_segments: int | None = None):
-    """n seeded random min-snap references stacked into one batch, each at least
-    :data:`GROUND_CLEARANCE` above the ground along its whole path; ``n_segments`` defaults to
-    :func:`minsnap_segments` of the duration."""
-    n_segments = minsnap_segments(duration) if n_segments is None else n_segments
-    return stack([MinSnap.random(seed=seed * 100_003 + i, n_segments=n_segments, duration=duration,
+def random_minsnaps(n: int, seed: int, duration: float = 5.0):
+    """n seeded random min-snap references stacked into one batch, :func:`minsnap_segments`
+    segments each, at least :data:`GROUND_CLEARANCE` above the ground along the whole path."""
+    return stack([MinSnap.random(seed=seed * 100_003 + i, n_segments=minsnap_segments(duration), duration=duration,
                                  start=(0.0, 0.0, 1.0), min_height=GROUND_CLEARANCE) for i in range(n)])
 
 

@@ -723,7 +723,7 @@ class MinSnap:
         """Lowest z (m) of the trajectory, sampled ``samples_per_segment`` times per segment."""
         n = len(np.asarray(self.durations))
         ts = np.linspace(0.0, float(self.duration), n * samples_per_segment + 1)
-        return float(np.min(np.asarray(jax.vmap(self.at)(jnp.asarray(ts, _DTYPE)).pos[:, 2])))
+        return float(_lowest_z(self, jnp.asarray(ts, _DTYPE)))
 
     def at(self, t) -> RefPoint:
         """Evaluate at scalar time ``t`` [s]."""
@@ -776,6 +776,12 @@ class Switch:
         a, b = self.first.at(t), self.second.at(t)
         use = jnp.asarray(self.use_second, bool)
         return jax.tree.map(lambda x, y: jnp.where(use, y, x), a, b)
+
+
+@jax.jit
+def _lowest_z(ref, ts):
+    """min over the (T,) times ``ts`` of ``ref``'s z (one compile per segment count and T)."""
+    return jnp.min(jax.vmap(ref.at)(ts).pos[:, 2])
 
 
 @struct.dataclass

@@ -22,7 +22,7 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.flight import broadcast, random_minsnaps
+from mjxsysid.analysis.flight import broadcast, minsnap_segments, random_minsnaps
 from mjxsysid.control.references import Delayed, Lemniscate, stack
 from mjxsysid.experiments.common import fmt_ms, markdown_table, write_results
 from mjxsysid.sim import Quadrotor, SimConfig
@@ -98,7 +98,7 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
     n, duration = {"quick": (3, 2.0), "cpu": (12, 5.0), "full": (100, 5.0)}[size]
     cfg = {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size]
     theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(seed), n))
-    refs = random_minsnaps(n, seed, duration)   # one segment per second: 2 quick, 5 full
+    refs = random_minsnaps(n, seed, duration)
     sim = Quadrotor()
     steps = int(round(duration / sim.config.dt))
     _log(f"{name}: {n} {prior}-prior vehicles × {duration:g} s min-snap, methods {methods}")
@@ -122,7 +122,7 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
                          for k, suffix0 in (("pos_rmse_m", ""), ("max_pos_err_m", "_max"), ("heading_rmse_deg", "_heading"))
                          for same, suffix in ((True, suffix0), (False, suffix0 + "_own_successes"))}
     config = {"quick": quick, "size": size, "prior": prior, "vehicles": n, "duration_s": duration, "methods": list(methods),
-              "tuner": dataclasses.asdict(cfg), "reference": f"random min-snap ({2 if quick else 5} segments, 2 m box, "
+              "tuner": dataclasses.asdict(cfg), "reference": f"random min-snap ({minsnap_segments(duration)} segments, 2 m box, "
                                                         "whole path ≥ 0.2 m above the ground)"}
     notes = (f"Mean ± std over vehicles. 'same {common['n']} vehicles': those no method lost (the fair "
              "comparison); 'own successes': each method over the flights it completed (favours a method "
@@ -131,8 +131,8 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
              "Ratios over the same vehicles: " + ", ".join(f"{k} {v:.2f}" for k, v in numbers["ratios"].items()
                                                           if v is not None and "own" not in k))
     return write_results(out, name, config=config, seeds={"vehicles": seed, "references": seed, "flight": seed},
-                         numbers=numbers, table_md=_prior_table(name, res, methods, common), t0=t0, policy=_ref(policy),
-                         decoders=_ref(policy).decoders_dir, notes=notes)
+                         numbers=numbers, table_md=_prior_table(name, res, methods, common), t0=t0, policy=policy,
+                         decoders=policy.decoders_dir, notes=notes)
 
 
 def _ref(policy):
@@ -221,7 +221,7 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
               "duration_s": duration,
               "methods": list(methods), "tuner": dataclasses.asdict(cfg), "sim": dataclasses.asdict(HARDWARE_SIM)}
     return write_results(out, "tune-lemniscate", config=config, seeds={"flight": seed}, numbers=numbers,
-                         table_md=table, t0=t0, policy=_ref(policy), decoders=_ref(policy).decoders_dir,
+                         table_md=table, t0=t0, policy=policy, decoders=policy.decoders_dir,
                          notes=("Our simulated 'hardware' is the paper vehicle with IMU noise, bias and latency. "
                                 f"Each flight: {lead:g} s hover at the start point (tuner running), then "
                                 f"{cycles} cycles, scored over the cycles."))
