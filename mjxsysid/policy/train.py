@@ -64,8 +64,12 @@ class TrainConfig:
     var_coef: float = 1.0
     var_target: float = 0.1
     rec_coef: float = 0.1
-    rec_ident_coef: float = 0.0    # weight of the identifiable-combination reconstruction (0: off)
-    ident_yaw_authority: bool = False  # its κ target replaced by the yaw authority k_τ Ω_max²/J_zz
+    # Reconstruction of the identifiable combinations (log T/W, log angular authorities, log τ_m
+    # and, with ident_yaw_authority, the yaw authority k_τ Ω_max²/J_zz in place of κ, which flight
+    # does not reveal): what makes the latent carry T/W (probe R² 0.44 -> 0.92, docs/runs/latent_trials.md).
+    # The policy shipped before 2026-11-24 had 0.0 / False (the latent trials' control).
+    rec_ident_coef: float = 1.0
+    ident_yaw_authority: bool = True
     bc_coef: float = 2.0
     bc_final: float = 0.05
     bc_decay: float = 0.7          # fraction of training over which β decays to bc_final
