@@ -146,8 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
                          "the pairs hold latent trajectories, else cfm,regression)")
     tc.add_argument("--seq-epochs", type=int, default=None, help="epochs of the sequence decoder (default: --epochs)")
     tc.add_argument("--coords", choices=("theta", "identifiable"), default=None,
-                    help="coordinates the decoders learn in: normalised θ (default) or a log-linear "
-                         "reparametrisation with log thrust-to-weight and log angular authorities as axes")
+                    help="coordinates the decoders learn in: identifiable (default: a log-linear reparametrisation "
+                         "with log thrust-to-weight and log angular authorities as axes) or theta (normalised θ)")
     _add_policy(tc, "check that the pairs come from this policy")
     ed = sub.add_parser("evaluate-decoder", help="calibration of the decoders on held-out pairs")
     ed.add_argument("--decoders", type=Path, required=True,

@@ -9,8 +9,8 @@
 # OUT: output folder (OUT/data/pairs.npz, OUT/dec/cfm_seq.npz, OUT/dec/decoder_eval.json).
 # POLICY_ARGS: e.g. --policy xadap --weights DIR (default: the shipped mjxsysid policy).
 # Sizes from the environment: TRAIN (20000), TEST (2000), FLIGHT_S (10), BATCH (5500),
-# EPOCHS (250, of the sequence decoder), CASES (1000), SAMPLES (200), WIDTH (512), COORDS (theta;
-# or identifiable: the decoder's flow coordinates),
+# EPOCHS (100, of the sequence decoder), CASES (1000), SAMPLES (200), WIDTH (512), COORDS (the
+# decoder's flow coordinates: CFMConfig's default identifiable, or theta),
 # PAPER (1: also fly the paper vehicle on a 10 s lemniscate for its posterior; 0: skip).
 # The single-latent CFM shipped for the policy (CFM_DIR, default mjxsysid/pretrained) is scored
 # on the same latents for comparison. Ship with
@@ -23,7 +23,7 @@ mkdir -p "$OUT/dec"
 t() { local s=$SECONDS; "$@"; echo "[$(( SECONDS - s )) s] $*" >&2; }
 t $M collect --out "$OUT/data" --train "${TRAIN:-20000}" --test "${TEST:-2000}" --seconds "${FLIGHT_S:-10}" \
   --batch "${BATCH:-5500}" "$@"
-t $M train-cfm --pairs "$OUT/data" --out "$OUT/dec" --kinds cfm_seq --seq-epochs "${EPOCHS:-250}" \
+t $M train-cfm --pairs "$OUT/data" --out "$OUT/dec" --kinds cfm_seq --seq-epochs "${EPOCHS:-100}" \
   --width "${WIDTH:-512}" ${COORDS:+--coords "$COORDS"} "$@"
 if [[ -f "${CFM_DIR:-mjxsysid/pretrained}/cfm.npz" ]]; then
   cp "${CFM_DIR:-mjxsysid/pretrained}/cfm.npz" "$OUT/dec/cfm.npz"   # single-latent reference only

@@ -53,7 +53,10 @@ class CFMConfig:
     theta_dim: int = 19
     z_dim: int = 8
     seed: int = 0
-    coords: str = "theta"     # the flow's coordinates: params.DECODER_COORDS ("theta" | "identifiable")
+    # The flow's coordinates (params.DECODER_COORDS): "identifiable" puts log thrust-to-weight and the
+    # log angular authorities on axes of the flow (calibrated T/W bands half as wide as in "theta",
+    # normalised θ, on a latent that carries T/W: docs/runs/latent_trials.md). Samples are θ either way.
+    coords: str = "identifiable"
 
     def __post_init__(self):
         for k in ("epochs", "batch", "width", "blocks", "time_dim", "theta_dim", "z_dim"):
