@@ -63,7 +63,7 @@ def _add_policy(p, what="the frozen latent policy"):
                         "folder of the released files or a converted .npz)")
 
 
-PRIOR_CHOICES = ("default", "slow_actuators", "xadap")
+PRIOR_CHOICES = ("default", "slow_actuators", "wide_actuators", "xadap")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -123,7 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--train", type=int, default=20_000, help="training pairs (default 20000)")
     c.add_argument("--test", type=int, default=2_000, help="held-out pairs (default 2000)")
     c.add_argument("--prior", choices=PRIOR_CHOICES, default=None,
-                   help="vehicle prior (default: the policy's own: default for mjxsysid, xadap for xadap)")
+                   help="vehicle prior (default: the one its shipped decoders are trained on: wide_actuators "
+                        "for mjxsysid (its training prior with τ_m up to 0.10 s), xadap for xadap)")
     c.add_argument("--batch", type=int, default=2_000, help="vehicles per batched flight")
     c.add_argument("--seed", type=int, default=0)
     c.add_argument("--seconds", type=_positive, default=10.0,

@@ -376,6 +376,10 @@ class Prior:
 
 DEFAULT_PRIOR = Prior()
 SLOW_ACTUATOR_PRIOR = Prior(name="slow_actuators", motor_time_constant=(0.05, 0.10))
+# The default vehicles with motor time constants over the default and the slow-actuator range
+# together: the prior mjxsysid's decoders are trained on, so that slow motors can be decoded
+# (the predictive tuner's slow-actuator experiment, paper §V-A) while the policy is not retrained.
+WIDE_ACTUATOR_PRIOR = Prior(name="wide_actuators", motor_time_constant=(0.02, 0.10))
 
 
 # ----------------------------------------------------------------------------------------
@@ -446,7 +450,8 @@ def xadap_training_prior(**overrides) -> XAdapPrior:
 
 
 XADAP_PRIOR = XAdapPrior()
-PRIORS = {"default": DEFAULT_PRIOR, "slow_actuators": SLOW_ACTUATOR_PRIOR, "xadap": XADAP_PRIOR}
+PRIORS = {"default": DEFAULT_PRIOR, "slow_actuators": SLOW_ACTUATOR_PRIOR, "wide_actuators": WIDE_ACTUATOR_PRIOR,
+          "xadap": XADAP_PRIOR}
 
 
 def get_prior(name: str | Prior) -> Prior:

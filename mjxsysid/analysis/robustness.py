@@ -58,6 +58,8 @@ class RobustnessConfig:
     id_period, id_size: its period (s) and size (m). scale_forces_by_mass: multiply forces and
     σ by m / m_paper (the same accelerations on every vehicle; the paper vehicle's factor is 1).
     sample_steps: Euler steps of the CFM sampler. chunk: rollouts per compiled batch.
+    window: 'flight' (every ẑ of the identification flight at ``id_rate`` Hz, decoded by the
+    sequence decoder: the flight-level posterior) or 'instant' (ẑ at its end, single-latent CFM).
     """
     duration: float = 4.0
     onset: float = 0.5
@@ -74,6 +76,8 @@ class RobustnessConfig:
     scale_forces_by_mass: bool = True
     sample_steps: int = 50
     chunk: int = 16384
+    window: str = "flight"
+    id_rate: float = 10.0
 
     def __post_init__(self):
         for f in ("n_decoded", "n_perturbed", "mc_rollouts", "mc_models", "chunk", "sample_steps"):
@@ -83,6 +87,10 @@ class RobustnessConfig:
             raise ValueError(f"RobustnessConfig.onset must be in [0, duration={self.duration}) s, got {self.onset}")
         if not 0 < self.perturbation < 1:
             raise ValueError(f"RobustnessConfig.perturbation must be in (0, 1), got {self.perturbation}")
+        if self.window not in ("flight", "instant"):
+            raise ValueError(f"RobustnessConfig.window must be 'flight' or 'instant', got {self.window!r}")
+        if not self.id_rate > 0:
+            raise ValueError(f"RobustnessConfig.id_rate must be > 0 Hz, got {self.id_rate}")
         if self.id_reference not in ("lemniscate", "hover"):
             raise ValueError(f"RobustnessConfig.id_reference must be 'lemniscate' or 'hover', got {self.id_reference!r}")
         if any(len(f) != 3 for f in self.forces):
@@ -111,6 +119,11 @@ def error_traces(flight: Flight) -> ErrorTrace:
     return ErrorTrace(jnp.linalg.norm(e[:, :2], axis=-1), jnp.abs(e[:, 2]), failure_mask(flight)[-1], lat)
 
 
+def latent_trajectory(flight: Flight) -> jax.Array:
+    """Reduction of one flight -> its latent ẑ after every step (T, 8) (identification flights)."""
+    return flight.latent
+
+
 def record_times(steps: int, dt: float) -> np.ndarray:
     """Times (T',) s of the recorded error samples (the time after each kept step)."""
     return (np.arange(steps)[RECORD_EVERY - 1::RECORD_EVERY] + 1) * dt
@@ -129,7 +142,7 @@ def stack_refs(refs, n: int | None = None):
 
 
 def fly_traces(policy, theta, refs, dist, keys, steps: int, *, chunk: int = 16384, sim=None,
-               gains="baseline", log=None, pad_to: int | None = None) -> ErrorTrace:
+               gains="baseline", log=None, pad_to: int | None = None, reduce=error_traces) -> ErrorTrace:
     """Fly N rollouts with a frozen latent policy (a :class:`~mjxsysid.policy.interface.PolicyRef`
     or name) under the ``gains`` cascade and keep their error traces.
 
@@ -137,7 +150,8 @@ def fly_traces(policy, theta, refs, dist, keys, steps: int, *, chunk: int = 1638
     (numpy); keys (N, 2) PRNG keys (rows with equal keys see equal disturbance realisations);
     flown in chunks of ``min(chunk, N)`` (the last one padded), so one compile serves all;
     ``pad_to``: use exactly this chunk size instead (to share a compile with another call).
-    Returns :class:`ErrorTrace` of numpy arrays with leading axis N.
+    Returns :class:`ErrorTrace` of numpy arrays with leading axis N (or what another module-level
+    ``reduce`` of a Flight returns, e.g. :func:`latent_trajectory`).
     """
     from mjxsysid.policy.interface import resolve_policy
     theta = np.asarray(theta, np.float32)
@@ -157,7 +171,7 @@ def fly_traces(policy, theta, refs, dist, keys, steps: int, *, chunk: int = 1638
         idx = np.minimum(np.arange(start, start + b), n - 1)
         take = lambda tree: jax.tree.map(lambda a: jnp.asarray(np.asarray(a)[idx]), tree)
         tr = fly_batch(sim, theta[idx], low, high, take(refs), take(dist), jnp.asarray(keys[idx]), steps,
-                       reduce=error_traces)
+                       reduce=reduce)
         valid = min(b, n - start)
         outs.append(jax.tree.map(lambda a: np.asarray(a)[:valid], tr))
         if log:
@@ -188,7 +202,9 @@ def dist_rows(force, sigma, onset: float, n: int) -> Disturbance:
 def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *, sim=None, log=print) -> dict:
     """Run the whole protocol on true vehicles θ* (V, 19).
 
-    decoder: a :class:`~mjxsysid.cfm.sample.Decoder` (the CFM of the policy's latents). Returns
+    decoder: the policy's sequence decoder (:class:`~mjxsysid.cfm.sequence.SequenceDecoder`) for
+    ``cfg.window='flight'``, its single-latent CFM (:class:`~mjxsysid.cfm.sample.Decoder`) for
+    'instant'. Returns
     a dict: 'times' (T',) s; 'zhat' (V, 8); 'id_failed' (V,); 'scale' (V,); 'step': list over
     vehicles of lists over forces of {'true' (2, T'), 'decoded' (2, S, T'), 'pm20' (2, S, T'),
     'failed': {...}} (axis 0: lateral, vertical); 'mc': list over vehicles of lists over σ of
@@ -215,12 +231,23 @@ def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *,
     idt = fly_traces(policy, theta_true, id_ref, dist_rows(np.zeros((v_n, 3)), np.zeros((v_n, 3)), cfg.onset, v_n),
                      id_keys, steps, pad_to=batch, sim=sim)
     zhat = idt.latent
+    cond = zhat                                                     # (V, 8): the last ẑ
+    if cfg.window == "flight":                                      # (V, K, 8): ẑ at id_rate Hz
+        from mjxsysid.analysis.decode import decode_indices
+        from mjxsysid.cfm.sequence import SequenceDecoder
+        if not isinstance(decoder, SequenceDecoder):
+            raise TypeError("RobustnessConfig.window='flight' needs the sequence decoder (cfm_seq.npz); "
+                            f"got {type(decoder).__name__} (use window='instant' for the single-latent CFM)")
+        traj = fly_traces(policy, theta_true, id_ref, dist_rows(np.zeros((v_n, 3)), np.zeros((v_n, 3)), cfg.onset, v_n),
+                          id_keys, steps, sim=sim, reduce=latent_trajectory)    # (V, T, 8), same flights
+        idx = decode_indices((np.arange(steps) + 1) * dt, cfg.id_rate)[-decoder.max_len:]
+        cond = np.asarray(traj)[:, idx]
 
     # 2. decoded models (fresh samples for every Monte-Carlo seed) and ±p perturbations
     n_s = cfg.n_decoded + n_mc
     n_p = cfg.n_perturbed + n_mc
-    log(f"decoding {n_s} models per vehicle")
-    dec = P.project_valid(np.asarray(decoder.sample_theta(zhat, k_dec, n_s, steps=cfg.sample_steps)))[0]
+    log(f"decoding {n_s} models per vehicle" + (f" (flight-level, {cond.shape[1]} latents)" if cond.ndim == 3 else ""))
+    dec = P.project_valid(np.asarray(decoder.sample_theta(cond, k_dec, n_s, steps=cfg.sample_steps)))[0]
     dec = dec.reshape(v_n, n_s, P.N_PARAMS)
     pert = perturbed(theta_true, k_pert, n_p, cfg.perturbation)
 

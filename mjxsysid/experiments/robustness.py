@@ -52,16 +52,19 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     """Run the robustness experiment into ``out``; returns the results dict (see
     :func:`~mjxsysid.experiments.common.write_results`). ``cfg`` / ``n_prior`` override the
     quick / full presets; ``decoders``: folder with cfm.npz (default: the policy's)."""
-    from mjxsysid.analysis.decode import load_decoders
+    from mjxsysid.analysis.decode import load_decoders, load_sequence_decoder
     from mjxsysid.policy.interface import resolve_policy
     t0 = time.time()
     log = (lambda m: print(m, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     ref = resolve_policy(policy or "mjxsysid")
-    cfm, _ = load_decoders(decoders, ref, warn=log)
-    dec_dir = Path(decoders) if decoders is not None else ref.decoders_dir
     cfg = cfg or (QUICK if quick else FULL)
+    decoder = load_sequence_decoder(decoders, ref, echo=log) if cfg.window == "flight" else None
+    if decoder is None:    # window 'instant', or no sequence decoder shipped (then said so)
+        decoder, _ = load_decoders(decoders, ref, warn=log)
+        cfg = dataclasses.replace(cfg, window="instant")
+    dec_dir = Path(decoders) if decoders is not None else ref.decoders_dir
     n_prior = N_PRIOR["quick" if quick else "full"] if n_prior is None else int(n_prior)
     if n_prior < 0:
         raise ValueError(f"n_prior must be >= 0, got {n_prior}")
@@ -69,7 +72,7 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     theta = P.PAPER_HARDWARE[None].astype(np.float32)
     if n_prior:
         theta = np.concatenate([theta, np.asarray(P.get_prior(ref.prior).sample(jax.random.fold_in(key, 11), n_prior))])
-    res = robustness_study(theta, cfm, ref, cfg, jax.random.fold_in(key, 12), log=log)
+    res = robustness_study(theta, decoder, ref, cfg, jax.random.fold_in(key, 12), log=log)
     times, onset = res["times"], res["onset"]
     steps = [[step_stats(g, times, onset) for g in per_v] for per_v in res["step"]]
     mcs = [[mc_stats(g, times, onset) for g in per_v] for per_v in res["mc"]]
@@ -96,8 +99,9 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
 
 NOTES = """
 Protocol: the true vehicle flies an identification flight (a 10 s-period lemniscate, 1 × 1 × 0.3 m, like
-the decoder's training flights; as long as the test rollouts); ẑ at its end is decoded into models
-(CFM, projected to valid θ). Test rollouts start at rest in hover at (0, 0, 1) m under the baseline cascade
+the decoder's training flights; as long as the test rollouts); its latents at 10 Hz are decoded into models
+by the sequence decoder (the flight-level posterior; config window 'instant': the single-latent CFM on ẑ at
+its end), projected to valid θ. Test rollouts start at rest in hover at (0, 0, 1) m under the baseline cascade
 and the frozen policy, all with the same key per step test / per noise seed (identical initial condition
 and disturbance realisation); errors are scored from the onset (0.5 s) on, at 100 Hz. Prior vehicles get
 forces and σ scaled by m / m_paper (the same accelerations). "inside": fraction of time the true error lies

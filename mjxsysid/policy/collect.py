@@ -139,8 +139,9 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
             log=print) -> Path:
     """Write ``out/pairs.npz``: theta_train (n_train, 19), zhat_train (n_train, 8), failed_train,
     and the same for the held-out test split, plus metadata (policy weights hash, prior, seed).
-    ``prior`` defaults to the policy's own training prior ('default' for mjxsysid's policy,
-    'xadap' for the released one).
+    ``prior`` defaults to the prior the policy's shipped decoders are trained on
+    (:attr:`~mjxsysid.policy.interface.PolicyRef.decoder_prior`: 'wide_actuators' for
+    mjxsysid's policy, 'xadap' for the released one).
 
     ``seconds`` None: the single-latent pairs (a ``steps``-step lemniscate, ẑ at its end).
     ``seconds`` S: S-second flights of random ``manoeuvres`` with the latent recorded at 10 Hz:
@@ -154,7 +155,7 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
         if any(m not in MANOEUVRES for m in manoeuvres) or not manoeuvres:
             raise ValueError(f"manoeuvres must be a non-empty subset of {MANOEUVRES}, got {manoeuvres}")
     ref = resolve_policy(policy, weights)
-    prior = prior or ref.prior
+    prior = prior or ref.decoder_prior
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     from mjxsysid.progress import tee

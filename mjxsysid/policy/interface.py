@@ -95,6 +95,13 @@ class PolicyRef:
         """Name of the prior this policy was trained on (its in-distribution vehicles)."""
         return "default" if self.kind == "mjxsysid" else "xadap"
 
+    @property
+    def decoder_prior(self) -> str:
+        """Name of the prior its shipped decoders are trained on (``collect``'s default): for
+        mjxsysid's policy the default vehicles with τ_m over the default and the slow-actuator
+        range ('wide_actuators', so slow motors can be decoded); for Xadap its own prior."""
+        return "wide_actuators" if self.kind == "mjxsysid" else "xadap"
+
     def sha256(self) -> str:
         """Digest of the weights. Xadap: of the converted arrays, so the released folder and a
         converted .npz of it agree; mjxsysid: of the file."""
