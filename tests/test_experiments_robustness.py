@@ -225,6 +225,23 @@ def test_config_validation():
         RobustnessConfig(duration=1.0, onset=2.0)
     with pytest.raises(ValueError, match="event"):
         PayloadConfig(duration=3.0, event=2.9)
+    with pytest.raises(ValueError, match="window"):
+        RobustnessConfig(window="3s")
+    with pytest.raises(ValueError, match="id_rate"):
+        RobustnessConfig(id_rate=0.0)
+
+
+def test_flight_window_needs_the_sequence_decoder():
+    """window='flight' with a single-latent decoder is a named error before any flight."""
+    from mjxsysid.analysis.robustness import RobustnessConfig, robustness_study
+    from mjxsysid.cfm.sample import Decoder
+
+    class Single(Decoder):  # any single-latent decoder: never sampled
+        def __init__(self):
+            pass
+    with pytest.raises(TypeError, match="sequence decoder"):
+        robustness_study(P.PAPER_HARDWARE[None], Single(), "mjxsysid", RobustnessConfig(window="flight"),
+                         jax.random.PRNGKey(0), log=lambda m: None)
 
 
 # ----------------------------------------------------------------------------- notebook

@@ -97,6 +97,11 @@ def test_prior_is_seeded_and_slow_actuator_range(prior_samples):
     assert tm.min() >= 0.05 and tm.max() <= 0.10
     tm = prior_samples["default"][:, P.TAU_M]
     assert tm.min() >= 0.02 and tm.max() <= 0.04
+    # the decoders' prior: the default vehicles with τ_m over both ranges, everything else equal
+    tm = prior_samples["wide_actuators"][:, P.TAU_M]
+    assert tm.min() < 0.025 and tm.max() > 0.095 and tm.min() >= 0.02 and tm.max() <= 0.10
+    rest = [j for j in range(P.N_PARAMS) if j != P.TAU_M]
+    np.testing.assert_array_equal(prior_samples["wide_actuators"][:, rest], prior_samples["default"][:, rest])
 
 
 def test_prior_covers_released_policy_range(prior_samples):

@@ -211,6 +211,11 @@ def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *,
     {'true' (2, n, T'), 'decoded' (2, n, k, T'), 'pm20' (2, n, k, T'), 'failed': {...}}.
     """
     theta_true = P.validate_theta(np.asarray(theta_true, np.float32).reshape(-1, P.N_PARAMS), what="true vehicles")
+    from mjxsysid.cfm.sequence import SequenceDecoder
+    if (cfg.window == "flight") != isinstance(decoder, SequenceDecoder):
+        raise TypeError(f"RobustnessConfig.window={cfg.window!r} needs "
+                        + ("the sequence decoder (cfm_seq.npz)" if cfg.window == "flight" else "a single-latent CFM")
+                        + f"; got {type(decoder).__name__}")
     v_n = len(theta_true)
     sim = sim or Quadrotor()
     dt = sim.config.dt
@@ -234,10 +239,6 @@ def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *,
     cond = zhat                                                     # (V, 8): the last ẑ
     if cfg.window == "flight":                                      # (V, K, 8): ẑ at id_rate Hz
         from mjxsysid.analysis.decode import decode_indices
-        from mjxsysid.cfm.sequence import SequenceDecoder
-        if not isinstance(decoder, SequenceDecoder):
-            raise TypeError("RobustnessConfig.window='flight' needs the sequence decoder (cfm_seq.npz); "
-                            f"got {type(decoder).__name__} (use window='instant' for the single-latent CFM)")
         traj = fly_traces(policy, theta_true, id_ref, dist_rows(np.zeros((v_n, 3)), np.zeros((v_n, 3)), cfg.onset, v_n),
                           id_keys, steps, sim=sim, reduce=latent_trajectory)    # (V, T, 8), same flights
         idx = decode_indices((np.arange(steps) + 1) * dt, cfg.id_rate)[-decoder.max_len:]
