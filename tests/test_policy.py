@@ -188,7 +188,7 @@ def test_collect_pairs_tiny(collected_pairs, tmp_path):
     arrays, meta = load_pairs(collected_pairs)
     assert arrays["theta_train"].shape == (6, 19) and arrays["zhat_test"].shape == (2, 8)
     assert np.all(np.abs(arrays["zhat_train"]) <= 1) and not arrays["failed_train"].any()
-    assert len(meta["weights_sha256"]) == 64 and meta["prior"] == "default"
+    assert len(meta["weights_sha256"]) == 64 and meta["prior"] == "wide_actuators"  # the decoders' prior
     with pytest.raises(FileNotFoundError):
         load_pairs(tmp_path / "nope")
 
