@@ -232,7 +232,8 @@ def test_config_validation():
 
 
 def test_flight_window_needs_the_sequence_decoder():
-    """window='flight' with a single-latent decoder is a named error before any flight."""
+    """window='flight' with a single-latent decoder is a named error before any flight (robustness
+    study and closed-loop fidelity)."""
     from mjxsysid.analysis.robustness import RobustnessConfig, robustness_study
     from mjxsysid.cfm.sample import Decoder
 
@@ -242,6 +243,11 @@ def test_flight_window_needs_the_sequence_decoder():
     with pytest.raises(TypeError, match="sequence decoder"):
         robustness_study(P.PAPER_HARDWARE[None], Single(), "mjxsysid", RobustnessConfig(window="flight"),
                          jax.random.PRNGKey(0), log=lambda m: None)
+    from mjxsysid.analysis.fidelity import closed_loop_fidelity
+    with pytest.raises(TypeError, match="sequence decoder"):
+        closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="flight")
+    with pytest.raises(ValueError, match="window"):
+        closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="3s")
 
 
 # ----------------------------------------------------------------------------- notebook

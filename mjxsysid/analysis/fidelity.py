@@ -80,6 +80,21 @@ def energy_distance(u, v) -> float:
     return float(np.sqrt(max(d2, 0.0)))
 
 
+WINDOWS = ("flight", "instant")
+
+
+def check_decoder_window(decoder, window: str, what: str = "window") -> None:
+    """A named error unless ``decoder`` fits ``window``: the sequence decoder
+    (:class:`~mjxsysid.cfm.sequence.SequenceDecoder`, ``cfm_seq.npz``) for 'flight', a
+    single-latent decoder (``cfm.npz``) for 'instant'."""
+    from mjxsysid.cfm.sequence import SequenceDecoder
+    if window not in WINDOWS:
+        raise ValueError(f"{what} must be one of {WINDOWS}; got {window!r}")
+    if (window == "flight") != isinstance(decoder, SequenceDecoder):
+        need = "the sequence decoder (cfm_seq.npz)" if window == "flight" else "a single-latent decoder (cfm.npz)"
+        raise TypeError(f"{what}={window!r} needs {need}; got {type(decoder).__name__}")
+
+
 def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decoder=None,
                          window: str = "flight", rate: float = 10.0, **flight_kw) -> dict:
     """For each true vehicle (n, 19): decoded-model and ±20 % envelopes of the position error.
@@ -92,8 +107,6 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     realisation. Returns per-vehicle and mean ``inside_*`` (fraction of time the true error lies
     in the 5–95 % envelope) and ``width_*_m`` (mean envelope width)."""
     from mjxsysid.analysis.decode import PRETRAINED_DIR, decode_indices
-    if window not in ("flight", "instant"):
-        raise ValueError(f"window must be 'flight' or 'instant'; got {window!r}")
     if int(n_models) < 2:
         raise ValueError(f"n_models must be >= 2 for an envelope; got {n_models}")
     if decoder is None:
@@ -102,6 +115,7 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
             decoder = SequenceDecoder.load(PRETRAINED_DIR / "cfm_seq.npz")
         else:
             decoder = Decoder.load(PRETRAINED_DIR / "cfm.npz")
+    check_decoder_window(decoder, window)
     theta_true = np.asarray(theta_true, np.float32).reshape(-1, P.N_PARAMS)
     n = len(theta_true)
     key = jax.random.PRNGKey(seed)

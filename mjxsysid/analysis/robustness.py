@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.fidelity import energy_distance, envelope, envelope_stats
+from mjxsysid.analysis.fidelity import WINDOWS, check_decoder_window, energy_distance, envelope, envelope_stats
 from mjxsysid.analysis.flight import broadcast
 from mjxsysid.analysis.harness import Disturbance, Flight, failure_mask, fly_batch
 from mjxsysid.control.high_level import Cascade
@@ -87,8 +87,8 @@ class RobustnessConfig:
             raise ValueError(f"RobustnessConfig.onset must be in [0, duration={self.duration}) s, got {self.onset}")
         if not 0 < self.perturbation < 1:
             raise ValueError(f"RobustnessConfig.perturbation must be in (0, 1), got {self.perturbation}")
-        if self.window not in ("flight", "instant"):
-            raise ValueError(f"RobustnessConfig.window must be 'flight' or 'instant', got {self.window!r}")
+        if self.window not in WINDOWS:
+            raise ValueError(f"RobustnessConfig.window must be one of {WINDOWS}, got {self.window!r}")
         if not self.id_rate > 0:
             raise ValueError(f"RobustnessConfig.id_rate must be > 0 Hz, got {self.id_rate}")
         if self.id_reference not in ("lemniscate", "hover"):
@@ -119,9 +119,10 @@ def error_traces(flight: Flight) -> ErrorTrace:
     return ErrorTrace(jnp.linalg.norm(e[:, :2], axis=-1), jnp.abs(e[:, 2]), failure_mask(flight)[-1], lat)
 
 
-def latent_trajectory(flight: Flight) -> jax.Array:
-    """Reduction of one flight -> its latent ẑ after every step (T, 8) (identification flights)."""
-    return flight.latent
+def id_traces(flight: Flight) -> tuple[ErrorTrace, jax.Array]:
+    """Reduction of an identification flight -> (:func:`error_traces`, its latent ẑ after every
+    step (T, 8)), for flight-level decoding."""
+    return error_traces(flight), flight.latent
 
 
 def record_times(steps: int, dt: float) -> np.ndarray:
@@ -151,7 +152,7 @@ def fly_traces(policy, theta, refs, dist, keys, steps: int, *, chunk: int = 1638
     flown in chunks of ``min(chunk, N)`` (the last one padded), so one compile serves all;
     ``pad_to``: use exactly this chunk size instead (to share a compile with another call).
     Returns :class:`ErrorTrace` of numpy arrays with leading axis N (or what another module-level
-    ``reduce`` of a Flight returns, e.g. :func:`latent_trajectory`).
+    ``reduce`` of a Flight returns, e.g. :func:`id_traces`).
     """
     from mjxsysid.policy.interface import resolve_policy
     theta = np.asarray(theta, np.float32)
@@ -211,11 +212,7 @@ def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *,
     {'true' (2, n, T'), 'decoded' (2, n, k, T'), 'pm20' (2, n, k, T'), 'failed': {...}}.
     """
     theta_true = P.validate_theta(np.asarray(theta_true, np.float32).reshape(-1, P.N_PARAMS), what="true vehicles")
-    from mjxsysid.cfm.sequence import SequenceDecoder
-    if (cfg.window == "flight") != isinstance(decoder, SequenceDecoder):
-        raise TypeError(f"RobustnessConfig.window={cfg.window!r} needs "
-                        + ("the sequence decoder (cfm_seq.npz)" if cfg.window == "flight" else "a single-latent CFM")
-                        + f"; got {type(decoder).__name__}")
+    check_decoder_window(decoder, cfg.window, "RobustnessConfig.window")
     v_n = len(theta_true)
     sim = sim or Quadrotor()
     dt = sim.config.dt
@@ -233,16 +230,16 @@ def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *,
     id_ref = stack_refs([Lemniscate.make(period=cfg.id_period, size=size)], v_n)
     id_keys = np.asarray(jax.random.split(k_id, v_n))
     log(f"identification flights ({v_n} vehicles, {cfg.id_reference}, {cfg.duration:g} s)")
-    idt = fly_traces(policy, theta_true, id_ref, dist_rows(np.zeros((v_n, 3)), np.zeros((v_n, 3)), cfg.onset, v_n),
-                     id_keys, steps, pad_to=batch, sim=sim)
-    zhat = idt.latent
-    cond = zhat                                                     # (V, 8): the last ẑ
-    if cfg.window == "flight":                                      # (V, K, 8): ẑ at id_rate Hz
+    id_dist = dist_rows(np.zeros((v_n, 3)), np.zeros((v_n, 3)), cfg.onset, v_n)
+    if cfg.window == "flight":    # keep every ẑ: their own compile, V rollouts
         from mjxsysid.analysis.decode import decode_indices
-        traj = fly_traces(policy, theta_true, id_ref, dist_rows(np.zeros((v_n, 3)), np.zeros((v_n, 3)), cfg.onset, v_n),
-                          id_keys, steps, sim=sim, reduce=latent_trajectory)    # (V, T, 8), same flights
+        idt, traj = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, sim=sim, reduce=id_traces)
         idx = decode_indices((np.arange(steps) + 1) * dt, cfg.id_rate)[-decoder.max_len:]
-        cond = np.asarray(traj)[:, idx]
+        cond = traj[:, idx]                                         # (V, K, 8): ẑ at id_rate Hz
+    else:                         # the last ẑ only: shares the test rollouts' compile
+        idt = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, pad_to=batch, sim=sim)
+        cond = idt.latent                                           # (V, 8)
+    zhat = idt.latent
 
     # 2. decoded models (fresh samples for every Monte-Carlo seed) and ±p perturbations
     n_s = cfg.n_decoded + n_mc
