@@ -22,7 +22,7 @@ NETS = N.Networks()
 
 @pytest.fixture(scope="module")
 def params():
-    return jax.jit(NETS.init)(jax.random.PRNGKey(0))  # one compile, not one per eager op
+    return NETS.init(jax.random.PRNGKey(0))  # compiled (the Trainers' init shares it)
 
 
 def test_network_shapes_and_jit(params):
