@@ -35,6 +35,9 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "xdist_group(name): run in the xdist worker of that group")
 
 
+# tryfirst: xdist's worker adds the group to each test's id in its own collection hook, which
+# must see these markers (without it, every test was scheduled on its own and groups split).
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     rank = {g: i for i, g in enumerate(_QUEUE)}
     for item in items:

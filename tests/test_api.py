@@ -101,19 +101,19 @@ def test_fly_and_decode_api_match_the_cli(tmp_path, capsys):
     from mjxsysid import params as P
     from mjxsysid.cli import main
 
-    # The 1.5 s lemniscate flight of notebook 04: its kernel loads this compile from the cache.
+    # The 2 s lemniscate flight of tests/test_decode.py and notebooks 01 / 04: one compile.
     res = mjxsysid.fly(mjxsysid.paper_vehicle(), controller="policy", reference="lemniscate", period=10.0,
-                       duration=1.5)
-    assert res.flight.latent.shape[:2] == (1, 750) and not res.metrics["failed"]
+                       duration=2.0)
+    assert res.flight.latent.shape[:2] == (1, 1000) and not res.metrics["failed"]
     assert main(["fly", "--controller", "policy", "--reference", "lemniscate", "--period", "10",
-                 "--duration", "1.5", "--out", str(tmp_path / "fly"), "-q"]) == 0
+                 "--duration", "2", "--out", str(tmp_path / "fly"), "-q"]) == 0
     cli = json.loads((tmp_path / "fly" / "metrics.json").read_text())
     for k in ("pos_rmse_m", "heading_rmse_deg", "saturation_frac"):
         np.testing.assert_allclose(res.metrics[k], cli[k], rtol=1e-6)
     post = mjxsysid.decode(res, samples=20, rate=2.0)
-    assert post["samples"].shape == (3, 20, 19) and post["zhat"].shape == (3, 8)
+    assert post["samples"].shape == (4, 20, 19) and post["zhat"].shape == (4, 8)
     np.testing.assert_array_equal(post["theta_true"], P.PAPER_HARDWARE)
-    assert main(["decode", "--reference", "lemniscate", "--period", "10", "--duration", "1.5", "--samples", "20", "--rate", "2",
+    assert main(["decode", "--reference", "lemniscate", "--period", "10", "--duration", "2", "--samples", "20", "--rate", "2",
                  "--out", str(tmp_path / "dec"), "--quiet"]) == 0
     capsys.readouterr()
     s = json.loads((tmp_path / "dec" / "summary.json").read_text())

@@ -22,7 +22,7 @@ NETS = N.Networks()
 
 @pytest.fixture(scope="module")
 def params():
-    return jax.jit(NETS.init)(jax.random.PRNGKey(0))  # one compile, not one per eager op
+    return NETS.init(jax.random.PRNGKey(0))  # compiled (the Trainers' init shares it)
 
 
 def test_network_shapes_and_jit(params):
@@ -81,8 +81,9 @@ def test_alignment_terms_and_stop_gradients(params, scale_invariant):
     scale = np.asarray(jnp.std(z, 0) + 1e-3) if scale_invariant else 1.0
     expect = np.mean(np.sum(((np.asarray(z) - np.asarray(zh)) / scale) ** 2, -1))
     np.testing.assert_allclose([float(l1), float(l2)], [expect, expect], rtol=1e-5)
-    g1 = jax.jit(jax.grad(lambda p: alignment_losses(NETS, p, th, hist, scale_invariant)[0]))(params)
-    g2 = jax.jit(jax.grad(lambda p: alignment_losses(NETS, p, th, hist, scale_invariant)[1]))(params)
+    # both gradients from one compiled Jacobian (row 0: ∂λ1-term, row 1: ∂λ2-term)
+    jac = jax.jit(jax.jacrev(lambda p: jnp.stack(alignment_losses(NETS, p, th, hist, scale_invariant))))(params)
+    g1, g2 = jax.tree.map(lambda x: x[0], jac), jax.tree.map(lambda x: x[1], jac)
     norm = lambda t: float(sum(jnp.sum(x**2) for x in jax.tree.leaves(t)))
     assert norm(g1["mu"]) > 0 and norm(g1["phi"]) == 0   # λ1 moves μ towards sg[ẑ]
     assert norm(g2["phi"]) > 0 and norm(g2["mu"]) == 0   # λ2 moves φ towards sg[z^θ]

@@ -165,7 +165,7 @@ def test_hovers_in_distribution_vehicles(weights, sim):
     per vehicle and 6 cm on the mean separate working from broken conventions with margin.
     """
     from mjxsysid.analysis.flight import broadcast, make_reference
-    from mjxsysid.analysis.harness import Disturbance, fly_batch, metrics
+    from mjxsysid.analysis.harness import Disturbance, batch_metrics, fly_batch
     from mjxsysid.control.high_level import Cascade
 
     n = 4
@@ -175,7 +175,7 @@ def test_hovers_in_distribution_vehicles(weights, sim):
     ref, _ = make_reference("hover")
     flight = fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), broadcast(ref, n),
                        broadcast(Disturbance.make(), n), jax.random.PRNGKey(1), 1000)
-    m = jax.vmap(metrics)(flight)
+    m = batch_metrics(flight)
     rmse = np.asarray(m["pos_rmse_m"])
     assert not np.any(np.asarray(m["failed"])), rmse
     assert rmse.max() < 0.12 and rmse.mean() < 0.06, rmse

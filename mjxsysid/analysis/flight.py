@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.harness import (Disturbance, Flight, fly_batch, metrics, metrics_to_host,
+from mjxsysid.analysis.harness import (Disturbance, Flight, batch_metrics, fly_batch, metrics_to_host,
                                        summarize)
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.low_level import KTheta
@@ -98,7 +98,7 @@ def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=1
     dist = broadcast(Disturbance.make(step_force=force_step, step_time=force_step_time,
                                       sigma=force_sigma), b)
     flight = fly_batch(sim, theta, low, high, refs, dist, jax.random.PRNGKey(seed), steps)
-    return flight, jax.vmap(metrics)(flight), duration
+    return flight, batch_metrics(flight), duration
 
 
 def random_minsnaps(n: int, seed: int, duration: float = 5.0):

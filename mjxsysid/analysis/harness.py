@@ -287,6 +287,13 @@ def metrics(flight: Flight, *, box: float = 3.0, ground: float = 0.0, sat_tol: f
     }
 
 
+@jax.jit
+def batch_metrics(flight: Flight) -> dict:
+    """:func:`metrics` (default arguments) of a batch of flights (leaves (B, T, ...)) -> dict of
+    (B,) arrays; compiled once per shape (``jax.vmap(metrics)`` runs op by op)."""
+    return jax.vmap(metrics)(flight)
+
+
 def metrics_to_host(m: dict) -> dict:
     """jnp metric dict (scalars or (B,) arrays) -> plain Python floats / lists (JSON-ready)."""
     out = {}

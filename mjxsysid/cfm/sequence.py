@@ -134,8 +134,14 @@ class SeqVelocityNet(nn.Module):
 
 def init_params(cfg: SeqCFMConfig, key: jax.Array | None = None):
     key = jax.random.PRNGKey(cfg.seed) if key is None else key
-    net = SeqVelocityNet(cfg)
-    return net.init(key, jnp.zeros((1, cfg.theta_dim)), jnp.zeros((1,)), jnp.zeros((1, 2, cfg.z_dim)),
+    # The standardisation is applied outside the network: one compiled init per architecture.
+    return _init_params(SeqVelocityNet(dataclasses.replace(cfg, z_shift=(), z_scale=())), key)
+
+
+@partial(jax.jit, static_argnums=0)
+def _init_params(net: "SeqVelocityNet", key):
+    c = net.cfg
+    return net.init(key, jnp.zeros((1, c.theta_dim)), jnp.zeros((1,)), jnp.zeros((1, 2, c.z_dim)),
                     jnp.ones((1, 2), bool))["params"]
 
 

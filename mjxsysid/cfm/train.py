@@ -105,10 +105,15 @@ def make_network(cfg: CFMConfig, kind: str = "cfm"):
 def init_params(cfg: CFMConfig, kind: str = "cfm", key: jax.Array | None = None):
     """Freshly initialised parameters (key defaults to PRNGKey(cfg.seed))."""
     key = jax.random.PRNGKey(cfg.seed) if key is None else key
-    net = make_network(cfg, kind)
-    z = jnp.zeros((1, cfg.z_dim), jnp.float32)
-    if kind == "cfm":
-        th = jnp.zeros((1, cfg.theta_dim), jnp.float32)
+    return _init_params(make_network(cfg, kind), key, kind == "cfm", cfg.theta_dim, cfg.z_dim)
+
+
+@functools.partial(jax.jit, static_argnums=(0, 2, 3, 4))
+def _init_params(net, key, cfm: bool, theta_dim: int, z_dim: int):
+    """One compiled init per network (not one compile per initialiser op)."""
+    z = jnp.zeros((1, z_dim), jnp.float32)
+    if cfm:
+        th = jnp.zeros((1, theta_dim), jnp.float32)
         return net.init(key, th, jnp.zeros((1,), jnp.float32), z)["params"]
     return net.init(key, z)["params"]
 

@@ -120,7 +120,7 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     """Run the payload experiment into ``out``; returns the results dict."""
     from mjxsysid.analysis.decode import decode_latents, load_decoders
     from mjxsysid.analysis.flight import broadcast, seen_imu
-    from mjxsysid.analysis.harness import Disturbance, fly_batch, metrics
+    from mjxsysid.analysis.harness import Disturbance, batch_metrics, fly_batch
     from mjxsysid.analysis.replay import action_metrics, plot_replay, replay_flight
     from mjxsysid.control.high_level import Cascade
     from mjxsysid.control.references import Hover
@@ -142,7 +142,7 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     dist = Disturbance.make(payload_mass=cfg.payload_mass, payload_pos=cfg.payload_pos, payload_time=cfg.event)
     fl = fly_batch(sim, theta[None], ref.batched(1), broadcast(Cascade.make("baseline"), 1),
                    broadcast(Hover.make(), 1), broadcast(dist, 1), jax.random.PRNGKey(seed), steps)
-    m = {k: np.asarray(v)[0] for k, v in jax.vmap(metrics)(fl).items()}
+    m = {k: np.asarray(v)[0] for k, v in batch_metrics(fl).items()}
     f = jax.tree.map(lambda a: np.asarray(a[0]), fl)
     if f.latent is None:
         raise ValueError(f"policy {ref.label} exposes no latent")

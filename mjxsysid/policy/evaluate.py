@@ -26,7 +26,7 @@ import numpy as np
 from mjxsysid import distributed
 from mjxsysid import params as P
 from mjxsysid.analysis.flight import broadcast, fly_vehicles
-from mjxsysid.analysis.harness import Disturbance, fly_batch, metrics, summarize
+from mjxsysid.analysis.harness import Disturbance, batch_metrics, fly_batch, summarize
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.policy.controller import PolicyController
@@ -106,7 +106,7 @@ def closed_loop(controller: PolicyController, theta, *, period=10.0, seed=0, sim
     ref = broadcast(Lemniscate.make(period=period), n)
     dist = broadcast(Disturbance.make(), n)
     fl = fly_batch(sim, theta, low, high, ref, dist, jax.random.PRNGKey(seed), steps)
-    return {k: np.asarray(v) for k, v in jax.vmap(metrics)(fl).items()}
+    return {k: np.asarray(v) for k, v in batch_metrics(fl).items()}
 
 
 def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 1000, sim=None, log=print) -> dict:

@@ -21,6 +21,7 @@ steps of [obs, r] (100, 14), oldest first, *before* step t's action (so φ sees 
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import flax.linen as nn
 import jax
@@ -133,6 +134,10 @@ class Networks:
     aux: AuxDecoder = AuxDecoder()
 
     def init(self, key) -> dict:
+        """Fresh parameters {'mu', 'phi', 'pi', 'v', 'aux'} (compiled once per architecture)."""
+        return _init(self, key)
+
+    def _init(self, key) -> dict:
         k = jax.random.split(key, 5)
         s = jnp.zeros((STATE,))
         th = jnp.zeros((N_PARAMS,))
@@ -161,3 +166,8 @@ class Networks:
 
 def count_params(tree) -> int:
     return int(sum(x.size for x in jax.tree.leaves(tree)))
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _init(nets: Networks, key) -> dict:
+    return nets._init(key)

@@ -13,7 +13,7 @@ import numpy as np
 
 from mjxsysid import params as P
 from mjxsysid.analysis.flight import broadcast
-from mjxsysid.analysis.harness import Disturbance, metrics, metrics_to_host, summarize
+from mjxsysid.analysis.harness import Disturbance, batch_metrics, metrics_to_host, summarize
 from mjxsysid.control.high_level import GAIN_NAMES
 from mjxsysid.sim import Quadrotor, SimConfig
 from mjxsysid.tune.tuner import CEM_METHODS, METHOD_LABELS, METHODS, TunedFlight, TunerConfig, fly_tuned
@@ -69,7 +69,7 @@ def compare_methods(theta, refs, *, steps: int, methods=METHODS, cfg: TunerConfi
                        progress=(lambda d, n: bar.update(1)) if bar else None)
         if bar:
             bar.close()
-        mm = jax.vmap(metrics)(tf.flight)
+        mm = batch_metrics(tf.flight)
         out[m] = {"metrics": metrics_to_host(mm), "summary": summarize(mm), "tuned": tf,
                   "wall_s": time.time() - t0}
         if log:
