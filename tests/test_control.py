@@ -227,7 +227,8 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
         decode_latents = D.decode_latents
         monkeypatch.setattr(D, "decode_latents", lambda *a, **k: decode_latents(*a, **dict(k, rate=decode_rate)))
     out = tmp_path / "demo"
-    assert main(["demo", "--out", str(out), "--no-video", "--vehicles", "3"]) == 0
+    # 24 prior vehicles: the oracle and nominal flights of the prior_lemniscate fixture (one compile)
+    assert main(["demo", "--out", str(out), "--no-video", "--vehicles", "24"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["oracle"]["paper_vehicle"]["pos_rmse_m"] < 0.05
     assert s["oracle"]["prior_vehicles"]["success_rate"] == 1.0
