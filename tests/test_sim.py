@@ -126,7 +126,9 @@ def reference_case():
 
 def _errors(sim, case):
     th, cmds, forces, xs = case
-    _, fr = run(sim, th, cmds, forces)
+    n = len(th)  # flown twice over: the (B, T) shape of the other tests (one compile)
+    _, fr = run(sim, *(np.concatenate([a, a]) for a in (th, cmds, forces)))
+    fr = jax.tree.map(lambda a: a[:n], fr)
     return (np.abs(xs[..., 0:3] - np.asarray(fr.pos)).max(),
             np.abs(xs[..., 10:13] - np.asarray(fr.omega)).max() / np.abs(xs[..., 10:13]).max(),
             np.abs(xs[..., 13:17] - np.asarray(fr.rotor_speed)).max() / th[:, 10].max(),
@@ -210,14 +212,20 @@ def test_matches_mujoco_c_with_same_parameters(sim):
                  omega=d.qvel[3:], rotor_speed=speed)
     xfrc = np.asarray(sim.external_wrench(jnp.asarray(th), s.data, jnp.zeros(3)))
     d.xfrc_applied[1] = xfrc
-    s1 = jax.jit(sim.step)(th, s, speed / th[P.OMEGA_MAX])
+    # the first step of the (B, T) rollout of the other tests (one compile)
+    cmd = np.broadcast_to((speed / th[P.OMEGA_MAX]).astype(np.float32), (B, T, 4))
+    _, fr = run(sim, np.repeat(th[None], B, 0), cmd, pos=d.qpos[:3], quat=d.qpos[3:], vel=d.qvel[:3],
+                omega=d.qvel[3:], rotor_speed=speed)
+    f1 = jax.tree.map(lambda a: np.asarray(a[0, 0]), fr)
+    qpos1, qvel1 = np.concatenate([f1.pos, f1.quat]), np.concatenate([f1.vel, f1.omega])
     mujoco.mj_step(mj, d)
-    np.testing.assert_allclose(np.asarray(s1.data.qvel), d.qvel, rtol=1e-4, atol=1e-5)
-    np.testing.assert_allclose(np.asarray(s1.data.qpos), d.qpos, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(qvel1, d.qvel, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(qpos1, d.qpos, rtol=1e-5, atol=1e-6)
     # IMU at the new state equals MuJoCo's gyro and accelerometer sensors there.
-    d.xfrc_applied[1] = np.asarray(sim.external_wrench(jnp.asarray(th), s1.data, jnp.zeros(3)))
+    data1 = s.data.replace(qpos=jnp.asarray(qpos1), qvel=jnp.asarray(qvel1))
+    d.xfrc_applied[1] = np.asarray(sim.external_wrench(jnp.asarray(th), data1, jnp.zeros(3)))
     mujoco.mj_forward(mj, d)
-    np.testing.assert_allclose(np.asarray(s1.imu), d.sensordata[:6], rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(f1.imu, d.sensordata[:6], rtol=1e-4, atol=1e-4)
 
 
 def test_imu_noise_bias_latency():
