@@ -93,18 +93,21 @@ def paper_policy():
 
 
 def test_fixed_gains_through_the_tuned_loop_equal_fly_batch(paper_policy):
+    """Notebook 02's vehicle and lemniscate (its first segments of 50 steps are this test's
+    compiles: tests run it below), one full and one partial segment."""
     sim, ref = paper_policy
-    theta = np.repeat(P.PAPER_HARDWARE[None], 2, 0)
-    theta[1, P.MASS] *= 1.2
-    low = ref.batched(2)
-    refs = broadcast(Hover.make(pos=(0.3, -0.2, 1.2)), 2)
-    dist = broadcast(Disturbance.make(step_force=(0.5, 0, 0), step_time=0.05, sigma=0.2), 2)
-    steps = 120                                             # segments of 50: 50 + 50 + 20
+    theta = P.PAPER_HARDWARE[None].copy()
+    theta[0, P.MASS] *= 1.2
+    low = ref.batched(1)
+    refs = broadcast(Lemniscate.make(period=7.5), 1)
+    dist = broadcast(Disturbance.make(step_force=(0.5, 0, 0), step_time=0.05, sigma=0.2), 1)
+    steps = 70                                              # segments of 50: 50 + 20
     tf = fly_tuned(sim, theta, low, refs, dist, "baseline", jax.random.PRNGKey(3), steps)
-    fb = fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), 2), refs, dist, jax.random.PRNGKey(3), steps)
+    fb = fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), 1), refs, dist, jax.random.PRNGKey(3), steps)
     np.testing.assert_allclose(tf.flight.frame.pos, np.asarray(fb.frame.pos), atol=1e-6)
     np.testing.assert_allclose(tf.flight.latent, np.asarray(fb.latent), atol=1e-6)
-    assert tf.gains.shape == (2, 3, 8) and np.all(tf.gains == PRESETS["baseline"])
+    assert tf.flight.frame.pos.shape == (1, 70, 3) and np.abs(tf.flight.frame.pos[0, -1] - tf.flight.frame.pos[0, 0]).max() > 1e-3
+    assert tf.gains.shape == (1, 2, 8) and np.all(tf.gains == PRESETS["baseline"])
     assert np.all(np.isnan(tf.predicted))
 
 
@@ -237,3 +240,16 @@ def test_tune_experiments_tiny(tmp_path):
         for d in m.values():
             assert np.isfinite(d["pos_rmse_m"]) and d["lead_in_pos_rmse_m"] < 0.2   # hovering at the start
     assert (tmp_path / "lem" / "results.md").read_text().count("| 7.5 s |") == 2
+
+
+@pytest.mark.parametrize("kernel", [pytest.param(False, id="inprocess"),
+                                    pytest.param(True, id="kernel", marks=pytest.mark.slow)])
+def test_notebook_02_executes(kernel, tmp_path, monkeypatch):
+    """Notebook 02 on its fast settings, in this interpreter (default tier: it shares the
+    compiled segments of the fixed-gains test above) or in a Jupyter kernel (slow)."""
+    from conftest import ROOT, run_notebook
+    if not (ROOT / "mjxsysid" / "pretrained" / "cfm.npz").exists():
+        pytest.skip("no shipped decoder")
+    outputs, _ = run_notebook("02_tuning.ipynb", tmp_path, monkeypatch, kernel=kernel,
+                              env={"MJXSYSID_NOTEBOOK_FAST": "1"})
+    assert "cfm_tuned: position RMSE" in outputs and (tmp_path / "tuning_gains.png").exists(), outputs[-2000:]
