@@ -186,8 +186,9 @@ def test_decode_cli_windows(tmp_path, capsys):
         last = capsys.readouterr().err.strip().splitlines()[-1]     # (mujoco may print import notes first)
         assert last.startswith("mjxsysid decode: error: --window") and msg in last, last
     d = _tiny_seq_decoders(tmp_path)
-    # A 0.6 s "log" of a vehicle at rest-ish hover (the policy's history is rebuilt from it).
-    n = 300
+    # A 2 s "log" of a vehicle at rest-ish hover (the policy's history is rebuilt from it): the
+    # length of the 2 s flight logs of tests/test_decode.py (one compiled replay).
+    n = 1000
     t = 0.002 * np.arange(n)
     imu = np.zeros((n, 6))
     imu[:, 5] = P.GRAVITY
