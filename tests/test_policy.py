@@ -77,7 +77,7 @@ def test_alignment_terms_and_stop_gradients(params, scale_invariant):
     th = jax.random.normal(key, (16, 19))
     hist = jax.random.normal(jax.random.fold_in(key, 1), (16, N.HISTORY, N.STATE))
     l1, l2 = alignment_losses(NETS, params, th, hist, scale_invariant)
-    z, zh = NETS.encode(params, th), NETS.adapt(params, hist)
+    z, zh = jax.jit(NETS.encode)(params, th), jax.jit(NETS.adapt)(params, hist)   # compiled: not op by op
     scale = np.asarray(jnp.std(z, 0) + 1e-3) if scale_invariant else 1.0
     expect = np.mean(np.sum(((np.asarray(z) - np.asarray(zh)) / scale) ** 2, -1))
     np.testing.assert_allclose([float(l1), float(l2)], [expect, expect], rtol=1e-5)
@@ -160,16 +160,22 @@ def test_deployed_controller_equals_training_policy(params):
     """The low-level controller computes exactly the action the training env's policy takes
     on the same history, last action, command and ẑ."""
     env = TrainEnv(EnvConfig())
-    st = env.reset(jax.random.PRNGKey(5), 1.0)
-    st = st.replace(zhat=jnp.linspace(-0.5, 0.5, 8), last_raw=jnp.array([0.1, -0.2, 0.3, 0.0]),
-                    history=jax.random.normal(jax.random.PRNGKey(6), (N.HISTORY, N.STATE)))
-    s, z, _, obs = env.policy_input(params, st)
-    mean, _ = NETS.act(params, s, z)
-    ctrl = PolicyController(params=params, z_override=jnp.zeros(8), use_override=jnp.array(False))
-    carry = PolicyCarry(st.history, st.last_raw, st.zhat, jnp.int32(3), jnp.array(True))
-    carry2, u = ctrl.step(carry, st.sim.imu, st.command)
-    np.testing.assert_allclose(np.asarray(u), np.asarray(N.to_motor(mean)), atol=1e-6)
-    np.testing.assert_allclose(np.asarray(carry2.history), np.asarray(N.push_history(st.history, obs, mean)), atol=1e-6)
+
+    @jax.jit  # one compile for both paths (op by op, the env's reset alone compiled ~150 kernels)
+    def both(params):
+        st = env.reset(jax.random.PRNGKey(5), 1.0)
+        st = st.replace(zhat=jnp.linspace(-0.5, 0.5, 8), last_raw=jnp.array([0.1, -0.2, 0.3, 0.0]),
+                        history=jax.random.normal(jax.random.PRNGKey(6), (N.HISTORY, N.STATE)))
+        s, z, _, obs = env.policy_input(params, st)
+        mean, _ = NETS.act(params, s, z)
+        ctrl = PolicyController(params=params, z_override=jnp.zeros(8), use_override=jnp.array(False))
+        carry = PolicyCarry(st.history, st.last_raw, st.zhat, jnp.int32(3), jnp.array(True))
+        carry2, u = ctrl.step(carry, st.sim.imu, st.command)
+        return u, N.to_motor(mean), carry2.history, N.push_history(st.history, obs, mean)
+
+    u, u_train, hist, hist_train = both(params)
+    np.testing.assert_allclose(np.asarray(u), np.asarray(u_train), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(hist), np.asarray(hist_train), atol=1e-6)
 
 
 @pytest.mark.skipif(not PRETRAINED.exists(), reason="no shipped policy weights")
