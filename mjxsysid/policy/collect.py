@@ -17,6 +17,7 @@ Gaussian force (σ up to 0.03 m g). ẑ is recorded at 10 Hz from 0.2 s on (the 
 """
 from __future__ import annotations
 
+import functools
 import json
 import time
 from pathlib import Path
@@ -81,6 +82,14 @@ def trajectory_times(seconds: float, rate: float = TRAJ_RATE_HZ, dt: float = 0.0
     return times[idx], idx, steps
 
 
+@functools.lru_cache(maxsize=4)
+def _minsnap_pool(seed: int, seconds: float):
+    """The seeded pool of random min-snap paths the minsnap manoeuvre draws from (stacked,
+    leaves (_MINSNAP_POOL, ...)): solved once per process, not once per batch (~2 s each)."""
+    return stack([MinSnap.random(seed=seed * 7919 + i, duration=seconds, start=(0.0, 0.0, 1.0),
+                                 box=((-1.0, -1.0, 0.5), (1.0, 1.0, 1.5))) for i in range(_MINSNAP_POOL)])
+
+
 def random_manoeuvres(key, theta, seconds: float, manoeuvres=MANOEUVRES, seed: int = 0):
     """Per-vehicle excitation of a trajectory flight: (reference batch (Switch of Lemniscate and
     MinSnap, leaves (n, ...)), Disturbance batch, manoeuvre index (n,) into ``manoeuvres``)."""
@@ -96,10 +105,8 @@ def random_manoeuvres(key, theta, seconds: float, manoeuvres=MANOEUVRES, seed: i
     hover = kind == MANOEUVRES.index("hover_step")
     lem = lem.replace(size=jnp.where(hover[:, None], 0.0, lem.size),
                       yaw_amplitude=jnp.where(hover, 0.0, lem.yaw_amplitude))
-    pool = [MinSnap.random(seed=seed * 7919 + i, duration=seconds, start=(0.0, 0.0, 1.0),
-                           box=((-1.0, -1.0, 0.5), (1.0, 1.0, 1.5))) for i in range(_MINSNAP_POOL)]
     pick = np.asarray(jax.random.randint(ks[2], (n,), 0, _MINSNAP_POOL))
-    ms = jax.tree.map(lambda a: jnp.asarray(a)[pick], stack(pool))
+    ms = jax.tree.map(lambda a: jnp.asarray(a)[pick], _minsnap_pool(seed, float(seconds)))
     ref = Switch(lem, ms, jnp.asarray(kind == MANOEUVRES.index("minsnap")))
     mg = theta[:, P.MASS] * P.GRAVITY
     u = lambda k, lo, hi, shape=(n,): np.asarray(jax.random.uniform(k, shape, jnp.float32, lo, hi))
