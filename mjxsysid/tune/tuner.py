@@ -273,6 +273,15 @@ class OnlineTuner:
                   self.max_rate, jnp.int32(start), state, jax.random.split(key, n))
 
 
+def segments(steps: int, seg: int) -> list[tuple[int, int]]:
+    """The (first step, length) of each segment a ``steps``-long tuned flight is flown in: ``seg``
+    steps each (one tuner update before each), the last one shorter when ``seg`` does not
+    divide ``steps``."""
+    if steps < 1 or seg < 1:
+        raise ValueError(f"steps and segment length must be >= 1, got {steps} and {seg}")
+    return [(i0, min(seg, steps - i0)) for i0 in range(0, steps, seg)]
+
+
 def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method: str, key, steps: int, *,
               cfg: TunerConfig = TunerConfig(), decoder=None, max_rate: float = 12.0,
               progress=None) -> TunedFlight:
@@ -304,12 +313,11 @@ def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method:
     motor = hover_rotor_speed(theta) / theta[:, P.OMEGA_MAX, None]
     k_tune = jax.random.fold_in(key, 7919)
     chunks, gain_log, times, pred = [], [], [], []
-    n_seg = -(-steps // seg)
+    spans = segments(steps, seg)
+    n_seg = len(spans)
     mr = jnp.float32(max_rate)
     updated = False
-    for u in range(n_seg):
-        i0 = u * seg
-        n = min(seg, steps - i0)
+    for u, (i0, n) in enumerate(spans):
         t = i0 * dt
         cost = np.full(b, np.nan, np.float32)
         if tuner is not None and t >= cfg.warmup - 1e-9:
