@@ -85,28 +85,13 @@ def test_train_decoders_resumes_and_keeps_finished_decoders(tmp_path):
 
 
 def test_sequence_decoder_resume_gives_the_uninterrupted_weights(tmp_path):
-    """train-cfm's sequence decoder (cfm_seq) checkpoints and resumes like the CFM, and the
-    pipeline keeps a finished cfm_seq.npz."""
+    """train-cfm's sequence decoder (cfm_seq) checkpoints and resumes like the CFM (through the
+    pipeline, as `mjxsysid train-cfm` runs it: one compiled config), and the pipeline keeps a
+    finished cfm_seq.npz."""
     from mjxsysid import params as P
     from mjxsysid.cfm.pipeline import train_decoders
-    from mjxsysid.cfm.sequence import SeqCFMConfig, SequenceDecoder, train_seq_cfm
+    from mjxsysid.cfm.sequence import SequenceDecoder, train_seq_cfm
     rng = np.random.default_rng(1)
-    th = rng.normal(size=(128, 19)).astype(np.float32)
-    zs = (th[:, None, :8] + rng.normal(size=(128, 5, 8))).astype(np.float32)
-    cfg = SeqCFMConfig(epochs=4, batch=32, width=16, blocks=1, time_dim=8, set_width=8, heads=2,
-                       cond_dim=8, max_len=5, seed=2)
-    ref, hist_ref = train_seq_cfm(th, zs, cfg, log=None)
-    ckpt = tmp_path / "cfm_seq.ckpt.npz"
-    with pytest.raises(Stop):
-        train_seq_cfm(th, zs, cfg, log=_interrupt_at("[cfm_seq] epoch 3/"), checkpoint=ckpt, checkpoint_every=1)
-    lines = []
-    got, hist = train_seq_cfm(th, zs, cfg, log=lines.append, checkpoint=ckpt, checkpoint_every=1)
-    assert any("resumed from" in m and "epoch 2" in m for m in lines), lines
-    _leaves_equal(got, ref)
-    assert hist["train_loss"] == hist_ref["train_loss"]
-    with pytest.raises(ValueError, match="another config or data"):
-        train_seq_cfm(th[:100], zs[:100], cfg, log=None, checkpoint=ckpt)
-    # The pipeline: trajectories in the pairs -> cfm_seq.npz, kept on a second run.
     theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 160))
     zt = rng.normal(size=(160, 5, 8)).astype(np.float32)
     pairs = tmp_path / "pairs.npz"
@@ -114,18 +99,35 @@ def test_sequence_decoder_resume_gives_the_uninterrupted_weights(tmp_path):
              zhat_test=zt[128:, -1], zhat_traj_train=zt[:128], zhat_traj_test=zt[128:],
              traj_times=0.2 + 0.1 * np.arange(5),
              meta_json=np.frombuffer(json.dumps({"prior": "default"}).encode(), np.uint8))
-    out = tmp_path / "dec"
-    small = TINY_CFM.replace(epochs=2)
+    small = TINY_CFM.replace(epochs=4)
     seq_over = {"set_width": 8, "heads": 2, "cond_dim": 8}
-    train_decoders(pairs, out, small, kinds=("cfm_seq",), seq_cfg=seq_over, log=None)
-    assert (out / "cfm_seq.npz").is_file() and not (out / "cfm_seq.ckpt.npz").exists()
+
+    def run(out, **kw):
+        return train_decoders(pairs, out, small, kinds=("cfm_seq",), seq_cfg=seq_over, checkpoint_every=1, **kw)
+
+    ref = run(tmp_path / "ref", log=None)
+    out = tmp_path / "dec"
+    ckpt = out / "cfm_seq.ckpt.npz"
+    with pytest.raises(Stop):
+        run(out, log=_interrupt_at("[cfm_seq] epoch 3/"))
+    assert ckpt.is_file() and not (out / "cfm_seq.npz").exists()
+    cfg = SequenceDecoder.load(tmp_path / "ref" / "cfm_seq.npz").cfg
+    with pytest.raises(ValueError, match="another config or data"):
+        train_seq_cfm(rng.normal(size=(100, 19)).astype(np.float32), zt[:100], cfg, log=None, checkpoint=ckpt)
     lines = []
-    res = train_decoders(pairs, out, small, kinds=("cfm_seq",), seq_cfg=seq_over, log=lines.append)
+    got = run(out, log=lines.append)
+    assert any("resumed from" in m and "epoch 2" in m for m in lines), lines
+    _leaves_equal(SequenceDecoder.load(out / "cfm_seq.npz").params,
+                  SequenceDecoder.load(tmp_path / "ref" / "cfm_seq.npz").params)
+    for k in ("final_train_loss", "final_val_loss"):
+        assert got["cfm_seq"][k] == ref["cfm_seq"][k], k
+    assert not ckpt.exists()
+    lines = []
+    res = run(out, log=lines.append)
     assert any("cfm_seq.npz is already trained" in m for m in lines), lines
     assert res["cfm_seq"]["final_train_loss"] == SequenceDecoder.load(out / "cfm_seq.npz").meta["final_train_loss"]
 
 
-@pytest.mark.slow
 def test_policy_resume_gives_the_uninterrupted_weights(tmp_path):
     """Slow (two compiles of a PPO iteration, ≈ 2–3 min on a 2-core CPU). The environments'
     state is in the checkpoint, so a resumed run continues bit for bit."""
