@@ -30,13 +30,8 @@ def deriv(x, theta, omega_cmd, force_world):
     p, v, q, w, rot_speed = x[0:3], x[3:6], x[6:10], x[10:13], x[13:17]
     R = rotmat(q / np.linalg.norm(q))
     f = eta * kt * rot_speed**2  # per-rotor thrust
-    r = np.zeros((4, 3))
-    r[:, :2] = l * ARM_DIR
-    torque = np.zeros(3)
-    for i in range(4):
-        torque += np.cross(r[i], [0, 0, f[i]])
-    torque[2] += np.sum(YAW * (ktau / kt) * f)
-    torque += tau_ext
+    rx, ry = (l * ARM_DIR).T  # rotor i at (rx, ry, 0) body: r × (0, 0, f) = (ry f, −rx f, 0)
+    torque = np.array([ry @ f, -(rx @ f), np.sum(YAW * (ktau / kt) * f)]) + tau_ext
     v_body = R.T @ v
     acc = (R @ (np.array([0, 0, f.sum()]) - D * v_body) + force_world) / m + np.array([0, 0, -G])
     wdot = (torque - np.cross(w, J * w)) / J
