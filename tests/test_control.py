@@ -76,8 +76,11 @@ def test_oracle_tracks_lemniscate_on_paper_vehicle(prior_lemniscate):
 
 
 def test_oracle_hovers_all_prior_vehicles(prior_lemniscate):
-    theta = prior_lemniscate[0][1:]
-    _, m, _ = fly_vehicles(theta, controller="oracle", reference="hover", duration=2.0)
+    """10 s hover at (0, 0, 1) as size-0 lemniscates (the experiments' hover reference): the
+    fixture's compiled flight."""
+    from mjxsysid.analysis.robustness import hover_reference
+    theta = prior_lemniscate[0]
+    _, m, _ = fly_vehicles(theta, controller="oracle", refs=hover_reference(len(theta)), duration=10.0)
     assert not np.any(np.asarray(m["failed"]))
     assert np.asarray(m["max_pos_err_m"]).max() < 0.1  # τ_ext transients stay within 10 cm
 
