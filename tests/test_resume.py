@@ -128,6 +128,7 @@ def test_sequence_decoder_resume_gives_the_uninterrupted_weights(tmp_path):
     assert res["cfm_seq"]["final_train_loss"] == SequenceDecoder.load(out / "cfm_seq.npz").meta["final_train_loss"]
 
 
+@pytest.mark.slow
 def test_policy_resume_gives_the_uninterrupted_weights(tmp_path):
     """Slow (two compiles of a PPO iteration, ≈ 2–3 min on a 2-core CPU). The environments'
     state is in the checkpoint, so a resumed run continues bit for bit."""
