@@ -407,7 +407,7 @@ def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import NullFormatter
+    from matplotlib.ticker import MaxNLocator, NullFormatter
     fig, axes = plt.subplots(4, 5, figsize=(17, 11))
     for j, ax in enumerate(axes.flat):
         if j >= P.N_PARAMS:
@@ -424,6 +424,8 @@ def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior
             lo, hi = np.log(x.min()), np.log(x.max())
             ticks = np.exp(lo + (hi - lo) * np.array([0.15, 0.5, 0.85])) if hi > lo else [x.min()]
             ax.set_xticks(ticks, [f"{v:.3g}" for v in ticks])
+        else:
+            ax.xaxis.set_major_locator(MaxNLocator(5))
         ax.axvline(truth[j], color="k", lw=2, label="true")
         if point is not None:
             ax.axvline(point[j], color="tab:orange", ls="--", label="regression")
