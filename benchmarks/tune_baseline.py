@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.harness import Disturbance, fly_batch, metrics
+from mjxsysid.analysis.harness import Disturbance, batch_metrics, fly_batch
 from mjxsysid.control.high_level import GAIN_BOUNDS, GAIN_NAMES, PRESETS, Cascade
 from mjxsysid.control.low_level import KTheta
 from mjxsysid.control.references import Lemniscate, MinSnap, stack
@@ -41,7 +41,7 @@ def main():
             low = KTheta.make(th)
             dist = jax.tree.map(lambda a: jnp.broadcast_to(a, (b,) + a.shape), Disturbance.make())
             fl = fly_batch(sim, th, low, high, ref, dist, jax.random.PRNGKey(0), STEPS)
-            m = jax.vmap(metrics)(fl)
+            m = batch_metrics(fl)
             c = (np.asarray(m["pos_rmse_m"]) + 0.002 * np.asarray(m["heading_rmse_deg"])
                  + 10.0 * np.asarray(m["failed"], float))
             costs += c.reshape(k, r).mean(1) / 2

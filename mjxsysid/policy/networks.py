@@ -133,11 +133,9 @@ class Networks:
     v: Critic = Critic()
     aux: AuxDecoder = AuxDecoder()
 
+    @functools.partial(jax.jit, static_argnums=0)
     def init(self, key) -> dict:
         """Fresh parameters {'mu', 'phi', 'pi', 'v', 'aux'} (compiled once per architecture)."""
-        return _init(self, key)
-
-    def _init(self, key) -> dict:
         k = jax.random.split(key, 5)
         s = jnp.zeros((STATE,))
         th = jnp.zeros((N_PARAMS,))
@@ -166,8 +164,3 @@ class Networks:
 
 def count_params(tree) -> int:
     return int(sum(x.size for x in jax.tree.leaves(tree)))
-
-
-@functools.partial(jax.jit, static_argnums=0)
-def _init(nets: Networks, key) -> dict:
-    return nets._init(key)
