@@ -26,7 +26,7 @@ def main():
     ap.add_argument("--train-steps", type=int, default=50)
     ap.add_argument("--sizes", type=int, nargs="+", default=[100, 1000, 10000])
     args = ap.parse_args()
-    from mjxsysid.analysis.decode import PRETRAINED_DIR
+    from mjxsysid.policy.interface import PRETRAINED_DIR
     from mjxsysid.cfm.sample import Decoder, sample
     from mjxsysid.cfm.train import CFMConfig, train_cfm
     dec = Decoder.load(PRETRAINED_DIR / "cfm.npz")

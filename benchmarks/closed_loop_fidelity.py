@@ -19,7 +19,7 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.fidelity import closed_loop_fidelity
+from mjxsysid.studies.fidelity import closed_loop_fidelity
 
 
 def main():

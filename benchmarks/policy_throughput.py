@@ -34,8 +34,8 @@ def main():
     args = ap.parse_args()
 
     from mjxsysid import params as P
-    from mjxsysid.analysis.flight import broadcast, make_low_level, make_reference
-    from mjxsysid.analysis.harness import Disturbance, fly_batch
+    from mjxsysid.rollout.flight import broadcast, make_low_level, make_reference
+    from mjxsysid.rollout.harness import Disturbance, fly_batch
     from mjxsysid.control.high_level import Cascade
     from mjxsysid.policy.interface import resolve_policy
     from mjxsysid.sim import Quadrotor

@@ -50,7 +50,7 @@ def best_of(fn, repeats: int) -> float:
 def bench_collect(devices: int, args) -> dict:
     from mjxsysid import distributed as D
     from mjxsysid import params as P
-    from mjxsysid.policy.collect import latents_in_flight
+    from mjxsysid.dataset.collect import latents_in_flight
     from mjxsysid.policy.interface import resolve_policy
     from mjxsysid.sim import Quadrotor
     ref, sim = resolve_policy("mjxsysid"), Quadrotor()

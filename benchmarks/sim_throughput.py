@@ -48,8 +48,8 @@ def main():
     from mujoco import mjx
 
     from mjxsysid import params as P
-    from mjxsysid.analysis.flight import broadcast
-    from mjxsysid.analysis.harness import Disturbance, fly
+    from mjxsysid.rollout.flight import broadcast
+    from mjxsysid.rollout.harness import Disturbance, fly
     from mjxsysid.control.high_level import Cascade
     from mjxsysid.control.low_level import KTheta
     from mjxsysid.control.references import Lemniscate

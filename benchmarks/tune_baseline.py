@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.harness import Disturbance, batch_metrics, fly_batch
+from mjxsysid.rollout.harness import Disturbance, batch_metrics, fly_batch
 from mjxsysid.control.high_level import GAIN_BOUNDS, GAIN_NAMES, PRESETS, Cascade
 from mjxsysid.control.low_level import KTheta
 from mjxsysid.control.references import Lemniscate, MinSnap, stack

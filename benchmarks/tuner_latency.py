@@ -33,9 +33,9 @@ def main(argv=None):
     a = ap.parse_args(argv)
 
     from mjxsysid import params as P
-    from mjxsysid.analysis.decode import load_decoders
-    from mjxsysid.analysis.flight import broadcast, make_reference
-    from mjxsysid.analysis.harness import Disturbance
+    from mjxsysid.cfm.load import load_decoders
+    from mjxsysid.rollout.flight import broadcast, make_reference
+    from mjxsysid.rollout.harness import Disturbance
     from mjxsysid.policy.interface import resolve_policy
     from mjxsysid.sim import Quadrotor
     from mjxsysid.tune.cem import CEMConfig

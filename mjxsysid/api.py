@@ -7,8 +7,8 @@
     post["summary"]["thrust_to_weight"]           # {mean, q05, q95, true, inside}
     post = mjxsysid.decode("my_flight.csv")       # a recorded flight log (README: log format)
 
-Thin wrappers over :func:`mjxsysid.analysis.flight.fly_vehicles`,
-:func:`mjxsysid.analysis.decode.decode_posterior` and the vehicle-file readers of
+Thin wrappers over :func:`mjxsysid.rollout.flight.fly_vehicles`,
+:func:`mjxsysid.studies.decode.decode_posterior` and the vehicle-file readers of
 :mod:`mjxsysid.params`: the same checks, the same numbers as the command line.
 """
 from __future__ import annotations
@@ -20,6 +20,11 @@ from typing import Mapping
 import numpy as np
 
 from mjxsysid import params as P
+from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
+from mjxsysid.policy.interface import resolve_policy
+from mjxsysid.rollout.flight import CONTROLLERS, fly_vehicles, metrics_dict, one_flight, save_flight
+from mjxsysid.rollout.harness import metrics_to_host
+from mjxsysid.studies.decode import check_window, decode_posterior, log_latents, parse_window, read_log
 
 __all__ = ["FlightResult", "decode", "fly", "load_vehicle", "paper_vehicle", "prior_vehicles",
            "save_vehicle", "to_theta"]
@@ -58,7 +63,7 @@ def to_theta(v=None) -> np.ndarray:
 class FlightResult:
     """What :func:`fly` returns.
 
-    flight: :class:`~mjxsysid.analysis.harness.Flight` with (B, T, ...) leaves (``latent`` set
+    flight: :class:`~mjxsysid.rollout.harness.Flight` with (B, T, ...) leaves (``latent`` set
     for a policy); metrics: for one vehicle its ``metrics.json`` dict (``pos_rmse_m``,
     ``failed``, …), for several the batch summary (success rate, mean/std/median) with
     ``per_vehicle`` lists; theta (B, 19); duration (s); controller; reference; policy (the
@@ -73,14 +78,12 @@ class FlightResult:
 
     def one(self, index: int = 0):
         """The flight of vehicle ``index`` as host arrays (leaves (T, ...))."""
-        from mjxsysid.analysis.flight import one_flight
         return one_flight(self.flight, index)
 
     def save(self, out, index: int = 0) -> Path:
         """Write ``out/flight.npz`` (vehicle ``index``) and ``out/metrics.json`` as ``mjxsysid fly``."""
         import json
 
-        from mjxsysid.analysis.flight import save_flight
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         save_flight(self.flight, self.theta, out / "flight.npz", index)
@@ -98,14 +101,11 @@ def fly(vehicle=None, controller: str = "policy", *, reference: str = "lemniscat
     true θ) or ``"nominal"`` (K_θ with the paper vehicle's θ), on ``reference`` (``hover``,
     ``lemniscate`` of ``period`` s, ``minsnap``) for ``duration`` s (default one period / 5 s),
     with an optional world-force step and Gaussian force noise. Same as ``mjxsysid fly``."""
-    from mjxsysid.analysis.flight import CONTROLLERS, fly_vehicles, metrics_dict
-    from mjxsysid.analysis.harness import metrics_to_host
     if controller not in CONTROLLERS:
         raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
     theta = P.as_batch(to_theta(vehicle))
     ref = None
     if controller == "policy":
-        from mjxsysid.policy.interface import resolve_policy
         ref = resolve_policy(policy, weights)
     flight, m, dur = fly_vehicles(theta, controller=controller, reference=reference, period=period,
                                   duration=duration, gains=gains, force_step=tuple(force_step),
@@ -139,9 +139,6 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
     (K,); a number of seconds — a sliding window of that length; ``"instant"`` — the
     single-latent CFM alone. Without a sequence decoder it falls back to ``"instant"`` and
     ``summary["_window"]`` says which was used."""
-    from mjxsysid.analysis.decode import (check_window, decode_posterior, load_decoders, load_sequence_decoder,
-                                          log_latents, parse_window, read_log)
-    from mjxsysid.policy.interface import resolve_policy
     if not rate > 0:
         raise ValueError(f"rate must be > 0 Hz, got {rate}")
     if samples < 2:

@@ -1,6 +1,6 @@
 """Scale-out on JAX's own runtime: one batch axis sharded over every device.
 
-Every batched workload has one vmap boundary (``analysis.harness.fly_batch``, the CFM sampler's
+Every batched workload has one vmap boundary (``rollout.harness.fly_batch``, the CFM sampler's
 integration over cases, the policy evaluation rollout, the training environment batch). There,
 the batch axis (vehicles, environments, cases) is padded to a multiple of the device count and
 placed with ``NamedSharding(mesh, P('batch'))``; arrays shared by the batch (network weights)

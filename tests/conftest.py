@@ -88,7 +88,7 @@ def xadap_paper_recording():
     action replay needs it (IMU the policy acted on, commands, motor commands, latents). 2 s:
     the shape of notebook 01's Xadap flight, whose kernel then loads this compile from the cache."""
     from mjxsysid import params as P
-    from mjxsysid.analysis.flight import fly_vehicles, one_flight, seen_imu
+    from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
     from mjxsysid.policy.interface import resolve_policy
     ref = resolve_policy("xadap", require_xadap("onnx"))
     fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference="lemniscate",

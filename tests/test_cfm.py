@@ -11,6 +11,7 @@ from mjxsysid.cfm import (CFMConfig, Decoder, GaussianSmoothedLinearPath, count_
                           train_regression)
 from mjxsysid.cfm import calibration as C
 from mjxsysid.cfm.sample import METHODS, point, sample
+from mjxsysid.render.posterior import plot_rank_histograms
 
 TINY = CFMConfig(width=32, blocks=1, time_dim=16, epochs=2, batch=128)
 
@@ -179,7 +180,7 @@ def test_sbc(tmp_path):
     # ties (e.g. a parameter that is exactly 0 everywhere) get random ranks, not all 0
     r = C.sbc_ranks(np.zeros((500, 20, 1)), np.zeros((500, 1)))
     assert 5 < r.mean() < 15
-    out = C.plot_rank_histograms(ranks, 99, tmp_path / "sbc.png", names=["a", "b", "c"])
+    out = plot_rank_histograms(ranks, 99, tmp_path / "sbc.png", pvalues=C.sbc_uniformity(ranks, 99), names=["a", "b", "c"])
     assert out.is_file() and out.stat().st_size > 1000
 
 
@@ -253,7 +254,7 @@ def test_train_save_load_roundtrip(tmp_path):
     assert reg.point(z[0]).shape == (19,)
 
     with pytest.raises(ValueError, match="not a decoder file"):
-        from mjxsysid.policy.checkpoint import save_tree
+        from mjxsysid.checkpoint import save_tree
         load_decoder(save_tree(tmp_path / "other.npz", {"a": np.zeros(3)}, {"x": 1}))
     with pytest.raises(FileNotFoundError):
         load_decoder(tmp_path / "missing.npz")

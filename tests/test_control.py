@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from mjxsysid import params as P
-from mjxsysid.analysis.flight import broadcast, fly_vehicles
-from mjxsysid.analysis.harness import Disturbance, Flight, metrics, summarize
+from mjxsysid.rollout.flight import broadcast, fly_vehicles
+from mjxsysid.rollout.harness import Disturbance, Flight, metrics, summarize
 from mjxsysid.cli import main
 from mjxsysid.control.high_level import GAIN_BOUNDS, PRESETS, gains
 from mjxsysid.control.low_level import Command, KTheta, allocate, allocation_matrix
@@ -78,7 +78,7 @@ def test_oracle_tracks_lemniscate_on_paper_vehicle(prior_lemniscate):
 def test_oracle_hovers_all_prior_vehicles(prior_lemniscate):
     """10 s hover at (0, 0, 1) as size-0 lemniscates (the experiments' hover reference): the
     fixture's compiled flight."""
-    from mjxsysid.analysis.robustness import hover_reference
+    from mjxsysid.studies.robustness import hover_reference
     theta = prior_lemniscate[0]
     _, m, _ = fly_vehicles(theta, controller="oracle", refs=hover_reference(len(theta)), duration=10.0)
     assert not np.any(np.asarray(m["failed"]))
@@ -226,7 +226,7 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
     the default tier decodes only ẑ at 0.2 s and at 10 s (the posterior the summary reports);
     `-m slow` runs the demo unchanged."""
     if decode_rate is not None:
-        import mjxsysid.analysis.decode as D
+        import mjxsysid.studies.decode as D
         decode_latents = D.decode_latents
         monkeypatch.setattr(D, "decode_latents", lambda *a, **k: decode_latents(*a, **dict(k, rate=decode_rate)))
     out = tmp_path / "demo"

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from mjxsysid import params as P
-from mjxsysid.analysis.decode import (LOG_COLUMNS, PRETRAINED_DIR, decode_latents, read_log,
-                                      summarize_posterior, write_log)
+from mjxsysid.studies.decode import LOG_COLUMNS, decode_latents, read_log, write_log
+from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
+from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.cli import main
 
 pytestmark = pytest.mark.skipif(not (PRETRAINED_DIR / "cfm.npz").exists(), reason="no shipped decoder")
@@ -15,15 +16,16 @@ pytestmark = pytest.mark.skipif(not (PRETRAINED_DIR / "cfm.npz").exists(), reaso
 
 @pytest.fixture(scope="module")
 def paper_flight():
-    from mjxsysid.analysis.flight import fly_vehicles, one_flight
+    from mjxsysid.rollout.flight import fly_vehicles, one_flight
     # 2 s: the flight of notebooks 00 and 01, so their kernels load this compile from the cache.
-    fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", reference="lemniscate", duration=2.0)
+    fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=resolve_policy("mjxsysid"),
+                            reference="lemniscate", duration=2.0)
     return one_flight(fl)
 
 
 def _log_from_flight(f):
     """The IMU the controller saw at each step is the previous step's output."""
-    from mjxsysid.analysis.flight import seen_imu
+    from mjxsysid.rollout.flight import seen_imu
     return f.time - 0.002, seen_imu(f.frame.imu), f.a_cmd, f.omega_cmd, f.frame.motor_cmd
 
 
@@ -90,7 +92,7 @@ def test_decode_cli_errors(tmp_path, capsys):
 @pytest.mark.slow
 def test_closed_loop_fidelity_runs():
     """Slow (≈ 1 min of compiles on CPU): envelopes are computed and bounded."""
-    from mjxsysid.analysis.fidelity import closed_loop_fidelity
+    from mjxsysid.studies.fidelity import closed_loop_fidelity
     r = closed_loop_fidelity(P.PAPER_HARDWARE, n_models=8, reference="hover", duration=1.0,
                              force_step=(1.0, 1.0, 0.0))
     m = r["mean"]

@@ -60,7 +60,7 @@ def test_fly_batch_two_devices_equals_one_and_drops_padding():
     replicated, through the same fly_batch: collect and evaluation tests below)."""
     r = run_two_devices("""
         from mjxsysid import params as P
-        from mjxsysid.analysis.flight import fly_vehicles
+        from mjxsysid.rollout.flight import fly_vehicles
         theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 5))   # odd: one padded row
         with D.limit_devices(1):
             f1, m1, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.2, seed=3)
@@ -85,7 +85,7 @@ def test_collect_pairs_two_devices_equal_one():
     through the same fly_batch above)."""
     r = run_two_devices("""
         from mjxsysid import params as P
-        from mjxsysid.policy.collect import latents_in_flight
+        from mjxsysid.dataset.collect import latents_in_flight
         theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(1), 3))
         with D.limit_devices(1):
             z1, f1 = latents_in_flight("mjxsysid", theta, jax.random.PRNGKey(2), steps=120)
@@ -139,7 +139,7 @@ def test_evaluation_rollout_and_cfm_sampling_two_devices_equal_one():
         from mjxsysid.policy.controller import PolicyController
         from mjxsysid.policy.env import EnvConfig, TrainEnv
         from mjxsysid.policy.evaluate import env_rollout
-        from mjxsysid.analysis.decode import load_decoders
+        from mjxsysid.cfm.load import load_decoders
         from mjxsysid.policy.interface import resolve_policy
         ctrl = PolicyController.load(None)
         env = TrainEnv(EnvConfig(episode_steps=31))
@@ -268,7 +268,7 @@ def test_two_processes_equal_one(tmp_path):
         import jax
         jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
         from mjxsysid import params as P
-        from mjxsysid.analysis.flight import fly_vehicles
+        from mjxsysid.rollout.flight import fly_vehicles
         theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 5))
         f, m, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.1, seed=3)
         np.save(sys.argv[1], np.asarray(f.frame.pos))

@@ -16,7 +16,7 @@ from mjxsysid import params as P
                                              (40, 3, -2.0, 3.0)])
 def test_energy_distance_matches_scipy(n, m, shift, scale):
     stats = pytest.importorskip("scipy.stats")
-    from mjxsysid.analysis.fidelity import energy_distance
+    from mjxsysid.studies.fidelity import energy_distance
     r = np.random.default_rng(n * 7 + m)
     u, v = r.normal(size=n), r.normal(shift, scale, size=m)
     assert energy_distance(u, v) == pytest.approx(stats.energy_distance(u, v), rel=1e-9, abs=1e-12)
@@ -24,7 +24,7 @@ def test_energy_distance_matches_scipy(n, m, shift, scale):
 
 
 def test_energy_distance_edge_cases():
-    from mjxsysid.analysis.fidelity import energy_distance
+    from mjxsysid.studies.fidelity import energy_distance
     x = np.array([0.2, 0.5, 0.5, 3.0])
     assert energy_distance(x, x) == 0.0
     # two point masses a distance d apart: sqrt(2 d)
@@ -36,7 +36,7 @@ def test_energy_distance_edge_cases():
 
 
 def test_envelope_containment_constructed():
-    from mjxsysid.analysis.fidelity import envelope_stats
+    from mjxsysid.studies.fidelity import envelope_stats
     t_n = 10
     ens = np.tile(np.arange(101.0)[:, None], (1, t_n))  # 5th / 95th percentiles: 5 and 95 at every t
     true = np.array([50.0] * 4 + [5.0] + [95.0] + [200.0] * 3 + [1.0])
@@ -48,7 +48,7 @@ def test_envelope_containment_constructed():
 
 
 def test_step_and_mc_stats_on_constructed_ensembles():
-    from mjxsysid.analysis.robustness import mc_stats, step_stats
+    from mjxsysid.studies.robustness import mc_stats, step_stats
     times = np.arange(1, 21) * 0.1
     base = np.linspace(0, 1, 20)
     r = np.random.default_rng(0)
@@ -72,7 +72,7 @@ def test_step_and_mc_stats_on_constructed_ensembles():
 # ----------------------------------------------------------------------------- payload physics
 
 def test_payload_theta_and_torque_closed_form():
-    from mjxsysid.analysis.harness import payload_theta, payload_torque
+    from mjxsysid.rollout.harness import payload_theta, payload_torque
     th = P.PAPER_HARDWARE
     tp = np.asarray(payload_theta(th, 0.1, np.array([0.1, 0.0, 0.0])))
     assert tp[P.MASS] == pytest.approx(th[P.MASS] + 0.1)
@@ -85,14 +85,14 @@ def test_payload_theta_and_torque_closed_form():
     q = np.array([np.cos(np.pi / 4), 0.0, np.sin(np.pi / 4), 0.0])
     np.testing.assert_allclose(np.asarray(payload_torque(q, np.float32(0.1), np.array([0.1, 0, 0]))), 0, atol=1e-7)
     with pytest.raises(ValueError, match="payload_mass"):
-        from mjxsysid.analysis.harness import Disturbance
+        from mjxsysid.rollout.harness import Disturbance
         Disturbance.make(payload_mass=-0.1)
 
 
 def test_payload_switches_at_its_step(sim):
     """Identical flights up to the event step; at that step the accelerometer reads the same
     thrust over the larger mass and the offset weight starts a nose-down pitch (closed form)."""
-    from mjxsysid.analysis.harness import Disturbance, fly
+    from mjxsysid.rollout.harness import Disturbance, fly
     from mjxsysid.control.high_level import Cascade
     from mjxsysid.control.low_level import KTheta
     from mjxsysid.control.references import Hover
@@ -115,7 +115,7 @@ def test_payload_switches_at_its_step(sim):
 
 
 def test_default_disturbance_has_no_payload():
-    from mjxsysid.analysis.harness import Disturbance
+    from mjxsysid.rollout.harness import Disturbance
     d = Disturbance.make()
     assert float(d.payload_mass) == 0.0 and np.isinf(float(d.payload_time))
 
@@ -136,7 +136,7 @@ def _check_results(out: Path, name: str) -> dict:
 
 
 def test_robustness_tiny(tmp_path):
-    from mjxsysid.analysis.robustness import RobustnessConfig
+    from mjxsysid.studies.robustness import RobustnessConfig
     from mjxsysid.experiments import robustness
     cfg = RobustnessConfig(duration=0.8, onset=0.3, n_decoded=4, n_perturbed=4, mc_rollouts=3, mc_models=2,
                            sigmas=(1.0, 5.0), chunk=64)
@@ -217,7 +217,7 @@ def test_cli_unknown_experiment_exits_2(tmp_path, capsys):
 
 
 def test_config_validation():
-    from mjxsysid.analysis.robustness import RobustnessConfig
+    from mjxsysid.studies.robustness import RobustnessConfig
     from mjxsysid.experiments.payload import PayloadConfig
     with pytest.raises(ValueError, match="mc_models"):
         RobustnessConfig(mc_models=0)
@@ -234,7 +234,7 @@ def test_config_validation():
 def test_flight_window_needs_the_sequence_decoder():
     """window='flight' with a single-latent decoder is a named error before any flight (robustness
     study and closed-loop fidelity)."""
-    from mjxsysid.analysis.robustness import RobustnessConfig, robustness_study
+    from mjxsysid.studies.robustness import RobustnessConfig, robustness_study
     from mjxsysid.cfm.sample import Decoder
 
     class Single(Decoder):  # any single-latent decoder: never sampled
@@ -243,7 +243,7 @@ def test_flight_window_needs_the_sequence_decoder():
     with pytest.raises(TypeError, match="sequence decoder"):
         robustness_study(P.PAPER_HARDWARE[None], Single(), "mjxsysid", RobustnessConfig(window="flight"),
                          jax.random.PRNGKey(0), log=lambda m: None)
-    from mjxsysid.analysis.fidelity import closed_loop_fidelity
+    from mjxsysid.studies.fidelity import closed_loop_fidelity
     with pytest.raises(TypeError, match="sequence decoder"):
         closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="flight")
     with pytest.raises(ValueError, match="window"):

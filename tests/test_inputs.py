@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mjxsysid import params as P
-from mjxsysid.analysis.decode import LOG_COLUMNS, read_log
+from mjxsysid.studies.decode import LOG_COLUMNS, read_log
 from mjxsysid.cli import main
 
 SETTINGS = settings(max_examples=60, deadline=None,
@@ -270,7 +270,7 @@ def small_tree():
 @SETTINGS
 @given(cut=st.floats(min_value=0.0, max_value=0.999), flip=st.integers(0, 10 ** 6))
 def test_truncated_or_corrupt_npz_is_a_named_error(tmp_path, small_tree, cut, flip):
-    from mjxsysid.policy.checkpoint import load_tree, save_tree
+    from mjxsysid.checkpoint import load_tree, save_tree
     path = save_tree(tmp_path / "w.npz", small_tree, {"k": 1})
     raw = path.read_bytes()
     path.write_bytes(raw[: int(cut * len(raw))])
@@ -290,7 +290,7 @@ def test_truncated_or_corrupt_npz_is_a_named_error(tmp_path, small_tree, cut, fl
 
 
 def test_weights_with_wrong_keys_shapes_or_nan(tmp_path, small_tree):
-    from mjxsysid.policy.checkpoint import load_tree, save_tree
+    from mjxsysid.checkpoint import load_tree, save_tree
     p = save_tree(tmp_path / "k.npz", {"a": small_tree["a"]})
     with pytest.raises(ValueError, match=r"k.npz: missing array \['b'\]\['c'\]"):
         load_tree(p, small_tree)
@@ -316,7 +316,7 @@ def test_truncated_policy_and_decoder_files_exit_2(tmp_path, capsys):
     dec.mkdir()
     shutil.copy(PRETRAINED_DIR / "regression.npz", dec / "regression.npz")
     (dec / "cfm.npz").write_bytes((PRETRAINED_DIR / "cfm.npz").read_bytes()[:-100])
-    from mjxsysid.analysis.decode import load_decoders
+    from mjxsysid.cfm.load import load_decoders
     with pytest.raises(ValueError) as e:
         load_decoders(dec)
     _one_line_naming(str(e.value), dec / "cfm.npz")
@@ -329,7 +329,7 @@ def test_truncated_policy_and_decoder_files_exit_2(tmp_path, capsys):
 def test_decoders_of_another_policy_are_an_error(tmp_path):
     """Xadap's shipped decoders with mjxsysid's policy: refused, naming the file (a warning
     only with allow_mismatch=True)."""
-    from mjxsysid.analysis.decode import load_decoders
+    from mjxsysid.cfm.load import load_decoders
     from mjxsysid.policy.interface import PRETRAINED_DIR
     xa = PRETRAINED_DIR / "xadap"
     if not (xa / "cfm.npz").is_file():
@@ -343,7 +343,7 @@ def test_decoders_of_another_policy_are_an_error(tmp_path):
 
 
 def test_xadap_npz_and_pairs_files_named_errors(tmp_path):
-    from mjxsysid.policy.collect import load_pairs
+    from mjxsysid.dataset.collect import load_pairs
     from mjxsysid.policy.xadap import load_npz
     x = tmp_path / "xadap.npz"
     x.write_bytes(b"PK\x03\x04 truncated")

@@ -10,8 +10,9 @@ import pytest
 
 from mjxsysid import params as P
 from mjxsysid.policy import networks as N
-from mjxsysid.policy.checkpoint import load_tree, save_tree
+from mjxsysid.checkpoint import load_tree, save_tree
 from mjxsysid.policy.controller import PRETRAINED, PolicyCarry, PolicyController
+from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.policy.env import EnvConfig, TrainEnv
 from mjxsysid.policy.train import (IDENT_TARGET_NAMES, Trainer, TrainConfig, alignment_losses, gae,
                                    gaussian_logp, identifiable_log, identifiable_projection, schedules,
@@ -180,9 +181,10 @@ def test_deployed_controller_equals_training_policy(params):
 
 @pytest.mark.skipif(not PRETRAINED.exists(), reason="no shipped policy weights")
 def test_pretrained_policy_hovers_and_tracks_paper_vehicle():
-    from mjxsysid.analysis.flight import fly_vehicles
+    from mjxsysid.rollout.flight import fly_vehicles
     # 5 s: the hover of tests/test_experiments_robustness.py::test_payload_tiny (one compile)
-    _, m, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", reference="hover", duration=5.0)
+    _, m, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=resolve_policy("mjxsysid"),
+                           reference="hover", duration=5.0)
     assert not bool(m["failed"][0])
     assert float(m["max_pos_err_m"][0]) < 0.05, float(m["max_pos_err_m"][0])
     meta = json.loads((PRETRAINED.parent / "policy.json").read_text())
@@ -192,7 +194,7 @@ def test_pretrained_policy_hovers_and_tracks_paper_vehicle():
 
 def test_collect_pairs_tiny(collected_pairs, tmp_path):
     """`mjxsysid collect --train 6 --test 2 --batch 4` (conftest.collected_pairs)."""
-    from mjxsysid.policy.collect import load_pairs
+    from mjxsysid.dataset.collect import load_pairs
     arrays, meta = load_pairs(collected_pairs)
     assert arrays["theta_train"].shape == (6, 19) and arrays["zhat_test"].shape == (2, 8)
     assert np.all(np.abs(arrays["zhat_train"]) <= 1) and not arrays["failed_train"].any()

@@ -517,7 +517,7 @@ def test_delayed_holds_the_start_then_flies_the_inner_reference():
 
 
 def test_flight_minsnaps_scale_segments_with_duration_and_clear_the_ground():
-    from mjxsysid.analysis.flight import make_reference, minsnap_segments, random_minsnaps
+    from mjxsysid.rollout.flight import make_reference, minsnap_segments, random_minsnaps
     assert [minsnap_segments(d) for d in (0.5, 2.0, 5.0, 12.0)] == [1, 2, 5, 5]
     ref, d = make_reference("minsnap", duration=2.0, seed=4)
     assert d == 2.0 and len(np.asarray(ref.durations)) == 2 and ref.lowest_height() >= 0.2 - 1e-3

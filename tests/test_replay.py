@@ -8,8 +8,7 @@ from conftest import XADAP_DIR
 
 from mjxsysid import params as P
 from mjxsysid.control.low_level import Command, KTheta
-from mjxsysid.analysis.replay import (METHODS, action_metrics, lowpass, pearson, replay_commands,
-                                      replay_flight)
+from mjxsysid.studies.replay import METHODS, action_metrics, lowpass, pearson, replay_commands, replay_flight
 
 
 def test_metrics_by_hand():
@@ -33,7 +32,7 @@ def test_metrics_by_hand():
 @pytest.fixture(scope="module")
 def oracle_recording():
     """The paper vehicle flown 1 s by the oracle K_θ: its motor commands are K_θ's own."""
-    from mjxsysid.analysis.flight import fly_vehicles, one_flight, seen_imu
+    from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
     fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="oracle", reference="lemniscate", period=5.0,
                             duration=1.0)
     f = one_flight(fl)
@@ -93,7 +92,7 @@ def test_perfect_decoder_scores_like_the_truth(oracle_recording):
 def test_shipped_xadap_decoders_explain_its_commands(xadap_paper_recording):
     """On a recorded flight of the released policy, K_θ̂ from its shipped decoders tracks its
     motor commands far better than the Random baseline."""
-    from mjxsysid.analysis.decode import load_decoders
+    from mjxsysid.cfm.load import load_decoders
     ref, rec = xadap_paper_recording
     cfm, reg = load_decoders(None, ref)
     r = replay_flight(rec, P.PAPER_HARDWARE, cfm, reg, jax.random.PRNGKey(0), samples=8)

@@ -132,7 +132,7 @@ def test_sequence_decoder_resume_gives_the_uninterrupted_weights(tmp_path):
 def test_policy_resume_gives_the_uninterrupted_weights(tmp_path):
     """Slow (two compiles of a PPO iteration, ≈ 2–3 min on a 2-core CPU). The environments'
     state is in the checkpoint, so a resumed run continues bit for bit."""
-    from mjxsysid.policy.checkpoint import load_tree
+    from mjxsysid.checkpoint import load_tree
     from mjxsysid.policy.train import POLICY_MODULES, TrainConfig, train
     from mjxsysid.policy import networks as N
     cfg = TrainConfig(iterations=6, num_envs=32, unroll=8, epochs=1, minibatches=2, log_every=1,

@@ -104,7 +104,7 @@ def test_save_load_roundtrip_and_errors(tmp_path):
 
 
 def test_window_parsing_and_masks():
-    from mjxsysid.analysis.decode import check_window, parse_window, window_masks
+    from mjxsysid.studies.decode import check_window, parse_window, window_masks
     assert parse_window("flight") == "flight" and parse_window("Instant") == "instant"
     assert parse_window("2.5") == 2.5
     for bad in ("0", "-1", "nan", "abc", "inf"):
@@ -140,7 +140,8 @@ def _tiny_seq_decoders(tmp_path):
 
 
 def test_decode_latents_with_a_window(tmp_path):
-    from mjxsysid.analysis.decode import decode_latents, load_decoders, load_sequence_decoder
+    from mjxsysid.studies.decode import decode_latents
+    from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
     d = _tiny_seq_decoders(tmp_path)
     cfm, reg = load_decoders(d)
     seq = load_sequence_decoder(d)
@@ -162,7 +163,7 @@ def test_decode_latents_with_a_window(tmp_path):
 def test_sequence_decoder_of_another_policy_is_an_error(tmp_path):
     """As for the single-latent decoders: another policy's sequence decoder is refused unless
     allow_mismatch (then a warning)."""
-    from mjxsysid.analysis.decode import load_sequence_decoder
+    from mjxsysid.cfm.load import load_sequence_decoder
     from mjxsysid.cfm.sample import Decoder
     d = _tiny_seq_decoders(tmp_path)
     cfg = SeqCFMConfig(width=32, blocks=1, time_dim=8, set_width=16, heads=2, cond_dim=8, max_len=20)
@@ -178,7 +179,7 @@ def test_sequence_decoder_of_another_policy_is_an_error(tmp_path):
 def test_decode_cli_windows(tmp_path, capsys):
     """Bad windows are one-line errors (exit 2) before anything flies; a log replay decodes with a
     window and falls back to instant without a sequence decoder."""
-    from mjxsysid.analysis.decode import write_log
+    from mjxsysid.studies.decode import write_log
     from mjxsysid.cli import main
     for w, msg in (("0", "must be > 0"), ("-2", "must be > 0"), ("soon", "'flight', 'instant'"),
                    ("30", "longer than the flight")):
@@ -214,7 +215,7 @@ def test_collect_latent_trajectories(collected_pairs, tmp_path):
     """collect records ẑ at 10 Hz over a 10 s flight of random manoeuvres (the collect run of
     tests/test_policy.py::test_collect_pairs_tiny: conftest.collected_pairs)."""
     from mjxsysid.cli import main
-    from mjxsysid.policy.collect import MANOEUVRES, load_pairs
+    from mjxsysid.dataset.collect import MANOEUVRES, load_pairs
     arrays, meta = load_pairs(collected_pairs)
     times = arrays["traj_times"]
     assert times.shape == (99,)
@@ -227,7 +228,7 @@ def test_collect_latent_trajectories(collected_pairs, tmp_path):
     assert len(meta["weights_sha256"]) == 64 and meta["seconds"] == 10.0 and meta["traj_rate_hz"] == 10.0
     assert meta["manoeuvres"] == list(MANOEUVRES)
     with pytest.raises(ValueError, match="seconds must be >= 0.2"):
-        from mjxsysid.policy.collect import collect
+        from mjxsysid.dataset.collect import collect
         collect(tmp_path / "x", n_train=2, n_test=1, seconds=0.1)
     assert main(["collect", "--out", str(tmp_path / "y"), "--manoeuvres", "loop"]) == 2
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from mjxsysid import params as P
-from mjxsysid.analysis.flight import broadcast
-from mjxsysid.analysis.harness import Disturbance, Flight, fly_batch
+from mjxsysid.rollout.flight import broadcast
+from mjxsysid.rollout.harness import Disturbance, Flight, fly_batch
 from mjxsysid.control.high_level import GAIN_BOUNDS, PRESETS, Cascade
 from mjxsysid.control.references import Hover, Lemniscate
 from mjxsysid.sim.quadrotor import Frame
@@ -195,7 +195,7 @@ def test_cli_tune_rejects_invalid_vehicle(tmp_path, capsys):
 def test_cfm_models_are_the_decoders_samples():
     """The tuner's 'cfm' model source draws exactly what the decoder's public sampler draws for
     the same latent and key (then projected to valid θ): (K, 19), finite, valid."""
-    from mjxsysid.analysis.decode import load_decoders
+    from mjxsysid.cfm.load import load_decoders
     from mjxsysid.tune.tuner import DecoderArgs, draw_models
     dec = load_decoders()[0]
     cfg = TunerConfig(models=3, decoder_steps=4)

@@ -164,8 +164,8 @@ def test_hovers_in_distribution_vehicles(weights, sim):
     A wrong motor order crashes every vehicle within 2 s (RMSE ≈ 0.4 m), so a 12 cm bound
     per vehicle and 6 cm on the mean separate working from broken conventions with margin.
     """
-    from mjxsysid.analysis.flight import broadcast, make_reference
-    from mjxsysid.analysis.harness import Disturbance, batch_metrics, fly_batch
+    from mjxsysid.rollout.flight import broadcast, make_reference
+    from mjxsysid.rollout.harness import Disturbance, batch_metrics, fly_batch
     from mjxsysid.control.high_level import Cascade
 
     n = 4

@@ -12,7 +12,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
-from mjxsysid.policy.checkpoint import load_meta
+from mjxsysid.checkpoint import load_meta
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -13,7 +13,6 @@ invariant to monotone per-dimension maps, so physical or normalised units give t
   (Talts et al. 2018).
 - :func:`sbc_uniformity`: KS-test p-values (d,) of u = (r + U[0, 1)) / (S + 1) against U(0, 1)
   (the jitter makes u exactly U(0, 1) under calibration).
-- :func:`plot_rank_histograms`: one histogram per dimension with the 99 % binomial band.
 - :func:`c2st`: classifier two-sample test — k-fold held-out accuracy of a classifier (small
   numpy MLP or logistic regression, L-BFGS, L2) telling set A from set B (balanced by
   subsampling, features standardised on the training folds). 0.5 = indistinguishable, 1 =
@@ -28,7 +27,6 @@ invariant to monotone per-dimension maps, so physical or normalised units give t
 """
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -90,47 +88,6 @@ def sbc_uniformity(ranks, n_samples: int, seed: int = 0) -> np.ndarray:
     rng = np.random.default_rng(seed)
     u = (r + rng.random(r.shape)) / (n_samples + 1)
     return np.array([stats.kstest(u[:, j], "uniform").pvalue for j in range(r.shape[1])])
-
-
-def plot_rank_histograms(ranks, n_samples: int, path, names: Sequence[str] | None = None,
-                         bins: int | None = None, title: str | None = None, ncols: int = 5) -> Path:
-    """Save SBC rank histograms (one panel per dimension, grey 99 % band of a uniform
-    histogram, KS p-value in each title) as a PNG. Returns the path."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from scipy import stats
-
-    r = np.asarray(ranks)
-    m, d = r.shape
-    names = list(names) if names is not None else [f"dim {j}" for j in range(d)]
-    if len(names) != d:
-        raise ValueError(f"{len(names)} names for {d} dimensions")
-    nb = bins or int(min(n_samples + 1, max(5, m // 20), 20))
-    edges = np.linspace(-0.5, n_samples + 0.5, nb + 1)
-    pv = sbc_uniformity(r, n_samples)
-    lo, hi = stats.binom.ppf([0.005, 0.995], m, 1.0 / nb)
-    nrows = -(-d // ncols)
-    fig, axes = plt.subplots(nrows, min(ncols, d), figsize=(3.0 * min(ncols, d), 2.4 * nrows),
-                             squeeze=False)
-    for j, ax in enumerate(axes.ravel()):
-        if j >= d:
-            ax.axis("off")
-            continue
-        ax.axhspan(lo, hi, color="0.85", zorder=0)
-        ax.axhline(m / nb, color="0.5", lw=0.8, zorder=1)
-        ax.hist(r[:, j], bins=edges, color="C0", zorder=2)
-        ax.set_title(f"{names[j]}  p={pv[j]:.2g}", fontsize=8)
-        ax.set_xticks([0, n_samples])
-        ax.tick_params(labelsize=7)
-    if title:
-        fig.suptitle(title)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
 
 
 # ----------------------------------------------------------------------------------------

@@ -15,14 +15,18 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
 from mjxsysid.cfm import calibration as C
-from mjxsysid.cfm.sample import Decoder, random_baseline, sample
+from mjxsysid.cfm.posterior import summarize_posterior
+from mjxsysid.cfm.sample import Decoder, random_baseline
+from mjxsysid.cfm.sequence import SeqCFMConfig, SequenceDecoder, save_seq_decoder, train_seq_cfm
 from mjxsysid.cfm.train import CFMConfig, save_decoder, train_cfm, train_regression
-from mjxsysid.policy.collect import load_pairs
+from mjxsysid.checkpoint import load_meta
+from mjxsysid.dataset.collect import MANOEUVRES, load_pairs
+from mjxsysid.progress import progress, stages, tee
+from mjxsysid.render.posterior import plot_marginals, plot_rank_histograms
 
 
 def _half(params):
@@ -46,7 +50,6 @@ def _already_trained(final: Path, ckpt: Path, cfg_dict: dict, pairs_sha256: str,
     """The meta of ``final`` when it was written for this config and these pairs (and no
     checkpoint of an unfinished run lies beside it); None otherwise. Without ``resume`` the
     checkpoint is deleted and None returned."""
-    from mjxsysid.policy.checkpoint import load_meta
     if not resume:
         ckpt.unlink(missing_ok=True)
         return None
@@ -85,7 +88,6 @@ def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, kinds=None, seq_
         raise ValueError(f"{pairs}: no latent trajectories (zhat_traj_train) for the sequence decoder: "
                          f"collect them with `mjxsysid collect --seconds S`")
     out.mkdir(parents=True, exist_ok=True)
-    from mjxsysid.progress import tee
     log = tee(log, out / "train_log.txt")
     norm = P.prior_normalizer(meta.get("prior", "default"), coords=cfg.coords)
     flow = lambda theta: np.asarray(norm.to_flow(norm.normalize(theta)))   # what the networks learn
@@ -96,7 +98,6 @@ def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, kinds=None, seq_
             "n_train": int(len(th)), "n_val": int(len(tv))}
     res = {}
     if "cfm_seq" in kinds:
-        from mjxsysid.cfm.sequence import SeqCFMConfig, save_seq_decoder, train_seq_cfm
         ths, zts = _usable_traj(arrays, "train")
         tvs, zvs = _usable_traj(arrays, "test")
         flat = zts.reshape(-1, zts.shape[-1])
@@ -245,7 +246,6 @@ def evaluate_sequence(seq, pairs, *, cfm=None, n_cases: int = 1000, n_samples: i
     }
     t0 = time.time()
     per_case = {}
-    from mjxsysid.progress import progress
     for j, (name, msk) in enumerate(progress(windows.items(), desc="evaluate sequence decoder", unit="window")):
         s_norm = np.asarray(seq.sample_norm(zt, jax.random.fold_in(key, j), n_samples,
                                             mask=np.broadcast_to(msk, (m, L))))
@@ -266,7 +266,6 @@ def evaluate_sequence(seq, pairs, *, cfm=None, n_cases: int = 1000, n_samples: i
     if "single_latent_cfm" in es:
         res["energy_ratio_flight_vs_single_cfm"] = es[fl] / es["single_latent_cfm"]
     if kinds is not None:
-        from mjxsysid.policy.collect import MANOEUVRES
         names = meta.get("manoeuvres", list(MANOEUVRES))
         res["energy_by_manoeuvre"] = {
             names[k]: {w: float(np.mean(per_case[w][kinds[:m] == k])) for w in per_case}
@@ -287,7 +286,6 @@ def paper_vehicle_widths(seq, zhat, times, *, cfm=None, n_samples: int = 1000, s
     """The paper vehicle's flight-level posterior given all its latents (L, 8) at 10 Hz:
     per parameter / identifiable combination mean, q05, q95, truth inside, and
     (q95 − q05) / true; the single-latent CFM on the last latent for comparison."""
-    from mjxsysid.analysis.decode import summarize_posterior
     key = jax.random.PRNGKey(seed + 11)
     zhat = np.asarray(zhat, np.float32)
     out = {"flight_s": float(times[-1]), "n_latents": int(len(zhat))}
@@ -327,7 +325,6 @@ def evaluate_decoders(out, pairs, *, n_cases: int = 1000, n_samples: int = 200, 
         rep = _evaluate_single(out, pairs, n_cases=n_cases, n_samples=n_samples, seed=seed,
                                paper_zhat=paper_zhat, log=log)
     if have_seq:
-        from mjxsysid.cfm.sequence import SequenceDecoder
         seq = SequenceDecoder.load(out / "cfm_seq.npz")
         rep["sequence"] = evaluate_sequence(seq, pairs, cfm=cfm, n_cases=n_cases, n_samples=n_samples,
                                             seed=seed, paper_traj=paper_traj, log=log)
@@ -345,7 +342,6 @@ def _evaluate_single(out, pairs, *, n_cases, n_samples, seed, paper_zhat, log) -
     m = min(n_cases, len(tv))
     tv, zv = tv[:m], zv[:m]
     key = jax.random.PRNGKey(seed)
-    from mjxsysid.progress import stages
     st = stages(["sampling", "coverage and SBC", "energy score", "C2ST", "paper vehicle"],
                 desc="evaluate-decoder")
     st.start("sampling")
@@ -356,7 +352,8 @@ def _evaluate_single(out, pairs, *, n_cases, n_samples, seed, paper_zhat, log) -
     st.start("coverage and SBC")
     rep = C.calibration_report(s_norm, t_norm, names=P.PARAM_NAMES, seed=seed)
     ranks = C.sbc_ranks(s_norm, t_norm, seed)
-    C.plot_rank_histograms(ranks, n_samples, out / "sbc_ranks.png", names=P.PARAM_NAMES)
+    plot_rank_histograms(ranks, n_samples, out / "sbc_ranks.png", pvalues=C.sbc_uniformity(ranks, n_samples),
+                         names=P.PARAM_NAMES)
     # Identifiable combinations, in log space.
     ident = lambda th: np.log(np.abs(np.asarray(P.identifiable(th))) + 1e-12)
     s_phys = np.asarray(norm.denormalize(s_norm))
@@ -402,39 +399,3 @@ def _evaluate_single(out, pairs, *, n_cases, n_samples, seed, paper_zhat, log) -
     return rep
 
 
-def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior vs truth"):
-    """Histograms of decoded θ samples (n, 19), truth (19,) marked; optional point estimate."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import MaxNLocator, NullFormatter
-    fig, axes = plt.subplots(4, 5, figsize=(17, 11))
-    for j, ax in enumerate(axes.flat):
-        if j >= P.N_PARAMS:
-            ax.axis("off")
-            continue
-        x = samples[:, j]
-        log = P.LOG_MASK[j] and np.all(x > 0)
-        bins = np.geomspace(x.min(), x.max(), 30) if log and x.min() < x.max() else 30
-        ax.hist(x, bins=bins, color="tab:blue", alpha=0.7)
-        if log:
-            ax.set_xscale("log")
-            # three labelled ticks over the samples' range (log axes' minor labels overlap)
-            ax.xaxis.set_minor_formatter(NullFormatter())
-            lo, hi = np.log(x.min()), np.log(x.max())
-            ticks = np.exp(lo + (hi - lo) * np.array([0.15, 0.5, 0.85])) if hi > lo else [x.min()]
-            ax.set_xticks(ticks, [f"{v:.3g}" for v in ticks])
-        else:
-            ax.xaxis.set_major_locator(MaxNLocator(5))
-        ax.axvline(truth[j], color="k", lw=2, label="true")
-        if point is not None:
-            ax.axvline(point[j], color="tab:orange", ls="--", label="regression")
-        ax.set_title(f"{P.PARAM_NAMES[j]} [{P.PARAM_UNITS[j]}]", fontsize=9)
-        ax.set_yticks([])
-    axes.flat[0].legend(fontsize=8)
-    fig.suptitle(title)
-    # fixed margins (tight_layout measured every tick label: half the time of this plot)
-    fig.subplots_adjust(left=0.02, right=0.99, bottom=0.05, top=0.92, wspace=0.15, hspace=0.45)
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path

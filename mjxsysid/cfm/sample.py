@@ -21,10 +21,10 @@ from functools import partial
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from mjxsysid import distributed
 from mjxsysid.cfm.train import CFMConfig, check_latents, load_decoder, make_network, save_decoder
+from mjxsysid.params import INERTIA, PAPER_HARDWARE
 
 METHODS = ("euler", "midpoint", "heun")
 
@@ -163,7 +163,6 @@ def random_baseline(key, n: int, nominal=None, *, spread: float = 0.5,
     whose J_zz ≈ J_xx + J_yy) is clipped to J_b + J_c so the vehicle passes
     ``params.validate_theta`` / MuJoCo; ``fix_inertia=False`` gives the literal paper baseline.
     """
-    from mjxsysid.params import INERTIA, PAPER_HARDWARE
     nom = jnp.asarray(PAPER_HARDWARE if nominal is None else nominal, jnp.float32)
     if nom.shape != (PAPER_HARDWARE.shape[0],):
         raise ValueError(f"nominal must have shape ({PAPER_HARDWARE.shape[0]},); got {nom.shape}")

@@ -39,6 +39,8 @@ import numpy as np
 from mjxsysid.cfm.networks import VelocityNet
 from mjxsysid.cfm.sample import METHODS, integrate
 from mjxsysid.cfm.train import FORMAT, CFMConfig, _normalizer_dict, _optimizer, fit_epochs, make_epoch
+from mjxsysid.checkpoint import load_meta, load_tree, save_tree
+from mjxsysid.params import Normalizer
 
 KIND = "cfm_seq"
 
@@ -312,7 +314,6 @@ def sample(params, cfg: SeqCFMConfig, zs, key, n_samples: int, steps: int = 50, 
 # ----------------------------------------------------------------------------------------
 
 def save_seq_decoder(path, params, cfg: SeqCFMConfig, normalizer=None, meta: dict | None = None):
-    from mjxsysid.policy.checkpoint import save_tree
     nd = _normalizer_dict(normalizer)
     full = {"format": FORMAT, "kind": KIND, "config": cfg.to_dict(), "normalizer": nd, "meta": dict(meta or {})}
     return save_tree(path, params, full)
@@ -334,7 +335,6 @@ class SequenceDecoder:
 
     @classmethod
     def load(cls, path) -> "SequenceDecoder":
-        from mjxsysid.policy.checkpoint import load_meta, load_tree
         full = load_meta(path)
         if full.get("format") != FORMAT or full.get("kind") != KIND:
             raise ValueError(f"{path}: not a sequence decoder (format {full.get('format')!r}, "
@@ -346,7 +346,6 @@ class SequenceDecoder:
         params = load_tree(path, jax.eval_shape(lambda: init_params(cfg)), finite=True)
         norm = None
         if full.get("normalizer") is not None:
-            from mjxsysid.params import Normalizer
             try:
                 norm = Normalizer.from_dict(full["normalizer"])
                 ok = all(np.shape(getattr(norm, k)) == (cfg.theta_dim,) and np.all(np.isfinite(getattr(norm, k)))

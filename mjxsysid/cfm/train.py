@@ -13,7 +13,7 @@ the last incomplete minibatch dropped) is a single jitted function; the host pri
 progress between epochs. Validation loss (if ``val`` is given) uses a fixed key, so its
 values are comparable across epochs.
 
-Weights are stored with :mod:`mjxsysid.policy.checkpoint` (npz + JSON meta, no pickle); the
+Weights are stored with :mod:`mjxsysid.checkpoint` (npz + JSON meta, no pickle); the
 meta holds the kind, the config and the normaliser, so a saved decoder is self-contained.
 """
 from __future__ import annotations
@@ -31,6 +31,9 @@ import optax
 
 from mjxsysid.cfm.networks import RegressionNet, VelocityNet
 from mjxsysid.cfm.path import GaussianSmoothedLinearPath
+from mjxsysid.checkpoint import load_meta, load_tree, save_tree
+from mjxsysid.params import DECODER_COORDS, Normalizer
+from mjxsysid.progress import progress
 
 KINDS = ("cfm", "regression")
 FORMAT = "mjxsysid.cfm.decoder/1"
@@ -67,7 +70,6 @@ class CFMConfig:
         if not self.lr > 0:
             raise ValueError(f"CFMConfig.lr must be > 0, got {self.lr}")
         GaussianSmoothedLinearPath(self.sigma, self.tau_max)  # validates sigma, tau_max
-        from mjxsysid.params import DECODER_COORDS
         if self.coords not in DECODER_COORDS:
             raise ValueError(f"CFMConfig.coords must be one of {DECODER_COORDS}, got {self.coords!r}")
 
@@ -203,7 +205,6 @@ def fit_epochs(epoch, params, opt_state, k_train, theta, zz, *, cfg, kind: str, 
     start, wall_prev = 0, 0.0
     ck_meta = None
     if checkpoint is not None:
-        from mjxsysid.policy.checkpoint import load_meta, load_tree, save_tree
         checkpoint = Path(checkpoint)
         ck_meta = {"kind": kind, "config": json.loads(json.dumps(cfg.to_dict())), "data": _data_digest(theta, zz)}
         if checkpoint.is_file():
@@ -215,7 +216,6 @@ def fit_epochs(epoch, params, opt_state, k_train, theta, zz, *, cfg, kind: str, 
             start, wall_prev, hist = meta["epoch"], meta["wall_s"], meta["hist"]
             if log is not None:
                 log(f"{tag} resumed from {checkpoint} at epoch {start}")
-    from mjxsysid.progress import progress
     bar = progress(total=cfg.epochs, initial=start, desc=f"train {kind}", unit="epoch")
     t_start = time.perf_counter()
     for e in range(start, cfg.epochs):
@@ -388,7 +388,6 @@ def save_decoder(path, kind: str, params, cfg: CFMConfig, normalizer_dict=None,
     """Write a decoder to ``path`` (.npz). ``normalizer_dict``: a Normalizer or its
     ``to_dict()`` (shift/scale lists; None only for non-θ toy problems); ``meta``: any
     JSON-serialisable extras (data provenance, history, ...)."""
-    from mjxsysid.policy.checkpoint import save_tree
 
     _check_kind(kind)
     nd = _normalizer_dict(normalizer_dict)
@@ -403,7 +402,6 @@ def save_decoder(path, kind: str, params, cfg: CFMConfig, normalizer_dict=None,
 
 def load_decoder(path) -> LoadedDecoder:
     """Read a decoder written by :func:`save_decoder` -> (kind, params, cfg, normalizer, meta)."""
-    from mjxsysid.policy.checkpoint import load_meta, load_tree
 
     full = load_meta(path)
     if full.get("format") != FORMAT:
@@ -420,7 +418,6 @@ def load_decoder(path) -> LoadedDecoder:
     params = load_tree(path, jax.eval_shape(lambda: init_params(cfg, kind)), finite=True)
     norm = None
     if full.get("normalizer") is not None:
-        from mjxsysid.params import Normalizer
         try:
             norm = Normalizer.from_dict(full["normalizer"])
             bad = [k for k in ("shift", "scale") if np.shape(getattr(norm, k)) != (cfg.theta_dim,)

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mjxsysid.policy.interface import file_sha256
+
 
 def git_commit() -> str | None:
     """HEAD of the checkout mjxsysid runs from (None outside a git checkout); $MJXSYSID_COMMIT
@@ -83,7 +85,6 @@ def write_results(out, name: str, *, config: dict, seeds: dict, numbers: dict, t
     policy: a :class:`~mjxsysid.policy.interface.PolicyRef` (its kind and weights hash are
     recorded); decoders: the folder of the decoders used (their file hash is recorded).
     """
-    from mjxsysid.policy.interface import file_sha256
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     prov = {"experiment": name, "config": config, "seeds": seeds, "commit": git_commit(),

@@ -2,7 +2,7 @@
 off-centre at [0.1, 0, 0] m (body frame) while the paper vehicle hovers; the latent is decoded at
 10 Hz through the event, and the policy's motor commands are replayed by K_θ̂.
 
-The event is the harness's payload (:class:`~mjxsysid.analysis.harness.Disturbance`): from
+The event is the harness's payload (:class:`~mjxsysid.rollout.harness.Disturbance`): from
 ``event`` s on the simulator flies θ with mass + m_p, inertia + the point mass's parallel-axis
 terms, and the body torque of the offset weight r × (Rᵀ m_p g) recomputed every step (the centre
 of mass is not moved: exact in steady hover, see the Disturbance docstring).
@@ -25,7 +25,18 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
+from mjxsysid.cfm.load import load_decoders
+from mjxsysid.control.high_level import Cascade
+from mjxsysid.control.references import Hover
+from mjxsysid.dataset.collect import decode_indices
 from mjxsysid.experiments.common import markdown_table, write_results
+from mjxsysid.policy.interface import resolve_policy
+from mjxsysid.render.replay import plot_replay
+from mjxsysid.rollout.flight import broadcast, seen_imu
+from mjxsysid.rollout.harness import Disturbance, batch_metrics, fly_batch, payload_theta, payload_torque
+from mjxsysid.sim import Quadrotor
+from mjxsysid.studies.decode import decode_latents
+from mjxsysid.studies.replay import LABELS, action_metrics, replay_flight
 
 PAPER_REPLAY = {"random": (0.156, 0.205), "regression": (0.064, 0.614), "cfm": (0.031, 0.812)}
 """The paper's payload row of the action-prediction table: (RMSE, PCC)."""
@@ -76,7 +87,6 @@ def quantities(theta) -> dict:
 
 def true_after(theta, cfg: PayloadConfig) -> np.ndarray:
     """θ with the payload, in level hover: mass, inertia and τ_ext,y = the offset weight's torque."""
-    from mjxsysid.analysis.harness import payload_theta, payload_torque
     th = np.asarray(payload_theta(theta, cfg.payload_mass, np.asarray(cfg.payload_pos))).copy()
     th[P.TAU_EXT] += np.asarray(payload_torque(np.array([1.0, 0, 0, 0]), np.float32(cfg.payload_mass),
                                                np.asarray(cfg.payload_pos, np.float32)))
@@ -118,14 +128,6 @@ def response(times, series, event: float, window: float, expected: float, band: 
 def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool = True, decoders=None,
         cfg: PayloadConfig | None = None) -> dict:
     """Run the payload experiment into ``out``; returns the results dict."""
-    from mjxsysid.analysis.decode import decode_latents, load_decoders
-    from mjxsysid.analysis.flight import broadcast, seen_imu
-    from mjxsysid.analysis.harness import Disturbance, batch_metrics, fly_batch
-    from mjxsysid.analysis.replay import action_metrics, plot_replay, replay_flight
-    from mjxsysid.control.high_level import Cascade
-    from mjxsysid.control.references import Hover
-    from mjxsysid.policy.interface import resolve_policy
-    from mjxsysid.sim import Quadrotor
     t0 = time.time()
     log = (lambda m: print(m, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     out = Path(out)
@@ -168,7 +170,6 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     log("action replay through the event")
     rec = {"time": t, "imu": seen_imu(f.frame.imu), "a_cmd": f.a_cmd, "omega_cmd": f.omega_cmd,
            "motor_cmd": f.frame.motor_cmd, "latent": f.latent, "pos": f.frame.pos, "ref_pos": f.ref_pos}
-    from mjxsysid.analysis.decode import decode_indices
     upd = t[decode_indices(t, cfg.rate)]
     truth_k = np.where((upd > cfg.event)[:, None], theta_p[None], theta[None])
     rp = replay_flight(rec, theta, cfm, reg, jax.random.fold_in(jax.random.PRNGKey(seed), 1), rate=cfg.rate,
@@ -177,7 +178,7 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     fs = 1.0 / float(t[1] - t[0])
     post = {k: action_metrics(rp[k][win], rp["policy"][win], fs=fs, cutoff_hz=cfg.cutoff_hz)
             for k in ("random", "regression", "cfm", "cfm_mean", "true")}
-    plot_replay(rp, rec, out / "payload_replay.png", events=(cfg.event,),
+    plot_replay(rp, rec, out / "payload_replay.png", labels=LABELS, events=(cfg.event,),
                 title=f"{ref.label}: paper vehicle hovering, {cfg.payload_mass * 1e3:g} g at "
                       f"{list(cfg.payload_pos)} m attached at {cfg.event:g} s")
     _plot_decoded(out / "payload_decoded.png", cfg, dec, q_s, q_r, q_b, q_a, t, err, thrust, theta, theta_p)

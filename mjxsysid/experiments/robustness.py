@@ -1,8 +1,8 @@
 """`mjxsysid experiment robustness` (paper §V-B, DESIGN §7): decoded-model envelopes under force
 disturbances, on the paper vehicle and on vehicles of the policy's prior.
 
-The protocol is :func:`mjxsysid.analysis.robustness.robustness_study` with
-:class:`~mjxsysid.analysis.robustness.RobustnessConfig`: :data:`FULL` (one GPU: paper vehicle +
+The protocol is :func:`mjxsysid.studies.robustness.robustness_study` with
+:class:`~mjxsysid.studies.robustness.RobustnessConfig`: :data:`FULL` (one GPU: paper vehicle +
 20 prior vehicles, 100 decoded / 100 ±20 % models per step, 100 noise seeds × 20 models per σ)
 or :data:`QUICK` (CPU, minutes). The decoders are a parameter (``decoders=DIR``, default the
 policy's shipped ones), so the experiment can be re-run when better decoders exist.
@@ -23,8 +23,11 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.robustness import AXES, RobustnessConfig, mc_stats, robustness_study, step_stats
+from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.experiments.common import markdown_table, mean_std, write_results
+from mjxsysid.policy.interface import resolve_policy
+from mjxsysid.render.plots import plot_error_envelopes, plot_final_histograms
+from mjxsysid.studies.robustness import AXES, RobustnessConfig, mc_stats, robustness_study, step_stats
 
 FULL = RobustnessConfig()
 QUICK = RobustnessConfig(duration=2.0, n_decoded=16, n_perturbed=16, mc_rollouts=8, mc_models=4, chunk=512)
@@ -52,8 +55,6 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     """Run the robustness experiment into ``out``; returns the results dict (see
     :func:`~mjxsysid.experiments.common.write_results`). ``cfg`` / ``n_prior`` override the
     quick / full presets; ``decoders``: folder with cfm.npz (default: the policy's)."""
-    from mjxsysid.analysis.decode import load_decoders, load_sequence_decoder
-    from mjxsysid.policy.interface import resolve_policy
     t0 = time.time()
     log = (lambda m: print(m, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     out = Path(out)
@@ -207,7 +208,6 @@ def table_md(cfg: RobustnessConfig, numbers: dict) -> str:
 
 
 def _plots(out: Path, cfg, res, steps, mcs, label: str):
-    from mjxsysid.render.plots import plot_error_envelopes, plot_final_histograms
     t = res["times"]
     pv = res["step"][0]
     for i, f in enumerate(cfg.forces):

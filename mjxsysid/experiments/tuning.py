@@ -22,13 +22,17 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.flight import broadcast, minsnap_segments, random_minsnaps
 from mjxsysid.control.references import Delayed, Lemniscate, stack
 from mjxsysid.experiments.common import fmt_ms, markdown_table, write_results
+from mjxsysid.policy.interface import resolve_policy
+from mjxsysid.progress import echo
+from mjxsysid.render.tuning import plot_gains, plot_tracking
+from mjxsysid.rollout.flight import minsnap_segments, random_minsnaps
+from mjxsysid.rollout.harness import metrics
 from mjxsysid.sim import Quadrotor, SimConfig
 from mjxsysid.tune.cem import CEMConfig
-from mjxsysid.tune.compare import RESULT_KEYS, common_summary, compare_methods, plot_gains, plot_tracking, results_dict
-from mjxsysid.tune.tuner import METHOD_LABELS, TunerConfig
+from mjxsysid.tune.compare import RESULT_KEYS, common_summary, compare_methods, results_dict
+from mjxsysid.tune.tuner import CEM_METHODS, METHOD_LABELS, TunerConfig
 
 FULL_TUNER = TunerConfig(models=16, horizon=0.5, rate=10.0, cem=CEMConfig(candidates=32, iterations=2), unroll=5)
 CPU_TUNER = TunerConfig(models=4, horizon=0.5, rate=10.0, cem=CEMConfig(candidates=12, iterations=2))
@@ -61,7 +65,6 @@ per-flight bias, 2 ms latency)."""
 def _log(msg):
     import sys
 
-    from mjxsysid.progress import echo
     echo(msg, file=sys.stderr)
 
 
@@ -106,8 +109,8 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
                           seed=seed, log=_log, progress=progress)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    plot_gains(res, out / "gains.png", title=f"{name}: gains over time (mean, 5–95 % over vehicles)")
-    plot_tracking(res, out / "tracking.png", title=f"{name}: position error over vehicles")
+    plot_gains(res, out / "gains.png", labels=METHOD_LABELS, tuned=CEM_METHODS, title=f"{name}: gains over time (mean, 5–95 % over vehicles)")
+    plot_tracking(res, out / "tracking.png", labels=METHOD_LABELS, title=f"{name}: position error over vehicles")
     numbers = results_dict(res)
     common = common_summary(res)
     numbers["common_set"] = {"n": common["n"], "vehicles": common["vehicles"],
@@ -136,7 +139,6 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
 
 
 def _ref(policy):
-    from mjxsysid.policy.interface import resolve_policy
     return resolve_policy(policy or "mjxsysid")
 
 
@@ -175,7 +177,6 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
          f"({duration:g} s flown), methods {methods}")
     res = compare_methods(theta, refs, steps=steps, methods=methods, cfg=cfg, policy=policy, sim=sim,
                           seed=seed, log=_log, progress=progress)
-    from mjxsysid.analysis.harness import metrics
     n0 = int(round(lead / sim.config.dt))
     per = {}
     for m in methods:
@@ -196,8 +197,8 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
             per[m][p] = mm
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    plot_gains(res, out / "gains.png", title="tune-lemniscate: gains (mean over the three periods)")
-    plot_tracking(res, out / "tracking.png", index=1, title="tune-lemniscate: position error; path at 10 s period")
+    plot_gains(res, out / "gains.png", labels=METHOD_LABELS, tuned=CEM_METHODS, title="tune-lemniscate: gains (mean over the three periods)")
+    plot_tracking(res, out / "tracking.png", labels=METHOD_LABELS, index=1, title="tune-lemniscate: position error; path at 10 s period")
     rows = []
     for p in periods:
         for m in methods:

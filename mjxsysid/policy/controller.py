@@ -17,6 +17,7 @@ from flax import struct
 
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy import networks as N
+from mjxsysid.policy.train import load_policy_params
 
 PRETRAINED = Path(__file__).resolve().parent.parent / "pretrained" / "policy.npz"
 
@@ -40,7 +41,6 @@ class PolicyController:
 
     @classmethod
     def load(cls, path=None, *, phi_every: int | None = None) -> "PolicyController":
-        from mjxsysid.policy.train import load_policy_params
         path = Path(path) if path else PRETRAINED
         if path.is_dir():
             path = path / "policy.npz"

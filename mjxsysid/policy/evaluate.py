@@ -25,14 +25,14 @@ import numpy as np
 
 from mjxsysid import distributed
 from mjxsysid import params as P
-from mjxsysid.analysis.flight import broadcast, fly_vehicles
-from mjxsysid.analysis.harness import Disturbance, batch_metrics, fly_batch, summarize
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.policy.controller import PolicyController
 from mjxsysid.policy.env import EnvConfig, TrainEnv
+from mjxsysid.progress import stages
+from mjxsysid.rollout.flight import broadcast, fly_vehicles, random_lemniscates
+from mjxsysid.rollout.harness import Disturbance, batch_metrics, failure_mask, fly_batch, summarize
 from mjxsysid.sim import Quadrotor
-
 
 SERIES = ("rate_err", "thrust_err", "failed")  # (steps, n) outputs of env_rollout
 
@@ -118,7 +118,6 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
     sim = sim or Quadrotor()  # one instance, so flights of equal shape share their compile
     key = jax.random.PRNGKey(seed)
     out = {"n": n}
-    from mjxsysid.progress import stages
     st = stages(["command tracking", "lemniscate", "paper vehicle", "slow actuators"], desc="evaluate-policy")
 
     st.start("command tracking")
@@ -144,7 +143,7 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
     for c in ("oracle", "nominal"):
         cl[c] = {k: np.asarray(v) for k, v in fly_vehicles(theta, controller=c, reference="lemniscate", sim=sim)[1].items()}
     out["lemniscate"] = {k: summarize(v) for k, v in cl.items()}
-    po, oo = out["lemniscate"]["policy"], out["lemniscate"]["oracle"]
+    po, _oo = out["lemniscate"]["policy"], out["lemniscate"]["oracle"]
     if po["pos_rmse_m"]["mean"] is not None:
         both = ~cl["policy"]["failed"] & ~cl["oracle"]["failed"]
         out["lemniscate"]["rmse_ratio_policy_over_oracle"] = float(
@@ -172,12 +171,9 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
 
 
 def flight_latents(ctrl: PolicyController, theta, key, *, steps: int = 1500, sim=None):
-    """ẑ after ``steps`` control steps of the decoder-data flight of :mod:`mjxsysid.policy.collect`
+    """ẑ after ``steps`` control steps of the decoder-data flight of :mod:`mjxsysid.dataset.collect`
     (baseline cascade on a random 3-D lemniscate, random world force up to 0.1 m g).
     θ (n, 19) -> (ẑ (n, 8), failed (n,))."""
-    from mjxsysid.analysis.flight import broadcast
-    from mjxsysid.analysis.harness import failure_mask
-    from mjxsysid.policy.collect import random_lemniscates
     theta = np.asarray(theta, np.float32)
     n = len(theta)
     sim = sim or Quadrotor()
@@ -210,7 +206,6 @@ def fast_eval(params, *, n_probe: int = 2000, n_lem: int = 500, seed: int = 0, s
     ctrl = PolicyController(params=params, z_override=jnp.zeros(8), use_override=jnp.array(False),
                             phi_every=phi_every)
     out = {"n_probe": n_probe, "n_lem": n_lem, "steps": steps, "flight_steps": flight_steps}
-    from mjxsysid.progress import stages
     st = stages(["training commands", "collect flight", "lemniscate"], desc="fast eval")
     st.start("training commands")
     log(f"  fast eval: training commands ({n_probe} vehicles, {steps} steps)")

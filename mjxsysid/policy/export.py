@@ -44,7 +44,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid import params as P
+from mjxsysid.control.low_level import Command
 from mjxsysid.policy import networks as N
+from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
 
 INPUTS = ("imu", "command", "history", "latent", "reset", "refresh")
 OUTPUTS = ("motor", "latent_next", "history_next")
@@ -215,7 +218,6 @@ def controller_steps(ctrl, imu, command):
     """Run :class:`PolicyController` step by step on given inputs from its initial state:
     imu (T, 6), command (T, 4) -> dict of its state before (history, latent, started) and its
     outputs after each step (motor, latent_next, history_next), each with leading axis T."""
-    from mjxsysid.control.low_level import Command
 
     def body(carry, x):
         i, u, c = x
@@ -232,8 +234,6 @@ def controller_steps(ctrl, imu, command):
 def record_flight(ref, cfg: ExportConfig = ExportConfig(), seed: int = 0) -> Recording:
     """Fly the paper vehicle with the policy ``ref`` (a PolicyRef) in the closed loop, then
     rebuild the inputs the controller saw at every step and its state there."""
-    from mjxsysid import params as P
-    from mjxsysid.analysis.flight import fly_vehicles, one_flight, seen_imu
     fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference=cfg.reference,
                             period=cfg.period, duration=cfg.flight_seconds, seed=seed)
     f = one_flight(fl)

@@ -37,6 +37,11 @@ from typing import Protocol, runtime_checkable
 import jax
 import numpy as np
 
+from mjxsysid.checkpoint import open_npz
+from mjxsysid.policy.controller import PolicyController
+from mjxsysid.policy.xadap import _FIELDS, load_npz, load_xadap
+from mjxsysid.policy.xadap_controller import XAdapController
+
 PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
 POLICY_NAMES = ("mjxsysid", "xadap")
 XADAP_ENV = "MJXSYSID_XADAP_DIR"
@@ -76,9 +81,7 @@ class PolicyRef:
     def load(self) -> LatentPolicy:
         """The unbatched controller."""
         if self.kind == "mjxsysid":
-            from mjxsysid.policy.controller import PolicyController
             return PolicyController.load(self.weights)
-        from mjxsysid.policy.xadap_controller import XAdapController
         return XAdapController.load(self.weights)
 
     def batched(self, n: int) -> LatentPolicy:
@@ -122,7 +125,6 @@ def file_sha256(path) -> str:
 
 
 def _xadap_digest(path: Path) -> str:
-    from mjxsysid.policy.xadap import _FIELDS, load_npz, load_xadap
     w = load_npz(path) if path.is_file() else load_xadap(path)
     h = hashlib.sha256()
     for k in _FIELDS:
@@ -138,7 +140,6 @@ def _kind_of_path(p: Path) -> str | None:
             return "mjxsysid"
         return None
     if p.is_file() and p.suffix == ".npz":
-        from mjxsysid.policy.checkpoint import open_npz
         with open_npz(p, "policy weights file") as z:
             return "xadap" if "__format__" in z.files else "mjxsysid"
     return None

@@ -30,16 +30,16 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 from flax import struct
 from jax.sharding import NamedSharding, PartitionSpec
 
 from mjxsysid import distributed
 from mjxsysid import params as P
+from mjxsysid.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.policy import networks as N
-from mjxsysid.policy.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.policy.env import EnvConfig, EnvState, TrainEnv
+from mjxsysid.progress import progress
 
 
 @dataclasses.dataclass(frozen=True)
@@ -404,7 +404,6 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     (:mod:`mjxsysid.progress`) advances per iteration with the key metrics. ``trainer``: a
     prebuilt :class:`Trainer` for ``cfg`` (e.g. from :meth:`Trainer.reweighted`, to share its
     compile)."""
-    from mjxsysid.progress import progress
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -63,6 +63,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid.checkpoint import open_npz
+
 __all__ = [
     "XAdapWeights",
     "load_xadap",
@@ -599,7 +601,6 @@ def load_npz(path) -> XAdapWeights:
         p = p.with_name(p.name + ".npz")
     if not p.is_file():
         raise FileNotFoundError(f"Xadap weights file not found: {str(p)!r}")
-    from mjxsysid.policy.checkpoint import open_npz
     with open_npz(p, "Xadap weights file") as z:
         keys = set(z.files)
         fmt = str(z["__format__"]) if "__format__" in keys else None

@@ -3,7 +3,7 @@
 :class:`XAdapController` wraps the pure-JAX networks of :mod:`mjxsysid.policy.xadap` in the
 low-level interface of :mod:`mjxsysid.control.low_level`, so that the released policy flies
 under any high-level controller (e.g. :class:`~mjxsysid.control.high_level.Cascade`) in the
-unchanged harness (:func:`~mjxsysid.analysis.harness.fly_batch`)::
+unchanged harness (:func:`~mjxsysid.rollout.harness.fly_batch`)::
 
     low = make_xadap_low_level(XADAP_DIR, batch_size=B)          # rate 500 Hz, filter on
     flight = fly_batch(sim, theta, low, high, refs, dist, key, steps)
@@ -64,9 +64,20 @@ import numpy as np
 from flax import struct
 
 from mjxsysid.control.low_level import Command
-from mjxsysid.policy.xadap import (ACTION_DIM, HISTORY_LEN, LATENT_DIM, PRECISIONS, STATE_DIM, XAdapWeights,
-                                   build_history_input, load_npz, load_xadap, normalize_state,
-                                   xadap_encoder, xadap_policy)
+from mjxsysid.policy.xadap import (
+    ACTION_DIM,
+    HISTORY_LEN,
+    LATENT_DIM,
+    PRECISIONS,
+    STATE_DIM,
+    XAdapWeights,
+    build_history_input,
+    load_npz,
+    load_xadap,
+    normalize_state,
+    xadap_encoder,
+    xadap_policy,
+)
 
 __all__ = [
     "XAdapController",

@@ -9,14 +9,21 @@ from __future__ import annotations
 import importlib
 
 _EXPORTS = {
-    "ensure_gl": "video",
-    "headless_env": "video",
-    "vehicle_model": "video",
+    "ensure_gl": "gl",
+    "headless_env": "gl",
+    "vehicle_model": "scene",
     "render_rollout": "video",
     "render_frame": "video",
     "read_video": "video",
     "plot_trajectory": "plots",
     "plot_prior_marginals": "plots",
+    "plot_marginals": "posterior",
+    "plot_decoded_over_time": "posterior",
+    "plot_rank_histograms": "posterior",
+    "plot_gains": "tuning",
+    "plot_tracking": "tuning",
+    "plot_replay": "replay",
+    "plot_summary": "replay",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -8,7 +8,7 @@ of η k_t Ω² over it — written directly in JAX without MuJoCo's generic mach
 IMU noise, bias or latency (predictions are deterministic) and no contacts. The tuner flies K × N
 short rollouts per update with it; ``tests/test_sim.py`` checks it against the MJX simulator.
 
-``RigidSim`` implements what :func:`~mjxsysid.analysis.harness.run_loop` needs of a simulator:
+``RigidSim`` implements what :func:`~mjxsysid.rollout.harness.run_loop` needs of a simulator:
 ``config.dt``, ``step(θ, state, motor_cmd, force_world)`` and ``frame(state, motor_cmd, force)``.
 """
 from __future__ import annotations

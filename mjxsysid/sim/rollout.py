@@ -12,7 +12,7 @@ from typing import Callable
 import jax
 import jax.numpy as jnp
 
-from mjxsysid.sim.quadrotor import Frame, Quadrotor, SimState
+from mjxsysid.sim.quadrotor import Quadrotor, SimState
 
 
 def rollout(sim: Quadrotor, theta, state: SimState, motor_cmds, forces=None):

@@ -6,17 +6,19 @@ the true θ (``oracle_cem``). Every method flies the identical noise and disturb
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import jax
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.flight import broadcast
-from mjxsysid.analysis.harness import Disturbance, batch_metrics, metrics_to_host, summarize
+from mjxsysid.cfm.load import load_decoders
 from mjxsysid.control.high_level import GAIN_NAMES
+from mjxsysid.policy.interface import resolve_policy
+from mjxsysid.progress import progress
+from mjxsysid.rollout.flight import broadcast
+from mjxsysid.rollout.harness import Disturbance, batch_metrics, metrics_to_host, summarize
 from mjxsysid.sim import Quadrotor, SimConfig
-from mjxsysid.tune.tuner import CEM_METHODS, METHOD_LABELS, METHODS, TunedFlight, TunerConfig, fly_tuned
+from mjxsysid.tune.tuner import CEM_METHODS, METHOD_LABELS, METHODS, TunerConfig, fly_tuned
 
 RESULT_KEYS = {"naive": "naive", "baseline": "baseline", "cfm": "cfm_tuned", "nominal_cem": "nominal_cem",
                "oracle_cem": "oracle_cem"}
@@ -44,7 +46,6 @@ def compare_methods(theta, refs, *, steps: int, methods=METHODS, cfg: TunerConfi
     (success rate and mean/std/median over successful flights), 'tuned': TunedFlight,
     'wall_s': float}}.
     """
-    from mjxsysid.policy.interface import resolve_policy
     methods = check_methods(methods)
     theta = P.validate_theta(P.as_batch(theta))
     b = theta.shape[0]
@@ -53,7 +54,6 @@ def compare_methods(theta, refs, *, steps: int, methods=METHODS, cfg: TunerConfi
     low = ref.batched(b)
     if decoder is None and any(m in CEM_METHODS for m in methods):
         # With a decoder every CEM method shares one compiled update; it is required for 'cfm'.
-        from mjxsysid.analysis.decode import load_decoders
         try:
             decoder = load_decoders(policy=ref, warn=log)[0]
         except FileNotFoundError:
@@ -83,7 +83,6 @@ def compare_methods(theta, refs, *, steps: int, methods=METHODS, cfg: TunerConfi
 def _bar(enabled: bool, method: str, total: int):
     if not enabled:
         return None
-    from mjxsysid.progress import progress
     return progress(total=total, desc=f"{METHOD_LABELS[method]} (tuner segments)")
 
 
@@ -129,69 +128,3 @@ def common_summary(res: dict, keys=("pos_rmse_m", "max_pos_err_m", "heading_rmse
     return out
 
 
-def plot_gains(res: dict, path, *, title: str = "") -> Path:
-    """Gains over time of every CEM method (mean over vehicles, 5–95 % band if several)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from mjxsysid.control.high_level import GAIN_BOUNDS, PRESETS
-    fig, axes = plt.subplots(2, 4, figsize=(14, 5.5), sharex=True)
-    for j, ax in enumerate(axes.ravel()):
-        for m, r in res.items():
-            tf: TunedFlight = r["tuned"]
-            g = tf.gains[..., j]                      # (B, U)
-            t = tf.update_times
-            if m in CEM_METHODS:
-                line, = ax.step(t, g.mean(0), where="post", label=METHOD_LABELS[m])
-                if g.shape[0] > 1:
-                    lo, hi = np.percentile(g, [5, 95], 0)
-                    ax.fill_between(t, lo, hi, step="post", alpha=0.15, color=line.get_color())
-        for name, ls in (("naive", ":"), ("baseline", "--")):
-            ax.axhline(PRESETS[name][j], color="k", ls=ls, lw=0.8, label=name if j == 0 else None)
-        ax.set_ylim(GAIN_BOUNDS[j, 0] - 0.05 * GAIN_BOUNDS[j, 1], GAIN_BOUNDS[j, 1] * 1.05)
-        ax.set_title(GAIN_NAMES[j])
-        if j >= 4:
-            ax.set_xlabel("time (s)")
-    axes[0, 0].legend(fontsize=7)
-    fig.suptitle(title or "high-level gains applied over time")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return Path(path)
-
-
-def plot_tracking(res: dict, path, *, index: int = 0, title: str = "") -> Path:
-    """Position error over time per method (vehicle ``index``; mean and 5–95 % over vehicles
-    if several) and the x–y path of vehicle ``index``."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    fig, (a0, a1) = plt.subplots(1, 2, figsize=(13, 4.8), gridspec_kw={"width_ratios": [1.6, 1]})
-    ref_drawn = False
-    for m, r in res.items():
-        fl = r["tuned"].flight
-        err = np.linalg.norm(fl.frame.pos - fl.ref_pos, axis=-1)    # (B, T)
-        t = fl.time[0]
-        if err.shape[0] > 1:
-            line, = a0.plot(t, np.median(err, 0), label=f"{METHOD_LABELS[m]} (median)")
-            lo, hi = np.percentile(err, [5, 95], 0)
-            a0.fill_between(t, lo, hi, alpha=0.12, color=line.get_color())
-        else:
-            a0.plot(t, err[0], label=METHOD_LABELS[m])
-        if not ref_drawn:
-            a1.plot(fl.ref_pos[index, :, 0], fl.ref_pos[index, :, 1], "k--", lw=1, label="reference")
-            ref_drawn = True
-        a1.plot(fl.frame.pos[index, :, 0], fl.frame.pos[index, :, 1], lw=1, label=METHOD_LABELS[m])
-    a0.set_xlabel("time (s)")
-    a0.set_ylabel("position error (m)")
-    a0.set_yscale("log")
-    a0.legend(fontsize=8)
-    a1.set_aspect("equal", "datalim")
-    a1.set_xlabel("x (m)")
-    a1.set_ylabel("y (m)")
-    a1.legend(fontsize=7)
-    fig.suptitle(title or "tracking")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return Path(path)

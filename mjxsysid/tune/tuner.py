@@ -32,9 +32,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.harness import (Disturbance, Flight, LoopCarry, low_level_axes, metrics,
-                                       run_loop, start_loop)
-from mjxsysid.control.high_level import Cascade, gains as gain_vector
+from mjxsysid.cfm.sample import _sample
+from mjxsysid.control.high_level import Cascade
+from mjxsysid.control.high_level import gains as gain_vector
+from mjxsysid.rollout.harness import Disturbance, Flight, LoopCarry, low_level_axes, metrics, run_loop, start_loop
 from mjxsysid.sim.quadrotor import Quadrotor, hover_rotor_speed
 from mjxsysid.sim.rigid import RigidSim, from_sim_state
 from mjxsysid.tune.cem import CEMConfig, CEMState, cem_init, cem_minimize, cem_warm, mean_gains
@@ -143,7 +144,6 @@ def _model_sources(dec_cfg, cfg: TunerConfig) -> tuple[tuple[str, ...], list]:
         return jnp.asarray(P.PAPER_HARDWARE) * u
 
     def cfm(key, theta_true, zhat, dec):
-        from mjxsysid.cfm.sample import _sample
         theta0 = jax.random.normal(key, (1, k, dec_cfg.theta_dim), jnp.float32)   # as cfm.sample draws it
         v = _sample(dec.params, dec_cfg, theta0, zhat[None], k, cfg.decoder_steps, "euler")[0]
         return dec.normalizer.denormalize(dec.normalizer.from_flow(v))
@@ -288,7 +288,7 @@ def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method:
     """Fly a batch θ (B, 19) with ``low`` (batched, e.g. ``PolicyRef.batched(B)``) on the
     batched reference ``ref`` under ``disturbance`` (batched) for ``steps`` control steps, the
     gains set by ``method``: a preset ('naive', 'baseline': fixed) or a CEM method updated
-    every ``1/cfg.rate`` s after ``cfg.warmup``. The key splits like :func:`~mjxsysid.analysis.
+    every ``1/cfg.rate`` s after ``cfg.warmup``. The key splits like :func:`~mjxsysid.studies.
     harness.fly` (per vehicle: simulator, disturbance, controller), so every method sees the
     same noise and disturbance realisation for the same key. ``progress``: optional callable
     ``progress(done, total)`` after each segment."""

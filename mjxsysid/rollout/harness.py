@@ -17,7 +17,6 @@ from flax import struct
 from mjxsysid import distributed
 from mjxsysid import params as P
 from mjxsysid.control.high_level import Cascade, Estimate
-from mjxsysid.control.low_level import Command
 from mjxsysid.sim.quadrotor import Frame, Quadrotor, hover_rotor_speed, quat_to_mat
 
 

@@ -12,10 +12,13 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.flight import broadcast, make_low_level, make_reference
-from mjxsysid.analysis.harness import Disturbance, fly_batch
 from mjxsysid.cfm.sample import Decoder
+from mjxsysid.cfm.sequence import SequenceDecoder
 from mjxsysid.control.high_level import Cascade
+from mjxsysid.dataset.collect import decode_indices
+from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
+from mjxsysid.rollout.flight import broadcast, make_low_level, make_reference
+from mjxsysid.rollout.harness import Disturbance, fly_batch
 from mjxsysid.sim import Quadrotor
 
 
@@ -28,7 +31,7 @@ def fly_same_disturbance(theta, *, reference="lemniscate", period=10.0, duration
     sim = sim or Quadrotor()
     steps = int(round(duration / sim.config.dt))
     ref, _ = make_reference(reference, period=period, duration=duration)
-    low = make_low_level("policy", theta)
+    low = make_low_level("policy", theta, resolve_policy("mjxsysid"))
     dist = broadcast(Disturbance.make(step_force=force_step, step_time=0.5, sigma=force_sigma), n)
     return fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), broadcast(ref, n), dist,
                      key if key is not None else jax.random.PRNGKey(0), steps, same_key=True)
@@ -87,7 +90,6 @@ def check_decoder_window(decoder, window: str, what: str = "window") -> None:
     """A named error unless ``decoder`` fits ``window``: the sequence decoder
     (:class:`~mjxsysid.cfm.sequence.SequenceDecoder`, ``cfm_seq.npz``) for 'flight', a
     single-latent decoder (``cfm.npz``) for 'instant'."""
-    from mjxsysid.cfm.sequence import SequenceDecoder
     if window not in WINDOWS:
         raise ValueError(f"{what} must be one of {WINDOWS}; got {window!r}")
     if (window == "flight") != isinstance(decoder, SequenceDecoder):
@@ -106,12 +108,10 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     n × n_models perturbed vehicles fly in one batch each, all under the same disturbance
     realisation. Returns per-vehicle and mean ``inside_*`` (fraction of time the true error lies
     in the 5–95 % envelope) and ``width_*_m`` (mean envelope width)."""
-    from mjxsysid.analysis.decode import PRETRAINED_DIR, decode_indices
     if int(n_models) < 2:
         raise ValueError(f"n_models must be >= 2 for an envelope; got {n_models}")
     if decoder is None:
         if window == "flight":
-            from mjxsysid.cfm.sequence import SequenceDecoder
             decoder = SequenceDecoder.load(PRETRAINED_DIR / "cfm_seq.npz")
         else:
             decoder = Decoder.load(PRETRAINED_DIR / "cfm.npz")

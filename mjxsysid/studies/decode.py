@@ -28,9 +28,15 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.cfm.sample import Decoder
+from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
+from mjxsysid.cfm.posterior import summarize_posterior
+from mjxsysid.dataset.collect import decode_indices
 from mjxsysid.policy import networks as N
-from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
+from mjxsysid.policy.interface import resolve_policy
+from mjxsysid.progress import stages
+from mjxsysid.render.posterior import plot_decoded_over_time, plot_marginals
+from mjxsysid.render.video import render_rollout
+from mjxsysid.rollout.flight import fly_vehicles, make_reference, one_flight
 
 LOG_COLUMNS = ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "a_cmd", "omega_cmd_x",
                "omega_cmd_y", "omega_cmd_z", "motor_1", "motor_2", "motor_3", "motor_4")
@@ -131,50 +137,6 @@ def write_log(path, t, imu, a_cmd, omega_cmd, motor) -> Path:
     return Path(path)
 
 
-def load_decoders(decoders=None, policy=None, *, warn=None,
-                  allow_mismatch: bool = False) -> tuple[Decoder, Decoder]:
-    """(CFM, Regression) decoders from the folder ``decoders`` (default: the folder where the
-    policy's decoders ship; see :class:`~mjxsysid.policy.interface.PolicyRef`).
-
-    Decoders trained on another policy's latents than ``policy``'s (their provenance records
-    the weights' sha256) are an error: another policy's latent means something else, so the
-    decoded models would be meaningless. ``allow_mismatch=True`` turns the error into a
-    warning (told to ``warn(msg)``). A file of the wrong kind (``cfm.npz`` holding a
-    regression decoder, …) is an error too."""
-    ref = resolve_policy(policy) if policy is not None else None
-    d = Path(decoders) if decoders is not None else (ref.decoders_dir if ref else PRETRAINED_DIR)
-    for f in ("cfm.npz", "regression.npz"):
-        if not (d / f).is_file():
-            hint = "" if decoders is not None else (
-                f" (no shipped decoders for {ref.label}: train them with `mjxsysid collect "
-                f"--policy ...` and `mjxsysid train-cfm`, then pass --decoders DIR)" if ref else "")
-            raise FileNotFoundError(f"decoder not found: {d / f}{hint}")
-    cfm, reg = Decoder.load(d / "cfm.npz"), Decoder.load(d / "regression.npz")
-    for dec, f, kind in ((cfm, "cfm.npz", "cfm"), (reg, "regression.npz", "regression")):
-        if dec.kind != kind:
-            raise ValueError(f"{d / f}: holds a {dec.kind} decoder, expected {kind}")
-    if ref is not None:
-        for dec, f in ((cfm, "cfm.npz"), (reg, "regression.npz")):
-            if not _trained_for(dec, d / f, ref, allow_mismatch, warn, "mjxsysid collect + train-cfm"):
-                break
-    return cfm, reg
-
-
-def _trained_for(dec, path, ref, allow_mismatch: bool, warn, how: str) -> bool:
-    """Was ``dec`` (loaded from ``path``) trained on the latents of policy ``ref``? A mismatch is
-    a ValueError, or with ``allow_mismatch`` a warning told to ``warn`` (then False)."""
-    trained_on = dec.meta.get("data", {}).get("pairs_meta", {}).get("weights_sha256")
-    if not trained_on or trained_on == ref.sha256():
-        return True
-    msg = (f"{path}: trained on the latents of another policy (weights sha256 {trained_on[:12]}…), "
-           f"not {ref.label} ({ref.sha256()[:12]}…)")
-    if not allow_mismatch:
-        raise ValueError(msg + f"; pass the decoders trained for this policy ({how})")
-    if warn is not None:
-        warn("warning: " + msg)
-    return False
-
-
 def parse_window(text):
     """``--window``: 'flight' (everything flown so far), 'instant' (one latent) or a number of
     seconds (> 0) of a sliding window. Returns 'flight', 'instant' or a float."""
@@ -195,26 +157,6 @@ def check_window(window, flight_s: float):
     if isinstance(window, float) and window > flight_s + 1e-6:
         raise ValueError(f"--window {window:g} s is longer than the flight ({flight_s:.2f} s)")
     return window
-
-
-def load_sequence_decoder(decoders=None, policy=None, *, echo=None, allow_mismatch: bool = False):
-    """The sequence decoder ``cfm_seq.npz`` beside the policy's decoders (or in ``decoders``),
-    or None (``echo`` is told, so callers can fall back to single-latent decoding). As for
-    :func:`load_decoders`, one trained on another policy's latents is an error unless
-    ``allow_mismatch`` (then a warning told to ``echo``)."""
-    from mjxsysid.cfm.sequence import SequenceDecoder
-    ref = resolve_policy(policy) if policy is not None else None
-    d = Path(decoders) if decoders is not None else (ref.decoders_dir if ref else PRETRAINED_DIR)
-    path = d / "cfm_seq.npz"
-    if not path.is_file():
-        if echo is not None:
-            echo(f"no sequence decoder {path}: falling back to --window instant (single-latent decoding); "
-                 "train one with `mjxsysid collect` and `mjxsysid train-cfm`")
-        return None
-    seq = SequenceDecoder.load(path)
-    if ref is not None:
-        _trained_for(seq, path, ref, allow_mismatch, echo, "mjxsysid collect --seconds + train-cfm")
-    return seq
 
 
 def window_masks(latent_times, report_times, window):
@@ -299,77 +241,6 @@ def log_latents(policy, rec: dict):
     return np.asarray(zhat_t), rec["t"] - rec["t"][0] + LOG_DT
 
 
-def decode_indices(times, rate: float, start: float = N.HISTORY * 0.002) -> np.ndarray:
-    """Indices (K,) of the steps at which a ``rate`` Hz decoder reads ẑ: every 1/rate s from the
-    first step at or after ``start`` s (the last step if the flight is shorter)."""
-    times = np.asarray(times)
-    dt = float(times[1] - times[0]) if len(times) > 1 else 0.002
-    every = max(int(round(1.0 / (rate * dt))), 1)
-    after = np.flatnonzero(times >= start - 1e-9)
-    if len(after) == 0:
-        return np.array([len(times) - 1])
-    return after[(after - after[0]) % every == 0]
-
-
-def summarize_posterior(samples, truth=None) -> dict:
-    """samples (S, 19) (+ truth (19,)) -> {name: {mean, q05, q95[, true, inside]}} plus the
-    identifiable combinations."""
-    q05, q95 = np.percentile(samples, [5, 95], 0)
-    out = {}
-    for j, n in enumerate(P.PARAM_NAMES):
-        d = {"mean": float(samples[:, j].mean()), "q05": float(q05[j]), "q95": float(q95[j])}
-        if truth is not None:
-            d.update(true=float(truth[j]), inside=bool(q05[j] <= truth[j] <= q95[j]))
-        out[n] = d
-    ident = np.asarray(P.identifiable(samples))
-    iq05, iq95 = np.percentile(ident, [5, 95], 0)
-    ti = None if truth is None else np.asarray(P.identifiable(truth))
-    for j, n in enumerate(P.IDENTIFIABLE_NAMES):
-        d = {"mean": float(ident[:, j].mean()), "q05": float(iq05[j]), "q95": float(iq95[j])}
-        if ti is not None:
-            d.update(true=float(ti[j]), inside=bool(iq05[j] <= ti[j] <= iq95[j]))
-        out[n] = d
-    return out
-
-
-def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-level"):
-    """ẑ and the identifiable combinations (median, 5–95 % band) over time: the single-latent
-    (instant) posterior and, if decoded, the window's (flight-level) one."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    t = dec["times"]
-    ident = np.asarray(P.identifiable(dec["samples"]))  # (K, S, 5)
-    identw = np.asarray(P.identifiable(dec["samples_window"])) if "samples_window" in dec else None
-    fig, ax = plt.subplots(2, 3, figsize=(14, 6.5))
-    ax = ax.flat
-    ax[0].plot(t, dec["zhat"])
-    ax[0].set_title("latent ẑ (8 dims)")
-    for j, n in enumerate(P.IDENTIFIABLE_NAMES):
-        a = ax[j + 1]
-        lo, med, hi = np.percentile(ident[:, :, j], [5, 50, 95], 1)
-        a.fill_between(t, lo, hi, alpha=0.25, color="tab:blue", label="instant 5–95 %")
-        a.plot(t, med, color="tab:blue", label="instant median")
-        if identw is not None:
-            lo, med, hi = np.percentile(identw[:, :, j], [5, 50, 95], 1)
-            a.fill_between(t, lo, hi, alpha=0.35, color="tab:green", label=f"{window_label} 5–95 %")
-            a.plot(t, med, color="tab:green", label=f"{window_label} median")
-        a.plot(t, np.asarray(P.identifiable(dec["regression"]))[:, j], "--", label="regression")
-        if truth is not None:
-            a.axhline(float(np.asarray(P.identifiable(truth))[j]), color="k", label="true")
-        a.set_title(n)
-        if n != "torque_ratio":
-            a.set_yscale("log")
-    for a in ax:
-        a.set_xlabel("time (s)")
-        a.grid(alpha=0.3)
-    ax[1].legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
 def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
                samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print,
                policy="mjxsysid", decoders=None, window="flight") -> dict:
@@ -383,8 +254,6 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     that window (the sequence decoder; 'instant': the single-latent CFM), ``_instant`` the
     single-latent one, ``_window`` what was used. Without a sequence decoder, falls back to
     'instant' and says so."""
-    from mjxsysid.analysis.flight import fly_vehicles, make_reference, one_flight
-    from mjxsysid.cfm.pipeline import plot_marginals
     # Every input is checked before any work starts.
     if not rate > 0:
         raise ValueError(f"--rate must be > 0 Hz, got {rate}")
@@ -408,7 +277,6 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=echo)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    from mjxsysid.progress import stages
     st = stages(["flying" if log is None else "replaying the log", "decoding", "plots"]
                 + (["video"] if video and log is None else []), desc="decode")
     st.start("flying" if log is None else "replaying the log")
@@ -439,7 +307,6 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     plot_decoded_over_time(dec, truth, out / "decoded_over_time.png", window_label=label)
     if video and flight is not None:
         st.start("video")
-        from mjxsysid.render.video import render_rollout
         gth, _ = P.project_valid(final[:ghosts])
         gfl, _, _ = fly_vehicles(gth, controller="policy", policy=ref, reference=reference,
                                  period=period, duration=duration, seed=seed)

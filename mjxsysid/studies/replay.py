@@ -36,7 +36,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
+from mjxsysid.cfm.load import load_decoders
+from mjxsysid.cfm.sample import random_baseline
 from mjxsysid.control.low_level import Command, KTheta
+from mjxsysid.dataset.collect import decode_indices
+from mjxsysid.policy.interface import resolve_policy
+from mjxsysid.progress import progress
+from mjxsysid.render.replay import plot_replay, plot_summary
+from mjxsysid.rollout.flight import fly_vehicles, seen_imu
 
 FLIGHTS = {"lemniscate_5s": ("lemniscate", 5.0), "lemniscate_10s": ("lemniscate", 10.0),
            "lemniscate_15s": ("lemniscate", 15.0), "hover": ("hover", 5.0)}
@@ -95,7 +102,6 @@ def decode_for_replay(zhat_k, truth, cfm, reg, key, *, samples: int = 16) -> dic
     'cfm_samples' (S, K, 19)."""
     k_rand, k_cfm = jax.random.split(key)
     s = np.asarray(cfm.sample_theta(zhat_k, k_cfm, max(samples, 1)))  # (K, S, 19)
-    from mjxsysid.cfm.sample import random_baseline
     return {"random": np.asarray(random_baseline(k_rand, len(zhat_k), nominal=truth)),
             "true": np.broadcast_to(np.asarray(truth, np.float32), (len(zhat_k), P.N_PARAMS)),
             "regression": np.asarray(reg.point(zhat_k)),
@@ -109,7 +115,6 @@ def replay_flight(rec: dict, truth, cfm, reg, key, *, rate: float = 10.0, sample
     'policy' (T', 4), method: (T', 4) commands, 'update_times' (K,), 'theta_hat': {method: (K, 19)}}.
     ``truth_k`` (K, 19): the true θ in force at each update, for the 'true' method when the
     vehicle changes during the flight (default: ``truth`` throughout)."""
-    from mjxsysid.analysis.decode import decode_indices
     t = np.asarray(rec["time"])
     idx = decode_indices(t, rate)
     first = idx[0]
@@ -139,8 +144,7 @@ def replay_flight(rec: dict, truth, cfm, reg, key, *, rate: float = 10.0, sample
 def record_flights(policy, theta, flight: str, *, seed: int = 0, sim=None):
     """Fly θ (B, 19) with the policy on one of :data:`FLIGHTS`. Returns (list of B recordings,
     metrics dict of (B,) arrays). A recording's ``imu`` row t is the reading the policy acted on
-    at step t (see :func:`~mjxsysid.analysis.flight.seen_imu`)."""
-    from mjxsysid.analysis.flight import fly_vehicles, seen_imu
+    at step t (see :func:`~mjxsysid.rollout.flight.seen_imu`)."""
     if flight not in FLIGHTS:
         raise ValueError(f"unknown flight {flight!r}; choose from {list(FLIGHTS)}")
     ref, period = FLIGHTS[flight]
@@ -161,8 +165,6 @@ def run_replay(out, *, policy="mjxsysid", weights=None, decoders=None, vehicles:
     """Action replay on the paper vehicle plus ``vehicles`` vehicles of the policy's own prior,
     on each of ``flights``. Writes out/replay.json (per-flight tables), out/replay.md,
     out/replay_<flight>.png (the paper vehicle's commands) and out/replay_summary.png."""
-    from mjxsysid.analysis.decode import load_decoders
-    from mjxsysid.policy.interface import resolve_policy
     if vehicles < 0:
         raise ValueError(f"--vehicles must be >= 0, got {vehicles}")
     if samples < 1:
@@ -182,7 +184,6 @@ def run_replay(out, *, policy="mjxsysid", weights=None, decoders=None, vehicles:
     res = {"policy": ref.to_dict(), "decoders": str(decoders or ref.decoders_dir), "rate_hz": rate,
            "samples": samples, "cutoff_hz": cutoff_hz, "seed": seed, "vehicles": len(theta),
            "flights": {}}
-    from mjxsysid.progress import progress
     bar = progress(total=len(flights) * len(theta), desc="replay", unit="flight")
     for fi, name in enumerate(flights):
         bar.set_postfix_str(name)
@@ -200,7 +201,7 @@ def run_replay(out, *, policy="mjxsysid", weights=None, decoders=None, vehicles:
                     per[m][k].append(r["metrics"][m][k])
             if i == 0:
                 paper = r
-                plot_replay(r, rec, out / f"replay_{name}.png",
+                plot_replay(r, rec, out / f"replay_{name}.png", labels=LABELS,
                             title=f"{ref.label}: paper vehicle, {name.replace('_', ' ')}, "
                                   f"pos RMSE {fm['pos_rmse_m'][0]:.3f} m")
         entry = {"pos_rmse_m_paper": float(fm["pos_rmse_m"][0]), "failed_paper": bool(fm["failed"][0]),
@@ -226,7 +227,7 @@ def run_replay(out, *, policy="mjxsysid", weights=None, decoders=None, vehicles:
     res["wall_s"] = time.time() - t0
     (out / "replay.json").write_text(json.dumps(res, indent=2) + "\n")
     (out / "replay.md").write_text(replay_table(res))
-    plot_summary(res, out / "replay_summary.png")
+    plot_summary(res, out / "replay_summary.png", labels=LABELS, methods=METHODS)
     return res
 
 
@@ -246,78 +247,3 @@ def replay_table(res: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plot_replay(r: dict, rec: dict, path, *, title: str = "", events=()):
-    """The paper's action-replay figure: trajectory, latent, and per-motor commands of the
-    policy, CFM, Regression and Random over time. ``events``: times (s) marked on the time axes."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    t = r["times"]
-    fig = plt.figure(figsize=(14, 7))
-    gs = fig.add_gridspec(3, 3)
-    ax = fig.add_subplot(gs[0:2, 0])
-    ax.plot(rec["ref_pos"][:, 0], rec["ref_pos"][:, 1], "k--", lw=1, label="reference")
-    ax.plot(rec["pos"][:, 0], rec["pos"][:, 1], lw=1.2, label="flown")
-    ax.set_aspect("equal", "datalim")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.legend(fontsize=8)
-    ax.set_title("trajectory (top view)")
-    axl = fig.add_subplot(gs[2, 0])
-    axl.plot(t, r["latent"], lw=0.8)
-    axl.set_title("latent ẑ")
-    for te in events:
-        axl.axvline(te, color="m", lw=1.0, ls="--")
-    axl.set_xlabel("time (s)")
-    styles = {"policy": dict(color="k", lw=1.0), "true": dict(color="0.5", lw=0.8, ls=":"), "cfm": dict(color="C0", lw=0.9),
-              "cfm_mean": dict(color="C2", lw=0.9), "regression": dict(color="C1", lw=0.9, ls="--"),
-              "random": dict(color="C3", lw=0.6, alpha=0.5)}
-    for i in range(4):
-        a = fig.add_subplot(gs[i // 2, 1 + i % 2])
-        for m in ("random", "regression", "true", "cfm", "cfm_mean", "policy"):
-            y = r["policy"] if m == "policy" else r[m]
-            lab = LABELS[m] + ("" if m == "policy" else
-                               f" ({r['metrics'][m]['rmse']:.3f}, {r['metrics'][m]['pcc']:.2f})")
-            a.plot(t, y[:, i], label=lab if i == 0 else None, **styles[m])
-        for te in events:
-            a.axvline(te, color="m", lw=1.0, ls="--")
-        a.set_title(f"motor {i + 1} Ω/Ω_max")
-        a.grid(alpha=0.3)
-        if i == 0:
-            handles, labels = a.get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower right", bbox_to_anchor=(0.98, 0.04), fontsize=9,
-               title="method (RMSE, PCC)", ncol=2)
-    fig.suptitle(title)
-    fig.tight_layout(rect=(0, 0, 1, 0.96))
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
-
-
-def plot_summary(res: dict, path):
-    """Bar charts of RMSE and PCC per flight and method (paper vehicle; prior mean as dots)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    names = [n for n, e in res["flights"].items() if e.get("paper_vehicle")]
-    fig, ax = plt.subplots(1, 2, figsize=(12, 3.8))
-    w = 0.8 / len(METHODS)
-    for j, m in enumerate(METHODS):
-        x = np.arange(len(names)) + (j - (len(METHODS) - 1) / 2) * w
-        for a, k in zip(ax, ("rmse", "pcc")):
-            a.bar(x, [res["flights"][n]["paper_vehicle"][m][k] for n in names], w, label=LABELS[m],
-                  color=f"C{[3, 1, 0, 2, 7][j]}")
-            pr = [res["flights"][n].get("prior_vehicles") for n in names]
-            if all(pr):
-                a.errorbar(x, [p[m][k]["mean"] for p in pr], [p[m][k]["std"] for p in pr], fmt="ko",
-                           ms=3, lw=0.8, label="prior vehicles (mean ± std)" if j == 0 else None)
-    for a, k in zip(ax, ("motor-command RMSE ↓", "PCC after low-pass ↑")):
-        a.set_xticks(np.arange(len(names)), names)
-        a.set_title(k)
-        a.grid(axis="y", alpha=0.3)
-    ax[0].legend(fontsize=8)
-    fig.suptitle(f"action replay, {res['policy']['policy']} policy (bars: paper vehicle)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path

@@ -12,15 +12,15 @@ identical initial conditions and identical disturbance realisations:
   (fresh samples from the same ẑ) and ``mc_models`` perturbed models flown with that seed.
 
 Every rollout is one row of a table (θ, reference, disturbance, key) flown in fixed-size chunks
-through :func:`~mjxsysid.analysis.harness.fly_batch` with :func:`error_traces` as the reduction,
+through :func:`~mjxsysid.rollout.harness.fly_batch` with :func:`error_traces` as the reduction,
 so one compiled function serves the identification flights, the steps and the Monte Carlo, and
 only the lateral / vertical error traces (every :data:`RECORD_EVERY`-th step) leave the device.
 Hover is the :class:`~mjxsysid.control.references.Lemniscate` of size 0, so the identification
 flight (a lemniscate, like the decoder's training flights) shares that compiled function too.
 
 The statistics (:func:`step_stats`, :func:`mc_stats`) use
-:func:`~mjxsysid.analysis.fidelity.envelope_stats` and
-:func:`~mjxsysid.analysis.fidelity.energy_distance`.
+:func:`~mjxsysid.studies.fidelity.envelope_stats` and
+:func:`~mjxsysid.studies.fidelity.energy_distance`.
 """
 from __future__ import annotations
 
@@ -33,12 +33,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.fidelity import WINDOWS, check_decoder_window, energy_distance, envelope, envelope_stats
-from mjxsysid.analysis.flight import broadcast
-from mjxsysid.analysis.harness import Disturbance, Flight, failure_mask, fly_batch
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Lemniscate
+from mjxsysid.dataset.collect import decode_indices
+from mjxsysid.policy.interface import resolve_policy
+from mjxsysid.rollout.flight import broadcast
+from mjxsysid.rollout.harness import Disturbance, Flight, failure_mask, fly_batch
 from mjxsysid.sim import Quadrotor
+from mjxsysid.studies.fidelity import WINDOWS, check_decoder_window, energy_distance, envelope, envelope_stats
 
 RECORD_EVERY = 5
 """Error traces keep every 5th control step (100 Hz at the default 500 Hz)."""
@@ -154,7 +156,6 @@ def fly_traces(policy, theta, refs, dist, keys, steps: int, *, chunk: int = 1638
     Returns :class:`ErrorTrace` of numpy arrays with leading axis N (or what another module-level
     ``reduce`` of a Flight returns, e.g. :func:`id_traces`).
     """
-    from mjxsysid.policy.interface import resolve_policy
     theta = np.asarray(theta, np.float32)
     keys = np.asarray(keys)
     n = len(theta)
@@ -232,7 +233,6 @@ def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *,
     log(f"identification flights ({v_n} vehicles, {cfg.id_reference}, {cfg.duration:g} s)")
     id_dist = dist_rows(np.zeros((v_n, 3)), np.zeros((v_n, 3)), cfg.onset, v_n)
     if cfg.window == "flight":    # keep every ẑ: their own compile, V rollouts
-        from mjxsysid.analysis.decode import decode_indices
         idt, traj = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, sim=sim, reduce=id_traces)
         idx = decode_indices((np.arange(steps) + 1) * dt, cfg.id_rate)[-decoder.max_len:]
         cond = traj[:, idx]                                         # (V, K, 8): ẑ at id_rate Hz

@@ -28,28 +28,21 @@ import numpy as np
 
 from mjxsysid import distributed
 from mjxsysid import params as P
-from mjxsysid.analysis.flight import broadcast, make_low_level
-from mjxsysid.analysis.harness import Disturbance, failure_mask, fly_batch
+from mjxsysid.checkpoint import open_npz
 from mjxsysid.control.high_level import Cascade
-from mjxsysid.control.references import Lemniscate, MinSnap, Switch, stack
+from mjxsysid.control.references import MinSnap, Switch, stack
+from mjxsysid.policy import networks as N
+from mjxsysid.policy.interface import resolve_policy
+from mjxsysid.progress import progress, tee
+from mjxsysid.rollout.flight import broadcast, random_lemniscates
+from mjxsysid.rollout.harness import Disturbance, failure_mask, fly_batch
 from mjxsysid.sim import Quadrotor
-
-
-def random_lemniscates(key, n: int):
-    """n random excitation references, stacked (leaves (n, ...))."""
-    ks = jax.random.split(key, 4)
-    u = lambda k, lo, hi, shape=(n,): jax.random.uniform(k, shape, jnp.float32, lo, hi)
-    return Lemniscate(center=jnp.tile(jnp.array([0.0, 0.0, 1.0]), (n, 1)),
-                      size=u(ks[0], 0.0, 1.0, (n, 3)) * jnp.array([1.5, 1.5, 0.3]),
-                      period=u(ks[1], 5.0, 15.0), yaw=jnp.zeros(n),
-                      yaw_amplitude=u(ks[2], -0.5, 0.5), duration=jnp.full((n,), jnp.inf))
 
 
 def latents_in_flight(policy, theta, key, *, weights=None, steps: int = 750, sim=None):
     """Fly θ (n, 19) with a latent policy (a name, path or PolicyRef; see
     :func:`~mjxsysid.policy.interface.resolve_policy`) under excitation.
     Returns (ẑ at the last step (n, 8), failed (n,))."""
-    from mjxsysid.policy.interface import resolve_policy
     theta = np.asarray(theta, np.float32)
     n = len(theta)
     sim = sim or Quadrotor()
@@ -71,9 +64,8 @@ _MINSNAP_POOL = 512
 def trajectory_times(seconds: float, rate: float = TRAJ_RATE_HZ, dt: float = 0.002):
     """(times (L,) s, step indices (L,), number of control steps) at which a ``seconds``-long
     flight's latent is recorded at ``rate`` Hz (the decode times of
-    :func:`mjxsysid.analysis.decode.decode_indices`: from 0.2 s on, every 1/rate s). Raises ValueError for a flight shorter than
+    :func:`mjxsysid.studies.decode.decode_indices`: from 0.2 s on, every 1/rate s). Raises ValueError for a flight shorter than
     the policy history (0.2 s)."""
-    from mjxsysid.analysis.decode import decode_indices
     steps = int(round(seconds / dt))
     if not seconds > 0 or steps * dt < 0.2 - 1e-9:
         raise ValueError(f"seconds must be >= 0.2 (the policy's history), got {seconds}")
@@ -127,7 +119,6 @@ def latent_trajectories_in_flight(policy, theta, key, *, seconds: float = 10.0, 
     """Fly θ (n, 19) ``seconds`` s with a latent policy under random manoeuvres
     (:func:`random_manoeuvres`). Returns (ẑ at ``rate`` Hz (n, L, 8), times (L,) s,
     failed (n,), manoeuvre index (n,))."""
-    from mjxsysid.policy.interface import resolve_policy
     theta = np.asarray(theta, np.float32)
     n = len(theta)
     times, idx, steps = trajectory_times(seconds, rate)
@@ -154,7 +145,6 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     ``seconds`` S: S-second flights of random ``manoeuvres`` with the latent recorded at 10 Hz:
     also zhat_traj_train (n_train, L, 8), manoeuvre_train (n_train,) (index into
     ``MANOEUVRES``), the same for the test split, and traj_times (L,) s; zhat = the last latent."""
-    from mjxsysid.policy.interface import resolve_policy
     if n_train < 1 or n_test < 1 or batch < 1:
         raise ValueError("n_train, n_test and batch must be >= 1")
     if seconds is not None:
@@ -165,7 +155,6 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     prior = prior or ref.decoder_prior
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    from mjxsysid.progress import tee
     log = tee(log, out / "collect_log.txt")
     total = n_train + n_test
     nb = -(-total // batch)
@@ -176,7 +165,6 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     if seconds is not None:
         steps = trajectory_times(seconds)[2]
     t0 = time.time()
-    from mjxsysid.progress import progress
     for i in progress(range(nb), desc="collect", unit="batch"):
         k = jax.random.fold_in(jax.random.PRNGKey(seed + 1), i)
         th = theta[i * batch:(i + 1) * batch]
@@ -222,7 +210,6 @@ def load_pairs(path) -> tuple[dict, dict]:
         path = path / "pairs.npz"
     if not path.is_file():
         raise FileNotFoundError(f"dataset not found: {path}")
-    from mjxsysid.policy.checkpoint import open_npz
     with open_npz(path, "pairs file") as f:
         need = {"theta_train", "zhat_train", "theta_test", "zhat_test"}
         missing = need - set(f.files)
@@ -246,3 +233,15 @@ def load_pairs(path) -> tuple[dict, dict]:
                                  f"({len(arrays[f'theta_{split}'])}, {L}, z_dim) to match theta_{split} and "
                                  f"traj_times; got {None if zt is None else zt.shape}")
     return arrays, meta
+
+
+def decode_indices(times, rate: float, start: float = N.HISTORY * 0.002) -> np.ndarray:
+    """Indices (K,) of the steps at which a ``rate`` Hz decoder reads ẑ: every 1/rate s from the
+    first step at or after ``start`` s (the last step if the flight is shorter)."""
+    times = np.asarray(times)
+    dt = float(times[1] - times[0]) if len(times) > 1 else 0.002
+    every = max(int(round(1.0 / (rate * dt))), 1)
+    after = np.flatnonzero(times >= start - 1e-9)
+    if len(after) == 0:
+        return np.array([len(times) - 1])
+    return after[(after - after[0]) % every == 0]

@@ -12,11 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.harness import (Disturbance, Flight, batch_metrics, fly_batch, metrics_to_host,
-                                       summarize)
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.low_level import KTheta
 from mjxsysid.control.references import Hover, Lemniscate, MinSnap, stack
+from mjxsysid.rollout.harness import Disturbance, Flight, batch_metrics, fly_batch, metrics_to_host, summarize
 from mjxsysid.sim import Quadrotor, SimConfig
 
 CONTROLLERS = ("oracle", "nominal", "policy")
@@ -48,22 +47,24 @@ def make_reference(name: str, *, period: float = 10.0, duration: float | None = 
     raise ValueError(f"unknown reference {name!r}; choose from {REFERENCES}")
 
 
-def make_low_level(name: str, theta, weights=None, policy=None):
+def make_low_level(name: str, theta, policy=None):
     """'oracle': K_θ with each vehicle's true θ; 'nominal': K_θ with the paper vehicle's θ
-    whatever is flown (non-adaptive); 'policy': a frozen latent policy, ``policy`` a name
-    ('mjxsysid', the default, or 'xadap'), a path or a
-    :class:`~mjxsysid.policy.interface.PolicyRef`, with ``weights`` (see
-    :func:`~mjxsysid.policy.interface.resolve_policy`). θ (B, 19) -> batched controller."""
+    whatever is flown (non-adaptive); 'policy': the frozen latent policy ``policy``, already
+    resolved (anything with ``batched(B)``: a :class:`~mjxsysid.policy.interface.PolicyRef`
+    from :func:`~mjxsysid.policy.interface.resolve_policy`, or a controller). θ (B, 19) ->
+    batched controller."""
     theta = np.asarray(theta, np.float32)
-    if name in ("oracle", "nominal") and (weights is not None or policy is not None):
+    if name in ("oracle", "nominal") and policy is not None:
         raise ValueError(f"--policy / --weights do not apply to the {name} K_θ controller")
     if name == "oracle":
         return KTheta.make(theta)
     if name == "nominal":
         return KTheta.make(np.broadcast_to(P.PAPER_HARDWARE, theta.shape))
     if name == "policy":
-        from mjxsysid.policy.interface import resolve_policy
-        return resolve_policy(policy or "mjxsysid", weights).batched(theta.shape[0])
+        if not hasattr(policy, "batched"):
+            raise ValueError(f"controller 'policy' needs a resolved latent policy, got {policy!r}: pass "
+                             f"policy=mjxsysid.policy.interface.resolve_policy(NAME_OR_PATH)")
+        return policy.batched(theta.shape[0])
     raise ValueError(f"unknown controller {name!r}; choose from {CONTROLLERS}")
 
 
@@ -74,12 +75,12 @@ def broadcast(tree, b: int):
 
 def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=10.0,
                  duration=None, gains="baseline", force_step=(0.0, 0.0, 0.0), force_step_time=1.0,
-                 force_sigma=0.0, seed=0, sim: Quadrotor | None = None, refs=None, weights=None,
-                 policy=None):
+                 force_sigma=0.0, seed=0, sim: Quadrotor | None = None, refs=None, policy=None):
     """Fly a batch θ (B, 19) (or one vehicle (19,)) under one controller and reference.
 
     Returns (Flight with (B, T, ...) leaves, metrics dict of (B,) arrays, duration s).
-    ``refs`` may pass a pre-built batched reference (e.g. one min-snap per vehicle).
+    ``refs`` may pass a pre-built batched reference (e.g. one min-snap per vehicle); ``policy``:
+    the resolved latent policy of ``controller='policy'`` (see :func:`make_low_level`).
     """
     theta = P.as_batch(theta)
     b = theta.shape[0]
@@ -93,7 +94,7 @@ def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=1
     duration = d0 if duration is None else duration
     sim = sim or Quadrotor(SimConfig())
     steps = int(round(duration / sim.config.dt))
-    low = make_low_level(controller, theta, weights, policy)
+    low = make_low_level(controller, theta, policy)
     high = broadcast(Cascade.make(gains), b)
     dist = broadcast(Disturbance.make(step_force=force_step, step_time=force_step_time,
                                       sigma=force_sigma), b)
@@ -151,3 +152,13 @@ def write_metrics(m: dict, path, index: int | None = 0, extra: dict | None = Non
         d.update(extra)
     Path(path).write_text(json.dumps(d, indent=2) + "\n")
     return d
+
+
+def random_lemniscates(key, n: int):
+    """n random excitation references, stacked (leaves (n, ...))."""
+    ks = jax.random.split(key, 4)
+    u = lambda k, lo, hi, shape=(n,): jax.random.uniform(k, shape, jnp.float32, lo, hi)
+    return Lemniscate(center=jnp.tile(jnp.array([0.0, 0.0, 1.0]), (n, 1)),
+                      size=u(ks[0], 0.0, 1.0, (n, 3)) * jnp.array([1.5, 1.5, 0.3]),
+                      period=u(ks[1], 5.0, 15.0), yaw=jnp.zeros(n),
+                      yaw_amplitude=u(ks[2], -0.5, 0.5), duration=jnp.full((n,), jnp.inf))

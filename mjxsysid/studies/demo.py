@@ -14,8 +14,16 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.analysis.flight import fly_vehicles, one_flight, save_flight
-from mjxsysid.analysis.harness import metrics_to_host
+from mjxsysid.cfm.load import load_decoders
+from mjxsysid.cfm.posterior import summarize_posterior
+from mjxsysid.policy.interface import resolve_policy
+from mjxsysid.progress import echo, stages
+from mjxsysid.render.plots import plot_trajectory
+from mjxsysid.render.posterior import plot_decoded_over_time, plot_marginals
+from mjxsysid.render.video import render_rollout
+from mjxsysid.rollout.flight import fly_vehicles, one_flight, save_flight
+from mjxsysid.rollout.harness import metrics_to_host
+from mjxsysid.studies.decode import decode_latents
 
 
 def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int = 0,
@@ -27,10 +35,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from mjxsysid.render.plots import plot_trajectory
 
-    from mjxsysid.analysis.decode import load_decoders
-    from mjxsysid.policy.interface import resolve_policy
     ref = resolve_policy(policy)
     cfm, reg = load_decoders(None, ref, warn=print)
     out = Path(out)
@@ -38,7 +43,6 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     t0 = time.time()
     if n_vehicles < 1:
         raise ValueError(f"--vehicles must be >= 1, got {n_vehicles}")
-    from mjxsysid.progress import echo, stages
     st = stages(["flying", "plotting", "decoding", "video"], desc="demo")
 
     def stage(label, msg):
@@ -86,8 +90,6 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     plt.close(fig)
 
     stage("decoding", "[3/4] decoding the policy's latent of the paper vehicle at 10 Hz with the shipped CFM")
-    from mjxsysid.analysis.decode import decode_latents, plot_decoded_over_time, summarize_posterior
-    from mjxsysid.cfm.pipeline import plot_marginals
     dec = decode_latents(one.latent, one.time, rate=10.0, samples=200, seed=seed, decoder=cfm,
                          regression=reg)
     post = summarize_posterior(dec["samples"][-1], theta[0])
@@ -97,7 +99,6 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     np.savez_compressed(out / "decoded.npz", **dec, theta_true=theta[0])
     if video:
         stage("video", "[4/4] flying 4 decoded models and rendering them as ghosts (offscreen)")
-        from mjxsysid.render.video import render_rollout
         gth, _ = P.project_valid(dec["samples"][-1][:4])
         gfl, _, _ = fly_vehicles(gth, controller="policy", reference="lemniscate", period=10.0,
                                  policy=ref)

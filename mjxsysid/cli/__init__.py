@@ -1,0 +1,89 @@
+"""`mjxsysid` command line: scripted experiment runs.
+
+    mjxsysid demo [--out DIR]                      the CPU demo (quick start)
+    mjxsysid fly --vehicle V.json --controller oracle|nominal --reference hover|lemniscate|minsnap
+                 [--period S] [--duration S] [--force-step FX,FY,FZ] [--force-sigma S]
+                 [--seed N] [--gains naive|baseline] [--video] --out DIR
+    mjxsysid fly --prior default --vehicles 100 --controller oracle ...   a batch from the prior
+    mjxsysid fly --policy xadap --weights DIR ...   any frozen latent policy (NAME or a path)
+    mjxsysid collect | train-cfm | evaluate-decoder | decode | replay | demo  [--policy NAME|PATH]
+    mjxsysid export [--weights policy.npz] --out policy.onnx   the policy as ONNX, checked in onnxruntime
+
+Policies: ``--policy mjxsysid`` (the shipped one; the default), ``--policy xadap --weights DIR``
+(the released Extreme-Adaptation policy: its folder or a converted .npz; $MJXSYSID_XADAP_DIR is
+the fallback), or ``--policy PATH`` (recognised from its contents).
+
+Errors in inputs (files, arguments) are reported in one line on stderr with exit status 2.
+Heavy imports happen after argument parsing, so ``--help`` is instant.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from mjxsysid.cli import decoders, experiment, flights, policy, studies, tune
+
+COMMANDS = (
+    flights.add_demo,
+    flights.add_fly,
+    policy.add_train_policy,
+    policy.add_evaluate_policy,
+    decoders.add_collect,
+    decoders.add_train_cfm,
+    decoders.add_evaluate_decoder,
+    studies.add_decode,
+    studies.add_replay,
+    tune.add_tune,
+    experiment.add_experiment,
+    policy.add_export,
+)
+"""Each command's parser builder, in the order `mjxsysid --help` lists them."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="mjxsysid", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="command", required=True)
+    for add in COMMANDS:
+        add(sub)
+    for sp in sub.choices.values():
+        sp.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bars or progress messages (results and errors still print)")
+    return p
+
+
+def _start_processes(args) -> None:
+    """Join a multi-process run if a cluster launcher started one (mjxsysid.distributed): every
+    process computes the same gathered results; only process 0 writes ``--out`` (the others
+    write to a scratch folder; train-policy guards its own writes and reads the shared run
+    folder to resume)."""
+    from mjxsysid import distributed
+    if not distributed.maybe_initialize():
+        return
+    import jax
+    if jax.process_index() > 0 and getattr(args, "out", None) is not None and args.command != "train-policy":
+        import tempfile
+        args.out = Path(tempfile.mkdtemp(prefix=f"mjxsysid_p{jax.process_index()}_"))
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    from mjxsysid.progress import set_quiet
+    set_quiet(True if args.quiet else None)
+    try:
+        _start_processes(args)
+        return args.handler(args)
+    except (ValueError, OSError) as e:  # bad inputs (FileNotFoundError is an OSError)
+        print(f"mjxsysid {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        again = (" (run the same command again to resume from the last checkpoint)"
+                 if args.command in ("train-policy", "train-cfm") else "")
+        print(f"mjxsysid {args.command}: interrupted{again}", file=sys.stderr)
+        return 130
+    finally:
+        set_quiet(None)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

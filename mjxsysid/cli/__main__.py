@@ -1,0 +1,6 @@
+"""`python -m mjxsysid.cli ...`, as the `mjxsysid` command."""
+import sys
+
+from mjxsysid.cli import main
+
+sys.exit(main())

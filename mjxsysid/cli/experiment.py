@@ -1,0 +1,47 @@
+"""`mjxsysid experiment NAME`: the paper's experiments.
+
+Each command's parser (``add_*``) stands beside its handler (``cmd_*``). Handlers import what
+they run when they run: `mjxsysid --help` stays instant (no JAX or MuJoCo import).
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from mjxsysid.cli._common import add_policy, policy_ref
+
+
+def add_experiment(sub) -> None:
+    ex = sub.add_parser("experiment", help="run one of the paper's experiments (results.json, results.md, PNGs)")
+    ex.add_argument("name", help="tune-nominal | tune-slow | tune-lemniscate | robustness | payload | replay")
+    ex.add_argument("--quick", action="store_true", help="small CPU version (minutes; a smoke test)")
+    ex.add_argument("--cpu", action="store_true",
+                    help="tune-*: the full protocol with fewer vehicles and smaller ensembles (tens of minutes on a CPU)")
+    ex.add_argument("--seed", type=int, default=0)
+    add_policy(ex)
+    ex.add_argument("--decoders", type=Path, default=None,
+                    help="folder with cfm.npz and regression.npz (default: the policy's shipped decoders)")
+    ex.add_argument("--out", type=Path, required=True)
+    ex.set_defaults(handler=cmd_experiment)
+
+
+def cmd_experiment(args) -> int:
+    from mjxsysid.experiments import get_experiment
+    run = get_experiment(args.name)
+    if args.cpu and args.quick:
+        raise ValueError("give either --quick or --cpu, not both")
+    if args.cpu and not args.name.startswith("tune-"):
+        raise ValueError(f"--cpu applies to the tune-* experiments, not {args.name}")
+    kw = {"cpu": True} if args.cpu else {}
+    if args.decoders is not None:
+        import inspect
+        if "decoders" not in inspect.signature(run).parameters:
+            raise ValueError(f"experiment {args.name} does not take --decoders")
+        if not args.decoders.is_dir():
+            raise FileNotFoundError(f"--decoders: folder not found: {args.decoders}")
+        kw["decoders"] = args.decoders
+    res = run(args.out, quick=args.quick, policy=policy_ref(args), seed=args.seed, **kw)
+    print(json.dumps(res["numbers"].get("headline", {})))
+    print(f"wrote {args.out}/results.json, results.md and figures ({res['wall_s']:.0f} s)", file=sys.stderr)
+    return 0

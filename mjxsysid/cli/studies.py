@@ -1,0 +1,82 @@
+"""`mjxsysid decode | replay`: decoding a flight or a log, and action replay.
+
+Each command's parser (``add_*``) stands beside its handler (``cmd_*``). Handlers import what
+they run when they run: `mjxsysid --help` stays instant (no JAX or MuJoCo import).
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from mjxsysid.cli._common import FLIGHT_NAMES, add_policy, echo, policy_ref, positive, prepare_render
+
+
+def add_decode(sub) -> None:
+    dc = sub.add_parser("decode", help="fly a vehicle (or replay a log) with the policy and decode its latent")
+    dc.add_argument("--vehicle", type=Path, default=None, help="vehicle JSON (default: the paper vehicle)")
+    dc.add_argument("--log", type=Path, default=None, help="decode a recorded flight instead (CSV, see README)")
+    dc.add_argument("--reference", choices=("hover", "lemniscate", "minsnap"), default="lemniscate")
+    dc.add_argument("--period", type=positive, default=10.0)
+    dc.add_argument("--duration", type=positive, default=None)
+    dc.add_argument("--samples", type=int, default=100, help="decoded models per latent (default 100)")
+    dc.add_argument("--rate", type=positive, default=10.0, help="decoding rate, Hz (default 10)")
+    dc.add_argument("--window", default="flight",
+                    help="what each decoded posterior conditions on: 'flight' (default: every latent flown so far, "
+                         "sequence decoder), 'instant' (the current latent only) or SECONDS (a sliding window)")
+    add_policy(dc)
+    dc.add_argument("--decoders", type=Path, default=None,
+                    help="folder with cfm.npz and regression.npz, and cfm_seq.npz for --window flight|SECONDS "
+                         "(default: the policy's shipped decoders)")
+    dc.add_argument("--seed", type=int, default=0)
+    dc.add_argument("--video", action="store_true", help="render the true vehicle with decoded ghosts")
+    dc.add_argument("--out", type=Path, required=True)
+    dc.set_defaults(handler=cmd_decode)
+
+
+def cmd_decode(args) -> int:
+    if args.video:
+        prepare_render()
+    from mjxsysid import params as P
+    from mjxsysid.studies.decode import run_decode
+    if args.log is not None and args.vehicle is not None:
+        raise ValueError("give either --vehicle or --log, not both")
+    from mjxsysid.studies.decode import parse_window
+    window = parse_window(args.window)
+    theta = None if args.log else (P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware())
+    summary = run_decode(args.out, theta=theta, log=args.log, reference=args.reference, period=args.period,
+                         duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
+                         decoders=args.decoders, seed=args.seed, video=args.video, window=window,
+                         echo=lambda m: echo(m, file=sys.stderr))
+    print(json.dumps({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES}))
+    print(f"wrote {args.out}/decoded.npz, summary.json, marginals.png, decoded_over_time.png"
+          + (", decoded.mp4" if args.video else ""), file=sys.stderr)
+    return 0
+
+
+def add_replay(sub) -> None:
+    rp = sub.add_parser("replay", help="action replay: K_θ̂ from decoded θ̂ vs the policy's motor commands")
+    add_policy(rp)
+    rp.add_argument("--decoders", type=Path, default=None,
+                    help="folder with cfm.npz and regression.npz (default: the policy's shipped decoders)")
+    rp.add_argument("--flights", default=",".join(FLIGHT_NAMES),
+                    help=f"comma-separated subset of {','.join(FLIGHT_NAMES)} (default: all)")
+    rp.add_argument("--vehicles", type=int, default=0,
+                    help="also replay this many vehicles of the policy's own prior (default 0: paper vehicle only)")
+    rp.add_argument("--samples", type=int, default=16, help="CFM samples per update for the mean action (default 16)")
+    rp.add_argument("--rate", type=positive, default=10.0, help="decoder update rate, Hz (default 10)")
+    rp.add_argument("--cutoff", type=positive, default=5.0, help="low-pass cut-off for the PCC, Hz (default 5)")
+    rp.add_argument("--seed", type=int, default=0)
+    rp.add_argument("--out", type=Path, required=True)
+    rp.set_defaults(handler=cmd_replay)
+
+
+def cmd_replay(args) -> int:
+    from mjxsysid.studies.replay import run_replay
+    flights = tuple(f.strip() for f in args.flights.split(",") if f.strip())
+    res = run_replay(args.out, policy=policy_ref(args), decoders=args.decoders, vehicles=args.vehicles,
+                     flights=flights, rate=args.rate, samples=args.samples, cutoff_hz=args.cutoff,
+                     seed=args.seed, log=lambda m: echo(m, file=sys.stderr))
+    print(json.dumps({n: e["paper_vehicle"] for n, e in res["flights"].items()}))
+    print(f"wrote {args.out}/replay.json, replay.md, replay_summary.png, replay_<flight>.png", file=sys.stderr)
+    return 0

@@ -1,0 +1,127 @@
+"""Figures of decoded posteriors: marginals against the truth and the prior, the decoded
+parameters over a flight, and SBC rank histograms."""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from mjxsysid import params as P
+
+
+def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-level"):
+    """ẑ and the identifiable combinations (median, 5–95 % band) over time: the single-latent
+    (instant) posterior and, if decoded, the window's (flight-level) one."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    t = dec["times"]
+    ident = np.asarray(P.identifiable(dec["samples"]))  # (K, S, 5)
+    identw = np.asarray(P.identifiable(dec["samples_window"])) if "samples_window" in dec else None
+    fig, ax = plt.subplots(2, 3, figsize=(14, 6.5))
+    ax = ax.flat
+    ax[0].plot(t, dec["zhat"])
+    ax[0].set_title("latent ẑ (8 dims)")
+    for j, n in enumerate(P.IDENTIFIABLE_NAMES):
+        a = ax[j + 1]
+        lo, med, hi = np.percentile(ident[:, :, j], [5, 50, 95], 1)
+        a.fill_between(t, lo, hi, alpha=0.25, color="tab:blue", label="instant 5–95 %")
+        a.plot(t, med, color="tab:blue", label="instant median")
+        if identw is not None:
+            lo, med, hi = np.percentile(identw[:, :, j], [5, 50, 95], 1)
+            a.fill_between(t, lo, hi, alpha=0.35, color="tab:green", label=f"{window_label} 5–95 %")
+            a.plot(t, med, color="tab:green", label=f"{window_label} median")
+        a.plot(t, np.asarray(P.identifiable(dec["regression"]))[:, j], "--", label="regression")
+        if truth is not None:
+            a.axhline(float(np.asarray(P.identifiable(truth))[j]), color="k", label="true")
+        a.set_title(n)
+        if n != "torque_ratio":
+            a.set_yscale("log")
+    for a in ax:
+        a.set_xlabel("time (s)")
+        a.grid(alpha=0.3)
+    ax[1].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior vs truth"):
+    """Histograms of decoded θ samples (n, 19), truth (19,) marked; optional point estimate."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator, NullFormatter
+    fig, axes = plt.subplots(4, 5, figsize=(17, 11))
+    for j, ax in enumerate(axes.flat):
+        if j >= P.N_PARAMS:
+            ax.axis("off")
+            continue
+        x = samples[:, j]
+        log = P.LOG_MASK[j] and np.all(x > 0)
+        bins = np.geomspace(x.min(), x.max(), 30) if log and x.min() < x.max() else 30
+        ax.hist(x, bins=bins, color="tab:blue", alpha=0.7)
+        if log:
+            ax.set_xscale("log")
+            # three labelled ticks over the samples' range (log axes' minor labels overlap)
+            ax.xaxis.set_minor_formatter(NullFormatter())
+            lo, hi = np.log(x.min()), np.log(x.max())
+            ticks = np.exp(lo + (hi - lo) * np.array([0.15, 0.5, 0.85])) if hi > lo else [x.min()]
+            ax.set_xticks(ticks, [f"{v:.3g}" for v in ticks])
+        else:
+            ax.xaxis.set_major_locator(MaxNLocator(5))
+        ax.axvline(truth[j], color="k", lw=2, label="true")
+        if point is not None:
+            ax.axvline(point[j], color="tab:orange", ls="--", label="regression")
+        ax.set_title(f"{P.PARAM_NAMES[j]} [{P.PARAM_UNITS[j]}]", fontsize=9)
+        ax.set_yticks([])
+    axes.flat[0].legend(fontsize=8)
+    fig.suptitle(title)
+    # fixed margins (tight_layout measured every tick label: half the time of this plot)
+    fig.subplots_adjust(left=0.02, right=0.99, bottom=0.05, top=0.92, wspace=0.15, hspace=0.45)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
+
+
+def plot_rank_histograms(ranks, n_samples: int, path, *, pvalues, names: Sequence[str] | None = None,
+                         bins: int | None = None, title: str | None = None, ncols: int = 5) -> Path:
+    """Save SBC rank histograms (one panel per dimension, grey 99 % band of a uniform
+    histogram, KS p-value in each title) as a PNG. Returns the path."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from scipy import stats
+
+    r = np.asarray(ranks)
+    m, d = r.shape
+    names = list(names) if names is not None else [f"dim {j}" for j in range(d)]
+    if len(names) != d:
+        raise ValueError(f"{len(names)} names for {d} dimensions")
+    nb = bins or int(min(n_samples + 1, max(5, m // 20), 20))
+    edges = np.linspace(-0.5, n_samples + 0.5, nb + 1)
+    pv = np.asarray(pvalues)
+    lo, hi = stats.binom.ppf([0.005, 0.995], m, 1.0 / nb)
+    nrows = -(-d // ncols)
+    fig, axes = plt.subplots(nrows, min(ncols, d), figsize=(3.0 * min(ncols, d), 2.4 * nrows),
+                             squeeze=False)
+    for j, ax in enumerate(axes.ravel()):
+        if j >= d:
+            ax.axis("off")
+            continue
+        ax.axhspan(lo, hi, color="0.85", zorder=0)
+        ax.axhline(m / nb, color="0.5", lw=0.8, zorder=1)
+        ax.hist(r[:, j], bins=edges, color="C0", zorder=2)
+        ax.set_title(f"{names[j]}  p={pv[j]:.2g}", fontsize=8)
+        ax.set_xticks([0, n_samples])
+        ax.tick_params(labelsize=7)
+    if title:
+        fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,24 @@
+"""The layering of ARCHITECTURE.md, enforced: import-linter's contracts (pyproject.toml,
+[tool.importlinter]) and the diagram in ARCHITECTURE.md, generated from the import graph."""
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_import_contracts_are_kept():
+    """A layer importing one above it (a cycle in waiting), or the simulator / controllers /
+    closed loop importing optax, matplotlib or mediapy, fails here with the import chain."""
+    lint = Path(sys.executable).parent / "lint-imports"  # import-linter's CLI, in the dev extra
+    r = subprocess.run([str(lint), "--config", str(ROOT / "pyproject.toml"), "--no-cache"],
+                       capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert "2 kept, 0 broken" in r.stdout, r.stdout
+
+
+def test_architecture_diagram_is_generated_from_the_code():
+    """ARCHITECTURE.md's diagram is what tools/architecture.py draws from today's imports."""
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "architecture.py"), "--check"],
+                       capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stdout + r.stderr
