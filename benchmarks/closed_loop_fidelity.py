@@ -2,9 +2,10 @@
 
 The paper vehicle and ``--vehicles - 1`` prior vehicles hover 4 s with a constant [1, 1, 0] N
 world force from 0.5 s (prior vehicles: the force scaled by m / m_paper, the same acceleration);
-``--models`` decoded models (flight-level posterior from every ẑ of the true vehicle's own flight at
-10 Hz, or ``--window instant``: the last ẑ) vs as many ±20 % perturbations of the true θ, all under
-the same disturbance realisation. Targets (issue 11): the true error inside the decoded 5–95 %
+``--models`` decoded models (flight-level posterior from every ẑ at 10 Hz of a held-out,
+undisturbed 4 s identification lemniscate, or ``--window instant``: its last ẑ;
+``--identification same``: the test flight's own latents, as measured before 2026-11-25) vs as
+many ±20 % perturbations of the true θ, all under the same disturbance realisation. Targets (issue 11): the true error inside the decoded 5–95 %
 envelope ≥ 90 % of the time, the decoded envelope no wider than the ±20 % one.
 
     python benchmarks/closed_loop_fidelity.py --out docs/runs/closed_loop_fidelity.json  # GPU: ~1 min
@@ -28,6 +29,8 @@ def main():
     ap.add_argument("--models", type=int, default=100, help="decoded / perturbed models per vehicle")
     ap.add_argument("--window", choices=("flight", "instant"), default="flight")
     ap.add_argument("--duration", type=float, default=4.0)
+    ap.add_argument("--identification", choices=("held_out", "same"), default="held_out",
+                    help="decode a separate identification flight (default) or the test flight itself")
     ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
     args = ap.parse_args()
     if args.vehicles < 1:
@@ -39,6 +42,7 @@ def main():
     for i, t in enumerate(th):
         scale = float(t[P.MASS] / P.PAPER_HARDWARE[P.MASS])
         r = closed_loop_fidelity(t, n_models=args.models, window=args.window, reference="hover",
+                                 identification=args.identification,
                                  duration=args.duration, force_step=(scale, scale, 0.0))
         per.append({"vehicle": "paper" if i == 0 else f"prior_{i}", "force_scale": scale, **r["per_vehicle"][0]})
         print(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in per[-1].items()}), flush=True)
@@ -46,6 +50,7 @@ def main():
     ratio = [p["width_decoded_m"] / max(p["width_pm20_m"], 1e-9) for p in per]
     res = {
         "protocol": {"vehicles": args.vehicles, "models": args.models, "window": args.window,
+                     "identification": args.identification,
                      "duration_s": args.duration, "reference": "hover", "force_step_N": "[1, 1, 0] × m / m_paper",
                      "prior_seed": 7},
         "device": str(jax.devices()[0]), "jax": jax.__version__, "wall_s": time.time() - t0,

@@ -316,3 +316,34 @@ def test_identifiable_flow_coordinates(tmp_path):
     bad["flow_map"] = np.zeros((19, 19)).tolist()
     with pytest.raises(ValueError, match="singular"):
         P.Normalizer.from_dict(bad)
+
+
+def test_regression_early_stopping_keeps_the_best_validation_epoch():
+    """The Regression baseline keeps the epoch of lowest validation loss (here it over-fits 64
+    noisy pairs, so the best epoch is early), not the last; early stopping without validation
+    data is refused."""
+    rng = np.random.default_rng(0)
+    z = rng.normal(size=(64, 8)).astype(np.float32)
+    x = (0.3 * z[:, :1] + rng.normal(size=(64, 19))).astype(np.float32)   # mostly noise
+    zv = rng.normal(size=(256, 8)).astype(np.float32)
+    xv = (0.3 * zv[:, :1] + rng.normal(size=(256, 19))).astype(np.float32)
+    cfg = CFMConfig(width=64, blocks=2, time_dim=16, epochs=30, batch=16, lr=3e-3)
+    p, hist = train_regression(x, z, cfg, log=None, val=(xv, zv))
+    vl = np.asarray(hist["val_loss"])
+    assert hist["best_epoch"] == int(np.argmin(vl)) + 1 < cfg.epochs
+    assert hist["best_val_loss"] == pytest.approx(vl.min()) and vl[-1] > vl.min()
+    p_last, _ = train_regression(x, z, cfg, log=None, val=(xv, zv), early_stopping=False)
+    from mjxsysid.cfm.train import _make_eval, make_network
+    ev = _make_eval("regression", cfg, make_network(cfg, "regression"), xv, zv)
+    assert float(ev(p)) == pytest.approx(vl.min(), rel=1e-5) and float(ev(p_last)) == pytest.approx(vl[-1], rel=1e-5)
+    with pytest.raises(ValueError, match="early stopping needs validation"):
+        train_regression(x, z, cfg, log=None)
+
+
+def test_validation_split_is_seeded_disjoint_and_ten_percent():
+    from mjxsysid.cfm.pipeline import validation_split
+    tr, va = validation_split(1000, seed=0)
+    assert len(va) == 100 and len(tr) == 900 and not set(tr) & set(va)
+    assert sorted(np.concatenate([tr, va])) == list(range(1000))
+    np.testing.assert_array_equal(va, validation_split(1000, seed=0)[1])
+    assert not np.array_equal(va, validation_split(1000, seed=1)[1])

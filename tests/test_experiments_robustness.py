@@ -248,6 +248,35 @@ def test_flight_window_needs_the_sequence_decoder():
         closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="flight")
     with pytest.raises(ValueError, match="window"):
         closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="3s")
+    with pytest.raises(ValueError, match="identification must be one of"):
+        closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="instant", identification="test")
+
+
+@pytest.mark.slow
+def test_fidelity_identifies_on_a_held_out_flight():
+    """Closed-loop fidelity decodes the latents of a separate, undisturbed identification flight
+    by default (held out, as robustness does), and the test flight's own only when asked."""
+    from mjxsysid.cfm.sequence import SequenceDecoder
+    from mjxsysid.studies.fidelity import closed_loop_fidelity
+
+    class Recorder(SequenceDecoder):  # a stand-in decoder: records what it is asked to decode
+        max_len = 100
+
+        def __init__(self):
+            object.__setattr__(self, "seen", [])
+
+        def sample_theta(self, zs, key, n):
+            self.seen.append(np.asarray(zs))
+            return np.repeat(P.PAPER_HARDWARE[None], n, 0)
+    got = {}
+    for ident in ("held_out", "same"):
+        rec = Recorder()
+        r = closed_loop_fidelity(P.PAPER_HARDWARE, decoder=rec, n_models=2, reference="hover", duration=1.0,
+                                 force_step=(2.0, 0.0, 0.0), identification=ident)
+        assert r["identification"] == ident
+        got[ident] = rec.seen[0]
+    assert got["held_out"].shape == got["same"].shape
+    assert not np.allclose(got["held_out"], got["same"])   # another flight (a lemniscate, no force)
 
 
 # ----------------------------------------------------------------------------- notebook

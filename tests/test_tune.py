@@ -269,3 +269,33 @@ def test_notebook_02_executes(kernel, tmp_path, monkeypatch):
     outputs, _ = run_notebook("02_tuning.ipynb", tmp_path, monkeypatch, kernel=kernel,
                               env={"MJXSYSID_NOTEBOOK_FAST": "1"})
     assert "cfm_tuned: position RMSE" in outputs and (tmp_path / "tuning_gains.png").exists(), outputs[-2000:]
+
+
+def test_nominal_models_are_centred_on_each_vehicles_own_nominal_system():
+    """Nominal+CEM as the paper defines it: ±20 % perturbations of the vehicle's *own* nominal θ
+    (its τ_m at the nominal 0.03 s), not of the paper vehicle: for a light slow-motor vehicle the
+    K models bracket its mass, not the paper vehicle's."""
+    from mjxsysid.tune.tuner import NOMINAL_TAU_M, draw_models, nominal_theta
+    cfg = TunerConfig(models=2000)
+    theta = np.array(P.SLOW_ACTUATOR_PRIOR.sample(jax.random.PRNGKey(3), 1))[0]
+    theta[P.MASS] = 0.08                                  # far from the paper vehicle's 0.86 kg
+    th = np.asarray(draw_models("nominal_cem", jax.random.PRNGKey(0), jnp.asarray(theta), None, None, None, cfg))
+    nom = np.asarray(nominal_theta(theta))
+    assert NOMINAL_TAU_M == pytest.approx(0.03) and nom[P.TAU_M] == pytest.approx(0.03)
+    assert theta[P.TAU_M] >= 0.05                          # the true motors are slow; the nominal ones are not
+    np.testing.assert_array_equal(np.delete(nom, P.TAU_M), np.delete(theta, P.TAU_M).astype(np.float32))
+    ratio = th / nom
+    assert np.all(ratio[:, P.MASS] >= 0.8 - 1e-6) and np.all(ratio[:, P.MASS] <= 1.2 + 1e-6)
+    assert np.median(th[:, P.MASS]) == pytest.approx(0.08, rel=0.02)
+    assert np.median(th[:, P.TAU_M]) == pytest.approx(0.03, rel=0.02)
+
+
+def test_the_default_cost_is_the_papers_and_the_heading_variant_is_an_option():
+    from mjxsysid.experiments.tuning import FULL_TUNER, _variant
+    from mjxsysid.tune.tuner import HEADING_COST
+    assert TunerConfig().weights.heading == 0.0 and FULL_TUNER.weights.heading == 0.0
+    assert _variant("tune-slow", "heading_cost", FULL_TUNER).weights.heading == HEADING_COST == 0.1
+    assert _variant("tune-slow", None, FULL_TUNER) == FULL_TUNER
+    with pytest.raises(ValueError, match="no variant 'no_lead_in'"):
+        _variant("tune-slow", "no_lead_in", FULL_TUNER)
+    assert _variant("tune-lemniscate", "no_lead_in", FULL_TUNER) == FULL_TUNER

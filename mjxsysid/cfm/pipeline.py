@@ -130,30 +130,57 @@ def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, kinds=None, seq_
             save_seq_decoder(final, _half(params), scfg, norm, info)
             ckpt.unlink(missing_ok=True)
             res["cfm_seq"] = info
-    for kind, fit in (("cfm", train_cfm), ("regression", train_regression)):
+    for kind in ("cfm", "regression"):
         if kind not in kinds:
             continue
         final, ckpt = out / f"{kind}.npz", out / f"{kind}.ckpt.npz"
         kept = _already_trained(final, ckpt, cfg.to_dict(), data["pairs_sha256"], resume)
-        if kept is not None:
+        if kept is not None and (kind == "cfm" or "early_stopping" in kept):
             log(f"{final} is already trained on these pairs with this config: kept")
             res[kind] = kept
             continue
-        log(f"training {kind} on {len(th)} pairs ({cfg.epochs} epochs, batch {cfg.batch})")
-        t0 = time.time()
-        params, hist = fit(flow(th), z, cfg, log=log,
-                           val=(flow(tv), zv), checkpoint=ckpt,
-                           checkpoint_every=checkpoint_every)
+        extra = {}
+        if kind == "regression":  # early stopping on a split of the training pairs, never on the held-out ones
+            tr, va = validation_split(len(th), cfg.seed)
+            log(f"training regression on {len(tr)} pairs, early stopping on {len(va)} more "
+                f"({VAL_FRACTION:.0%} of the training pairs; {cfg.epochs} epochs at most, batch {cfg.batch})")
+            t0 = time.time()
+            params, hist = train_regression(flow(th[tr]), z[tr], cfg, log=log, val=(flow(th[va]), z[va]),
+                                            checkpoint=ckpt, checkpoint_every=checkpoint_every)
+            extra = {"early_stopping": {"best_epoch": int(hist["best_epoch"]),
+                                        "best_val_loss": float(hist["best_val_loss"]),
+                                        "validation": f"{len(va)} of the {len(th)} training pairs "
+                                                      f"({VAL_FRACTION:.0%}, seed {cfg.seed})"},
+                     "val_loss_curve": [float(v) for v in hist["val_loss"]]}
+        else:
+            log(f"training {kind} on {len(th)} pairs ({cfg.epochs} epochs, batch {cfg.batch})")
+            t0 = time.time()
+            params, hist = train_cfm(flow(th), z, cfg, log=log, val=(flow(tv), zv), checkpoint=ckpt,
+                                     checkpoint_every=checkpoint_every)
         wall = time.time() - t0
         info = {"data": data, "wall_s": wall, "device": str(jax.devices()[0]), "jax": jax.__version__,
                 "final_train_loss": float(hist["train_loss"][-1]),
                 "final_val_loss": float(hist["val_loss"][-1]) if hist.get("val_loss") else None,
                 "steps_per_s": float(np.mean(hist["steps_per_s"][1:] or hist["steps_per_s"])),
-                "stored_dtype": "float16"}
+                "stored_dtype": "float16", **extra}
         save_decoder(final, kind, _half(params), cfg, norm, info)
         ckpt.unlink(missing_ok=True)
         res[kind] = info
     return res
+
+
+VAL_FRACTION = 0.1
+"""Share of the training pairs the Regression baseline validates on for early stopping."""
+
+
+def validation_split(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(train, validation) indices of ``n`` training pairs: a seeded permutation's last
+    :data:`VAL_FRACTION` (at least one pair) for validation, sorted."""
+    if n < 2:
+        raise ValueError(f"early stopping needs at least 2 training pairs, got {n}")
+    perm = np.random.default_rng(seed).permutation(n)
+    n_val = max(1, int(round(VAL_FRACTION * n)))
+    return np.sort(perm[:-n_val]), np.sort(perm[-n_val:])
 
 
 def _nearby_theta(z_query, z_pool, theta_pool, k):

@@ -191,28 +191,39 @@ def _data_digest(*arrays) -> str:
 
 
 def fit_epochs(epoch, params, opt_state, k_train, theta, zz, *, cfg, kind: str, tag: str, spe: int, bs: int,
-               val_fn=None, log=None, checkpoint=None, checkpoint_every: int = 10):
+               val_fn=None, log=None, checkpoint=None, checkpoint_every: int = 10, keep_best: bool = False):
     """The epoch loop every decoder shares: resume from ``checkpoint`` (refused if it was
     written for another config or data set), ``cfg.epochs`` calls of ``epoch`` (see
     :func:`make_epoch`) with a progress bar and a log line each, a non-finite-loss guard,
     validation by ``val_fn(params)``, and a checkpoint every ``checkpoint_every`` epochs.
-    theta, zz: the host training arrays. Returns (params, history)."""
+    theta, zz: the host training arrays. ``keep_best``: early stopping on the validation loss
+    (needs ``val_fn``): the returned parameters are those of the epoch with the lowest
+    validation loss (``history['best_epoch']``, ``history['best_val_loss']``), not the last.
+    Returns (params, history)."""
+    if keep_best and val_fn is None:
+        raise ValueError(f"{tag} early stopping (keep_best) needs validation data")
     import json  # the config as it reads back from a checkpoint (tuples -> lists)
 
     theta_d, z_d = jnp.asarray(theta), jnp.asarray(zz)
     hist = {"epoch": [], "train_loss": [], "val_loss": [], "steps_per_s": [], "epoch_s": [],
             "steps_per_epoch": spe, "batch": bs}
     start, wall_prev = 0, 0.0
+    best = (float("inf"), 0, params)  # (validation loss, epoch, parameters) of the best epoch so far
     ck_meta = None
     if checkpoint is not None:
         checkpoint = Path(checkpoint)
-        ck_meta = {"kind": kind, "config": json.loads(json.dumps(cfg.to_dict())), "data": _data_digest(theta, zz)}
+        ck_meta = {"kind": kind, "config": json.loads(json.dumps(cfg.to_dict())), "data": _data_digest(theta, zz),
+                   "keep_best": keep_best}
         if checkpoint.is_file():
             meta = load_meta(checkpoint)
             if {k: meta.get(k) for k in ck_meta} != ck_meta:
                 raise ValueError(f"{checkpoint} was written for another config or data set; "
                                  f"delete it or train into a new folder")
-            params, opt_state = load_tree(checkpoint, (params, opt_state))
+            if keep_best:
+                params, opt_state, best_params = load_tree(checkpoint, (params, opt_state, params))
+                best = (meta["best_val_loss"], meta["best_epoch"], best_params)
+            else:
+                params, opt_state = load_tree(checkpoint, (params, opt_state))
             start, wall_prev, hist = meta["epoch"], meta["wall_s"], meta["hist"]
             if log is not None:
                 log(f"{tag} resumed from {checkpoint} at epoch {start}")
@@ -237,13 +248,21 @@ def fit_epochs(epoch, params, opt_state, k_train, theta, zz, *, cfg, kind: str, 
         if not np.isfinite(tl):
             bar.close()
             raise FloatingPointError(f"{tag} training loss is not finite at epoch {e + 1}")
+        if keep_best and vl < best[0]:
+            best = (vl, e + 1, params)
         bar.update(1)
         bar.set_postfix(train=f"{tl:.4f}", **({"val": f"{vl:.4f}"} if vl is not None else {}), refresh=False)
         if ck_meta is not None and ((e + 1) % checkpoint_every == 0 and e + 1 < cfg.epochs):
-            save_tree(checkpoint, (params, opt_state),
-                      dict(ck_meta, epoch=e + 1, hist=hist, wall_s=wall_prev + time.perf_counter() - t_start))
+            tree = (params, opt_state, best[2]) if keep_best else (params, opt_state)
+            extra = {"best_val_loss": best[0], "best_epoch": best[1]} if keep_best else {}
+            save_tree(checkpoint, tree, dict(ck_meta, epoch=e + 1, hist=hist, **extra,
+                                             wall_s=wall_prev + time.perf_counter() - t_start))
     bar.close()
     hist["wall_s"] = wall_prev + time.perf_counter() - t_start
+    if keep_best:
+        hist["best_val_loss"], hist["best_epoch"], params = best
+        if log is not None:
+            log(f"{tag} early stopping: kept epoch {best[1]} (validation loss {best[0]:.4f}) of {cfg.epochs}")
     if val_fn is None:
         hist["val_loss"] = None
     return params, hist
@@ -290,7 +309,7 @@ def _epoch_for(kind, cfg: CFMConfig, n: int):
 
 
 def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None, checkpoint=None,
-         checkpoint_every: int = 10):
+         checkpoint_every: int = 10, keep_best: bool = False):
 
     _check_kind(kind)
     tag = f"[{kind}]"
@@ -313,7 +332,7 @@ def _fit(kind, theta_norm, z, cfg: CFMConfig, log, val, params=None, checkpoint=
 
     return fit_epochs(epoch, params, opt_state, k_train, theta, zz, cfg=cfg, kind=kind, tag=tag, spe=spe,
                       bs=bs, val_fn=val_fn, log=log, checkpoint=checkpoint,
-                      checkpoint_every=checkpoint_every)
+                      checkpoint_every=checkpoint_every, keep_best=keep_best)
 
 
 def _make_eval(kind, cfg, net, theta, z, chunk: int = 1024):
@@ -355,11 +374,18 @@ def train_cfm(theta_norm, z, cfg: CFMConfig = CFMConfig(), log: Callable | None 
 
 
 def train_regression(theta_norm, z, cfg: CFMConfig = CFMConfig(), log: Callable | None = print,
-                     val: tuple | None = None, checkpoint=None, checkpoint_every: int = 10):
+                     val: tuple | None = None, checkpoint=None, checkpoint_every: int = 10,
+                     early_stopping: bool = True):
     """Train the Regression baseline r(z) (MSE, same architecture and optimiser). Same I/O
-    as :func:`train_cfm`."""
+    as :func:`train_cfm`. A point estimate over-fits where CFM does not (its validation loss
+    is lowest well before the last epoch), so by default it stops early: the epoch with the
+    lowest loss on ``val`` is kept (``early_stopping=False``: the last epoch, as trained before
+    2026-11-25). Give ``val`` a validation split of the training data, not the held-out pairs it
+    is scored on."""
+    if early_stopping and val is None:
+        raise ValueError("train_regression: early stopping needs validation pairs (val=...), or early_stopping=False")
     return _fit("regression", theta_norm, z, cfg, log, val, checkpoint=checkpoint,
-                checkpoint_every=checkpoint_every)
+                checkpoint_every=checkpoint_every, keep_best=early_stopping)
 
 
 # ----------------------------------------------------------------------------------------

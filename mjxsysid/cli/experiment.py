@@ -22,6 +22,10 @@ def add_experiment(sub) -> None:
     add_policy(ex)
     ex.add_argument("--decoders", type=Path, default=None,
                     help="folder with cfm.npz and regression.npz (default: the policy's shipped decoders)")
+    ex.add_argument("--variant", default=None, metavar="V",
+                    help="a protocol reported beside the default one: heading_cost (tune-*: the tuner's cost "
+                         "with a heading term), no_lead_in (tune-lemniscate), single_latent (robustness: the "
+                         "paper's single-latent CFM)")
     ex.add_argument("--out", type=Path, required=True)
     ex.set_defaults(handler=cmd_experiment)
 
@@ -41,6 +45,11 @@ def cmd_experiment(args) -> int:
         if not args.decoders.is_dir():
             raise FileNotFoundError(f"--decoders: folder not found: {args.decoders}")
         kw["decoders"] = args.decoders
+    if args.variant is not None:
+        import inspect
+        if "variant" not in inspect.signature(run).parameters:
+            raise ValueError(f"experiment {args.name} has no variants")
+        kw["variant"] = args.variant
     res = run(args.out, quick=args.quick, policy=policy_ref(args), seed=args.seed, **kw)
     print(json.dumps(res["numbers"].get("headline", {})))
     print(f"wrote {args.out}/results.json, results.md and figures ({res['wall_s']:.0f} s)", file=sys.stderr)

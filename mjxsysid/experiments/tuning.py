@@ -32,7 +32,7 @@ from mjxsysid.rollout.harness import metrics
 from mjxsysid.sim import Quadrotor, SimConfig
 from mjxsysid.tune.cem import CEMConfig
 from mjxsysid.tune.compare import RESULT_KEYS, common_summary, compare_methods, results_dict
-from mjxsysid.tune.tuner import CEM_METHODS, METHOD_LABELS, TunerConfig
+from mjxsysid.tune.tuner import CEM_METHODS, HEADING_COST, METHOD_LABELS, NOMINAL_TAU_M, TunerConfig
 
 FULL_TUNER = TunerConfig(models=16, horizon=0.5, rate=10.0, cem=CEMConfig(candidates=32, iterations=2), unroll=5)
 CPU_TUNER = TunerConfig(models=4, horizon=0.5, rate=10.0, cem=CEMConfig(candidates=12, iterations=2))
@@ -90,16 +90,36 @@ def _ratio(res, a, b, k="pos_rmse_m", common=None):
     return None if x is None or y is None else x / y
 
 
+VARIANTS = {"heading_cost": "the tuner's cost with a heading term (weight HEADING_COST = 0.1; the default "
+                            "before 2026-11-25), not the paper's cost",
+            "no_lead_in": "tune-lemniscate without the hover lead-in (the lemniscate from t = 0, as "
+                          "before 2026-11-24)"}
+"""Protocol variants of the tune-* experiments (``mjxsysid experiment NAME --variant V``): choices
+made after seeing a result, reported beside the default protocol."""
+
+
+def _variant(name: str, variant: str | None, cfg: TunerConfig) -> TunerConfig:
+    """The tuner config of ``variant`` (None: the default protocol); a ValueError names the valid ones."""
+    allowed = ("heading_cost", "no_lead_in") if name == "tune-lemniscate" else ("heading_cost",)
+    if variant is None:
+        return cfg
+    if variant not in allowed:
+        raise ValueError(f"{name} has no variant {variant!r}; choose from {', '.join(allowed)}")
+    if variant == "heading_cost":
+        return dataclasses.replace(cfg, weights=dataclasses.replace(cfg.weights, heading=HEADING_COST))
+    return cfg
+
+
 def _size(quick, cpu):
     return "quick" if quick else ("cpu" if cpu else "full")
 
 
-def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, cpu=False):
+def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, cpu=False, variant=None):
     t0 = time.time()
     policy = _ref(policy)
     size = _size(quick, cpu)
     n, duration = {"quick": (3, 2.0), "cpu": (12, 5.0), "full": (100, 5.0)}[size]
-    cfg = {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size]
+    cfg = _variant(name, variant, {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size])
     theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(seed), n))
     refs = random_minsnaps(n, seed, duration)
     sim = Quadrotor()
@@ -124,13 +144,17 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
                          for n, (a, b) in pairs.items()
                          for k, suffix0 in (("pos_rmse_m", ""), ("max_pos_err_m", "_max"), ("heading_rmse_deg", "_heading"))
                          for same, suffix in ((True, suffix0), (False, suffix0 + "_own_successes"))}
-    config = {"quick": quick, "size": size, "prior": prior, "vehicles": n, "duration_s": duration, "methods": list(methods),
+    config = {"quick": quick, "size": size, "variant": variant, "prior": prior, "vehicles": n, "duration_s": duration,
+              "methods": list(methods),
               "tuner": dataclasses.asdict(cfg), "reference": f"random min-snap ({minsnap_segments(duration)} segments, 2 m box, "
                                                         "whole path ≥ 0.2 m above the ground)"}
     notes = (f"Mean ± std over vehicles. 'same {common['n']} vehicles': those no method lost (the fair "
              "comparison); 'own successes': each method over the flights it completed (favours a method "
              "that loses its hardest vehicles). The paper reports mean ± std over rollouts. Oracle-CEM tunes "
-             "on K copies of the true θ: an upper reference, not in the paper.\n"
+             "on K copies of the true θ: an upper reference, not in the paper. Nominal+CEM tunes on ±20 % "
+             f"perturbations of each vehicle's own nominal system (its θ with τ_m = {NOMINAL_TAU_M:g} s). "
+             + (f"Variant {variant}: {VARIANTS[variant]}. " if variant else "The tuner's cost is the paper's "
+                "(position RMSE, saturation, failure; no heading term). ") + "\n"
              "Ratios over the same vehicles: " + ", ".join(f"{k} {v:.2f}" for k, v in numbers["ratios"].items()
                                                           if v is not None and "own" not in k))
     return write_results(out, name, config=config, seeds={"vehicles": seed, "references": seed, "flight": seed},
@@ -142,20 +166,21 @@ def _ref(policy):
     return resolve_policy(policy or "mjxsysid")
 
 
-def run_nominal(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False):
+def run_nominal(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False, variant=None):
     """tune-nominal (see the module doc)."""
     return _prior_experiment("tune-nominal", "default", methods or ("naive", "baseline", "cfm", "oracle_cem"),
-                             out, quick, policy, seed, progress, cpu)
+                             out, quick, policy, seed, progress, cpu, variant)
 
 
-def run_slow(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False):
+def run_slow(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False, variant=None):
     """tune-slow (see the module doc)."""
     return _prior_experiment("tune-slow", "slow_actuators",
                              methods or ("baseline", "nominal_cem", "cfm", "oracle_cem"), out, quick, policy,
-                             seed, progress, cpu)
+                             seed, progress, cpu, variant)
 
 
-def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False):
+def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False,
+                   variant=None):
     """tune-lemniscate: the three periods fly as one batch of three copies of the paper vehicle,
     each a hover lead-in of :data:`LEAD_IN_S` at the lemniscate's start point (take-off done, the
     tuner already running) and then three cycles; each flight is scored over its own three cycles
@@ -166,9 +191,9 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
     periods = (15.0, 10.0, 7.5)
     cycles = 3
     size = _size(quick, cpu)
-    cfg = {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size]
+    cfg = _variant("tune-lemniscate", variant, {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size])
     sim = Quadrotor(HARDWARE_SIM)
-    lead = 0.5 if quick else LEAD_IN_S
+    lead = 0.0 if variant == "no_lead_in" else (0.5 if quick else LEAD_IN_S)
     duration = 2.0 if quick else lead + cycles * max(periods)
     steps = int(round(duration / sim.config.dt))
     theta = np.repeat(P.PAPER_HARDWARE[None], len(periods), 0)
@@ -191,9 +216,10 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
                 last = metrics(jax.tree.map(lambda a: a[i, n_last:n_i], fl))
                 mm.update({f"{k}_last_cycle": float(last[k]) for k in ("pos_rmse_m", "max_pos_err_m",
                                                                        "heading_rmse_deg")})
-            lead_m = metrics(jax.tree.map(lambda a: a[i, :n0], fl))
-            mm["failed"] = bool(mm["failed"]) or bool(lead_m["failed"])
-            mm["lead_in_pos_rmse_m"] = float(lead_m["pos_rmse_m"])
+            if n0 > 0:
+                lead_m = metrics(jax.tree.map(lambda a: a[i, :n0], fl))
+                mm["failed"] = bool(mm["failed"]) or bool(lead_m["failed"])
+                mm["lead_in_pos_rmse_m"] = float(lead_m["pos_rmse_m"])
             per[m][p] = mm
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -207,7 +233,8 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
             last = (f"{d['pos_rmse_m_last_cycle']:.3f} / {d['max_pos_err_m_last_cycle']:.3f}"
                     if "pos_rmse_m_last_cycle" in d else "–")
             rows.append([f"{p:g} s", METHOD_LABELS[m], f"{d['pos_rmse_m']:.3f}", f"{d['max_pos_err_m']:.3f}",
-                         f"{d['heading_rmse_deg']:.2f}", last, f"{d['lead_in_pos_rmse_m']:.3f}",
+                         f"{d['heading_rmse_deg']:.2f}", last,
+                         f"{d['lead_in_pos_rmse_m']:.3f}" if "lead_in_pos_rmse_m" in d else "–",
                          "failed" if d["failed"] else "ok", " / ".join(f"{x:g}" for x in pp) if pp else "–"])
     table = markdown_table(["period", "controller", "pos RMSE (m)", "max err (m)", "heading (deg)",
                             "last cycle: RMSE / max (m)", f"{lead:g} s lead-in hover RMSE (m)", "status",
@@ -218,11 +245,13 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
     if "cfm" in methods and "baseline" in methods:
         numbers["cfm_le_baseline"] = {str(p): per["cfm"][p]["pos_rmse_m"] <= per["baseline"][p]["pos_rmse_m"]
                                       for p in periods}
-    config = {"quick": quick, "size": size, "periods_s": periods, "cycles": cycles, "lead_in_s": lead,
+    config = {"quick": quick, "size": size, "variant": variant, "periods_s": periods, "cycles": cycles, "lead_in_s": lead,
               "duration_s": duration,
               "methods": list(methods), "tuner": dataclasses.asdict(cfg), "sim": dataclasses.asdict(HARDWARE_SIM)}
     return write_results(out, "tune-lemniscate", config=config, seeds={"flight": seed}, numbers=numbers,
                          table_md=table, t0=t0, policy=policy, decoders=policy.decoders_dir,
                          notes=("Our simulated 'hardware' is the paper vehicle with IMU noise, bias and latency. "
                                 f"Each flight: {lead:g} s hover at the start point (tuner running), then "
-                                f"{cycles} cycles, scored over the cycles."))
+                                f"{cycles} cycles, scored over the cycles. "
+                                + (f"Variant {variant}: {VARIANTS[variant]}." if variant else
+                                   "The tuner's cost is the paper's (no heading term).")))

@@ -1,7 +1,9 @@
 """Closed-loop fidelity of decoded models (issue 5, item 4).
 
-For a true vehicle θ*: fly it with the frozen policy on a reference under a disturbance, read
-ẑ at the end of a first (identification) flight, decode S models, fly each with the same policy,
+For a true vehicle θ*: fly a first, undisturbed identification flight (a 10 s-period lemniscate,
+held out from the test flight, as the robustness experiment identifies) and decode S models from
+its latents; then fly θ* with the frozen policy on a reference under a disturbance, and each
+decoded model with the same policy,
 reference, initial state and *the same disturbance realisation*, and compare position-error
 envelopes: the fraction of time the true error lies inside the decoded 5–95 % envelope, and the
 envelope's mean width against the one from ±20 % uniform perturbations of θ*.
@@ -97,19 +99,28 @@ def check_decoder_window(decoder, window: str, what: str = "window") -> None:
         raise TypeError(f"{what}={window!r} needs {need}; got {type(decoder).__name__}")
 
 
+IDENTIFICATIONS = ("held_out", "same")
+
+
 def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decoder=None,
-                         window: str = "flight", rate: float = 10.0, **flight_kw) -> dict:
+                         window: str = "flight", rate: float = 10.0, identification: str = "held_out",
+                         **flight_kw) -> dict:
     """For each true vehicle (n, 19): decoded-model and ±20 % envelopes of the position error.
 
-    The identification is the true vehicle's own flight: ``window="flight"`` decodes every ẑ
-    of it read at ``rate`` Hz with the sequence decoder (``cfm_seq.npz``, the flight-level
-    posterior, default), ``"instant"`` the last ẑ with the single-latent CFM (``cfm.npz``).
+    ``identification="held_out"`` (default) decodes the latents of a separate, undisturbed
+    identification flight (10 s-period lemniscate, 1 × 1 × 0.3 m, as long as the test flight,
+    its own key); ``"same"`` decodes those of the test flight itself (what this figure measured
+    before 2026-11-25: not a held-out figure). ``window="flight"`` decodes every ẑ of the
+    identification flight read at ``rate`` Hz with the sequence decoder (``cfm_seq.npz``, the
+    flight-level posterior, default), ``"instant"`` the last ẑ with the single-latent CFM (``cfm.npz``).
     ``decoder`` overrides the shipped one of that kind. The n × n_models decoded and the
     n × n_models perturbed vehicles fly in one batch each, all under the same disturbance
     realisation. Returns per-vehicle and mean ``inside_*`` (fraction of time the true error lies
     in the 5–95 % envelope) and ``width_*_m`` (mean envelope width)."""
     if int(n_models) < 2:
         raise ValueError(f"n_models must be >= 2 for an envelope; got {n_models}")
+    if identification not in IDENTIFICATIONS:
+        raise ValueError(f"identification must be one of {IDENTIFICATIONS}; got {identification!r}")
     if decoder is None:
         if window == "flight":
             decoder = SequenceDecoder.load(PRETRAINED_DIR / "cfm_seq.npz")
@@ -122,9 +133,12 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     true_fl = fly_same_disturbance(theta_true, key=key, **flight_kw)
     err = lambda fl: np.linalg.norm(np.asarray(fl.frame.pos - fl.ref_pos), axis=-1)
     true_err = err(true_fl)                                         # (n, T)
-    latent = np.asarray(true_fl.latent)                             # (n, T, 8)
+    id_fl = true_fl if identification == "same" else fly_same_disturbance(
+        theta_true, reference="lemniscate", period=10.0, duration=flight_kw.get("duration", 5.0),
+        key=jax.random.fold_in(key, 77), sim=flight_kw.get("sim"))
+    latent = np.asarray(id_fl.latent)                               # (n, T, 8)
     if window == "flight":
-        idx = decode_indices(np.asarray(true_fl.time[0]), rate)[-decoder.max_len:]
+        idx = decode_indices(np.asarray(id_fl.time[0]), rate)[-decoder.max_len:]
         zs = latent[:, idx]                                         # (n, W, 8)
     dec, pert = [], []
     for i, th in enumerate(theta_true):
@@ -145,5 +159,5 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     keys = out[0].keys()
     return {"per_vehicle": out, "mean": {k: float(np.mean([o[k] for o in out])) for k in keys},
             "median": {k: float(np.median([o[k] for o in out])) for k in keys},
-            "n_models": n_models, "window": window, "rate_hz": rate,
+            "n_models": n_models, "window": window, "rate_hz": rate, "identification": identification,
             **{k: (list(v) if isinstance(v, tuple) else v) for k, v in flight_kw.items()}}

@@ -1,6 +1,6 @@
 """Fly the same vehicles under every tuning method and compare (``mjxsysid tune``, the
 ``tune-*`` experiments): fixed ``naive`` / ``baseline`` gains and the online CEM tuner on the
-decoded ensemble (``cfm``), on ±20 % perturbations of the paper vehicle (``nominal_cem``) and on
+decoded ensemble (``cfm``), on ±20 % perturbations of each vehicle's nominal system (``nominal_cem``) and on
 the true θ (``oracle_cem``). Every method flies the identical noise and disturbance realisation.
 """
 from __future__ import annotations

@@ -3,16 +3,17 @@
 Every ``1/rate`` s of a flight the tuner
 
 1. draws K models θ_1..θ_K: from the decoder p(θ | ẑ) at the policy's current latent (``cfm``),
-   from the paper vehicle with independent ±20 % perturbations (``nominal_cem``, the paper's
-   ablation) or K copies of the true θ (``oracle_cem``, an upper reference), all projected to
-   valid θ;
+   from the vehicle's own nominal system with independent ±20 % perturbations (``nominal_cem``,
+   the paper's ablation: the vehicle's θ with its motor time constant at the nominal value,
+   :func:`nominal_theta`) or K copies of the true θ (``oracle_cem``, an upper reference), all
+   projected to valid θ;
 2. runs K × N predictive rollouts from the current state, each model flown by the *frozen*
    policy (its current history and latent carried over) under one of N candidate gain vectors
    of the cascade, over a horizon H of the upcoming reference, without disturbances, in the
    deterministic rigid-body twin of the simulator (:mod:`mjxsysid.sim.rigid`: the same
    equations and integrator as the MJX simulator without MuJoCo's generic machinery);
-3. scores each candidate by the ensemble mean of :func:`rollout_cost` (position RMSE +
-   heading + motor saturation + failure) and runs CEM (:mod:`mjxsysid.tune.cem`), warm-started
+3. scores each candidate by the ensemble mean of :func:`rollout_cost` (position RMSE + motor
+   saturation + failure, the paper's cost; a heading term is an option, off by default) and runs CEM (:mod:`mjxsysid.tune.cem`), warm-started
    from the last solution; the mean of the final distribution is applied until the next update.
 
 :func:`tuner_update` is one pure update for one vehicle; :class:`OnlineTuner` jits it once,
@@ -51,11 +52,29 @@ METHOD_LABELS = {"naive": "Naive", "baseline": "Baseline", "cfm": "CFM-tuned",
 class CostWeights:
     """Predictive cost = pos RMSE (m) + heading · heading RMSE (rad) + saturation · fraction of
     motor commands at 0 or 1 + failure · [the rollout failed]. A rollout fails when it diverges,
-    hits the ground or strays ``fail_dist`` m from the reference (RMSEs count the steps before)."""
-    heading: float = 0.1
+    hits the ground or strays ``fail_dist`` m from the reference (RMSEs count the steps before).
+
+    ``heading`` is 0 by default: the paper's cost penalises position error, motor saturation and
+    failure only. :data:`HEADING_COST` (0.1, the default before 2026-11-25) is the variant with
+    a heading term."""
+    heading: float = 0.0
     saturation: float = 0.5
     failure: float = 5.0
     fail_dist: float = 1.0
+
+
+HEADING_COST = 0.1
+"""The heading weight of the cost variant with a heading term (``--variant heading_cost``)."""
+
+NOMINAL_TAU_M = float(np.mean(P.DEFAULT_PRIOR.motor_time_constant))
+"""The nominal motor time constant (s) of ``nominal_cem``: the mid-point of the policy's training
+range τ_m ∈ [0.02, 0.04] s (the paper's 'nominal τ_m'), whatever the vehicle's true τ_m."""
+
+
+def nominal_theta(theta):
+    """A vehicle's nominal system: its own θ (..., 19) with the motor time constant at
+    :data:`NOMINAL_TAU_M` (the nominal actuators the slow-actuator experiment departs from)."""
+    return jnp.asarray(theta).at[..., P.TAU_M].set(NOMINAL_TAU_M)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -65,7 +84,8 @@ class TunerConfig:
     models: K models per update. horizon: predictive horizon H (s). rate: updates per second.
     warmup: no update before this time (s): the policy's history fills first (0.2 s).
     cem: :class:`~mjxsysid.tune.cem.CEMConfig` (N = ``cem.candidates``). weights: the cost.
-    perturbation: half-width of the uniform relative perturbation of ``nominal_cem``.
+    perturbation: half-width of the uniform relative perturbation of ``nominal_cem`` (around
+    each vehicle's :func:`nominal_theta`).
     decoder_steps: Euler steps of the CFM sampler. initial: gains before the first update
     (and the first CEM mean): a preset name. unroll: control steps per iteration of the
     predictive rollouts' compiled loop (a speed knob for accelerators; results are the same).
@@ -141,7 +161,7 @@ def _model_sources(dec_cfg, cfg: TunerConfig) -> tuple[tuple[str, ...], list]:
 
     def nominal(key, theta_true, zhat, dec):
         u = jax.random.uniform(key, (k, P.N_PARAMS), minval=1 - cfg.perturbation, maxval=1 + cfg.perturbation)
-        return jnp.asarray(P.PAPER_HARDWARE) * u
+        return nominal_theta(theta_true) * u
 
     def cfm(key, theta_true, zhat, dec):
         theta0 = jax.random.normal(key, (1, k, dec_cfg.theta_dim), jnp.float32)   # as cfm.sample draws it
