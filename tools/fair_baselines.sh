@@ -8,7 +8,8 @@
 #               with early stopping, evaluate it beside the shipped CFM  -> OUT/regression/dec
 #               (ship: python tools/ship_decoders.py OUT/regression/dec --kinds regression ...)
 #   tune        tune-nominal and tune-slow (Nominal+CEM on each vehicle's own nominal θ; the
-#               paper's cost) and tune-slow --variant heading_cost          -> OUT/tune_*
+#               paper's cost)                                               -> OUT/tune_*
+#   heading     tune-slow --variant heading_cost (the cost with a heading term) -> OUT/tune_slow_heading_cost
 #   lemniscate  tune-lemniscate with the hover lead-in and --variant no_lead_in -> OUT/tune_lemniscate*
 #   robustness  robustness (flight-level decoder) and --variant single_latent -> OUT/robustness*
 #   replay      the replay experiment (action replay with the early-stopped Regression)
@@ -38,7 +39,8 @@ PY
       t $M evaluate-decoder --decoders "$OUT/regression/dec" --pairs "$OUT/regression/data" --cases 1000 --samples 200 -q ;;
     tune)
       t $M experiment tune-nominal --out "$OUT/tune_nominal" -q
-      t $M experiment tune-slow --out "$OUT/tune_slow" -q
+      t $M experiment tune-slow --out "$OUT/tune_slow" -q ;;
+    heading)
       t $M experiment tune-slow --variant heading_cost --out "$OUT/tune_slow_heading_cost" -q ;;
     lemniscate)
       t $M experiment tune-lemniscate --out "$OUT/tune_lemniscate" -q
