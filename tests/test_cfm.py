@@ -114,7 +114,7 @@ def bimodal():
     x = (sign * (1.0 + 0.5 * z) * np.ones((1, 2)) + 0.05 * rng.standard_normal((n, 2))).astype(np.float32)
     cfg = CFMConfig(theta_dim=2, z_dim=1, width=64, blocks=2, time_dim=32, epochs=20, lr=2e-3)
     p_cfm, hist = train_cfm(x, z, cfg, log=None)
-    p_reg, _ = train_regression(x, z, cfg, log=None)
+    p_reg, _ = train_regression(x, z, cfg, log=None, early_stopping=False)
     return cfg, p_cfm, p_reg, hist
 
 

@@ -49,7 +49,7 @@ def main():
                 "seed": dec.cfg.seed, "commit": commit, "device": f"{m.get('device')}, jax {m.get('jax')}",
                 "wall_s": m.get("wall_s"), "steps_per_s": m.get("steps_per_s"),
                 "final_train_loss": m.get("final_train_loss"), "final_val_loss": m.get("final_val_loss"),
-                "data": m.get("data"), "stored_dtype": "float16 (evaluated after rounding)",
+                "data": m.get("data"), **({"early_stopping": m["early_stopping"]} if "early_stopping" in m else {}), "stored_dtype": "float16 (evaluated after rounding)",
                 "evaluation": ev.get("sequence") if kind == "cfm_seq" else ev if kind == "cfm" else {
                     "energy_score": ev.get("energy_score"), "rmse_norm": ev.get("rmse_norm")},
                 "evaluation_command": f"mjxsysid evaluate-decoder --decoders {args.dec} --pairs DATA"}

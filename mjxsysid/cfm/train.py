@@ -382,6 +382,7 @@ def train_regression(theta_norm, z, cfg: CFMConfig = CFMConfig(), log: Callable 
     lowest loss on ``val`` is kept (``early_stopping=False``: the last epoch, as trained before
     2026-11-25). Give ``val`` a validation split of the training data, not the held-out pairs it
     is scored on."""
+    _check_pairs(theta_norm, z, cfg, "train")
     if early_stopping and val is None:
         raise ValueError("train_regression: early stopping needs validation pairs (val=...), or early_stopping=False")
     return _fit("regression", theta_norm, z, cfg, log, val, checkpoint=checkpoint,
