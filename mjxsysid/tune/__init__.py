@@ -2,7 +2,7 @@
 
 :mod:`~mjxsysid.tune.cem` is the optimiser (pure, over a bounded log-scaled gain space);
 :mod:`~mjxsysid.tune.tuner` the predictive rollouts, the cost, one jitted batched update and a
-flight with the tuner in the loop; :mod:`~mjxsysid.tune.run` the user-facing comparison of
+flight with the tuner in the loop; :mod:`~mjxsysid.tune.compare` the user-facing comparison of
 methods behind ``mjxsysid tune``.
 """
 from mjxsysid.tune.cem import CEMConfig, CEMState, cem_init, cem_minimize, from_search, mean_gains, to_search

@@ -1,0 +1,320 @@
+"""Write docs/fair_comparisons.md from the run files (issue 22: every comparison both ways).
+
+    python tools/fair_tables.py            # regenerate docs/fair_comparisons.md
+    python tools/fair_tables.py --check    # exit 1 if the page differs from what the runs give
+
+Reads only JSON under docs/runs/ (the previous protocol's runs) and docs/runs/fair/ (the runs of
+tools/fair_baselines.sh at commit f5c8ec2); no number on the page is typed by hand.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RUNS = ROOT / "docs" / "runs"
+FAIR = RUNS / "fair"
+PAGE = ROOT / "docs" / "fair_comparisons.md"
+
+
+def load(path: Path) -> dict:
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        sys.exit(f"fair_tables: missing run file {path.relative_to(ROOT)} (run tools/fair_baselines.sh)")
+
+
+def f3(x) -> str:
+    return "–" if x is None else f"{x:.3f}"
+
+
+def pct(x) -> str:
+    return f"{100 * x:.0f} %"
+
+
+def stamp(d: dict) -> str:
+    return f"{d['date'][:10]}, commit {str(d['commit']).split()[0]}"
+
+
+# ----------------------------------------------------------------------------------------
+# tables
+# ----------------------------------------------------------------------------------------
+
+def tune_rows(runs: list[tuple[str, dict]], methods: list[str]) -> list[str]:
+    names = {"naive": "Naive", "baseline": "Baseline", "nominal_cem": "Nominal+CEM",
+             "cfm_tuned": "CFM-tuned", "oracle_cem": "Oracle-CEM"}
+    head = "| protocol | same n | " + " | ".join(f"{names[m]}: RMSE m (success)" for m in methods)
+    head += " | CFM-tuned / Baseline | heading °: Baseline / CFM-tuned |"
+    out = [head, "|" + "---|" * (len(methods) + 4)]
+    for label, d in runs:
+        n = d["numbers"]
+        cs = n["common_set"]
+        cells = [f"{cs[m]['pos_rmse_m']['mean']:.4f} ({pct(n[m]['success_rate'])})" for m in methods]
+        r = n["ratios"]
+        head_b = cs["baseline"]["heading_rmse_deg"]["mean"]
+        head_c = cs["cfm_tuned"]["heading_rmse_deg"]["mean"]
+        out.append(f"| {label} | {cs['n']} | " + " | ".join(cells)
+                   + f" | **{r['cfm_over_baseline']:.2f}×** | {head_b:.1f} / {head_c:.1f} |")
+    return out
+
+
+def lemniscate_rows(runs: list[tuple[str, dict]]) -> list[str]:
+    out = ["| protocol | period | Baseline RMSE m | CFM-tuned | Oracle-CEM | CFM-tuned / Baseline |",
+           "|---|---|---|---|---|---|"]
+    for label, d in runs:
+        h = d["numbers"]["headline"]
+        for p in ("15s", "10s", "7.5s"):
+            b, c, o = h[f"baseline_{p}"], h[f"cfm_tuned_{p}"], h[f"oracle_cem_{p}"]
+            out.append(f"| {label} | {p} | {b:.4f} | {c:.4f} | {o:.4f} | **{c / b:.2f}×** |")
+    return out
+
+
+REPLAY_METHODS = [("random", "Random"), ("regression", "Regression"), ("cfm", "CFM (1 sample)"),
+                  ("cfm_mean", "CFM (mean action)"), ("true", "true θ")]
+FLIGHTS = [("lemniscate_5s", "lem. 5 s"), ("lemniscate_10s", "lem. 10 s"),
+           ("lemniscate_15s", "lem. 15 s"), ("hover", "hover")]
+
+
+def replay_rows(runs: list[tuple[str, dict]]) -> list[str]:
+    out = ["| policy / decoders | flight | " + " | ".join(m for _, m in REPLAY_METHODS) + " |",
+           "|" + "---|" * (len(REPLAY_METHODS) + 2)]
+    for label, d in runs:
+        fl = d["numbers"]["flights"]
+        for key, name in FLIGHTS:
+            pv = fl[key]["paper_vehicle"]
+            cells = [f"{pv[m]['rmse']:.3f} / {pv[m]['pcc']:.2f}" for m, _ in REPLAY_METHODS]
+            out.append(f"| {label} | {name} | " + " | ".join(cells) + " |")
+    paper = runs[0][1]["numbers"]["paper"]
+    for key, name in FLIGHTS[:3]:
+        p = paper[key]
+        cells = [f"{p[m]['rmse']:.3f} / {p[m]['pcc']:.2f}" if m in p else "–" for m, _ in REPLAY_METHODS]
+        out.append(f"| the paper (hardware, its own policy) | {name} | " + " | ".join(cells) + " |")
+    return out
+
+
+def robustness_rows(runs: list[tuple[str, dict]]) -> list[str]:
+    out = ["| decoder | paper vehicle: lateral inside | width decoded / ±20 % | 20 prior vehicles: inside (mean) "
+           "| prior: width ratio (median) | MC σ 3 N, lateral energy distance: decoded / ±20 % (cm) |",
+           "|---|---|---|---|---|---|"]
+    for label, d in runs:
+        h = d["numbers"]["headline"]
+        out.append(f"| {label} | {h['step_lateral_inside_decoded']:.2f} | {h['step_lateral_width_ratio']:.1f}× "
+                   f"| {h['prior_step_lateral_inside_decoded_mean']:.2f} | {h['prior_step_lateral_width_ratio_median']:.1f}× "
+                   f"| {100 * h['mc_sigma3_lateral_energy_distance_decoded_m']:.1f} / "
+                   f"{100 * h['mc_sigma3_lateral_energy_distance_pm20_m']:.1f} |")
+    return out
+
+
+def fidelity_rows(runs: list[tuple[str, dict]]) -> list[str]:
+    out = ["| identification | inside decoded 5–95 %: mean (median) | inside ±20 % (mean) | width ratio decoded / ±20 %: median (mean) | run |",
+           "|---|---|---|---|---|"]
+    for label, d in runs:
+        m, md, w = d["mean"], d["median"], d["width_ratio_decoded_over_pm20"]
+        out.append(f"| {label} | {m['inside_decoded']:.3f} ({md['inside_decoded']:.3f}) | {m['inside_pm20']:.3f} "
+                   f"| {w['median']:.1f}× ({w['mean']:.1f}×) | {d['date']}, {d['device']}, jax {d['jax']} |")
+    return out
+
+
+def decoder_rows(runs: list[tuple[str, dict]]) -> list[str]:
+    out = ["| decoders | energy score: CFM / Regression / Random / prior | Regression / CFM | CFM 90 % calibrated (±5 points) |",
+           "|---|---|---|---|"]
+    for label, d in runs:
+        e = d["energy_score"]
+        cal = d["calibrated_within_5_points"]
+        out.append(f"| {label} | {e['cfm']:.2f} / {e['regression']:.2f} / {e['random']:.2f} / {e['prior']:.2f} "
+                   f"| {e['regression'] / e['cfm']:.2f}× | {cal['90%']} of {cal['of']} |")
+    return out
+
+
+def policy_rows(runs: list[tuple[str, dict]]) -> list[str]:
+    out = ["| policy | imitation of K_θ | 1,000 vehicles, 10 s lemniscate: success; RMSE m | RMSE / oracle K_θ "
+           "| slow actuators: success; RMSE m | mean rate error rad/s |",
+           "|---|---|---|---|---|---|"]
+    for label, bc, d in runs:
+        lem, slow = d["lemniscate"], d["slow_actuators"]
+        out.append(f"| {label} | {bc} | {pct(lem['policy']['success_rate'])}; {lem['policy']['pos_rmse_m']['mean']:.4f} "
+                   f"| **{lem['rmse_ratio_policy_over_oracle']:.2f}×** "
+                   f"| {pct(slow['policy']['success_rate'])}; {slow['policy']['pos_rmse_m']['mean']:.4f} "
+                   f"| {d['tracking_policy']['rate_err_mean_rad_s']:.3f} |")
+    return out
+
+
+# ----------------------------------------------------------------------------------------
+# page
+# ----------------------------------------------------------------------------------------
+
+def page() -> str:
+    old = {k: load(RUNS / k / "results.json") for k in ("tune_nominal", "tune_slow", "tune_lemniscate",
+                                                         "robustness", "replay")}
+    new = {k: load(FAIR / k / "results.json") for k in ("tune_nominal", "tune_slow", "tune_slow_heading_cost",
+                                                         "tune_lemniscate", "tune_lemniscate_no_lead_in",
+                                                         "robustness", "robustness_single_latent", "replay")}
+    nobc_replay = load(FAIR / "nobc" / "replay" / "results.json")
+    fid = load(FAIR / "closed_loop_fidelity.json")
+    fid_same = load(FAIR / "closed_loop_fidelity_same_flight.json")
+    fid_old = load(RUNS / "closed_loop_fidelity.json")
+    dec_old = load(RUNS / "decoder_eval.json")
+    dec_new = load(FAIR / "regression" / "decoder_eval.json")
+    dec_nobc = load(FAIR / "nobc" / "dec" / "decoder_eval.json")
+    pol = load(RUNS / "policy_eval.json")
+    pol_nobc = load(FAIR / "nobc" / "eval" / "eval.json")
+    shipped_reg = load(ROOT / "mjxsysid" / "pretrained" / "regression.json")
+    s_slow = new["tune_slow"]["numbers"]["ratios"]
+    s_old = old["tune_slow"]["numbers"]["ratios"]
+
+    L = ["# Fair comparisons (issue 22): every comparison both ways",
+         "",
+         "Back to the [README](../README.md). *Generated by `python tools/fair_tables.py` from the run files in",
+         "`docs/runs/` (the previous protocol) and `docs/runs/fair/` (`tools/fair_baselines.sh OUT regression tune",
+         f"heading lemniscate robustness replay fidelity nobc`, one H100, {stamp(new['tune_slow'])}); do not edit by hand.*",
+         "",
+         "A line-by-line reading of the code against the paper found six places where a comparison favoured",
+         "mjxsysid's decoders for reasons unrelated to decoding. Each is fixed (the default is now the paper's",
+         "definition) or shown both ways below. **Which comparisons are comparable with the paper:** the tuning",
+         "experiments with the default protocol (own-nominal Nominal+CEM, the paper's cost); the decoder",
+         "scores with the early-stopped Regression; action replay only for the policy trained without",
+         "imitation (the shipped policy imitates K_θ, the replay's probe); closed-loop fidelity only as the",
+         "held-out figure. Our vehicles are simulated, the paper's are hardware: absolute numbers differ by",
+         "design (our Baseline tracks 5–20× better than the paper's), so compare ratios and orderings.",
+         "",
+         "## 1. Nominal+CEM on each vehicle's own nominal system; 4. the tuner's cost",
+         "",
+         "The paper's ablation is \"the same CEM tuner over the nominal system with ±20 % parameter",
+         "perturbations\". Before, every randomised vehicle (masses 0.05–2.6 kg) was tuned on copies of the",
+         "*paper vehicle*. Now (`tune.tuner.nominal_theta`) each vehicle's own θ with its motor time",
+         "constant set to the nominal τ_m = 0.03 s (the default prior's mid-point, fixed, not drawn), each",
+         "entry × U(0.8, 1.2). The tuner's cost was position RMSE + saturation + failure + **0.1 × heading",
+         "RMSE**; the paper's cost has no heading term, so the default is now `CostWeights(heading=0.0)` and",
+         "the heading term is `--variant heading_cost`. Same vehicles, same seeds; \"same n\": vehicles no",
+         "method lost.",
+         "",
+         "tune-slow (τ_m 0.05–0.10 s, 100 vehicles):",
+         "",
+         *tune_rows([("before: paper-vehicle nominal, heading term (" + stamp(old["tune_slow"]) + ")", old["tune_slow"]),
+                     ("own nominal, heading term (`--variant heading_cost`)", new["tune_slow_heading_cost"]),
+                     ("**own nominal, the paper's cost (default)**", new["tune_slow"])],
+                    ["baseline", "nominal_cem", "cfm_tuned", "oracle_cem"]),
+         "",
+         "tune-nominal (default prior, 100 vehicles; no Nominal+CEM in this experiment):",
+         "",
+         *tune_rows([("before: heading term (" + stamp(old["tune_nominal"]) + ")", old["tune_nominal"]),
+                     ("**the paper's cost (default)**", new["tune_nominal"])],
+                    ["naive", "baseline", "cfm_tuned", "oracle_cem"]),
+         "",
+         "What changed:",
+         f"- **A previous claim no longer holds: on slow actuators CFM-tuned does not beat Baseline.** With the",
+         f"  paper's cost it is {s_slow['cfm_over_baseline']:.2f}× Baseline's RMSE on the same vehicles (before:",
+         f"  {s_old['cfm_over_baseline']:.2f}×), and loses more vehicles ({pct(new['tune_slow']['numbers']['cfm_tuned']['success_rate'])} vs",
+         f"  {pct(new['tune_slow']['numbers']['baseline']['success_rate'])}). Even tuning on the true θ (Oracle-CEM) is worse than",
+         "  Baseline here: the policy with baseline gains already flies these vehicles well, and a short-horizon",
+         "  cost without a heading term picks aggressive gains that fail more often.",
+         f"- CFM-tuned still beats the fair Nominal+CEM ({s_slow['cfm_over_nominal_cem']:.2f}× its RMSE, "
+         f"{pct(new['tune_slow']['numbers']['cfm_tuned']['success_rate'])} vs {pct(new['tune_slow']['numbers']['nominal_cem']['success_rate'])}",
+         "  success): planning on the decoded models, not the optimiser alone, is what the margin comes from.",
+         "  Own-nominal Nominal+CEM is *worse* than the paper-vehicle one was: its nominal τ_m (0.03 s) is",
+         "  2–3× too fast for these vehicles, so its planned gains are too aggressive.",
+         "- The heading term was doing real work: without it the tuned controllers' heading RMSE rises",
+         "  (last column), and on tune-slow it is the difference between CFM-tuned "
+         f"{new['tune_slow_heading_cost']['numbers']['ratios']['cfm_over_baseline']:.2f}× and {s_slow['cfm_over_baseline']:.2f}× Baseline.",
+         f"- tune-nominal keeps its result: CFM-tuned {new['tune_nominal']['numbers']['ratios']['cfm_over_baseline']:.2f}× Baseline "
+         f"(before {old['tune_nominal']['numbers']['ratios']['cfm_over_baseline']:.2f}×), at the price of heading, which the paper's cost ignores.",
+         "",
+         "## 6a. tune-lemniscate with and without the hover lead-in",
+         "",
+         "The 2 s hover at the start point was added after a run in which CFM-tuned lost to Baseline about",
+         "2×. Both protocols, paper vehicle, three cycles scored (the paper's cost, default since issue 22):",
+         "",
+         *lemniscate_rows([("with the 2 s lead-in (default)", new["tune_lemniscate"]),
+                           ("no lead-in (`--variant no_lead_in`)", new["tune_lemniscate_no_lead_in"]),
+                           ("before: lead-in, heading term (" + stamp(old["tune_lemniscate"]) + ")", old["tune_lemniscate"])]),
+         "",
+         "Without the lead-in the CEM methods start from naive gains on a reference already moving and lose",
+         "about 2× on the whole flight; Oracle-CEM (true θ) loses exactly as much, so it is the take-off",
+         "transient, not the decoded models. The last cycle (results.md) is better than Baseline under both.",
+         "",
+         "## 6b. Robustness: the flight-level decoder and the paper's single-latent CFM",
+         "",
+         *robustness_rows([("flight-level (sequence) decoder (default)", new["robustness"]),
+                           ("single-latent CFM, the paper's (`--variant single_latent`)", new["robustness_single_latent"])]),
+         "",
+         "With the paper's single-latent CFM the paper vehicle's true lateral error leaves the decoded",
+         "envelope almost at once: the headline (\"true inside\") holds only for the flight-level decoder,",
+         "which pools 10 s of latents. Both are reported in `docs/runs/fair/robustness*/`.",
+         "",
+         "## 3. Regression with early stopping",
+         "",
+         "The paper fixes the Regression baseline's architecture, not its training length. It is now trained",
+         "with early stopping: the epoch with the lowest loss on 10 % of the training pairs is kept",
+         f"(`train_regression(early_stopping=True)`; best epoch {shipped_reg['early_stopping']['best_epoch']} of "
+         f"{shipped_reg['config']['epochs']} for the shipped one, `mjxsysid/pretrained/regression.json`).",
+         "",
+         *decoder_rows([("before: Regression trained to epoch 100", dec_old),
+                        ("**early-stopped Regression (shipped)**", dec_new),
+                        ("no-imitation policy's decoders (below)", dec_nobc)]),
+         "",
+         "CFM keeps a clear lead on the energy score, but the margin shrinks from "
+         f"{dec_old['energy_score']['regression'] / dec_old['energy_score']['cfm']:.2f}× to "
+         f"{dec_new['energy_score']['regression'] / dec_new['energy_score']['cfm']:.2f}×. (The pairs were re-collected with",
+         "the same protocol, seed and policy on a different GPU; they are not bitwise the shipped CFM's.)",
+         "",
+         "## 2. Action replay without imitation",
+         "",
+         "The shipped policy is trained with behaviour cloning from K_θ(true θ) (weight 2 → 0.05), and K_θ is",
+         "the replay's probe, so its replay figures partly measure imitation. A policy trained with the",
+         "imitation weight 0 for the last half of training (`tools/configs/policy_no_bc.json`: `bc_final 0`,",
+         "`bc_decay 0.5`; PPO + latent alignment alone, the paper's eq. 5, after that) was trained and",
+         "evaluated like the shipped one:",
+         "",
+         *policy_rows([("shipped (`mjxsysid/pretrained/policy.npz`)", "2 → 0.05 (never 0)", pol),
+                       ("no imitation at the end (`docs/runs/fair/nobc/policy.npz`)", "2 → 0 by mid-training", pol_nobc)]),
+         "",
+         f"It flies every vehicle but at {pol_nobc['lemniscate']['rmse_ratio_policy_over_oracle']:.2f}× the oracle's RMSE (the bar",
+         "for shipping it was ≤ 1.1×), and its decoders are less well calibrated; **it is not shipped**.",
+         "Action replay, paper vehicle (motor-command RMSE ↓ / PCC ↑; prior vehicles in results.md):",
+         "",
+         *replay_rows([("shipped policy, Regression to epoch 100 (" + stamp(old["replay"]) + ")", old["replay"]),
+                       ("shipped policy, early-stopped Regression", new["replay"]),
+                       ("**no-imitation policy and its decoders (comparable with the paper)**", nobc_replay)]),
+         "",
+         "- With an early-stopped baseline, Regression matches or beats single-sample CFM on the shipped",
+         "  policy's replay RMSE; the earlier \"CFM beats Regression on every flight\" no longer holds.",
+         "- Without imitation the policy's actions are no longer close to K_θ: even the true θ gives RMSE",
+         "  0.04–0.09 (shipped policy: 0.015–0.04). CFM (mean action) is within 0.01 of the true θ and of",
+         "  Regression; single-sample CFM is slightly worse than Regression. The paper's hardware result",
+         "  (CFM 0.032–0.034 far below Regression 0.059–0.073) is **not reproduced** in this comparable setting.",
+         "",
+         "## 5. Closed-loop fidelity on a held-out identification flight",
+         "",
+         "The benchmark decoded latents from the same disturbed flight it then predicted. It now identifies",
+         "on a separate undisturbed flight (a 10 s lemniscate, as the robustness experiment does;",
+         "`benchmarks/closed_loop_fidelity.py --identification held_out`, the default):",
+         "",
+         *fidelity_rows([("before (same flight)", fid_old), ("**held out (default)**", fid),
+                         ("same flight, re-run", fid_same)]),
+         "",
+         "The held-out figure is about the same as the same-flight one (the decoded envelopes are a little",
+         "narrower): the \"85 % inside\" claim survives as a held-out figure, still short of the 90 % target.",
+         "",
+    ]
+    return "\n".join(L)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true", help="exit 1 if docs/fair_comparisons.md is stale")
+    a = ap.parse_args(argv)
+    text = page()
+    if a.check:
+        if not PAGE.exists() or PAGE.read_text() != text:
+            print(f"{PAGE.relative_to(ROOT)} is stale: run python tools/fair_tables.py", file=sys.stderr)
+            return 1
+        return 0
+    PAGE.write_text(text)
+    print(f"wrote {PAGE.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
