@@ -1,3 +1,4 @@
+import contextlib
 import os
 import sys
 from pathlib import Path
@@ -8,7 +9,33 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
-# Compiles dominate CPU test time: keep them across runs.
+# Compiles dominate CPU test time (about 80 %). The tier compiles with XLA's optimisations off
+# (JAX_DISABLE_MOST_OPTIMIZATIONS: about 20 % less CPU; the tests check behaviour, thresholds and
+# equalities between two compiled paths, never bits of an optimised build). Set it to 0 to run
+# the tier as users' code runs. Exported here, so the CLI subprocesses and notebook kernels that
+# tests start compile the same way.
+os.environ.setdefault("JAX_DISABLE_MOST_OPTIMIZATIONS", "1")
+jax.config.update("jax_disable_most_optimizations", os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] not in ("0", "false", "False"))
+# ...and keep them across runs.
+
+
+@contextlib.contextmanager
+def xla_optimised():
+    """Compile with XLA's optimisations inside (for the few tests whose time is spent running a
+    long training loop rather than compiling it: unoptimised, they would run 2-3x slower)."""
+    before = jax.config.jax_disable_most_optimizations
+    jax.config.update("jax_disable_most_optimizations", False)
+    try:
+        yield
+    finally:
+        jax.config.update("jax_disable_most_optimizations", before)
+
+
+@pytest.fixture
+def xla_optimised_test():
+    """:func:`xla_optimised` for a whole test (``@pytest.mark.usefixtures("xla_optimised_test")``)."""
+    with xla_optimised():
+        yield
 jax.config.update("jax_compilation_cache_dir", os.environ.get("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache")))
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)

@@ -6,6 +6,8 @@ import jax
 import numpy as np
 import pytest
 
+from conftest import xla_optimised
+
 from mjxsysid import params as P
 from mjxsysid.cfm import calibration as C
 from mjxsysid.cfm.sequence import (SeqCFMConfig, SequenceDecoder, init_params, random_windows,
@@ -24,12 +26,14 @@ def gaussian_problem():
     zs = (th[:, None] + rng.normal(size=(n, L, d))).astype(np.float32)
     cfg = SeqCFMConfig(theta_dim=d, z_dim=d, width=64, blocks=2, time_dim=16, set_width=32, heads=2,
                        cond_dim=16, max_len=L, epochs=70, batch=128, lr=2e-3)
-    params, hist = train_seq_cfm(th, zs, cfg, log=None, val=(th[:256], zs[:256]))
+    with xla_optimised():                      # a 70-epoch training loop: run time, not compiles
+        params, hist = train_seq_cfm(th, zs, cfg, log=None, val=(th[:256], zs[:256]))
     tt = rng.normal(size=(300, d)).astype(np.float32)
     zt = (tt[:, None] + rng.normal(size=(300, L, d))).astype(np.float32)
     return SequenceDecoder(params, cfg), hist, tt, zt
 
 
+@pytest.mark.usefixtures("xla_optimised_test")
 def test_sequence_decoder_accumulates_information_and_stays_calibrated(gaussian_problem):
     dec, hist, tt, zt = gaussian_problem
     assert hist["val_loss"][-1] < hist["val_loss"][0]

@@ -14,6 +14,11 @@
 #   robustness  robustness (flight-level decoder) and --variant single_latent -> OUT/robustness*
 #   replay      the replay experiment (action replay with the early-stopped Regression)
 #   fidelity    closed-loop fidelity on a held-out identification flight, and on the test flight
+#   xadap       the released XAdap policy's Regression again, with early stopping (its pairs
+#               collected again, checked against the shipped decoders' sha256; the flow coordinates
+#               of the shipped XAdap decoders, theta), evaluated beside its shipped CFM, and its
+#               action replay. XADAP_WEIGHTS: the released folder or a converted .npz -> OUT/xadap
+#               (ship: cp OUT/xadap/dec/regression.* mjxsysid/pretrained/xadap/)
 #   nobc        a policy trained without imitation at the end (tools/configs/policy_no_bc.json),
 #               evaluated like the shipped one, its decoders, and action replay with them
 #
@@ -24,16 +29,19 @@ shift
 M=${M:-python3 -m mjxsysid.cli}
 mkdir -p "$OUT"
 t() { local s=$SECONDS; "$@"; echo "[$(( SECONDS - s )) s] $*" >&2; }
+same_pairs() {  # PAIRS PROVENANCE_JSON: are the re-collected pairs bitwise the shipped decoders'?
+  python3 - "$1" "$2" <<'PY'
+import hashlib, json, sys
+got = hashlib.sha256(open(sys.argv[1], "rb").read()).hexdigest()
+want = json.load(open(sys.argv[2]))["data"]["pairs_sha256"]
+print(f"pairs sha256 {got[:16]}… {'==' if got == want else '!='} the shipped CFM's {want[:16]}…", file=sys.stderr)
+PY
+}
 for stage in "$@"; do
   case $stage in
     regression)
       t $M collect --single-latent --out "$OUT/regression/data" -q
-      python3 - "$OUT/regression/data/pairs.npz" <<'PY'
-import hashlib, json, sys
-got = hashlib.sha256(open(sys.argv[1], "rb").read()).hexdigest()
-want = json.load(open("mjxsysid/pretrained/cfm.json"))["data"]["pairs_sha256"]
-print(f"pairs sha256 {got[:16]}… {'==' if got == want else '!='} the shipped CFM's {want[:16]}…", file=sys.stderr)
-PY
+      same_pairs "$OUT/regression/data/pairs.npz" mjxsysid/pretrained/cfm.json
       t $M train-cfm --pairs "$OUT/regression/data" --out "$OUT/regression/dec" --kinds regression -q
       cp mjxsysid/pretrained/cfm.npz "$OUT/regression/dec/cfm.npz"
       t $M evaluate-decoder --decoders "$OUT/regression/dec" --pairs "$OUT/regression/data" --cases 1000 --samples 200 -q ;;
@@ -61,6 +69,15 @@ PY
       t $M evaluate-decoder --decoders "$OUT/nobc/dec" --pairs "$OUT/nobc/data" --cases 1000 --samples 200 \
         --policy "$OUT/nobc/run/policy.npz" -q
       t $M experiment replay --policy "$OUT/nobc/run/policy.npz" --decoders "$OUT/nobc/dec" --out "$OUT/nobc/replay" -q ;;
+    xadap)
+      W=${XADAP_WEIGHTS:?set XADAP_WEIGHTS to the released folder or a converted .npz}
+      t $M collect --single-latent --policy xadap --weights "$W" --out "$OUT/xadap/data" -q
+      same_pairs "$OUT/xadap/data/pairs.npz" mjxsysid/pretrained/xadap/cfm.json
+      t $M train-cfm --pairs "$OUT/xadap/data" --policy xadap --weights "$W" --out "$OUT/xadap/dec" \
+        --kinds regression --coords theta -q
+      cp mjxsysid/pretrained/xadap/cfm.npz "$OUT/xadap/dec/cfm.npz"
+      t $M evaluate-decoder --decoders "$OUT/xadap/dec" --pairs "$OUT/xadap/data" --policy xadap --weights "$W" -q
+      t $M replay --policy xadap --weights "$W" --decoders "$OUT/xadap/dec" --vehicles 32 --out "$OUT/xadap/replay" -q ;;
     *) echo "unknown stage $stage" >&2; exit 2 ;;
   esac
 done
