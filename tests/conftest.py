@@ -15,7 +15,8 @@ sys.path.insert(0, str(ROOT / "tests"))
 # the tier as users' code runs. Exported here, so the CLI subprocesses and notebook kernels that
 # tests start compile the same way.
 os.environ.setdefault("JAX_DISABLE_MOST_OPTIMIZATIONS", "1")
-jax.config.update("jax_disable_most_optimizations", os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] not in ("0", "false", "False"))
+_XLA_OPTIMISATIONS_OFF = os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] not in ("0", "false", "False")
+jax.config.update("jax_disable_most_optimizations", _XLA_OPTIMISATIONS_OFF)
 # ...and keep them across runs.
 
 
@@ -23,12 +24,11 @@ jax.config.update("jax_disable_most_optimizations", os.environ["JAX_DISABLE_MOST
 def xla_optimised():
     """Compile with XLA's optimisations inside (for the few tests whose time is spent running a
     long training loop rather than compiling it: unoptimised, they would run 2-3x slower)."""
-    before = jax.config.jax_disable_most_optimizations
     jax.config.update("jax_disable_most_optimizations", False)
     try:
         yield
     finally:
-        jax.config.update("jax_disable_most_optimizations", before)
+        jax.config.update("jax_disable_most_optimizations", _XLA_OPTIMISATIONS_OFF)
 
 
 @pytest.fixture

@@ -105,14 +105,16 @@ def test_shipped_xadap_decoders_explain_its_commands(xadap_paper_recording):
 @pytest.mark.slow
 def test_replay_cli_on_the_released_policy(xadap_weights, tmp_path):
     """`mjxsysid replay --policy xadap`: the shipped Xadap decoders explain its hover commands
-    better than Random, and CFM's mean action better than Regression."""
+    far better than Random. (CFM's mean action and the early-stopped Regression are within a few
+    per cent of each other on this flight, so neither is asserted to win: docs/fair_comparisons.md.)"""
     from mjxsysid.cli import main
     out = tmp_path / "rp"
     assert main(["replay", "--policy", "xadap", "--weights", str(XADAP_DIR), "--flights", "hover",
                  "--samples", "8", "--out", str(out)]) == 0
     res = json.loads((out / "replay.json").read_text())
     pv = res["flights"]["hover"]["paper_vehicle"]
-    assert pv["cfm_mean"]["rmse"] < pv["regression"]["rmse"] < pv["random"]["rmse"]
+    assert pv["cfm_mean"]["rmse"] < 0.5 * pv["random"]["rmse"]
+    assert pv["regression"]["rmse"] < 0.5 * pv["random"]["rmse"]
     assert pv["cfm_mean"]["pcc"] > pv["random"]["pcc"]
     for f in ("replay.md", "replay_summary.png", "replay_hover.png"):
         assert (out / f).is_file()
