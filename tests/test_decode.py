@@ -40,6 +40,16 @@ def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
     assert main(["decode", "--log", str(path), "--samples", "20", "--out", str(out)]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert set(P.PARAM_NAMES) <= set(s) and "true" not in s["mass"]
+    # With the logged vehicle's known parameters (--truth), the summary says what is inside.
+    truth = P.save_vehicle(P.PAPER_HARDWARE, tmp_path / "paper.json")
+    out_t = tmp_path / "dec_truth"
+    assert main(["decode", "--log", str(path), "--truth", str(truth), "--samples", "20", "--out", str(out_t)]) == 0
+    st = json.loads((out_t / "summary.json").read_text())
+    for n, v in zip(P.PARAM_NAMES, P.PAPER_HARDWARE):
+        assert st[n]["true"] == pytest.approx(float(v), rel=1e-6)
+        assert st[n]["inside"] == (st[n]["q05"] <= st[n]["true"] <= st[n]["q95"])
+        assert st[n]["mean"] == s[n]["mean"]           # the truth changes the report, not the decoding
+    assert sum(st[n]["inside"] for n in P.PARAM_NAMES) >= 15
 
 
 def test_decode_summary_brackets_the_paper_vehicle(paper_flight):
@@ -87,6 +97,21 @@ def test_project_valid():
 def test_decode_cli_errors(tmp_path, capsys):
     assert main(["decode", "--vehicle", "v.json", "--log", "l.csv", "--out", str(tmp_path)]) == 2
     assert "either --vehicle or --log" in capsys.readouterr().err
+    assert main(["decode", "--truth", "v.json", "--out", str(tmp_path)]) == 2
+    assert "--truth needs --log" in capsys.readouterr().err
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    assert main(["decode", "--log", "l.csv", "--truth", str(bad), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "bad.json" in err and "not valid JSON" in err and len(err.splitlines()) == 1
+    neg = tmp_path / "neg.json"
+    P.save_vehicle(P.PAPER_HARDWARE, neg)
+    d = json.loads(neg.read_text())
+    d["mass"] = -1.0
+    neg.write_text(json.dumps(d))
+    assert main(["decode", "--log", "l.csv", "--truth", str(neg), "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "mass" in err and len(err.splitlines()) == 1
 
 
 @pytest.mark.slow

@@ -16,6 +16,9 @@ def add_decode(sub) -> None:
     dc = sub.add_parser("decode", help="fly a vehicle (or replay a log) with the policy and decode its latent")
     dc.add_argument("--vehicle", type=Path, default=None, help="vehicle JSON (default: the paper vehicle)")
     dc.add_argument("--log", type=Path, default=None, help="decode a recorded flight instead (CSV, see README)")
+    dc.add_argument("--truth", type=Path, default=None,
+                    help="with --log: the logged vehicle's JSON, if known (the summary then says whether "
+                         "each true parameter is inside the decoded interval)")
     dc.add_argument("--reference", choices=("hover", "lemniscate", "minsnap"), default="lemniscate")
     dc.add_argument("--period", type=positive, default=10.0)
     dc.add_argument("--duration", type=positive, default=None)
@@ -40,13 +43,16 @@ def cmd_decode(args) -> int:
     from mjxsysid import params as P
     from mjxsysid.studies.decode import run_decode
     if args.log is not None and args.vehicle is not None:
-        raise ValueError("give either --vehicle or --log, not both")
+        raise ValueError("give either --vehicle or --log, not both (the known vehicle of a log: --truth)")
+    if args.truth is not None and args.log is None:
+        raise ValueError("--truth needs --log (a flown --vehicle is its own truth)")
+    truth = None if args.truth is None else P.load_vehicle(args.truth)
     from mjxsysid.studies.decode import parse_window
     window = parse_window(args.window)
     theta = None if args.log else (P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware())
     summary = run_decode(args.out, theta=theta, log=args.log, reference=args.reference, period=args.period,
                          duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
-                         decoders=args.decoders, seed=args.seed, video=args.video, window=window,
+                         decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
                          echo=lambda m: echo(m, file=sys.stderr))
     print(json.dumps({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES}))
     print(f"wrote {args.out}/decoded.npz, summary.json, marginals.png, decoded_over_time.png"

@@ -243,7 +243,7 @@ def log_latents(policy, rec: dict):
 
 def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
                samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print,
-               policy="mjxsysid", decoders=None, window="flight") -> dict:
+               policy="mjxsysid", decoders=None, window="flight", truth=None) -> dict:
     """Fly θ (or replay ``log``) with a frozen latent policy (``policy``, ``weights``: see
     :func:`~mjxsysid.policy.interface.resolve_policy`; default the shipped one), decode at
     ``rate`` Hz with that policy's decoders (or those in ``decoders``), write out/decoded.npz,
@@ -253,7 +253,8 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     entries of summary.json are the posterior at the end of the flight given the latents in
     that window (the sequence decoder; 'instant': the single-latent CFM), ``_instant`` the
     single-latent one, ``_window`` what was used. Without a sequence decoder, falls back to
-    'instant' and says so."""
+    'instant' and says so. ``truth`` (θ (19,), with ``log`` only): the logged vehicle's known
+    parameters; the summary then reports ``true`` and ``inside`` as for a flown vehicle."""
     # Every input is checked before any work starts.
     if not rate > 0:
         raise ValueError(f"--rate must be > 0 Hz, got {rate}")
@@ -261,6 +262,12 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
         raise ValueError(f"--samples must be >= 2, got {samples}")
     if (log is None) == (theta is None):
         raise ValueError("give either a vehicle (theta) or a flight log, not both or neither")
+    if truth is not None:
+        if log is None:
+            raise ValueError("truth is for a flight log (a flown vehicle is its own truth)")
+        truth = P.validate_theta(truth, what="truth")
+        if truth.shape != (P.N_PARAMS,):
+            raise ValueError(f"truth: one θ of shape ({P.N_PARAMS},) expected, got {truth.shape}")
     window = parse_window(window)
     rec = read_log(log) if log is not None else None
     if theta is not None:
@@ -283,7 +290,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     flight = None
     if log is not None:
         zhat_t, times = log_latents(ref, rec)
-        truth = None
+        truth = None if truth is None else np.asarray(truth, np.float32)
     else:
         flight, _, _ = fly_vehicles(theta, controller="policy", policy=ref, reference=reference,
                                     period=period, duration=duration, seed=seed)
