@@ -48,7 +48,7 @@ jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 XDIST_GROUPS = {
     # the 2 s / 1.5 s policy flights, decoders and the released policy's recording, then the
     # notebooks, whose cells run in-process and fly those shapes again
-    "policy-flights": ("test_api", "test_decode", "test_interface", "test_notebooks", "test_replay"),
+    "policy-flights": ("test_api", "test_decode", "test_envs", "test_interface", "test_notebooks", "test_replay"),
     # the tiny Trainer, and the collect run of conftest.collected_pairs
     "policy-training": ("test_policy", "test_sequence"),
 }

@@ -6,6 +6,7 @@
                  [--seed N] [--gains naive|baseline] [--video] --out DIR
     mjxsysid fly --prior default --vehicles 100 --controller oracle ...   a batch from the prior
     mjxsysid fly --policy xadap --weights DIR ...   any frozen latent policy (NAME or a path)
+    mjxsysid view [--vehicle V.json] [--task hover|lemniscate|minsnap|force_step]   dm_control's viewer
     mjxsysid collect | train-cfm | evaluate-decoder | decode | replay | demo  [--policy NAME|PATH]
     mjxsysid export [--weights policy.npz] --out policy.onnx   the policy as ONNX, checked in onnxruntime
 
@@ -27,6 +28,7 @@ from mjxsysid.cli import decoders, experiment, flights, policy, studies, tune
 COMMANDS = (
     flights.add_demo,
     flights.add_fly,
+    flights.add_view,
     policy.add_train_policy,
     policy.add_evaluate_policy,
     decoders.add_collect,

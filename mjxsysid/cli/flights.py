@@ -147,3 +147,41 @@ def _fly_prior(args) -> int:
     print(f"wrote {out}/metrics.json (summary + per-vehicle), flight.npz and tracking.png (first vehicle)",
           file=sys.stderr)
     return 0
+
+
+VIEW_TASKS = ("hover", "lemniscate", "minsnap", "force_step")  # = mjxsysid.envs.TASKS (not imported: --help stays light)
+
+
+def add_view(sub) -> None:
+    v = sub.add_parser("view", help="watch a policy fly one vehicle in dm_control's interactive viewer "
+                                    "(needs a display and the dmc extra)")
+    v.add_argument("--vehicle", type=Path, default=None, help="vehicle JSON (default: the paper vehicle)")
+    v.add_argument("--task", choices=VIEW_TASKS, default="lemniscate")
+    v.add_argument("--period", type=positive, default=10.0, help="lemniscate period, s (default 10)")
+    v.add_argument("--duration", type=positive, default=None, help="episode length, s (default: the task's)")
+    v.add_argument("--seed", type=int, default=0, help="min-snap path seed")
+    add_policy(v)
+    v.set_defaults(handler=cmd_view)
+
+
+def has_display() -> bool:
+    """An interactive window can open: macOS, or an X11 / Wayland display."""
+    import os
+    return sys.platform == "darwin" or bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def cmd_view(args) -> int:
+    if not has_display():
+        vehicle = f" --vehicle {args.vehicle}" if args.vehicle else ""
+        raise ValueError("no display (DISPLAY / WAYLAND_DISPLAY unset): the interactive viewer needs one; "
+                         f"for a video instead: mjxsysid fly{vehicle} --controller policy --video --out DIR")
+    try:
+        from dm_control import viewer
+    except ImportError:
+        raise ValueError("mjxsysid view needs dm_control: pip install -e '.[dmc]'") from None
+    from mjxsysid import params as P
+    from mjxsysid.envs import PolicyAgent, make_env
+    theta = P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware()
+    env = make_env(theta, args.task, duration=args.duration, period=args.period, seed=args.seed)
+    viewer.launch(env, policy=PolicyAgent(policy_ref(args)))
+    return 0
