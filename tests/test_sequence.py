@@ -123,6 +123,13 @@ def test_window_parsing_and_masks():
     assert fl.sum(1).tolist() == [1, 5, 10]
     sl = window_masks(lt, rt, 0.3)                   # (t − 0.3, t]: 3 latents once available
     assert sl.sum(1).tolist() == [1, 3, 3] and sl[2, -3:].all()
+    # The index ranges used for long logs are the rows of the masks.
+    from mjxsysid.studies.decode import window_bounds
+    for w, m in (("flight", fl), (0.3, sl), (0.3, window_masks(lt, np.array([0.15, 0.35]), 0.3))):
+        rt_ = rt if m.shape[0] == 3 else np.array([0.15, 0.35])
+        st, en = window_bounds(lt, rt_, w)
+        want = (np.arange(len(lt))[None] >= st[:, None]) & (np.arange(len(lt))[None] <= en[:, None])
+        np.testing.assert_array_equal(want, m)
 
 
 def _tiny_seq_decoders(tmp_path):
@@ -159,6 +166,30 @@ def test_decode_latents_with_a_window(tmp_path):
     assert dec["n_window"][0] == 1 and dec["n_window"][-1] == 19
     dec1 = decode_latents(z, times, rate=5, samples=6, decoder=cfm, regression=reg, window=0.5, seq_decoder=seq)
     assert dec1["n_window"][-1] == 5
+    # Incremental (every prefix / window encoded in one pass) equals decoding each window by itself.
+    from mjxsysid.dataset.collect import decode_indices
+    from mjxsysid.studies.decode import window_masks
+    lidx = decode_indices(times, 10.0)
+    for w, got in (("flight", dec), (0.5, dec1)):
+        mask = window_masks(times[lidx], got["times"], w)
+        zl = np.broadcast_to(z[lidx], (len(got["times"]), len(lidx), 8))
+        direct = np.asarray(seq.sample_theta(zl, jax.random.PRNGKey(1), 6, mask=mask))
+        np.testing.assert_allclose(got["samples_window"], direct, rtol=1e-4)
+    # A flight with more decode times than max_decodes is decoded at a lower rate, the end included.
+    dec2 = decode_latents(z, times, rate=10, samples=6, decoder=cfm, regression=reg, window="flight",
+                          seq_decoder=seq, max_decodes=4)
+    assert len(dec2["times"]) == 4 and dec2["times"][-1] == dec["times"][-1] and dec2["decode_rate_hz"] < 5
+    assert dec2["n_window"][-1] == dec["n_window"][-1] == 19      # the end still conditions on every latent
+    # Longer than the decoder's training flights (max_len 20 latents here): a sliding window of
+    # trained length, exactly the posterior of the last 20 latents.
+    t4 = 0.002 * (np.arange(2000) + 1)
+    z4 = np.random.default_rng(1).normal(size=(2000, 8)).astype(np.float32) * 0.1
+    d4 = decode_latents(z4, t4, rate=2, samples=6, decoder=cfm, regression=reg, window="flight", seq_decoder=seq)
+    d4w = decode_latents(z4, t4, rate=2, samples=6, decoder=cfm, regression=reg, window=2.0, seq_decoder=seq)
+    assert d4["n_window"][-1] == 20 and d4["window_capped"][-1] and not d4["window_capped"][0]
+    np.testing.assert_allclose(d4["samples_window"][-1], d4w["samples_window"][-1], rtol=1e-5)
+    with pytest.raises(ValueError, match="max_decodes"):
+        decode_latents(z, times, rate=10, samples=6, decoder=cfm, regression=reg, max_decodes=0)
     msgs = []
     assert load_sequence_decoder(tmp_path, echo=msgs.append) is None and "falling back" in msgs[0]
 

@@ -90,29 +90,71 @@ class SeqCFMConfig(CFMConfig):
 
 
 class LatentSetEncoder(nn.Module):
-    """A masked set of latents zs (..., L, z_dim), mask (..., L) -> conditioning (..., out_dim)."""
+    """A masked set of latents zs (..., L, z_dim), mask (..., L) -> conditioning (..., out_dim).
+
+    Three stages, each usable alone (streaming decoding of long flights,
+    :meth:`SequenceDecoder.encode_flight`): :meth:`embed` per latent, :func:`masked_pool` over a
+    window, :meth:`head` on the pooled features."""
     width: int
     out_dim: int
     heads: int
     max_len: int
 
-    @nn.compact
-    def __call__(self, zs, mask):
-        m = jnp.asarray(mask, jnp.float32)[..., None]                     # (..., L, 1)
-        h = nn.silu(nn.Dense(self.width, name="embed_0")(zs))
-        h = nn.silu(nn.Dense(self.width, name="embed_1")(h))
-        h = nn.Dense(self.width, name="embed_2")(h)                        # (..., L, E)
-        n = jnp.sum(m, -2)                                                 # (..., 1)
-        mean = jnp.sum(h * m, -2) / jnp.maximum(n, 1.0)
-        score = nn.Dense(self.heads, name="attn_score")(nn.silu(h))       # (..., L, H)
-        score = jnp.where(m > 0, score, -1e9)
-        a = jax.nn.softmax(score, axis=-2)
-        hv = h.reshape(h.shape[:-1] + (self.heads, self.width // self.heads))
-        att = jnp.einsum("...lh,...lhc->...hc", a, hv).reshape(h.shape[:-2] + (self.width,))
+    def setup(self):
+        self.embed_0 = nn.Dense(self.width)
+        self.embed_1 = nn.Dense(self.width)
+        self.embed_2 = nn.Dense(self.width)
+        self.attn_score = nn.Dense(self.heads)
+        self.pool_0 = nn.Dense(self.width)
+        self.pool_1 = nn.Dense(self.out_dim)
+
+    def embed(self, zs):
+        """zs (..., L, z_dim) -> h (..., L, E), attention scores (..., L, heads)."""
+        h = self.embed_2(nn.silu(self.embed_1(nn.silu(self.embed_0(zs)))))
+        return h, self.attn_score(nn.silu(h))
+
+    def head(self, mean, att, n):
+        """Pooled mean (..., E), attention (..., E) and window size n (..., 1) -> c (..., out_dim)."""
         nc = jnp.clip(n, 1.0, float(self.max_len))
         count = jnp.concatenate([jnp.log(nc) / math.log(max(self.max_len, 2)), 1.0 / jnp.sqrt(nc)], -1)
-        c = nn.silu(nn.Dense(self.width, name="pool_0")(jnp.concatenate([mean, att, count], -1)))
-        return nn.Dense(self.out_dim, name="pool_1")(c)
+        return self.pool_1(nn.silu(self.pool_0(jnp.concatenate([mean, att, count], -1))))
+
+    def __call__(self, zs, mask):
+        h, score = self.embed(zs)
+        return self.head(*masked_pool(h, score, mask, self.heads))
+
+
+def masked_pool(h, score, mask, heads: int):
+    """DeepSets mean and attention pooling of h (..., L, E) with scores (..., L, H) over the
+    latents where mask (..., L) -> mean (..., E), att (..., E), n (..., 1)."""
+    m = jnp.asarray(mask, jnp.float32)[..., None]                          # (..., L, 1)
+    n = jnp.sum(m, -2)                                                     # (..., 1)
+    mean = jnp.sum(h * m, -2) / jnp.maximum(n, 1.0)
+    a = jax.nn.softmax(jnp.where(m > 0, score, -1e9), axis=-2)
+    hv = h.reshape(h.shape[:-1] + (heads, h.shape[-1] // heads))
+    att = jnp.einsum("...lh,...lhc->...hc", a, hv).reshape(h.shape[:-2] + (h.shape[-1],))
+    return mean, att, n
+
+
+def prefix_pool(h, score, heads: int):
+    """:func:`masked_pool` of every prefix 1..l of one flight at once, in O(L): running sums for
+    the mean and an online softmax (running max, rescaled sums) for the attention.
+    h (L, E), score (L, H) -> mean (L, E), att (L, E), n (L, 1) (row l: the first l + 1 latents)."""
+    L, E = h.shape
+    hv = h.reshape(L, heads, E // heads)
+
+    def step(c, x):
+        mx, sm, acc = c
+        sc, v = x
+        new = jnp.maximum(mx, sc)
+        old_w, w = jnp.exp(mx - new), jnp.exp(sc - new)
+        sm, acc = sm * old_w + w, acc * old_w[:, None] + w[:, None] * v
+        return (new, sm, acc), acc / sm[:, None]
+
+    init = (jnp.full((heads,), -jnp.inf, h.dtype), jnp.zeros((heads,), h.dtype), jnp.zeros((heads, E // heads), h.dtype))
+    _, att = jax.lax.scan(step, init, (score, hv))
+    n = jnp.arange(1, L + 1, dtype=h.dtype)[:, None]
+    return jnp.cumsum(h, 0) / n, att.reshape(L, E), n
 
 
 class SeqVelocityNet(nn.Module):
@@ -268,10 +310,10 @@ def _make_eval(cfg, net, theta, zs, chunk: int = 512):
 # ----------------------------------------------------------------------------------------
 
 @partial(jax.jit, static_argnames=("cfg", "n_samples", "steps", "method"))
-def _sample(params, cfg: SeqCFMConfig, zs, mask, key, n_samples: int, steps: int, method: str):
+def _sample_cond(params, cfg: SeqCFMConfig, c, key, n_samples: int, steps: int, method: str):
+    """Normalised (flow-coordinate) samples (m, n_samples, d) given conditioning vectors c (m, C)."""
     net = SeqVelocityNet(cfg)
-    c = net.apply({"params": params}, standardize(cfg, zs), mask, method="encode")     # (m, C)
-    theta0 = jax.random.normal(key, (zs.shape[0], n_samples, cfg.theta_dim), jnp.float32)
+    theta0 = jax.random.normal(key, (c.shape[0], n_samples, cfg.theta_dim), jnp.float32)
 
     def one(th, ci):
         cb = jnp.broadcast_to(ci, (n_samples, ci.shape[-1]))
@@ -279,6 +321,32 @@ def _sample(params, cfg: SeqCFMConfig, zs, mask, key, n_samples: int, steps: int
                          th, steps, method)
 
     return jax.vmap(one)(theta0, c)
+
+
+@partial(jax.jit, static_argnames=("cfg", "n_samples", "steps", "method"))
+def _sample(params, cfg: SeqCFMConfig, zs, mask, key, n_samples: int, steps: int, method: str):
+    c = SeqVelocityNet(cfg).apply({"params": params}, standardize(cfg, zs), mask, method="encode")     # (m, C)
+    return _sample_cond(params, cfg, c, key, n_samples, steps, method)
+
+
+def _encoder(cfg: SeqCFMConfig) -> LatentSetEncoder:
+    return LatentSetEncoder(cfg.set_width, cfg.cond_dim, cfg.heads, cfg.max_len)
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def _encode_prefixes(params, cfg: SeqCFMConfig, zs):
+    """c (L, C) of every prefix of one flight's latents zs (L, z_dim): O(L)."""
+    enc, p = _encoder(cfg), {"params": params["encoder"]}
+    h, score = enc.apply(p, standardize(cfg, zs), method="embed")
+    return enc.apply(p, *prefix_pool(h, score, cfg.heads), method="head")
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def _encode_windows(params, cfg: SeqCFMConfig, zs, idx, mask):
+    """c (K, C) of K windows of one flight: latent indices idx (K, w) where mask (K, w)."""
+    enc, p = _encoder(cfg), {"params": params["encoder"]}
+    h, score = enc.apply(p, standardize(cfg, zs), method="embed")        # (L, E), (L, H): once per latent
+    return enc.apply(p, *masked_pool(h[idx], score[idx], mask, cfg.heads), method="head")
 
 
 def check_windows(zs, mask, cfg: SeqCFMConfig):
@@ -375,6 +443,42 @@ class SequenceDecoder:
         if self.normalizer is not None:
             out = self.normalizer.from_flow(out)     # the flow's coordinates -> normalised θ
         return out[0] if single else out
+
+    def encode_flight(self, zs, ends, starts=None, chunk: int = 4096):
+        """Conditioning vectors c (K, cond_dim) of one flight's latents zs (L, z_dim) for the
+        windows [starts_k, ends_k] of latent indices (inclusive; ``starts`` None: every latent up
+        to the end, all prefixes at once in O(L)); otherwise O(K w) for windows of at most w
+        latents, in chunks of ``chunk`` windows. The same vectors as encoding each window by
+        itself, in time linear in the flight and memory bounded by the chunk: what decoding long
+        logs uses."""
+        zs = jnp.asarray(zs, jnp.float32)
+        ends = np.asarray(ends, np.int64)
+        if zs.ndim != 2 or zs.shape[1] != self.cfg.z_dim or zs.shape[0] < 1:
+            raise ValueError(f"latents must have shape (L, {self.cfg.z_dim}); got {tuple(zs.shape)}")
+        if ends.ndim != 1 or ends.size == 0 or ends.min() < 0 or ends.max() >= zs.shape[0]:
+            raise ValueError(f"ends must be latent indices in [0, {zs.shape[0]}); got {ends[:5].tolist()}…")
+        if starts is None:
+            return _encode_prefixes(self.params, self.cfg, zs)[jnp.asarray(ends)]
+        starts = np.asarray(starts, np.int64)
+        if starts.shape != ends.shape or (starts < 0).any() or (starts > ends).any():
+            raise ValueError("starts must be latent indices (K,) with 0 <= starts <= ends")
+        offs = np.arange(-int((ends - starts).max()), 1)
+        out = []
+        for i in range(0, len(ends), chunk):
+            idx = ends[i:i + chunk, None] + offs[None, :]
+            mask = idx >= starts[i:i + chunk, None]
+            out.append(_encode_windows(self.params, self.cfg, zs, jnp.asarray(np.maximum(idx, 0)), jnp.asarray(mask)))
+        return jnp.concatenate(out, 0)
+
+    def sample_cond_theta(self, c, key, n: int, steps: int = 50, method: str = "euler"):
+        """Physical θ samples (K, n, 19) given conditioning vectors c (K, cond_dim) from
+        :meth:`encode_flight`."""
+        if self.normalizer is None:
+            raise ValueError("this decoder has no normaliser")
+        if method not in METHODS:
+            raise ValueError(f"unknown ODE method {method!r}; choose from {METHODS}")
+        out = _sample_cond(self.params, self.cfg, jnp.asarray(c, jnp.float32), key, int(n), int(steps), method)
+        return self.normalizer.denormalize(self.normalizer.from_flow(out))
 
     def sample_theta(self, zs, key, n: int, steps: int = 50, method: str = "euler", mask=None):
         """Physical θ samples: (n, 19) for one window (W, z_dim), (m, n, 19) for (m, L, z_dim)."""

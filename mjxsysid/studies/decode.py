@@ -58,6 +58,11 @@ def read_log(path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"flight log not found: {path}")
+    check_log_fits(path)
+    fast = _read_log_fast(path)
+    if fast is not None:
+        return fast
+    # The careful parser: slower, and it names the line and column of the first problem.
     try:
         text = path.read_bytes().decode("utf-8-sig")
     except UnicodeDecodeError:
@@ -122,6 +127,60 @@ def read_log(path) -> dict:
             "motor": motor}
 
 
+LOG_MEMORY_FACTOR = 6.0
+"""Peak memory of decoding a log, in bytes per byte of CSV (parsed float64 columns, the float32
+copies the policy replays, the latents; measured ≈ 3-4 by benchmarks/decode_long_log.py)."""
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to this process now (Linux: MemAvailable), or None if unknown."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def check_log_fits(path) -> None:
+    """A log too large to decode on this machine is a one-line error naming the limit, before
+    anything is read."""
+    size = Path(path).stat().st_size
+    avail = available_memory()
+    need = LOG_MEMORY_FACTOR * size
+    if avail is not None and need > avail:
+        raise ValueError(f"{path}: a {size / 1e9:.2f} GB log needs about {need / 1e9:.1f} GB of memory to decode, "
+                         f"{avail / 1e9:.1f} GB are available: split the log (rows are independent 2 ms steps) "
+                         f"or decode it on a larger machine")
+
+
+def _read_log_fast(path: Path) -> dict | None:
+    """The common case in one vectorised pass (numpy's C parser): a clean log -> the arrays of
+    :func:`read_log`; anything unusual -> None (the careful parser then finds and names it)."""
+    try:
+        with open(path, encoding="utf-8-sig") as f:
+            head = f.readline()
+            header = [h.strip() for h in head.split(",")]
+            if (len(header) < len(LOG_COLUMNS) or sorted(set(header)) != sorted(header)
+                    or any(c not in header for c in LOG_COLUMNS)):
+                return None
+            data = np.loadtxt(f, delimiter=",", dtype=np.float64, ndmin=2)
+    except (ValueError, UnicodeDecodeError, OSError):
+        return None
+    if data.shape[1] != len(header) or data.shape[0] < N.HISTORY or not np.isfinite(data).all():
+        return None
+    col = {c: data[:, header.index(c)] for c in LOG_COLUMNS}
+    dt = np.diff(col["t"])
+    motor = np.stack([col[f"motor_{i}"] for i in range(1, 5)], -1)
+    if (np.any(dt <= 0) or abs(float(np.median(dt)) - LOG_DT) > 0.05 * LOG_DT
+            or np.any((motor < -1e-6) | (motor > 1 + 1e-6)) or np.abs(data).max() > np.finfo(np.float32).max):
+        return None
+    return {"t": col["t"], "imu": np.stack([col[c] for c in LOG_COLUMNS[1:7]], -1),
+            "a_cmd": col["a_cmd"], "omega_cmd": np.stack([col[c] for c in LOG_COLUMNS[8:11]], -1),
+            "motor": motor}
+
+
 def _is_number(text: str) -> bool:
     try:
         float(text)
@@ -174,34 +233,71 @@ def window_masks(latent_times, report_times, window):
     return mask
 
 
+MAX_DECODES = 120
+"""Decode times at most per flight: a longer flight is decoded at a lower rate (evenly spaced,
+the end always included), so a log of any length costs one replay and one pass of the sequence
+decoder's encoder (both linear in the flight) plus at most this many posterior samplings."""
+
+
+def window_bounds(latent_times, report_times, window):
+    """The latents (recorded at ``latent_times`` (L,), increasing) each decode time
+    (``report_times`` (K,)) conditions on, as index ranges: starts (K,), ends (K,) inclusive —
+    the rows of :func:`window_masks` without building the (K, L) matrix."""
+    lt, rt = np.asarray(latent_times), np.asarray(report_times)
+    ends = np.searchsorted(lt, rt + 1e-6, side="right") - 1
+    starts = np.zeros_like(ends) if not isinstance(window, float) else np.searchsorted(lt, rt - window + 1e-6, side="right")
+    empty = (ends < 0) | (starts > ends)
+    if empty.any():   # the first decode time may precede the first latent by less than a step: use it
+        near = np.argmin(np.abs(lt[None, :] - rt[empty][:, None]), 1)
+        starts[empty], ends[empty] = near, near
+    return starts, ends
+
+
 def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, decoder=None,
-                   regression=None, start: float = N.HISTORY * 0.002, window="instant", seq_decoder=None):
-    """Decode ẑ (T, 8) sampled at ``rate`` Hz after ``start`` s. Returns dict with times (K,),
-    zhat (K, 8), samples (K, S, 19) physical (single latent), regression (K, 19) physical.
+                   regression=None, start: float = N.HISTORY * 0.002, window="instant", seq_decoder=None,
+                   max_decodes: int | None = MAX_DECODES):
+    """Decode ẑ (T, 8) sampled at ``rate`` Hz after ``start`` s — at most ``max_decodes`` times
+    (evenly spaced, the last included; None: no limit). Returns dict with times (K,), zhat (K, 8),
+    samples (K, S, 19) physical (single latent), regression (K, 19) physical, decode_rate_hz ().
     Decoders default to the shipped ones of mjxsysid's policy. With a ``window`` other than
     'instant' and a ``seq_decoder``: also samples_window (K, S, 19), the flight-level posterior
     given the latents at the sequence decoder's rate (10 Hz) in the window, and n_window (K,),
-    the number of latents in it."""
+    the number of latents in it. The windows are encoded incrementally
+    (:meth:`~mjxsysid.cfm.sequence.SequenceDecoder.encode_flight`): time and memory grow
+    linearly with the flight."""
     if not rate > 0:
         raise ValueError(f"--rate must be > 0 Hz, got {rate}")
     if samples < 2:
         raise ValueError(f"--samples must be >= 2, got {samples}")
+    if max_decodes is not None and max_decodes < 1:
+        raise ValueError(f"max_decodes must be >= 1, got {max_decodes}")
     window = parse_window(window)
     times = np.asarray(times)
     idx = decode_indices(times, rate, start)
+    rate_used = float(rate)
+    if max_decodes is not None and len(idx) > max_decodes:
+        idx = idx[np.unique(np.round(np.linspace(0, len(idx) - 1, max_decodes)).astype(int))]
+        rate_used = (len(idx) - 1) / max(float(times[idx[-1]] - times[idx[0]]), 1e-9)
     if decoder is None or regression is None:
         cfm0, reg0 = load_decoders()
         decoder, regression = decoder or cfm0, regression or reg0
     z = np.asarray(zhat_t)[idx]
     s = np.asarray(decoder.sample_theta(z, jax.random.PRNGKey(seed), samples))
-    out = {"times": times[idx], "zhat": z, "samples": s, "regression": np.asarray(regression.point(z))}
+    out = {"times": times[idx], "zhat": z, "samples": s, "regression": np.asarray(regression.point(z)),
+           "decode_rate_hz": np.float64(rate_used)}
     if window != "instant" and seq_decoder is not None:
         lidx = decode_indices(times, float(seq_decoder.meta.get("traj_rate_hz", 10.0)), start)
-        mask = window_masks(times[lidx], out["times"], window)
-        zl = np.broadcast_to(np.asarray(zhat_t, np.float32)[lidx], (len(idx), len(lidx), z.shape[-1]))
-        out["samples_window"] = np.asarray(seq_decoder.sample_theta(zl, jax.random.PRNGKey(seed + 1), samples,
-                                                                    mask=mask))
-        out["n_window"] = mask.sum(1)
+        starts, ends = window_bounds(times[lidx], out["times"], window)
+        # Past the longest window the decoder was trained on, the flight-level posterior is that
+        # of the last max_len latents (a sliding window of trained length: calibrated on 60 s
+        # flights, docs/decoding.md), not an extrapolation to more latents than it ever saw.
+        capped = ends - starts + 1 > seq_decoder.max_len
+        starts = np.maximum(starts, ends - seq_decoder.max_len + 1)
+        out["window_capped"] = capped
+        prefix = window == "flight" and not starts.any()
+        c = seq_decoder.encode_flight(np.asarray(zhat_t, np.float32)[lidx], ends, starts=None if prefix else starts)
+        out["samples_window"] = np.asarray(seq_decoder.sample_cond_theta(c, jax.random.PRNGKey(seed + 1), samples))
+        out["n_window"] = ends - starts + 1
     return out
 
 
@@ -226,7 +322,9 @@ def decode_posterior(zhat_t, times, truth=None, *, decoder, regression, rate: fl
     summary["_invalid_fraction"] = float(P.project_valid(final)[1].mean())  # e.g. J triangle violated
     label = {"flight": "flight-level", "instant": "instant"}[used] if isinstance(used, str) else f"last {used:g} s"
     summary["_window"] = {"window": used, "requested": window, "label": label, "t_end_s": float(dec["times"][-1]),
-                          "n_latents": int(dec["n_window"][-1]) if "n_window" in dec else 1}
+                          "n_latents": int(dec["n_window"][-1]) if "n_window" in dec else 1,
+                          "decode_rate_hz": float(dec["decode_rate_hz"]), "n_decodes": int(len(dec["times"])),
+                          "capped_to_trained_length": bool(dec["window_capped"][-1]) if "window_capped" in dec else False}
     if used != "instant":
         summary["_instant"] = summarize_posterior(instant, truth)
     truth = np.full(P.N_PARAMS, np.nan, np.float32) if truth is None else np.asarray(truth, np.float32)
@@ -301,9 +399,13 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
                            seed=seed, window=window, seq_decoder=seq)
     summary = dec.pop("summary")
     label = summary["_window"]["label"]
-    if seq is not None and summary["_window"]["n_latents"] > seq.max_len:
-        echo(f"note: the window holds {summary['_window']['n_latents']} latents, more than the sequence "
-             f"decoder saw in training ({seq.max_len}); beyond that it extrapolates")
+    if summary["_window"]["decode_rate_hz"] < rate - 1e-6:
+        echo(f"note: {summary['_window']['n_decodes']} decode times at most (MAX_DECODES): this "
+             f"{summary['_window']['t_end_s']:.0f} s flight is decoded at {summary['_window']['decode_rate_hz']:.3g} Hz; "
+             f"every latent (10 Hz) still enters the flight-level posterior")
+    if summary["_window"]["capped_to_trained_length"]:
+        echo(f"note: the flight is longer than the sequence decoder's training flights ({seq.max_len} latents); "
+             f"the posterior is that of its last {seq.max_len} latents (a sliding window of trained length)")
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     np.savez_compressed(out / "decoded.npz", **dec)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")

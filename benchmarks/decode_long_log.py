@@ -1,0 +1,91 @@
+"""Decode time and peak memory of `mjxsysid decode --log` against the log's length (issue 20 §4).
+
+    python benchmarks/decode_long_log.py --minutes 0.1667 1 10 60 --out docs/runs/decode_long_log.json
+
+A 10 s flight of the shipped policy on the paper vehicle (a 10 s lemniscate, MJX) is written as
+a log and tiled to each length (time continuous; the IMU and commands repeat every 10 s, which
+changes nothing about the cost). Each length is decoded by the CLI with its defaults (flight
+window, 100 samples, 10 Hz: at most MAX_DECODES decode times) in a fresh process, timed, with
+its peak resident memory (ru_maxrss of the child).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def base_log(path: Path) -> tuple:
+    from mjxsysid import params as P
+    from mjxsysid.policy.interface import resolve_policy
+    from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
+    fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=resolve_policy("mjxsysid"),
+                            reference="lemniscate", period=10.0, duration=10.0)
+    f = one_flight(fl)
+    return (np.asarray(f.time) - 0.002, np.asarray(seen_imu(f.frame.imu)), np.asarray(f.a_cmd),
+            np.asarray(f.omega_cmd), np.asarray(f.frame.motor_cmd))
+
+
+def tiled_log(base, seconds: float, path: Path) -> Path:
+    t, imu, a, w, m = base
+    n = int(round(seconds / 0.002))
+    reps = int(np.ceil(n / len(t)))
+    cols = [np.tile(x, (reps,) + (1,) * (x.ndim - 1))[:n] for x in (imu, a, w, m)]
+    tt = 0.002 * np.arange(n)
+    arr = np.column_stack([tt, *cols])
+    from mjxsysid.studies.decode import LOG_COLUMNS
+    with open(path, "w") as f:
+        f.write(",".join(LOG_COLUMNS) + "\n")
+        for i in range(0, n, 100_000):      # chunks: the writer's memory stays small too
+            np.savetxt(f, arr[i:i + 100_000], delimiter=",", fmt="%.7g")
+    return path
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, nargs="+", default=[1 / 6, 1, 10])
+    ap.add_argument("--out", type=Path, default=None)
+    args = ap.parse_args()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        base = base_log(tmp / "base.csv")
+        for mins in args.minutes:
+            log = tiled_log(base, 60.0 * mins, tmp / f"log_{mins:g}.csv")
+            out = tmp / f"dec_{mins:g}"
+            t0 = time.perf_counter()
+            r = subprocess.run([sys.executable, "-c", (
+                "import resource, sys; from mjxsysid.cli import main; rc = main(sys.argv[1:]); "
+                "print('MAXRSS', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); sys.exit(rc)"),
+                "decode", "--log", str(log), "--out", str(out), "-q"], capture_output=True, text=True)
+            wall = time.perf_counter() - t0
+            if r.returncode != 0:
+                sys.exit(f"decode of the {mins:g} min log failed:\n{r.stderr[-2000:]}")
+            rss = next(int(ln.split()[1]) for ln in r.stderr.splitlines() if ln.startswith("MAXRSS"))
+            s = json.loads((out / "summary.json").read_text())
+            row = {"minutes": mins, "rows": int(round(60.0 * mins / 0.002)), "csv_mb": log.stat().st_size / 1e6,
+                   "wall_s": wall, "peak_rss_gb": rss * 1024 / 1e9, "n_decodes": s["_window"]["n_decodes"],
+                   "decode_rate_hz": s["_window"]["decode_rate_hz"], "n_latents": s["_window"]["n_latents"]}
+            rows.append(row)
+            print(f"{mins:7.3g} min  {row['rows']:>9,} rows  {row['csv_mb']:7.1f} MB  {wall:7.1f} s  "
+                  f"{row['peak_rss_gb']:5.2f} GB  {row['n_decodes']} decodes at {row['decode_rate_hz']:.3g} Hz, "
+                  f"{row['n_latents']} latents", flush=True)
+            log.unlink()
+    res = {"benchmark": "decode_long_log", "date": time.strftime("%Y-%m-%d"), "machine": platform.node(),
+           "cpus": len(__import__("os").sched_getaffinity(0)), "python": platform.python_version(), "rows": rows}
+    if args.out:
+        args.out.write_text(json.dumps(res, indent=1) + "\n")
+        print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    resource.setrlimit  # (ru_maxrss of each child is read inside it)
+    main()
