@@ -123,3 +123,20 @@ def test_closed_loop_fidelity_runs():
     m = r["mean"]
     assert 0.0 <= m["inside_decoded"] <= 1.0 and m["width_decoded_m"] >= 0.0
     assert m["width_pm20_m"] >= 0.0
+
+
+def test_read_log_fast_path_equals_the_careful_parser_and_memory_limit(paper_flight, tmp_path, monkeypatch):
+    """A clean log is read by numpy's C parser; an extra text column sends the same rows through
+    the careful parser: the arrays agree exactly. A log that cannot fit is one line naming the limit."""
+    import mjxsysid.studies.decode as D
+    clean = write_log(tmp_path / "clean.csv", *_log_from_flight(paper_flight))
+    lines = clean.read_text().splitlines()
+    (tmp_path / "extra.csv").write_text("\n".join([lines[0] + ",pilot"] + [ln + ",bob" for ln in lines[1:]]) + "\n")
+    assert D._read_log_fast(clean) is not None and D._read_log_fast(tmp_path / "extra.csv") is None
+    a, b = read_log(clean), read_log(tmp_path / "extra.csv")
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+    monkeypatch.setattr(D, "available_memory", lambda: 1000)
+    with pytest.raises(ValueError, match=r"needs about .* GB of memory to decode, .* available: split the log") as e:
+        read_log(clean)
+    assert "\n" not in str(e.value)

@@ -180,14 +180,17 @@ def test_decode_latents_with_a_window(tmp_path):
                           seq_decoder=seq, max_decodes=4)
     assert len(dec2["times"]) == 4 and dec2["times"][-1] == dec["times"][-1] and dec2["decode_rate_hz"] < 5
     assert dec2["n_window"][-1] == dec["n_window"][-1] == 19      # the end still conditions on every latent
-    # Longer than the decoder's training flights (max_len 20 latents here): a sliding window of
-    # trained length, exactly the posterior of the last 20 latents.
+    # Longer than the decoder's training flights (max_len 20 latents here): every latent enters
+    # (the count feature saturates), flagged, and still the one-pass encoding of each prefix.
     t4 = 0.002 * (np.arange(2000) + 1)
     z4 = np.random.default_rng(1).normal(size=(2000, 8)).astype(np.float32) * 0.1
     d4 = decode_latents(z4, t4, rate=2, samples=6, decoder=cfm, regression=reg, window="flight", seq_decoder=seq)
-    d4w = decode_latents(z4, t4, rate=2, samples=6, decoder=cfm, regression=reg, window=2.0, seq_decoder=seq)
-    assert d4["n_window"][-1] == 20 and d4["window_capped"][-1] and not d4["window_capped"][0]
-    np.testing.assert_allclose(d4["samples_window"][-1], d4w["samples_window"][-1], rtol=1e-5)
+    assert d4["n_window"][-1] > 20 and d4["beyond_trained_length"][-1] and not d4["beyond_trained_length"][0]
+    lidx4 = decode_indices(t4, 10.0)
+    m4 = window_masks(t4[lidx4], d4["times"], "flight")
+    direct4 = np.asarray(seq.sample_theta(np.broadcast_to(z4[lidx4], (len(d4["times"]), len(lidx4), 8)),
+                                          jax.random.PRNGKey(1), 6, mask=m4))
+    np.testing.assert_allclose(d4["samples_window"], direct4, rtol=1e-4)
     with pytest.raises(ValueError, match="max_decodes"):
         decode_latents(z, times, rate=10, samples=6, decoder=cfm, regression=reg, max_decodes=0)
     msgs = []

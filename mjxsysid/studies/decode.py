@@ -288,14 +288,13 @@ def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, d
     if window != "instant" and seq_decoder is not None:
         lidx = decode_indices(times, float(seq_decoder.meta.get("traj_rate_hz", 10.0)), start)
         starts, ends = window_bounds(times[lidx], out["times"], window)
-        # Past the longest window the decoder was trained on, the flight-level posterior is that
-        # of the last max_len latents (a sliding window of trained length: calibrated on 60 s
-        # flights, docs/decoding.md), not an extrapolation to more latents than it ever saw.
-        capped = ends - starts + 1 > seq_decoder.max_len
-        starts = np.maximum(starts, ends - seq_decoder.max_len + 1)
-        out["window_capped"] = capped
-        prefix = window == "flight" and not starts.any()
-        c = seq_decoder.encode_flight(np.asarray(zhat_t, np.float32)[lidx], ends, starts=None if prefix else starts)
+        # Past the longest window the decoder was trained on (max_len latents) every latent still
+        # enters the pooled features and the count feature saturates: calibrated on 60 s flights
+        # (docs/runs/long_flight_calibration.json; a sliding window of trained length was the
+        # other candidate, measured too).
+        out["beyond_trained_length"] = ends - starts + 1 > seq_decoder.max_len
+        c = seq_decoder.encode_flight(np.asarray(zhat_t, np.float32)[lidx], ends,
+                                      starts=None if window == "flight" else starts)
         out["samples_window"] = np.asarray(seq_decoder.sample_cond_theta(c, jax.random.PRNGKey(seed + 1), samples))
         out["n_window"] = ends - starts + 1
     return out
@@ -324,7 +323,8 @@ def decode_posterior(zhat_t, times, truth=None, *, decoder, regression, rate: fl
     summary["_window"] = {"window": used, "requested": window, "label": label, "t_end_s": float(dec["times"][-1]),
                           "n_latents": int(dec["n_window"][-1]) if "n_window" in dec else 1,
                           "decode_rate_hz": float(dec["decode_rate_hz"]), "n_decodes": int(len(dec["times"])),
-                          "capped_to_trained_length": bool(dec["window_capped"][-1]) if "window_capped" in dec else False}
+                          "beyond_trained_length": bool(dec["beyond_trained_length"][-1])
+                          if "beyond_trained_length" in dec else False}
     if used != "instant":
         summary["_instant"] = summarize_posterior(instant, truth)
     truth = np.full(P.N_PARAMS, np.nan, np.float32) if truth is None else np.asarray(truth, np.float32)
@@ -403,9 +403,10 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
         echo(f"note: {summary['_window']['n_decodes']} decode times at most (MAX_DECODES): this "
              f"{summary['_window']['t_end_s']:.0f} s flight is decoded at {summary['_window']['decode_rate_hz']:.3g} Hz; "
              f"every latent (10 Hz) still enters the flight-level posterior")
-    if summary["_window"]["capped_to_trained_length"]:
-        echo(f"note: the flight is longer than the sequence decoder's training flights ({seq.max_len} latents); "
-             f"the posterior is that of its last {seq.max_len} latents (a sliding window of trained length)")
+    if summary["_window"]["beyond_trained_length"]:
+        echo(f"note: {summary['_window']['n_latents']} latents, more than the sequence decoder's training flights "
+             f"({seq.max_len}): the count feature saturates there; calibration checked to 60 s flights "
+             f"(docs/decoding.md)")
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     np.savez_compressed(out / "decoded.npz", **dec)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
