@@ -23,7 +23,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mjxsysid.cli import decoders, experiment, flights, policy, studies, tune
+from mjxsysid.cli import decoders, experiment, flights, policy, probe, studies, tune
 
 COMMANDS = (
     flights.add_demo,
@@ -37,6 +37,7 @@ COMMANDS = (
     studies.add_decode,
     studies.add_replay,
     tune.add_tune,
+    probe.add_probe,
     experiment.add_experiment,
     policy.add_export,
 )

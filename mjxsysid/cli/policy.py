@@ -21,6 +21,10 @@ def add_train_policy(sub) -> None:
     t.add_argument("--num-envs", type=int, default=None, help="override config.num_envs")
     t.add_argument("--seed", type=int, default=None, help="override config.seed")
     t.add_argument("--no-resume", action="store_true", help="start afresh even if DIR/checkpoint.npz exists")
+    t.add_argument("--focus", type=Path, default=None,
+                   help="weak.npz of `mjxsysid probe`: its systems are mixed into the training vehicles")
+    t.add_argument("--focus-weight", type=float, default=None,
+                   help="fraction of episodes flying a focus system, in [0, 1] (default: config env.focus_weight, 0.3)")
     t.set_defaults(handler=cmd_train_policy)
 
 
@@ -42,6 +46,16 @@ def cmd_train_policy(args) -> int:
     for k, v in (("iterations", args.iterations), ("num_envs", args.num_envs), ("seed", args.seed)):
         if v is not None:
             cfg_dict[k] = v
+    if args.focus is not None:
+        cfg_dict["focus"] = str(args.focus)
+    if args.focus_weight is not None:
+        if not 0.0 <= args.focus_weight <= 1.0:
+            raise ValueError(f"--focus-weight must be in [0, 1], got {args.focus_weight}")
+        cfg_dict["env"] = dict(cfg_dict["env"], focus_weight=args.focus_weight)
+    if cfg_dict.get("focus") is not None:
+        from mjxsysid.policy.focus import load_weak
+        n = len(load_weak(cfg_dict["focus"])[0])     # checked before anything trains
+        echo(f"focus: {n} weak systems from {cfg_dict['focus']}, {cfg_dict['env']['focus_weight']:.0%} of episodes")
     try:
         cfg = TrainConfig.from_dict(cfg_dict)
     except TypeError as e:  # e.g. an unknown key of the env section

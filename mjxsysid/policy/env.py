@@ -50,6 +50,7 @@ class EnvConfig:
     w_smooth: float = 0.1
     w_sat: float = 0.2
     fail_penalty: float = -20.0
+    focus_weight: float = 0.3           # with focus systems: the fraction of episodes flying one of them
 
 
 @struct.dataclass
@@ -83,8 +84,18 @@ class Transition(struct.PyTreeNode):
 
 
 class TrainEnv:
-    def __init__(self, config: EnvConfig = EnvConfig(), normalizer: P.Normalizer | None = None):
+    """``focus_theta`` (n, 19): weak systems (e.g. ``mjxsysid probe``'s); a fraction
+    ``config.focus_weight`` of episodes flies one of them (uniformly), the rest the prior."""
+
+    def __init__(self, config: EnvConfig = EnvConfig(), normalizer: P.Normalizer | None = None,
+                 focus_theta=None):
+        if not 0.0 <= config.focus_weight <= 1.0:
+            raise ValueError(f"focus_weight must be in [0, 1], got {config.focus_weight}")
         self.config = config
+        self.focus_theta = None if focus_theta is None else jnp.asarray(focus_theta, jnp.float32)
+        if self.focus_theta is not None and (self.focus_theta.ndim != 2 or self.focus_theta.shape[1] != P.N_PARAMS
+                                             or self.focus_theta.shape[0] == 0):
+            raise ValueError(f"focus systems must have shape (n, {P.N_PARAMS}), n >= 1; got {self.focus_theta.shape}")
         self.prior = P.get_prior(config.prior)
         self.sim = Quadrotor(SimConfig(gyro_noise=config.gyro_noise, accel_noise=config.accel_noise))
         self.normalizer = normalizer or P.prior_normalizer(config.prior)
@@ -97,6 +108,10 @@ class TrainEnv:
         c = self.config
         ks = jax.random.split(key, 12)
         theta = self.prior.sample(ks[0], 1)[0]
+        if self.focus_theta is not None:   # a fraction of episodes flies one of the weak systems
+            kf, kw = jax.random.split(jax.random.fold_in(ks[0], 1))
+            pick = self.focus_theta[jax.random.randint(kf, (), 0, self.focus_theta.shape[0])]
+            theta = jnp.where(jax.random.uniform(kw) < c.focus_weight, pick, theta)
         u = lambda k, lo, hi, shape=(): jax.random.uniform(k, shape, jnp.float32, lo, hi)
         ref = Lemniscate(center=jnp.array([0.0, 0.0, 1.0]),
                          size=u(ks[1], 0.0, 1.0, (3,)) * jnp.asarray(c.size_max),

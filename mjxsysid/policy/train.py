@@ -39,6 +39,7 @@ from mjxsysid import params as P
 from mjxsysid.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.policy import networks as N
 from mjxsysid.policy.env import EnvConfig, EnvState, TrainEnv
+from mjxsysid.policy.focus import load_weak
 from mjxsysid.progress import progress
 
 
@@ -79,6 +80,7 @@ class TrainConfig:
     checkpoint_every: int = 50
     log_every: int = 10
     env: EnvConfig = EnvConfig()
+    focus: str | None = None       # weak.npz of `mjxsysid probe`: its systems mixed into training (env.focus_weight)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -257,7 +259,7 @@ class Trainer:
 
     def __init__(self, cfg: TrainConfig = TrainConfig(), mesh=None):
         self.cfg = cfg
-        self.env = TrainEnv(cfg.env)
+        self.env = TrainEnv(cfg.env, focus_theta=None if cfg.focus is None else load_weak(cfg.focus)[0])
         self.nets = self.env.nets
         self.opt = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.learning_rate))
         self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior,

@@ -1,0 +1,11 @@
+"""Probing: where is the policy weak? (issue 18, the paper's future work)
+
+:mod:`~mjxsysid.probe.search` a gradient-free search of latent space (perturbations and stretches
+of the latents of prior vehicles); :mod:`~mjxsysid.probe.closed_loop` its score — decode a latent
+into physical systems and fly them with the policy and the oracle — and :func:`run_probe`, which
+writes the weak systems (``weak.npz``, the input of ``mjxsysid train-policy --focus``) and a report.
+"""
+from mjxsysid.probe.closed_loop import ProbeConfig, closed_loop_badness, run_probe
+from mjxsysid.probe.search import SearchConfig, latent_search
+
+__all__ = ["SearchConfig", "latent_search", "ProbeConfig", "closed_loop_badness", "run_probe"]
