@@ -380,6 +380,11 @@ SLOW_ACTUATOR_PRIOR = Prior(name="slow_actuators", motor_time_constant=(0.05, 0.
 # together: the prior mjxsysid's decoders are trained on, so that slow motors can be decoded
 # (the predictive tuner's slow-actuator experiment, paper §V-A) while the policy is not retrained.
 WIDE_ACTUATOR_PRIOR = Prior(name="wide_actuators", motor_time_constant=(0.02, 0.10))
+# At and past the edges of the default prior (issue 18's stress test): thrust-to-weight 1.5–2.5
+# (the default's floor is 2.2), motors 2–6× slower than the default's mid-point, motor
+# effectiveness down to 0.5 (a worn motor), and 3× the external torque.
+STRESS_PRIOR = Prior(name="stress", twr=(1.5, 2.5), twr_min_eff=1.2, motor_time_constant=(0.04, 0.12),
+                     eta=(0.5, 1.3), ext_torque_xy=0.06, ext_torque_z=0.3)
 
 
 # ----------------------------------------------------------------------------------------
@@ -451,7 +456,7 @@ def xadap_training_prior(**overrides) -> XAdapPrior:
 
 XADAP_PRIOR = XAdapPrior()
 PRIORS = {"default": DEFAULT_PRIOR, "slow_actuators": SLOW_ACTUATOR_PRIOR, "wide_actuators": WIDE_ACTUATOR_PRIOR,
-          "xadap": XADAP_PRIOR}
+          "xadap": XADAP_PRIOR, "stress": STRESS_PRIOR}
 
 
 def get_prior(name: str | Prior) -> Prior:

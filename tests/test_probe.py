@@ -71,3 +71,39 @@ def test_probe_quick_end_to_end(tmp_path):
     assert max(r["weak_badness"]) >= r["anchor_badness_mean"]
     for f in ("results.md", "weak_vs_prior.png"):
         assert (out / f).is_file()
+
+
+def test_probe_loop_is_registered_and_checks_its_config_first(tmp_path):
+    from mjxsysid.experiments import get_experiment
+    from mjxsysid.experiments.probe_loop import QUICK, LoopConfig
+    run = get_experiment("probe-loop")
+    with pytest.raises(ValueError, match="focus_weight"):
+        run(tmp_path / "x", quick=True, progress=False, cfg=LoopConfig(focus_weight=0.0))
+    assert not (tmp_path / "x").exists()
+    assert P.get_prior("stress").twr == (1.5, 2.5) and QUICK.vehicles < 100
+
+
+@pytest.mark.slow
+def test_probe_loop_quick_end_to_end(tmp_path):
+    """`mjxsysid experiment probe-loop --quick` (≈ 2 min on 2 CPU cores): probe, two tiny
+    retrained policies, three evaluations, the results files."""
+    out = tmp_path / "loop"
+    assert main(["experiment", "probe-loop", "--quick", "--out", str(out), "-q"]) == 0
+    r = json.loads((out / "results.json").read_text())
+    ev = r["numbers"]["evaluation"]
+    assert set(ev) == {"given", "probed", "uniform"} and set(ev["given"]) == {"default", "stress", "paper"}
+    assert ev["given"]["default"]["success_policy"] == 1.0          # the shipped policy on its own prior
+    for f in ("probe/weak.npz", "uniform_stress.npz", "probed/policy.npz", "uniform/policy.npz", "results.md"):
+        assert (out / f).is_file(), f
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kernel", [False, True], ids=["inprocess", "kernel"])
+def test_notebook_05_executes(kernel, tmp_path, monkeypatch):
+    """notebooks/05_probing.ipynb on its quick settings (≈ 1 min): one round — probe, the weak
+    systems against the prior, a tiny focused training."""
+    from conftest import run_notebook
+    outputs, _ = run_notebook("05_probing.ipynb", tmp_path, monkeypatch, kernel=kernel,
+                              env={"MJXSYSID_NOTEBOOK_FAST": "1"})
+    assert "weak latents:" in outputs and "trained 2 iterations" in outputs, outputs[-2000:]
+    assert (tmp_path / "probe" / "weak.npz").is_file() and (tmp_path / "focused" / "policy.npz").is_file()

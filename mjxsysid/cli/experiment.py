@@ -14,7 +14,7 @@ from mjxsysid.cli._common import add_policy, policy_ref
 
 def add_experiment(sub) -> None:
     ex = sub.add_parser("experiment", help="run one of the paper's experiments (results.json, results.md, PNGs)")
-    ex.add_argument("name", help="tune-nominal | tune-slow | tune-lemniscate | robustness | payload | replay")
+    ex.add_argument("name", help="tune-nominal | tune-slow | tune-lemniscate | robustness | payload | replay | probe-loop")
     ex.add_argument("--quick", action="store_true", help="small CPU version (minutes; a smoke test)")
     ex.add_argument("--cpu", action="store_true",
                     help="tune-*: the full protocol with fewer vehicles and smaller ensembles (tens of minutes on a CPU)")

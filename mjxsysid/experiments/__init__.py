@@ -19,6 +19,7 @@ EXPERIMENTS = {
     "robustness": "mjxsysid.experiments.robustness:run",
     "payload": "mjxsysid.experiments.payload:run",
     "replay": "mjxsysid.experiments.replay:run",
+    "probe-loop": "mjxsysid.experiments.probe_loop:run",
 }
 """name -> 'module:function' (imported lazily, so the CLI's --help stays instant)."""
 
