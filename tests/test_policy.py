@@ -115,6 +115,9 @@ def tiny_trainer():
     return Trainer(TrainConfig(iterations=16, **TINY))
 
 
+# The tiny Trainer's iteration runs 16 times here and in test_loss_weight_options_*: compiled with XLA's
+# optimisations (conftest.xla_optimised) it is faster in all (measured: test_policy.py 72 -> 61 s).
+@pytest.mark.usefixtures("xla_optimised_test")
 def test_tiny_training_improves_tracking_and_resumes(tmp_path, tiny_trainer):
     """16 iterations × 1024 steps (seconds after compile) cut the body-rate tracking error of the
     untrained policy by 30 % or more (measured: 3.6 -> 2.2 rad/s with the interruption, 1.9
@@ -226,6 +229,7 @@ def test_identifiable_projection_is_exact():
     assert float(Ay[P.OMEGA_MAX, 1]) > 0 > float(Ay[6, 1]) and abs(float(Ay[P.KT, 1])) < 1e-6
 
 
+@pytest.mark.usefixtures("xla_optimised_test")
 @pytest.mark.parametrize("over", [{"rec_ident_coef": 0.0}, {"rec_ident_coef": 1.0, "rec_coef": 0.0},
                                   {"lambda1": 0.1}, {"var_target": 0.3}])
 def test_loss_weight_options_share_the_compile_and_train(tiny_trainer, over):
