@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from mjxsysid import params as P
-from mjxsysid.rollout.flight import broadcast, fly_vehicles
+from mjxsysid.rollout.flight import fly_vehicles
 from mjxsysid.rollout.harness import Disturbance, Flight, metrics, summarize
 from mjxsysid.cli import main
 from mjxsysid.control.high_level import GAIN_BOUNDS, PRESETS, gains
@@ -240,3 +240,18 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
     for f in ("tracking.png", "oracle_vs_nominal.png", "summary.md", "flight.npz", "marginals.png",
               "decoded_over_time.png"):
         assert (out / f).exists(), f
+
+
+def test_fly_vehicles_takes_one_force_step_per_vehicle():
+    """force_step (B, 3): each vehicle gets its own force (e.g. scaled by its mass), exactly as if
+    the batch had been flown with that force for all; the shared-force call compiles the same flight."""
+    th = np.stack([P.PAPER_HARDWARE] * 2)
+    kw = dict(controller="oracle", reference="hover", duration=0.3, force_step_time=0.0)
+    per, _, _ = fly_vehicles(th, force_step=np.array([[1.0, 1.0, 0.0], [0.0, 0.0, 0.0]]), **kw)
+    pushed, _, _ = fly_vehicles(th, force_step=(1.0, 1.0, 0.0), **kw)
+    still, _, _ = fly_vehicles(th, **kw)
+    np.testing.assert_array_equal(np.asarray(per.frame.pos[0]), np.asarray(pushed.frame.pos[0]))
+    np.testing.assert_array_equal(np.asarray(per.frame.pos[1]), np.asarray(still.frame.pos[1]))
+    assert float(per.frame.pos[0, -1, 0]) > float(per.frame.pos[1, -1, 0]) + 1e-4
+    with pytest.raises(ValueError, match=r"force_step must be finite, of shape \(3,\) or \(2, 3\)"):
+        fly_vehicles(th, force_step=np.zeros((3, 3)), **kw)

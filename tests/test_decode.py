@@ -1,7 +1,6 @@
 """`mjxsysid decode`: flight-log replay, decoding at a rate, the summary, error paths."""
 import json
 
-import jax
 import numpy as np
 import pytest
 

@@ -5,7 +5,6 @@ import numpy as np
 import pytest
 from conftest import XADAP_DIR
 
-from mjxsysid import params as P
 from mjxsysid.cli import main
 from mjxsysid.policy.interface import PRETRAINED_DIR, LatentPolicy, resolve_policy
 

@@ -11,7 +11,7 @@ from mjxsysid import params as P
 from mjxsysid.rollout.flight import broadcast
 from mjxsysid.rollout.harness import Disturbance, Flight, fly_batch
 from mjxsysid.control.high_level import GAIN_BOUNDS, PRESETS, Cascade
-from mjxsysid.control.references import Hover, Lemniscate
+from mjxsysid.control.references import Lemniscate
 from mjxsysid.sim.quadrotor import Frame
 from mjxsysid.tune import cem as C
 from mjxsysid.tune.tuner import CostWeights, OnlineTuner, TunerConfig, fly_tuned, predict, rollout_cost

@@ -6,7 +6,6 @@ them skip with a message otherwise.
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import jax
@@ -16,7 +15,7 @@ import pytest
 
 from mjxsysid import params as P
 from mjxsysid.control.low_level import Command
-from mjxsysid.policy.xadap import (build_history_input, load_xadap, normalize_state,
+from mjxsysid.policy.xadap import (build_history_input, normalize_state,
                                    xadap_encoder, xadap_policy)
 from mjxsysid.params import XAdapPrior, xadap_training_prior
 from mjxsysid.policy.xadap_controller import (NN_TO_MJX, XAdapController, butterworth2,
@@ -28,7 +27,7 @@ HOVER_IMU = jnp.array([0.0, 0.0, 0.0, 0.0, 0.0, G], jnp.float32)
 HOVER_CMD = Command(jnp.float32(G), jnp.zeros(3, jnp.float32))
 
 
-from conftest import XADAP_DIR, have as _have  # noqa: E402
+from conftest import XADAP_DIR  # noqa: E402
 
 
 @pytest.fixture(scope="module")

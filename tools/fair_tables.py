@@ -208,7 +208,7 @@ def page() -> str:
                     ["naive", "baseline", "cfm_tuned", "oracle_cem"]),
          "",
          "What changed:",
-         f"- **A previous claim no longer holds: on slow actuators CFM-tuned does not beat Baseline.** With the",
+         "- **A previous claim no longer holds: on slow actuators CFM-tuned does not beat Baseline.** With the",
          f"  paper's cost it is {s_slow['cfm_over_baseline']:.2f}× Baseline's RMSE on the same vehicles (before:",
          f"  {s_old['cfm_over_baseline']:.2f}×), and loses more vehicles ({pct(new['tune_slow']['numbers']['cfm_tuned']['success_rate'])} vs",
          f"  {pct(new['tune_slow']['numbers']['baseline']['success_rate'])}). Even tuning on the true θ (Oracle-CEM) is worse than",

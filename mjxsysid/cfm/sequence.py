@@ -336,17 +336,22 @@ def _encoder(cfg: SeqCFMConfig) -> LatentSetEncoder:
 @partial(jax.jit, static_argnames=("cfg",))
 def _encode_prefixes(params, cfg: SeqCFMConfig, zs):
     """c (L, C) of every prefix of one flight's latents zs (L, z_dim): O(L)."""
-    enc, p = _encoder(cfg), {"params": params["encoder"]}
-    h, score = enc.apply(p, standardize(cfg, zs), method="embed")
-    return enc.apply(p, *prefix_pool(h, score, cfg.heads), method="head")
+    h, score = _embed(params, cfg, zs)
+    return _encoder(cfg).apply({"params": params["encoder"]}, *prefix_pool(h, score, cfg.heads), method="head")
 
 
 @partial(jax.jit, static_argnames=("cfg",))
-def _encode_windows(params, cfg: SeqCFMConfig, zs, idx, mask):
-    """c (K, C) of K windows of one flight: latent indices idx (K, w) where mask (K, w)."""
-    enc, p = _encoder(cfg), {"params": params["encoder"]}
-    h, score = enc.apply(p, standardize(cfg, zs), method="embed")        # (L, E), (L, H): once per latent
-    return enc.apply(p, *masked_pool(h[idx], score[idx], mask, cfg.heads), method="head")
+def _embed(params, cfg: SeqCFMConfig, zs):
+    """Per-latent embedding h (L, E) and attention scores (L, H) of one flight's latents (L, z_dim)."""
+    return _encoder(cfg).apply({"params": params["encoder"]}, standardize(cfg, zs), method="embed")
+
+
+@partial(jax.jit, static_argnames=("cfg",))
+def _encode_windows(params, cfg: SeqCFMConfig, h, score, idx, mask):
+    """c (K, C) of K windows of one flight, from its embedding (:func:`_embed`): latent indices
+    idx (K, w) where mask (K, w)."""
+    return _encoder(cfg).apply({"params": params["encoder"]}, *masked_pool(h[idx], score[idx], mask, cfg.heads),
+                               method="head")
 
 
 def check_windows(zs, mask, cfg: SeqCFMConfig):
@@ -463,11 +468,13 @@ class SequenceDecoder:
         if starts.shape != ends.shape or (starts < 0).any() or (starts > ends).any():
             raise ValueError("starts must be latent indices (K,) with 0 <= starts <= ends")
         offs = np.arange(-int((ends - starts).max()), 1)
+        h, score = _embed(self.params, self.cfg, zs)                     # once per latent, not per chunk
         out = []
         for i in range(0, len(ends), chunk):
             idx = ends[i:i + chunk, None] + offs[None, :]
             mask = idx >= starts[i:i + chunk, None]
-            out.append(_encode_windows(self.params, self.cfg, zs, jnp.asarray(np.maximum(idx, 0)), jnp.asarray(mask)))
+            out.append(_encode_windows(self.params, self.cfg, h, score, jnp.asarray(np.maximum(idx, 0)),
+                                       jnp.asarray(mask)))
         return jnp.concatenate(out, 0)
 
     def sample_cond_theta(self, c, key, n: int, steps: int = 50, method: str = "euler"):

@@ -39,7 +39,7 @@ from dm_control.utils import rewards  # noqa: E402
 from mjxsysid import params as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.rollout.flight import make_reference
-from mjxsysid.sim.quadrotor import ASSET, BODY, SimConfig, hover_rotor_speed
+from mjxsysid.sim.quadrotor import ASSET, BODY, SimConfig, hover_rotor_speed, mean_square_speed
 
 
 TASKS = ("hover", "lemniscate", "minsnap", "force_step")
@@ -49,15 +49,6 @@ acceleration for every vehicle, as in the closed-loop fidelity benchmark)."""
 
 DT = SimConfig().dt
 _TRACK_MARGIN = 0.5  # m: the tracking reward falls to 0.1 here
-
-
-def mean_square_speed_np(omega0, omega_cmd, tau_m: float, h: float):
-    """float64 twin of :func:`mjxsysid.sim.quadrotor.mean_square_speed` (exact mean Ω² over a
-    step of Ω̇ = (Ω_cmd − Ω)/τ_m, and Ω(h)): (4,), (4,) -> (4,), (4,)."""
-    a = np.exp(-h / tau_m)
-    d = omega0 - omega_cmd
-    r1, r2 = tau_m / h * (1.0 - a), tau_m / (2.0 * h) * (1.0 - a * a)
-    return omega_cmd**2 + 2.0 * omega_cmd * d * r1 + d * d * r2, omega_cmd + d * a
 
 
 def _rot(quat) -> np.ndarray:
@@ -121,7 +112,7 @@ class QuadrotorPhysics(dm_mujoco.Physics):
         (clipped), advancing the rotor speeds over the step: the MJX simulator's ``substep``."""
         th = self.theta
         omega_cmd = np.clip(np.asarray(motor_cmd, np.float64), 0.0, 1.0) * th[P.OMEGA_MAX]
-        msq, self.rotor_speed = mean_square_speed_np(self.rotor_speed, omega_cmd, th[P.TAU_M], DT)
+        msq, self.rotor_speed = mean_square_speed(self.rotor_speed, omega_cmd, th[P.TAU_M], DT, exp=np.exp)
         rot = _rot(self.data.qpos[3:7])
         drag = rot @ (-th[P.DRAG] * (rot.T @ self.data.qvel[0:3]))
         self.data.xfrc_applied[BODY] = np.concatenate([drag + self.force_world, rot @ th[P.TAU_EXT]])
@@ -137,12 +128,10 @@ class QuadrotorPhysics(dm_mujoco.Physics):
 
 @jax.jit
 def _cascade_step(cascade: Cascade, integral, est: Estimate, ref, t):
-    return cascade.step(integral, est, ref.at(t), DT)
-
-
-@jax.jit
-def _ref_pos(ref, t):
-    return ref.at(t).pos
+    """One evaluation of the reference at t: the cascade's (integral, command) and its position."""
+    r = ref.at(t)
+    integral, cmd = cascade.step(integral, est, r, DT)
+    return integral, cmd, r.pos
 
 
 class QuadrotorTask(base.Task):
@@ -163,6 +152,7 @@ class QuadrotorTask(base.Task):
         self.cascade = Cascade.make(gains)
         self._integral = self.cascade.init()
         self._command = np.zeros(4)
+        self._ref_pos = np.zeros(3)
         self._steps = 0
 
     # dm_control Task interface -----------------------------------------------------------------
@@ -202,11 +192,11 @@ class QuadrotorTask(base.Task):
         obs["quaternion"] = physics.quaternion()
         obs["angular_velocity"] = physics.angular_velocity()
         obs["rotor_speed"] = physics.rotor_speed.copy()
-        obs["reference_position"] = np.asarray(_ref_pos(self.reference, jnp.float32(self._steps * DT)), np.float64)
+        obs["reference_position"] = self._ref_pos.copy()
         return obs
 
     def get_reward(self, physics: QuadrotorPhysics):
-        err = np.linalg.norm(physics.position() - np.asarray(_ref_pos(self.reference, jnp.float32(self._steps * DT))))
+        err = np.linalg.norm(physics.position() - self._ref_pos)
         return float(rewards.tolerance(err, bounds=(0.0, 0.05), margin=_TRACK_MARGIN, sigmoid="gaussian"))
 
     def get_termination(self, physics: QuadrotorPhysics):
@@ -221,13 +211,14 @@ class QuadrotorTask(base.Task):
         return np.array([1.0, 1.0, 0.0]) * physics.theta[P.MASS] / P.PAPER_HARDWARE[P.MASS]
 
     def _update_command(self, physics: QuadrotorPhysics):
-        """The cascade's command for the current state at t = steps · dt (the MJX loop's order:
-        state, then command, then policy, then step)."""
+        """The cascade's command and the reference position for the current state at t = steps · dt
+        (the MJX loop's order: state, then command, then policy, then step)."""
         est = Estimate(*(jnp.asarray(a, jnp.float32) for a in (physics.position(), physics.velocity(),
                                                                physics.quaternion(), physics.angular_velocity())))
-        self._integral, cmd = _cascade_step(self.cascade, self._integral, est, self.reference,
-                                            jnp.float32(self._steps * DT))
+        self._integral, cmd, pos = _cascade_step(self.cascade, self._integral, est, self.reference,
+                                                 jnp.float32(self._steps * DT))
         self._command = np.concatenate([[float(cmd.a_cmd)], np.asarray(cmd.omega_cmd, np.float64)])
+        self._ref_pos = np.asarray(pos, np.float64)
 
 
 def make_env(theta=None, task: str = "lemniscate", *, duration: float | None = None, period: float = 10.0,

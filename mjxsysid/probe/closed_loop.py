@@ -89,8 +89,9 @@ def make_fly(policy, cfg: ProbeConfig) -> Callable:
     def fly(theta):
         kw = dict(reference=ref, period=cfg.period, duration=cfg.duration, seed=cfg.seed)
         if cfg.reference == "force_step":
-            f = np.array([1.0, 1.0, 0.0]) / P.PAPER_HARDWARE[P.MASS]
-            kw.update(force_step=tuple(f * float(np.median(theta[:, P.MASS]))), force_step_time=1.0)
+            # [1, 1, 0] N × m / m_paper per vehicle: the same acceleration for every system
+            kw.update(force_step=np.array([1.0, 1.0, 0.0]) * theta[:, P.MASS, None] / P.PAPER_HARDWARE[P.MASS],
+                      force_step_time=1.0)
         _, mp, _ = fly_vehicles(theta, controller="policy", policy=policy, **kw)
         _, mo, _ = fly_vehicles(theta, controller="oracle", **kw)
         rmse_o = np.where(np.asarray(mo["failed"]) > 0.5, np.nan, np.asarray(mo["pos_rmse_m"]))

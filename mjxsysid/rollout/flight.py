@@ -81,6 +81,7 @@ def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=1
     Returns (Flight with (B, T, ...) leaves, metrics dict of (B,) arrays, duration s).
     ``refs`` may pass a pre-built batched reference (e.g. one min-snap per vehicle); ``policy``:
     the resolved latent policy of ``controller='policy'`` (see :func:`make_low_level`).
+    ``force_step``: (3,) N for every vehicle, or (B, 3) one per vehicle (e.g. scaled by its mass).
     """
     theta = P.as_batch(theta)
     b = theta.shape[0]
@@ -96,8 +97,11 @@ def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=1
     steps = int(round(duration / sim.config.dt))
     low = make_low_level(controller, theta, policy)
     high = broadcast(Cascade.make(gains), b)
-    dist = broadcast(Disturbance.make(step_force=force_step, step_time=force_step_time,
-                                      sigma=force_sigma), b)
+    f = np.asarray(force_step, np.float32)
+    if f.shape not in ((3,), (b, 3)) or not np.isfinite(f).all():
+        raise ValueError(f"force_step must be finite, of shape (3,) or ({b}, 3) (one per vehicle); got {f.shape}")
+    dist = broadcast(Disturbance.make(step_time=force_step_time, sigma=force_sigma), b)
+    dist = dist.replace(step_force=jnp.broadcast_to(jnp.asarray(f), (b, 3)))
     flight = fly_batch(sim, theta, low, high, refs, dist, jax.random.PRNGKey(seed), steps)
     return flight, batch_metrics(flight), duration
 

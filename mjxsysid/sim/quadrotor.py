@@ -145,12 +145,13 @@ def hover_rotor_speed(theta) -> jax.Array:
     return jnp.sqrt(w[..., None] / (theta[..., P.ETA] * theta[..., P.KT, None]))
 
 
-def mean_square_speed(omega0, omega_cmd, tau_m, h):
+def mean_square_speed(omega0, omega_cmd, tau_m, h, exp=jnp.exp):
     """Exact mean of Ω(t)² over [0, h] for Ω̇ = (Ω_cmd − Ω)/τ_m, and Ω(h).
 
     omega0, omega_cmd: (4,) rad/s; tau_m, h: scalars (s). Returns (mean Ω² (4,), Ω(h) (4,)).
+    ``exp``: ``np.exp`` evaluates it in NumPy float64 (the dm_control twin, mjxsysid.envs).
     """
-    a = jnp.exp(-h / tau_m)
+    a = exp(-h / tau_m)
     d = omega0 - omega_cmd
     r1 = tau_m / h * (1.0 - a)  # mean of e^{-t/τ}
     r2 = tau_m / (2.0 * h) * (1.0 - a * a)  # mean of e^{-2t/τ}

@@ -122,6 +122,11 @@ def read_log(path) -> dict:
     if not all(np.all(np.isfinite(v)) for v in f32.values()):
         c = next(k for k, v in f32.items() if not np.all(np.isfinite(v)))
         raise ValueError(f"{path}: column {c}: values too large (beyond float32)")
+    return _record(col, motor)
+
+
+def _record(col: dict, motor) -> dict:
+    """Columns by name (T,) and the motor commands (T, 4) -> the arrays of :func:`read_log`."""
     return {"t": col["t"], "imu": np.stack([col[c] for c in LOG_COLUMNS[1:7]], -1),
             "a_cmd": col["a_cmd"], "omega_cmd": np.stack([col[c] for c in LOG_COLUMNS[8:11]], -1),
             "motor": motor}
@@ -177,9 +182,7 @@ def _read_log_fast(path: Path) -> dict | None:
     if (np.any(dt <= 0) or abs(float(np.median(dt)) - LOG_DT) > 0.05 * LOG_DT
             or np.any((motor < -1e-6) | (motor > 1 + 1e-6)) or np.abs(data).max() > np.finfo(np.float32).max):
         return None
-    return {"t": col["t"], "imu": np.stack([col[c] for c in LOG_COLUMNS[1:7]], -1),
-            "a_cmd": col["a_cmd"], "omega_cmd": np.stack([col[c] for c in LOG_COLUMNS[8:11]], -1),
-            "motor": motor}
+    return _record(col, motor)
 
 
 def _is_number(text: str) -> bool:
