@@ -7,7 +7,7 @@ import pytest
 
 from mjxsysid import params as P
 from mjxsysid.cli import main
-from mjxsysid.probe import ProbeConfig, SearchConfig, closed_loop_badness, latent_search
+from mjxsysid.probe import ProbeConfig, SearchConfig, closed_loop_badness, latent_search, system_badness
 
 
 def test_search_finds_a_planted_weak_region():
@@ -50,6 +50,20 @@ def test_closed_loop_badness_aggregates_failures_and_oracle_ratios():
     assert th.shape == (2, 3, 19)
 
 
+def test_systems_the_oracle_cannot_fly_do_not_count_as_weak():
+    """A system the oracle fails on is no evidence against the policy: it counts
+    ``infeasible_badness`` (0 by default) whether or not the policy fails too."""
+    def fly(theta):          # heavy vehicles: policy and oracle both fail (oracle RMSE NaN)
+        heavy = theta[:, P.MASS] > 2.0
+        return heavy, np.full(len(heavy), 0.03), np.where(heavy, np.nan, 0.01)
+
+    z = np.array([[0.0] + [0.0] * 7, [1.5] + [0.0] * 7])
+    bad, _ = closed_loop_badness(z, decoder=_ToyDecoder(), key=None, samples=2, fly=fly)
+    np.testing.assert_allclose(bad, [3.0, 0.0])
+    np.testing.assert_allclose(system_badness([1, 0, 1], [0.1, 0.02, 0.1], [np.nan, 0.01, 0.01],
+                                              infeasible_badness=1.0), [1.0, 2.0, 5.0])
+
+
 def test_probe_bad_input_is_one_line(tmp_path, capsys):
     assert main(["probe", "--reference", "loop", "--quick", "--out", str(tmp_path / "p")]) == 2
     err = capsys.readouterr().err.strip()
@@ -66,8 +80,9 @@ def test_probe_quick_end_to_end(tmp_path):
     out = tmp_path / "probe"
     assert main(["probe", "--quick", "--out", str(out), "-q"]) == 0
     theta, meta = load_weak(out / "weak.npz")
-    assert theta.shape == (16, 19) and meta["found_by"] == "mjxsysid probe"
     r = json.loads((out / "results.json").read_text())
+    assert theta.shape == (r["weak_systems"], 19) and 1 <= r["weak_systems"] <= r["weak_decoded"] == 16
+    assert meta["found_by"] == "mjxsysid probe"
     assert max(r["weak_badness"]) >= r["anchor_badness_mean"]
     for f in ("results.md", "weak_vs_prior.png"):
         assert (out / f).is_file()
@@ -85,16 +100,29 @@ def test_probe_loop_is_registered_and_checks_its_config_first(tmp_path):
 
 @pytest.mark.slow
 def test_probe_loop_quick_end_to_end(tmp_path):
-    """`mjxsysid experiment probe-loop --quick` (≈ 2 min on 2 CPU cores): probe, two tiny
-    retrained policies, three evaluations, the results files."""
+    """`mjxsysid experiment probe-loop --quick` (≈ 3 min on 2 CPU cores): probe, two tiny
+    retrained policies, three evaluations, decoders and a second probe for the probed policy,
+    the results files; a rerun reuses every stage; another config in the same folder is refused."""
     out = tmp_path / "loop"
     assert main(["experiment", "probe-loop", "--quick", "--out", str(out), "-q"]) == 0
     r = json.loads((out / "results.json").read_text())
-    ev = r["numbers"]["evaluation"]
-    assert set(ev) == {"given", "probed", "uniform"} and set(ev["given"]) == {"default", "stress", "paper"}
+    ev, num = r["numbers"]["evaluation"], r["numbers"]
+    assert set(ev) == {"given", "probed", "uniform"}
+    assert set(ev["given"]) == {"default", "stress", "paper", "stress_wide", "latent"}
     assert ev["given"]["default"]["success_policy"] == 1.0          # the shipped policy on its own prior
-    for f in ("probe/weak.npz", "uniform_stress.npz", "probed/policy.npz", "uniform/policy.npz", "results.md"):
+    assert 0.5 < ev["given"]["latent"]["r2_thrust_to_weight"] <= 1.0
+    assert set(num["on_round1_weak_systems"]) == {"given", "probed", "uniform"}
+    assert num["round2"]["probe"]["weak_systems"] >= 1 and "coverage_identifiable" in num["round2"]["calibration"]
+    for f in ("probe/weak.npz", "uniform_stress.npz", "probed/policy.npz", "uniform/policy.npz", "results.md",
+              "probe_loop.png", "probed/decoders/cfm.npz", "probe_round2/weak.npz"):
         assert (out / f).is_file(), f
+    from mjxsysid.experiments.probe_loop import QUICK, run
+    t = (out / "stages" / "train_probed.json").stat().st_mtime
+    assert run(out, quick=True, progress=False)["numbers"]["headline"] == num["headline"]
+    assert (out / "stages" / "train_probed.json").stat().st_mtime == t        # reused, not rerun
+    import dataclasses
+    with pytest.raises(ValueError, match="another config"):
+        run(out, quick=True, progress=False, cfg=dataclasses.replace(QUICK, focus_weight=0.5))
 
 
 @pytest.mark.slow

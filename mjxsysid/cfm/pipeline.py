@@ -93,6 +93,10 @@ def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, kinds=None, seq_
     flow = lambda theta: np.asarray(norm.to_flow(norm.normalize(theta)))   # what the networks learn
     th, z = _usable(arrays, "train")
     tv, zv = _usable(arrays, "test")
+    if len(th) < 2 or len(tv) < 1:
+        raise ValueError(f"{pairs}: only {len(th)} training and {len(tv)} held-out pairs come from flights the "
+                         f"policy did not lose ({len(arrays['theta_train'])} + {len(arrays['theta_test'])} collected): "
+                         f"too few to train decoders on")
     pairs_path = Path(pairs) / "pairs.npz" if Path(pairs).is_dir() else Path(pairs)
     data = {"pairs_sha256": hashlib.sha256(pairs_path.read_bytes()).hexdigest(), "pairs_meta": meta,
             "n_train": int(len(th)), "n_val": int(len(tv))}

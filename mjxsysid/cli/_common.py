@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-PRIOR_CHOICES = ("default", "slow_actuators", "wide_actuators", "xadap", "stress")
+PRIOR_CHOICES = ("default", "slow_actuators", "wide_actuators", "xadap", "stress", "stress_wide")
 FLIGHT_NAMES = ("lemniscate_5s", "lemniscate_10s", "lemniscate_15s", "hover")  # replay.FLIGHTS (light import)
 
 

@@ -1,22 +1,31 @@
-"""`mjxsysid experiment probe-loop`: probe → retrain → evaluate (issue 18 §3).
+"""`mjxsysid experiment probe-loop`: probe → retrain → evaluate → probe again (issue 18 §3).
 
 1. Evaluate the given policy (default: the shipped one) against the oracle (K_θ with the true θ)
    on (a) the default prior, (b) the stress prior (``params.STRESS_PRIOR``: thrust-to-weight
-   1.5–2.5, τ_m 0.04–0.12 s, η down to 0.5, 3× the external torque) and (c) the paper vehicle,
-   each flying a 10 s lemniscate.
-2. Probe it (:func:`mjxsysid.probe.run_probe`) -> ``probe/weak.npz``.
+   1.5–2.5, τ_m 0.04–0.06 s, η down to 0.5, 2× the roll/pitch external torque), (c) the paper
+   vehicle and (d) the first, wider stress prior (``stress_wide``: τ_m to 0.12 s, where the
+   fixed-gain oracle itself fails; reported both ways), each flying a 10 s lemniscate; and the
+   latent's linear-probe R² on the default prior (thrust-to-weight, angular authority).
+2. Probe it (:func:`mjxsysid.probe.run_probe`) -> ``probe/weak.npz`` (systems the oracle flies).
 3. Train two policies with the same config and budget: **probed**, a fraction ``focus_weight``
    of episodes on the weak systems; **uniform** (the control), the same fraction on systems drawn
    uniformly from the stress prior, without probing — so the table shows what probing adds over
    naive widening.
-4. Evaluate both like the first.
+4. Evaluate both like the first, and all three on the first round's weak systems.
+5. Round 2: decoders for the probed policy (collect + train + calibration, the shipped
+   protocol), and a second probe of the probed policy with them.
 
 Success: the fraction of vehicles the policy did not lose. RMSE ratio: the policy's mean
 position RMSE over the oracle's, on the vehicles both flew to the end.
+
+Every stage writes its result under OUT before the next starts; a rerun with the same OUT and
+config reuses what is there (training resumes from its checkpoint), so the loop can be run in
+pieces (e.g. across GPU sessions of 10 minutes).
 """
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
 import time
 from pathlib import Path
@@ -25,14 +34,21 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.experiments.common import fmt_ms, markdown_table, mean_std, write_results
-from mjxsysid.policy.focus import save_weak
+from mjxsysid.cfm.pipeline import evaluate_decoders, train_decoders
+from mjxsysid.cfm.train import CFMConfig
+from mjxsysid.dataset.collect import collect, latents_in_flight
+from mjxsysid.experiments.common import fmt_ms, markdown_table, mean_std, to_jsonable, write_results
+from mjxsysid.policy.evaluate import env_rollout, latent_of_rollout
+from mjxsysid.policy.env import EnvConfig, TrainEnv
+from mjxsysid.policy.focus import load_weak, save_weak
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.policy.train import TrainConfig, train
-from mjxsysid.probe import ProbeConfig, run_probe
+from mjxsysid.probe import ProbeConfig, make_fly, run_probe, system_badness
+from mjxsysid.render.probe import plot_probe_loop
 from mjxsysid.rollout.flight import fly_vehicles
 
-SETS = ("default", "stress", "paper")
+SETS = ("default", "stress", "paper", "stress_wide")
+POLICIES = ("given", "probed", "uniform")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,19 +56,28 @@ class LoopConfig:
     """vehicles: per evaluation set (the paper vehicle is one); period: the lemniscate (s);
     focus_weight: the fraction of training episodes on weak (or, for the control, stress-prior)
     systems; control_systems: how many stress-prior systems the control draws; train: overrides
-    of the shipped TrainConfig (the budget: iterations, num_envs, ...)."""
+    of the shipped TrainConfig (the budget: iterations, num_envs, ...); latent_vehicles: vehicles
+    of the latent probe (0: skip); round2: decoders for the probed policy and a second probe;
+    pairs: (train, test) pairs collected for those decoders, ẑ read after collect_steps control
+    steps (the shipped decoders': 750, 1.5 s); decoder: overrides of CFMConfig."""
     vehicles: int = 1000
     period: float = 10.0
     focus_weight: float = 0.3
     control_systems: int = 4096
     probe: ProbeConfig = ProbeConfig()
     train: tuple = ()
+    latent_vehicles: int = 1000
+    round2: bool = True
+    pairs: tuple = (20_000, 2_000)
+    collect_steps: int = 750
+    decoder: tuple = ()
 
 
 FULL = LoopConfig()
 QUICK = LoopConfig(vehicles=8, period=5.0, control_systems=64, probe=ProbeConfig.quick(),
                    train=(("iterations", 4), ("num_envs", 64), ("unroll", 16), ("epochs", 2), ("minibatches", 4),
-                          ("log_every", 1), ("checkpoint_every", 2)))
+                          ("log_every", 1), ("checkpoint_every", 2)),
+                   latent_vehicles=64, pairs=(256, 64), collect_steps=150, decoder=(("epochs", 2), ("width", 64), ("blocks", 2)))
 
 
 def evaluate_on(policy, theta, *, period: float, seed: int = 0) -> dict:
@@ -64,21 +89,79 @@ def evaluate_on(policy, theta, *, period: float, seed: int = 0) -> dict:
     rp, ro = np.asarray(mp["pos_rmse_m"]), np.asarray(mo["pos_rmse_m"])
     ratio = float(rp[both].mean() / ro[both].mean()) if both.any() else None
     return {"n": int(len(theta)), "success_policy": float(1 - fp.mean()), "success_oracle": float(1 - fo.mean()),
+            "success_policy_where_oracle_flies": float(1 - fp[~fo].mean()) if (~fo).any() else None,
             "pos_rmse_policy": mean_std(rp[both]), "pos_rmse_oracle": mean_std(ro[both]),
             "rmse_ratio": ratio, "n_both": int(both.sum())}
 
 
+def latent_probe(policy, n: int, seed: int = 0, steps: int = 1000) -> dict | None:
+    """Linear-probe R² of the policy's latent on ``n`` default-prior vehicles flying the training
+    commands (as ``mjxsysid evaluate-policy``); None for a policy not trained by mjxsysid."""
+    if policy.kind != "mjxsysid" or n < 8:
+        return None
+    env = TrainEnv(EnvConfig(episode_steps=steps + 1))
+    lat = latent_of_rollout(env_rollout(env, policy.load().params, jax.random.PRNGKey(seed), n, steps, False))
+    idn = lat["probe_r2_identifiable"]
+    return {"r2_thrust_to_weight": idn["thrust_to_weight"],
+            "r2_authority": float(np.mean([idn[f"angular_authority[{i}]"] for i in range(3)])),
+            "r2_tau_m": lat["probe_r2_theta"]["motor_time_constant"], "z_err_rel": lat["z_err_rel"]}
+
+
 def eval_sets(policy, cfg: LoopConfig, seed: int) -> dict:
     key = jax.random.PRNGKey(seed + 17)
-    th = {"default": np.asarray(P.get_prior("default").sample(jax.random.fold_in(key, 0), cfg.vehicles)),
-          "stress": np.asarray(P.get_prior("stress").sample(jax.random.fold_in(key, 1), cfg.vehicles)),
-          "paper": P.PAPER_HARDWARE[None]}
-    return {k: evaluate_on(policy, th[k], period=cfg.period, seed=seed) for k in SETS}
+    th = {s: np.asarray(P.get_prior(s).sample(jax.random.fold_in(key, i), cfg.vehicles))
+          for i, s in enumerate(SETS) if s != "paper"}
+    th["paper"] = P.PAPER_HARDWARE[None]
+    res = {s: evaluate_on(policy, th[s], period=cfg.period, seed=seed) for s in SETS}
+    res["latent"] = latent_probe(policy, cfg.latent_vehicles, seed)
+    return res
+
+
+def on_weak_systems(policy, weak_theta, probe_cfg: ProbeConfig) -> dict:
+    """The policy on the probe's weak systems (its reference): badness (mean and per system
+    summary), how many it loses."""
+    failed, rmse_p, rmse_o = make_fly(policy, probe_cfg)(np.asarray(weak_theta, np.float32))
+    bad = system_badness(failed, rmse_p, rmse_o, fail_badness=probe_cfg.fail_badness,
+                         infeasible_badness=probe_cfg.infeasible_badness)
+    flown = np.isfinite(np.asarray(rmse_o))
+    return {"n": int(len(weak_theta)), "badness_mean": float(bad.mean()), "badness_median": float(np.median(bad)),
+            "policy_failures": int((np.asarray(failed)[flown] > 0.5).sum()), "oracle_flies": int(flown.sum())}
+
+
+class _Stages:
+    """Each stage's result as OUT/stages/NAME.json, reused when there (the loop resumes)."""
+
+    def __init__(self, out: Path, log):
+        self.dir, self.log, self.wall = out / "stages", log, {}
+        self.dir.mkdir(parents=True, exist_ok=True)
+
+    def __call__(self, name: str, fn):
+        path = self.dir / f"{name}.json"
+        if path.is_file():
+            self.log(f"probe-loop: {name}: reusing {path}")
+            rec = json.loads(path.read_text())
+        else:
+            t = time.time()
+            rec = {"result": to_jsonable(fn()), "wall_s": None}
+            rec["wall_s"] = time.time() - t
+            path.write_text(json.dumps(rec, indent=1) + "\n")
+        self.wall[name] = rec["wall_s"]
+        return rec["result"]
+
+
+def _check_config(out: Path, cfg_dict: dict, resume: bool):
+    path = out / "loop_config.json"
+    if path.is_file() and resume:
+        if json.loads(path.read_text()) != cfg_dict:
+            raise ValueError(f"{out} holds a probe-loop run with another config or policy; use a new --out")
+    else:
+        path.write_text(json.dumps(cfg_dict, indent=1) + "\n")
 
 
 def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool = True, decoders=None,
-        cfg: LoopConfig | None = None) -> dict:
-    """Probe, retrain (probed and uniform control), evaluate all three policies; returns the results dict."""
+        cfg: LoopConfig | None = None, resume: bool = True) -> dict:
+    """Probe, retrain (probed and uniform control), evaluate all three policies, probe the probed
+    one again with its own decoders; returns the results dict."""
     t0 = time.time()
     out = Path(out)
     log = (lambda m: print(m, file=sys.stderr, flush=True)) if progress else (lambda m: None)
@@ -86,46 +169,129 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     if not 0.0 < cfg.focus_weight <= 1.0:
         raise ValueError(f"focus_weight must be in (0, 1], got {cfg.focus_weight}")
     ref = resolve_policy(policy or "mjxsysid")
-    log(f"probe-loop: evaluating {ref.label} on {cfg.vehicles} default-prior and stress-prior vehicles")
-    ev = {"given": eval_sets(ref, cfg, seed)}
+    cfg_dict = to_jsonable({"quick": quick, "seed": seed, "policy": ref.label, "policy_sha256": ref.sha256(),
+                            "decoders": None if decoders is None else str(decoders), **dataclasses.asdict(cfg)})
+    out.mkdir(parents=True, exist_ok=True)
+    _check_config(out, json.loads(json.dumps(cfg_dict)), resume)
+    stage = _Stages(out, log)
+    probe_cfg = dataclasses.replace(cfg.probe, seed=seed)
+
+    log(f"probe-loop: evaluating {ref.label} on {cfg.vehicles} vehicles of each set")
+    ev = {"given": stage("eval_given", lambda: eval_sets(ref, cfg, seed))}
     log("probe-loop: probing")
-    probe = run_probe(out / "probe", dataclasses.replace(cfg.probe, seed=seed), policy=ref, decoders=decoders, echo=log)
+    probe = stage("probe", lambda: run_probe(out / "probe", probe_cfg, policy=ref, decoders=decoders, echo=log))
+    weak_theta, _ = load_weak(out / "probe" / "weak.npz")
     stress = np.asarray(P.get_prior("stress").sample(jax.random.PRNGKey(seed + 29), cfg.control_systems))
     save_weak(out / "uniform_stress.npz", stress, meta={"found_by": "uniform draws of the stress prior (control)"})
     base = TrainConfig.from_dict({**TrainConfig().to_dict(), **dict(cfg.train), "seed": seed})
     base = dataclasses.replace(base, env=dataclasses.replace(base.env, focus_weight=cfg.focus_weight))
     runs = {"probed": out / "probe" / "weak.npz", "uniform": out / "uniform_stress.npz"}
-    train_wall = {}
+    refs = {"given": ref}
     for name, focus in runs.items():
-        log(f"probe-loop: training the {name} policy ({base.iterations} iterations, {cfg.focus_weight:.0%} of "
-            f"episodes on {focus.name})")
-        res = train(dataclasses.replace(base, focus=str(focus)), out / name, log=log)
-        train_wall[name] = res["wall_s"]
-        ev[name] = eval_sets(resolve_policy(out / name / "policy.npz"), cfg, seed)
-    numbers = {"evaluation": ev, "probe": {k: probe[k] for k in ("anchor_badness_mean", "weak_badness", "quantities")},
-               "train_wall_s": train_wall}
+        def _train(name=name, focus=focus):
+            log(f"probe-loop: training the {name} policy ({base.iterations} iterations, {cfg.focus_weight:.0%} of "
+                f"episodes on {focus.name})")
+            return train(dataclasses.replace(base, focus=str(focus)), out / name, log=log)["wall_s"]
+        stage(f"train_{name}", _train)
+        refs[name] = resolve_policy(out / name / "policy.npz")
+        ev[name] = stage(f"eval_{name}", lambda name=name: eval_sets(refs[name], cfg, seed))
+    on_weak = {p: stage(f"weak_{p}", lambda p=p: on_weak_systems(refs[p], weak_theta, probe_cfg)) for p in POLICIES}
+
+    round2 = None
+    if cfg.round2:
+        dec = out / "probed" / "decoders"
+        n_train, n_test = cfg.pairs
+        stage("pairs_probed", lambda: str(collect(dec / "data", policy=refs["probed"], n_train=n_train,
+                                                  n_test=n_test, seed=seed, steps=cfg.collect_steps,
+                                                  log=log)))
+        dcfg = dataclasses.replace(CFMConfig(), **dict(cfg.decoder))
+        stage("decoders_probed", lambda: {k: {kk: v[kk] for kk in ("wall_s", "final_val_loss")} for k, v in
+                                          train_decoders(dec / "data", dec, dcfg, kinds=("cfm", "regression"),
+                                                         log=log).items()})
+
+        def _calibrate():
+            z, _ = latents_in_flight(refs["probed"], np.repeat(P.PAPER_HARDWARE[None], 2, 0), jax.random.PRNGKey(0))
+            rep = evaluate_decoders(dec, dec / "data", paper_zhat=z[0], log=log,
+                                    n_cases=min(1000, n_test), n_samples=200)
+            return {k: rep[k] for k in ("coverage_identifiable", "coverage_mean", "calibrated_within_5_points",
+                                        "energy_score")}
+        calib = stage("calibration_probed", _calibrate)
+        probe2 = stage("probe_round2", lambda: run_probe(out / "probe_round2", probe_cfg, policy=refs["probed"],
+                                                         decoders=dec, echo=log))
+        round2 = {"calibration": calib, "probe": _probe_summary(probe2)}
+
+    numbers = {"evaluation": ev, "probe": _probe_summary(probe), "on_round1_weak_systems": on_weak,
+               "round2": round2, "stage_wall_s": stage.wall}
     numbers["headline"] = {f"{p}_{s}_rmse_ratio": ev[p][s]["rmse_ratio"] for p in ev for s in ("default", "stress")}
     numbers["headline"].update({f"{p}_stress_success": ev[p]["stress"]["success_policy"] for p in ev})
-    numbers["targets"] = {
-        "stress_success_ge_0.99": ev["probed"]["stress"]["success_policy"] >= 0.99,
-        "stress_rmse_le_1.3x_oracle": (ev["probed"]["stress"]["rmse_ratio"] or np.inf) <= 1.3,
-        "probed_beats_uniform_on_stress": (ev["probed"]["stress"]["rmse_ratio"] or np.inf)
-        < (ev["uniform"]["stress"]["rmse_ratio"] or np.inf),
-        "default_success_ge_0.99": ev["probed"]["default"]["success_policy"] >= 0.99,
-        "default_rmse_le_1.05x_oracle": (ev["probed"]["default"]["rmse_ratio"] or np.inf) <= 1.05,
-    }
+    numbers["targets"] = _targets(ev, round2)
+    plot_probe_loop(ev, on_weak, out / "probe_loop.png")
+    return write_results(out, "probe-loop", config=cfg_dict, seeds={"seed": seed}, numbers=numbers,
+                         table_md=_table(ev, ref.label, on_weak, round2, probe), t0=t0, policy=ref,
+                         notes=_notes(numbers, base, cfg))
+
+
+def _probe_summary(p: dict) -> dict:
+    return {k: p.get(k) for k in ("anchor_badness_mean", "weak_badness", "weak_systems", "weak_decoded",
+                                  "weak_policy_failures", "quantities", "wall_s")}
+
+
+def _ratio(e):
+    return np.inf if e["rmse_ratio"] is None else e["rmse_ratio"]
+
+
+def _targets(ev: dict, round2: dict | None) -> dict:
+    pr, un = ev["probed"], ev["uniform"]
+    t = {"stress_success_ge_0.99": pr["stress"]["success_policy"] >= 0.99,
+         "stress_rmse_le_1.3x_oracle": _ratio(pr["stress"]) <= 1.3,
+         "probed_beats_uniform_on_stress": _ratio(pr["stress"]) < _ratio(un["stress"]),
+         "default_success_ge_0.99": pr["default"]["success_policy"] >= 0.99,
+         "default_rmse_le_1.05x_oracle": _ratio(pr["default"]) <= 1.05}
+    if pr.get("latent"):
+        t["default_twr_r2_ge_0.9"] = pr["latent"]["r2_thrust_to_weight"] >= 0.9
+    if round2:
+        cov = round2["calibration"]["coverage_identifiable"]
+        t["decoders_identifiable_90pct_within_5_points"] = all(abs(v[1] - 0.9) <= 0.05 for v in cov.values())
+    return t
+
+
+def _table(ev, label, on_weak, round2, probe) -> str:
     rows = []
-    for p, label in (("given", f"given ({ref.label})"), ("probed", "probed + retrained"), ("uniform", "uniform widening (control)")):
+    names = (("given", f"given ({label})"), ("probed", "probed + retrained"), ("uniform", "uniform widening (control)"))
+    for p, name in names:
         for s in SETS:
             e = ev[p][s]
-            rows.append([label, s, f"{e['success_policy']:.1%} (oracle {e['success_oracle']:.1%})",
+            rows.append([name, s, f"{e['success_policy']:.1%} (oracle {e['success_oracle']:.1%})",
                          fmt_ms(e["pos_rmse_policy"]), fmt_ms(e["pos_rmse_oracle"]),
                          "–" if e["rmse_ratio"] is None else f"{e['rmse_ratio']:.2f}×"])
-    table = markdown_table(["policy", "vehicles", "success", "pos RMSE m (both flew)", "oracle pos RMSE m", "ratio"], rows)
-    notes = (f"Probe: anchors' badness {probe['anchor_badness_mean']:.2f}, weak latents "
-             f"{', '.join(f'{b:.2f}' for b in probe['weak_badness'][:4])} (probe/results.md). Both retrained "
-             f"policies: the shipped config, {base.iterations} iterations × {base.num_envs} envs, {cfg.focus_weight:.0%} "
-             f"of episodes on their systems. Targets (issue 18): " + ", ".join(f"{k} {'met' if v else 'missed'}"
-                                                                             for k, v in numbers["targets"].items()))
-    return write_results(out, "probe-loop", config={"quick": quick, **dataclasses.asdict(cfg)}, seeds={"seed": seed},
-                         numbers=numbers, table_md=table, t0=t0, policy=ref, notes=notes)
+    md = markdown_table(["policy", "vehicles", "success", "pos RMSE m (both flew)", "oracle pos RMSE m", "ratio"], rows)
+    rows = []
+    for p, name in names:
+        lat, w = ev[p].get("latent"), on_weak[p]
+        rows.append([name, "–" if not lat else f"{lat['r2_thrust_to_weight']:.3f}",
+                     "–" if not lat else f"{lat['r2_authority']:.3f}",
+                     f"{w['badness_mean']:.2f}", f"{w['policy_failures']}/{w['oracle_flies']}"])
+    md += "\n\nLatent (default prior, training commands) and the first probe round's weak systems:\n\n"
+    md += markdown_table(["policy", "R² thrust-to-weight", "R² angular authority",
+                          "badness on round-1 weak systems", "lost of those the oracle flies"], rows)
+    if round2:
+        p2, c = round2["probe"], round2["calibration"]
+        md += ("\n\nProbe rounds (same search budget): round 1 on the given policy, anchors' badness "
+               f"{probe['anchor_badness_mean']:.2f}, best weak latents {_first(probe['weak_badness'])}; round 2 on the "
+               f"probed policy with its own decoders, anchors {p2['anchor_badness_mean']:.2f}, best weak latents "
+               f"{_first(p2['weak_badness'])}. The probed policy's decoders: 90 % coverage of the identifiable "
+               "combinations " + ", ".join(f"{k} {v[1]:.3f}" for k, v in c["coverage_identifiable"].items())
+               + f"; parameters within ±5 points at 90 %: {c['calibrated_within_5_points']['90%']}/"
+               f"{c['calibrated_within_5_points']['of']}.\n")
+    return md
+
+
+def _first(b, k=4):
+    return ", ".join(f"{x:.2f}" for x in b[:k])
+
+
+def _notes(numbers, base, cfg) -> str:
+    return (f"Both retrained policies: the shipped config, {base.iterations} iterations × {base.num_envs} envs, "
+            f"{cfg.focus_weight:.0%} of episodes on their systems (probed: the decoded weak systems the oracle flies; "
+            f"control: uniform stress-prior draws). Targets (issue 18): "
+            + ", ".join(f"{k} {'met' if v else 'missed'}" for k, v in numbers["targets"].items()) + ".")

@@ -95,6 +95,13 @@ def latent_health(z_theta, zhat, theta_norm, theta) -> dict:
     }
 
 
+def latent_of_rollout(r: dict) -> dict:
+    """:func:`latent_health` of a policy's :func:`env_rollout`, leaving out the vehicles reset in
+    the last 0.4 s (their history has not filled)."""
+    ok = np.asarray(r["episode_step"]) >= 200
+    return latent_health(r["z_theta"][ok], r["zhat"][ok], r["theta_norm"][ok], r["theta"][ok])
+
+
 def closed_loop(controller: PolicyController, theta, *, period=10.0, seed=0, sim=None):
     """Policy under the baseline cascade on the lemniscate. theta (n, 19) -> metrics (n,)."""
     theta = np.asarray(theta, np.float32)
@@ -132,9 +139,7 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
             "thrust_err_mean_m_s2": float(np.mean(r["thrust_err"][settle:])),
             "failures_per_vehicle_s": float(np.sum(r["failed"]) / (n * steps * 0.002)),
         }
-    r = res["policy"]
-    ok = np.asarray(r["episode_step"]) >= 200  # no reset in the last 0.4 s
-    out["latent"] = latent_health(r["z_theta"][ok], r["zhat"][ok], r["theta_norm"][ok], r["theta"][ok])
+    out["latent"] = latent_of_rollout(res["policy"])
 
     st.start("lemniscate")
     log(f"[2/4] closed loop, 10 s lemniscate, baseline gains, {n} prior vehicles")

@@ -5,7 +5,8 @@ of the latents of prior vehicles); :mod:`~mjxsysid.probe.closed_loop` its score 
 into physical systems and fly them with the policy and the oracle — and :func:`run_probe`, which
 writes the weak systems (``weak.npz``, the input of ``mjxsysid train-policy --focus``) and a report.
 """
-from mjxsysid.probe.closed_loop import ProbeConfig, closed_loop_badness, run_probe
+from mjxsysid.probe.closed_loop import ProbeConfig, closed_loop_badness, make_fly, run_probe, system_badness
 from mjxsysid.probe.search import SearchConfig, latent_search
 
-__all__ = ["SearchConfig", "latent_search", "ProbeConfig", "closed_loop_badness", "run_probe"]
+__all__ = ["SearchConfig", "latent_search", "ProbeConfig", "closed_loop_badness", "make_fly", "run_probe",
+           "system_badness"]
