@@ -100,21 +100,25 @@ def test_probe_loop_is_registered_and_checks_its_config_first(tmp_path):
 
 @pytest.mark.slow
 def test_probe_loop_quick_end_to_end(tmp_path):
-    """`mjxsysid experiment probe-loop --quick` (≈ 3 min on 2 CPU cores): probe, two tiny
-    retrained policies, three evaluations, decoders and a second probe for the probed policy,
-    the results files; a rerun reuses every stage; another config in the same folder is refused."""
+    """`mjxsysid experiment probe-loop --quick` (≈ 4 min on 2 CPU cores): two rounds of probe →
+    tiny retrained policy (the second with its predecessor's own decoders), the control, four
+    evaluations, a last probe, the results files; a rerun reuses every stage; another config in
+    the same folder is refused."""
+    from mjxsysid.policy.focus import load_weak
     out = tmp_path / "loop"
     assert main(["experiment", "probe-loop", "--quick", "--out", str(out), "-q"]) == 0
     r = json.loads((out / "results.json").read_text())
     ev, num = r["numbers"]["evaluation"], r["numbers"]
-    assert set(ev) == {"given", "probed", "uniform"}
+    assert list(ev) == ["given", "probed", "probed2", "uniform"] and num["final_policy"] == "probed2"
     assert set(ev["given"]) == {"default", "stress", "paper", "stress_wide", "latent"}
     assert ev["given"]["default"]["success_policy"] == 1.0          # the shipped policy on its own prior
     assert 0.5 < ev["given"]["latent"]["r2_thrust_to_weight"] <= 1.0
-    assert set(num["on_round1_weak_systems"]) == {"given", "probed", "uniform"}
-    assert num["round2"]["probe"]["weak_systems"] >= 1 and "coverage_identifiable" in num["round2"]["calibration"]
+    assert set(num["on_weak_systems"]) == {"1", "2"} and set(num["on_weak_systems"]["2"]) == set(ev)
+    assert set(num["probes"]) == {"1", "2", "3"} and set(num["calibration"]) == {"probed", "probed2"}
+    n1, n2 = (len(load_weak(out / d / "weak.npz")[0]) for d in ("probe", "probe_round2"))
+    assert len(load_weak(out / "focus_round2.npz")[0]) == n1 + n2   # round 2 trains on both rounds' systems
     for f in ("probe/weak.npz", "uniform_stress.npz", "probed/policy.npz", "uniform/policy.npz", "results.md",
-              "probe_loop.png", "probed/decoders/cfm.npz", "probe_round2/weak.npz"):
+              "probe_loop.png", "probed/decoders/cfm.npz", "probed2/policy.npz", "probe_round3/weak.npz"):
         assert (out / f).is_file(), f
     from mjxsysid.experiments.probe_loop import QUICK, run
     t = (out / "stages" / "train_probed.json").stat().st_mtime

@@ -49,15 +49,15 @@ def plot_weak_vs_prior(weak_theta, prior_theta, path, *, title="weak systems vs 
 
 
 def plot_probe_loop(ev: dict, on_weak: dict, path):
-    """The probe loop at a glance: per policy (given, probed, uniform control) and evaluation set,
-    the RMSE ratio to the oracle (bars; success under each bar where below 100 %), and the
-    badness on the first probe round's weak systems."""
+    """The probe loop at a glance: per policy (the given one, each round's probed one, the uniform
+    control) and evaluation set, the RMSE ratio to the oracle (bars; the success rate in the bar
+    where below 100 %), and each policy's mean badness on each probe round's weak systems."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    policies = [p for p in ("given", "probed", "uniform") if p in ev]
+    policies = list(ev)
     sets = [s for s in ("default", "stress", "stress_wide", "paper") if s in ev[policies[0]]]
-    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(12, 4.2), gridspec_kw={"width_ratios": [3, 1]})
+    fig, (ax, ax2) = plt.subplots(1, 2, figsize=(13, 4.4), gridspec_kw={"width_ratios": [3, 1.4]})
     w = 0.8 / len(policies)
     for i, p in enumerate(policies):
         x = np.arange(len(sets)) + (i - (len(policies) - 1) / 2) * w
@@ -66,19 +66,23 @@ def plot_probe_loop(ev: dict, on_weak: dict, path):
         for xx, s in zip(x, sets):
             succ = ev[p][s]["success_policy"]
             if succ < 1:
-                ax.text(xx, 0.05, f"{succ:.0%}", ha="center", va="bottom", fontsize=7, rotation=90, color="w")
+                ax.text(xx, 0.05, f"{succ:.1%}", ha="center", va="bottom", fontsize=7, rotation=90, color="w")
     ax.axhline(1.0, color="k", lw=0.8, ls="--")
-    ax.axhline(1.3, color="C3", lw=0.8, ls=":", label="1.3× target (stress)")
+    ax.axhline(1.3, color="C3", lw=0.8, ls=":", label="1.3× (stress target)")
     ax.set_xticks(np.arange(len(sets)))
     ax.set_xticklabels(sets)
     ax.set_ylabel("position RMSE / oracle's (both flew)")
     ax.legend(fontsize=8)
     ax.set_title("10 s lemniscate vs the oracle K_θ (success rate in the bar where < 100 %)", fontsize=9)
-    ax2.bar(np.arange(len(policies)), [on_weak[p]["badness_mean"] for p in policies],
-            color=[f"C{i}" for i in range(len(policies))])
-    ax2.set_xticks(np.arange(len(policies)))
-    ax2.set_xticklabels(policies)
-    ax2.set_title("badness on round-1 weak systems", fontsize=9)
+    rounds = sorted(on_weak)
+    w2 = 0.8 / len(policies)
+    for i, p in enumerate(policies):
+        x = np.arange(len(rounds)) + (i - (len(policies) - 1) / 2) * w2
+        ax2.bar(x, [on_weak[r][p]["badness_mean"] for r in rounds], w2, color=f"C{i}")
+    ax2.axhline(1.0, color="k", lw=0.8, ls="--")
+    ax2.set_xticks(np.arange(len(rounds)))
+    ax2.set_xticklabels([f"round {r}" for r in rounds])
+    ax2.set_title("mean badness on each round's weak systems", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
