@@ -109,12 +109,12 @@ def test_probe_loop_quick_end_to_end(tmp_path):
     assert main(["experiment", "probe-loop", "--quick", "--out", str(out), "-q"]) == 0
     r = json.loads((out / "results.json").read_text())
     ev, num = r["numbers"]["evaluation"], r["numbers"]
-    assert list(ev) == ["given", "probed", "probed2", "uniform"] and num["final_policy"] == "probed2"
+    assert list(ev) == ["given", "probed", "probed2", "probed3", "uniform"] and num["final_policy"] == "probed3"
     assert set(ev["given"]) == {"default", "stress", "paper", "stress_wide", "latent"}
     assert ev["given"]["default"]["success_policy"] == 1.0          # the shipped policy on its own prior
     assert 0.5 < ev["given"]["latent"]["r2_thrust_to_weight"] <= 1.0
-    assert set(num["on_weak_systems"]) == {"1", "2"} and set(num["on_weak_systems"]["2"]) == set(ev)
-    assert set(num["probes"]) == {"1", "2", "3"} and set(num["calibration"]) == {"probed", "probed2"}
+    assert set(num["on_weak_systems"]) == {"1", "2", "3"} and set(num["on_weak_systems"]["2"]) == set(ev)
+    assert set(num["probes"]) == {"1", "2", "3", "4"} and set(num["calibration"]) == {"probed", "probed2", "probed3"}
     n1, n2 = (len(load_weak(out / d / "weak.npz")[0]) for d in ("probe", "probe_round2"))
     assert len(load_weak(out / "focus_round2.npz")[0]) == n1 + n2   # round 2 trains on both rounds' systems
     for f in ("probe/weak.npz", "uniform_stress.npz", "probed/policy.npz", "uniform/policy.npz", "results.md",

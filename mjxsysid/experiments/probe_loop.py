@@ -72,7 +72,7 @@ class LoopConfig:
     probe: ProbeConfig = ProbeConfig()
     train: tuple = ()
     latent_vehicles: int = 1000
-    rounds: int = 2
+    rounds: int = 3
     final_probe: bool = True
     pairs: tuple = (20_000, 2_000)
     collect_steps: int = 750
