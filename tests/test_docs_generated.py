@@ -31,3 +31,22 @@ def test_documentation_site_builds_strictly(tmp_path):
                  "notebooks/00_quickstart/index.html", "benchmarks/index.html"):
         assert (site / page).is_file(), page
     assert "train_cfm" in (site / "reference/cfm/index.html").read_text()      # the reference has content
+
+
+def test_probing_page_quotes_the_probe_loop_run():
+    """docs/probing.md's table quotes docs/runs/probe_loop/results.json: every policy's success and
+    RMSE ratio on the default and stress priors, its T/W R², and the targets met or missed."""
+    import json
+    r = json.loads((ROOT / "docs" / "runs" / "probe_loop" / "results.json").read_text())["numbers"]
+    text = (ROOT / "docs" / "probing.md").read_text()
+    names = {"given": "given (shipped)", "probed": "probed, round 1", "probed2": "probed, round 2",
+             "probed3": "probed, round 3", "uniform": "uniform widening (control)"}
+    rows = {line.split("|")[1].strip(): line for line in text.splitlines() if line.startswith("| ")}
+    for p, ev in r["evaluation"].items():
+        row = rows[names[p]]
+        for s in ("default", "stress", "stress_wide"):
+            assert f"{ev[s]['rmse_ratio']:.2f}×" in row, (p, s, row)
+            assert f"{100 * ev[s]['success_policy']:.1f} %".replace(".0 %", " %") in row, (p, s, row)
+        assert f"{ev['latent']['r2_thrust_to_weight']:.3f}" in row, (p, row)
+    assert r["final_policy"] == "probed3" and not r["targets"]["probed_beats_uniform_on_stress"]
+    assert "1.34× — **missed**" in text and "1.09×" in text
