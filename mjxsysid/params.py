@@ -385,14 +385,15 @@ WIDE_ACTUATOR_PRIOR = Prior(name="wide_actuators", motor_time_constant=(0.02, 0.
 # default's floor is 2.2), every rotor alone still lifting ≥ 1.5× its share of the weight (as in
 # the default prior), motors up to 1.5× slower than the default's slowest (τ_m 0.04–0.06 s), motor
 # effectiveness down to 0.5 (a worn motor), 2× the roll/pitch external torque and 1.2× the yaw
-# torque. Measured on 256 draws, 10 s lemniscate: the oracle flies 98 %, the shipped policy 100 %
-# at 1.6× the oracle's RMSE (docs/probing.md).
+# torque. On the probe-loop run's 1,000 draws (10 s lemniscate): the oracle flies 97.5 %, the
+# shipped policy 99.5 % at 1.59× the oracle's RMSE (docs/probing.md).
 STRESS_PRIOR = Prior(name="stress", twr=(1.5, 2.5), twr_min_eff=1.5, motor_time_constant=(0.04, 0.06),
                      eta=(0.5, 1.3), ext_torque_xy=0.04, ext_torque_z=0.12)
 # The first stress prior (τ_m to 0.12 s, rotors down to 1.2× their share, 3× the roll/pitch
 # torque): kept to report both ways. Past τ_m ≈ 0.06 s the fixed-gain K_θ oracle itself fails
-# (its 40 rad/s rate loop outruns the motors): on 128 draws it lost 55 % of the vehicles, the
-# shipped policy 44 %, so a ratio to the oracle says little there.
+# (its 40 rad/s rate loop outruns the motors): of the probe-loop run's 1,000 draws it flew 41.9 %,
+# the shipped policy 52.4 %, so a ratio to the oracle says little there
+# (tools/stress_prior_oracle.py: which edge costs the oracle what).
 STRESS_WIDE_PRIOR = Prior(name="stress_wide", twr=(1.5, 2.5), twr_min_eff=1.2, motor_time_constant=(0.04, 0.12),
                           eta=(0.5, 1.3), ext_torque_xy=0.06, ext_torque_z=0.12)
 

@@ -12,9 +12,9 @@ import json
 from pathlib import Path
 
 from mjxsysid.experiments.common import to_jsonable
-from mjxsysid.experiments.probe_loop import FULL, eval_sets
+from mjxsysid.experiments.probe_loop import FULL, eval_sets, train_config
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.policy.train import TrainConfig, train
+from mjxsysid.policy.train import train
 
 
 def main():
@@ -34,9 +34,7 @@ def main():
             key = f"{name}_seed{seed}"
             if key in res:
                 continue
-            base = TrainConfig.from_dict({**TrainConfig().to_dict(), "seed": seed, "focus": str(focus[name])})
-            base = dataclasses.replace(base, env=dataclasses.replace(base.env, focus_weight=FULL.focus_weight))
-            train(base, args.out / key)
+            train(train_config(FULL, seed, focus[name]), args.out / key)
             ev = eval_sets(resolve_policy(args.out / key / "policy.npz"), cfg, 0)
             res[key] = to_jsonable(ev)
             args.out.mkdir(parents=True, exist_ok=True)

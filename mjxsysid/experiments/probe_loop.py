@@ -86,6 +86,15 @@ QUICK = LoopConfig(vehicles=8, period=5.0, control_systems=64, probe=ProbeConfig
                    latent_vehicles=64, pairs=(256, 64), collect_steps=150, decoder=(("epochs", 2), ("width", 64), ("blocks", 2)))
 
 
+def train_config(cfg: LoopConfig, seed: int, focus=None) -> TrainConfig:
+    """What every policy of the loop is trained with: the shipped TrainConfig with ``cfg.train``'s
+    overrides, ``seed``, and a fraction ``cfg.focus_weight`` of episodes on the systems of the
+    weak-system file ``focus``."""
+    base = TrainConfig.from_dict({**TrainConfig().to_dict(), **dict(cfg.train), "seed": seed,
+                                  "focus": None if focus is None else str(focus)})
+    return dataclasses.replace(base, env=dataclasses.replace(base.env, focus_weight=cfg.focus_weight))
+
+
 def evaluate_on(policy, theta, *, period: float, seed: int = 0) -> dict:
     """The policy and the oracle on θ (n, 19), a ``period`` s lemniscate, one period."""
     _, mp, _ = fly_vehicles(theta, controller="policy", policy=policy, reference="lemniscate", period=period, seed=seed)
@@ -191,18 +200,17 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     cfg_dict = to_jsonable({"quick": quick, "seed": seed, "policy": ref.label, "policy_sha256": ref.sha256(),
                             "decoders": None if decoders is None else str(decoders), **dataclasses.asdict(cfg)})
     out.mkdir(parents=True, exist_ok=True)
-    _check_config(out, json.loads(json.dumps(cfg_dict)), resume)
+    _check_config(out, cfg_dict, resume)
     stage = _Stages(out, log)
     probe_cfg = dataclasses.replace(cfg.probe, seed=seed)
-    base = TrainConfig.from_dict({**TrainConfig().to_dict(), **dict(cfg.train), "seed": seed})
-    base = dataclasses.replace(base, env=dataclasses.replace(base.env, focus_weight=cfg.focus_weight))
+    base = train_config(cfg, seed)
     refs, ev, probes, calib = {"given": ref}, {}, {}, {}
 
     def trained(name: str, focus: Path):
         def _train():
             log(f"probe-loop: training the {name} policy ({base.iterations} iterations, {cfg.focus_weight:.0%} of "
                 f"episodes on {focus.name})")
-            return train(dataclasses.replace(base, focus=str(focus)), out / name, log=log)["wall_s"]
+            return train(train_config(cfg, seed, focus), out / name, log=log)["wall_s"]
         stage(f"train_{name}", _train)
         refs[name] = resolve_policy(out / name / "policy.npz")
         ev[name] = stage(f"eval_{name}", lambda: eval_sets(refs[name], cfg, seed))

@@ -95,7 +95,7 @@ def system_badness(failed, rmse_policy, rmse_oracle, *, fail_badness: float = 5.
     ``fail_badness`` where the policy failed, else the policy's RMSE over the oracle's."""
     failed, rmse_p, rmse_o = (np.asarray(a, np.float64) for a in (failed, rmse_policy, rmse_oracle))
     flown = np.isfinite(rmse_o)
-    ratio = np.where(flown & (rmse_o > 0), rmse_p / np.maximum(np.where(flown, rmse_o, 1.0), 1e-3), 1.0)
+    ratio = rmse_p / np.maximum(np.where(flown, rmse_o, 1.0), 1e-3)
     return np.where(~flown, infeasible_badness, np.where(failed > 0.5, fail_badness, ratio))
 
 
@@ -157,8 +157,9 @@ def run_probe(out, cfg: ProbeConfig = ProbeConfig(), *, policy="mjxsysid", weigh
     if not flyable.any():
         raise RuntimeError(f"probe: the oracle flies none of the {len(weak_theta)} decoded weak systems; "
                            f"nothing to train on (try another --reference or more --samples)")
+    lost = int((np.asarray(failed_w)[flyable] > 0.5).sum())
     echo(f"probe: {int(flyable.sum())} of {len(weak_theta)} decoded weak systems are flown by the oracle; "
-         f"the policy loses {int((np.asarray(failed_w)[flyable] > 0.5).sum())} of those")
+         f"the policy loses {lost} of those")
     weak_theta, weak_z = np.asarray(weak_theta)[flyable], weak_z[flyable]
     meta = {"found_by": "mjxsysid probe", "policy": ref.label, "config": _jsonable(dataclasses.asdict(cfg)),
             "badness": res["score"].tolist()}
@@ -173,7 +174,7 @@ def run_probe(out, cfg: ProbeConfig = ProbeConfig(), *, policy="mjxsysid", weigh
     result = {"config": meta["config"], "policy": ref.label, "anchors_flown": int(cfg.anchors),
               "anchors_used": int(len(anchors)), "anchor_badness_mean": float(np.mean(base)),
               "weak_badness": res["score"].tolist(), "history": res["history"], "weak_systems": int(len(weak_theta)),
-              "weak_decoded": int(len(flyable)), "weak_policy_failures": int((np.asarray(failed_w)[flyable] > 0.5).sum()),
+              "weak_decoded": int(len(flyable)), "weak_policy_failures": lost,
               "quantities": summary, "device": str(jax.devices()[0]), "wall_s": time.time() - t0}
     (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
     (out / "results.md").write_text(_markdown(result))
@@ -189,9 +190,8 @@ def _markdown(r: dict) -> str:
              f"Badness (policy RMSE / oracle RMSE over the decoded systems; a policy failure counts "
              f"{r['config']['fail_badness']}): anchors {r['anchor_badness_mean']:.2f} on average, the weak latents "
              f"{', '.join(f'{b:.2f}' for b in r['weak_badness'][:8])}. A system the oracle cannot fly counts "
-             f"{r['config'].get('infeasible_badness', 1.0)}. Decoded weak systems: {r.get('weak_decoded', r['weak_systems'])}, "
-             f"of which the oracle flies {r['weak_systems']} (kept; the policy loses "
-             f"{r.get('weak_policy_failures', '?')} of them).", "",
+             f"{r['config']['infeasible_badness']}. Decoded weak systems: {r['weak_decoded']}, of which the oracle "
+             f"flies {r['weak_systems']} (kept; the policy loses {r['weak_policy_failures']} of them).", "",
              "| quantity | weak systems: median (5–95 %) | training prior: median (5–95 %) |", "|---|---|---|"]
     for name, q in r["quantities"].items():
         lines.append(f"| {name} | {q['weak_median']:.3g} ({q['weak_q05']:.3g} – {q['weak_q95']:.3g}) "
