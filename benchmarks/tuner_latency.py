@@ -57,17 +57,18 @@ def main(argv=None):
         from mjxsysid.tune import tuner as T
         carry = T._start(sim, *T._axes(low))(jnp.asarray(theta), low, refs,
                                              jnp.stack([jax.random.split(jax.random.PRNGKey(0), 2)] * b))
-        motor = jnp.asarray(tf.flight.frame.motor_cmd[:, -1])
+        hist = T.push_history(T.empty_history(cfg.window(sim.config.dt), b), jnp.asarray(tf.flight.frame.motor_cmd))
+        incumbent = jnp.broadcast_to(jnp.asarray(tf.gains[:, -1]), (b, 8))
         tuner = OnlineTuner(sim, a.method, cfg, dec)
         state = tuner.init(b)
         t0 = time.perf_counter()
-        out = tuner.update(low, theta, refs, carry, motor, 150, state, jax.random.PRNGKey(2))
+        out = tuner.update(low, theta, refs, carry, hist, incumbent, 150, state, jax.random.PRNGKey(2))
         jax.block_until_ready(out)
         compile_s = time.perf_counter() - t0
         best = np.inf
         for r in range(a.repeats):
             t0 = time.perf_counter()
-            out = tuner.update(low, theta, refs, carry, motor, 150, state, jax.random.PRNGKey(3 + r))
+            out = tuner.update(low, theta, refs, carry, hist, incumbent, 150, state, jax.random.PRNGKey(3 + r))
             jax.block_until_ready(out)
             best = min(best, time.perf_counter() - t0)
         steps = b * a.models * a.candidates * a.iterations * cfg.steps(sim.config.dt)[1]

@@ -114,6 +114,47 @@ def test_fixed_gains_through_the_tuned_loop_equal_fly_batch(paper_policy):
     np.testing.assert_allclose(tf.update_times, 0.1 * np.arange(20), atol=1e-6)
 
 
+@pytest.fixture(scope="module")
+def policy_flights(paper_policy):
+    """1000-step (2 s) policy lemniscates under the Baseline gains (the compile of the test above)
+    of the paper vehicle (τ_m 0.03 s) and of the same vehicle with slow motors (τ_m 0.09 s)."""
+    sim, ref = paper_policy
+    slow = P.PAPER_HARDWARE.copy()
+    slow[P.TAU_M] = 0.09
+    out = {}
+    for name, th in (("paper", P.PAPER_HARDWARE), ("slow", slow)):
+        fb = fly_batch(sim, th[None], ref.batched(1), broadcast(Cascade.make("baseline"), 1),
+                       broadcast(Lemniscate.make(period=10.0), 1), broadcast(Disturbance.make(), 1),
+                       jax.random.PRNGKey(0), 1000)
+        out[name] = (th, np.asarray(fb.frame.motor_cmd[0]), np.asarray(fb.frame.rotor_speed[0]))
+    return out
+
+
+def test_rotor_estimate_is_the_simulators_rotor_state_for_the_true_model(policy_flights, sim):
+    """Each model's rotor estimate runs its own motor lag over the commands sent: with the true θ
+    it equals the simulator's rotor speeds to float round-off, while the window covers the
+    flight (from the hover start) and once a 0.6 s window has forgotten its start (at e^{-W/τ_m});
+    with a wrong τ_m (×0.5, ×2) or the old steady-state start it is measurably off."""
+    from mjxsysid.tune.tuner import CommandHistory, empty_history, estimate_rotor_speed, push_history, start_rotor_speed
+    est = jax.jit(lambda th, h: estimate_rotor_speed(th, h, sim.config))
+    for name, (th, cmds, speed) in policy_flights.items():
+        tau = float(th[P.TAU_M])
+        for n in (10, 400, 1000):
+            true = speed[n - 1]
+            covered = jax.tree.map(lambda a: a[0], push_history(empty_history(1200, 1), cmds[None, :n]))
+            np.testing.assert_allclose(est(jnp.asarray(th), covered), true, rtol=2e-6)
+            window = jax.tree.map(lambda a: a[0], push_history(empty_history(300, 1), cmds[None, :n]))
+            e = est(jnp.asarray(th), window)
+            start_err = (np.abs(cmds[n - 300] * th[P.OMEGA_MAX] - speed[n - 301]).max() if n > 300 else 0.0)
+            assert np.abs(e - true).max() <= np.exp(-0.6 / tau) * start_err + 2e-6 * true.max(), (name, n)
+            wrong = [np.abs(est(jnp.asarray(th).at[P.TAU_M].set(f * tau), window) - true).max() for f in (0.5, 2.0)]
+            steady = start_rotor_speed("steady", jnp.asarray(th), window, None, sim.config)
+            if n >= 400:   # manoeuvring: the rotors move, so a wrong lag shows
+                assert min(wrong) > max(5 * np.abs(e - true).max(), 1e-3 * true.max()), (name, n, wrong)
+                assert np.abs(steady - true).max() > 0.1 * min(wrong), (name, n)
+    assert isinstance(window, CommandHistory) and int(window.count) == 300
+
+
 def test_segments_cover_the_flight_once():
     from mjxsysid.tune.tuner import segments
     assert segments(120, 50) == [(0, 50), (50, 50), (100, 20)]     # the last one shorter
@@ -141,25 +182,26 @@ def test_tuner_finds_known_good_gains(paper_policy):
     carry = T._start(sim, *T._axes(low))(jnp.asarray(theta), low, refs,
                                          jnp.stack([jax.random.split(jax.random.PRNGKey(0), 2)]))
     one = jax.tree.map(lambda a: a[0], carry)
-    motor = hover_rotor_speed(jnp.asarray(theta[0])) / theta[0, P.OMEGA_MAX]
+    speed = hover_rotor_speed(jnp.asarray(theta[0]))
     cfg = TunerConfig(models=1, horizon=0.5, cem=C.CEMConfig(candidates=24, iterations=3))
     hor = cfg.steps(sim.config.dt)[1]
 
     @jax.jit
     def cost_of(g):
-        fl = predict(sim, jnp.asarray(theta[0]), low0, g, jnp.float32(12.0), lem, one, motor, 0, hor)
+        fl = predict(sim, jnp.asarray(theta[0]), low0, g, jnp.float32(12.0), lem, one, speed, 0, hor)
         return rollout_cost(fl, cfg.weights)
 
     c_naive, c_base = float(cost_of(jnp.asarray(PRESETS["naive"]))), float(cost_of(jnp.asarray(PRESETS["baseline"])))
     # TunerConfig.unroll (the experiments' unroll 5) flies the same rollout
     unrolled = jax.jit(lambda g: rollout_cost(predict(sim, jnp.asarray(theta[0]), low0, g, jnp.float32(12.0), lem,
-                                                      one, motor, 0, hor, 5), cfg.weights))
+                                                      one, speed, 0, hor, 5), cfg.weights))
     assert float(unrolled(jnp.asarray(PRESETS["baseline"]))) == pytest.approx(c_base, rel=1e-4)
     tuner = OnlineTuner(sim, "oracle_cem", cfg)
     state = tuner.init(1)
     for u in range(4):
         state = C.cem_warm(state, cfg.cem) if u else state
-        state, gains, info = tuner.update(low, theta, refs, carry, motor[None], 0, state, jax.random.PRNGKey(u))
+        state, gains, info = tuner.update(low, theta, refs, carry, T.empty_history(cfg.window(sim.config.dt), 1),
+                                          jnp.asarray(PRESETS["naive"])[None], 0, state, jax.random.PRNGKey(u))
     c_tuned = float(cost_of(gains[0]))
     assert c_base < 0.7 * c_naive, (c_base, c_naive)          # the problem separates the two presets
     assert c_tuned <= 1.05 * c_base, (c_tuned, c_base, c_naive, np.asarray(gains))

@@ -76,3 +76,39 @@ def plot_tracking(res: dict, path, *, labels: dict, index: int = 0, title: str =
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
+
+
+def plot_prediction_error(cases: dict, path, *, title: str = "") -> Path:
+    """Position error of the tuner's predictive rollout (true θ) against the flight it predicts,
+    over the horizon: one panel per case {name: {'time' (H,), mode: {'pos_err' (B, H)}}}, a line
+    per rotor-state start (median over vehicles, 5–95 % shaded)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(cases)
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)
+    colors = {"estimate": "C0", "steady": "C3", "true": "k"}
+    for ax, name in zip(axes[0], names):
+        c = cases[name]
+        t = np.asarray(c["time"])
+        for mode, col in colors.items():
+            if mode not in c:
+                continue
+            e = np.maximum(np.asarray(c[mode]["pos_err"]), 1e-7) * 1e3
+            ax.plot(t, np.median(e, 0), color=col, label=mode, ls="--" if mode == "true" else "-")
+            ax.fill_between(t, np.percentile(e, 5, 0), np.percentile(e, 95, 0), color=col, alpha=0.15)
+        ax.set_yscale("log")
+        ax.set_xlabel("time into the prediction (s)")
+        ax.set_title(name, fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel("position error (mm, floor 1e-4)")
+    axes[0][0].legend(fontsize=8, title="rotors start", title_fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

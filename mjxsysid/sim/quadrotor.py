@@ -158,6 +158,29 @@ def mean_square_speed(omega0, omega_cmd, tau_m, h, exp=jnp.exp):
     return omega_cmd**2 + 2.0 * omega_cmd * d * r1 + d * d * r2, omega_cmd + d * a
 
 
+def rotor_speed_after(theta, speed0, motor_cmds, config: "SimConfig", mask=None) -> jax.Array:
+    """The rotor speeds (4,) rad/s after the motor commands ``motor_cmds`` (W, 4) (normalised, one
+    per control step, oldest first) starting from ``speed0`` (4,) rad/s, by θ's (19,) motor lag
+    (τ_m, Ω_max): the simulator's own integration, substep by substep, so with the true θ and the
+    true start it reproduces the simulator's rotor speeds to float round-off. ``mask`` (W,)
+    bool: steps to apply (others are skipped; None: all)."""
+    theta = jnp.asarray(theta, jnp.float32)
+    cmds = jnp.asarray(motor_cmds, jnp.float32)
+    mask = jnp.ones(cmds.shape[0], bool) if mask is None else jnp.asarray(mask, bool)
+    h = config.physics_dt
+
+    def body(speed, inp):
+        cmd, on = inp
+        omega_cmd = jnp.clip(cmd, 0.0, 1.0) * theta[P.OMEGA_MAX]
+        new = speed
+        for _ in range(config.substeps):
+            _, new = mean_square_speed(new, omega_cmd, theta[P.TAU_M], h)
+        return jnp.where(on, new, speed), None
+
+    speed, _ = jax.lax.scan(body, jnp.asarray(speed0, jnp.float32), (cmds, mask))
+    return speed
+
+
 class Quadrotor:
     """The MJX quadrotor simulator.
 

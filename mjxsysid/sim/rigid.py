@@ -5,7 +5,8 @@ semi-implicit Euler for a free body whose centre of mass is the body origin: acc
 the state at the start of the step, ``v ← v + h a``, ``p ← p + h v``, ``q ← q ⊗ exp(h ω / 2)``
 (ω in the body frame), rotor speeds integrated exactly with the thrust of a step the exact mean
 of η k_t Ω² over it — written directly in JAX without MuJoCo's generic machinery. It has no
-IMU noise, bias or latency (predictions are deterministic) and no contacts. The tuner flies K × N
+IMU noise or bias (predictions are deterministic) and no contacts; the IMU latency is the
+simulator's (a buffer of the true readings, carried over from the simulator's state). The tuner flies K × N
 short rollouts per update with it; ``tests/test_sim.py`` checks it against the MJX simulator.
 
 ``RigidSim`` implements what :func:`~mjxsysid.rollout.harness.run_loop` needs of a simulator:
@@ -24,22 +25,26 @@ from mjxsysid.sim.quadrotor import Frame, SimConfig, mean_square_speed, quat_to_
 @struct.dataclass
 class RigidState:
     """pos (3) m world, quat (4) wxyz, vel (3) m/s world, omega (3) rad/s body, rotor_speed (4)
-    rad/s, imu (6) [gyro, specific force] of the last step, diverged () bool, step () int32."""
+    rad/s, imu (6) [gyro, specific force] the controller sees (``imu_buffer[0]``; after
+    :func:`from_sim_state`, the simulator's last output), imu_buffer (latency + 1, 6) true
+    readings, oldest first, diverged () bool, step () int32."""
     pos: jax.Array
     quat: jax.Array
     vel: jax.Array
     omega: jax.Array
     rotor_speed: jax.Array
     imu: jax.Array
+    imu_buffer: jax.Array
     diverged: jax.Array
     step: jax.Array
 
 
 def from_sim_state(s, rotor_speed=None) -> RigidState:
     """The rigid-body state of an MJX :class:`~mjxsysid.sim.quadrotor.SimState` (optionally with
-    other rotor speeds); the IMU reading carries over as the controller last saw it."""
+    other rotor speeds); the IMU reading carries over as the controller last saw it, and the
+    latency buffer of true readings with it (the next outputs of a delayed IMU are already in it)."""
     return RigidState(s.pos, s.quat, s.vel, s.omega, s.rotor_speed if rotor_speed is None else rotor_speed,
-                      s.imu, jnp.array(False), s.step)
+                      s.imu, s.imu_buffer, jnp.array(False), s.step)
 
 
 def _quat_mul(a, b):
@@ -109,8 +114,8 @@ class RigidSim:
         rot = quat_to_mat(quat)
         thrust = jnp.sum(gain * speed**2)
         sf = (jnp.array([0.0, 0.0, 1.0]) * thrust - theta[P.DRAG] * (rot.T @ vel) + rot.T @ f_world) / mass
-        new = RigidState(pos, quat, vel, omega, speed, jnp.concatenate([omega, sf]), state.diverged,
-                         state.step + 1)
+        buf = jnp.concatenate([state.imu_buffer[1:], jnp.concatenate([omega, sf])[None]], 0)
+        new = RigidState(pos, quat, vel, omega, speed, buf[0], buf, state.diverged, state.step + 1)
         finite = jnp.all(jnp.isfinite(jnp.concatenate([pos, quat, vel, omega, speed])))
         inside = ((jnp.max(jnp.abs(pos)) < c.pos_limit) & (jnp.linalg.norm(vel) < c.vel_limit)
                   & (jnp.linalg.norm(omega) < c.rate_limit))

@@ -6,9 +6,11 @@ flight with the tuner in the loop; :mod:`~mjxsysid.tune.compare` the user-facing
 methods behind ``mjxsysid tune``.
 """
 from mjxsysid.tune.cem import CEMConfig, CEMState, cem_init, cem_minimize, from_search, mean_gains, to_search
-from mjxsysid.tune.tuner import (CEM_METHODS, METHOD_LABELS, METHODS, CostWeights, OnlineTuner, TunedFlight,
-                                 TunerConfig, fly_tuned, predict, rollout_cost, tuner_update)
+from mjxsysid.tune.tuner import (CEM_METHODS, METHOD_LABELS, METHODS, ROTOR_STATES, CommandHistory, CostWeights,
+                                 OnlineTuner, TunedFlight, TunerConfig, estimate_rotor_speed, fly_tuned, predict,
+                                 rollout_cost, tuner_update)
 
 __all__ = ["CEMConfig", "CEMState", "cem_init", "cem_minimize", "from_search", "mean_gains", "to_search",
            "CEM_METHODS", "METHOD_LABELS", "METHODS", "CostWeights", "OnlineTuner", "TunedFlight",
-           "TunerConfig", "fly_tuned", "predict", "rollout_cost", "tuner_update"]
+           "TunerConfig", "fly_tuned", "predict", "rollout_cost", "tuner_update", "ROTOR_STATES", "CommandHistory",
+           "estimate_rotor_speed"]

@@ -116,19 +116,21 @@ def cem_refit(state: CEMState, gains, costs, cfg: CEMConfig) -> CEMState:
 
 
 def cem_minimize(cost_fn: Callable[[jax.Array, jax.Array], jax.Array], state: CEMState, key,
-                 cfg: CEMConfig) -> tuple[CEMState, jax.Array]:
+                 cfg: CEMConfig, candidates: bool = False):
     """Run ``cfg.iterations`` CEM iterations. cost_fn(gains (N, 8), key) -> costs (N,).
 
-    Returns the final state and the cost history (iterations, N). The gains to apply are
+    Returns the final state and the cost history (iterations, N) — with ``candidates`` also the
+    candidates scored (iterations, N, 8). The gains of the distribution's mean are
     ``from_search(state.mean)``.
     """
     def body(st, k):
         k_c, k_e = jax.random.split(k)
         g = cem_candidates(st, k_c, cfg.candidates)
         c = cost_fn(g, k_e)
-        return cem_refit(st, g, c, cfg), c
+        return cem_refit(st, g, c, cfg), (c, g)
 
-    return jax.lax.scan(body, state, jax.random.split(key, cfg.iterations))
+    state, (costs, gains) = jax.lax.scan(body, state, jax.random.split(key, cfg.iterations))
+    return (state, costs, gains) if candidates else (state, costs)
 
 
 def mean_gains(state: CEMState) -> jax.Array:

@@ -11,10 +11,15 @@ Every ``1/rate`` s of a flight the tuner
    policy (its current history and latent carried over) under one of N candidate gain vectors
    of the cascade, over a horizon H of the upcoming reference, without disturbances, in the
    deterministic rigid-body twin of the simulator (:mod:`mjxsysid.sim.rigid`: the same
-   equations and integrator as the MJX simulator without MuJoCo's generic machinery);
+   equations and integrator as the MJX simulator without MuJoCo's generic machinery). The
+   rotor speeds are not observed: each model starts its rollouts from the rotor speeds *its
+   own* motor lag (τ_m, Ω_max) gives the motor commands the controller sent over the last
+   ``rotor_window`` s (:func:`estimate_rotor_speed`; ``TunerConfig.rotor_state``);
 3. scores each candidate by the ensemble mean of :func:`rollout_cost` (position RMSE + motor
    saturation + failure, the paper's cost; a heading term is an option, off by default) and runs CEM (:mod:`mjxsysid.tune.cem`), warm-started
-   from the last solution; the mean of the final distribution is applied until the next update.
+   from the last solution; the mean of the final distribution (``apply``) is applied until the
+   next update — with ``protect`` > 0 only when that share of the K models predicts it better
+   than the gains in use (else those stay).
 
 :func:`tuner_update` is one pure update for one vehicle; :class:`OnlineTuner` jits it once,
 vmapped over the vehicle batch (K and N are vmapped inside), and :func:`fly_tuned` flies a
@@ -37,7 +42,7 @@ from mjxsysid.cfm.sample import _sample
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.high_level import gains as gain_vector
 from mjxsysid.rollout.harness import Disturbance, Flight, LoopCarry, low_level_axes, metrics, run_loop, start_loop
-from mjxsysid.sim.quadrotor import Quadrotor, hover_rotor_speed
+from mjxsysid.sim.quadrotor import Quadrotor, SimConfig, hover_rotor_speed, rotor_speed_after
 from mjxsysid.sim.rigid import RigidSim, from_sim_state
 from mjxsysid.tune.cem import CEMConfig, CEMState, cem_init, cem_minimize, cem_warm, mean_gains
 
@@ -62,6 +67,9 @@ class CostWeights:
     failure: float = 5.0
     fail_dist: float = 1.0
 
+
+ROTOR_STATES = ("estimate", "steady", "true")
+"""Where the predictive rollouts start the rotors (``TunerConfig.rotor_state``)."""
 
 HEADING_COST = 0.1
 """The heading weight of the cost variant with a heading term (``--variant heading_cost``)."""
@@ -89,6 +97,15 @@ class TunerConfig:
     decoder_steps: Euler steps of the CFM sampler. initial: gains before the first update
     (and the first CEM mean): a preset name. unroll: control steps per iteration of the
     predictive rollouts' compiled loop (a speed knob for accelerators; results are the same).
+    rotor_state: where each model's rollouts start their rotors (:data:`ROTOR_STATES`):
+    'estimate' (default) runs each model's own motor lag over the commands of the last
+    ``rotor_window`` s (what hardware can do); 'steady' the model's steady state for the last
+    command (the tuner before 2026-11-25); 'true' the simulator's hidden rotor speeds (a
+    diagnostic only: hardware cannot see them). rotor_window: s of command history (several
+    τ_m of the slowest prior: 0.6 s forgets a wrong start of a 0.12 s motor to e^-5).
+    apply: 'mean' (the final CEM mean, the paper's) or 'best' (the best candidate of the last
+    iteration). protect: 0 (off) or the share of the K models in (0, 1] that must predict the
+    new gains better than the ones in use for the tuner to switch.
     """
     models: int = 16
     horizon: float = 0.5
@@ -100,6 +117,10 @@ class TunerConfig:
     decoder_steps: int = 50
     initial: str = "naive"
     unroll: int = 1
+    rotor_state: str = "estimate"
+    rotor_window: float = 0.6
+    apply: str = "mean"
+    protect: float = 0.0
 
     def __post_init__(self):
         if int(self.models) != self.models or self.models < 1:
@@ -115,10 +136,22 @@ class TunerConfig:
         gain_vector(self.initial)  # a known preset
         if int(self.unroll) != self.unroll or self.unroll < 1:
             raise ValueError(f"tuner unroll must be an integer >= 1, got {self.unroll}")
+        if self.rotor_state not in ROTOR_STATES:
+            raise ValueError(f"tuner rotor_state must be one of {ROTOR_STATES}, got {self.rotor_state!r}")
+        if not (math.isfinite(self.rotor_window) and self.rotor_window > 0):
+            raise ValueError(f"tuner rotor_window must be > 0 s, got {self.rotor_window}")
+        if self.apply not in ("mean", "best"):
+            raise ValueError(f"tuner apply must be 'mean' or 'best', got {self.apply!r}")
+        if not 0.0 <= self.protect <= 1.0:
+            raise ValueError(f"tuner protect must be in [0, 1] (0: off), got {self.protect}")
 
     def steps(self, dt: float) -> tuple[int, int]:
         """(control steps between updates, control steps of the horizon)."""
         return max(1, int(round(1.0 / (self.rate * dt)))), max(1, int(round(self.horizon / dt)))
+
+    def window(self, dt: float) -> int:
+        """Control steps of motor-command history the rotor estimate runs over."""
+        return max(1, int(round(self.rotor_window / dt)))
 
 
 def rollout_cost(flight: Flight, w: CostWeights) -> jax.Array:
@@ -128,20 +161,69 @@ def rollout_cost(flight: Flight, w: CostWeights) -> jax.Array:
             + w.saturation * m["saturation_frac"] + w.failure * m["failed"].astype(jnp.float32))
 
 
-def predict(sim, theta, low, gains, max_rate, ref, carry: LoopCarry, motor_norm, start,
+def predict(sim, theta, low, gains, max_rate, ref, carry: LoopCarry, rotor_speed, start,
             steps: int, unroll: int = 1) -> Flight:
     """One predictive rollout: model θ (19,) flown by ``low`` (its carry in ``carry``) under
     the cascade with ``gains`` (8,) for ``steps`` steps from the current state of the (MJX) loop
     ``carry``, the first step having global index ``start``, in the deterministic rigid-body twin
     of the simulator (:class:`~mjxsysid.sim.rigid.RigidSim`; ``sim`` gives its config). The
-    rotors start at the model's steady state for the last motor command ``motor_norm`` (4,)
-    (the rotor speed itself is not observed); no disturbance."""
+    rotors start at ``rotor_speed`` (4,) rad/s (:func:`start_rotor_speed`: the rotor speed
+    itself is not observed); the IMU latency buffer, the cascade's integral and the policy's
+    history carry over from ``carry``; no disturbance."""
     twin = sim if isinstance(sim, RigidSim) else RigidSim(sim.config)
-    s = from_sim_state(carry.sim, rotor_speed=motor_norm * theta[P.OMEGA_MAX])
+    s = from_sim_state(carry.sim, rotor_speed=rotor_speed)
     high = Cascade(gains, max_rate)
     _, fl = run_loop(twin, theta, low, high, ref, carry._replace(sim=s), jnp.zeros((steps, 3)), start, steps,
                      unroll=unroll)
     return fl
+
+
+class CommandHistory(NamedTuple):
+    """The last W motor commands (normalised) the controller sent, oldest first: cmds (W, 4);
+    count () int32: how many of the W were sent in this flight (the ``W − count`` at the front
+    predate it). Batched: (B, W, 4) and (B,)."""
+    cmds: jax.Array
+    count: jax.Array
+
+
+def empty_history(window: int, batch: int) -> CommandHistory:
+    """No command sent yet, for ``batch`` vehicles and a ``window`` of control steps."""
+    return CommandHistory(jnp.zeros((batch, window, 4), jnp.float32), jnp.zeros(batch, jnp.int32))
+
+
+def push_history(hist: CommandHistory, cmds) -> CommandHistory:
+    """Append the commands sent since (B, n, 4), oldest first; keep the last W."""
+    w = hist.cmds.shape[-2]
+    cmds = jnp.asarray(cmds, jnp.float32)
+    both = jnp.concatenate([hist.cmds, cmds], -2)[..., -w:, :]
+    return CommandHistory(both, jnp.minimum(hist.count + cmds.shape[-2], w).astype(jnp.int32))
+
+
+def estimate_rotor_speed(theta, hist: CommandHistory, config: SimConfig) -> jax.Array:
+    """The rotor speeds (4,) rad/s that model θ (19,) implies now: its own motor lag (τ_m, Ω_max)
+    run over the command history ``hist`` (unbatched), from the hover speeds of θ where the
+    history reaches the flight's start (flights start in hover), else from θ's steady state for
+    the oldest command in the window (an error that decays as e^{−W/τ_m}). Reads no hidden
+    state: with the true θ it equals the simulator's rotor speeds to float round-off once the
+    start is forgotten (at once while the window covers the flight)."""
+    w = hist.cmds.shape[0]
+    full = hist.count >= w
+    speed0 = jnp.where(full, jnp.clip(hist.cmds[0], 0.0, 1.0) * theta[P.OMEGA_MAX], hover_rotor_speed(theta))
+    return rotor_speed_after(theta, speed0, hist.cmds, config, mask=jnp.arange(w) >= w - hist.count)
+
+
+def start_rotor_speed(mode: str, theta, hist: CommandHistory, carry: LoopCarry, config: SimConfig) -> jax.Array:
+    """Rotor speeds (4,) a predictive rollout of model θ starts from (``TunerConfig.rotor_state``):
+    'estimate' (:func:`estimate_rotor_speed`), 'steady' (θ's steady state for the last command,
+    θ's hover before any) or 'true' (the simulator's, a diagnostic)."""
+    if mode == "estimate":
+        return estimate_rotor_speed(theta, hist, config)
+    if mode == "steady":
+        last = jnp.clip(hist.cmds[-1], 0.0, 1.0) * theta[P.OMEGA_MAX]
+        return jnp.where(hist.count > 0, last, hover_rotor_speed(theta))
+    if mode == "true":
+        return carry.sim.rotor_speed
+    raise ValueError(f"unknown rotor_state {mode!r}; choose from {ROTOR_STATES}")
 
 
 class DecoderArgs(NamedTuple):
@@ -183,12 +265,16 @@ def draw_models(method: str, key, theta_true, zhat, dec: DecoderArgs | None, dec
 
 
 def tuner_update(sim: Quadrotor, low, method, cfg: TunerConfig, dec: DecoderArgs | None, dec_cfg,
-                 theta_true, ref, carry: LoopCarry, motor_norm, max_rate, start, state: CEMState, key):
+                 theta_true, ref, carry: LoopCarry, hist: CommandHistory, incumbent, max_rate, start,
+                 state: CEMState, key):
     """One tuner update for one vehicle. ``method``: a CEM method name, or its index in the
     model sources of :func:`_model_sources` as an (unbatched) traced int — then one compiled
-    update serves every method (``lax.switch`` runs only the chosen source). Returns (new CEM
-    state, gains to apply (8,), info): info = {'cost': ensemble-mean cost of every candidate of
-    the last iteration (N,), 'models_twr': the K models' thrust-to-weight (K,)}."""
+    update serves every method (``lax.switch`` runs only the chosen source). ``hist``: the
+    motor commands sent (:class:`CommandHistory`); ``incumbent`` (8,): the gains in use.
+    Returns (new CEM state, gains to apply (8,), info): info = {'cost': ensemble-mean cost of
+    every candidate of the last iteration (N,), 'models_twr': the K models' thrust-to-weight
+    (K,), 'switched': () bool, whether the applied gains are the new ones (always, unless
+    ``cfg.protect``)}."""
     _, horizon = cfg.steps(sim.config.dt)
     k_models, k_cem = jax.random.split(key)
     zhat = low.latent(carry.low) if hasattr(low, "latent") else None
@@ -197,18 +283,26 @@ def tuner_update(sim: Quadrotor, low, method, cfg: TunerConfig, dec: DecoderArgs
     else:
         _, fns = _model_sources(dec_cfg, cfg)
         thetas = P.project_valid_jax(jax.lax.switch(method, fns, k_models, theta_true, zhat, dec))
+    speeds = jax.vmap(lambda th: start_rotor_speed(cfg.rotor_state, th, hist, carry, sim.config))(thetas)  # (K, 4)
 
-    def cost_one(theta, g):
-        return rollout_cost(predict(sim, theta, low, g, max_rate, ref, carry, motor_norm, start, horizon,
+    def cost_one(theta, speed, g):
+        return rollout_cost(predict(sim, theta, low, g, max_rate, ref, carry, speed, start, horizon,
                                      cfg.unroll),
                             cfg.weights)
 
-    def cost_fn(gains, _k):
-        c = jax.vmap(lambda th: jax.vmap(lambda g: cost_one(th, g))(gains))(thetas)  # (K, N)
-        return c.mean(0)
+    def costs_per_model(gains):   # (N, 8) -> (K, N)
+        return jax.vmap(lambda th, sp: jax.vmap(lambda g: cost_one(th, sp, g))(gains))(thetas, speeds)
 
-    state, hist = cem_minimize(cost_fn, state, k_cem, cfg.cem)
-    return state, mean_gains(state), {"cost": hist[-1], "models_twr": P.thrust_to_weight(thetas)}
+    state, hist_c, cands = cem_minimize(lambda g, _k: costs_per_model(g).mean(0), state, k_cem, cfg.cem,
+                                        candidates=True)
+    new = mean_gains(state) if cfg.apply == "mean" else cands[-1][jnp.argmin(jnp.where(
+        jnp.isfinite(hist_c[-1]), hist_c[-1], jnp.inf))]
+    switched = jnp.array(True)
+    if cfg.protect > 0:
+        c = costs_per_model(jnp.stack([new, incumbent]))      # (K, 2)
+        switched = jnp.mean((c[:, 0] < c[:, 1]).astype(jnp.float32)) >= cfg.protect
+        new = jnp.where(switched, new, incumbent)
+    return state, new, {"cost": hist_c[-1], "models_twr": P.thrust_to_weight(thetas), "switched": switched}
 
 
 class TunedFlight(NamedTuple):
@@ -245,11 +339,11 @@ def _start(sim: Quadrotor, low_axes_def, low_axes_leaves):
 def _update(sim: Quadrotor, cfg: TunerConfig, dec_cfg, low_axes_def, low_axes_leaves):
     low_axes = jax.tree_util.tree_unflatten(low_axes_def, low_axes_leaves)
 
-    def one(method, low, dec, theta_true, ref, carry, motor_norm, max_rate, start, state, key):
-        return tuner_update(sim, low, method, cfg, dec, dec_cfg, theta_true, ref, carry, motor_norm,
+    def one(method, low, dec, theta_true, ref, carry, hist, incumbent, max_rate, start, state, key):
+        return tuner_update(sim, low, method, cfg, dec, dec_cfg, theta_true, ref, carry, hist, incumbent,
                             max_rate, start, state, key)
 
-    return jax.jit(jax.vmap(one, in_axes=(None, low_axes, None, 0, 0, 0, 0, None, None, 0, 0)))
+    return jax.jit(jax.vmap(one, in_axes=(None, low_axes, None, 0, 0, 0, 0, 0, None, None, 0, 0)))
 
 
 def _axes(low):
@@ -260,8 +354,9 @@ def _axes(low):
 class OnlineTuner:
     """Jitted, batched tuner updates for one method and config.
 
-    ``update(low, theta_true (B, 19), ref (batched), carry (batched), motor_norm (B, 4), start,
-    state (batched CEMState), key)`` -> (state, gains (B, 8), info). The decoder (a
+    ``update(low, theta_true (B, 19), ref (batched), carry (batched), hist (batched
+    :class:`CommandHistory`), incumbent (B, 8), start, state (batched CEMState), key)`` ->
+    (state, gains (B, 8), info). The decoder (a
     :class:`~mjxsysid.cfm.sample.Decoder` of kind 'cfm') is needed for ``method='cfm'``; with
     one, every method shares one compiled update (the method is a runtime switch).
     """
@@ -286,11 +381,12 @@ class OnlineTuner:
         s = cem_init(gain_vector(self.cfg.initial), self.cfg.cem)
         return jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), s)
 
-    def update(self, low, theta_true, ref, carry, motor_norm, start, state, key):
+    def update(self, low, theta_true, ref, carry, hist: CommandHistory, incumbent, start, state, key):
         fn = _update(self.sim, self.cfg, self.dec_cfg, *_axes(low))
         n = theta_true.shape[0]
-        return fn(self.index, low, self.dec, jnp.asarray(theta_true, jnp.float32), ref, carry, motor_norm,
-                  self.max_rate, jnp.int32(start), state, jax.random.split(key, n))
+        return fn(self.index, low, self.dec, jnp.asarray(theta_true, jnp.float32), ref, carry, hist,
+                  jnp.asarray(incumbent, jnp.float32), self.max_rate, jnp.int32(start), state,
+                  jax.random.split(key, n))
 
 
 def segments(steps: int, seg: int) -> list[tuple[int, int]]:
@@ -330,7 +426,7 @@ def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method:
     tuner = OnlineTuner(sim, method, cfg, decoder, max_rate) if method in CEM_METHODS else None
     state = tuner.init(b) if tuner else None
     gains = jnp.broadcast_to(gain_vector(cfg.initial if tuner else method), (b, 8))
-    motor = hover_rotor_speed(theta) / theta[:, P.OMEGA_MAX, None]
+    hist = empty_history(cfg.window(dt), b)
     k_tune = jax.random.fold_in(key, 7919)
     chunks, gain_log, times, pred = [], [], [], []
     spans = segments(steps, seg)
@@ -343,13 +439,14 @@ def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method:
         if tuner is not None and t >= cfg.warmup - 1e-9:
             state = cem_warm(state, cfg.cem) if updated else state
             updated = True
-            state, gains, info = tuner.update(low, theta, ref, carry, motor, i0, state,
+            state, gains, info = tuner.update(low, theta, ref, carry, hist, gains, i0, state,
                                               jax.random.fold_in(k_tune, u))
             # candidate 0 of the last iteration is the mean entering it
             cost = np.asarray(info["cost"][:, 0])
         fn = _advance(sim, n, *_axes(low))
         carry, fl = fn(theta_fly, low, gains, mr, ref, carry, forces[:, i0:i0 + n], jnp.int32(i0))
-        motor = fl.frame.motor_cmd[:, -1]
+        if tuner is not None:
+            hist = push_history(hist, fl.frame.motor_cmd)
         chunks.append(fl)
         gain_log.append(np.asarray(gains))
         times.append(t)
@@ -358,3 +455,45 @@ def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method:
             progress(u + 1, n_seg)
     flight = jax.tree.map(lambda *a: np.concatenate([np.asarray(x) for x in a], 1), *chunks)
     return TunedFlight(flight, np.stack(gain_log, 1), np.asarray(times, np.float32), np.stack(pred, 1))
+
+
+@functools.lru_cache(maxsize=8)
+def _predict_batch(sim: Quadrotor, mode: str, steps: int, low_axes_def, low_axes_leaves):
+    low_axes = jax.tree_util.tree_unflatten(low_axes_def, low_axes_leaves)
+
+    def one(theta, low, gains, max_rate, ref, carry, hist, start):
+        speed = start_rotor_speed(mode, theta, hist, carry, sim.config)
+        return predict(sim, theta, low, gains, max_rate, ref, carry, speed, start, steps), speed
+
+    return jax.jit(jax.vmap(one, in_axes=(0, low_axes, 0, None, 0, 0, 0, None)))
+
+
+def prediction_error(sim: Quadrotor, theta, low, ref, *, gains="baseline", start: int, steps: int,
+                     rotor_states=ROTOR_STATES, window: float = 0.6, key=None, max_rate: float = 12.0) -> dict:
+    """How well the tuner's predictions reproduce the flight: fly θ (B, 19) with ``low``
+    (batched) under fixed ``gains`` on the batched ``ref`` for ``start`` steps in the simulator
+    ``sim``, then continue the flight ``steps`` steps (no disturbance) and predict the same
+    steps with the true θ from the loop's state, the rotors started by each of ``rotor_states``.
+
+    Returns {'time' (steps,) s after the start, mode: {'pos_err' (B, steps) m, 'rotor_err' (B,)
+    rad/s: max over rotors of |start − the simulator's|}}: the rollout the tuner would score
+    against the flight it would get."""
+    theta = jnp.asarray(P.validate_theta(P.as_batch(theta)), jnp.float32)
+    b = theta.shape[0]
+    if start < 1 or steps < 1:
+        raise ValueError(f"start and steps must be >= 1, got {start} and {steps}")
+    key = jax.random.PRNGKey(0) if key is None else key
+    keys = jax.vmap(lambda k: jnp.stack(jax.random.split(k, 2)))(jax.random.split(key, b))
+    g = jnp.broadcast_to(gain_vector(gains), (b, 8))
+    mr = jnp.float32(max_rate)
+    axes = _axes(low)
+    carry = _start(sim, *axes)(theta, low, ref, keys)
+    carry, fl = _advance(sim, start, *axes)(theta, low, g, mr, ref, carry, jnp.zeros((b, start, 3)), jnp.int32(0))
+    hist = push_history(empty_history(max(1, int(round(window / sim.config.dt))), b), fl.frame.motor_cmd)
+    _, real = _advance(sim, steps, *axes)(theta, low, g, mr, ref, carry, jnp.zeros((b, steps, 3)), jnp.int32(start))
+    out = {"time": sim.config.dt * (1 + np.arange(steps))}
+    for mode in rotor_states:
+        pred, speed = _predict_batch(sim, mode, steps, *axes)(theta, low, g, mr, ref, carry, hist, jnp.int32(start))
+        out[mode] = {"pos_err": np.linalg.norm(np.asarray(pred.frame.pos) - np.asarray(real.frame.pos), axis=-1),
+                     "rotor_err": np.abs(np.asarray(speed) - np.asarray(carry.sim.rotor_speed)).max(-1)}
+    return out

@@ -1,0 +1,60 @@
+"""The lag-aware oracle (issue 26): K_θ (the paper's appendix controller, which ignores τ_m)
+against :class:`~mjxsysid.control.low_level.KThetaLag` (K_θ that pre-compensates θ's motor lag),
+both with each vehicle's true θ and the Baseline cascade, on the default, stress and stress_wide
+priors (and the slow-actuator prior), 10 s lemniscate, seeded draws.
+
+    python tools/lag_oracle.py --vehicles 1000 --out docs/runs/lag_oracle.json
+"""
+import argparse
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from mjxsysid import params as P
+from mjxsysid.control.high_level import Cascade
+from mjxsysid.control.low_level import KTheta, KThetaLag
+from mjxsysid.rollout.flight import broadcast, make_reference
+from mjxsysid.rollout.harness import Disturbance, batch_metrics, fly_batch
+from mjxsysid.sim import Quadrotor
+
+
+def fly(ctrl, theta, sim, steps, ref):
+    n = len(theta)
+    m = batch_metrics(fly_batch(sim, theta, ctrl, broadcast(Cascade.make("baseline"), n), broadcast(ref, n),
+                                broadcast(Disturbance.make(), n), jax.random.PRNGKey(0), steps))
+    return np.asarray(m["failed"]) > 0.5, np.asarray(m["pos_rmse_m"], np.float64)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--vehicles", type=int, default=128)
+    ap.add_argument("--priors", default="default,stress,stress_wide,slow_actuators")
+    ap.add_argument("--target-tau", type=float, nargs="+", default=[0.02])
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args(argv)
+    sim = Quadrotor()
+    ref, duration = make_reference("lemniscate", period=10.0)
+    steps = int(round(duration / sim.config.dt))
+    out = {"config": {"vehicles": a.vehicles, "reference": "lemniscate 10 s", "cascade": "baseline",
+                      "seed": 0, "device": jax.devices()[0].device_kind, "date": time.strftime("%Y-%m-%d")}}
+    for prior in a.priors.split(","):
+        theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(0), a.vehicles), np.float32)
+        ctrls = {"k_theta": KTheta.make(theta)}
+        ctrls.update({f"k_theta_lag_{t:g}": KThetaLag.make(theta, dt=sim.config.dt, target_tau=t) for t in a.target_tau})
+        res = {k: fly(c, theta, sim, steps, ref) for k, c in ctrls.items()}
+        ok = ~np.any([f for f, _ in res.values()], 0)
+        row = {k: {"success": float(1 - f.mean()), "pos_rmse_m_common": float(r[ok].mean()) if ok.any() else None,
+                   "pos_rmse_m_own": float(r[~f].mean()) if (~f).any() else None} for k, (f, r) in res.items()}
+        row["common_n"] = int(ok.sum())
+        out[prior] = row
+        print(prior, json.dumps(row), flush=True)
+    if a.out:
+        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(a.out).write_text(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
