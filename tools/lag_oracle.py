@@ -44,6 +44,8 @@ def main(argv=None):
         theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(0), a.vehicles), np.float32)
         ctrls = {"k_theta": KTheta.make(theta)}
         ctrls.update({f"k_theta_lag_{t:g}": KThetaLag.make(theta, dt=sim.config.dt, target_tau=t) for t in a.target_tau})
+        ctrls.update({f"k_theta_lag_{t:g}_yaw_with_roll_pitch": KThetaLag.make(theta, dt=sim.config.dt, target_tau=t, yaw_last=False)
+                      for t in a.target_tau})
         res = {k: fly(c, theta, sim, steps, ref) for k, c in ctrls.items()}
         ok = ~np.any([f for f, _ in res.values()], 0)
         row = {k: {"success": float(1 - f.mean()), "pos_rmse_m_common": float(r[ok].mean()) if ok.any() else None,

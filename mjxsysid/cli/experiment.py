@@ -23,9 +23,13 @@ def add_experiment(sub) -> None:
     ex.add_argument("--decoders", type=Path, default=None,
                     help="folder with cfm.npz and regression.npz (default: the policy's shipped decoders)")
     ex.add_argument("--variant", default=None, metavar="V",
-                    help="a protocol reported beside the default one: heading_cost (tune-*: the tuner's cost "
-                         "with a heading term), no_lead_in (tune-lemniscate), single_latent (robustness: the "
-                         "paper's single-latent CFM)")
+                    help="a protocol reported beside the default one (several joined by commas): heading_cost, "
+                         "steady_rotor_state, true_rotor_state, baseline_start, protect, apply_best, "
+                         "cem_3_iterations, horizon_1s (tune-*: see docs/fair_comparisons.md), no_lead_in "
+                         "(tune-lemniscate), single_latent (robustness: the paper's single-latent CFM)")
+    ex.add_argument("--methods", default=None, metavar="M1,M2",
+                    help="tune-*: the methods to fly (default: the experiment's own; naive, baseline, cfm, "
+                         "nominal_cem, oracle_cem)")
     ex.add_argument("--out", type=Path, required=True)
     ex.set_defaults(handler=cmd_experiment)
 
@@ -50,6 +54,11 @@ def cmd_experiment(args) -> int:
         if "variant" not in inspect.signature(run).parameters:
             raise ValueError(f"experiment {args.name} has no variants")
         kw["variant"] = args.variant
+    if args.methods is not None:
+        if not args.name.startswith("tune-"):
+            raise ValueError(f"--methods applies to the tune-* experiments, not {args.name}")
+        from mjxsysid.tune.compare import check_methods
+        kw["methods"] = check_methods(m.strip() for m in args.methods.split(",") if m.strip())
     res = run(args.out, quick=args.quick, policy=policy_ref(args), seed=args.seed, **kw)
     print(json.dumps(res["numbers"].get("headline", {})))
     print(f"wrote {args.out}/results.json, results.md and figures ({res['wall_s']:.0f} s)", file=sys.stderr)

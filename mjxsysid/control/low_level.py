@@ -98,6 +98,20 @@ class KTheta:
         return carry, self.motor_command(command, imu[0:3])
 
 
+def _yaw_last(theta, collective_thrust, torque, sq_max) -> jax.Array:
+    """Squared rotor speeds (4,) like :func:`allocate`, but with the yaw torque scaled down by the
+    least factor s ∈ [0, 1] that keeps every rotor inside [0, ``sq_max``] (where the thrust and
+    roll/pitch torque alone fit; the allocation is linear in τ_z, so s is exact): attitude and
+    thrust before heading, as flight controllers' mixers do."""
+    base = allocate(theta, collective_thrust, torque.at[2].set(0.0))
+    d = allocate(theta, collective_thrust, torque) - base
+    big = jnp.float32(1e30)
+    up = jnp.where(d > 0, (sq_max - base) / jnp.where(d > 0, d, 1.0), big)
+    down = jnp.where(d < 0, -base / jnp.where(d < 0, d, -1.0), big)
+    s = jnp.clip(jnp.min(jnp.minimum(up, down)), 0.0, 1.0)
+    return base + s * d
+
+
 LAG_TARGET_TAU = 0.02
 """Motor time constant (s) :class:`KThetaLag` makes every motor look like (the fast end of the
 default prior, τ_m ∈ [0.02, 0.04] s, where K_ω's rate gains were chosen); motors already faster
@@ -126,15 +140,19 @@ class KThetaLag:
     rate_gains: jax.Array
     dt: jax.Array
     target_tau: jax.Array
+    yaw_last: bool = struct.field(pytree_node=False, default=True)
 
     @classmethod
-    def make(cls, theta, rate_gains=DEFAULT_RATE_GAINS, dt=0.002, target_tau=LAG_TARGET_TAU) -> "KThetaLag":
-        """θ (..., 19) -> a controller (batched if θ is)."""
+    def make(cls, theta, rate_gains=DEFAULT_RATE_GAINS, dt=0.002, target_tau=LAG_TARGET_TAU,
+             yaw_last=True) -> "KThetaLag":
+        """θ (..., 19) -> a controller (batched if θ is). ``yaw_last``: where the allocation
+        asks a rotor for more than Ω_max (or less than 0), give up yaw torque first
+        (:func:`_yaw_last`)."""
         theta = jnp.asarray(theta, jnp.float32)
         shape = theta.shape[:-1]
         gains = jnp.broadcast_to(jnp.asarray(rate_gains, jnp.float32), shape + (3,))
         return cls(theta, gains, jnp.broadcast_to(jnp.float32(dt), shape),
-                   jnp.broadcast_to(jnp.float32(target_tau), shape))
+                   jnp.broadcast_to(jnp.float32(target_tau), shape), yaw_last)
 
     def init(self, key=None):
         """Carry: the expected rotor speeds Ω̂ (4,) rad/s, the hover speeds of θ."""
@@ -144,8 +162,9 @@ class KThetaLag:
     def step(self, carry, imu, command: Command):
         th = self.theta
         tau = th[P.INERTIA] * self.rate_gains * (command.omega_cmd - imu[0:3])
-        sq = allocate(th, th[P.MASS] * command.a_cmd, tau)
         w_max = th[P.OMEGA_MAX]
+        sq = _yaw_last(th, th[P.MASS] * command.a_cmd, tau, w_max**2) if self.yaw_last else \
+            allocate(th, th[P.MASS] * command.a_cmd, tau)
         desired = jnp.clip(jnp.sqrt(jnp.maximum(sq, 0.0)), 0.0, w_max)
         a = jnp.exp(-self.dt / th[P.TAU_M])
         a_d = jnp.exp(-self.dt / jnp.minimum(th[P.TAU_M], self.target_tau))

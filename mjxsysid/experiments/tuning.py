@@ -93,21 +93,48 @@ def _ratio(res, a, b, k="pos_rmse_m", common=None):
 VARIANTS = {"heading_cost": "the tuner's cost with a heading term (weight HEADING_COST = 0.1; the default "
                             "before 2026-11-25), not the paper's cost",
             "no_lead_in": "tune-lemniscate without the hover lead-in (the lemniscate from t = 0, as "
-                          "before 2026-11-24)"}
-"""Protocol variants of the tune-* experiments (``mjxsysid experiment NAME --variant V``): choices
-made after seeing a result, reported beside the default protocol."""
+                          "before 2026-11-24)",
+            "steady_rotor_state": "each model's rollouts start the rotors at its steady state for the last motor "
+                                  "command (the tuner before 2026-11-25)",
+            "true_rotor_state": "the rollouts start from the simulator's true rotor speeds (a diagnostic: "
+                                "hardware cannot see them)",
+            "baseline_start": "the tuner starts from the Baseline gains instead of the Naive ones",
+            "protect": "the tuner switches gains only when 75 % of its K models predict the new ones better",
+            "apply_best": "the tuner applies the best candidate of its last CEM iteration, not the mean",
+            "cem_3_iterations": "3 CEM iterations per update instead of 2",
+            "horizon_1s": "a 1 s predictive horizon instead of 0.5 s"}
+"""Protocol variants of the tune-* experiments (``mjxsysid experiment NAME --variant V[,V2]``):
+choices made after seeing a result, or knobs measured, reported beside the default protocol."""
 
 
 def _variant(name: str, variant: str | None, cfg: TunerConfig) -> TunerConfig:
-    """The tuner config of ``variant`` (None: the default protocol); a ValueError names the valid ones."""
-    allowed = ("heading_cost", "no_lead_in") if name == "tune-lemniscate" else ("heading_cost",)
+    """The tuner config of ``variant`` (None: the default protocol; several joined by commas); a
+    ValueError names the valid ones."""
     if variant is None:
         return cfg
-    if variant not in allowed:
-        raise ValueError(f"{name} has no variant {variant!r}; choose from {', '.join(allowed)}")
-    if variant == "heading_cost":
-        return dataclasses.replace(cfg, weights=dataclasses.replace(cfg.weights, heading=HEADING_COST))
+    allowed = [v for v in VARIANTS if name == "tune-lemniscate" or v != "no_lead_in"]
+    for v in variant.split(","):
+        if v not in allowed:
+            raise ValueError(f"{name} has no variant {v!r}; choose from {', '.join(allowed)}")
+        if v == "heading_cost":
+            cfg = dataclasses.replace(cfg, weights=dataclasses.replace(cfg.weights, heading=HEADING_COST))
+        elif v in ("steady_rotor_state", "true_rotor_state"):
+            cfg = dataclasses.replace(cfg, rotor_state=v.split("_")[0])
+        elif v == "baseline_start":
+            cfg = dataclasses.replace(cfg, initial="baseline")
+        elif v == "protect":
+            cfg = dataclasses.replace(cfg, protect=0.75)
+        elif v == "apply_best":
+            cfg = dataclasses.replace(cfg, apply="best")
+        elif v == "cem_3_iterations":
+            cfg = dataclasses.replace(cfg, cem=dataclasses.replace(cfg.cem, iterations=3))
+        elif v == "horizon_1s":
+            cfg = dataclasses.replace(cfg, horizon=1.0)
     return cfg
+
+
+def _variant_note(variant: str | None) -> str:
+    return "; ".join(f"{v}: {VARIANTS[v]}" for v in variant.split(",")) if variant else ""
 
 
 def _size(quick, cpu):
@@ -153,7 +180,7 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
              "that loses its hardest vehicles). The paper reports mean ± std over rollouts. Oracle-CEM tunes "
              "on K copies of the true θ: an upper reference, not in the paper. Nominal+CEM tunes on ±20 % "
              f"perturbations of each vehicle's own nominal system (its θ with τ_m = {NOMINAL_TAU_M:g} s). "
-             + (f"Variant {variant}: {VARIANTS[variant]}. " if variant else "The tuner's cost is the paper's "
+             + (f"Variant {_variant_note(variant)}. " if variant else "The tuner's cost is the paper's "
                 "(position RMSE, saturation, failure; no heading term). ") + "\n"
              "Ratios over the same vehicles: " + ", ".join(f"{k} {v:.2f}" for k, v in numbers["ratios"].items()
                                                           if v is not None and "own" not in k))
@@ -193,7 +220,7 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
     size = _size(quick, cpu)
     cfg = _variant("tune-lemniscate", variant, {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size])
     sim = Quadrotor(HARDWARE_SIM)
-    lead = 0.0 if variant == "no_lead_in" else (0.5 if quick else LEAD_IN_S)
+    lead = 0.0 if "no_lead_in" in (variant or "").split(",") else (0.5 if quick else LEAD_IN_S)
     duration = 2.0 if quick else lead + cycles * max(periods)
     steps = int(round(duration / sim.config.dt))
     theta = np.repeat(P.PAPER_HARDWARE[None], len(periods), 0)
@@ -253,5 +280,5 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
                          notes=("Our simulated 'hardware' is the paper vehicle with IMU noise, bias and latency. "
                                 f"Each flight: {lead:g} s hover at the start point (tuner running), then "
                                 f"{cycles} cycles, scored over the cycles. "
-                                + (f"Variant {variant}: {VARIANTS[variant]}." if variant else
+                                + (f"Variant {_variant_note(variant)}." if variant else
                                    "The tuner's cost is the paper's (no heading term).")))
