@@ -6,6 +6,7 @@
     post = mjxsysid.decode(res, samples=100)      # what `mjxsysid decode` writes
     post["summary"]["thrust_to_weight"]           # {mean, q05, q95, true, inside}
     post = mjxsysid.decode("my_flight.csv")       # a recorded flight log (README: log format)
+    mjxsysid.check_log("my_flight.csv")           # its physical plausibility checks alone
 
 Thin wrappers over :func:`mjxsysid.rollout.flight.fly_vehicles`,
 :func:`mjxsysid.studies.decode.decode_posterior` and the vehicle-file readers of
@@ -22,11 +23,14 @@ import numpy as np
 from mjxsysid import params as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.rollout.flight import CONTROLLERS, fly_vehicles, metrics_dict, one_flight, save_flight
+from mjxsysid.rollout.flight import CONTROLLERS, fly_vehicles, metrics_dict, one_flight, save_flight, seen_imu
 from mjxsysid.rollout.harness import metrics_to_host
-from mjxsysid.studies.decode import check_window, decode_posterior, log_latents, parse_window, read_log
+from mjxsysid.studies.decode import (check_window, checks_summary, decode_posterior, decoders_prior, flight_checks,
+                                     log_latents, parse_window, read_log)
+from mjxsysid.studies import logcheck as _logcheck
+from mjxsysid.studies.logcheck import Finding, LogError
 
-__all__ = ["FlightResult", "decode", "fly", "load_vehicle", "paper_vehicle", "prior_vehicles",
+__all__ = ["Finding", "FlightResult", "LogError", "check_log", "decode", "fly", "load_vehicle", "paper_vehicle", "prior_vehicles",
            "save_vehicle", "to_theta"]
 
 load_vehicle = P.load_vehicle
@@ -138,12 +142,17 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
     ``cfm_seq.npz`` beside the CFM), also returned as samples_window (K, S, 19) with n_window
     (K,); a number of seconds — a sliding window of that length; ``"instant"`` — the
     single-latent CFM alone. Without a sequence decoder it falls back to ``"instant"`` and
-    ``summary["_window"]`` says which was used."""
+    ``summary["_window"]`` says which was used.
+
+    A log is checked first, as by :func:`check_log`: one that cannot be right raises
+    :class:`LogError`; warnings and a flight outside the decoders' training prior are printed
+    (stderr) and kept in ``summary["_checks"]``."""
     if not rate > 0:
         raise ValueError(f"rate must be > 0 Hz, got {rate}")
     if samples < 2:
         raise ValueError(f"samples must be >= 2, got {samples}")
     window = parse_window(window)
+    checks = {}
     if isinstance(flight_or_log, FlightResult):
         res = flight_or_log
         if res.controller != "policy":
@@ -156,11 +165,12 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
         one = res.one(index)
         zhat_t, times = np.asarray(one.latent), np.asarray(one.time)
         th = res.theta[index] if truth is None else to_theta(truth)
+        rec = {"imu": seen_imu(one.frame.imu), "motor": one.frame.motor_cmd}
     elif isinstance(flight_or_log, (str, Path)):
         rec = read_log(flight_or_log)
         th = None if truth is None else to_theta(truth)
         ref = resolve_policy(policy or "mjxsysid", weights)
-        zhat_t, times = log_latents(ref, rec)
+        zhat_t, times = log_latents(ref, rec, source=flight_or_log, checks=checks)
     else:
         raise ValueError(f"decode takes a FlightResult of mjxsysid.fly or a flight-log path, "
                          f"got {type(flight_or_log).__name__}")
@@ -170,5 +180,30 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
     cfm, reg = load_decoders(decoders, ref, allow_mismatch=allow_mismatch, warn=print)
     seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=print,
                                                                  allow_mismatch=allow_mismatch)
-    return decode_posterior(zhat_t, times, th, decoder=cfm, regression=reg, rate=rate, samples=samples,
+    flight_checks(rec, decoders_prior(seq, cfm), checks)
+    for f in checks["findings"]:
+        _logcheck.warn(f)
+    post = decode_posterior(zhat_t, times, th, decoder=cfm, regression=reg, rate=rate, samples=samples,
                             seed=seed, window=window, seq_decoder=seq)
+    post["summary"]["_checks"] = checks_summary(checks)
+    return post
+
+
+def check_log(log, *, policy=None, weights=None, prior: str | None = "wide_actuators") -> list:
+    """The physical plausibility checks of ``mjxsysid decode --log``, alone: a flight-log CSV
+    path (or the dict of arrays :func:`~mjxsysid.studies.decode.read_log` returns) -> a list of
+    :class:`Finding` (level 'error', 'warning' or 'out_of_prior', the column, the message;
+    empty: nothing found). Errors do not raise here. ``policy`` (default the shipped one; None
+    with ``prior=None`` skips the replay): the policy's own actions on the logged inputs are
+    compared with the logged motor commands; ``prior``: the decoders' training prior the
+    log-only vehicle estimates are compared with (None: not compared)."""
+    rec = read_log(log) if isinstance(log, (str, Path)) else log
+    found = _logcheck.check_log(rec)
+    if not any(f.level == "error" for f in found):
+        ctrl = resolve_policy(policy or "mjxsysid", weights).load()
+        if hasattr(ctrl, "replay_actions"):
+            z = ctrl.replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+            found += _logcheck.check_replay(rec, ctrl, z)
+        if prior is not None:
+            found += _logcheck.prior_check(rec, prior)
+    return found

@@ -105,6 +105,24 @@ class PolicyController:
         xs = tuple(jnp.asarray(a, jnp.float32) for a in (imu, a_cmd, omega_cmd, motor))
         return np.asarray(_replay(self, xs))
 
+    def replay_actions(self, imu, a_cmd, omega_cmd, motor, zhat, rows):
+        """The policy's own motor commands (R, 4) at ``rows`` (R,) (indices ≥ 1) of a recorded
+        flight, given the logged inputs and ẑ (T, 8) of :meth:`replay`: at step t the policy
+        sees the observation of row t, the previous logged action and ẑ after step t − 1. For a
+        flight this policy flew, they equal the logged motor commands."""
+        import numpy as np
+        rows = np.asarray(rows, int)
+        obs = N.observation(jnp.asarray(imu, jnp.float32)[rows], jnp.asarray(a_cmd, jnp.float32)[rows],
+                            jnp.asarray(omega_cmd, jnp.float32)[rows])
+        last = 2.0 * jnp.asarray(motor, jnp.float32)[rows - 1] - 1.0
+        raw = _act(self.params, jnp.concatenate([obs, last], -1), jnp.asarray(zhat, jnp.float32)[rows - 1])
+        return np.asarray(N.to_motor(raw))
+
+
+@jax.jit
+def _act(params, state, z):
+    return N.Networks().act(params, state, z)[0]
+
 
 @jax.jit
 def _replay(ctrl: PolicyController, xs):

@@ -10,9 +10,9 @@ import numpy as np
 from mjxsysid import params as P
 
 
-def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-level"):
+def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-level", title: str | None = None):
     """ẑ and the identifiable combinations (median, 5–95 % band) over time: the single-latent
-    (instant) posterior and, if decoded, the window's (flight-level) one."""
+    (instant) posterior and, if decoded, the window's (flight-level) one; ``title`` above all."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -42,6 +42,8 @@ def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-l
         a.set_xlabel("time (s)")
         a.grid(alpha=0.3)
     ax[1].legend(fontsize=8)
+    if title:
+        fig.suptitle(title, color="tab:red")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

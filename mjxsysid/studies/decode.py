@@ -36,7 +36,8 @@ from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.progress import stages
 from mjxsysid.render.posterior import plot_decoded_over_time, plot_marginals
 from mjxsysid.render.video import render_rollout
-from mjxsysid.rollout.flight import fly_vehicles, make_reference, one_flight
+from mjxsysid.rollout.flight import fly_vehicles, make_reference, one_flight, seen_imu
+from mjxsysid.studies.logcheck import LogError, check_log, check_replay, estimate_vehicle, prior_check, warn
 
 LOG_COLUMNS = ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "a_cmd", "omega_cmd_x",
                "omega_cmd_y", "omega_cmd_z", "motor_1", "motor_2", "motor_3", "motor_4")
@@ -110,19 +111,48 @@ def read_log(path) -> dict:
                          f"(previous row {col['t'][r - 1]:.6g} s)")
     med = float(np.median(dt))
     if abs(med - LOG_DT) > 0.05 * LOG_DT:
-        raise ValueError(f"{path}: column t: rows are {med * 1e3:.4g} ms apart (median); the policy runs at "
-                         f"500 Hz: resample the log to 2 ms steps")
+        raise ValueError(f"{path}: column t: {time_step_problem(med)}")
     motor = np.stack([col[f"motor_{i}"] for i in range(1, 5)], -1)
     bad = np.argwhere((motor < -1e-6) | (motor > 1 + 1e-6))
     if bad.size:
         r, m = bad[0]
-        raise ValueError(f"{path}: line {rows[r][0]}, column motor_{m + 1}: {motor[r, m]:.6g} is outside [0, 1] "
-                         f"(motor commands are normalised Ω_cmd/Ω_max)")
+        raise ValueError(f"{path}: line {rows[r][0]}, column motor_{m + 1}: {motor[r, m]:.6g} is outside [0, 1]; "
+                         f"{motor_range_problem(motor)}")
     f32 = {k: v.astype(np.float32) for k, v in col.items()}
     if not all(np.all(np.isfinite(v)) for v in f32.values()):
         c = next(k for k, v in f32.items() if not np.all(np.isfinite(v)))
         raise ValueError(f"{path}: column {c}: values too large (beyond float32)")
     return _record(col, motor)
+
+
+def time_step_problem(median_dt: float) -> str:
+    """What a log's median time step ``median_dt`` (in the log's unit) says, when it is not
+    2 ms in seconds: the unit (ms, µs, ns) or another rate, and the fix."""
+    for scale, unit in ((1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")):
+        if abs(median_dt - LOG_DT * scale) <= 0.05 * LOG_DT * scale:
+            return (f"rows are {median_dt:.4g} apart (median): time looks like {unit}, not seconds "
+                    f"(divide t by {scale:g}); the rows themselves are 500 Hz steps")
+    return (f"rows are {median_dt * 1e3:.4g} ms apart (median), {1 / median_dt:.4g} Hz; the policy acts at 500 Hz "
+            f"and its 0.2 s history is 100 steps of 2 ms: log every step the policy acted on, one row each "
+            f"(resampling a log of another rate does not give the inputs the policy saw)")
+
+
+def motor_range_problem(motor) -> str:
+    """Why motor columns (T, 4) outside [0, 1] are not normalised rotor-speed commands, and the
+    fix (docs/decoding.md, 'Converting autopilot outputs')."""
+    lo, hi = float(np.min(motor)), float(np.max(motor))
+    if 800 <= lo and hi <= 2200:
+        why = (f"values {lo:.4g}–{hi:.4g} look like PWM pulse widths in µs: throttle = (pwm − 1000) / 1000, "
+               f"then Ω_cmd/Ω_max = √throttle for an ESC whose thrust is linear in throttle")
+    elif lo >= 0 and hi <= 100:
+        why = f"values {lo:.4g}–{hi:.4g} look like percent: divide by 100 (and see the throttle conversion)"
+    elif lo >= 0 and hi > 100:
+        why = (f"values {lo:.4g}–{hi:.4g} look like rotor speeds (RPM or rad/s): divide by the maximum rotor "
+               f"speed in the same unit")
+    else:
+        why = (f"values {lo:.4g}–{hi:.4g} are signed: these look like body rates, torques or another signed "
+               f"quantity, not rotor-speed commands")
+    return f"{why}. Motor commands are normalised Ω_cmd/Ω_max in [0, 1] (docs/decoding.md, 'Converting autopilot outputs')"
 
 
 def _record(col: dict, motor) -> dict:
@@ -335,17 +365,90 @@ def decode_posterior(zhat_t, times, truth=None, *, decoder, regression, rate: fl
     return dict(dec, theta_true=truth, summary=summary)
 
 
-def log_latents(policy, rec: dict):
+def log_latents(policy, rec: dict, *, source="flight log", checks: dict | None = None):
     """ẑ (T, 8) and times (T,) (s from the log's start, first step at 2 ms) of a flight log read
-    by :func:`read_log`, rebuilt by the frozen ``policy`` (a name, path or PolicyRef)."""
-    ref = resolve_policy(policy)
-    zhat_t = ref.load().replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
-    return np.asarray(zhat_t), rec["t"] - rec["t"][0] + LOG_DT
+    by :func:`read_log`, rebuilt by the frozen ``policy`` (a name, path or PolicyRef).
+
+    The log's physics is checked first (:func:`~mjxsysid.studies.logcheck.check_log`): a log
+    that cannot be right raises :class:`~mjxsysid.studies.logcheck.LogError` (naming ``source``)
+    before any replay; then the policy's own actions on the logged inputs are compared with the
+    logged motor commands. The findings (warnings) are appended to ``checks["findings"]``."""
+    found = check_log(rec)
+    if any(f.level == "error" for f in found):
+        raise LogError(source, found)
+    ctrl = resolve_policy(policy).load()
+    zhat_t = np.asarray(ctrl.replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"]))
+    if hasattr(ctrl, "replay_actions"):
+        found += check_replay(rec, ctrl, zhat_t)
+    if checks is not None:
+        checks.setdefault("findings", []).extend(found)
+    return zhat_t, rec["t"] - rec["t"][0] + LOG_DT
+
+
+def decoders_prior(*decoders) -> str | None:
+    """The name of the prior the decoders were trained on (from their provenance), if it is a
+    size-factor prior of :mod:`mjxsysid.params` (what :func:`prior_check` compares with)."""
+    for d in decoders:
+        name = (getattr(d, "meta", None) or {}).get("data", {}).get("pairs_meta", {}).get("prior")
+        if name in P.PRIORS and isinstance(P.PRIORS[name], P.Prior):
+            return name
+    return None
+
+
+def flight_checks(rec: dict, prior: str | None, checks: dict | None = None) -> dict:
+    """Out-of-prior check of a flight (a log's arrays, or a flown flight's): the log-only
+    estimates of :func:`~mjxsysid.studies.logcheck.estimate_vehicle` against the decoders'
+    ``prior`` -> ``checks`` with ``estimates``, ``prior``, ``findings`` (appended) and the
+    summary's form (:func:`checks_summary`)."""
+    checks = {} if checks is None else checks
+    est = estimate_vehicle(rec)
+    checks["estimates"] = est
+    checks["prior"] = prior
+    if prior is not None:
+        checks.setdefault("findings", []).extend(prior_check(rec, prior, est))
+    return checks
+
+
+def checks_summary(checks: dict) -> dict:
+    """The ``_checks`` entry of summary.json: warnings and out-of-prior findings as text, the
+    log-only estimates, the prior compared with, and ``out_of_prior`` (bool)."""
+    found = checks.get("findings", [])
+    oop = [str(f) for f in found if f.level == "out_of_prior"]
+    return {"warnings": [str(f) for f in found if f.level == "warning"], "out_of_prior": oop,
+            "is_out_of_prior": bool(oop), "prior": checks.get("prior"),
+            "estimates": {k: float(v) for k, v in checks.get("estimates", {}).items()}}
+
+
+OUT_OF_PRIOR_TITLE = "OUT OF THE DECODERS' PRIOR — bands not calibrated: "
+
+
+def write_summary_md(summary: dict, path) -> Path:
+    """summary.md: the checks' warnings first (out of prior, suspicious log), then the decoded
+    identifiable combinations and parameters (mean, 5–95 %, and the truth if known)."""
+    c = summary.get("_checks", {})
+    lines = ["# Decoded vehicle", ""]
+    if c.get("is_out_of_prior"):
+        lines += ["**Out of the decoders' training prior: the bands below are not calibrated.**", ""]
+        lines += [f"- {m}" for m in c["out_of_prior"]] + [""]
+    if c.get("warnings"):
+        lines += ["**Warnings about the log:**", ""] + [f"- {m}" for m in c["warnings"]] + [""]
+    w = summary.get("_window", {})
+    lines += [f"Posterior: {w.get('label', '')} at t = {w.get('t_end_s', float('nan')):.2f} s.", "",
+              "| quantity | mean | 5 % | 95 % | true | inside |", "|---|---|---|---|---|---|"]
+    for k, v in summary.items():
+        if isinstance(v, dict) and "mean" in v and "q05" in v:
+            true = f"{v['true']:.4g}" if "true" in v else ""
+            inside = ("yes" if v["inside"] else "no") if "inside" in v else ""
+            lines.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} | {true} | {inside} |")
+    Path(path).write_text("\n".join(lines) + "\n")
+    return Path(path)
+
+
 
 
 def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
                samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print,
-               policy="mjxsysid", decoders=None, window="flight", truth=None) -> dict:
+               policy="mjxsysid", decoders=None, window="flight", truth=None, warn=warn) -> dict:
     """Fly θ (or replay ``log``) with a frozen latent policy (``policy``, ``weights``: see
     :func:`~mjxsysid.policy.interface.resolve_policy`; default the shipped one), decode at
     ``rate`` Hz with that policy's decoders (or those in ``decoders``), write out/decoded.npz,
@@ -356,7 +459,13 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     that window (the sequence decoder; 'instant': the single-latent CFM), ``_instant`` the
     single-latent one, ``_window`` what was used. Without a sequence decoder, falls back to
     'instant' and says so. ``truth`` (θ (19,), with ``log`` only): the logged vehicle's known
-    parameters; the summary then reports ``true`` and ``inside`` as for a flown vehicle."""
+    parameters; the summary then reports ``true`` and ``inside`` as for a flown vehicle.
+
+    A log is checked for physical plausibility before any decoding
+    (:mod:`mjxsysid.studies.logcheck`): a log that cannot be right raises ``LogError`` (a
+    ``ValueError``); suspicious findings, and a flight outside the decoders' training prior, go
+    to ``warn`` (never silenced by ``--quiet``), ``summary["_checks"]``, summary.md and the
+    plots' titles."""
     # Every input is checked before any work starts.
     if not rate > 0:
         raise ValueError(f"--rate must be > 0 Hz, got {rate}")
@@ -390,19 +499,26 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
                 + (["video"] if video and log is None else []), desc="decode")
     st.start("flying" if log is None else "replaying the log")
     flight = None
+    checks = {}
     if log is not None:
-        zhat_t, times = log_latents(ref, rec)
+        zhat_t, times = log_latents(ref, rec, source=log, checks=checks)
         truth = None if truth is None else np.asarray(truth, np.float32)
     else:
         flight, _, _ = fly_vehicles(theta, controller="policy", policy=ref, reference=reference,
                                     period=period, duration=duration, seed=seed)
         one = one_flight(flight)
         zhat_t, times, truth = one.latent, one.time, np.asarray(theta, np.float32)
+        rec = {"imu": seen_imu(one.frame.imu), "motor": one.frame.motor_cmd}
+    flight_checks(rec, decoders_prior(seq, cfm), checks)
+    for f in checks["findings"]:
+        warn(f)
     st.start("decoding")
     dec = decode_posterior(zhat_t, times, truth, decoder=cfm, regression=reg, rate=rate, samples=samples,
                            seed=seed, window=window, seq_decoder=seq)
     summary = dec.pop("summary")
+    summary["_checks"] = checks_summary(checks)
     label = summary["_window"]["label"]
+    flag = OUT_OF_PRIOR_TITLE if summary["_checks"]["is_out_of_prior"] else ""
     if summary["_window"]["decode_rate_hz"] < rate - 1e-6:
         echo(f"note: {summary['_window']['n_decodes']} decode times at most (MAX_DECODES): this "
              f"{summary['_window']['t_end_s']:.0f} s flight is decoded at {summary['_window']['decode_rate_hz']:.3g} Hz; "
@@ -414,11 +530,12 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     np.savez_compressed(out / "decoded.npz", **dec)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_summary_md(summary, out / "summary.md")
     st.start("plots")
     plot_marginals(final, truth if truth is not None else np.full(19, np.nan), out / "marginals.png",
                    point=dec["regression"][-1],
-                   title=f"decoded p(θ | ẑ, {label}) at t = {dec['times'][-1]:.1f} s")
-    plot_decoded_over_time(dec, truth, out / "decoded_over_time.png", window_label=label)
+                   title=f"{flag}decoded p(θ | ẑ, {label}) at t = {dec['times'][-1]:.1f} s")
+    plot_decoded_over_time(dec, truth, out / "decoded_over_time.png", window_label=label, title=flag or None)
     if video and flight is not None:
         st.start("video")
         gth, _ = P.project_valid(final[:ghosts])

@@ -1,0 +1,415 @@
+"""Physical plausibility of a flight log, before anything is decoded.
+
+A log can pass every check of its format (columns, numbers, 500 Hz, motor commands in [0, 1])
+and still be wrong in a way only physics sees: the accelerometer in g, the gyro in deg/s, the
+motor columns in another autopilot's rotor order, a command column that is not what the policy
+was given. Each check here rests on what every multirotor obeys, not on numbers fitted to
+mjxsysid's own logs:
+
+- **specific force against gravity.** Over a flight that does not end in a fall, the
+  accelerometer (specific force, body frame) averages to gravity's magnitude in the world frame,
+  so its mean norm is at least about g; at hover it reads +g on the body z axis (FLU: thrust up).
+- **gyro scale.** A MEMS gyro's full-scale range is at most 2000 °/s (34.9 rad/s); a rate
+  controller follows its body-rate command, so gyro ≈ omega_cmd (gain 1, not 180/π).
+- **rotor order.** Euler's equation J ω̇ = τ: the angular acceleration the gyro shows must follow
+  the torque the motor commands imply through the rotor layout (roll from the left–right
+  difference of Ω², pitch from back–front, yaw from the spin directions), with a positive gain
+  on every axis. Every one of the 24 orders is fitted; a clearly better one is named.
+- **motor columns.** Normalised rotor-speed commands lie in [0, 1] (checked on reading); values
+  that do not drive the angular acceleration under any rotor order are not rotor commands.
+- **the policy on its own inputs.** For a log flown by the policy being decoded, the policy
+  replayed on the logged IMU and commands must output the logged motor commands.
+
+:func:`check_log` returns :class:`Finding` s: ``error`` where the log cannot be right (the CLI
+exits 2), ``warning`` where it is suspicious. :func:`prior_check` estimates, from the log alone,
+what the decoders cannot be trusted beyond: thrust-to-weight (specific force per unit Σ u²),
+the motor time constant (the lag of specific force behind the commands) and the weakest
+motor's effectiveness (the hover balance), each against the decoders' training prior.
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+
+from mjxsysid import params as P
+
+DT = 0.002
+"""s: one control step (500 Hz)."""
+
+GYRO_FULL_SCALE = np.deg2rad(2000.0)
+"""rad/s: the largest full-scale range of common MEMS gyros (±2000 °/s). A body rate beyond it
+cannot have been measured: the column is not in rad/s."""
+
+SMOOTH_STEPS = 10
+"""Moving-average length (20 ms) applied alike to both sides of the torque and rate fits: it
+removes sensor noise above 25 Hz while keeping the rotor dynamics (τ_m ≥ a few ms)."""
+
+LAGS = (0.003, 0.005, 0.0075, 0.01, 0.0125, 0.015, 0.02, 0.03, 0.04, 0.06, 0.08, 0.1, 0.13)
+"""s: the rotor time constants tried when fitting the commands to what the IMU shows."""
+
+KNOWN_ORDERS = {
+    "mjxsysid (front-right, front-left, back-left, back-right)": (0, 1, 2, 3),
+    "RotorPy (front-left, front-right, back-right, back-left)": (1, 0, 3, 2),
+    "PX4 quad-X (front-right, back-left, front-left, back-right)": (0, 2, 1, 3),
+    "Betaflight quad-X (back-right, front-right, back-left, front-left)": (3, 0, 2, 1),
+}
+"""Rotor orders of common tools: the mjxsysid rotor (0 front-right, 1 front-left, 2 back-left,
+3 back-right) in each of the log's columns motor_1..motor_4."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Finding:
+    """One result of a check: ``level`` 'error' (the log cannot be right), 'warning' (suspicious)
+    or 'out_of_prior' (the decoders were not trained on such a vehicle); ``column`` the log
+    column(s) concerned; ``message`` what was found, the likely cause and the fix."""
+    level: str
+    column: str
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.column}: {self.message}"
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def warn(finding) -> None:
+    """Print a finding on stderr: always, whatever ``--quiet`` says (as errors are)."""
+    import sys
+    label = "out of prior" if getattr(finding, "level", "") == "out_of_prior" else "warning"
+    print(f"{label}: {finding}", file=sys.stderr, flush=True)
+
+
+class LogError(ValueError):
+    """A log that cannot be right: ``findings`` holds every finding (errors and warnings)."""
+
+    def __init__(self, path, findings):
+        self.findings = list(findings)
+        errs = [f for f in self.findings if f.level == "error"]
+        super().__init__(f"{path}: " + "; ".join(str(f) for f in errs))
+
+
+# ------------------------------------------------------------------------------- helpers
+def _smooth(x, n: int = SMOOTH_STEPS):
+    """Moving average over ``n`` rows along axis 0 (valid part only)."""
+    c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:]), x], 0), 0)
+    return (c[n:] - c[:-n]) / n
+
+
+def _lag(x, tau: float):
+    """First-order lag with time constant ``tau`` (s) at 500 Hz along axis 0, starting at x[0]
+    (the rotor speed following its command, exactly discretised)."""
+    from scipy.signal import lfilter
+    a = np.exp(-DT / tau)
+    zi = (a * x[0])[None] if x.ndim > 1 else np.array([a * x[0]])
+    return lfilter([1 - a], [1, -a], x, axis=0, zi=zi)[0]
+
+
+def _fit(x, y):
+    """Least squares y ≈ k x + b -> (k, R²)."""
+    xc, yc = x - x.mean(0), y - y.mean(0)
+    sxx, syy = float((xc * xc).sum()), float((yc * yc).sum())
+    if sxx <= 0 or syy <= 0:
+        return 0.0, 0.0
+    k = float((xc * yc).sum()) / sxx
+    return k, 1.0 - float(((yc - k * xc) ** 2).sum()) / syy
+
+
+def _torque_basis():
+    """(3, 4): roll, pitch and yaw torque per unit thrust-like Ω² of each mjxsysid rotor
+    (positions ±1/√2, reaction yaw signs), without the vehicle's scale."""
+    d = P.ROTOR_DIRECTIONS
+    return np.stack([d[:, 1], -d[:, 0], P.YAW_SIGNS]).astype(np.float64)
+
+
+def order_name(order) -> str:
+    order = tuple(int(i) for i in order)
+    for name, o in KNOWN_ORDERS.items():
+        if o == order:
+            return name
+    return "columns motor_1..4 = " + ", ".join(P.ROTOR_NAMES[i] for i in order)
+
+
+def rotor_order_fit(rec: dict) -> dict:
+    """Fit the angular acceleration (gyro, differentiated and smoothed) to the torque the motor
+    commands imply for each of the 24 rotor orders. -> dict: ``scores`` {order: mean R² over
+    roll, pitch, yaw (an axis with a negative gain counts −1)}, ``gains`` {order: (3,)},
+    ``best`` order, ``given`` score of the log's own order (0, 1, 2, 3), ``tau`` the lag used,
+    ``excited`` whether the flight moved the vehicle enough to tell (rate changes above noise)."""
+    u2 = np.asarray(rec["motor"], np.float64) ** 2
+    gyro = np.asarray(rec["imu"], np.float64)[:, :3]
+    alpha = _smooth(np.diff(gyro, axis=0) / DT)                           # (T−n, 3)
+    basis = _torque_basis()
+    best_tau, best_s, cache = None, -np.inf, {}
+    for tau in LAGS:  # the lag from the log's own order (the rotor time constant); every order then uses it
+        uf = _smooth(_lag(u2, tau)[:-1])  # row t: the rotors over step t, which alpha[t] spans
+        s = np.mean([_fit(uf @ basis[k], alpha[:, k])[1] for k in range(3)])
+        cache[tau] = uf
+        if s > best_s:
+            best_tau, best_s = tau, s
+    uf = cache[best_tau]
+    scores, gains = {}, {}
+    for order in itertools.permutations(range(4)):
+        b = basis[:, list(order)]          # column j is rotor order[j]
+        ks, r2 = zip(*(_fit(uf @ b[k], alpha[:, k]) for k in range(3)))
+        scores[order] = float(np.mean([r if k > 0 else -1.0 for k, r in zip(ks, r2)]))
+        gains[order] = np.asarray(ks)
+    best = max(scores, key=scores.get)
+    excited = bool(np.std(np.diff(gyro, axis=0)) > 0 and max(scores.values()) > 0.2)
+    return {"scores": scores, "gains": gains, "best": best, "given": scores[(0, 1, 2, 3)], "tau": best_tau,
+            "excited": excited, "given_r2": float(best_s)}
+
+
+# -------------------------------------------------------------------------------- checks
+def check_log(rec: dict, *, policy=None, zhat=None) -> list[Finding]:
+    """Physical plausibility of a flight log read by
+    [read_log][mjxsysid.studies.decode.read_log] (``rec``: t, imu (T, 6), a_cmd, omega_cmd (T, 3),
+    motor (T, 4)). ``policy``: the loaded latent policy being decoded, and ``zhat`` (T, 8) its
+    replay of the log (both optional): then the policy's own actions on the logged inputs are
+    compared with the logged motor commands. -> findings, errors first."""
+    out = []
+    out += _check_specific_force(rec)
+    out += _check_gyro(rec)
+    if not any(f.level == "error" for f in out):   # the dynamics checks need sane units
+        out += _check_motors(rec)
+        if policy is not None and zhat is not None and hasattr(policy, "replay_actions"):
+            out += check_replay(rec, policy, zhat)
+    return sorted(out, key=lambda f: f.level != "error")
+
+
+def _check_specific_force(rec) -> list[Finding]:
+    acc = np.asarray(rec["imu"], np.float64)[:, 3:6]
+    g = P.GRAVITY
+    norm = np.linalg.norm(acc, axis=1)
+    med = float(np.median(norm))
+    mean = np.mean(acc, 0)
+    seconds = len(acc) * DT
+    cols = "acc_x, acc_y, acc_z"
+    if 0.5 < med < 2.0:
+        return [Finding("error", cols, f"the specific force has median norm {med:.3g} in flight: looks like g, "
+                        f"not m/s² (an accelerometer reads about 9.81 m/s² at hover): multiply acc_x/y/z by {g}")]
+    if 0.5 * g * 1000 < med < 2.0 * g * 1000:
+        return [Finding("error", cols, f"the specific force has median norm {med:.4g}: looks like milli-g "
+                        f"(mg), not m/s²: multiply acc_x/y/z by {g / 1000:g}")]
+    if med < 0.5 * g or med > 5 * g:
+        lvl = "error" if seconds >= 1.0 else "warning"
+        return [Finding(lvl, cols, f"the specific force has median norm {med:.3g} m/s²; a flying (or resting) "
+                        f"vehicle's accelerometer averages about g = {g} m/s² over a flight: check the unit "
+                        f"(m/s² expected) and that the columns are the accelerometer (specific force)")]
+    axis = int(np.argmax(np.abs(mean)))
+    if axis != 2 or mean[2] < 0:
+        name = "xyz"[axis]
+        sign = "+" if mean[axis] > 0 else "−"
+        fix = ("the body z axis points down (FRD, as PX4 logs): convert to FLU by negating the y and z columns "
+               "of gyro and acc" if axis == 2 else
+               f"the thrust axis is {sign}{name}: map the columns to FLU (x forward, y left, z up, thrust on +z)")
+        return [Finding("error", cols, f"the mean specific force is {mean.round(2).tolist()} m/s², largest on "
+                        f"{sign}{name}; a multirotor's thrust is along +z in mjxsysid's body frame (FLU): {fix}")]
+    return []
+
+
+def _check_gyro(rec) -> list[Finding]:
+    gyro = np.asarray(rec["imu"], np.float64)[:, :3]
+    w_cmd = np.asarray(rec["omega_cmd"], np.float64)
+    out = []
+    peak = float(np.percentile(np.abs(gyro), 99.9))
+    if peak > GYRO_FULL_SCALE:
+        out.append(Finding("error", "gyro_x, gyro_y, gyro_z",
+                           f"body rates reach {peak:.4g} (99.9th percentile of |gyro|), beyond any gyro's full "
+                           f"scale ({GYRO_FULL_SCALE:.1f} rad/s = 2000 °/s): looks like deg/s, not rad/s: "
+                           f"multiply gyro_x/y/z by π/180"))
+    cpeak = float(np.percentile(np.abs(w_cmd), 99.9))
+    if cpeak > GYRO_FULL_SCALE:
+        out.append(Finding("error", "omega_cmd_x, omega_cmd_y, omega_cmd_z",
+                           f"commanded body rates reach {cpeak:.4g}, beyond what any gyro measures "
+                           f"({GYRO_FULL_SCALE:.1f} rad/s): looks like deg/s: multiply omega_cmd_x/y/z by π/180"))
+    if out:
+        return out
+    # A rate-tracking controller follows its command: the gain from omega_cmd to gyro is about 1.
+    gs, ws = _smooth(gyro).ravel(), _smooth(w_cmd).ravel()
+    if np.std(ws) > 0.05:   # rad/s of commanded rate: enough to measure a gain
+        k, r2 = _fit(ws, gs)
+        ratio = 180.0 / np.pi
+        if r2 > 0.3 and ratio / 3 < k < ratio * 3:
+            out.append(Finding("warning", "gyro_x, gyro_y, gyro_z",
+                               f"the body rates follow omega_cmd with gain {k:.3g} (R² {r2:.2f}); a rate "
+                               f"controller tracks its command with gain about 1: the gyro looks like deg/s "
+                               f"(multiply gyro_x/y/z by π/180)"))
+        elif r2 > 0.3 and 1 / (ratio * 3) < k < 3 / ratio:
+            out.append(Finding("warning", "omega_cmd_x, omega_cmd_y, omega_cmd_z",
+                               f"the body rates follow omega_cmd with gain {k:.3g} (R² {r2:.2f}), not about 1: "
+                               f"omega_cmd looks like deg/s (multiply omega_cmd_x/y/z by π/180)"))
+    return out
+
+
+def _check_motors(rec) -> list[Finding]:
+    fit = rotor_order_fit(rec)
+    if not fit["excited"]:
+        return []
+    cols = "motor_1, motor_2, motor_3, motor_4"
+    given, best, sbest = fit["given"], fit["best"], fit["scores"][fit["best"]]
+    gains = fit["gains"][(0, 1, 2, 3)]
+    if best != (0, 1, 2, 3) and sbest > 0.5 and sbest - given > 0.25:
+        wrong_sign = [a for a, k in zip(("roll", "pitch", "yaw"), gains) if k <= 0]
+        lvl = "error" if any(a in ("roll", "pitch") for a in wrong_sign) else "warning"
+        what = (f"in this order the motors' torque turns the vehicle against its measured "
+                f"{'/'.join(wrong_sign)} acceleration" if wrong_sign else "")
+        reorder = ", ".join(f"motor_{j + 1} = column {best.index(j) + 1}" for j in range(4))
+        return [Finding(lvl, cols, f"the angular acceleration fits the torque of another rotor order clearly better "
+                        f"(mean R² {sbest:.2f} vs {given:.2f} for mjxsysid's order{'; ' + what if what else ''}): "
+                        f"the columns look like {order_name(best)}; mjxsysid's order is front-right, front-left, "
+                        f"back-left, back-right: reorder ({reorder})")]
+    if sbest < 0.2:
+        return [Finding("warning", cols, f"the motor commands do not explain the angular acceleration under any rotor "
+                        f"order (best mean R² {sbest:.2f}): are motor_1..4 normalised rotor-speed commands Ω_cmd/Ω_max "
+                        f"(not body rates, torques or PWM)? See docs/decoding.md, 'Converting autopilot outputs'")]
+    return []
+
+
+REPLAY_ROWS = 4000
+"""Rows (evenly spaced) at which the policy's own action is compared with the logged one."""
+
+REPLAY_TOLERANCE = 0.005
+"""RMS difference of normalised motor commands above which the logged motor commands are not
+the policy's on the logged inputs: a float32 replay of a CSV with 7 significant digits agrees
+to about 1e-6, so 0.5 % of full rotor speed is far above round-off."""
+
+
+def check_replay(rec, policy, zhat) -> list[Finding]:
+    """The policy (a loaded latent policy with ``replay_actions``) replayed on the logged inputs
+    against the logged motor commands (``zhat`` (T, 8): its replay of the log) -> a warning if
+    they differ by more than :data:`REPLAY_TOLERANCE`, naming the IMU if the previous row's
+    reading explains them."""
+    t = len(rec["t"])
+    rows = np.unique(np.linspace(1, t - 1, min(REPLAY_ROWS, t - 1)).astype(int))
+    act = np.asarray(policy.replay_actions(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"], zhat, rows))
+    err = float(np.sqrt(np.mean((act - np.asarray(rec["motor"])[rows]) ** 2)))
+    if err <= REPLAY_TOLERANCE:
+        return []
+    # Rows whose IMU was read after the step: the policy acted on the previous row's reading.
+    prev = np.concatenate([rec["imu"][:1], rec["imu"][:-1]])
+    act1 = np.asarray(policy.replay_actions(prev, rec["a_cmd"], rec["omega_cmd"], rec["motor"], zhat, rows))
+    err1 = float(np.sqrt(np.mean((act1 - np.asarray(rec["motor"])[rows]) ** 2)))
+    if err1 < 0.5 * err:
+        return [Finding("warning", "gyro_x … acc_z", f"each row's IMU is the reading after the motor command took "
+                        f"effect: the policy outputs the logged motors from the previous row's IMU (RMS Δu {err1:.2g}, "
+                        f"vs {err:.2g} from the same row): log the IMU the policy acted on (shift the IMU columns one "
+                        f"row down; docs/decoding.md, 'Row timing')")]
+    return [Finding("warning", "a_cmd, omega_cmd_x/y/z", f"the policy replayed on the logged IMU and commands does not "
+                    f"output the logged motor commands (RMS Δu {err:.2g} of full rotor speed, tolerance "
+                    f"{REPLAY_TOLERANCE}): if this log was flown by this policy, a command column (a_cmd or "
+                    f"omega_cmd: e.g. another controller's rate command) or the IMU is not what the policy was "
+                    f"given; log exactly the policy's inputs. A log not flown by this policy is decoded off its "
+                    f"training distribution")]
+
+
+# ---------------------------------------------------------------------------- out of prior
+def estimate_vehicle(rec: dict, fit: dict | None = None) -> dict:
+    """What the log alone says about the vehicle. From the thrust equation, specific force
+    acc_z = (T/W · g / 4) Σ η_i ū_i² with ū the commands lagged by τ_m (drag along body z
+    averages out over a flight): ``thrust_to_weight`` = 4 mean(acc_z) / (g mean Σ ū²) (the
+    vehicle's T/W times the harmonic mean of its η); from
+    the hover balance (each rotor of an X layout delivers the same thrust, so η_i ∝ 1 / mean u_i²)
+    ``min_motor_effectiveness``, the weakest rotor's relative to the mean; from Euler's equation
+    (the rotor order fit, ``fit`` of :func:`rotor_order_fit` if already computed)
+    ``motor_time_constant``, the lag of the angular acceleration behind the commands, and
+    ``torque_fit_r2``, how well that fit explains it."""
+    fit = rotor_order_fit(rec) if fit is None else fit
+    acc_z = np.asarray(rec["imu"], np.float64)[:, 5]
+    # Thrust follows the rotor speed, the command lagged by τ_m: its mean square is below the
+    # command's when the commands chatter (the lag removes variance), so lag them first.
+    u2 = _lag(np.asarray(rec["motor"], np.float64), fit["tau"]) ** 2
+    skip = min(100, len(acc_z) // 4)   # the first 0.2 s: the log may start before take-off settles
+    ms = u2[skip:].mean(0)
+    twr = 4.0 * float(acc_z[skip:].mean()) / (P.GRAVITY * max(float(ms.sum()), 1e-12))
+    eta = (1.0 / np.maximum(ms, 1e-12)) / np.mean(1.0 / np.maximum(ms, 1e-12))
+    return {"thrust_to_weight": twr, "motor_time_constant": float(fit["tau"]), "torque_fit_r2": fit["given_r2"],
+            "min_motor_effectiveness": float(eta.min())}
+
+
+PRIOR_MARGIN = {"thrust_to_weight": 1.0, "motor_time_constant": 1.4, "motor_effectiveness": 1.0}
+"""How far past the training prior's physical range (a factor) a log-only estimate must lie to
+be flagged. Thrust-to-weight and the weakest rotor: none (the prior's extremes — every rotor's
+η·T/W ≤ 8.5, one rotor at η's floor with three at its top — are already beyond what its
+vehicles reach on average); τ_m: one step of the estimator's grid of lags. Their false-alarm
+and hit rates are measured in docs/decoding.md, 'Out of prior'."""
+
+
+def prior_bounds(prior="wide_actuators") -> dict:
+    """The ranges of the decoders' training prior that :func:`prior_check` compares with: the
+    largest thrust-to-weight any rotor reaches (T/W × η), τ_m and η."""
+    p = P.get_prior(prior)
+    lo, hi = p.eta
+    return {"thrust_to_weight": (p.twr_min_eff, p.twr_max_eff), "motor_time_constant": p.motor_time_constant,
+            # the weakest rotor relative to the mean of four: one at the floor, three at the top
+            "motor_effectiveness": (lo / ((lo + 3 * hi) / 4), hi / ((hi + 3 * lo) / 4))}
+
+
+def prior_check(rec: dict, prior="wide_actuators", est: dict | None = None) -> list[Finding]:
+    """Whether the logged vehicle lies outside the decoders' training ``prior`` by the log-only
+    estimates of :func:`estimate_vehicle` (each beyond the prior's range by :data:`PRIOR_MARGIN`)
+    -> 'out_of_prior' findings (empty: inside)."""
+    est = estimate_vehicle(rec) if est is None else est
+    b = prior_bounds(prior)
+    out = []
+    twr = est["thrust_to_weight"]
+    lo, hi = b["thrust_to_weight"]
+    m = PRIOR_MARGIN
+    if twr > hi * m["thrust_to_weight"] or twr < lo / m["thrust_to_weight"]:
+        out.append(Finding("out_of_prior", "acc_z, motor_1..4",
+                           f"thrust-to-weight about {twr:.3g} from the log (specific force per Σ motor²), outside "
+                           f"the decoders' training prior ({lo:g}–{hi:g}): the decoded bands are not calibrated here"))
+    tau = est["motor_time_constant"]
+    tlo, thi = b["motor_time_constant"]
+    if est["torque_fit_r2"] > 0.5 and (tau < tlo / m["motor_time_constant"]
+                                         or tau > thi * m["motor_time_constant"]):
+        out.append(Finding("out_of_prior", "acc_z, motor_1..4",
+                           f"motor time constant about {tau * 1e3:.3g} ms from the log (lag of the specific force "
+                           f"behind the commands), outside the decoders' training prior ({tlo * 1e3:g}–{thi * 1e3:g} "
+                           f"ms): the decoded bands are not calibrated here"))
+    eta = est["min_motor_effectiveness"]
+    if eta < b["motor_effectiveness"][0] / m["motor_effectiveness"]:
+        out.append(Finding("out_of_prior", "motor_1..4",
+                           f"one motor needs {1 / eta:.2g}× the mean squared command to hold its share (effectiveness "
+                           f"about {eta:.2g} of the others'), beyond the decoders' training prior (at least "
+                           f"{b['motor_effectiveness'][0]:.2g}): the decoded bands are not calibrated here"))
+    return out
+
+
+# ----------------------------------------------------------------------- common mistakes
+MISTAKES = ("acc_in_g", "gyro_in_deg_s", "time_in_ms", "motor_pwm", "rotorpy_order", "px4_order",
+            "omega_cmd_other", "frd_frame", "imu_after_step")
+"""The mistakes :func:`make_mistake` makes to a correct log (what the checks must catch)."""
+
+
+def make_mistake(rec: dict, kind: str, *, imu_after=None) -> dict:
+    """A correct log ``rec`` (the arrays of ``read_log``) with one common mistake made -> a new
+    dict: ``acc_in_g`` (accelerometer in g), ``gyro_in_deg_s``, ``time_in_ms``, ``motor_pwm``
+    (1000–2000 µs pulses), ``rotorpy_order`` / ``px4_order`` (motor columns in that tool's rotor
+    order), ``omega_cmd_other`` (the rate command of another controller than the policy's: here
+    the measured body rates), ``frd_frame`` (body z down), ``imu_after_step`` (each row's IMU read
+    after the step: ``imu_after`` (T, 6), the reading after each step, else the next row's)."""
+    r = {k: np.array(v, copy=True) for k, v in rec.items()}
+    if kind == "acc_in_g":
+        r["imu"][:, 3:6] /= P.GRAVITY
+    elif kind == "gyro_in_deg_s":
+        r["imu"][:, :3] = np.rad2deg(r["imu"][:, :3])
+    elif kind == "time_in_ms":
+        r["t"] = r["t"] * 1000.0
+    elif kind == "motor_pwm":
+        r["motor"] = 1000.0 + 1000.0 * r["motor"]
+    elif kind in ("rotorpy_order", "px4_order"):
+        order = KNOWN_ORDERS[next(n for n in KNOWN_ORDERS if n.lower().startswith(kind.split("_")[0]))]
+        r["motor"] = r["motor"][:, list(order)]
+    elif kind == "omega_cmd_other":
+        r["omega_cmd"] = r["imu"][:, :3].copy()
+    elif kind == "frd_frame":
+        r["imu"][:, [1, 2, 4, 5]] *= -1
+    elif kind == "imu_after_step":
+        r["imu"] = (np.concatenate([r["imu"][1:], r["imu"][-1:]]) if imu_after is None
+                    else np.array(imu_after, copy=True))
+    else:
+        raise ValueError(f"unknown mistake {kind!r}; choose from {MISTAKES}")
+    return r
