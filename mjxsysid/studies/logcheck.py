@@ -389,7 +389,7 @@ def make_mistake(rec: dict, kind: str, *, imu_after=None) -> dict:
     dict: ``acc_in_g`` (accelerometer in g), ``gyro_in_deg_s``, ``time_in_ms``, ``motor_pwm``
     (1000–2000 µs pulses), ``rotorpy_order`` / ``px4_order`` (motor columns in that tool's rotor
     order), ``omega_cmd_other`` (the rate command of another controller than the policy's: here
-    the measured body rates), ``frd_frame`` (body z down), ``imu_after_step`` (each row's IMU read
+    the measured body rates), ``frd_frame`` (body frame FRD: y right, z down), ``imu_after_step`` (each row's IMU read
     after the step: ``imu_after`` (T, 6), the reading after each step, else the next row's)."""
     r = {k: np.array(v, copy=True) for k, v in rec.items()}
     if kind == "acc_in_g":
@@ -407,6 +407,7 @@ def make_mistake(rec: dict, kind: str, *, imu_after=None) -> dict:
         r["omega_cmd"] = r["imu"][:, :3].copy()
     elif kind == "frd_frame":
         r["imu"][:, [1, 2, 4, 5]] *= -1
+        r["omega_cmd"][:, [1, 2]] *= -1
     elif kind == "imu_after_step":
         r["imu"] = (np.concatenate([r["imu"][1:], r["imu"][-1:]]) if imu_after is None
                     else np.array(imu_after, copy=True))

@@ -1,0 +1,176 @@
+"""Physical plausibility of flight logs (mjxsysid.studies.logcheck): logs flown here by the shipped
+policy, written as CSV, then spoiled by the common mistakes; every mistake must end in exit 2 or
+a warning naming it, and correct logs of prior vehicles must raise nothing."""
+import json
+import re
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+import mjxsysid
+from mjxsysid import params as P
+from mjxsysid.cli import main
+from mjxsysid.policy.controller import PolicyController
+from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
+from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
+from mjxsysid.studies import logcheck as L
+from mjxsysid.studies.decode import read_log, write_log
+
+pytestmark = pytest.mark.skipif(not (PRETRAINED_DIR / "cfm.npz").exists(), reason="no shipped decoder")
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _recs(theta, seconds=2.0):
+    """Flights of the shipped policy (2 s of a 10 s lemniscate: the shape test_decode's flight
+    compiled) -> logs as read_log returns them, and the IMU read after each step."""
+    fl, m, _ = fly_vehicles(theta, controller="policy", policy=resolve_policy("mjxsysid"), reference="lemniscate",
+                            duration=seconds)
+    out = []
+    for i in range(len(P.as_batch(theta))):
+        f = one_flight(fl, i)
+        out.append(({"t": f.time - L.DT, "imu": seen_imu(f.frame.imu).astype(np.float64), "a_cmd": f.a_cmd,
+                     "omega_cmd": f.omega_cmd, "motor": f.frame.motor_cmd}, np.asarray(f.frame.imu)))
+    return out, np.asarray(m["failed"], bool)
+
+
+@pytest.fixture(scope="module")
+def paper_log():
+    (rec, after), = _recs(P.PAPER_HARDWARE)[0]
+    return rec, after
+
+
+@pytest.fixture(scope="module")
+def policy():
+    return PolicyController.load()
+
+
+def _all_checks(rec, pol):
+    found = L.check_log(rec, policy=pol, zhat=pol.replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"]))
+    return found + (L.prior_check(rec) if not any(f.level == "error" for f in found) else [])
+
+
+def test_correct_logs_of_prior_vehicles_raise_nothing(paper_log, policy):
+    theta = np.asarray(P.WIDE_ACTUATOR_PRIOR.sample(jax.random.PRNGKey(7), 12))
+    recs, failed = _recs(theta)
+    found = [(i, str(f)) for i, (r, _) in enumerate([paper_log] + recs) for f in _all_checks(r, policy)]
+    assert not found, found
+    assert failed.sum() <= 1
+
+
+# mistake -> (level, text the finding must contain)
+EXPECTED = {
+    "acc_in_g": ("error", "looks like g, not m/s²"),
+    "gyro_in_deg_s": ("error", "looks like deg/s"),
+    "rotorpy_order": ("error", "RotorPy"),
+    "px4_order": ("error", "PX4"),
+    "omega_cmd_other": ("warning", "omega_cmd"),
+    "frd_frame": ("error", "FRD"),
+    "imu_after_step": ("warning", "motor commands"),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(EXPECTED))
+def test_each_mistake_is_named(paper_log, policy, kind):
+    rec, after = paper_log
+    found = _all_checks(L.make_mistake(rec, kind, imu_after=after), policy)
+    level, text = EXPECTED[kind]
+    assert found and found[0].level == level, found
+    assert text in str(found[0]), found[0]
+
+
+def test_rotor_order_names_the_permutation(paper_log):
+    rec, _ = paper_log
+    fit = L.rotor_order_fit(L.make_mistake(rec, "rotorpy_order"))
+    assert fit["best"] == L.KNOWN_ORDERS[next(n for n in L.KNOWN_ORDERS if n.startswith("RotorPy"))]
+    assert L.rotor_order_fit(rec)["best"] == (0, 1, 2, 3)
+    # the reorder advice, applied, gives back the correct log
+    msg = str(L.check_log(L.make_mistake(rec, "rotorpy_order"))[0])
+    cols = [int(c) - 1 for c in re.findall(r"motor_\d = column (\d)", msg)]
+    np.testing.assert_array_equal(L.make_mistake(rec, "rotorpy_order")["motor"][:, cols], rec["motor"])
+
+
+def test_gyro_rate_tracking_gain(paper_log):
+    # Below the full-scale limit (a gentle flight in deg/s) the tracking gain still says deg/s.
+    rec, _ = paper_log
+    slow = dict(rec, imu=rec["imu"].copy(), omega_cmd=rec["omega_cmd"] * 0.1)
+    slow["imu"][:, :3] = np.rad2deg(rec["imu"][:, :3] * 0.1)
+    found = L._check_gyro(slow)
+    assert found and "deg/s" in str(found[0]) and "gain" in str(found[0])
+    assert not L._check_gyro(rec)
+
+
+@pytest.mark.parametrize("kind,text", [("time_in_ms", "milliseconds"), ("motor_pwm", "PWM")])
+def test_read_log_names_units(paper_log, tmp_path, kind, text):
+    rec, _ = paper_log
+    bad = L.make_mistake(rec, kind)
+    path = write_log(tmp_path / f"{kind}.csv", bad["t"], bad["imu"], bad["a_cmd"], bad["omega_cmd"], bad["motor"])
+    with pytest.raises(ValueError, match=text) as e:
+        read_log(path)
+    assert "resample" not in str(e.value)
+
+
+def test_cli_exit_2_before_decoding(paper_log, tmp_path, capsys):
+    rec, _ = paper_log
+    bad = L.make_mistake(rec, "acc_in_g")
+    path = write_log(tmp_path / "g.csv", bad["t"], bad["imu"], bad["a_cmd"], bad["omega_cmd"], bad["motor"])
+    assert main(["decode", "--log", str(path), "--out", str(tmp_path / "d"), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "acc_x, acc_y, acc_z" in err and "multiply acc_x/y/z by 9.81" in err
+    assert not (tmp_path / "d" / "summary.json").exists()
+
+
+@pytest.fixture(scope="module")
+def fast_heavy_log():
+    """A vehicle outside the prior (thrust-to-weight 11, RotorPy's hummingbird is 10.2), flown by the policy."""
+    th = P.PAPER_HARDWARE.copy()
+    th[P.OMEGA_MAX] *= np.sqrt(11.0 / float(P.thrust_to_weight(th)))
+    (rec, _), = _recs(th)[0]
+    return rec
+
+
+def test_out_of_prior_and_warnings_reach_every_output_under_quiet(fast_heavy_log, tmp_path, capsys):
+    rec = L.make_mistake(fast_heavy_log, "omega_cmd_other")
+    est = L.estimate_vehicle(fast_heavy_log)
+    assert 8.5 < est["thrust_to_weight"] < 13
+    path = write_log(tmp_path / "oop.csv", rec["t"], rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+    out = tmp_path / "d"
+    assert main(["decode", "--log", str(path), "--samples", "8", "--window", "instant", "--out", str(out), "-q"]) == 0
+    cap = capsys.readouterr()
+    assert "out of prior: " in cap.err and "thrust-to-weight" in cap.err and "warning: a_cmd, omega_cmd" in cap.err
+    assert cap.err.index("out of prior") < len(cap.err) and "thrust_to_weight" in cap.out   # numbers after
+    s = json.loads((out / "summary.json").read_text())
+    assert s["_checks"]["is_out_of_prior"] and s["_checks"]["warnings"]
+    md = (out / "summary.md").read_text()
+    assert md.index("Out of the decoders' training prior") < md.index("| thrust_to_weight")
+    # the Python API: the same findings
+    kinds = {f.level for f in mjxsysid.check_log(path)}
+    assert kinds == {"warning", "out_of_prior"}
+
+
+def test_the_decode_of_a_correct_log_reports_no_finding(paper_log, tmp_path):
+    rec, _ = paper_log
+    path = write_log(tmp_path / "ok.csv", rec["t"], rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+    assert mjxsysid.check_log(path) == []
+
+
+def test_docs_conversion_example_runs(paper_log, tmp_path, monkeypatch):
+    """The worked example of docs/decoding.md ('Converting autopilot outputs') turns a PX4-style
+    log (PWM, FRD, PX4 rotor order, time in µs) of a flown flight back into a correct log."""
+    text = (ROOT / "docs" / "decoding.md").read_text()
+    code = text.split("<!-- conversion example -->", 1)[1].split("```python", 1)[1].split("```", 1)[0]
+    rec, _ = paper_log
+    px4 = L.make_mistake(L.make_mistake(L.make_mistake(rec, "px4_order"), "frd_frame"), "motor_pwm")
+    # throttle-linear ESC: the autopilot wrote pwm = 1000 + 1000 * throttle with throttle = u²
+    px4["motor"] = 1000.0 + 1000.0 * np.asarray(rec["motor"])[:, list(L.KNOWN_ORDERS[next(
+        n for n in L.KNOWN_ORDERS if n.startswith("PX4"))])] ** 2
+    px4["t"] = np.round(rec["t"] * 1e6)
+    monkeypatch.chdir(tmp_path)
+    ns = {"px4": px4}
+    exec(compile(code, "docs/decoding.md", "exec"), ns)
+    out = read_log(tmp_path / "converted.csv")
+    np.testing.assert_allclose(out["motor"], rec["motor"], atol=1e-5)
+    np.testing.assert_allclose(out["imu"], rec["imu"], atol=1e-4)
+    assert L.check_log(out) == []
