@@ -112,10 +112,10 @@ class PolicyController:
         flight this policy flew, they equal the logged motor commands."""
         import numpy as np
         rows = np.asarray(rows, int)
-        obs = N.observation(jnp.asarray(imu, jnp.float32)[rows], jnp.asarray(a_cmd, jnp.float32)[rows],
-                            jnp.asarray(omega_cmd, jnp.float32)[rows])
-        last = 2.0 * jnp.asarray(motor, jnp.float32)[rows - 1] - 1.0
-        raw = _act(self.params, jnp.concatenate([obs, last], -1), jnp.asarray(zhat, jnp.float32)[rows - 1])
+        at = lambda a, r: jnp.asarray(np.asarray(a)[r], jnp.float32)   # noqa: E731 (rows first: logs are long)
+        obs = N.observation(at(imu, rows), at(a_cmd, rows), at(omega_cmd, rows))
+        last = 2.0 * at(motor, rows - 1) - 1.0
+        raw = _act(self.params, jnp.concatenate([obs, last], -1), at(zhat, rows - 1))
         return np.asarray(N.to_motor(raw))
 
 

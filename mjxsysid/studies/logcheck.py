@@ -132,12 +132,30 @@ def order_name(order) -> str:
     return "columns motor_1..4 = " + ", ".join(P.ROTOR_NAMES[i] for i in order)
 
 
+FIT_ROWS = 30_000
+"""Rows (60 s) the dynamics fits use at most: a longer log contributes evenly spaced contiguous
+pieces of that many rows in all (physics does not change along a flight; the cost stays bounded)."""
+
+
+def fit_rows(rec: dict, max_rows: int = FIT_ROWS) -> dict:
+    """``rec`` itself, or for a log longer than ``max_rows`` six evenly spaced contiguous pieces of
+    it, ``max_rows`` rows in all, joined (imu and motor only: what the fits read)."""
+    t = len(rec["motor"])
+    if t <= max_rows:
+        return rec
+    k, n = 6, max_rows // 6
+    idx = np.concatenate([np.arange(s, s + n) for s in np.linspace(0, t - n, k).astype(int)])
+    return {"imu": np.asarray(rec["imu"])[idx], "motor": np.asarray(rec["motor"])[idx]}
+
+
 def rotor_order_fit(rec: dict) -> dict:
     """Fit the angular acceleration (gyro, differentiated and smoothed) to the torque the motor
     commands imply for each of the 24 rotor orders. -> dict: ``scores`` {order: mean R² over
     roll, pitch, yaw (an axis with a negative gain counts −1)}, ``gains`` {order: (3,)},
     ``best`` order, ``given`` score of the log's own order (0, 1, 2, 3), ``tau`` the lag used,
-    ``excited`` whether the flight moved the vehicle enough to tell (rate changes above noise)."""
+    ``excited`` whether the flight moved the vehicle enough to tell (rate changes above noise).
+    A long log is fitted on :func:`fit_rows` of it."""
+    rec = fit_rows(rec)
     u2 = np.asarray(rec["motor"], np.float64) ** 2
     gyro = np.asarray(rec["imu"], np.float64)[:, :3]
     alpha = _smooth(np.diff(gyro, axis=0) / DT)                           # (T−n, 3)
@@ -317,6 +335,7 @@ def estimate_vehicle(rec: dict, fit: dict | None = None) -> dict:
     ``motor_time_constant``, the lag of the angular acceleration behind the commands, and
     ``torque_fit_r2``, how well that fit explains it."""
     fit = rotor_order_fit(rec) if fit is None else fit
+    rec = fit_rows(rec)
     acc_z = np.asarray(rec["imu"], np.float64)[:, 5]
     # Thrust follows the rotor speed, the command lagged by τ_m: its mean square is below the
     # command's when the commands chatter (the lag removes variance), so lag them first.
