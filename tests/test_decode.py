@@ -39,6 +39,9 @@ def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
     assert main(["decode", "--log", str(path), "--samples", "20", "--out", str(out)]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert set(P.PARAM_NAMES) <= set(s) and "true" not in s["mass"]
+    # a correct log of a prior vehicle: the plausibility and out-of-prior checks find nothing
+    assert s["_checks"]["warnings"] == [] and s["_checks"]["out_of_prior"] == []
+    assert "Out of the decoders' training prior" not in (out / "summary.md").read_text()
     # With the logged vehicle's known parameters (--truth), the summary says what is inside.
     truth = P.save_vehicle(P.PAPER_HARDWARE, tmp_path / "paper.json")
     out_t = tmp_path / "dec_truth"
