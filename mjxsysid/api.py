@@ -101,8 +101,9 @@ def fly(vehicle=None, controller: str = "policy", *, reference: str = "lemniscat
         seed: int = 0) -> FlightResult:
     """Fly one vehicle or a batch (see :func:`to_theta` for what ``vehicle`` may be) under
     ``controller``: ``"policy"`` (the frozen latent policy ``policy``/``weights``: ``"mjxsysid"``
-    — the shipped one —, ``"xadap"`` with ``weights``, or a path), ``"oracle"`` (K_θ with the
-    true θ) or ``"nominal"`` (K_θ with the paper vehicle's θ), on ``reference`` (``hover``,
+    — the shipped one —, ``"xadap"`` with ``weights``, or a path), ``"oracle"`` (the lag-aware
+    K_θ with the true θ), ``"k_theta"`` (the paper's K_θ with the true θ) or ``"nominal"`` (K_θ
+    with the paper vehicle's θ), on ``reference`` (``hover``,
     ``lemniscate`` of ``period`` s, ``minsnap``) for ``duration`` s (default one period / 5 s),
     with an optional world-force step and Gaussian force noise. Same as ``mjxsysid fly``."""
     if controller not in CONTROLLERS:

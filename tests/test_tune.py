@@ -155,6 +155,25 @@ def test_rotor_estimate_is_the_simulators_rotor_state_for_the_true_model(policy_
     assert isinstance(window, CommandHistory) and int(window.count) == 300
 
 
+def test_predictions_reproduce_the_flight_with_the_true_model(paper_policy):
+    """With the true θ and each model's own rotor estimate, the tuner's predictive rollout (the
+    rigid twin from the loop's state: IMU buffer, integral, policy history, reference time)
+    reproduces the next 0.5 s of the simulated flight to well under a millimetre — on slow
+    motors too, where starting the rotors at the last command's steady state (the tuner before
+    issue 26) is off by centimetres."""
+    from mjxsysid.tune.tuner import prediction_error
+    sim, ref = paper_policy
+    slow = P.PAPER_HARDWARE.copy()
+    slow[P.TAU_M] = 0.09
+    theta = np.stack([P.PAPER_HARDWARE, slow])
+    out = prediction_error(sim, theta, ref.batched(2), broadcast(Lemniscate.make(period=5.0), 2),
+                           start=500, steps=250, rotor_states=("estimate", "steady"))
+    est, steady = out["estimate"]["pos_err"].max(1), out["steady"]["pos_err"].max(1)
+    assert est.max() < 5e-4, est                               # m, over the whole 0.5 s
+    assert steady[1] > 20 * max(est[1], 1e-4), (steady, est)   # slow motors: the old start is far off
+    assert out["estimate"]["rotor_err"][0] < 1e-2 * float(theta[0, P.OMEGA_MAX]) * 1e-3
+
+
 def test_segments_cover_the_flight_once():
     from mjxsysid.tune.tuner import segments
     assert segments(120, 50) == [(0, 50), (50, 50), (100, 20)]     # the last one shorter
@@ -341,3 +360,48 @@ def test_the_default_cost_is_the_papers_and_the_heading_variant_is_an_option():
     with pytest.raises(ValueError, match="no variant 'no_lead_in'"):
         _variant("tune-slow", "no_lead_in", FULL_TUNER)
     assert _variant("tune-lemniscate", "no_lead_in", FULL_TUNER) == FULL_TUNER
+
+
+def test_tuner_knob_variants_parse_and_reject_bad_values():
+    from mjxsysid.experiments.tuning import FULL_TUNER, _variant
+    cfg = _variant("tune-slow", "steady_rotor_state,baseline_start,protect,apply_best,cem_3_iterations,horizon_1s",
+                   FULL_TUNER)
+    assert (cfg.rotor_state, cfg.initial, cfg.protect, cfg.apply, cfg.cem.iterations, cfg.horizon) == \
+        ("steady", "baseline", 0.75, "best", 3, 1.0)
+    assert _variant("tune-slow", "true_rotor_state", FULL_TUNER).rotor_state == "true"
+    assert FULL_TUNER.rotor_state == "estimate" and FULL_TUNER.initial == "naive" and FULL_TUNER.protect == 0.0
+    with pytest.raises(ValueError, match="no variant 'bogus'"):
+        _variant("tune-nominal", "protect,bogus", FULL_TUNER)
+    for kw, msg in ((dict(rotor_state="hidden"), "rotor_state"), (dict(rotor_window=0.0), "rotor_window"),
+                    (dict(apply="median"), "apply"), (dict(protect=1.5), "protect")):
+        with pytest.raises(ValueError, match=msg):
+            TunerConfig(**kw)
+
+
+def test_a_protected_tuner_never_applies_gains_its_models_predict_worse(paper_policy):
+    """protect = 1 with the true model (K = 1): the tuner switches only to gains the model predicts
+    better than the incumbent, so the applied gains' predicted cost never exceeds the incumbent's
+    (here the naive gains, which the fast lemniscate punishes: it does switch)."""
+    from mjxsysid.tune import tuner as T
+    sim, ref = paper_policy
+    theta = P.PAPER_HARDWARE[None]
+    low, low0 = ref.batched(1), ref.load()
+    lem = Lemniscate.make(period=4.0)
+    refs = broadcast(lem, 1)
+    carry = T._start(sim, *T._axes(low))(jnp.asarray(theta), low, refs,
+                                         jnp.stack([jax.random.split(jax.random.PRNGKey(0), 2)]))
+    cfg = TunerConfig(models=1, horizon=0.5, protect=1.0, cem=C.CEMConfig(candidates=24, iterations=3))
+    tuner = OnlineTuner(sim, "oracle_cem", cfg)
+    hist = T.empty_history(cfg.window(sim.config.dt), 1)
+    incumbent = jnp.asarray(PRESETS["naive"])[None]
+    one = jax.tree.map(lambda a: a[0], carry)
+    cost_of = jax.jit(lambda g: rollout_cost(predict(sim, jnp.asarray(theta[0]), low0, g, jnp.float32(12.0), lem, one,
+                                                     T.hover_rotor_speed(jnp.asarray(theta[0])), 0, 250), cfg.weights))
+    state = tuner.init(1)
+    switched = []
+    for u in range(3):
+        state, gains, info = tuner.update(low, theta, refs, carry, hist, incumbent, 0, state, jax.random.PRNGKey(u))
+        assert float(cost_of(gains[0])) <= float(cost_of(incumbent[0])) + 1e-6
+        switched.append(bool(info["switched"][0]))
+        incumbent = gains
+    assert switched[0], "naive gains on a fast lemniscate: the model must find better ones"

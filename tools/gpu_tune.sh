@@ -17,6 +17,7 @@ for spec in "$@"; do
   t0=$(date +%s)
   python3 -m mjxsysid.cli "${args[@]}" 2>&1 | grep -v "warp" | tee -a "$OUT/log.txt"
   echo "[$(( $(date +%s) - t0 )) s] $spec" | tee -a "$OUT/log.txt"
-  done_dirs+=("$dir")
+  [ -d "$dir" ] && done_dirs+=("$dir")
+  [ -d "$dir" ] || { echo "FAILED: $spec"; exit 1; }
   tar czf "$OUT/runs.tar.gz" "${done_dirs[@]}"
 done

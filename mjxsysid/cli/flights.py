@@ -39,8 +39,9 @@ def add_fly(sub) -> None:
                    help="instead of --vehicle: fly --vehicles vehicles drawn from this prior (seeded; "
                         "xadap: the released policy's training distribution)")
     f.add_argument("--vehicles", type=int, default=100, help="with --prior: how many (default 100)")
-    f.add_argument("--controller", choices=("oracle", "nominal", "policy", "xadap"), default=None,
-                   help="oracle: K_θ with the true θ (default without --policy); nominal: K_θ with "
+    f.add_argument("--controller", choices=("oracle", "k_theta", "nominal", "policy", "xadap"), default=None,
+                   help="oracle: the lag-aware K_θ with the true θ (default without --policy); k_theta: the "
+                        "paper's K_θ with the true θ (ignores the motor lag); nominal: K_θ with "
                         "the paper vehicle's θ; policy: the latent policy named by --policy (default "
                         "with --policy); xadap: short for --controller policy --policy xadap")
     add_policy(f)

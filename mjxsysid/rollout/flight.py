@@ -13,12 +13,12 @@ import numpy as np
 
 from mjxsysid import params as P
 from mjxsysid.control.high_level import Cascade
-from mjxsysid.control.low_level import KTheta
+from mjxsysid.control.low_level import KTheta, KThetaLag
 from mjxsysid.control.references import Hover, Lemniscate, MinSnap, stack
 from mjxsysid.rollout.harness import Disturbance, Flight, batch_metrics, fly_batch, metrics_to_host, summarize
 from mjxsysid.sim import Quadrotor, SimConfig
 
-CONTROLLERS = ("oracle", "nominal", "policy")
+CONTROLLERS = ("oracle", "k_theta", "nominal", "policy")
 REFERENCES = ("hover", "lemniscate", "minsnap")
 
 
@@ -47,16 +47,21 @@ def make_reference(name: str, *, period: float = 10.0, duration: float | None = 
     raise ValueError(f"unknown reference {name!r}; choose from {REFERENCES}")
 
 
-def make_low_level(name: str, theta, policy=None):
-    """'oracle': K_θ with each vehicle's true θ; 'nominal': K_θ with the paper vehicle's θ
-    whatever is flown (non-adaptive); 'policy': the frozen latent policy ``policy``, already
-    resolved (anything with ``batched(B)``: a :class:`~mjxsysid.policy.interface.PolicyRef`
-    from :func:`~mjxsysid.policy.interface.resolve_policy`, or a controller). θ (B, 19) ->
-    batched controller."""
+def make_low_level(name: str, theta, policy=None, dt: float = 0.002):
+    """'oracle': the lag-aware K_θ (:class:`~mjxsysid.control.low_level.KThetaLag`) with each
+    vehicle's true θ, the yardstick wherever an oracle is one (since issue 26); 'k_theta': the
+    paper's K_θ with each vehicle's true θ (ignores τ_m; the action-replay probe, the oracle
+    before issue 26); 'nominal': K_θ with the paper vehicle's θ whatever is flown
+    (non-adaptive); 'policy': the frozen latent policy ``policy``, already resolved (anything
+    with ``batched(B)``: a :class:`~mjxsysid.policy.interface.PolicyRef` from
+    :func:`~mjxsysid.policy.interface.resolve_policy`, or a controller). θ (B, 19) -> batched
+    controller; ``dt``: the control period (s) the lag-aware oracle compensates over."""
     theta = np.asarray(theta, np.float32)
-    if name in ("oracle", "nominal") and policy is not None:
+    if name in ("oracle", "k_theta", "nominal") and policy is not None:
         raise ValueError(f"--policy / --weights do not apply to the {name} K_θ controller")
     if name == "oracle":
+        return KThetaLag.make(theta, dt=dt)
+    if name == "k_theta":
         return KTheta.make(theta)
     if name == "nominal":
         return KTheta.make(np.broadcast_to(P.PAPER_HARDWARE, theta.shape))
@@ -95,7 +100,7 @@ def fly_vehicles(theta, *, controller="oracle", reference="lemniscate", period=1
     duration = d0 if duration is None else duration
     sim = sim or Quadrotor(SimConfig())
     steps = int(round(duration / sim.config.dt))
-    low = make_low_level(controller, theta, policy)
+    low = make_low_level(controller, theta, policy, dt=sim.config.dt)
     high = broadcast(Cascade.make(gains), b)
     f = np.asarray(force_step, np.float32)
     if f.shape not in ((3,), (b, 3)) or not np.isfinite(f).all():

@@ -177,7 +177,9 @@ def rotor_speed_after(theta, speed0, motor_cmds, config: "SimConfig", mask=None)
             _, new = mean_square_speed(new, omega_cmd, theta[P.TAU_M], h)
         return jnp.where(on, new, speed), None
 
-    speed, _ = jax.lax.scan(body, jnp.asarray(speed0, jnp.float32), (cmds, mask))
+    # unrolled: a few hundred tiny sequential steps would otherwise cost a kernel launch each
+    speed, _ = jax.lax.scan(body, jnp.asarray(speed0, jnp.float32), (cmds, mask),
+                            unroll=max(1, min(cmds.shape[0], 20)))
     return speed
 
 

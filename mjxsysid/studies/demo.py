@@ -1,7 +1,8 @@
 """`mjxsysid demo`: the CPU quick start.
 
-Flies the paper's hardware vehicle on the 10 s 3-D lemniscate with the oracle K_θ, then a
-handful of vehicles from the prior under the oracle and the non-adaptive nominal K_θ (the
+Flies the paper's hardware vehicle on the 10 s 3-D lemniscate with the oracle (the lag-aware K_θ
+with the true θ), then a handful of vehicles from the prior under the oracle and the
+non-adaptive nominal K_θ (the
 adaptation problem mjxsysid exists for), and writes plots, a video and a one-page summary.
 """
 from __future__ import annotations
@@ -67,7 +68,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     stage("plotting", "[2/4] plotting the policy / oracle / nominal comparison")
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
     twr = np.asarray(P.thrust_to_weight(theta))
-    labels = {"policy": "adaptive policy (ẑ)", "oracle": "oracle K_θ", "nominal": "nominal K_θ"}
+    labels = {"policy": "adaptive policy (ẑ)", "oracle": "oracle (lag-aware K_θ)", "nominal": "nominal K_θ"}
     for ctrl, mk in (("policy", "s"), ("oracle", "o"), ("nominal", "x")):
         mm = res[ctrl][1]
         rm = np.where(mm["failed"], np.nan, mm["pos_rmse_m"])
