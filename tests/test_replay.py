@@ -31,9 +31,9 @@ def test_metrics_by_hand():
 
 @pytest.fixture(scope="module")
 def oracle_recording():
-    """The paper vehicle flown 1 s by the oracle K_θ: its motor commands are K_θ's own."""
+    """The paper vehicle flown 1 s by the paper's K_θ with its true θ: its motor commands are K_θ's own."""
     from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
-    fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="oracle", reference="lemniscate", period=5.0,
+    fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="k_theta", reference="lemniscate", period=5.0,
                             duration=1.0)
     f = one_flight(fl)
     return {"time": f.time, "imu": seen_imu(f.frame.imu), "a_cmd": f.a_cmd, "omega_cmd": f.omega_cmd,
