@@ -165,13 +165,15 @@ def test_predictions_reproduce_the_flight_with_the_true_model(paper_policy):
     sim, ref = paper_policy
     slow = P.PAPER_HARDWARE.copy()
     slow[P.TAU_M] = 0.09
-    theta = np.stack([P.PAPER_HARDWARE, slow])
-    out = prediction_error(sim, theta, ref.batched(2), broadcast(Lemniscate.make(period=5.0), 2),
-                           start=500, steps=250, rotor_states=("estimate", "steady"))
-    est, steady = out["estimate"]["pos_err"].max(1), out["steady"]["pos_err"].max(1)
+    # one vehicle at a time: the compiled segments of the fixed-gains test above are shared
+    outs = [prediction_error(sim, th[None], ref.batched(1), broadcast(Lemniscate.make(period=5.0), 1),
+                             start=500, steps=250, rotor_states=("estimate", "steady"))
+            for th in (P.PAPER_HARDWARE, slow)]
+    est = np.array([o["estimate"]["pos_err"].max() for o in outs])
+    steady = np.array([o["steady"]["pos_err"].max() for o in outs])
     assert est.max() < 5e-4, est                               # m, over the whole 0.5 s
     assert steady[1] > 20 * max(est[1], 1e-4), (steady, est)   # slow motors: the old start is far off
-    assert out["estimate"]["rotor_err"][0] < 1e-2 * float(theta[0, P.OMEGA_MAX]) * 1e-3
+    assert outs[0]["estimate"]["rotor_err"][0] < 1e-5 * float(P.PAPER_HARDWARE[P.OMEGA_MAX])
 
 
 def test_segments_cover_the_flight_once():

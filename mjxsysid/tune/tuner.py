@@ -488,9 +488,20 @@ def prediction_error(sim: Quadrotor, theta, low, ref, *, gains="baseline", start
     mr = jnp.float32(max_rate)
     axes = _axes(low)
     carry = _start(sim, *axes)(theta, low, ref, keys)
-    carry, fl = _advance(sim, start, *axes)(theta, low, g, mr, ref, carry, jnp.zeros((b, start, 3)), jnp.int32(0))
-    hist = push_history(empty_history(max(1, int(round(window / sim.config.dt))), b), fl.frame.motor_cmd)
-    _, real = _advance(sim, steps, *axes)(theta, low, g, mr, ref, carry, jnp.zeros((b, steps, 3)), jnp.int32(start))
+    hist = empty_history(max(1, int(round(window / sim.config.dt))), b)
+    seg = TunerConfig().steps(sim.config.dt)[0]   # the tuned flight's segments: their compiles are shared
+
+    def fly(carry, i0, n):
+        pos = []
+        for j0, m in segments(n, seg):
+            carry, fl = _advance(sim, m, *axes)(theta, low, g, mr, ref, carry, jnp.zeros((b, m, 3)),
+                                                jnp.int32(i0 + j0))
+            pos.append(fl)
+        return carry, jax.tree.map(lambda *a: jnp.concatenate(a, 1), *pos)
+
+    carry, fl = fly(carry, 0, start)
+    hist = push_history(hist, fl.frame.motor_cmd)
+    _, real = fly(carry, start, steps)
     out = {"time": sim.config.dt * (1 + np.arange(steps))}
     for mode in rotor_states:
         pred, speed = _predict_batch(sim, mode, steps, *axes)(theta, low, g, mr, ref, carry, hist, jnp.int32(start))
