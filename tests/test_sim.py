@@ -286,3 +286,53 @@ def test_rigid_twin_matches_the_mjx_simulator(sim):
     b = jax.jit(lambda st: run(twin, st))(from_sim_state(s))
     for name, x, y, tol in zip(("pos", "quat", "omega", "imu"), a, b, (2e-6, 2e-6, 2e-5, 5e-5)):
         assert float(jnp.abs(x - y).max()) < tol * max(1.0, float(jnp.abs(x).max())), name
+
+
+def test_vibration_filter_spectrum():
+    """The pure vibration filter: unit stationary variance and its power at the centre frequency,
+    for a low, a mid and a near-Nyquist centre; the aliasing of rotor frequencies."""
+    from mjxsysid.sim.quadrotor import aliased_hz, vibration_step
+    dt, n = 0.002, 20_000
+    f = jnp.array([30.0, 120.0, 230.0])
+    e = jax.random.normal(jax.random.PRNGKey(0), (n, 3))
+    _, xs = jax.lax.scan(lambda p, ek: (vibration_step(p, ek, f, 20.0, dt),) * 2, jnp.zeros((2, 3)), e)
+    x = np.asarray(xs[:, -1])[1000:]
+    np.testing.assert_allclose(x.std(0), 1.0, rtol=0.08)
+    spec = np.abs(np.fft.rfft(x, axis=0)) ** 2
+    freqs = np.fft.rfftfreq(len(x), dt)
+    smooth = np.stack([np.convolve(spec[:, j], np.ones(50) / 50, "same") for j in range(3)], 1)
+    np.testing.assert_allclose(freqs[smooth.argmax(0)], np.asarray(f), atol=6.0)
+    np.testing.assert_allclose(np.asarray(aliased_hz(jnp.array([100.0, 300.0, 400.0, 600.0]), dt)),
+                               [100.0, 200.0, 100.0, 100.0], atol=1e-3)
+    with pytest.raises(ValueError, match="gyro_vibration"):
+        SimConfig(gyro_vibration=-1.0)
+    with pytest.raises(ValueError, match="vibration_bandwidth_hz"):
+        SimConfig(vibration_bandwidth_hz=300.0)
+
+
+def test_imu_vibration_in_flight_and_off_unchanged():
+    """Hovering vehicles with rotor vibration: the IMU's residual has the set std and its peak at
+    the (aliased) rotor frequency; with vibration off the noise draws are those of the key stream
+    the simulator always used (its first reading = σ · normal(split(key)[1]) exactly)."""
+    th = no_torque(prior_batch(3, 8))
+    u = np.array(np.broadcast_to(hover_cmd(th)[:, None], (8, 1000, 4)))
+    sim = Quadrotor(SimConfig(gyro_vibration=0.05, accel_vibration=0.5))
+    s0 = init_batch(sim, th, jax.random.PRNGKey(1))
+    _, fr = rollout_batch(sim, th, s0, u)
+    resid = np.asarray(fr.imu)[:, 100:] - np.array([0, 0, 0, 0, 0, P.GRAVITY])
+    np.testing.assert_allclose(resid[..., :3].std(), 0.05, rtol=0.1)
+    np.testing.assert_allclose(resid[..., 3:].std(), 0.5, rtol=0.1)
+    rotor = np.asarray(jax.vmap(hover_rotor_speed)(jnp.asarray(th))).mean(1) / (2 * np.pi)
+    from mjxsysid.sim.quadrotor import aliased_hz
+    spec = np.abs(np.fft.rfft(resid[..., 0], axis=1)) ** 2
+    peak = np.fft.rfftfreq(resid.shape[1], 0.002)[spec.argmax(1)]
+    np.testing.assert_allclose(peak, np.asarray(aliased_hz(rotor, 0.002)), atol=15.0)
+    # off: the white noise is drawn exactly as before vibration existed
+    cfg = SimConfig(gyro_noise=0.01, accel_noise=0.1)
+    off = Quadrotor(cfg)
+    s = off.init(th[0], jax.random.PRNGKey(2))
+    s1 = jax.jit(off.step)(th[0], s, u[0, 0])
+    _, k = jax.random.split(s.key)
+    want = np.array([0.01] * 3 + [0.1] * 3) * np.asarray(jax.random.normal(k, (6,)))
+    np.testing.assert_allclose(np.asarray(s1.imu) - np.asarray(s1.imu_buffer[0]), want, atol=1e-6)
+    assert not np.asarray(s1.imu_vibration).any()

@@ -39,8 +39,13 @@ class SimConfig:
     dt: control period (s); 500 Hz by default. substeps: physics steps per control step.
     contacts: keep MuJoCo contacts (off for flight). gyro_noise / accel_noise: white-noise std
     per control step (rad/s, m/s²). gyro_bias / accel_bias: std of a constant bias drawn at reset.
-    imu_latency: IMU delay in control steps. pos_limit (m), vel_limit (m/s), rate_limit (rad/s):
-    a vehicle beyond any of these, or with a non-finite state, is flagged ``diverged`` and frozen.
+    imu_latency: IMU delay in control steps. gyro_vibration / accel_vibration: std (rad/s, m/s²)
+    of narrow-band noise at the rotor frequency, as rotor vibration adds to a real IMU
+    (:func:`vibration_step`); its centre ``vibration_hz`` (0: the mean rotor speed / 2π, aliased
+    into the 0 – 1/(2 dt) band the IMU samples) and ``vibration_bandwidth_hz``. Off (0) by
+    default; the other settings' noise is the same with it off. pos_limit (m), vel_limit (m/s),
+    rate_limit (rad/s): a vehicle beyond any of these, or with a non-finite state, is flagged
+    ``diverged`` and frozen.
     """
     dt: float = 0.002
     substeps: int = 1
@@ -50,6 +55,10 @@ class SimConfig:
     gyro_bias: float = 0.0
     accel_bias: float = 0.0
     imu_latency: int = 0
+    gyro_vibration: float = 0.0
+    accel_vibration: float = 0.0
+    vibration_hz: float = 0.0
+    vibration_bandwidth_hz: float = 20.0
     pos_limit: float = 1.0e3
     vel_limit: float = 100.0
     rate_limit: float = 200.0
@@ -61,9 +70,18 @@ class SimConfig:
             raise ValueError(f"SimConfig.substeps must be an integer >= 1, got {self.substeps}")
         if int(self.imu_latency) != self.imu_latency or self.imu_latency < 0:
             raise ValueError(f"SimConfig.imu_latency must be an integer >= 0, got {self.imu_latency}")
-        for f in ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias"):
-            if getattr(self, f) < 0:
+        for f in ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias", "gyro_vibration",
+                  "accel_vibration", "vibration_hz"):
+            if not getattr(self, f) >= 0:
                 raise ValueError(f"SimConfig.{f} must be >= 0, got {getattr(self, f)}")
+        if not 0 < self.vibration_bandwidth_hz < 0.5 / self.dt:
+            raise ValueError(f"SimConfig.vibration_bandwidth_hz must be in (0, {0.5 / self.dt:g}) Hz "
+                             f"(the IMU's Nyquist band), got {self.vibration_bandwidth_hz}")
+
+    @property
+    def vibration(self) -> bool:
+        """Whether the IMU carries rotor vibration (decided at trace time)."""
+        return self.gyro_vibration > 0 or self.accel_vibration > 0
 
     @property
     def physics_dt(self) -> float:
@@ -78,6 +96,7 @@ class SimState:
       + body angular velocity). rotor_speed: (4,) rad/s. imu: (6,) latest IMU output
       [gyro (3) rad/s, specific force (3) m/s²], body frame, with noise / bias / latency.
     imu_buffer: (imu_latency + 1, 6) true readings, oldest first. imu_bias: (6,).
+    imu_vibration: (2, 6) the vibration filter's last two outputs (unit std; zeros when off).
     key: PRNG key for IMU noise. diverged: () bool. step: () int32 control steps taken.
     """
     data: mjx.Data
@@ -85,6 +104,7 @@ class SimState:
     imu: jax.Array
     imu_buffer: jax.Array
     imu_bias: jax.Array
+    imu_vibration: jax.Array
     key: jax.Array
     diverged: jax.Array
     step: jax.Array
@@ -183,6 +203,29 @@ def rotor_speed_after(theta, speed0, motor_cmds, config: "SimConfig", mask=None)
     return speed
 
 
+def aliased_hz(freq_hz, dt: float):
+    """The frequency (Hz) at which a tone of ``freq_hz`` appears when sampled every ``dt`` s:
+    folded into [0, 1/(2 dt)] (a 400 Hz rotor sampled at 500 Hz reads as 100 Hz)."""
+    fs = 1.0 / dt
+    return jnp.abs(jnp.mod(jnp.asarray(freq_hz, jnp.float32) + fs / 2, fs) - fs / 2)
+
+
+def vibration_step(prev, noise, freq_hz, bandwidth_hz: float, dt: float):
+    """One sample of unit-variance narrow-band noise: a two-pole resonator driven by white noise.
+
+    x_k = φ₁ x_{k−1} + φ₂ x_{k−2} + g e_k with φ₁ = 2 r cos(2π f dt), φ₂ = −r², r = exp(−π B dt)
+    (poles at the centre f, half-power bandwidth ≈ B), and g the gain that makes the stationary
+    variance 1: var(x) / g² = (1 − φ₂) / ((1 + φ₂)((1 − φ₂)² − φ₁²)). prev (2, ...) the last two
+    outputs (oldest first), noise (...) standard normal, freq_hz scalar or (...) in [0, 1/(2 dt)].
+    Returns the new (2, ...) with the new output last."""
+    r = jnp.exp(-jnp.pi * bandwidth_hz * dt)
+    phi1 = 2.0 * r * jnp.cos(2.0 * jnp.pi * jnp.asarray(freq_hz, jnp.float32) * dt)
+    phi2 = -r * r
+    var = (1.0 - phi2) / ((1.0 + phi2) * ((1.0 - phi2) ** 2 - phi1 ** 2))
+    x = phi1 * prev[1] + phi2 * prev[0] + noise / jnp.sqrt(var)
+    return jnp.stack([prev[1], x])
+
+
 class Quadrotor:
     """The MJX quadrotor simulator.
 
@@ -260,7 +303,8 @@ class Quadrotor:
         true0 = jnp.concatenate([jnp.asarray(omega, jnp.float32), f0])
         buf = jnp.tile(true0, (c.imu_latency + 1, 1))
         return SimState(data=data, rotor_speed=speed, imu=true0 + bias, imu_buffer=buf,
-                        imu_bias=bias, key=k_noise, diverged=jnp.array(False),
+                        imu_bias=bias, imu_vibration=jnp.zeros((2, 6), jnp.float32),
+                        key=k_noise, diverged=jnp.array(False),
                         step=jnp.array(0, jnp.int32))
 
     # ------------------------------------------------------------------- step
@@ -311,9 +355,17 @@ class Quadrotor:
         key, k = jax.random.split(state.key)
         sigma = jnp.array([c.gyro_noise] * 3 + [c.accel_noise] * 3, jnp.float32)
         imu = buf[0] + state.imu_bias + sigma * jax.random.normal(k, (6,))
+        vib = state.imu_vibration
+        if c.vibration:  # a Python branch: with vibration off the key stream is unchanged
+            key, kv = jax.random.split(key)
+            f = c.vibration_hz if c.vibration_hz > 0 else jnp.mean(speed) / (2 * jnp.pi)
+            vib = vibration_step(vib, jax.random.normal(kv, (6,)), aliased_hz(f, c.dt),
+                                 c.vibration_bandwidth_hz, c.dt)
+            amp = jnp.array([c.gyro_vibration] * 3 + [c.accel_vibration] * 3, jnp.float32)
+            imu = imu + amp * vib[-1]
 
-        new = state.replace(data=data, rotor_speed=speed, imu=imu, imu_buffer=buf, key=key,
-                            step=state.step + 1)
+        new = state.replace(data=data, rotor_speed=speed, imu=imu, imu_buffer=buf, imu_vibration=vib,
+                            key=key, step=state.step + 1)
         bad = state.diverged | self._diverged(new)
         # A diverged vehicle is frozen at its last good state: no NaN leaves the step.
         out = jax.tree.map(lambda a, b: jnp.where(bad, a, b), state, new)
