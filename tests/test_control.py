@@ -260,13 +260,14 @@ def test_fly_vehicles_takes_one_force_step_per_vehicle():
 # ------------------------------------------------------------------------ the lag-aware oracle
 def test_lag_aware_k_theta_is_k_theta_for_fast_motors_and_tracks_its_rotors(sim):
     """KThetaLag commands exactly what K_θ does where the motors are no slower than its target
-    (τ_m ≤ 0.02 s) and no rotor saturates; with slow motors it commands more than the speed it
+    (τ_m ≤ 0.02 s), there is no external torque and no rotor saturates; with slow motors it commands more than the speed it
     wants (lead) and its rotor estimate (its carry) is the simulator's rotor speed after every
     step (the same exact first-order lag)."""
     from mjxsysid.control.low_level import Command, KTheta, KThetaLag
     key = jax.random.PRNGKey(3)
     th = np.array(P.DEFAULT_PRIOR.sample(key, 8))
     th[:, P.TAU_M] = 0.015
+    th[:, P.TAU_EXT] = 0.0          # the lag-aware oracle cancels a known external torque; K_θ does not
     imu = jax.random.normal(key, (8, 6)) * 0.3
     cmd = Command(jnp.full(8, 9.0), jax.random.normal(jax.random.PRNGKey(4), (8, 3)) * 0.5)
     lag, kt = KThetaLag.make(th), KTheta.make(th)
@@ -316,3 +317,27 @@ def test_lag_aware_oracle_flies_slow_motors_that_k_theta_loses():
     assert fl.mean() <= 0.5 * fk.mean(), (fl.mean(), fk.mean())
     both = ~fk & ~fl
     assert np.asarray(ml["pos_rmse_m"])[both].mean() < np.asarray(mk["pos_rmse_m"])[both].mean()
+
+
+def test_saturating_mixer_gives_up_yaw_then_at_most_a_fifth_of_the_thrust():
+    """The lag-aware oracle's mixer: where everything fits it is the plain allocation; where a
+    rotor would pass Ω_max it keeps roll/pitch torque and thrust and gives up yaw first, then lowers
+    the collective (by at most THRUST_CUT_MAX of it), never roll/pitch torque while that suffices."""
+    from mjxsysid.control.low_level import THRUST_CUT_MAX, _yaw_last, allocate, allocation_matrix
+    th = jnp.asarray(P.PAPER_HARDWARE)
+    w2 = float(th[P.OMEGA_MAX]) ** 2
+    thrust = float(th[P.MASS]) * P.GRAVITY
+    mix = jax.jit(lambda t, tau: _yaw_last(th, t, tau, w2))
+    wrench = lambda sq: np.asarray(allocation_matrix(th) @ (sq * th[P.KT] * th[P.ETA]))  # noqa: E731
+    small = jnp.array([0.01, -0.01, 0.002])
+    np.testing.assert_allclose(mix(thrust, small), allocate(th, thrust, small), rtol=1e-5)
+    big_yaw = jnp.array([0.0, 0.0, 5.0])                       # far past what the rotors give
+    sq = np.asarray(mix(thrust, big_yaw))
+    assert sq.max() <= w2 * (1 + 1e-5) and sq.min() >= -1e-3 * w2
+    np.testing.assert_allclose(wrench(sq)[:3], [thrust, 0.0, 0.0], atol=1e-3 * thrust)
+    assert 0 < wrench(sq)[3] < 5.0
+    t_high = 0.97 * thrust * float(P.thrust_to_weight(th))       # near full thrust and a roll torque
+    roll = jnp.array([0.3, 0.0, 0.0])
+    w = wrench(np.asarray(mix(t_high, roll)))
+    np.testing.assert_allclose(w[1], 0.3, rtol=1e-3)            # roll kept
+    assert (1 - THRUST_CUT_MAX) * t_high - 1e-3 <= w[0] < t_high   # thrust given up, within the cap

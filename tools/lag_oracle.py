@@ -1,7 +1,9 @@
 """The lag-aware oracle (issue 26): K_θ (the paper's appendix controller, which ignores τ_m)
 against :class:`~mjxsysid.control.low_level.KThetaLag` (K_θ that pre-compensates θ's motor lag),
 both with each vehicle's true θ and the Baseline cascade, on the default, stress and stress_wide
-priors (and the slow-actuator prior), 10 s lemniscate, seeded draws.
+priors (and the slow-actuator prior), 10 s lemniscate, seeded draws; with the lag-aware oracle's
+design choices taken out one at a time (the collective-thrust cut where a rotor saturates, the
+cancelled external torque).
 
     python tools/lag_oracle.py --vehicles 1000 --out docs/runs/lag_oracle.json
 """
@@ -33,6 +35,8 @@ def main(argv=None):
     ap.add_argument("--vehicles", type=int, default=128)
     ap.add_argument("--priors", default="default,stress,stress_wide,slow_actuators")
     ap.add_argument("--target-tau", type=float, nargs="+", default=[0.02])
+    ap.add_argument("--all-variants", action="store_true",
+                    help="also the variant that keeps yaw with roll and pitch when a rotor saturates")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     sim = Quadrotor()
@@ -43,9 +47,13 @@ def main(argv=None):
     for prior in a.priors.split(","):
         theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(0), a.vehicles), np.float32)
         ctrls = {"k_theta": KTheta.make(theta)}
-        ctrls.update({f"k_theta_lag_{t:g}": KThetaLag.make(theta, dt=sim.config.dt, target_tau=t) for t in a.target_tau})
-        ctrls.update({f"k_theta_lag_{t:g}_yaw_with_roll_pitch": KThetaLag.make(theta, dt=sim.config.dt, target_tau=t, yaw_last=False)
-                      for t in a.target_tau})
+        for t in a.target_tau:
+            mk = lambda **kw: KThetaLag.make(theta, dt=sim.config.dt, target_tau=t, **kw)  # noqa: E731
+            ctrls.update({f"k_theta_lag_{t:g}": mk(),
+                          f"k_theta_lag_{t:g}_no_thrust_cut": mk(thrust_cut=False),
+                          f"k_theta_lag_{t:g}_no_thrust_cut_no_torque_cancel": mk(thrust_cut=False, cancel_torque=False)})
+            if a.all_variants:
+                ctrls[f"k_theta_lag_{t:g}_yaw_with_roll_pitch"] = mk(yaw_last=False, cancel_torque=False)
         res = {k: fly(c, theta, sim, steps, ref) for k, c in ctrls.items()}
         ok = ~np.any([f for f, _ in res.values()], 0)
         row = {k: {"success": float(1 - f.mean()), "pos_rmse_m_common": float(r[ok].mean()) if ok.any() else None,

@@ -98,18 +98,31 @@ class KTheta:
         return carry, self.motor_command(command, imu[0:3])
 
 
-def _yaw_last(theta, collective_thrust, torque, sq_max) -> jax.Array:
+THRUST_CUT_MAX = 0.2
+"""The most of the collective thrust :func:`_yaw_last` gives up for roll/pitch torque."""
+
+
+def _yaw_last(theta, collective_thrust, torque, sq_max, thrust_cut: bool = True) -> jax.Array:
     """Squared rotor speeds (4,) like :func:`allocate`, but with the yaw torque scaled down by the
     least factor s ∈ [0, 1] that keeps every rotor inside [0, ``sq_max``] (where the thrust and
-    roll/pitch torque alone fit; the allocation is linear in τ_z, so s is exact): attitude and
-    thrust before heading, as flight controllers' mixers do."""
+    roll/pitch torque alone fit; the allocation is linear in τ_z, so s is exact), then, where a
+    rotor is still above ``sq_max``, the collective thrust lowered until it is not: roll and pitch
+    first, then thrust, then heading."""
     base = allocate(theta, collective_thrust, torque.at[2].set(0.0))
     d = allocate(theta, collective_thrust, torque) - base
     big = jnp.float32(1e30)
     up = jnp.where(d > 0, (sq_max - base) / jnp.where(d > 0, d, 1.0), big)
     down = jnp.where(d < 0, -base / jnp.where(d < 0, d, -1.0), big)
     s = jnp.clip(jnp.min(jnp.minimum(up, down)), 0.0, 1.0)
-    return base + s * d
+    sq = base + s * d
+    if not thrust_cut:
+        return sq
+    # still above Ω_max²: lower the collective thrust (every rotor by its share) until the roll /
+    # pitch torque fits — attitude before altitude, as flight controllers' mixers do
+    per_unit = allocate(theta, jnp.float32(1.0), jnp.zeros(3, jnp.float32))      # (4,) > 0
+    over = jnp.max((sq - sq_max) / per_unit)
+    cut = jnp.clip(over, 0.0, THRUST_CUT_MAX * jnp.maximum(collective_thrust, 0.0))
+    return sq - cut * per_unit
 
 
 LAG_TARGET_TAU = 0.02
@@ -131,7 +144,9 @@ class KThetaLag:
         a = e^{−dt/τ_m}, a_d = e^{−dt/τ_d};  Ω_cmd = Ω̂ + (Ω_d − Ω̂)(1 − a_d)/(1 − a),
         clipped to [0, Ω_max];  Ω̂ ← Ω_cmd + (Ω̂ − Ω_cmd) a.
 
-    Unsaturated, the motors then follow Ω_d with lag τ_d; with τ_m ≤ τ_d it is K_θ exactly.
+    Unsaturated, the motors then follow Ω_d with lag τ_d; with τ_m ≤ τ_d and τ_ext = 0 it is K_θ
+    exactly. It also uses the rest of θ K_θ leaves out: the known external torque τ_ext is
+    cancelled in the torque asked of the rotors.
     K_θ itself stays the action-replay probe (the paper's definition); this one is the oracle
     wherever an oracle is the yardstick. theta (19,), rate_gains (3,), dt () s (the control
     period), target_tau () s.
@@ -141,18 +156,23 @@ class KThetaLag:
     dt: jax.Array
     target_tau: jax.Array
     yaw_last: bool = struct.field(pytree_node=False, default=True)
+    cancel_torque: bool = struct.field(pytree_node=False, default=True)
+    thrust_cut: bool = struct.field(pytree_node=False, default=True)
 
     @classmethod
     def make(cls, theta, rate_gains=DEFAULT_RATE_GAINS, dt=0.002, target_tau=LAG_TARGET_TAU,
-             yaw_last=True) -> "KThetaLag":
+             yaw_last=True, cancel_torque=True, thrust_cut=True) -> "KThetaLag":
         """θ (..., 19) -> a controller (batched if θ is). ``yaw_last``: where the allocation
         asks a rotor for more than Ω_max (or less than 0), give up yaw torque first
-        (:func:`_yaw_last`)."""
+        (:func:`_yaw_last`). ``cancel_torque``: subtract θ's constant external torque τ_ext
+        from the torque asked of the rotors (K_θ leaves it to the rate loop's error).
+        ``thrust_cut`` (with ``yaw_last``): where a rotor still saturates, lower the collective
+        thrust before losing roll/pitch torque."""
         theta = jnp.asarray(theta, jnp.float32)
         shape = theta.shape[:-1]
         gains = jnp.broadcast_to(jnp.asarray(rate_gains, jnp.float32), shape + (3,))
         return cls(theta, gains, jnp.broadcast_to(jnp.float32(dt), shape),
-                   jnp.broadcast_to(jnp.float32(target_tau), shape), yaw_last)
+                   jnp.broadcast_to(jnp.float32(target_tau), shape), yaw_last, cancel_torque, thrust_cut)
 
     def init(self, key=None):
         """Carry: the expected rotor speeds Ω̂ (4,) rad/s, the hover speeds of θ."""
@@ -162,8 +182,10 @@ class KThetaLag:
     def step(self, carry, imu, command: Command):
         th = self.theta
         tau = th[P.INERTIA] * self.rate_gains * (command.omega_cmd - imu[0:3])
+        if self.cancel_torque:   # θ knows the external torque: the rotors supply the rest
+            tau = tau - th[P.TAU_EXT]
         w_max = th[P.OMEGA_MAX]
-        sq = _yaw_last(th, th[P.MASS] * command.a_cmd, tau, w_max**2) if self.yaw_last else \
+        sq = _yaw_last(th, th[P.MASS] * command.a_cmd, tau, w_max**2, self.thrust_cut) if self.yaw_last else \
             allocate(th, th[P.MASS] * command.a_cmd, tau)
         desired = jnp.clip(jnp.sqrt(jnp.maximum(sq, 0.0)), 0.0, w_max)
         a = jnp.exp(-self.dt / th[P.TAU_M])
