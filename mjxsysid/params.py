@@ -399,6 +399,84 @@ STRESS_WIDE_PRIOR = Prior(name="stress_wide", twr=(1.5, 2.5), twr_min_eff=1.2, m
 
 
 # ----------------------------------------------------------------------------------------
+# Held-out families: vehicles no training method sees
+# ----------------------------------------------------------------------------------------
+
+@dataclasses.dataclass(frozen=True)
+class HeldOutFamily(Prior):
+    """A family of vehicles that no policy trains on: a :class:`~mjxsysid.params.Prior` with one
+    kind of damage laid over its draws, and a fixed ``seed`` so every evaluation flies the same
+    vehicles (:meth:`vehicles`).
+
+    - ``one_motor_eta``: one rotor (drawn uniformly) has this motor effectiveness η, the others
+      keep the prior's; Ω_max is then re-clipped as the prior clips it, so every rotor alone still
+      lifts ``twr_min_eff``× its share of the weight (a worn motor on a vehicle that can carry it).
+    - ``payload_torque_xy``: a constant roll/pitch torque of magnitude ``payload_torque_xy`` m g l
+      in a uniformly drawn horizontal direction (an off-centre payload), in place of the prior's.
+    - ``yaw_torque_z``: a constant yaw torque ± ``yaw_torque_z`` m g κ (sign drawn), in place of
+      the prior's.
+
+    ``description`` says what the family stands for in one line (tables and the docs).
+    """
+    description: str = ""
+    seed: int = 0
+    one_motor_eta: float | None = None
+    payload_torque_xy: float | None = None
+    yaw_torque_z: float | None = None
+
+    def sample(self, key: jax.Array, n: int) -> jax.Array:
+        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32."""
+        return _sample_heldout(self, key, n)
+
+    def vehicles(self, n: int) -> np.ndarray:
+        """The family's n evaluation vehicles, the same on every call (seeded by ``seed``):
+        θ (n, 19), validated and flyable (:func:`check_flyable`)."""
+        if not isinstance(n, (int, np.integer)) or isinstance(n, bool) or n < 1:
+            raise ValueError(f"n (vehicles of held-out family {self.name!r}) must be a positive integer, got {n!r}")
+        theta = validate_theta(np.asarray(self.sample(jax.random.PRNGKey(self.seed), int(n))), what=self.name)
+        for i, t in enumerate(theta):
+            check_flyable(t, what=f"{self.name} vehicle {i}")
+        return theta
+
+
+def _sample_heldout(p: HeldOutFamily, key, n: int):
+    k_base, k_motor, k_dir, k_sign = jax.random.split(key, 4)
+    t = _sample_prior(p, k_base, n)
+    if p.one_motor_eta is not None:
+        which = jax.random.randint(k_motor, (n,), 0, 4)
+        eta = jnp.where(jax.nn.one_hot(which, 4, dtype=bool), p.one_motor_eta, t[:, ETA])
+        twr = jnp.clip(thrust_to_weight(t), p.twr_min_eff / eta.min(-1), p.twr_max_eff / eta.max(-1))
+        omega_max = jnp.sqrt(twr * t[:, MASS] * GRAVITY / (4.0 * t[:, KT]))
+        t = t.at[:, ETA].set(eta).at[:, OMEGA_MAX].set(omega_max)
+    if p.payload_torque_xy is not None:
+        phi = jax.random.uniform(k_dir, (n,), jnp.float32, 0.0, 2.0 * jnp.pi)
+        mag = p.payload_torque_xy * t[:, MASS] * GRAVITY * t[:, ARM]
+        t = t.at[:, TAU_EXT.start].set(mag * jnp.cos(phi)).at[:, TAU_EXT.start + 1].set(mag * jnp.sin(phi))
+    if p.yaw_torque_z is not None:
+        sign = jnp.where(jax.random.bernoulli(k_sign, 0.5, (n,)), 1.0, -1.0)
+        t = t.at[:, TAU_EXT.start + 2].set(sign * p.yaw_torque_z * t[:, MASS] * GRAVITY * t[:, KTAU] / t[:, KT])
+    return t
+
+
+# Each family is the default prior with one kind of damage, past what any policy of mjxsysid
+# trains on (the default prior, its probed systems, the stress prior). Ranges chosen so that the
+# oracle (the lag-aware K_θ with the true θ) flies them: docs/probing.md, "Held-out families".
+HELDOUT_FAMILIES = {f.name: f for f in (
+    HeldOutFamily(name="weak_motor", seed=101, one_motor_eta=0.5,
+                  description="one motor at η 0.5, the others 0.7–1.3 (every rotor still lifts ≥ 1.5× its share)"),
+    HeldOutFamily(name="slow_motors", seed=102, motor_time_constant=(0.08, 0.10),
+                  description="motor time constant τ_m 0.08–0.10 s (the default prior: 0.02–0.04 s)"),
+    HeldOutFamily(name="low_thrust", seed=103, twr=(1.6, 1.8), eta=(0.85, 1.15), twr_min_eff=1.36,
+                  description="thrust-to-weight 1.6–1.8 (the default prior: 2.2–7), η 0.85–1.15"),
+    HeldOutFamily(name="payload_offset", seed=104, payload_torque_xy=0.15,
+                  description="a constant roll/pitch torque 0.15 m g l in a random direction (an off-centre "
+                              "payload: 30 % of the mass half an arm off; the default prior: ≤ 0.02 per axis)"),
+    HeldOutFamily(name="yaw_torque", seed=105, yaw_torque_z=0.4,
+                  description="a constant yaw torque ± 0.4 m g κ (4× the default prior's largest; at hover the "
+                              "rotors can counter at least 1.25× it)"),
+)}
+
+# ----------------------------------------------------------------------------------------
 # The released policy's training distribution
 # ----------------------------------------------------------------------------------------
 
@@ -474,8 +552,11 @@ PRIORS = {"default": DEFAULT_PRIOR, "slow_actuators": SLOW_ACTUATOR_PRIOR, "wide
 def get_prior(name: str | Prior) -> Prior:
     if isinstance(name, Prior):
         return name
+    if name in HELDOUT_FAMILIES:
+        return HELDOUT_FAMILIES[name]
     if name not in PRIORS:
-        raise ValueError(f"unknown prior {name!r}; choose from {sorted(PRIORS)}")
+        raise ValueError(f"unknown prior {name!r}; choose from {sorted(PRIORS)} or a held-out family "
+                         f"{sorted(HELDOUT_FAMILIES)}")
     return PRIORS[name]
 
 

@@ -71,17 +71,33 @@ def cmd_train_policy(args) -> int:
 
 def add_evaluate_policy(sub) -> None:
     e = sub.add_parser("evaluate-policy", help="evaluate an adaptive policy (tracking, lemniscate, latent health)")
-    e.add_argument("--weights", type=Path, default=None, help="policy.npz or run folder (default: shipped); "
-                   "mjxsysid's policies only (training diagnostics need its μ encoder)")
-    e.add_argument("--vehicles", type=int, default=1000)
+    e.add_argument("--weights", action="append", default=None, metavar="[LABEL=]PATH",
+                   help="policy.npz or run folder (default: shipped); mjxsysid's policies only (training "
+                   "diagnostics need its μ encoder). With --held-out: repeat it to compare several policies")
+    e.add_argument("--vehicles", type=int, default=None,
+                   help="vehicles (default 1000; --held-out: per set, default 64)")
     e.add_argument("--seed", type=int, default=0)
     e.add_argument("--fast", action="store_true", help="the quick latent/lemniscate evaluation of training "
                    "trials (probes on 2 x VEHICLES, lemniscate on VEHICLES)")
-    e.add_argument("--out", type=Path, required=True, help="writes OUT/eval.json")
+    e.add_argument("--held-out", action="store_true",
+                   help="every policy and the oracle on the default, stress and stress_wide priors and the "
+                   "held-out families (params.HELDOUT_FAMILIES): OUT/results.json and results.md")
+    e.add_argument("--sets", default=None, metavar="S1,S2",
+                   help="--held-out: the sets to fly (default: all of them)")
+    e.add_argument("--period", type=positive, default=10.0, help="--held-out: the lemniscate's period (s)")
+    e.add_argument("--out", type=Path, required=True, help="writes OUT/eval.json (--held-out: OUT/results.*)")
     e.set_defaults(handler=cmd_evaluate_policy)
 
 
 def cmd_evaluate_policy(args) -> int:
+    if args.held_out:
+        return _held_out(args)
+    if args.sets is not None:
+        raise ValueError("--sets applies to --held-out only")
+    if args.weights is not None and len(args.weights) > 1:
+        raise ValueError("--weights: one policy (several only with --held-out)")
+    args.weights = None if args.weights is None else Path(args.weights[0])
+    args.vehicles = 1000 if args.vehicles is None else args.vehicles
     from mjxsysid.policy.evaluate import evaluate_policy
     if args.vehicles < 10:
         raise ValueError(f"--vehicles must be >= 10 (linear probes need data), got {args.vehicles}")
@@ -105,6 +121,21 @@ def cmd_evaluate_policy(args) -> int:
                       "rmse_ratio": lem.get("rmse_ratio_policy_over_oracle"),
                       "z_err_rel": res["latent"]["z_err_rel"]}))
     print(f"wrote {args.out}/eval.json", file=sys.stderr)
+    return 0
+
+
+def _held_out(args) -> int:
+    from mjxsysid.experiments.heldout import SETS, parse_policies, run
+    if args.fast:
+        raise ValueError("give either --held-out or --fast, not both")
+    vehicles = 64 if args.vehicles is None else args.vehicles
+    if vehicles < 1:
+        raise ValueError(f"--vehicles must be >= 1, got {vehicles}")
+    sets = SETS if args.sets is None else tuple(s.strip() for s in args.sets.split(",") if s.strip())
+    res = run(args.out, parse_policies(args.weights), sets=sets, vehicles=vehicles, period=args.period,
+              seed=args.seed)
+    print(json.dumps({k: v["all"] for k, v in res["numbers"]["targets"].items()}))
+    print(f"wrote {args.out}/results.json and results.md ({res['wall_s']:.0f} s)", file=sys.stderr)
     return 0
 
 

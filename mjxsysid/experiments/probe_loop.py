@@ -40,7 +40,8 @@ from mjxsysid import params as P
 from mjxsysid.cfm.pipeline import evaluate_decoders, train_decoders
 from mjxsysid.cfm.train import CFMConfig
 from mjxsysid.dataset.collect import collect, latents_in_flight
-from mjxsysid.experiments.common import fmt_ms, markdown_table, mean_std, to_jsonable, write_results
+from mjxsysid.experiments.common import fmt_ms, markdown_table, to_jsonable, write_results
+from mjxsysid.experiments.heldout import compare_with_oracle
 from mjxsysid.policy.evaluate import env_rollout, latent_of_rollout
 from mjxsysid.policy.env import EnvConfig, TrainEnv
 from mjxsysid.policy.focus import load_weak, save_weak
@@ -96,17 +97,11 @@ def train_config(cfg: LoopConfig, seed: int, focus=None) -> TrainConfig:
 
 
 def evaluate_on(policy, theta, *, period: float, seed: int = 0) -> dict:
-    """The policy and the oracle on θ (n, 19), a ``period`` s lemniscate, one period."""
+    """The policy and the oracle on θ (n, 19), a ``period`` s lemniscate, one period
+    (:func:`~mjxsysid.experiments.heldout.compare_with_oracle`)."""
     _, mp, _ = fly_vehicles(theta, controller="policy", policy=policy, reference="lemniscate", period=period, seed=seed)
     _, mo, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", period=period, seed=seed)
-    fp, fo = np.asarray(mp["failed"]) > 0.5, np.asarray(mo["failed"]) > 0.5
-    both = ~fp & ~fo
-    rp, ro = np.asarray(mp["pos_rmse_m"]), np.asarray(mo["pos_rmse_m"])
-    ratio = float(rp[both].mean() / ro[both].mean()) if both.any() else None
-    return {"n": int(len(theta)), "success_policy": float(1 - fp.mean()), "success_oracle": float(1 - fo.mean()),
-            "success_policy_where_oracle_flies": float(1 - fp[~fo].mean()) if (~fo).any() else None,
-            "pos_rmse_policy": mean_std(rp[both]), "pos_rmse_oracle": mean_std(ro[both]),
-            "rmse_ratio": ratio, "n_both": int(both.sum())}
+    return compare_with_oracle(mp, mo)
 
 
 def latent_probe(policy, n: int, seed: int = 0, steps: int = 1000) -> dict | None:
