@@ -189,11 +189,9 @@ def test_segments_cover_the_flight_once():
         segments(0, 50)
 
 
-def test_tuner_finds_known_good_gains(paper_policy):
-    """From rest at the start of a fast lemniscate (4 s period), the oracle tuner started at the
-    naive gains must reach a predicted cost as good as the hand-tuned baseline's (known good)
-    and well below the naive one."""
-    from mjxsysid.sim.quadrotor import hover_rotor_speed
+def _paper_vehicle_at_rest(paper_policy):
+    """The paper vehicle at rest at the start of a fast (4 s) lemniscate: (sim, θ (1, 19), batched
+    and unbatched policy, reference, batched reference, batched loop carry, unbatched carry)."""
     from mjxsysid.tune import tuner as T
     sim, ref = paper_policy
     theta = P.PAPER_HARDWARE[None]
@@ -202,7 +200,16 @@ def test_tuner_finds_known_good_gains(paper_policy):
     refs = broadcast(lem, 1)
     carry = T._start(sim, *T._axes(low))(jnp.asarray(theta), low, refs,
                                          jnp.stack([jax.random.split(jax.random.PRNGKey(0), 2)]))
-    one = jax.tree.map(lambda a: a[0], carry)
+    return sim, theta, low, low0, lem, refs, carry, jax.tree.map(lambda a: a[0], carry)
+
+
+def test_tuner_finds_known_good_gains(paper_policy):
+    """From rest at the start of a fast lemniscate (4 s period), the oracle tuner started at the
+    naive gains must reach a predicted cost as good as the hand-tuned baseline's (known good)
+    and well below the naive one."""
+    from mjxsysid.sim.quadrotor import hover_rotor_speed
+    from mjxsysid.tune import tuner as T
+    sim, theta, low, low0, lem, refs, carry, one = _paper_vehicle_at_rest(paper_policy)
     speed = hover_rotor_speed(jnp.asarray(theta[0]))
     cfg = TunerConfig(models=1, horizon=0.5, cem=C.CEMConfig(candidates=24, iterations=3))
     hor = cfg.steps(sim.config.dt)[1]
@@ -385,18 +392,11 @@ def test_a_protected_tuner_never_applies_gains_its_models_predict_worse(paper_po
     better than the incumbent, so the applied gains' predicted cost never exceeds the incumbent's
     (here the naive gains, which the fast lemniscate punishes: it does switch)."""
     from mjxsysid.tune import tuner as T
-    sim, ref = paper_policy
-    theta = P.PAPER_HARDWARE[None]
-    low, low0 = ref.batched(1), ref.load()
-    lem = Lemniscate.make(period=4.0)
-    refs = broadcast(lem, 1)
-    carry = T._start(sim, *T._axes(low))(jnp.asarray(theta), low, refs,
-                                         jnp.stack([jax.random.split(jax.random.PRNGKey(0), 2)]))
+    sim, theta, low, low0, lem, refs, carry, one = _paper_vehicle_at_rest(paper_policy)
     cfg = TunerConfig(models=1, horizon=0.5, protect=1.0, cem=C.CEMConfig(candidates=24, iterations=3))
     tuner = OnlineTuner(sim, "oracle_cem", cfg)
     hist = T.empty_history(cfg.window(sim.config.dt), 1)
     incumbent = jnp.asarray(PRESETS["naive"])[None]
-    one = jax.tree.map(lambda a: a[0], carry)
     cost_of = jax.jit(lambda g: rollout_cost(predict(sim, jnp.asarray(theta[0]), low0, g, jnp.float32(12.0), lem, one,
                                                      T.hover_rotor_speed(jnp.asarray(theta[0])), 0, 250), cfg.weights))
     state = tuner.init(1)

@@ -82,14 +82,13 @@ def plot_prediction_error(cases: dict, path, *, title: str = "") -> Path:
     """Position error of the tuner's predictive rollout (true θ) against the flight it predicts,
     over the horizon: one panel per case {name: {'time' (H,), mode: {'pos_err' (B, H)}}}, a line
     per rotor-state start (median over vehicles, 5–95 % shaded)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from mjxsysid.render.plots import _figure, _save
 
     names = list(cases)
-    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.4), squeeze=False)
+    fig = _figure((4.2 * len(names), 3.4))
+    axes = fig.subplots(1, len(names), squeeze=False)[0]
     colors = {"estimate": "C0", "steady": "C3", "true": "k"}
-    for ax, name in zip(axes[0], names):
+    for ax, name in zip(axes, names):
         c = cases[name]
         t = np.asarray(c["time"])
         for mode, col in colors.items():
@@ -102,13 +101,8 @@ def plot_prediction_error(cases: dict, path, *, title: str = "") -> Path:
         ax.set_xlabel("time into the prediction (s)")
         ax.set_title(name, fontsize=9)
         ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel("position error (mm, floor 1e-4)")
-    axes[0][0].legend(fontsize=8, title="rotors start", title_fontsize=8)
+    axes[0].set_ylabel("position error (mm, floor 1e-4)")
+    axes[0].legend(fontsize=8, title="rotors start", title_fontsize=8)
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
