@@ -336,3 +336,20 @@ def test_imu_vibration_in_flight_and_off_unchanged():
     want = np.array([0.01] * 3 + [0.1] * 3) * np.asarray(jax.random.normal(k, (6,)))
     np.testing.assert_allclose(np.asarray(s1.imu) - np.asarray(s1.imu_buffer[0]), want, atol=1e-6)
     assert not np.asarray(s1.imu_vibration).any()
+
+
+def test_randomize_imu_levels_per_episode():
+    """Sensor randomisation: each vehicle's episode draws its own white-noise and bias levels in
+    [0, 1] × the configured maxima; the residual std of each follows its drawn level."""
+    th = no_torque(prior_batch(5, 16))
+    u = np.array(np.broadcast_to(hover_cmd(th)[:, None], (16, 400, 4)))
+    sim = Quadrotor(SimConfig(gyro_noise=0.05, accel_noise=0.5, gyro_bias=0.025, accel_bias=0.25, randomize_imu=True))
+    s0 = init_batch(sim, th, jax.random.PRNGKey(4))
+    _, fr = rollout_batch(sim, th, s0, u)
+    level = np.asarray(s0.imu_level)
+    assert level.shape == (16, 2) and np.all((level >= 0) & (level <= 1)) and level.std(0).min() > 0.1
+    resid = np.asarray(fr.imu) - np.asarray(s0.imu_bias)[:, None] - np.array([0, 0, 0, 0, 0, P.GRAVITY])
+    np.testing.assert_allclose(resid[..., :3].std((1, 2)), 0.05 * level[:, 0], rtol=0.1, atol=1e-3)
+    np.testing.assert_allclose(resid[..., 3:].std((1, 2)), 0.5 * level[:, 0], rtol=0.1, atol=1e-2)
+    bias = np.asarray(s0.imu_bias)
+    assert np.all(np.abs(bias[:, :3]) <= 0.025 * 4.5 * level[:, 1:]) and np.abs(bias).max() > 0

@@ -29,7 +29,28 @@ def add_collect(sub) -> None:
                    help="comma-separated manoeuvres drawn per vehicle (default: lemniscate,minsnap,hover_step)")
     c.add_argument("--single-latent", action="store_true",
                    help="the shipped single-latent pairs instead: 1.5 s lemniscates, ẑ at the end, no trajectories")
+    c.add_argument("--imu-noise", type=float, nargs=2, default=(0.0, 0.0), metavar=("GYRO", "ACCEL"),
+                   help="white IMU noise per 2 ms sample, rad/s and m/s² (default none)")
+    c.add_argument("--imu-bias", type=float, nargs=2, default=(0.0, 0.0), metavar=("GYRO", "ACCEL"),
+                   help="std of a per-flight IMU bias, rad/s and m/s² (default none)")
+    c.add_argument("--imu-vibration", type=float, nargs=2, default=(0.0, 0.0), metavar=("GYRO", "ACCEL"),
+                   help="std of rotor vibration on the IMU, rad/s and m/s² (default none)")
+    c.add_argument("--randomize-imu", action="store_true",
+                   help="the --imu-* values are maxima: each flight draws its own levels in [0, 1] x them")
     c.set_defaults(handler=cmd_collect)
+
+
+def imu_config(args):
+    """The simulator config of ``--imu-noise/--imu-bias/--imu-vibration/--randomize-imu``."""
+    from mjxsysid.sim import SimConfig
+    kw = {}
+    for flag, names in (("imu_noise", ("gyro_noise", "accel_noise")), ("imu_bias", ("gyro_bias", "accel_bias")),
+                        ("imu_vibration", ("gyro_vibration", "accel_vibration"))):
+        for name, v in zip(names, getattr(args, flag)):
+            if not v >= 0:
+                raise ValueError(f"--{flag.replace('_', '-')} must be >= 0 (rad/s, m/s²), got {v}")
+            kw[name] = float(v)
+    return SimConfig(**kw, randomize_imu=bool(args.randomize_imu))
 
 
 def cmd_collect(args) -> int:
@@ -40,7 +61,7 @@ def cmd_collect(args) -> int:
     path = collect(args.out, policy=ref, n_train=args.train,
                    n_test=args.test, prior=args.prior, seed=args.seed, batch=args.batch,
                    seconds=None if args.single_latent else args.seconds, manoeuvres=manoeuvres,
-                   log=echo)
+                   sim_config=imu_config(args), log=echo)
     print(f"wrote {path}", file=sys.stderr)
     return 0
 

@@ -36,7 +36,7 @@ from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.progress import progress, tee
 from mjxsysid.rollout.flight import broadcast, random_lemniscates
 from mjxsysid.rollout.harness import Disturbance, failure_mask, fly_batch
-from mjxsysid.sim import Quadrotor
+from mjxsysid.sim import Quadrotor, SimConfig
 
 
 def latents_in_flight(policy, theta, key, *, weights=None, steps: int = 750, sim=None):
@@ -134,7 +134,7 @@ def latent_trajectories_in_flight(policy, theta, key, *, seconds: float = 10.0, 
 def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
             n_test: int = 2_000, prior: str | None = None, seed: int = 0, batch: int = 2_000,
             steps: int = 750, seconds: float | None = None, manoeuvres=MANOEUVRES,
-            log=print) -> Path:
+            sim_config: SimConfig | None = None, log=print) -> Path:
     """Write ``out/pairs.npz``: theta_train (n_train, 19), zhat_train (n_train, 8), failed_train,
     and the same for the held-out test split, plus metadata (policy weights hash, prior, seed).
     ``prior`` defaults to the prior the policy's shipped decoders are trained on
@@ -144,7 +144,11 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     ``seconds`` None: the single-latent pairs (a ``steps``-step lemniscate, ẑ at its end).
     ``seconds`` S: S-second flights of random ``manoeuvres`` with the latent recorded at 10 Hz:
     also zhat_traj_train (n_train, L, 8), manoeuvre_train (n_train,) (index into
-    ``MANOEUVRES``), the same for the test split, and traj_times (L,) s; zhat = the last latent."""
+    ``MANOEUVRES``), the same for the test split, and traj_times (L,) s; zhat = the last latent.
+
+    ``sim_config``: the simulator's settings (default: a clean IMU); e.g. IMU noise, bias and
+    vibration drawn per flight (``randomize_imu``), so that decoders learn latents of noisy
+    flights. Its IMU settings are recorded in the metadata (``imu``)."""
     if n_train < 1 or n_test < 1 or batch < 1:
         raise ValueError("n_train, n_test and batch must be >= 1")
     if seconds is not None:
@@ -159,7 +163,10 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     total = n_train + n_test
     nb = -(-total // batch)
     theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(seed), nb * batch))
-    sim = Quadrotor()
+    sim_config = SimConfig() if sim_config is None else sim_config
+    if not isinstance(sim_config, SimConfig):
+        raise TypeError(f"sim_config must be a SimConfig, got {type(sim_config).__name__}")
+    sim = Quadrotor(sim_config)
     zs, fs, trajs, kinds = [], [], [], []
     times = None
     if seconds is not None:
@@ -186,7 +193,7 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     theta = theta[:total]
     excitation = __doc__.split("\n\n")[1 if seconds is None else 2]
     meta = {**ref.to_dict(), "prior": prior, "seed": seed, "steps": steps, "excitation": excitation,
-            "n_train": n_train, "n_test": n_test, "wall_s": time.time() - t0,
+            "n_train": n_train, "n_test": n_test, "wall_s": time.time() - t0, "imu": imu_settings(sim_config),
             "device": str(jax.devices()[0]), "devices": distributed.device_count()}
     extra = {}
     if seconds is not None:
@@ -201,6 +208,15 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
                         theta_test=theta[n_train:], zhat_test=z[n_train:], failed_test=f[n_train:],
                         **extra, meta_json=np.frombuffer(json.dumps(meta).encode(), np.uint8))
     return path
+
+
+IMU_SETTINGS = ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias", "gyro_vibration", "accel_vibration",
+                "imu_latency", "randomize_imu")
+
+
+def imu_settings(cfg: SimConfig) -> dict:
+    """The IMU settings of a simulator config (what pairs record of the flights' sensors)."""
+    return {k: getattr(cfg, k) for k in IMU_SETTINGS}
 
 
 def load_pairs(path) -> tuple[dict, dict]:

@@ -29,6 +29,11 @@ from mjxsysid.policy import networks as N
 from mjxsysid.sim.quadrotor import Quadrotor, SimConfig, SimState, hover_rotor_speed, quat_to_mat
 
 
+IMU_FIELDS = ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias", "gyro_vibration", "accel_vibration",
+              "randomize_imu")
+"""The EnvConfig settings passed on to the simulator's IMU (:class:`~mjxsysid.sim.SimConfig`)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class EnvConfig:
     """Training-environment settings (static)."""
@@ -37,6 +42,11 @@ class EnvConfig:
     phi_every: int = 10                 # ẑ refreshed every this many steps
     gyro_noise: float = 0.005           # rad/s per step
     accel_noise: float = 0.05           # m/s² per step
+    gyro_bias: float = 0.0              # rad/s: std of a per-episode gyro bias
+    accel_bias: float = 0.0             # m/s²: std of a per-episode accelerometer bias
+    gyro_vibration: float = 0.0         # rad/s: std of rotor vibration (SimConfig)
+    accel_vibration: float = 0.0        # m/s²
+    randomize_imu: bool = False         # the IMU settings above are maxima, levels drawn per episode
     force_sigma_max: float = 0.15       # × m g: per-episode σ of the random world force
     excite_rate: tuple = (2.0, 2.0, 1.0)  # max ω excitation (rad/s)
     excite_thrust: float = 2.0          # max a_cmd excitation (m/s²)
@@ -97,7 +107,7 @@ class TrainEnv:
                                              or self.focus_theta.shape[0] == 0):
             raise ValueError(f"focus systems must have shape (n, {P.N_PARAMS}), n >= 1; got {self.focus_theta.shape}")
         self.prior = P.get_prior(config.prior)
-        self.sim = Quadrotor(SimConfig(gyro_noise=config.gyro_noise, accel_noise=config.accel_noise))
+        self.sim = Quadrotor(SimConfig(**{k: getattr(config, k) for k in IMU_FIELDS}))
         self.normalizer = normalizer or P.prior_normalizer(config.prior)
         self.nets = N.Networks()
 

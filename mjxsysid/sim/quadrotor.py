@@ -59,6 +59,7 @@ class SimConfig:
     accel_vibration: float = 0.0
     vibration_hz: float = 0.0
     vibration_bandwidth_hz: float = 20.0
+    randomize_imu: bool = False
     pos_limit: float = 1.0e3
     vel_limit: float = 100.0
     rate_limit: float = 200.0
@@ -97,6 +98,8 @@ class SimState:
       [gyro (3) rad/s, specific force (3) m/s²], body frame, with noise / bias / latency.
     imu_buffer: (imu_latency + 1, 6) true readings, oldest first. imu_bias: (6,).
     imu_vibration: (2, 6) the vibration filter's last two outputs (unit std; zeros when off).
+    imu_level: (2,) this episode's multipliers of the white noise and vibration, and of the bias
+    std (ones unless ``randomize_imu``).
     key: PRNG key for IMU noise. diverged: () bool. step: () int32 control steps taken.
     """
     data: mjx.Data
@@ -105,6 +108,7 @@ class SimState:
     imu_buffer: jax.Array
     imu_bias: jax.Array
     imu_vibration: jax.Array
+    imu_level: jax.Array
     key: jax.Array
     diverged: jax.Array
     step: jax.Array
@@ -296,14 +300,18 @@ class Quadrotor:
                             qvel=jnp.concatenate([jnp.asarray(vel, jnp.float32),
                                                   jnp.asarray(omega, jnp.float32)]))
         speed = hover_rotor_speed(theta) if rotor_speed is None else jnp.asarray(rotor_speed, jnp.float32)
+        level = jnp.ones(2, jnp.float32)
+        if c.randomize_imu:  # a Python branch: without it the key stream is unchanged
+            k_bias, k_level = jax.random.split(k_bias)
+            level = jax.random.uniform(k_level, (2,), jnp.float32)
         scale = jnp.array([c.gyro_bias] * 3 + [c.accel_bias] * 3, jnp.float32)
-        bias = scale * jax.random.normal(k_bias, (6,))
+        bias = level[1] * scale * jax.random.normal(k_bias, (6,))
         # Initial reading: the given rates and the hover specific force, +g along body z.
         f0 = jnp.array([0.0, 0.0, P.GRAVITY], jnp.float32)
         true0 = jnp.concatenate([jnp.asarray(omega, jnp.float32), f0])
         buf = jnp.tile(true0, (c.imu_latency + 1, 1))
         return SimState(data=data, rotor_speed=speed, imu=true0 + bias, imu_buffer=buf,
-                        imu_bias=bias, imu_vibration=jnp.zeros((2, 6), jnp.float32),
+                        imu_bias=bias, imu_vibration=jnp.zeros((2, 6), jnp.float32), imu_level=level,
                         key=k_noise, diverged=jnp.array(False),
                         step=jnp.array(0, jnp.int32))
 
@@ -354,7 +362,7 @@ class Quadrotor:
         buf = jnp.concatenate([state.imu_buffer[1:], true[None]], 0)
         key, k = jax.random.split(state.key)
         sigma = jnp.array([c.gyro_noise] * 3 + [c.accel_noise] * 3, jnp.float32)
-        imu = buf[0] + state.imu_bias + sigma * jax.random.normal(k, (6,))
+        imu = buf[0] + state.imu_bias + state.imu_level[0] * sigma * jax.random.normal(k, (6,))
         vib = state.imu_vibration
         if c.vibration:  # a Python branch: with vibration off the key stream is unchanged
             key, kv = jax.random.split(key)
@@ -362,7 +370,7 @@ class Quadrotor:
             vib = vibration_step(vib, jax.random.normal(kv, (6,)), aliased_hz(f, c.dt),
                                  c.vibration_bandwidth_hz, c.dt)
             amp = jnp.array([c.gyro_vibration] * 3 + [c.accel_vibration] * 3, jnp.float32)
-            imu = imu + amp * vib[-1]
+            imu = imu + state.imu_level[0] * amp * vib[-1]
 
         new = state.replace(data=data, rotor_speed=speed, imu=imu, imu_buffer=buf, imu_vibration=vib,
                             key=key, step=state.step + 1)
