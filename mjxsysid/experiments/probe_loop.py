@@ -18,6 +18,14 @@
 5. Every policy evaluated like the given one and on every round's weak systems; decoders for
    the last policy and one more probe of it (do the weak regions shrink or soften?).
 
+**Accumulating variant** (``LoopConfig.accumulate``, ``--variant accumulate``): each round
+fine-tunes the current policy (warm start from its weights, ``TrainConfig.init_from``) instead of
+training afresh, on a mixture of the default prior and a replay buffer of every round's weak
+systems, each drawn with probability ∝ how badly the current policy flies it (its badness, re-scored
+every round on the probe's reference: ``replay_round{r}.json`` holds the scores,
+``replay_round{r}.npz`` the ``replay_draws`` weighted draws training reads). The control is
+unchanged (trained afresh, one budget).
+
 Success: the fraction of vehicles the policy did not lose. RMSE ratio: the policy's mean
 position RMSE over the oracle's, on the vehicles both flew to the end.
 
@@ -44,7 +52,7 @@ from mjxsysid.experiments.common import fmt_ms, markdown_table, to_jsonable, wri
 from mjxsysid.experiments.heldout import compare_with_oracle
 from mjxsysid.policy.evaluate import env_rollout, latent_of_rollout
 from mjxsysid.policy.env import EnvConfig, TrainEnv
-from mjxsysid.policy.focus import load_weak, save_weak
+from mjxsysid.policy.focus import load_weak, replay_resample, save_weak
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.policy.train import TrainConfig, train
 from mjxsysid.probe import ProbeConfig, make_fly, run_probe, system_badness
@@ -65,7 +73,9 @@ class LoopConfig:
     for it); final_probe: decoders for the last policy and one more probe of it (fewer or
     milder weak regions?); pairs: (train, test) pairs collected for those decoders, ẑ read
     after collect_steps control steps (the shipped decoders': 750, 1.5 s); decoder: overrides
-    of CFMConfig."""
+    of CFMConfig; accumulate: each round fine-tunes the current policy on a replay buffer of
+    every round's weak systems weighted by the current policy's badness on each (module notes),
+    replay_draws of them written for training."""
     vehicles: int = 1000
     period: float = 10.0
     focus_weight: float = 0.3
@@ -78,8 +88,11 @@ class LoopConfig:
     pairs: tuple = (20_000, 2_000)
     collect_steps: int = 750
     decoder: tuple = ()
+    accumulate: bool = False
+    replay_draws: int = 4096
 
 
+VARIANTS = ("accumulate",)
 FULL = LoopConfig()
 QUICK = LoopConfig(vehicles=8, period=5.0, control_systems=64, probe=ProbeConfig.quick(),
                    train=(("iterations", 4), ("num_envs", 64), ("unroll", 16), ("epochs", 2), ("minibatches", 4),
@@ -87,12 +100,13 @@ QUICK = LoopConfig(vehicles=8, period=5.0, control_systems=64, probe=ProbeConfig
                    latent_vehicles=64, pairs=(256, 64), collect_steps=150, decoder=(("epochs", 2), ("width", 64), ("blocks", 2)))
 
 
-def train_config(cfg: LoopConfig, seed: int, focus=None) -> TrainConfig:
+def train_config(cfg: LoopConfig, seed: int, focus=None, init_from=None) -> TrainConfig:
     """What every policy of the loop is trained with: the shipped TrainConfig with ``cfg.train``'s
     overrides, ``seed``, and a fraction ``cfg.focus_weight`` of episodes on the systems of the
-    weak-system file ``focus``."""
+    weak-system file ``focus``; ``init_from``: the policy.npz it starts from (None: afresh)."""
     base = TrainConfig.from_dict({**TrainConfig().to_dict(), **dict(cfg.train), "seed": seed,
-                                  "focus": None if focus is None else str(focus)})
+                                  "focus": None if focus is None else str(focus),
+                                  "init_from": None if init_from is None else str(init_from)})
     return dataclasses.replace(base, env=dataclasses.replace(base.env, focus_weight=cfg.focus_weight))
 
 
@@ -127,15 +141,35 @@ def eval_sets(policy, cfg: LoopConfig, seed: int) -> dict:
     return res
 
 
+def badness_of(policy, theta, probe_cfg: ProbeConfig):
+    """Per system of θ (n, 19), flown on the probe's reference: the badness (n,)
+    (:func:`~mjxsysid.probe.system_badness`), whether the policy failed (n,), whether the oracle flew (n,)."""
+    failed, rmse_p, rmse_o = make_fly(policy, probe_cfg)(np.asarray(theta, np.float32))
+    bad = system_badness(failed, rmse_p, rmse_o, fail_badness=probe_cfg.fail_badness,
+                         infeasible_badness=probe_cfg.infeasible_badness)
+    return bad, np.asarray(failed) > 0.5, np.isfinite(np.asarray(rmse_o))
+
+
 def on_weak_systems(policy, weak_theta, probe_cfg: ProbeConfig) -> dict:
     """The policy on the probe's weak systems (its reference): badness (mean and per system
     summary), how many it loses."""
-    failed, rmse_p, rmse_o = make_fly(policy, probe_cfg)(np.asarray(weak_theta, np.float32))
-    bad = system_badness(failed, rmse_p, rmse_o, fail_badness=probe_cfg.fail_badness,
-                         infeasible_badness=probe_cfg.infeasible_badness)
-    flown = np.isfinite(np.asarray(rmse_o))
+    bad, failed, flown = badness_of(policy, weak_theta, probe_cfg)
     return {"n": int(len(weak_theta)), "badness_mean": float(bad.mean()), "badness_median": float(np.median(bad)),
-            "policy_failures": int((np.asarray(failed)[flown] > 0.5).sum()), "oracle_flies": int(flown.sum())}
+            "policy_failures": int(failed[flown].sum()), "oracle_flies": int(flown.sum())}
+
+
+def replay_focus(policy, buffer, probe_cfg: ProbeConfig, draws: int, seed: int, path) -> dict:
+    """Re-score a replay buffer θ (m, 19) under the current ``policy`` (its badness per system)
+    and write ``draws`` systems drawn ∝ badness to the focus file ``path``; returns the scores'
+    summary (systems no controller flies score 0 and are never drawn)."""
+    bad, failed, flown = badness_of(policy, buffer, probe_cfg)
+    if not bad.sum() > 0:
+        raise ValueError(f"replay buffer of {len(bad)} systems: none has a positive badness (the oracle flies none?)")
+    save_weak(path, replay_resample(buffer, bad, draws, seed),
+              meta={"found_by": "mjxsysid probe (replay buffer of every round, drawn ∝ badness)",
+                    "buffer": int(len(bad)), "scored_by": policy.label})
+    return {"badness": bad, "badness_mean": float(bad.mean()), "policy_failures": int(failed[flown].sum()),
+            "oracle_flies": int(flown.sum())}
 
 
 class _Stages:
@@ -179,19 +213,29 @@ def _probe_dir(r: int) -> str:
 
 
 def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool = True, decoders=None,
-        cfg: LoopConfig | None = None, resume: bool = True) -> dict:
+        cfg: LoopConfig | None = None, resume: bool = True, variant: str | None = None) -> dict:
     """``cfg.rounds`` rounds of probe → retrain (each round's policy trained afresh on all weak
-    systems found so far), the uniform control, every policy evaluated, and a last probe of the
+    systems found so far; ``variant='accumulate'``: fine-tuned from the current one on the
+    re-scored replay buffer), the uniform control, every policy evaluated, and a last probe of the
     last policy with its own decoders; returns the results dict."""
     t0 = time.time()
     out = Path(out)
     log = (lambda m: print(m, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     cfg = cfg or (QUICK if quick else FULL)
+    if variant is not None:
+        if variant not in VARIANTS:
+            raise ValueError(f"probe-loop: unknown variant {variant!r}; choose from {VARIANTS}")
+        cfg = dataclasses.replace(cfg, accumulate=True)
+    if cfg.replay_draws < 1:
+        raise ValueError(f"replay_draws must be >= 1, got {cfg.replay_draws}")
     if not 0.0 < cfg.focus_weight <= 1.0:
         raise ValueError(f"focus_weight must be in (0, 1], got {cfg.focus_weight}")
     if cfg.rounds < 1:
         raise ValueError(f"rounds must be >= 1, got {cfg.rounds}")
     ref = resolve_policy(policy or "mjxsysid")
+    if cfg.accumulate and ref.kind != "mjxsysid":
+        raise ValueError(f"probe-loop --variant accumulate fine-tunes the given policy: it must be an mjxsysid "
+                         f"policy, got {ref.kind}")
     cfg_dict = to_jsonable({"quick": quick, "seed": seed, "policy": ref.label, "policy_sha256": ref.sha256(),
                             "decoders": None if decoders is None else str(decoders), **dataclasses.asdict(cfg)})
     out.mkdir(parents=True, exist_ok=True)
@@ -199,13 +243,13 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     stage = _Stages(out, log)
     probe_cfg = dataclasses.replace(cfg.probe, seed=seed)
     base = train_config(cfg, seed)
-    refs, ev, probes, calib = {"given": ref}, {}, {}, {}
+    refs, ev, probes, calib, replay = {"given": ref}, {}, {}, {}, {}
 
-    def trained(name: str, focus: Path):
+    def trained(name: str, focus: Path, init_from=None):
         def _train():
             log(f"probe-loop: training the {name} policy ({base.iterations} iterations, {cfg.focus_weight:.0%} of "
-                f"episodes on {focus.name})")
-            return train(train_config(cfg, seed, focus), out / name, log=log)["wall_s"]
+                f"episodes on {focus.name}{'' if init_from is None else ', from ' + str(init_from)})")
+            return train(train_config(cfg, seed, focus, init_from), out / name, log=log)["wall_s"]
         stage(f"train_{name}", _train)
         refs[name] = resolve_policy(out / name / "policy.npz")
         ev[name] = stage(f"eval_{name}", lambda: eval_sets(refs[name], cfg, seed))
@@ -242,6 +286,13 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
         probed_by(r, prev, decoders if r == 1 else own_decoders(prev))
         weak_sets.append(load_weak(out / _probe_dir(r) / "weak.npz")[0])
         focus = out / _probe_dir(r) / "weak.npz"
+        if cfg.accumulate:  # fine-tune the current policy on every round's systems, re-scored under it
+            buf, path = np.concatenate(weak_sets), out / f"replay_round{r}.npz"
+            replay[r] = stage(f"replay_round{r}", lambda: replay_focus(refs[prev], buf, probe_cfg, cfg.replay_draws,
+                                                                       seed + r, path))
+            trained(_pname(r), path, init_from=refs[prev].weights)
+            prev = _pname(r)
+            continue
         if r > 1:   # the weak systems of every round so far: the next policy must not forget the earlier ones
             focus = save_weak(out / f"focus_round{r}.npz", np.concatenate(weak_sets),
                               meta={"found_by": f"mjxsysid probe, rounds 1-{r}"})
@@ -259,6 +310,8 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     final = _pname(cfg.rounds)
     numbers = {"evaluation": ev, "final_policy": final, "probes": {r: _probe_summary(p) for r, p in probes.items()},
                "calibration": calib, "on_weak_systems": on_weak, "stage_wall_s": stage.wall}
+    if replay:
+        numbers["replay"] = {r: {k: v for k, v in rec.items() if k != "badness"} for r, rec in replay.items()}
     numbers["headline"] = {f"{p}_{s}_rmse_ratio": ev[p][s]["rmse_ratio"] for p in ev for s in ("default", "stress")}
     numbers["headline"].update({f"{p}_stress_success": ev[p]["stress"]["success_policy"] for p in ev})
     numbers["targets"] = _targets(ev, final, calib.get(final))
@@ -347,8 +400,12 @@ def _first(b, k=4):
 
 
 def _notes(numbers, base, cfg) -> str:
+    how = ("round r fine-tuned from round r − 1's policy (round 1 from the given one) on a replay buffer of the weak "
+           "systems of rounds 1..r, drawn ∝ the current policy's badness on each; control: uniform stress-prior draws, "
+           "trained from scratch" if cfg.accumulate else
+           "round r: the decoded weak systems of rounds 1..r that the oracle flies; control: uniform stress-prior "
+           "draws; every one trained from scratch")
     return (f"Every retrained policy: the shipped config, {base.iterations} iterations × {base.num_envs} envs, "
-            f"{cfg.focus_weight:.0%} of episodes on its systems (round r: the decoded weak systems of rounds 1..r that "
-            f"the oracle flies; control: uniform stress-prior draws), trained from scratch. Targets (issue 18, for "
+            f"{cfg.focus_weight:.0%} of episodes on its systems ({how}). Targets (issue 18, for "
             f"{numbers['final_policy']}): "
             + ", ".join(f"{k} {'met' if v else 'missed'}" for k, v in numbers["targets"].items()) + ".")

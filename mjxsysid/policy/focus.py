@@ -52,3 +52,19 @@ def _check_theta(theta: np.ndarray, what: str) -> np.ndarray:
     if len(theta) == 0:
         raise ValueError(f"{what}: no weak systems (theta is empty)")
     return np.asarray(P.validate_theta(theta, what=f"{what}: theta"), np.float32)
+
+
+def replay_resample(theta, weights, n: int, seed: int = 0) -> np.ndarray:
+    """A replay buffer's systems θ (m, 19) drawn n times with replacement, each with probability
+    ∝ its weight (m,) (e.g. how badly the current policy flies it) -> θ (n, 19), what a focus file
+    holds (training draws its systems uniformly). Weights must be finite, ≥ 0 and not all 0."""
+    theta = _check_theta(np.asarray(theta, np.float32), "replay buffer")
+    w = np.asarray(weights, np.float64)
+    if w.shape != (len(theta),):
+        raise ValueError(f"replay weights must have shape ({len(theta)},) (one per system); got {w.shape}")
+    if not np.isfinite(w).all() or (w < 0).any() or not w.sum() > 0:
+        raise ValueError("replay weights must be finite, >= 0 and not all 0")
+    if not isinstance(n, (int, np.integer)) or n < 1:
+        raise ValueError(f"n (replay draws) must be a positive integer, got {n!r}")
+    idx = np.random.default_rng(seed).choice(len(theta), size=int(n), p=w / w.sum())
+    return theta[idx]

@@ -81,6 +81,9 @@ class TrainConfig:
     log_every: int = 10
     env: EnvConfig = EnvConfig()
     focus: str | None = None       # weak.npz of `mjxsysid probe`: its systems mixed into training (env.focus_weight)
+    # Warm start: a policy.npz whose μ, φ, π and auxiliary decoder replace the fresh ones (the critic
+    # and the optimiser start afresh; the schedules run from iteration 0): fine-tuning a trained policy.
+    init_from: str | None = None
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -300,8 +303,25 @@ class Trainer:
 
     def init(self, key) -> TrainState:
         params = self.nets.init(key)
+        if self.cfg.init_from is not None:
+            params = {**params, **self.warm_start_params()}
         return TrainState(params=params, opt_state=self.opt.init(params), iteration=jnp.int32(0),
                           key=jax.random.fold_in(key, 1))
+
+    def warm_start_params(self) -> dict:
+        """μ, φ, π and the auxiliary decoder of ``cfg.init_from`` (checked: it exists, holds
+        mjxsysid policy weights, and was trained with this environment's θ normalisation)."""
+        path = Path(self.cfg.init_from)
+        if not path.is_file():
+            raise FileNotFoundError(f"init_from: policy weights not found: {path}")
+        try:
+            warm, meta = load_policy_params(path)
+        except (KeyError, ValueError, OSError) as e:
+            raise ValueError(f"init_from: {path}: not mjxsysid policy weights ({e})") from None
+        norm = meta.get("normalizer")
+        if norm is not None and json.loads(json.dumps(norm)) != json.loads(json.dumps(self.env.normalizer.to_dict())):
+            raise ValueError(f"init_from: {path} was trained with another θ normalisation (prior) than this config's")
+        return warm
 
     def _reset(self, key, p):
         keys = jax.random.split(key, self.cfg.num_envs)
@@ -386,6 +406,17 @@ class Trainer:
 POLICY_MODULES = ("mu", "phi", "pi", "aux")
 
 
+def _same_config(saved, cfg: TrainConfig) -> bool:
+    """Whether a checkpoint's saved config is ``cfg`` (keys added since it was written read as
+    their defaults)."""
+    if not isinstance(saved, dict):
+        return False
+    try:
+        return json.loads(json.dumps(TrainConfig.from_dict(saved).to_dict())) == json.loads(json.dumps(cfg.to_dict()))
+    except (TypeError, ValueError):
+        return False
+
+
 def export_policy(params, path, meta: dict) -> Path:
     """Ship the deployable part (μ, φ, π, aux decoder) of ``params`` with its metadata."""
     return save_tree(path, {k: params[k] for k in POLICY_MODULES}, meta)
@@ -420,7 +451,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     env_state = None
     if resume and ckpt.exists():
         meta = load_meta(ckpt)
-        if meta.get("config") != json.loads(json.dumps(cfg.to_dict())):
+        if not _same_config(meta.get("config"), cfg):
             raise ValueError(f"{ckpt} was written with a different config; use a new --out or --no-resume")
         if meta.get("with_env"):
             p0, _ = schedules(cfg, ts.iteration)
