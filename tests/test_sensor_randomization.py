@@ -68,5 +68,5 @@ def test_tiny_policy_training_with_randomized_imu(tmp_path):
     from mjxsysid.policy.train import train
     tiny = dict(num_envs=64, unroll=16, epochs=2, minibatches=4, log_every=1, checkpoint_every=4,
                 warmup=0.3, ramp=0.3)
-    res = train(TrainConfig(iterations=2, env=EnvConfig(**RANGE), **tiny), tmp_path, resume=False, log=None)
+    res = train(TrainConfig(iterations=2, env=EnvConfig(**RANGE), **tiny), tmp_path, resume=False, log=lambda *a, **k: None)
     assert np.isfinite(res["stats"]["reward"])
