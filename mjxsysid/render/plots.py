@@ -362,3 +362,40 @@ def plot_final_histograms(finals: dict, path, *, rows=("final lateral error (m)"
     if title:
         fig.suptitle(title)
     return _save(fig, path)
+
+
+def plot_noise_sensitivity(labels: Sequence[str], coverage: dict, widths: dict, path, *,
+                           names: Sequence[str], target: float = 0.9, band: float = 0.05,
+                           title: str | None = None) -> Path:
+    """Decoder calibration against IMU noise: one row per decoder (the keys of ``coverage``), the
+    90 % coverage (left) and the mean 90 % width (right) of each quantity in ``names`` per noise
+    level. labels (L,) the levels; coverage[decoder] and widths[decoder] (L, len(names)). The
+    target band target ± band is shaded."""
+    kinds = list(coverage)
+    if not kinds or set(kinds) != set(widths):
+        raise ValueError("coverage and widths must name the same decoders, at least one")
+    n_lv = len(labels)
+    fig = _figure((11, 3.2 * len(kinds)))
+    axes = fig.subplots(len(kinds), 2, squeeze=False)
+    x = np.arange(n_lv)
+    for r, kind in enumerate(kinds):
+        cov = _arr(coverage[kind], f"coverage[{kind!r}]")
+        wid = _arr(widths[kind], f"widths[{kind!r}]")
+        if cov.shape != (n_lv, len(names)) or wid.shape != cov.shape:
+            raise ValueError(f"coverage and widths of {kind!r} must be ({n_lv}, {len(names)}); got {cov.shape}, {wid.shape}")
+        a, b = axes[r]
+        a.axhspan(target - band, target + band, color="0.9")
+        a.axhline(target, color="0.5", lw=0.8)
+        for j, nm in enumerate(names):
+            a.plot(x, cov[:, j], "o-", label=nm)
+            b.plot(x, wid[:, j], "o-", label=nm)
+        a.set_ylabel(f"{kind}\n90 % coverage")
+        a.set_ylim(min(0.0, float(np.nanmin(cov)) - 0.05), 1.0)
+        b.set_ylabel("mean 90 % width (log units)")
+        for ax in (a, b):
+            ax.set_xticks(x, labels, rotation=25, ha="right", fontsize=8)
+            ax.grid(alpha=0.3)
+    axes[0, 1].legend(fontsize=7)
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)

@@ -299,9 +299,9 @@ difference has std σ √C(2k, k) (√6 for k = 2), while a smooth signal's shri
 IMU_NOISE_LIMIT = {"gyro_noise": 0.01, "accel_noise": 0.1}
 """rad/s and m/s² per 2 ms sample: the white-noise level past which :func:`check_imu_noise` warns.
 The shipped decoders were trained on flights without IMU noise and the policy with gyro 0.005 rad/s
-and accelerometer 0.05 m/s²; at twice that (the tuning experiment's hardware-like simulator) their
-90 % intervals still cover the truth about as often as on clean flights, at five times no longer
-(docs/noise.md)."""
+and accelerometer 0.05 m/s²; at twice that (the tuning experiment's hardware-like simulator, with
+its bias) their 90 % intervals cover the truth as often as on clean flights, at four times that the
+angular authorities' coverage falls 6–10 points, at ten times 25 (docs/noise.md)."""
 
 
 def estimate_imu_noise(rec: dict) -> dict:

@@ -1,0 +1,37 @@
+"""docs/noise.md's table is what tools/noise_sensitivity.py makes of its committed run, and the
+figure is drawn from it (the run itself takes minutes: `python tools/noise_sensitivity.py`)."""
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _tool():
+    spec = importlib.util.spec_from_file_location("noise_sensitivity", ROOT / "tools" / "noise_sensitivity.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_docs_table_and_figure_come_from_the_run(tmp_path):
+    tool = _tool()
+    res = json.loads((ROOT / "docs/runs/noise_sensitivity.json").read_text())
+    doc = (ROOT / "docs/noise.md").read_text()
+    body = doc.split("<!-- BEGIN noise table")[1].split("-->", 1)[1].split("<!-- END noise table -->")[0]
+    assert body.strip() == tool.table(res).strip(), "regenerate: python tools/noise_sensitivity.py --replot ..."
+    assert tool.figure(res, tmp_path / "f.png").stat().st_size > 10_000
+    for name, lv in res["levels"].items():
+        assert lv["sim"] == tool.LEVELS[name], name     # the levels the tool defines today
+
+
+def test_plot_checks_shapes(tmp_path):
+    from mjxsysid.render.plots import plot_noise_sensitivity
+    with pytest.raises(ValueError, match="must be"):
+        plot_noise_sensitivity(["a", "b"], {"x": np.zeros((2, 3))}, {"x": np.zeros((2, 2))}, tmp_path / "f.png",
+                               names=["p", "q", "r"])
+    with pytest.raises(ValueError, match="same decoders"):
+        plot_noise_sensitivity(["a"], {"x": np.zeros((1, 1))}, {}, tmp_path / "f.png", names=["p"])
