@@ -19,13 +19,17 @@ def _tool():
 
 def test_docs_table_and_figure_come_from_the_run(tmp_path):
     tool = _tool()
-    res = json.loads((ROOT / "docs/runs/noise_sensitivity.json").read_text())
     doc = (ROOT / "docs/noise.md").read_text()
-    body = doc.split("<!-- BEGIN noise table")[1].split("-->", 1)[1].split("<!-- END noise table -->")[0]
-    assert body.strip() == tool.table(res).strip(), "regenerate: python tools/noise_sensitivity.py --replot ..."
+    parts = doc.split("<!-- BEGIN noise table ")[1:]
+    assert len(parts) == 2
+    for part in parts:
+        run, rest = part.split(" ", 1)
+        res = json.loads((ROOT / run).read_text())
+        body = rest.split("-->", 1)[1].split("<!-- END noise table -->")[0]
+        assert body.strip() == tool.table(res).strip(), f"regenerate: python tools/noise_sensitivity.py --replot {run}"
+        for name, lv in res["levels"].items():
+            assert lv["sim"] == tool.LEVELS[name], name     # the levels the tool defines today
     assert tool.figure(res, tmp_path / "f.png").stat().st_size > 10_000
-    for name, lv in res["levels"].items():
-        assert lv["sim"] == tool.LEVELS[name], name     # the levels the tool defines today
 
 
 def test_plot_checks_shapes(tmp_path):
