@@ -1,16 +1,16 @@
-"""Probing that accumulates: the replay buffer's weighted draws, the warm start of training from a
-policy's weights, old checkpoints' configs, and the probe loop's accumulate variant (its tiny
+"""Probing that accumulates: the replay buffer's weighted draws, old checkpoints' configs (the warm
+start of training from a policy's weights: tests/test_policy.py, beside the tiny Trainer), and the probe loop's accumulate variant (its tiny
 end-to-end run is `slow`; its checks of input run here)."""
+import dataclasses
 import json
 
-import jax
 import numpy as np
 import pytest
 
 from mjxsysid import params as P
 from mjxsysid.policy.controller import PRETRAINED
 from mjxsysid.policy.focus import replay_resample, save_weak
-from mjxsysid.policy.train import TrainConfig, Trainer, _same_config, load_policy_params
+from mjxsysid.policy.train import TrainConfig, _same_config
 
 TINY = dict(num_envs=64, unroll=16, epochs=2, minibatches=4, log_every=1, checkpoint_every=2)
 
@@ -30,20 +30,6 @@ def test_replay_draws_follow_the_badness():
         replay_resample(th, [1, 1, 1], 0)
 
 
-def test_warm_start_loads_the_policy_and_says_what_is_wrong(tmp_path):
-    ts = Trainer(TrainConfig(iterations=2, init_from=str(PRETRAINED), **TINY)).init(jax.random.PRNGKey(3))
-    want, _ = load_policy_params(PRETRAINED)
-    for k in ("mu", "phi", "pi", "aux"):
-        for a, b in zip(jax.tree.leaves(ts.params[k]), jax.tree.leaves(want[k])):
-            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
-    assert "critic" in ts.params or len(ts.params) > 4        # the critic starts afresh
-    with pytest.raises(FileNotFoundError, match="init_from: policy weights not found"):
-        Trainer(TrainConfig(init_from=str(tmp_path / "none.npz"), **TINY)).init(jax.random.PRNGKey(0))
-    weak = save_weak(tmp_path / "weak.npz", P.PAPER_HARDWARE[None])
-    with pytest.raises(ValueError, match="init_from: .*not mjxsysid policy weights"):
-        Trainer(TrainConfig(init_from=str(weak), **TINY)).init(jax.random.PRNGKey(0))
-
-
 def test_checkpoints_written_before_init_from_still_resume():
     cfg = TrainConfig(iterations=2, **TINY)
     saved = json.loads(json.dumps(cfg.to_dict()))
@@ -57,7 +43,6 @@ def test_probe_loop_accumulate_checks_its_input_first(tmp_path):
     from mjxsysid.experiments.probe_loop import QUICK, run, train_config
     with pytest.raises(ValueError, match="unknown variant 'accumulated'"):
         run(tmp_path / "a", quick=True, progress=False, variant="accumulated")
-    import dataclasses
     with pytest.raises(ValueError, match="replay_draws"):
         run(tmp_path / "a", progress=False, cfg=dataclasses.replace(QUICK, accumulate=True, replay_draws=0))
     assert not (tmp_path / "a").exists()
@@ -70,7 +55,6 @@ def test_probe_loop_accumulate_quick_end_to_end(tmp_path):
     """`experiment probe-loop --quick --variant accumulate`, two rounds, no last probe (≈ 4 min on
     2 CPU cores): round 1 fine-tunes the shipped policy, round 2 round 1's, each on a replay buffer
     of every round so far, re-scored under the current policy and drawn ∝ badness."""
-    import dataclasses
     from mjxsysid.experiments.probe_loop import QUICK, run
     from mjxsysid.policy.focus import load_weak
     out = tmp_path / "acc"

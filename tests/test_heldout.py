@@ -3,7 +3,6 @@ damage, seeding and validity; the comparison with the oracle in closed form; the
 (flights replaced by a stand-in: the real flights are the docs/runs/heldout run)."""
 import json
 
-import jax
 import numpy as np
 import pytest
 
@@ -97,4 +96,3 @@ def test_prior_sets_are_seeded_draws():
     np.testing.assert_array_equal(a, b)
     assert not np.array_equal(a, H.set_vehicles("stress", 8, seed=4))
     assert H.set_vehicles("paper", 5).shape == (1, 19)
-    assert jax.numpy.allclose(H.set_vehicles("default", 4)[:, P.TAU_M], H.set_vehicles("default", 4)[:, P.TAU_M])

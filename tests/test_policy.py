@@ -149,6 +149,28 @@ def test_tiny_training_improves_tracking_and_resumes(tmp_path, tiny_trainer):
         train(TrainConfig(iterations=17, **TINY), tmp_path, resume=True)
 
 
+def test_warm_start_loads_the_policy_and_says_what_is_wrong(tmp_path, tiny_trainer):
+    """TrainConfig.init_from: μ, φ, π and aux start from a policy.npz (the probe loop's accumulate
+    variant fine-tunes this way); a missing or wrong file is an error naming init_from."""
+    import copy
+    from mjxsysid.policy.focus import save_weak
+    from mjxsysid.policy.train import load_policy_params
+    tr = copy.copy(tiny_trainer)                   # the tiny Trainer's compiled init, another config
+    tr.cfg = dataclasses.replace(tiny_trainer.cfg, init_from=str(PRETRAINED))
+    ts = tr.init(jax.random.PRNGKey(3))
+    want, _ = load_policy_params(PRETRAINED)
+    for k in ("mu", "phi", "pi", "aux"):
+        for a, b in zip(jax.tree.leaves(ts.params[k]), jax.tree.leaves(want[k])):
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert set(ts.params) - {"mu", "phi", "pi", "aux"}       # the critic starts afresh
+    tr.cfg = dataclasses.replace(tiny_trainer.cfg, init_from=str(tmp_path / "none.npz"))
+    with pytest.raises(FileNotFoundError, match="init_from: policy weights not found"):
+        tr.warm_start_params()
+    tr.cfg = dataclasses.replace(tiny_trainer.cfg, init_from=str(save_weak(tmp_path / "w.npz", P.PAPER_HARDWARE[None])))
+    with pytest.raises(ValueError, match="init_from: .*not mjxsysid policy weights"):
+        tr.warm_start_params()
+
+
 def test_checkpoint_round_trip_and_errors(tmp_path, params):
     path = save_tree(tmp_path / "p.npz", params, {"note": "x"})
     back = load_tree(path, params)
