@@ -185,7 +185,8 @@ def _with_white_noise(rec, gyro, accel, seed=0):
 def test_imu_noise_estimate_against_injected_levels(paper_log):
     """White noise added to a clean flown log at known levels, from none to 20× the hardware-like
     one: the estimate is within 10 % of the injected std once the noise dominates the clean
-    floor, a per-flight bias leaves it unchanged, and the warning comes exactly past the limit."""
+    floor, a per-flight bias leaves it unchanged, and the warning comes past the limit (× 1.5), not
+    at × 1 (which decodes as clean flights do: docs/noise.md)."""
     rec, _ = paper_log
     floor = L.estimate_imu_noise(rec)
     lim = L.IMU_NOISE_LIMIT
@@ -199,7 +200,7 @@ def test_imu_noise_estimate_against_injected_levels(paper_log):
         biased = {**noisy, "imu": noisy["imu"] + np.array([0.025, -0.025, 0.025, 0.25, -0.25, 0.25])}
         assert L.estimate_imu_noise(biased) == pytest.approx(est, rel=1e-6)
         found = L.check_imu_noise(noisy)
-        if mult <= 0.5:
+        if mult <= 1.0:
             assert found == [], (mult, found)
         elif mult >= 2.0:
             assert len(found) == 1 and found[0].level == "warning" and "IMU noise" in found[0].message, (mult, found)

@@ -3,6 +3,8 @@ held-out vehicles of the decoders' prior (wide_actuators, a seed the decoders ne
 vehicles outside it; every correct log must pass without a finding, every common mistake
 (:data:`mjxsysid.studies.logcheck.MISTAKES`) must end in an error or a warning that names it,
 and the out-of-prior signal's false-alarm rate (prior vehicles) and hit rate (outside) are counted.
+The IMU-noise estimate is measured on flights the policy flew through known noise (white, bias,
+rotor vibration; multiples of the hardware-like levels): its error and how often it warns.
 
     python tools/log_checks.py --vehicles 200 --seconds 6 --out docs/runs/log_checks.json
 """
@@ -19,6 +21,7 @@ from mjxsysid import params as P
 from mjxsysid.policy.controller import PolicyController
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles, seen_imu
+from mjxsysid.sim import Quadrotor, SimConfig
 from mjxsysid.studies import logcheck as L
 
 
@@ -35,9 +38,21 @@ def out_of_prior_sets(theta, rng) -> dict:
     return {"thrust_to_weight_10_12": tw, "motor_time_constant_3_10ms": fast, "one_motor_eta_0.4": weak}
 
 
-def flights(theta, seconds, seed):
+NOISE_LEVELS = {  # SimConfig IMU settings: multiples of gyro 0.01 rad/s, accelerometer 0.1 m/s², biases 0.005 / 0.05
+    "x0.5_white": dict(gyro_noise=0.005, accel_noise=0.05),
+    "x1_white_bias": dict(gyro_noise=0.01, accel_noise=0.1, gyro_bias=0.005, accel_bias=0.05),
+    "x2_white_bias": dict(gyro_noise=0.02, accel_noise=0.2, gyro_bias=0.01, accel_bias=0.1),
+    "x5_white": dict(gyro_noise=0.05, accel_noise=0.5),
+    "x5_bias": dict(gyro_bias=0.025, accel_bias=0.25),
+    "x5_vibration": dict(gyro_vibration=0.05, accel_vibration=0.5),
+    "x20_white_bias": dict(gyro_noise=0.2, accel_noise=2.0, gyro_bias=0.1, accel_bias=1.0),
+}
+
+
+def flights(theta, seconds, seed, sim_config=None):
+    sim = Quadrotor(SimConfig(**(sim_config or {})))
     fl, m, _ = fly_vehicles(theta, controller="policy", policy=resolve_policy("mjxsysid"), reference="lemniscate",
-                            period=10.0, duration=seconds, seed=seed)
+                            period=10.0, duration=seconds, seed=seed, sim=sim)
     ok = ~np.asarray(m["failed"], bool)
     recs = [{"t": np.asarray(fl.time[i]) - L.DT, "imu": seen_imu(fl.frame.imu[i]).astype(np.float64),
              "a_cmd": np.asarray(fl.a_cmd[i]), "omega_cmd": np.asarray(fl.omega_cmd[i]),
@@ -100,6 +115,19 @@ def main():
                                 "other_findings": sum(bool(f) for f in other),
                                 "example": str(L.prior_check({k: v for k, v in rs[0].items() if k != "imu_after"})[0])
                                 if rs and hits[0] else ""}
+    # IMU noise the policy flew through: the estimate against the injected std, and the warning.
+    res["imu_noise"] = {"limit": L.IMU_NOISE_LIMIT, "correct_logs_estimates": {
+        k: [float(np.percentile([e[k] for e in est], q)) for q in (50, 99, 100)] for k in ("gyro_noise", "accel_noise")}}
+    for name, cfg in NOISE_LEVELS.items():
+        rs, lost_n = flights(theta[: a.outside], a.seconds, a.seed, cfg)
+        e = [L.estimate_imu_noise({k: v for k, v in r.items() if k != "imu_after"}) for r in rs]
+        warned = [bool(L.check_imu_noise({k: v for k, v in r.items() if k != "imu_after"}, est=x)) for r, x in zip(rs, e)]
+        res["imu_noise"][name] = {
+            "sim": cfg, "flown": len(rs), "lost": lost_n, "warning_rate": float(np.mean(warned)) if rs else None,
+            **{f"{k}_estimate_median": float(np.median([x[k] for x in e])) if rs else None for k in ("gyro_noise", "accel_noise")},
+            **{f"{k}_estimate_range": [float(np.min([x[k] for x in e])), float(np.max([x[k] for x in e]))] if rs else None
+               for k in ("gyro_noise", "accel_noise")}}
+        print(name, res["imu_noise"][name], flush=True)
     res["wall_s"] = round(time.time() - t0, 1)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(res, indent=2) + "\n")
