@@ -50,3 +50,11 @@ def test_probing_page_quotes_the_probe_loop_run():
         assert f"{ev['latent']['r2_thrust_to_weight']:.3f}" in row, (p, row)
     assert r["final_policy"] == "probed3" and not r["targets"]["probed_beats_uniform_on_stress"]
     assert "1.34× — **missed**" in text and "1.09×" in text
+
+
+def test_probing_page_quotes_the_held_out_run():
+    """docs/probing.md's held-out table is the one docs/runs/heldout/results.md was written with."""
+    table = [line for line in (ROOT / "docs" / "runs" / "heldout" / "results.md").read_text().splitlines()
+             if line.startswith("|")]
+    text = (ROOT / "docs" / "probing.md").read_text()
+    assert len(table) >= 3 and all(line in text for line in table)

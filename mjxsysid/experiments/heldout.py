@@ -117,14 +117,15 @@ def heldout_targets(res: dict, label: str) -> dict:
 def _cell(e: dict) -> str:
     ratio = "–" if e["rmse_ratio"] is None else f"{e['rmse_ratio']:.2f}×"
     lost = f", {e['lost_beyond_oracle']} lost" if e["lost_beyond_oracle"] else ""
-    return f"{e['success_policy']:.0%}, {ratio}{lost}"
+    s = e["success_policy"]
+    return f"{s:.0%}, {ratio}{lost}" if s in (0.0, 1.0) else f"{s:.1%}, {ratio}{lost}"
 
 
 def heldout_table(res: dict, labels) -> str:
     """Markdown: a row per policy, a column per set (success, RMSE ratio, vehicles lost that the
     oracle flies), the oracle's success in the header; then each policy's targets."""
     sets = list(res)
-    header = ["policy"] + [f"{s} (oracle {res[s]['oracle_success']:.0%})" for s in sets] + ["held-out targets"]
+    header = ["policy"] + [f"{s} (oracle {res[s]['oracle_success']:.1%})" for s in sets] + ["held-out targets"]
     rows = []
     for label in labels:
         tg = heldout_targets(res, label)
