@@ -50,6 +50,17 @@ def test_probe_loop_accumulate_checks_its_input_first(tmp_path):
     assert train_config(QUICK, 0).init_from is None
 
 
+def test_probe_loop_runs_written_before_the_variant_still_resume(tmp_path):
+    from mjxsysid.experiments.common import to_jsonable
+    from mjxsysid.experiments.probe_loop import QUICK, _check_config
+    cfg = to_jsonable({"quick": True, "seed": 0, **dataclasses.asdict(QUICK)})
+    old = {k: v for k, v in cfg.items() if k not in ("accumulate", "replay_draws")}
+    (tmp_path / "loop_config.json").write_text(json.dumps(old))
+    _check_config(tmp_path, cfg, resume=True)                            # the new keys at their defaults
+    with pytest.raises(ValueError, match="another config"):
+        _check_config(tmp_path, {**cfg, "accumulate": True}, resume=True)
+
+
 @pytest.mark.slow
 def test_probe_loop_accumulate_quick_end_to_end(tmp_path):
     """`experiment probe-loop --quick --variant accumulate`, two rounds, no last probe (≈ 4 min on

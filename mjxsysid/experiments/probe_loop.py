@@ -194,9 +194,13 @@ class _Stages:
 
 
 def _check_config(out: Path, cfg_dict: dict, resume: bool):
+    """Refuse to resume a run of another config in ``out`` (LoopConfig keys added since the run
+    was written read as their defaults)."""
     path = out / "loop_config.json"
     if path.is_file() and resume:
-        if json.loads(path.read_text()) != cfg_dict:
+        saved = json.loads(path.read_text())
+        defaults = to_jsonable(dataclasses.asdict(LoopConfig()))
+        if {**{k: v for k, v in defaults.items() if k not in saved}, **saved} != cfg_dict:
             raise ValueError(f"{out} holds a probe-loop run with another config or policy; use a new --out")
     else:
         path.write_text(json.dumps(cfg_dict, indent=1) + "\n")
