@@ -291,3 +291,15 @@ def test_notebook_03_executes(kernel, tmp_path, monkeypatch):
     assert "inside decoded" in outputs and "energy distance" in outputs
     assert (tmp_path / "robustness" / "results.json").exists()
     assert any("image/png" in d for d in rich)
+
+
+def test_provenance_commit_names_head_and_says_when_the_package_differs_from_it(monkeypatch):
+    import subprocess
+    from conftest import ROOT
+    from mjxsysid.experiments.common import git_commit
+    head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
+    dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no", "--", "mjxsysid"],
+                           capture_output=True, text=True).stdout.strip()
+    assert git_commit() == head + ("+dirty" if dirty else "")
+    monkeypatch.setenv("MJXSYSID_COMMIT", "abc123")
+    assert git_commit() == "abc123"

@@ -13,8 +13,9 @@ from mjxsysid.policy.interface import file_sha256
 
 
 def git_commit() -> str | None:
-    """HEAD of the checkout mjxsysid runs from (None outside a git checkout); $MJXSYSID_COMMIT
-    overrides it (a copy of a branch run elsewhere, e.g. on the GPU machine)."""
+    """HEAD of the checkout mjxsysid runs from, with ``+dirty`` when the package's tracked files
+    differ from it (a working tree copied onto its base commit, as the GPU machine gets it, ran
+    code that HEAD does not name); None outside a git checkout. $MJXSYSID_COMMIT overrides it."""
     import os
     if os.environ.get("MJXSYSID_COMMIT"):
         return os.environ["MJXSYSID_COMMIT"]
@@ -22,7 +23,12 @@ def git_commit() -> str | None:
         root = Path(__file__).resolve().parents[2]
         out = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
                              text=True, timeout=5)
-        return out.stdout.strip() or None
+        head = out.stdout.strip() or None
+        if head is None:
+            return None
+        st = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no", "--",
+                             "mjxsysid"], capture_output=True, text=True, timeout=10)
+        return head + ("+dirty" if st.returncode == 0 and st.stdout.strip() else "")
     except (OSError, subprocess.SubprocessError):
         return None
 
