@@ -20,6 +20,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjxsysid import params as P
+from mjxsysid.sim.quadrotor import hover_rotor_speed
 
 
 class Command(NamedTuple):
@@ -108,8 +109,10 @@ def _yaw_last(theta, collective_thrust, torque, sq_max, thrust_cut: bool = True)
     roll/pitch torque alone fit; the allocation is linear in τ_z, so s is exact), then, where a
     rotor is still above ``sq_max``, the collective thrust lowered until it is not: roll and pitch
     first, then thrust, then heading."""
-    base = allocate(theta, collective_thrust, torque.at[2].set(0.0))
-    d = allocate(theta, collective_thrust, torque) - base
+    # Ω² is linear in the wrench: one solve gives the columns (per unit thrust, τ_x, τ_y, τ_z)
+    cols = jnp.linalg.solve(allocation_matrix(theta), jnp.eye(4, dtype=jnp.float32)) / (theta[P.KT] * theta[P.ETA])[:, None]
+    base = cols[:, :3] @ jnp.concatenate([jnp.reshape(collective_thrust, (1,)), torque[:2]])
+    d = cols[:, 3] * torque[2]
     big = jnp.float32(1e30)
     up = jnp.where(d > 0, (sq_max - base) / jnp.where(d > 0, d, 1.0), big)
     down = jnp.where(d < 0, -base / jnp.where(d < 0, d, -1.0), big)
@@ -119,7 +122,7 @@ def _yaw_last(theta, collective_thrust, torque, sq_max, thrust_cut: bool = True)
         return sq
     # still above Ω_max²: lower the collective thrust (every rotor by its share) until the roll /
     # pitch torque fits — attitude before altitude, as flight controllers' mixers do
-    per_unit = allocate(theta, jnp.float32(1.0), jnp.zeros(3, jnp.float32))      # (4,) > 0
+    per_unit = cols[:, 0]                                                        # (4,) > 0
     over = jnp.max((sq - sq_max) / per_unit)
     cut = jnp.clip(over, 0.0, THRUST_CUT_MAX * jnp.maximum(collective_thrust, 0.0))
     return sq - cut * per_unit
@@ -176,8 +179,7 @@ class KThetaLag:
 
     def init(self, key=None):
         """Carry: the expected rotor speeds Ω̂ (4,) rad/s, the hover speeds of θ."""
-        th = self.theta
-        return jnp.sqrt(th[P.MASS] * P.GRAVITY / 4.0 / (th[P.ETA] * th[P.KT]))
+        return hover_rotor_speed(self.theta)
 
     def step(self, carry, imu, command: Command):
         th = self.theta

@@ -469,11 +469,13 @@ def _predict_batch(sim: Quadrotor, mode: str, steps: int, low_axes_def, low_axes
 
 
 def prediction_error(sim: Quadrotor, theta, low, ref, *, gains="baseline", start: int, steps: int,
-                     rotor_states=ROTOR_STATES, window: float = 0.6, key=None, max_rate: float = 12.0) -> dict:
+                     rotor_states=ROTOR_STATES, cfg: TunerConfig = TunerConfig(), key=None,
+                     max_rate: float = 12.0) -> dict:
     """How well the tuner's predictions reproduce the flight: fly θ (B, 19) with ``low``
     (batched) under fixed ``gains`` on the batched ``ref`` for ``start`` steps in the simulator
     ``sim``, then continue the flight ``steps`` steps (no disturbance) and predict the same
-    steps with the true θ from the loop's state, the rotors started by each of ``rotor_states``.
+    steps with the true θ from the loop's state, the rotors started by each of ``rotor_states``
+    (over ``cfg``'s command window; the flight is flown in ``cfg``'s update segments).
 
     Returns {'time' (steps,) s after the start, mode: {'pos_err' (B, steps) m, 'rotor_err' (B,)
     rad/s: max over rotors of |start − the simulator's|}}: the rollout the tuner would score
@@ -488,16 +490,16 @@ def prediction_error(sim: Quadrotor, theta, low, ref, *, gains="baseline", start
     mr = jnp.float32(max_rate)
     axes = _axes(low)
     carry = _start(sim, *axes)(theta, low, ref, keys)
-    hist = empty_history(max(1, int(round(window / sim.config.dt))), b)
-    seg = TunerConfig().steps(sim.config.dt)[0]   # the tuned flight's segments: their compiles are shared
+    hist = empty_history(cfg.window(sim.config.dt), b)
+    seg = cfg.steps(sim.config.dt)[0]   # the tuned flight's segments: their compiles are shared
 
     def fly(carry, i0, n):
-        pos = []
+        parts = []
         for j0, m in segments(n, seg):
             carry, fl = _advance(sim, m, *axes)(theta, low, g, mr, ref, carry, jnp.zeros((b, m, 3)),
                                                 jnp.int32(i0 + j0))
-            pos.append(fl)
-        return carry, jax.tree.map(lambda *a: jnp.concatenate(a, 1), *pos)
+            parts.append(fl)
+        return carry, jax.tree.map(lambda *a: jnp.concatenate(a, 1), *parts)
 
     carry, fl = fly(carry, 0, start)
     hist = push_history(hist, fl.frame.motor_cmd)
