@@ -19,6 +19,9 @@ training loss after the timed iterations), as a check that the sharded run compu
         --vehicles 8 --steps 100 --envs 16 --unroll 8 --iterations 2 --repeats 1 \\
         --out docs/runs/scaling_cpu_forced2.json
 
+Strong scaling (the same batch on 1 and on every device) and weak scaling (the per-device batch
+kept: every device × ``--vehicles`` / ``--envs``; the throughput ratio is n for perfect scaling).
+
 Prints a table and writes the JSON (machine, date, command, per workload and device count:
 wall seconds, env-steps/s, speed-up over one device).
 """
@@ -47,14 +50,15 @@ def best_of(fn, repeats: int) -> float:
     return min(times)
 
 
-def bench_collect(devices: int, args) -> dict:
+def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
     from mjxsysid import distributed as D
     from mjxsysid import params as P
     from mjxsysid.dataset.collect import latents_in_flight
     from mjxsysid.policy.interface import resolve_policy
     from mjxsysid.sim import Quadrotor
     ref, sim = resolve_policy("mjxsysid"), Quadrotor()
-    theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), args.vehicles))
+    vehicles = vehicles or args.vehicles
+    theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), vehicles))
     key = jax.random.PRNGKey(1)
     with D.limit_devices(devices):
         run = lambda: latents_in_flight(ref, theta, key, steps=args.steps, sim=sim)  # host arrays: blocks
@@ -62,15 +66,15 @@ def bench_collect(devices: int, args) -> dict:
         z, _ = run()
         first = time.perf_counter() - t0
         wall = best_of(run, args.repeats)
-    return {"devices": D.device_count() if devices is None else devices, "first_call_s": first, "wall_s": wall,
-            "env_steps_per_s": args.vehicles * args.steps / wall, "_z": z}
+    return {"devices": D.device_count() if devices is None else devices, "vehicles": vehicles,
+            "first_call_s": first, "wall_s": wall, "env_steps_per_s": vehicles * args.steps / wall, "_z": z}
 
 
-def bench_train(devices: int, args) -> dict:
+def bench_train(devices: int, args, envs: int | None = None) -> dict:
     from mjxsysid import distributed as D
     from mjxsysid.policy.train import TrainConfig, Trainer
-    cfg = TrainConfig(num_envs=args.envs, unroll=args.unroll, minibatches=args.minibatches,
-                      iterations=1500)
+    cfg = TrainConfig(num_envs=envs or args.envs, unroll=args.unroll, minibatches=args.minibatches,
+                      iterations=1500, reset_per_unroll=args.reset_per_unroll)
     with D.limit_devices(devices):
         mesh = D.batch_mesh(divides=cfg.num_envs)
         tr = Trainer(cfg, mesh)
@@ -89,7 +93,7 @@ def bench_train(devices: int, args) -> dict:
             state.update(ts=s, env=e, stats=st)
 
         wall = best_of(run, args.repeats)
-    return {"devices": mesh.size, "first_call_s": first, "wall_s": wall,
+    return {"devices": mesh.size, "envs": cfg.num_envs, "first_call_s": first, "wall_s": wall,
             "iterations": args.iterations, "iterations_per_s": args.iterations / wall,
             "env_steps_per_s": cfg.num_envs * cfg.unroll * args.iterations / wall,
             "_loss": float(state["stats"]["loss"])}
@@ -104,6 +108,9 @@ def main():
     ap.add_argument("--minibatches", type=int, default=8)
     ap.add_argument("--iterations", type=int, default=10, help="training iterations per timed repeat")
     ap.add_argument("--repeats", type=int, default=3, help="timed repeats (best of) after the warm-up")
+    ap.add_argument("--reset-per-unroll", action="store_true",
+                    help="train: TrainConfig.reset_per_unroll (episode starts drawn once per unroll)")
+    ap.add_argument("--no-weak", action="store_true", help="skip the weak-scaling runs")
     ap.add_argument("--out", type=Path, default=Path("docs/runs/scaling.json"))
     args = ap.parse_args()
     for k in ("vehicles", "steps", "envs", "unroll", "minibatches", "iterations", "repeats"):
@@ -140,9 +147,21 @@ def main():
         res[name] = {"one_device": one, "all_devices": many,
                      "speedup": one["wall_s"] / many["wall_s"],
                      "check": check}
-        print(f"{name:8s} 1 device {one['env_steps_per_s'] / 1e6:8.3f} M env-steps/s | "
+        print(f"{name:8s} strong: 1 device {one['env_steps_per_s'] / 1e6:8.3f} M env-steps/s | "
               f"{many['devices']} devices {many['env_steps_per_s'] / 1e6:8.3f} M env-steps/s | "
               f"speed-up {res[name]['speedup']:.2f}x | check {check}", flush=True)
+        if not args.no_weak:
+            # Weak scaling: the same batch per device, n devices -> n × the batch; the figure is
+            # the ratio of throughputs (env-steps/s), n for perfect scaling.
+            size = {"collect": args.vehicles, "train": args.envs}[name] * many["devices"]
+            weak = fn(None, args, size)
+            weak.pop("_z", None)
+            weak.pop("_loss", None)
+            res[name]["weak"] = {"all_devices": weak,
+                                 "throughput_ratio": weak["env_steps_per_s"] / one["env_steps_per_s"]}
+            print(f"{name:8s} weak:   {many['devices']} devices × the per-device batch "
+                  f"{weak['env_steps_per_s'] / 1e6:8.3f} M env-steps/s | "
+                  f"throughput ×{res[name]['weak']['throughput_ratio']:.2f}", flush=True)
     if jax.process_index() == 0:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(res, indent=2) + "\n")

@@ -171,6 +171,27 @@ def test_warm_start_loads_the_policy_and_says_what_is_wrong(tmp_path, tiny_train
         tr.warm_start_params()
 
 
+def test_episode_starts_once_per_unroll(params):
+    """TrainConfig.reset_per_unroll: an environment whose episode ends restarts from the given
+    precomputed start (same vehicle and reference; its own random stream), the others fly on."""
+    env = TrainEnv(EnvConfig())
+
+    @jax.jit
+    def run(k1, k2):
+        st, fresh = env.reset(k1, 0.0), env.reset(k2, 0.0)
+        last = st.replace(step=jnp.int32(env.config.episode_steps - 1))
+        s, z, _, obs = env.policy_input(params, last)
+        return st, fresh, [env.step(params, x, jnp.zeros(4), obs, 0.0, False, fresh) for x in (last, st)]
+
+    st, fresh, ((ended, t_end), (going, t_go)) = run(jax.random.PRNGKey(1), jax.random.PRNGKey(2))
+    assert bool(t_end.done) and not bool(t_go.done)
+    np.testing.assert_array_equal(np.asarray(ended.theta), np.asarray(fresh.theta))
+    np.testing.assert_array_equal(np.asarray(ended.sim.pos), np.asarray(fresh.sim.pos))
+    assert int(ended.step) == 0 and not np.array_equal(np.asarray(ended.key), np.asarray(fresh.key))
+    np.testing.assert_array_equal(np.asarray(going.theta), np.asarray(st.theta))
+    assert int(going.step) == 1
+
+
 def test_checkpoint_round_trip_and_errors(tmp_path, params):
     path = save_tree(tmp_path / "p.npz", params, {"note": "x"})
     back = load_tree(path, params)

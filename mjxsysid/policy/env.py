@@ -169,10 +169,14 @@ class TrainEnv:
         return 2.0 * u - 1.0
 
     # --------------------------------------------------------------------------------- step
-    def step(self, params, state: EnvState, raw, obs, p_zhat, refresh):
+    def step(self, params, state: EnvState, raw, obs, p_zhat, refresh, fresh: EnvState | None = None):
         """Apply raw action r (4,) (obs: this step's observation). ``refresh`` (a scalar shared
         by the whole batch, so vmap keeps a real branch): recompute ẑ = φ(history) now.
-        Returns (state, Transition); finished episodes are reset in place."""
+        Returns (state, Transition); finished episodes are reset in place: to a new
+        :meth:`reset` (computed every step, for every environment, and selected where done),
+        or, given ``fresh``, to that precomputed episode start (its random stream re-keyed per
+        step, so an environment that ends twice before ``fresh`` is redrawn flies the same
+        vehicle and reference with new noise)."""
         c = self.config
         dt = self.sim.config.dt
         key, k_force, k_ex, k_hold, k_reset = jax.random.split(state.key, 5)
@@ -204,6 +208,7 @@ class TrainEnv:
         reward = jnp.where(failed, c.fail_penalty, reward)
         new = state.replace(sim=sim, integral=integral, excite=excite, command=cmd, history=history,
                             last_raw=raw, zhat=zhat, step=step, key=key)
-        new = jax.tree.map(lambda a, b: jnp.where(done, a, b), self.reset(k_reset, p_zhat), new)
+        start = self.reset(k_reset, p_zhat) if fresh is None else fresh.replace(key=k_reset)
+        new = jax.tree.map(lambda a, b: jnp.where(done, a, b), start, new)
         return new, Transition(reward=reward, done=done, failed=failed, rate_err=rate_err,
                                thrust_err=thrust_err)

@@ -77,6 +77,11 @@ class TrainConfig:
     warmup: float = 0.2            # fraction with p = 0
     ramp: float = 0.3              # fraction over which p rises to p_max
     p_max: float = 0.5
+    # Episode starts: False (the shipped policy's training) computes a fresh reset for every
+    # environment at every step and keeps it where an episode ended; True draws one per
+    # environment per unroll (``unroll`` × fewer resets; the rollout's largest cost after the
+    # simulator step, docs/runs/train_profile.json).
+    reset_per_unroll: bool = False
     checkpoint_every: int = 50
     log_every: int = 10
     env: EnvConfig = EnvConfig()
@@ -333,24 +338,30 @@ class Trainer:
     def _rollout(self, params, env_state: EnvState, key, p, it):
         cfg, env = self.cfg, self.env
 
-        def one(st, k, refresh):
+        def one(st, k, refresh, fresh):
             s, z, z_theta, obs = env.policy_input(params, st)
             mean, log_std = self.nets.act(params, s, z)
             raw = mean + jnp.exp(log_std) * jax.random.normal(k, mean.shape)
             logp = gaussian_logp(raw, mean, log_std)
             value = self.nets.value(params, s, st.theta_norm, z)
             expert = env.expert_raw(st)
-            new, tr = env.step(params, st, raw, obs, p, refresh)
+            new, tr = env.step(params, st, raw, obs, p, refresh, fresh)
             b = Batch(state=s, theta_norm=st.theta_norm, zhat=st.zhat, use_zhat=st.use_zhat, raw=raw,
                       logp=logp, value=value, reward=tr.reward, done=tr.done, expert=expert,
                       failed=tr.failed, rate_err=tr.rate_err, thrust_err=tr.thrust_err)
             return new, b
 
+        fresh = None
+        if cfg.reset_per_unroll:
+            key, k_fresh = jax.random.split(key)
+            fresh = distributed.constrain_batch(
+                jax.vmap(lambda k: env.reset(k, p))(jax.random.split(k_fresh, cfg.num_envs)), self.mesh)
+
         def body(st, x):
             k, t = x
             refresh = (it * cfg.unroll + t) % cfg.env.phi_every == 0
             keys = jax.random.split(k, cfg.num_envs)
-            return jax.vmap(one, in_axes=(0, 0, None))(st, keys, refresh)
+            return jax.vmap(one, in_axes=(0, 0, None, 0 if fresh is not None else None))(st, keys, refresh, fresh)
 
         keys = jax.random.split(key, cfg.unroll)
         env_state, batch = jax.lax.scan(body, env_state, (keys, jnp.arange(cfg.unroll)))
@@ -363,14 +374,39 @@ class Trainer:
         p, beta = schedules(cfg, ts.iteration)
         key, k_roll, k_perm = jax.random.split(ts.key, 3)
         env_state, batch, last_value = self._rollout(ts.params, env_state, k_roll, p, ts.iteration)
-        adv, ret = gae(batch.reward, batch.value, batch.done, last_value, cfg.gamma, cfg.gae_lambda)
-        flat = jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), (batch, adv, ret))
+        flat = self._advantages(batch, last_value)
         snap_theta, snap_hist = env_state.theta_norm, env_state.history  # (N, 19), (N, 100, 14)
+        params, opt_state, aux = self._update(ts.params, ts.opt_state, flat, snap_theta, snap_hist,
+                                              k_perm, beta, weights)
+        # Latent health on the snapshots: alignment error relative to the spread of z^θ.
+        z_theta = self.nets.encode(params, snap_theta)
+        zhat = self.nets.adapt(params, snap_hist)
+        spread = jnp.sqrt(jnp.sum(jnp.var(z_theta, 0)))
+        stats = {k: v.mean() for k, v in aux.items()}
+        stats.update(reward=batch.reward.mean(), fail_rate=batch.failed.mean(),
+                     rate_err=batch.rate_err.mean(), thrust_err=batch.thrust_err.mean(),
+                     p_zhat=p, bc_weight=beta,
+                     latent_err_rel=jnp.sqrt(jnp.mean(jnp.sum((z_theta - zhat) ** 2, -1))) / spread,
+                     latent_min_std=jnp.sqrt(jnp.var(z_theta, 0)).min())
+        ts = TrainState(params=params, opt_state=opt_state, iteration=ts.iteration + 1, key=key)
+        return ts, env_state, stats
+
+    def _advantages(self, batch: Batch, last_value):
+        """GAE over the rollout (T, N) and flattening to samples: -> (batch, adv, ret) with
+        leaves (T·N, ...)."""
+        cfg = self.cfg
+        adv, ret = gae(batch.reward, batch.value, batch.done, last_value, cfg.gamma, cfg.gae_lambda)
+        return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), (batch, adv, ret))
+
+    def _update(self, params, opt_state, flat, snap_theta, snap_hist, key, beta, weights: LossWeights):
+        """``epochs`` × ``minibatches`` gradient steps of :func:`loss_fn` on the flattened
+        rollout ``flat`` (leaves (T·N, ...)) and the history snapshots (N, ...). Returns
+        (params, opt_state, aux) with aux leaves (epochs, minibatches)."""
+        cfg = self.cfg
         n = cfg.num_envs * cfg.unroll
         m = cfg.minibatches
 
         def epoch(carry, k):
-            params, opt_state = carry
             perm = jax.random.permutation(k, n).reshape(m, -1)
             sperm = jax.random.permutation(jax.random.fold_in(k, 1), cfg.num_envs).reshape(m, -1)
 
@@ -385,22 +421,10 @@ class Trainer:
                 updates, opt_state = self.opt.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), dict(aux, loss=loss)
 
-            return jax.lax.scan(minibatch, (params, opt_state), (perm, sperm))
+            return jax.lax.scan(minibatch, carry, (perm, sperm))
 
-        (params, opt_state), aux = jax.lax.scan(epoch, (ts.params, ts.opt_state),
-                                                jax.random.split(k_perm, cfg.epochs))
-        # Latent health on the snapshots: alignment error relative to the spread of z^θ.
-        z_theta = self.nets.encode(params, snap_theta)
-        zhat = self.nets.adapt(params, snap_hist)
-        spread = jnp.sqrt(jnp.sum(jnp.var(z_theta, 0)))
-        stats = {k: v.mean() for k, v in aux.items()}
-        stats.update(reward=batch.reward.mean(), fail_rate=batch.failed.mean(),
-                     rate_err=batch.rate_err.mean(), thrust_err=batch.thrust_err.mean(),
-                     p_zhat=p, bc_weight=beta,
-                     latent_err_rel=jnp.sqrt(jnp.mean(jnp.sum((z_theta - zhat) ** 2, -1))) / spread,
-                     latent_min_std=jnp.sqrt(jnp.var(z_theta, 0)).min())
-        ts = TrainState(params=params, opt_state=opt_state, iteration=ts.iteration + 1, key=key)
-        return ts, env_state, stats
+        (params, opt_state), aux = jax.lax.scan(epoch, (params, opt_state), jax.random.split(key, cfg.epochs))
+        return params, opt_state, aux
 
 
 POLICY_MODULES = ("mu", "phi", "pi", "aux")
@@ -474,16 +498,19 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     stats = {}
     t_log, it_log = time.time(), int(ts.iteration)
     bar = progress(total=cfg.iterations, initial=int(ts.iteration), desc="train-policy", unit="it")
-    while int(ts.iteration) < cfg.iterations:
+    # The iteration count is kept on the host: iterations are dispatched back to back and the
+    # host waits on the device only where it logs or checkpoints (docs/runs/train_profile.json).
+    it = int(ts.iteration)
+    while it < cfg.iterations:
         ts, env_state, stats = trainer.iteration(ts, env_state)
-        it = int(ts.iteration)
+        it += 1
         bar.update(1)
-        if not bar.disable:
-            bar.set_postfix(reward=f"{float(stats['reward']):+.3f}", rate_err=f"{float(stats['rate_err']):.3f}",
-                            thrust_err=f"{float(stats['thrust_err']):.2f}",
-                            z_err=f"{float(stats['latent_err_rel']):.3f}", refresh=False)
         if it % cfg.log_every == 0 or it == cfg.iterations or it == 1:
             stats = {k: float(v) for k, v in stats.items()}
+            if not bar.disable:
+                bar.set_postfix(reward=f"{stats['reward']:+.3f}", rate_err=f"{stats['rate_err']:.3f}",
+                                thrust_err=f"{stats['thrust_err']:.2f}", z_err=f"{stats['latent_err_rel']:.3f}",
+                                refresh=False)
             now = time.time()
             sps = (it - it_log) * steps_per_it / max(now - t_log, 1e-9)
             t_log, it_log = now, it

@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# Issue 30 on a 2-GPU device machine (Python 3.12 + jax there, MuJoCo/MJX from .site): the
+# training profile (GPU 0), candidate fast-training configs trained and evaluated (--fast) two at a
+# time (one per GPU), then the 1-vs-2-GPU scaling run. Everything finished is packed into
+# $OUT/speed.tar.gz as it finishes.
+#   bash tools/gpu_speed.sh RUNS_DIR CONFIG_GPU0[,CONFIG_GPU0b] CONFIG_GPU1[,...]
+set -uo pipefail
+export PYTHONPATH=$PWD/.site:$PWD PYTHONUNBUFFERED=1
+OUT=${OUT:-/tmp/out}; RUNS=${1:?runs dir}; mkdir -p "$OUT" "$RUNS"
+pack() { tar czf "$OUT/speed.tar.gz" --exclude=checkpoint.npz "$RUNS" 2>/dev/null; }
+M="python3 -m mjxsysid.cli"
+train_eval() {   # GPU CONFIG...
+  local gpu=$1; shift
+  for c in "$@"; do
+    local name; name=$(basename "$c" .json); local d="$RUNS/$name"; mkdir -p "$d"
+    local t0; t0=$(date +%s%N)
+    CUDA_VISIBLE_DEVICES=$gpu $M train-policy --config "$c" --out "$d" --no-resume -q > "$d/train.txt" 2>&1
+    echo "command_wall_s $(( ($(date +%s%N) - t0) / 1000000 )) ms" >> "$d/train.txt"
+    CUDA_VISIBLE_DEVICES=$gpu $M evaluate-policy --fast --vehicles ${EVAL_VEHICLES:-1000} --weights "$d/policy.npz" \
+      --out "$d/eval_fast" -q > "$d/eval.txt" 2>&1
+    echo "[gpu $gpu] $name done: $(tail -1 "$d/train.txt")"; pack
+  done
+}
+if [ -n "${PROFILE:-4096x32x4x8 16384x32x4x16}" ]; then
+  IFS=, read -ra C1 <<<"$3"; train_eval 1 "${C1[@]}" &
+  bg=$!
+  CUDA_VISIBLE_DEVICES=0 python3 benchmarks/train_profile.py --configs ${PROFILE:-4096x32x4x8 16384x32x4x16} \
+    --out "$RUNS/train_profile.json" 2>&1 | grep -v warp | tee "$RUNS/train_profile.txt"; pack
+  IFS=, read -ra C0 <<<"$2"; train_eval 0 "${C0[@]}"
+  wait $bg
+fi
+if [ "${SCALING:-1}" = 1 ]; then
+  python3 benchmarks/scaling.py --vehicles 16384 --envs 4096 --reset-per-unroll --out "$RUNS/scaling.json" 2>&1 \
+    | grep -v warp | tee "$RUNS/scaling.txt"; pack
+fi
+ls -R "$RUNS" | head -50
