@@ -203,10 +203,13 @@ def identifiable_projection(normalizer: P.Normalizer, prior: P.Prior, n: int = 2
     normalised y = normalizer.normalize(θ). Exact: every combination is a signed sum of logs of
     log-normalised entries, so identifiable_log ∘ denormalize is affine in y. The prior std
     (over ``n`` seeded samples) makes each target weigh the same."""
-    jac = jax.jacfwd(lambda y: identifiable_log(normalizer.denormalize(y), yaw_authority))(
-        jnp.zeros(P.N_PARAMS))  # (6, 19)
-    std = jnp.std(identifiable_log(prior.sample(jax.random.PRNGKey(seed), n), yaw_authority), 0)  # (6,)
-    return (jac / std[:, None]).T
+    @jax.jit      # one compile instead of dozens of eager ops (seconds of every training start)
+    def project(key):
+        jac = jax.jacfwd(lambda y: identifiable_log(normalizer.denormalize(y), yaw_authority))(
+            jnp.zeros(P.N_PARAMS))  # (6, 19)
+        std = jnp.std(identifiable_log(prior.sample(key, n), yaw_authority), 0)  # (6,)
+        return (jac / std[:, None]).T
+    return project(jax.random.PRNGKey(seed))
 
 
 LOSS_WEIGHT_FIELDS = ("lambda1", "lambda2", "var_coef", "var_target", "rec_coef", "rec_ident_coef")
@@ -462,6 +465,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     prebuilt :class:`Trainer` for ``cfg`` (e.g. from :meth:`Trainer.reweighted`, to share its
     compile)."""
 
+    t_enter = time.time()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if trainer is not None and trainer.cfg != cfg:
@@ -493,6 +497,9 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
         env_state = distributed.shard_batch(env_state, cfg.num_envs, mesh=mesh)
     steps_per_it = cfg.num_envs * cfg.unroll
     t_start = time.time()
+    # Where this call's wall time goes (docs/runs/speed): building the trainer, initialising and
+    # resetting (compiles), the first iteration (its compile), the loop, checkpoints, the export.
+    timing = {"setup_s": t_start - t_enter, "first_iteration_s": 0.0, "checkpoint_s": 0.0}
     wall_prev = load_meta(ckpt).get("wall_s", 0.0) if (resume and ckpt.exists()) else 0.0
     logf = open(out / "train_log.jsonl", "a")
     stats = {}
@@ -504,6 +511,9 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     while it < cfg.iterations:
         ts, env_state, stats = trainer.iteration(ts, env_state)
         it += 1
+        if not timing["first_iteration_s"]:
+            jax.block_until_ready(stats)
+            timing["first_iteration_s"] = time.time() - t_start
         bar.update(1)
         if it % cfg.log_every == 0 or it == cfg.iterations or it == 1:
             stats = {k: float(v) for k, v in stats.items()}
@@ -524,15 +534,19 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
                 f"‖z−ẑ‖/spread {stats['latent_err_rel']:.3f} | min std z {stats['latent_min_std']:.2f} "
                 f"| p {stats['p_zhat']:.2f}")
         if (it % cfg.checkpoint_every == 0 or it == cfg.iterations) and jax.process_index() == 0:
+            t_ck = time.time()
             save_tree(ckpt, (ts, env_state), {"config": cfg.to_dict(), "iteration": it, "with_env": True,
                                               "wall_s": wall_prev + time.time() - t_start})
+            timing["checkpoint_s"] += time.time() - t_ck
     bar.close()
     logf.close()
     wall = wall_prev + time.time() - t_start
+    timing["loop_s"] = time.time() - t_start
     if jax.process_index() == 0:
         export_policy(ts.params, out / "policy.npz", {
             "config": cfg.to_dict(), "normalizer": trainer.env.normalizer.to_dict(),
             "iterations": int(ts.iteration), "env_steps": int(ts.iteration) * steps_per_it,
             "wall_s": wall, "final_stats": {k: float(v) for k, v in stats.items()},
-            "device": str(jax.devices()[0]), "devices": mesh.size, "jax": jax.__version__})
-    return {"stats": {k: float(v) for k, v in stats.items()}, "wall_s": wall}
+            "device": str(jax.devices()[0]), "devices": mesh.size, "jax": jax.__version__, "timing": timing})
+    log("time: " + ", ".join(f"{k[:-2].replace('_', ' ')} {v:.1f} s" for k, v in timing.items()))
+    return {"stats": {k: float(v) for k, v in stats.items()}, "wall_s": wall, "timing": timing}
