@@ -21,11 +21,17 @@ FAIR = RUNS / "fair"
 PAGE = ROOT / "docs" / "fair_comparisons.md"
 
 
+_OVERLAY: Path | None = None   # a tree laid out like the checkout whose files take precedence (page(overlay=))
+
+
 def load(path: Path) -> dict:
+    """A run file (a path under ROOT), from the overlay tree where it has one."""
+    if _OVERLAY is not None and (_OVERLAY / path.relative_to(ROOT)).is_file():
+        path = _OVERLAY / path.relative_to(ROOT)
     try:
         return json.loads(path.read_text())
     except FileNotFoundError:
-        sys.exit(f"fair_tables: missing run file {path.relative_to(ROOT)} (run tools/fair_baselines.sh)")
+        sys.exit(f"fair_tables: missing run file {path} (run tools/fair_baselines.sh, or `mjxsysid release`)")
 
 
 def f3(x) -> str:
@@ -292,7 +298,19 @@ def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]
 # page
 # ----------------------------------------------------------------------------------------
 
-def page() -> str:
+def page(overlay: Path | None = None) -> str:
+    """The page's Markdown. ``overlay``: a tree laid out like the checkout (docs/runs/...,
+    mjxsysid/pretrained/...) whose run files replace the checkout's: a release's, before it ships
+    (`mjxsysid release`'s tables stage)."""
+    global _OVERLAY
+    _OVERLAY = None if overlay is None else Path(overlay)
+    try:
+        return _page()
+    finally:
+        _OVERLAY = None
+
+
+def _page() -> str:
     old = {k: load(RUNS / k / "results.json") for k in ("tune_nominal", "tune_slow", "tune_lemniscate",
                                                          "robustness", "replay")}
     new = {k: load(FAIR / k / "results.json") for k in ("robustness", "robustness_single_latent", "replay")}
@@ -486,15 +504,20 @@ def page() -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="exit 1 if docs/fair_comparisons.md is stale")
+    ap.add_argument("--overlay", type=Path, default=None, metavar="TREE",
+                    help="read each run file from TREE (laid out like the checkout) where it has one, and write "
+                         "TREE/docs/fair_comparisons.md (a release's tree before it ships)")
     a = ap.parse_args(argv)
-    text = page()
+    text = page(a.overlay)
+    out = PAGE if a.overlay is None else a.overlay / "docs" / "fair_comparisons.md"
     if a.check:
-        if not PAGE.exists() or PAGE.read_text() != text:
-            print(f"{PAGE.relative_to(ROOT)} is stale: run python tools/fair_tables.py", file=sys.stderr)
+        if not out.exists() or out.read_text() != text:
+            print(f"{out} is stale: run python tools/fair_tables.py", file=sys.stderr)
             return 1
         return 0
-    PAGE.write_text(text)
-    print(f"wrote {PAGE.relative_to(ROOT)}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(f"wrote {out}")
     return 0
 
 
