@@ -7,9 +7,9 @@ failed), wall seconds, start and end time, commit, device, the command and confi
 its key figures. A stage recorded done whose declared outputs exist is skipped when the release
 runs again, so a release runs in pieces (``stages=["policy"]``, then ``["pairs", "decoders"]``,
 …), each small enough for one ten-minute call on a GPU; ``force`` reruns a stage from scratch.
-A done stage whose dependency finished after it started is *stale* (its inputs changed) and runs
-again. Options that define the release (its scale, the policy's config or the adopted policy)
-are recorded when it starts and may not change afterwards.
+A done stage whose dependency ran after it is *stale* (its inputs changed) and runs again.
+Options that define the release (its scale, the policy's config or the adopted policy) are
+recorded when it starts and may not change afterwards.
 
 The stages (:data:`STAGES`, in order) call the library, never a subprocess: the policy
 (:func:`mjxsysid.policy.train.train`, or an adopted policy.npz), its evaluation and the held-out
@@ -189,7 +189,8 @@ class Release:
         return self.record["stages"].get(name, {})
 
     def status(self, name: str) -> str:
-        """'done', 'stale' (done, but a dependency finished after it started), 'incomplete'
+        """'done', 'stale' (done, but a dependency ran after it, ``run`` being the record's
+        count of stage runs, or is no longer done), 'incomplete'
         (recorded done, an output missing), 'failed', 'started' (running now, or an interrupted
         call: it runs again, resuming where its code can) or 'pending'."""
         e = self.entry(name)
@@ -199,9 +200,9 @@ class Release:
         stage = self.by_name[name]
         if any(not (self.stage_dir(name) / f).exists() for f in stage.outputs):
             return "incomplete"
-        for dep in stage.needs:
-            end = self.entry(dep).get("ended")
-            if end is None or end > e.get("started", ""):
+        for dep in stage.needs:   # a dependency that ran (or is running) after this stage, or not done
+            d = self.entry(dep)
+            if d.get("status") != "done" or d.get("run", 0) > e.get("run", 0):
                 return "stale"
         return "done"
 
@@ -275,8 +276,9 @@ class Release:
             shutil.rmtree(out)
         out.mkdir(parents=True, exist_ok=True)
         prev = self.entry(stage.name)
-        entry = {"status": "started", "started": _now(), "attempts": int(prev.get("attempts", 0)) + 1,
-                 "commit": self._commit(), "device": self._device()}
+        self.record["runs"] = int(self.record.get("runs", 0)) + 1
+        entry = {"status": "started", "run": self.record["runs"], "started": _now(),
+                 "attempts": int(prev.get("attempts", 0)) + 1, "commit": self._commit(), "device": self._device()}
         self.record["stages"][stage.name] = entry
         self.save()
         self.log(f"[release] {stage.name}: {stage.what} (≈ {stage.estimate_s / 60:.1f} min on an H100)")
@@ -872,38 +874,38 @@ def stage_ship(rel: Release, out: Path) -> dict:
 
 
 STAGES = (
-    Stage("policy", stage_policy, (), ("policy.npz",), 180,
+    Stage("policy", stage_policy, (), ("policy.npz",), 150,
           "train the policy (train-policy --config), or adopt --from-policy"),
-    Stage("policy_eval", stage_policy_eval, ("policy",), ("eval.json", "heldout/results.json"), 240,
+    Stage("policy_eval", stage_policy_eval, ("policy",), ("eval.json", "heldout/results.json"), 210,
           "evaluate-policy (1,000 vehicles) and --held-out against the shipped policy"),
-    Stage("pairs", stage_pairs, ("policy",), ("pairs.npz",), 35, "collect --single-latent (θ, ẑ) pairs"),
-    Stage("decoders", stage_decoders, ("pairs",), ("cfm.npz", "regression.npz"), 70,
+    Stage("pairs", stage_pairs, ("policy",), ("pairs.npz",), 30, "collect --single-latent (θ, ẑ) pairs"),
+    Stage("decoders", stage_decoders, ("pairs",), ("cfm.npz", "regression.npz"), 65,
           "train-cfm --kinds cfm,regression"),
-    Stage("seq_pairs", stage_seq_pairs, ("policy",), ("pairs.npz",), 60, "collect 10 s latent trajectories"),
-    Stage("seq_decoder", stage_seq_decoder, ("seq_pairs",), ("cfm_seq.npz",), 65,
+    Stage("seq_pairs", stage_seq_pairs, ("policy",), ("pairs.npz",), 55, "collect 10 s latent trajectories"),
+    Stage("seq_decoder", stage_seq_decoder, ("seq_pairs",), ("cfm_seq.npz",), 60,
           "train-cfm --kinds cfm_seq (the flight-level decoder)"),
     Stage("decoder_eval", stage_decoder_eval, ("decoders", "seq_decoder"),
-          ("single/decoder_eval.json", "flight/decoder_eval.json"), 100,
+          ("single/decoder_eval.json", "flight/decoder_eval.json"), 90,
           "evaluate-decoder: CFM + Regression, and the flight-level decoder"),
     Stage("noise", stage_noise, ("decoders", "seq_decoder"), ("noise_sensitivity.json", "noise_sensitivity_low.json"),
-          150, "decoding under IMU noise (tools/noise_sensitivity.py)"),
+          90, "decoding under IMU noise (tools/noise_sensitivity.py)"),
     Stage("tune_nominal", _tune_stage("tune_nominal"), ("decoders", "seq_decoder"),
-          tuple(f"{r[0]}/results.json" for r in TUNE_RUNS["tune_nominal"]), 240,
+          tuple(f"{r[0]}/results.json" for r in TUNE_RUNS["tune_nominal"]), 215,
           "experiment tune-nominal, --variant baseline_start, protect"),
     Stage("tune_slow", _tune_stage("tune_slow"), ("decoders", "seq_decoder"),
-          tuple(f"{r[0]}/results.json" for r in TUNE_RUNS["tune_slow"]), 320,
+          tuple(f"{r[0]}/results.json" for r in TUNE_RUNS["tune_slow"]), 290,
           "experiment tune-slow, --variant heading_cost, baseline_start"),
     Stage("tune_slow_more", _tune_stage("tune_slow_more"), ("decoders", "seq_decoder"),
-          tuple(f"{r[0]}/results.json" for r in TUNE_RUNS["tune_slow_more"]), 330,
+          tuple(f"{r[0]}/results.json" for r in TUNE_RUNS["tune_slow_more"]), 300,
           "experiment tune-slow --variant true_rotor_state, steady_rotor_state; --seed 7 (and baseline_start)"),
     Stage("tune_lemniscate", _tune_stage("tune_lemniscate"), ("decoders", "seq_decoder"),
-          tuple(f"{r[0]}/results.json" for r in TUNE_RUNS["tune_lemniscate"]), 450,
+          tuple(f"{r[0]}/results.json" for r in TUNE_RUNS["tune_lemniscate"]), 420,
           "experiment tune-lemniscate, --variant no_lead_in (and baseline_start)"),
     Stage("studies", stage_studies, ("decoders", "seq_decoder"),
-          tuple(f"{r[0]}/results.json" for r in STUDY_RUNS), 300,
+          tuple(f"{r[0]}/results.json" for r in STUDY_RUNS), 260,
           "experiment robustness (and --variant single_latent), replay, payload"),
     Stage("fidelity", stage_fidelity, ("decoders", "seq_decoder"),
-          ("closed_loop_fidelity.json", "closed_loop_fidelity_same_flight.json"), 150,
+          ("closed_loop_fidelity.json", "closed_loop_fidelity_same_flight.json"), 130,
           "closed-loop fidelity, held-out and same-flight identification"),
     Stage("tables", stage_tables, ("policy_eval", "decoder_eval", "noise", "tune_nominal", "tune_slow",
                                    "tune_slow_more", "tune_lemniscate", "studies", "fidelity"),
