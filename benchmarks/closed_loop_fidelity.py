@@ -8,7 +8,7 @@ undisturbed 4 s identification lemniscate, or ``--window instant``: its last ẑ
 many ±20 % perturbations of the true θ, all under the same disturbance realisation. Targets (issue 11): the true error inside the decoded 5–95 %
 envelope ≥ 90 % of the time, the decoded envelope no wider than the ±20 % one.
 
-    python benchmarks/closed_loop_fidelity.py --out docs/runs/closed_loop_fidelity.json  # GPU: ~1 min
+    python benchmarks/closed_loop_fidelity.py --out docs/runs/archive/previous_protocol/closed_loop_fidelity.json  # GPU: ~1 min
     python benchmarks/closed_loop_fidelity.py --vehicles 4 --models 16                    # CPU: a few min
 """
 import argparse

@@ -13,11 +13,11 @@ It also records how far the all-device results are from the one-device ones (lat
 training loss after the timed iterations), as a check that the sharded run computes the same.
 
     # one GPU vs both GPUs of a 2-GPU machine (e.g. nvidia-h200-x2)
-    python benchmarks/scaling.py --vehicles 16384 --envs 4096 --out docs/runs/scaling.json
+    python benchmarks/scaling.py --vehicles 16384 --envs 4096 --out docs/runs/benchmarks/scaling.json
     # correctness run on a CPU with 2 forced host devices (not a speed figure)
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/scaling.py \\
         --vehicles 8 --steps 100 --envs 16 --unroll 8 --iterations 2 --repeats 1 \\
-        --out docs/runs/scaling_cpu_forced2.json
+        --out docs/runs/benchmarks/scaling_cpu_forced2.json
 
 Prints a table and writes the JSON (machine, date, command, per workload and device count:
 wall seconds, env-steps/s, speed-up over one device).
@@ -104,7 +104,7 @@ def main():
     ap.add_argument("--minibatches", type=int, default=8)
     ap.add_argument("--iterations", type=int, default=10, help="training iterations per timed repeat")
     ap.add_argument("--repeats", type=int, default=3, help="timed repeats (best of) after the warm-up")
-    ap.add_argument("--out", type=Path, default=Path("docs/runs/scaling.json"))
+    ap.add_argument("--out", type=Path, default=Path("docs/runs/benchmarks/scaling.json"))
     args = ap.parse_args()
     for k in ("vehicles", "steps", "envs", "unroll", "minibatches", "iterations", "repeats"):
         if getattr(args, k) < 1:
