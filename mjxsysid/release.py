@@ -158,6 +158,7 @@ class Release:
         self.ship_to = Path(ship_to) if ship_to is not None else (
             self.out / "ship" if self.options.scale == "tiny" else ROOT)
         self.sizes = SIZES[self.options.scale]
+        self.allow_partial = False   # set by run(): ship what the done stages wrote
 
     # -- record ---------------------------------------------------------------------------
     def _load(self) -> dict:
@@ -364,13 +365,6 @@ def _sha256(path) -> str:
     return h.hexdigest()
 
 
-def _rel(path: Path, base: Path) -> str:
-    try:
-        return str(Path(path).resolve().relative_to(base.resolve()))
-    except ValueError:
-        return str(path)
-
-
 # ----------------------------------------------------------------------------------------
 # the stages
 # ----------------------------------------------------------------------------------------
@@ -566,9 +560,9 @@ def stage_noise(rel: Release, out: Path) -> dict:
 
 
 def _experiments(rel: Release, out: Path, runs) -> dict:
-    """Run the experiments ``runs`` ((folder, experiment, seed, variant, methods, takes
-    decoders)) into out/<folder>/, each skipped when its results.json exists (a finished run of an
-    interrupted stage)."""
+    """Run the experiments ``runs`` ((folder, experiment name, seed, variant or None, methods or
+    None)) with the release's policy and decoders into out/<folder>/, each skipped when its
+    results.json exists (a finished run of an interrupted stage)."""
     from mjxsysid.experiments import get_experiment
     dec = rel.decoder_set()
     figures, cmds = {}, []
@@ -730,6 +724,9 @@ DOCS_RUNS = (
 )
 """The run outputs the docs quote, and where under docs/runs/ a release ships them (one folder
 per kind of run)."""
+OPTIONAL = ("train_log.jsonl", "single/paper_vehicle_posterior.png")
+"""Files of DOCS_RUNS a done stage may lack: an adopted policy has no training log; a tiny release
+flies no paper vehicle."""
 DOCS_FILES = (("noise", "noise_sensitivity.png", "noise_sensitivity.png"),)
 """Figures the docs pages show directly (stage, file, path under docs/)."""
 SHIPPED = (("policy", "policy.npz"), ("decoders", "cfm.npz"), ("decoders", "regression.npz"),
@@ -763,7 +760,7 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
     def have(stage, rel_path):
         ok = rel.done(stage) and (rel.stage_dir(stage) / rel_path).exists()
         if not ok:
-            if not partial and rel_path not in ("train_log.jsonl", "single/paper_vehicle_posterior.png"):
+            if not partial and rel_path not in OPTIONAL:
                 raise FileNotFoundError(f"{rel.stage_dir(stage) / rel_path}: not written (stage {stage} "
                                         f"is {rel.status(stage)})")
             left_out.append(f"{stage}/{rel_path}")
@@ -852,7 +849,7 @@ def stage_ship(rel: Release, out: Path) -> dict:
     tree = rel.stage_dir("tables") / "tree"
     left_out = []
     if not rel.done("tables"):
-        if not getattr(rel, "allow_partial", False):
+        if not rel.allow_partial:
             raise ValueError("cannot ship: stage tables not done")
         tree = out / "tree"
         if tree.exists():
