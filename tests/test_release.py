@@ -201,5 +201,6 @@ def test_tiny_release_end_to_end(tmp_path, capsys):
     assert (ship / "docs/runs/tuning/tune_slow/results.json").is_file()
     assert (ship / "docs/runs/decoders/seq_decoder_eval.json").is_file()
     assert rec["stages"]["pairs"]["config"]["imu"]["randomize_imu"] is True      # the release config's IMU
-    rc, stdout, _ = _cli(capsys, "--out", out, "-q")
-    assert rc == 0 and "stages run" not in stdout
+    rc, _, err = _cli(capsys, "--out", out, "-q")
+    assert rc == 0 and "stages run" not in err
+    assert json.loads((out / "release.json").read_text())["runs"] == rec["runs"]    # nothing ran again
