@@ -8,8 +8,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_fair_comparisons_page_matches_the_runs():
-    """docs/fair_comparisons.md is what tools/fair_tables.py builds from docs/runs/ and
-    docs/runs/fair/ (a hand edit, or a re-run without regenerating, fails here)."""
+    """docs/fair_comparisons.md is what tools/fair_tables.py builds from the run files in
+    docs/runs/ (a hand edit, or a re-run without regenerating, fails here)."""
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "fair_tables.py"), "--check"],
                        capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr
@@ -34,10 +34,10 @@ def test_documentation_site_builds_strictly(tmp_path):
 
 
 def test_probing_page_quotes_the_probe_loop_run():
-    """docs/probing.md's table quotes docs/runs/probe_loop/results.json: every policy's success and
+    """docs/probing.md's table quotes docs/runs/probing/probe_loop/results.json: every policy's success and
     RMSE ratio on the default and stress priors, its T/W R², and the targets met or missed."""
     import json
-    r = json.loads((ROOT / "docs" / "runs" / "probe_loop" / "results.json").read_text())["numbers"]
+    r = json.loads((ROOT / "docs" / "runs" / "probing" / "probe_loop" / "results.json").read_text())["numbers"]
     text = (ROOT / "docs" / "probing.md").read_text()
     names = {"given": "given (shipped)", "probed": "probed, round 1", "probed2": "probed, round 2",
              "probed3": "probed, round 3", "uniform": "uniform widening (control)"}
@@ -53,8 +53,8 @@ def test_probing_page_quotes_the_probe_loop_run():
 
 
 def test_probing_page_quotes_the_held_out_run():
-    """docs/probing.md's held-out table is the one docs/runs/heldout/results.md was written with."""
-    table = [line for line in (ROOT / "docs" / "runs" / "heldout" / "results.md").read_text().splitlines()
+    """docs/probing.md's held-out table is the one docs/runs/probing/heldout/results.md was written with."""
+    table = [line for line in (ROOT / "docs" / "runs" / "probing" / "heldout" / "results.md").read_text().splitlines()
              if line.startswith("|")]
     text = (ROOT / "docs" / "probing.md").read_text()
     assert len(table) >= 3 and all(line in text for line in table)

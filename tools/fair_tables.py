@@ -3,8 +3,11 @@
     python tools/fair_tables.py            # regenerate docs/fair_comparisons.md
     python tools/fair_tables.py --check    # exit 1 if the page differs from what the runs give
 
-Reads only JSON under docs/runs/ (the previous protocol's runs) and docs/runs/fair/ (the runs of
-tools/fair_baselines.sh at commit f5c8ec2); no number on the page is typed by hand.
+Reads only JSON under docs/runs/: the runs of today's protocol in its folders per kind (tuning/,
+studies/, decoders/, policy/, oracle/, nobc/, xadap/, probing/), those before issue 22 in
+archive/previous_protocol/ and issue 22's tune-* runs in archive/issue22_tuning/ (the page shows
+each changed comparison both ways); no number on the page is typed by hand. ``--overlay TREE``
+reads a release's run files first (`mjxsysid release`'s tables stage).
 """
 from __future__ import annotations
 
@@ -17,15 +20,21 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNS = ROOT / "docs" / "runs"
-FAIR = RUNS / "fair"
+OLD = RUNS / "archive" / "previous_protocol"   # the protocol before issue 22: the "before" columns
 PAGE = ROOT / "docs" / "fair_comparisons.md"
 
 
+_OVERLAY: Path | None = None   # a tree laid out like the checkout whose files take precedence (page(overlay=))
+
+
 def load(path: Path) -> dict:
+    """A run file (a path under ROOT), from the overlay tree where it has one."""
+    if _OVERLAY is not None and (_OVERLAY / path.relative_to(ROOT)).is_file():
+        path = _OVERLAY / path.relative_to(ROOT)
     try:
         return json.loads(path.read_text())
     except FileNotFoundError:
-        sys.exit(f"fair_tables: missing run file {path.relative_to(ROOT)} (run tools/fair_baselines.sh)")
+        sys.exit(f"fair_tables: missing run file {path} (run tools/fair_baselines.sh, or `mjxsysid release`)")
 
 
 def f3(x) -> str:
@@ -85,6 +94,8 @@ def replay_rows(runs: list[tuple[str, dict]], paper: dict | None = None) -> list
            "|" + "---|" * (len(REPLAY_METHODS) + 2)]
     for label, fl in runs:
         for key, name in FLIGHTS:
+            if key not in fl:    # a quick run (a tiny release) flies fewer flights
+                continue
             pv = fl[key]["paper_vehicle"]
             cells = [f"{pv[m]['rmse']:.3f} / {pv[m]['pcc']:.2f}" for m, _ in REPLAY_METHODS]
             out.append(f"| {label} | {name} | " + " | ".join(cells) + " |")
@@ -210,7 +221,7 @@ def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]
         "*its own* motor lag (τ_m, Ω_max) over the last 0.6 s of commands the controller sent",
         "(`tune.tuner.estimate_rotor_speed`; no hidden state read) and the rigid twin carries the IMU latency",
         "buffer. With the true θ a prediction then reproduces the flight to float round-off",
-        "([figure](runs/prediction_error/prediction_error.png), `tools/prediction_error.py`; tests in",
+        "([figure](runs/tuning/prediction_error/prediction_error.png), `tools/prediction_error.py`; tests in",
         "`tests/test_tune.py`). Same vehicles and seeds as the default protocol; Baseline and Nominal+CEM of",
         "a variant run that did not fly them come from the default run of the same seed (their flights do not",
         f"depend on the tuner's knobs). One H100, {slow['date'][:10]}, the tuner of commit 5144f62 (the run",
@@ -278,7 +289,7 @@ def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]
         "",
         f"The final design flies {pct(lag['stress_wide']['k_theta_lag_0.02']['success'])} of `stress_wide` (K_θ "
         f"{pct(lag['stress_wide']['k_theta']['success'])}) on these 128 draws and {heldout['stress_wide']['oracle_success']:.1%} of the "
-        f"{heldout['stress_wide']['vehicles']['n']} drawn for the held-out evaluation (`docs/runs/heldout/`): the target (≥ 90 %) is met on one",
+        f"{heldout['stress_wide']['vehicles']['n']} drawn for the held-out evaluation (`docs/runs/probing/heldout/`): the target (≥ 90 %) is met on one",
         "sample and missed by a vehicle on the other — at the edge, not clearly met. The vehicles it loses need",
         "80–98 % of Ω_max on their weakest rotor just to hover. It is no worse than K_θ",
         "on the default prior. It is the `oracle` of flights, policy evaluations and the probe since issue 26",
@@ -292,39 +303,53 @@ def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]
 # page
 # ----------------------------------------------------------------------------------------
 
-def page() -> str:
-    old = {k: load(RUNS / k / "results.json") for k in ("tune_nominal", "tune_slow", "tune_lemniscate",
+def page(overlay: Path | None = None) -> str:
+    """The page's Markdown. ``overlay``: a tree laid out like the checkout (docs/runs/...,
+    mjxsysid/pretrained/...) whose run files replace the checkout's: a release's, before it ships
+    (`mjxsysid release`'s tables stage)."""
+    global _OVERLAY
+    _OVERLAY = None if overlay is None else Path(overlay)
+    try:
+        return _page()
+    finally:
+        _OVERLAY = None
+
+
+def _page() -> str:
+    old = {k: load(OLD / k / "results.json") for k in ("tune_nominal", "tune_slow", "tune_lemniscate",
                                                          "robustness", "replay")}
-    new = {k: load(FAIR / k / "results.json") for k in ("robustness", "robustness_single_latent", "replay")}
+    new = {k: load(RUNS / "studies" / k / "results.json") for k in ("robustness", "robustness_single_latent", "replay")}
     # the tune-* runs of issue 22 (the rotors started at the last command's steady state), kept
-    new.update({k: load(FAIR / "issue22" / k / "results.json")
+    new.update({k: load(RUNS / "archive" / "issue22_tuning" / k / "results.json")
                 for k in ("tune_nominal", "tune_slow", "tune_slow_heading_cost", "tune_lemniscate",
                           "tune_lemniscate_no_lead_in")})
-    t26 = {k: load(FAIR / k / "results.json") for k in ISSUE26_RUNS}
-    lag = load(RUNS / "lag_oracle_cpu128.json")
-    lag1k = load(RUNS / "lag_oracle.json")
-    nobc_replay = load(FAIR / "nobc" / "replay" / "results.json")
-    fid = load(FAIR / "closed_loop_fidelity.json")
-    fid_same = load(FAIR / "closed_loop_fidelity_same_flight.json")
-    fid_old = load(RUNS / "closed_loop_fidelity.json")
-    dec_old = load(RUNS / "decoder_eval.json")
-    dec_new = load(FAIR / "regression" / "decoder_eval.json")
-    dec_nobc = load(FAIR / "nobc" / "dec" / "decoder_eval.json")
-    pol = load(RUNS / "policy_eval.json")
-    pol_nobc = load(FAIR / "nobc" / "eval" / "eval.json")
+    t26 = {k: load(RUNS / "tuning" / k / "results.json") for k in ISSUE26_RUNS}
+    lag = load(RUNS / "oracle" / "lag_oracle_cpu128.json")
+    lag1k = load(RUNS / "oracle" / "lag_oracle.json")
+    nobc_replay = load(RUNS / "nobc" / "replay" / "results.json")
+    fid = load(RUNS / "studies" / "closed_loop_fidelity.json")
+    fid_same = load(RUNS / "studies" / "closed_loop_fidelity_same_flight.json")
+    fid_old = load(OLD / "closed_loop_fidelity.json")
+    dec_old = load(OLD / "decoder_eval.json")
+    dec_new = load(RUNS / "decoders" / "decoder_eval.json")
+    dec_nobc = load(RUNS / "nobc" / "dec" / "decoder_eval.json")
+    pol = load(RUNS / "policy" / "eval.json")
+    pol_nobc = load(RUNS / "nobc" / "eval" / "eval.json")
     shipped_reg = load(ROOT / "mjxsysid" / "pretrained" / "regression.json")
     xadap_reg = load(ROOT / "mjxsysid" / "pretrained" / "xadap" / "regression.json")
-    xadap_dec = load(FAIR / "xadap" / "dec" / "decoder_eval.json")
-    xadap_replay = load(FAIR / "xadap" / "replay" / "replay.json")
+    xadap_dec = load(RUNS / "xadap" / "dec" / "decoder_eval.json")
+    xadap_replay = load(RUNS / "xadap" / "replay" / "replay.json")
     s_slow = new["tune_slow"]["numbers"]["ratios"]
     s_old = old["tune_slow"]["numbers"]["ratios"]
 
     L = ["# Fair comparisons (issue 22): every comparison both ways",
          "",
          "Back to the [overview](index.md). *Generated by `python tools/fair_tables.py` from the run files in",
-         "`docs/runs/` (the previous protocol) and `docs/runs/fair/` (`tools/fair_baselines.sh OUT regression tune",
-         f"heading lemniscate robustness replay fidelity nobc`, one H100, {stamp(new['tune_slow'])}; the tune-* runs of",
-         f"issue 26 by `tools/gpu_tune.sh`, {stamp(t26['tune_slow'])}, section 7); do not edit by hand.*",
+         "`docs/runs/archive/previous_protocol/` (the previous protocol) and today's in `docs/runs/<kind>/`",
+         "(`tools/fair_baselines.sh OUT regression tune heading lemniscate robustness replay fidelity nobc`, one H100,",
+         f"{stamp(new['robustness'])}; issue 22's tune-* runs in `docs/runs/archive/issue22_tuning/`, {stamp(new['tune_slow'])};",
+         f"the tune-* runs of issue 26 by `tools/gpu_tune.sh`, {stamp(t26['tune_slow'])}, section 7; a release",
+         "(`mjxsysid release`) regenerates today's); do not edit by hand.*",
          "",
          "A line-by-line reading of the code against the paper found six places where a comparison favoured",
          "mjxsysid's decoders for reasons unrelated to decoding. Each is fixed (the default is now the paper's",
@@ -337,7 +362,7 @@ def page() -> str:
          "",
          "## 1. Nominal+CEM on each vehicle's own nominal system; 4. the tuner's cost",
          "",
-         "*The tables of sections 1 and 6a are issue 22's runs (`docs/runs/fair/issue22/`): the tuner then started",
+         "*The tables of sections 1 and 6a are issue 22's runs (`docs/runs/archive/issue22_tuning/`): the tuner then started",
          "its predictions with the rotors at the steady state of the last command. Section 7 has today's.*",
          "",
          "The paper's ablation is \"the same CEM tuner over the nominal system with ±20 % parameter",
@@ -393,7 +418,7 @@ def page() -> str:
          "about 2× on the whole flight; Oracle-CEM (true θ) loses exactly as much, so it is the take-off",
          "transient, not the decoded models. The last cycle (results.md) is better than Baseline under both.",
          "",
-         *issue26_section(t26, lag, lag1k, load(RUNS / "heldout" / "results.json")["numbers"]["evaluation"]),
+         *issue26_section(t26, lag, lag1k, load(RUNS / "probing" / "heldout" / "results.json")["numbers"]["evaluation"]),
          "## 6b. Robustness: the flight-level decoder and the paper's single-latent CFM",
          "",
          *robustness_rows([("flight-level (sequence) decoder (default)", new["robustness"]),
@@ -401,7 +426,7 @@ def page() -> str:
          "",
          "With the paper's single-latent CFM the paper vehicle's true lateral error leaves the decoded",
          "envelope almost at once: the headline (\"true inside\") holds only for the flight-level decoder,",
-         "which pools 10 s of latents. Both are reported in `docs/runs/fair/robustness*/`.",
+         "which pools 10 s of latents. Both are reported in `docs/runs/studies/robustness*/`.",
          "",
          "## 3. Regression with early stopping",
          "",
@@ -428,7 +453,7 @@ def page() -> str:
          "evaluated like the shipped one:",
          "",
          *policy_rows([("shipped (`mjxsysid/pretrained/policy.npz`)", "2 → 0.05 (never 0)", pol),
-                       ("no imitation at the end (`docs/runs/fair/nobc/policy.npz`)", "2 → 0 by mid-training", pol_nobc)]),
+                       ("no imitation at the end (`docs/runs/nobc/policy.npz`)", "2 → 0 by mid-training", pol_nobc)]),
          "",
          f"It flies every vehicle but at {pol_nobc['lemniscate']['rmse_ratio_policy_over_oracle']:.2f}× the oracle's RMSE (the bar",
          "for shipping it was ≤ 1.1×), and its decoders are less well calibrated; **it is not shipped**.",
@@ -454,18 +479,18 @@ def page() -> str:
          f"OUT xadap`; best epoch {xadap_reg['early_stopping']['best_epoch']} of {xadap_reg['config']['epochs']}; "
          "shipped in `mjxsysid/pretrained/xadap/`), beside its shipped CFM:",
          "",
-         *decoder_rows([("XAdap, Regression to epoch 100", load(RUNS / "xadap_decoder_eval.json")),
+         *decoder_rows([("XAdap, Regression to epoch 100", load(OLD / "xadap_decoder_eval.json")),
                         ("**XAdap, early-stopped Regression (shipped)**", xadap_dec)]),
          "",
          "Action replay of the released policy, paper vehicle (motor-command RMSE ↓ / PCC ↑):",
          "",
-         *replay_rows([("XAdap, Regression to epoch 100", load(RUNS / "xadap_replay.json")["flights"]),
+         *replay_rows([("XAdap, Regression to epoch 100", load(OLD / "xadap_replay.json")["flights"]),
                        ("**XAdap, early-stopped Regression**", xadap_replay["flights"])]),
          "",
          "- The early-stopped Regression is still worse than the prior itself on the energy score, but in",
          "  action replay it now ties CFM's mean action on RMSE (and beats single-sample CFM on the 10 s, 15 s",
          "  and hover flights); CFM's mean action keeps the best PCC of the three decoders on every flight. Over the 32 prior vehicles",
-         "  (`docs/runs/fair/xadap/replay/replay.md`) Regression has the lowest RMSE on every flight.",
+         "  (`docs/runs/xadap/replay/replay.md`) Regression has the lowest RMSE on every flight.",
          "",
          "## 5. Closed-loop fidelity on a held-out identification flight",
          "",
@@ -486,15 +511,20 @@ def page() -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--check", action="store_true", help="exit 1 if docs/fair_comparisons.md is stale")
+    ap.add_argument("--overlay", type=Path, default=None, metavar="TREE",
+                    help="read each run file from TREE (laid out like the checkout) where it has one, and write "
+                         "TREE/docs/fair_comparisons.md (a release's tree before it ships)")
     a = ap.parse_args(argv)
-    text = page()
+    text = page(a.overlay)
+    out = PAGE if a.overlay is None else a.overlay / "docs" / "fair_comparisons.md"
     if a.check:
-        if not PAGE.exists() or PAGE.read_text() != text:
-            print(f"{PAGE.relative_to(ROOT)} is stale: run python tools/fair_tables.py", file=sys.stderr)
+        if not out.exists() or out.read_text() != text:
+            print(f"{out} is stale: run python tools/fair_tables.py", file=sys.stderr)
             return 1
         return 0
-    PAGE.write_text(text)
-    print(f"wrote {PAGE.relative_to(ROOT)}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text)
+    print(f"wrote {out}")
     return 0
 
 

@@ -3,7 +3,7 @@
 # from .site, see README "GPU"). Each argument is NAME:SEED:VARIANT:METHODS:OUTDIR (VARIANT and
 # METHODS may be empty: the defaults); every finished run is packed into $OUT/runs.tar.gz at once,
 # so what finished comes back even if a later run is cut off.
-#   bash tools/gpu_tune.sh tune-slow:0:::docs/runs/fair/tune_slow tune-slow:7:::docs/runs/fair/tune_slow_seed7
+#   bash tools/gpu_tune.sh tune-slow:0:::docs/runs/tuning/tune_slow tune-slow:7:::docs/runs/tuning/tune_slow_seed7
 set -uo pipefail
 export PYTHONPATH=$PWD/.site:$PWD PYTHONUNBUFFERED=1 JAX_COMPILATION_CACHE_DIR=/tmp/jax_cache
 OUT=${OUT:-/tmp/out}

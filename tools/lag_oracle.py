@@ -5,7 +5,7 @@ priors (and the slow-actuator prior), 10 s lemniscate, seeded draws; with the la
 design choices taken out one at a time (the collective-thrust cut where a rotor saturates, the
 cancelled external torque).
 
-    python tools/lag_oracle.py --vehicles 1000 --out docs/runs/lag_oracle.json
+    python tools/lag_oracle.py --vehicles 1000 --out docs/runs/oracle/lag_oracle.json
 """
 import argparse
 import json

@@ -1,6 +1,6 @@
 """CPU diagnostics behind the latent trials (issue 11 §2): where the vehicle information is lost.
 
-    python tools/latent_diagnostics.py --out docs/runs/latent_diagnostics.json [--policy P.npz ...]
+    python tools/latent_diagnostics.py --out docs/runs/policy/latent_diagnostics.json [--policy P.npz ...]
 
 1. Linear probes from μ's latent z^θ = μ(θ_norm) (no flight, 5,000 prior vehicles) and, as the
    ceiling, from θ_norm itself, to log T/W, log κ, log angular authority (3), log τ_m.
@@ -31,7 +31,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, required=True)
     ap.add_argument("--policy", type=Path, nargs="+",
                     default=[Path("mjxsysid/pretrained/policy.npz"),
-                             Path("docs/runs/latent_trial_rec_ident_only_policy.npz")])
+                             Path("docs/runs/archive/latent_trials/latent_trial_rec_ident_only_policy.npz")])
     args = ap.parse_args(argv)
     r = lambda a: [round(float(x), 3) for x in a]
     out = {"targets": list(IDENT_TARGET_NAMES)}

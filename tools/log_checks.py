@@ -6,7 +6,7 @@ and the out-of-prior signal's false-alarm rate (prior vehicles) and hit rate (ou
 The IMU-noise estimate is measured on flights the policy flew through known noise (white, bias,
 rotor vibration; multiples of the hardware-like levels): its error and how often it warns.
 
-    python tools/log_checks.py --vehicles 200 --seconds 6 --out docs/runs/log_checks.json
+    python tools/log_checks.py --vehicles 200 --seconds 6 --out docs/runs/flight_logs/log_checks.json
 """
 import argparse
 import json
@@ -73,7 +73,7 @@ def main():
     ap.add_argument("--outside", type=int, default=50, help="vehicles per out-of-prior set")
     ap.add_argument("--seconds", type=float, default=6.0)
     ap.add_argument("--seed", type=int, default=12345)
-    ap.add_argument("--out", type=Path, default=Path("docs/runs/log_checks.json"))
+    ap.add_argument("--out", type=Path, default=Path("docs/runs/flight_logs/log_checks.json"))
     a = ap.parse_args()
     t0 = time.time()
     pol = PolicyController.load()

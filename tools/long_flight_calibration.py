@@ -2,7 +2,7 @@
 (issue 20 §4): is "a sliding window of trained length" calibrated on 60 s flights?
 
     mjxsysid collect --seconds 60 --train 16 --test 1000 --out OUT/long     # latent trajectories, GPU
-    python tools/long_flight_calibration.py --pairs OUT/long --out docs/runs/long_flight_calibration.json
+    python tools/long_flight_calibration.py --pairs OUT/long --out docs/runs/flight_logs/long_flight_calibration.json
 
 For each held-out flight, the shipped sequence decoder (trained on 10 s flights: max_len latents)
 is scored on three windows: the last max_len latents (what `decode` uses past the trained length),

@@ -5,7 +5,7 @@ tuner's default), from the steady state of the last command (the tuner before 20
 from the simulator's true rotor speeds (a diagnostic), on the default prior, the slow-actuator
 prior and the paper vehicle with the "hardware" IMU (noise, bias, one step of latency).
 
-    python tools/prediction_error.py --vehicles 16 --out docs/runs/prediction_error
+    python tools/prediction_error.py --vehicles 16 --out docs/runs/tuning/prediction_error
 """
 import argparse
 import json
@@ -28,7 +28,7 @@ def main(argv=None):
     ap.add_argument("--vehicles", type=int, default=16)
     ap.add_argument("--start", type=float, default=2.0, help="s flown before the prediction")
     ap.add_argument("--horizon", type=float, default=0.5, help="s predicted")
-    ap.add_argument("--out", default="docs/runs/prediction_error")
+    ap.add_argument("--out", default="docs/runs/tuning/prediction_error")
     a = ap.parse_args(argv)
     n = a.vehicles
     policy = resolve_policy("mjxsysid")

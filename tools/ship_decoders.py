@@ -8,18 +8,15 @@ regression.npz, decoder_eval.json; with ``--kinds cfm_seq`` the sequence decoder
 whose cfm_seq.json carries the ``sequence`` part of the evaluation). Copies the weights to --dest and writes cfm.json and
 regression.json beside them: config, seed, commit, device, wall time, training losses, the data
 they were trained on (pairs hash, policy hash, prior, seed) and the evaluation figures, all read
-from the files given.
+from the files given
+(:func:`mjxsysid.release.decoder_provenance`; `mjxsysid release` ships the same way).
 """
 import argparse
 import json
 import shutil
-import subprocess
 from pathlib import Path
 
-from mjxsysid.cfm.sample import Decoder
-from mjxsysid.cfm.sequence import SequenceDecoder
-
-ROOT = Path(__file__).resolve().parent.parent
+from mjxsysid.release import decoder_provenance
 
 
 def main():
@@ -36,28 +33,12 @@ def main():
     if not ev_path.is_file():
         raise SystemExit(f"{ev_path} not found: run `mjxsysid evaluate-decoder --decoders {args.dec}` first")
     ev = json.loads(ev_path.read_text())
-    commit = args.commit or subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
-                                           text=True).stdout.strip()
     args.dest.mkdir(parents=True, exist_ok=True)
     for kind in [k.strip() for k in args.kinds.split(",") if k.strip()]:
         src = args.dec / f"{kind}.npz"
-        dec = SequenceDecoder.load(src) if kind == "cfm_seq" else Decoder.load(src)
-        m = dec.meta
-        what = "p(θ | ẑ_1..ẑ_W) (flight-level, W = 1 latent up to a whole flight)" if kind == "cfm_seq" else "p(θ | ẑ)"
-        prov = {"what": f"{kind} decoder {what} {args.what}", "command": args.command,
-                "config": {k: getattr(dec.cfg, k) for k in dec.cfg.__dataclass_fields__},
-                "seed": dec.cfg.seed, "commit": commit, "device": f"{m.get('device')}, jax {m.get('jax')}",
-                "wall_s": m.get("wall_s"), "steps_per_s": m.get("steps_per_s"),
-                "final_train_loss": m.get("final_train_loss"), "final_val_loss": m.get("final_val_loss"),
-                "data": m.get("data"), **({"early_stopping": m["early_stopping"]} if "early_stopping" in m else {}), "stored_dtype": "float16 (evaluated after rounding)",
-                "evaluation": ev.get("sequence") if kind == "cfm_seq" else ev if kind == "cfm" else {
-                    "energy_score": ev.get("energy_score"), "rmse_norm": ev.get("rmse_norm")},
-                "evaluation_command": f"mjxsysid evaluate-decoder --decoders {args.dec} --pairs DATA"}
-        if kind == "cfm_seq":
-            prov.update(n_params=m.get("n_params"), val_loss_min=m.get("val_loss_min"),
-                        val_loss_argmin_epoch=m.get("val_loss_argmin_epoch"))
-        if args.note:
-            prov["note"] = args.note
+        prov = decoder_provenance(src, kind, ev, what=args.what, command=args.command, note=args.note,
+                                  evaluation_command=f"mjxsysid evaluate-decoder --decoders {args.dec} --pairs DATA",
+                                  commit=args.commit)
         if src.resolve() != (args.dest / src.name).resolve():
             shutil.copy(src, args.dest / src.name)
         (args.dest / f"{kind}.json").write_text(json.dumps(prov, indent=2, ensure_ascii=False) + "\n")

@@ -3,7 +3,7 @@
 its edges at a time brought back, on the stress prior that replaced it, and with rate gains
 lowered for slow motors (K_ω = min(K_ω, c / τ_m)). 10 s lemniscate, seeded draws.
 
-    python tools/stress_prior_oracle.py --vehicles 128 --out docs/runs/stress_prior_oracle.json
+    python tools/stress_prior_oracle.py --vehicles 128 --out docs/runs/oracle/stress_prior_oracle.json
 """
 import argparse
 import dataclasses

@@ -58,7 +58,7 @@ class CFMConfig:
     seed: int = 0
     # The flow's coordinates (params.DECODER_COORDS): "identifiable" puts log thrust-to-weight and the
     # log angular authorities on axes of the flow (calibrated T/W bands half as wide as in "theta",
-    # normalised θ, on a latent that carries T/W: docs/runs/latent_trials.md). Samples are θ either way.
+    # normalised θ, on a latent that carries T/W: docs/runs/archive/latent_trials/latent_trials.md). Samples are θ either way.
     coords: str = "identifiable"
 
     def __post_init__(self):

@@ -9,6 +9,7 @@
     mjxsysid view [--vehicle V.json] [--task hover|lemniscate|minsnap|force_step]   dm_control's viewer
     mjxsysid collect | train-cfm | evaluate-decoder | decode | replay | demo  [--policy NAME|PATH]
     mjxsysid export [--weights policy.npz] --out policy.onnx   the policy as ONNX, checked in onnxruntime
+    mjxsysid release --out DIR [--stages S1,S2] [--list]   a release in resumable stages (docs/release.md)
 
 Policies: ``--policy mjxsysid`` (the shipped one; the default), ``--policy xadap --weights DIR``
 (the released Extreme-Adaptation policy: its folder or a converted .npz; $MJXSYSID_XADAP_DIR is
@@ -23,7 +24,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mjxsysid.cli import decoders, experiment, flights, policy, probe, studies, tune
+from mjxsysid.cli import decoders, experiment, flights, policy, probe, release, studies, tune
 
 COMMANDS = (
     flights.add_demo,
@@ -40,6 +41,7 @@ COMMANDS = (
     probe.add_probe,
     experiment.add_experiment,
     policy.add_export,
+    release.add_release,
 )
 """Each command's parser builder, in the order `mjxsysid --help` lists them."""
 

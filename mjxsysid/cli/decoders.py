@@ -126,12 +126,8 @@ def add_evaluate_decoder(sub) -> None:
 
 
 def cmd_evaluate_decoder(args) -> int:
-    import jax
-    import numpy as np
-
-    from mjxsysid import params as P
     from mjxsysid.cfm.pipeline import evaluate_decoders
-    from mjxsysid.dataset.collect import latents_in_flight, load_pairs
+    from mjxsysid.dataset.collect import load_pairs, paper_vehicle_latents
     from mjxsysid.policy.interface import resolve_policy
     if args.policy is None and args.weights is None:
         meta = load_pairs(args.pairs)[1]
@@ -146,17 +142,10 @@ def cmd_evaluate_decoder(args) -> int:
     else:
         ref = policy_ref(args)
     paper_zhat = paper_traj = None
-    if (args.decoders / "cfm.npz").is_file() and (args.decoders / "regression.npz").is_file() \
-            and not args.no_paper_flight:
-        z, failed = latents_in_flight(ref, np.repeat(P.PAPER_HARDWARE[None], 2, 0), jax.random.PRNGKey(0))
-        paper_zhat = z[0]
-    if (args.decoders / "cfm_seq.npz").is_file() and not args.no_paper_flight:  # the paper vehicle after a 10 s lemniscate, ẑ at 10 Hz
-        from mjxsysid.dataset.collect import decode_indices
-        from mjxsysid.rollout.flight import fly_vehicles, one_flight
-        one = one_flight(fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference="lemniscate",
-                                      period=10.0)[0])
-        idx = decode_indices(one.time, 10.0)
-        paper_traj = (np.asarray(one.latent)[idx], np.asarray(one.time)[idx])
+    if not args.no_paper_flight:   # the paper vehicle: ẑ after 1.5 s; ẑ at 10 Hz over a 10 s lemniscate
+        paper_zhat, paper_traj = paper_vehicle_latents(
+            ref, instant=(args.decoders / "cfm.npz").is_file() and (args.decoders / "regression.npz").is_file(),
+            flight=(args.decoders / "cfm_seq.npz").is_file())
     rep = evaluate_decoders(args.decoders, args.pairs, n_cases=args.cases, n_samples=args.samples,
                             paper_zhat=paper_zhat, paper_traj=paper_traj, log=echo)
     brief = {}

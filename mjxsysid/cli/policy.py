@@ -29,20 +29,8 @@ def add_train_policy(sub) -> None:
 
 
 def cmd_train_policy(args) -> int:
-    from mjxsysid.policy.train import TrainConfig, train
-    cfg_dict = TrainConfig().to_dict()
-    if args.config is not None:
-        if not args.config.is_file():
-            raise FileNotFoundError(f"config file not found: {args.config}")
-        try:
-            over = json.loads(args.config.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as e:
-            raise ValueError(f"{args.config}: not valid JSON ({e})") from None
-        if not isinstance(over, dict) or not isinstance(over.get("env", {}), dict):
-            raise ValueError(f"{args.config}: expected a JSON object of TrainConfig keys (and an 'env' object)")
-        env = dict(cfg_dict["env"], **over.pop("env", {}))
-        cfg_dict.update(over)
-        cfg_dict["env"] = env
+    from mjxsysid.policy.train import TrainConfig, config_with_overrides, train
+    cfg_dict = config_with_overrides(args.config)
     for k, v in (("iterations", args.iterations), ("num_envs", args.num_envs), ("seed", args.seed)):
         if v is not None:
             cfg_dict[k] = v

@@ -261,3 +261,23 @@ def decode_indices(times, rate: float, start: float = N.HISTORY * 0.002) -> np.n
     if len(after) == 0:
         return np.array([len(times) - 1])
     return after[(after - after[0]) % every == 0]
+
+
+def paper_vehicle_latents(policy, *, instant: bool = True, flight: bool = True):
+    """The paper vehicle's latents that ``evaluate-decoder`` decodes for its posterior figures:
+    (ẑ after a 1.5 s excited lemniscate (8,) as the single-latent pairs read it, or None;
+    (ẑ at 10 Hz (L, 8), their times (L,) s) of a 10 s lemniscate for the sequence decoder, or None).
+    ``policy``: a name, path or PolicyRef."""
+    from mjxsysid.rollout.flight import fly_vehicles, one_flight
+    ref = resolve_policy(policy)
+    zhat = traj = None
+    if instant:
+        z, _ = latents_in_flight(ref, np.repeat(P.PAPER_HARDWARE[None], 2, 0), jax.random.PRNGKey(0))
+        zhat = z[0]
+    if flight:
+        one = one_flight(fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=ref, reference="lemniscate",
+                                      period=10.0)[0])
+        idx = decode_indices(one.time, 10.0)
+        traj = (np.asarray(one.latent)[idx], np.asarray(one.time)[idx])
+    return zhat, traj
+

@@ -22,6 +22,7 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
+from mjxsysid.cfm.load import load_decoders
 from mjxsysid.control.references import Delayed, Lemniscate, stack
 from mjxsysid.experiments.common import fmt_ms, markdown_table, write_results
 from mjxsysid.policy.interface import resolve_policy
@@ -141,9 +142,11 @@ def _size(quick, cpu):
     return "quick" if quick else ("cpu" if cpu else "full")
 
 
-def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, cpu=False, variant=None):
+def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, cpu=False, variant=None,
+                      decoders=None):
     t0 = time.time()
     policy = _ref(policy)
+    decoder, dec_dir = _decoder(decoders, policy, methods)
     size = _size(quick, cpu)
     n, duration = {"quick": (3, 2.0), "cpu": (12, 5.0), "full": (100, 5.0)}[size]
     cfg = _variant(name, variant, {"quick": QUICK_TUNER, "cpu": CPU_TUNER, "full": FULL_TUNER}[size])
@@ -153,7 +156,7 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
     steps = int(round(duration / sim.config.dt))
     _log(f"{name}: {n} {prior}-prior vehicles × {duration:g} s min-snap, methods {methods}")
     res = compare_methods(theta, refs, steps=steps, methods=methods, cfg=cfg, policy=policy, sim=sim,
-                          seed=seed, log=_log, progress=progress)
+                          decoder=decoder, seed=seed, log=_log, progress=progress)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     plot_gains(res, out / "gains.png", labels=METHOD_LABELS, tuned=CEM_METHODS, title=f"{name}: gains over time (mean, 5–95 % over vehicles)")
@@ -186,35 +189,48 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
                                                           if v is not None and "own" not in k))
     return write_results(out, name, config=config, seeds={"vehicles": seed, "references": seed, "flight": seed},
                          numbers=numbers, table_md=_prior_table(name, res, methods, common), t0=t0, policy=policy,
-                         decoders=policy.decoders_dir, notes=notes)
+                         decoders=dec_dir, notes=notes)
 
 
 def _ref(policy):
     return resolve_policy(policy or "mjxsysid")
 
 
-def run_nominal(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False, variant=None):
-    """tune-nominal (see the module doc)."""
+def _decoder(decoders, policy, methods):
+    """(CFM decoder or None, its folder): from ``decoders`` (a folder with cfm.npz and
+    regression.npz, checked against ``policy``), else the policy's shipped one, loaded by
+    :func:`~mjxsysid.tune.compare.compare_methods`."""
+    if decoders is None:
+        return None, policy.decoders_dir
+    return load_decoders(decoders, policy, warn=_log)[0], Path(decoders)
+
+
+def run_nominal(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False, variant=None,
+                decoders=None):
+    """tune-nominal (see the module doc). ``decoders``: folder with cfm.npz and regression.npz
+    (default: the policy's shipped ones)."""
     return _prior_experiment("tune-nominal", "default", methods or ("naive", "baseline", "cfm", "oracle_cem"),
-                             out, quick, policy, seed, progress, cpu, variant)
+                             out, quick, policy, seed, progress, cpu, variant, decoders)
 
 
-def run_slow(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False, variant=None):
-    """tune-slow (see the module doc)."""
+def run_slow(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False, variant=None,
+             decoders=None):
+    """tune-slow (see the module doc; ``decoders`` as for :func:`run_nominal`)."""
     return _prior_experiment("tune-slow", "slow_actuators",
                              methods or ("baseline", "nominal_cem", "cfm", "oracle_cem"), out, quick, policy,
-                             seed, progress, cpu, variant)
+                             seed, progress, cpu, variant, decoders)
 
 
 def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, methods=None, cpu=False,
-                   variant=None):
+                   variant=None, decoders=None):
     """tune-lemniscate: the three periods fly as one batch of three copies of the paper vehicle,
     each a hover lead-in of :data:`LEAD_IN_S` at the lemniscate's start point (take-off done, the
     tuner already running) and then three cycles; each flight is scored over its own three cycles
-    (the paper's window), and over its last cycle."""
+    (the paper's window), and over its last cycle. ``decoders`` as for :func:`run_nominal`."""
     t0 = time.time()
     policy = _ref(policy)
     methods = methods or ("baseline", "cfm", "oracle_cem")
+    decoder, dec_dir = _decoder(decoders, policy, methods)
     periods = (15.0, 10.0, 7.5)
     cycles = 3
     size = _size(quick, cpu)
@@ -228,7 +244,7 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
     _log(f"tune-lemniscate: paper vehicle, {lead:g} s hover lead-in, then periods {periods} s × {cycles} cycles "
          f"({duration:g} s flown), methods {methods}")
     res = compare_methods(theta, refs, steps=steps, methods=methods, cfg=cfg, policy=policy, sim=sim,
-                          seed=seed, log=_log, progress=progress)
+                          decoder=decoder, seed=seed, log=_log, progress=progress)
     n0 = int(round(lead / sim.config.dt))
     per = {}
     for m in methods:
@@ -276,7 +292,7 @@ def run_lemniscate(out, *, quick=False, policy=None, seed=0, progress=True, meth
               "duration_s": duration,
               "methods": list(methods), "tuner": dataclasses.asdict(cfg), "sim": dataclasses.asdict(HARDWARE_SIM)}
     return write_results(out, "tune-lemniscate", config=config, seeds={"flight": seed}, numbers=numbers,
-                         table_md=table, t0=t0, policy=policy, decoders=policy.decoders_dir,
+                         table_md=table, t0=t0, policy=policy, decoders=dec_dir,
                          notes=("Our simulated 'hardware' is the paper vehicle with IMU noise, bias and latency. "
                                 f"Each flight: {lead:g} s hover at the start point (tuner running), then "
                                 f"{cycles} cycles, scored over the cycles. "

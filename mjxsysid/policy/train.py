@@ -30,6 +30,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import struct
 from jax.sharding import NamedSharding, PartitionSpec
@@ -67,7 +68,7 @@ class TrainConfig:
     rec_coef: float = 0.1
     # Reconstruction of the identifiable combinations (log T/W, log angular authorities, log τ_m
     # and, with ident_yaw_authority, the yaw authority k_τ Ω_max²/J_zz in place of κ, which flight
-    # does not reveal): what makes the latent carry T/W (probe R² 0.44 -> 0.92, docs/runs/latent_trials.md).
+    # does not reveal): what makes the latent carry T/W (probe R² 0.44 -> 0.92, docs/runs/archive/latent_trials/latent_trials.md).
     # The policy shipped before 2026-11-24 had 0.0 / False (the latent trials' control).
     rec_ident_coef: float = 1.0
     ident_yaw_authority: bool = True
@@ -108,6 +109,52 @@ class TrainConfig:
         if (cfg.num_envs * cfg.unroll) % cfg.minibatches or cfg.num_envs % cfg.minibatches:
             raise ValueError("num_envs and num_envs × unroll must be divisible by minibatches")
         return cfg
+
+
+def _same_normalizer(a: dict, b: dict) -> bool:
+    """Two normalisers' dicts (:meth:`mjxsysid.params.Normalizer.to_dict`) alike: the same keys,
+    numbers equal to float32 rounding (a normaliser fitted on another device or with other XLA
+    optimisations differs in the last bits of its reductions)."""
+    a, b = json.loads(json.dumps(a)), json.loads(json.dumps(b))
+    if set(a) != set(b):
+        return False
+    for k in a:
+        x, y = a[k], b[k]
+        try:
+            xa, ya = np.asarray(x, np.float64), np.asarray(y, np.float64)
+        except (TypeError, ValueError):
+            if x != y:
+                return False
+            continue
+        if xa.dtype.kind != "f" or xa.shape != ya.shape:
+            if x != y:
+                return False
+        elif not np.allclose(xa, ya, rtol=1e-5, atol=1e-6):
+            return False
+    return True
+
+
+def config_with_overrides(path=None) -> dict:
+    """The default :class:`TrainConfig` as a dict, with the overrides of the JSON file ``path``
+    (an object of TrainConfig keys, and an ``env`` object of EnvConfig keys) merged in; checked
+    keys are left to :meth:`TrainConfig.from_dict`. A missing file is a FileNotFoundError, a file
+    that is not such an object a ValueError, both naming the file."""
+    cfg = TrainConfig().to_dict()
+    if path is None:
+        return cfg
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"config file not found: {path}")
+    try:
+        over = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: not valid JSON ({e})") from None
+    if not isinstance(over, dict) or not isinstance(over.get("env", {}), dict):
+        raise ValueError(f"{path}: expected a JSON object of TrainConfig keys (and an 'env' object)")
+    env = dict(cfg["env"], **over.pop("env", {}))
+    cfg.update(over)
+    cfg["env"] = env
+    return cfg
 
 
 @struct.dataclass
@@ -327,7 +374,7 @@ class Trainer:
         except (KeyError, ValueError, OSError) as e:
             raise ValueError(f"init_from: {path}: not mjxsysid policy weights ({e})") from None
         norm = meta.get("normalizer")
-        if norm is not None and json.loads(json.dumps(norm)) != json.loads(json.dumps(self.env.normalizer.to_dict())):
+        if norm is not None and not _same_normalizer(norm, self.env.normalizer.to_dict()):
             raise ValueError(f"init_from: {path} was trained with another θ normalisation (prior) than this config's")
         return warm
 

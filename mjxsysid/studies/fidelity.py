@@ -10,6 +10,9 @@ envelope's mean width against the one from ±20 % uniform perturbations of θ*.
 """
 from __future__ import annotations
 
+import json
+import time
+
 import jax
 import numpy as np
 
@@ -25,15 +28,15 @@ from mjxsysid.sim import Quadrotor
 
 
 def fly_same_disturbance(theta, *, reference="lemniscate", period=10.0, duration=5.0,
-                         force_step=(0.0, 0.0, 0.0), force_sigma=0.0, key=None, sim=None):
-    """Fly θ (n, 19) with the shipped policy, every vehicle under the *same* disturbance
-    realisation (one key for all). Returns the Flight (n, T, ...)."""
+                         force_step=(0.0, 0.0, 0.0), force_sigma=0.0, key=None, sim=None, policy="mjxsysid"):
+    """Fly θ (n, 19) with ``policy`` (default: the shipped one), every vehicle under the *same*
+    disturbance realisation (one key for all). Returns the Flight (n, T, ...)."""
     theta = np.asarray(theta, np.float32)
     n = len(theta)
     sim = sim or Quadrotor()
     steps = int(round(duration / sim.config.dt))
     ref, _ = make_reference(reference, period=period, duration=duration)
-    low = make_low_level("policy", theta, resolve_policy("mjxsysid"))
+    low = make_low_level("policy", theta, resolve_policy(policy))
     dist = broadcast(Disturbance.make(step_force=force_step, step_time=0.5, sigma=force_sigma), n)
     return fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), broadcast(ref, n), dist,
                      key if key is not None else jax.random.PRNGKey(0), steps, same_key=True)
@@ -104,7 +107,7 @@ IDENTIFICATIONS = ("held_out", "same")
 
 def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decoder=None,
                          window: str = "flight", rate: float = 10.0, identification: str = "held_out",
-                         **flight_kw) -> dict:
+                         policy="mjxsysid", **flight_kw) -> dict:
     """For each true vehicle (n, 19): decoded-model and ±20 % envelopes of the position error.
 
     ``identification="held_out"`` (default) decodes the latents of a separate, undisturbed
@@ -113,7 +116,8 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     before 2026-11-25: not a held-out figure). ``window="flight"`` decodes every ẑ of the
     identification flight read at ``rate`` Hz with the sequence decoder (``cfm_seq.npz``, the
     flight-level posterior, default), ``"instant"`` the last ẑ with the single-latent CFM (``cfm.npz``).
-    ``decoder`` overrides the shipped one of that kind. The n × n_models decoded and the
+    ``decoder`` overrides the shipped one of that kind (it must be one trained on ``policy``'s
+    latents; ``policy``: the flying policy, default the shipped one). The n × n_models decoded and the
     n × n_models perturbed vehicles fly in one batch each, all under the same disturbance
     realisation. Returns per-vehicle and mean ``inside_*`` (fraction of time the true error lies
     in the 5–95 % envelope) and ``width_*_m`` (mean envelope width)."""
@@ -130,12 +134,13 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     theta_true = np.asarray(theta_true, np.float32).reshape(-1, P.N_PARAMS)
     n = len(theta_true)
     key = jax.random.PRNGKey(seed)
+    flight_kw = dict(flight_kw, policy=policy)
     true_fl = fly_same_disturbance(theta_true, key=key, **flight_kw)
     err = lambda fl: np.linalg.norm(np.asarray(fl.frame.pos - fl.ref_pos), axis=-1)
     true_err = err(true_fl)                                         # (n, T)
     id_fl = true_fl if identification == "same" else fly_same_disturbance(
         theta_true, reference="lemniscate", period=10.0, duration=flight_kw.get("duration", 5.0),
-        key=jax.random.fold_in(key, 77), sim=flight_kw.get("sim"))
+        key=jax.random.fold_in(key, 77), sim=flight_kw.get("sim"), policy=policy)
     latent = np.asarray(id_fl.latent)                               # (n, T, 8)
     if window == "flight":
         idx = decode_indices(np.asarray(id_fl.time[0]), rate)[-decoder.max_len:]
@@ -160,4 +165,43 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     return {"per_vehicle": out, "mean": {k: float(np.mean([o[k] for o in out])) for k in keys},
             "median": {k: float(np.median([o[k] for o in out])) for k in keys},
             "n_models": n_models, "window": window, "rate_hz": rate, "identification": identification,
-            **{k: (list(v) if isinstance(v, tuple) else v) for k, v in flight_kw.items()}}
+            **{k: (list(v) if isinstance(v, tuple) else v) for k, v in flight_kw.items() if k != "policy"}}
+
+
+def fidelity_benchmark(*, vehicles: int = 20, models: int = 100, window: str = "flight", duration: float = 4.0,
+                       identification: str = "held_out", policy="mjxsysid", decoder=None, log=None) -> dict:
+    """The closed-loop fidelity benchmark (``benchmarks/closed_loop_fidelity.py``): the paper
+    vehicle and ``vehicles - 1`` default-prior draws (key 7) hover ``duration`` s with a constant
+    [1, 1, 0] N world force from 0.5 s (a prior vehicle's scaled by m / m_paper: the same
+    acceleration), each through :func:`closed_loop_fidelity` with ``models`` decoded and perturbed
+    models. Returns the protocol, per-vehicle results, their means and medians, the decoded over
+    ±20 % width ratio and the issue's targets (≥ 90 % inside, ratio ≤ 1). ``log`` is told each
+    vehicle's result."""
+    if vehicles < 1:
+        raise ValueError(f"vehicles must be >= 1, got {vehicles}")
+    th = np.concatenate([P.PAPER_HARDWARE[None],
+                         np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(7), vehicles - 1))])
+    t0 = time.time()
+    per = []  # one call per vehicle (its own force scale); its models fly in one batch
+    for i, t in enumerate(th):
+        scale = float(t[P.MASS] / P.PAPER_HARDWARE[P.MASS])
+        r = closed_loop_fidelity(t, n_models=models, window=window, reference="hover", identification=identification,
+                                 duration=duration, force_step=(scale, scale, 0.0), policy=policy, decoder=decoder)
+        per.append({"vehicle": "paper" if i == 0 else f"prior_{i}", "force_scale": scale, **r["per_vehicle"][0]})
+        if log is not None:
+            log(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in per[-1].items()}))
+    keys = ("inside_decoded", "width_decoded_m", "inside_pm20", "width_pm20_m")
+    ratio = [p["width_decoded_m"] / max(p["width_pm20_m"], 1e-9) for p in per]
+    return {
+        "protocol": {"vehicles": vehicles, "models": models, "window": window, "identification": identification,
+                     "duration_s": duration, "reference": "hover", "force_step_N": "[1, 1, 0] × m / m_paper",
+                     "prior_seed": 7},
+        "device": str(jax.devices()[0]), "jax": jax.__version__, "wall_s": time.time() - t0,
+        "date": time.strftime("%Y-%m-%d"),
+        "mean": {k: float(np.mean([p[k] for p in per])) for k in keys},
+        "median": {k: float(np.median([p[k] for p in per])) for k in keys},
+        "width_ratio_decoded_over_pm20": {"median": float(np.median(ratio)), "mean": float(np.mean(ratio))},
+        "targets": {"mean_inside_decoded_ge_0.90": float(np.mean([p["inside_decoded"] for p in per])) >= 0.90,
+                    "median_width_ratio_le_1": float(np.median(ratio)) <= 1.0},
+        "per_vehicle": per,
+    }

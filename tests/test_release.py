@@ -1,0 +1,206 @@
+"""`mjxsysid release`: the stage plan, resuming, the release.json record and the CLI's errors, on
+stub stages (default tier, no JAX work); the tiny end-to-end release on the CPU (slow)."""
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from mjxsysid.cli import main
+from mjxsysid.release import STAGES, Release, Stage, build_tree
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _stubs(calls, fail=()):
+    """A four-stage release: a -> b -> c, and ship; each writes its output and counts its calls."""
+    def make(name):
+        def run(rel, out):
+            calls.append(name)
+            if name in fail:
+                raise RuntimeError(f"{name} broke")
+            (out / f"{name}.txt").write_text(name)
+            return {"command": f"make {name}", "config": {"n": 1}, "figures": {"value": len(calls)}}
+        return run
+    return (Stage("a", make("a"), (), ("a.txt",), 10, "first"),
+            Stage("b", make("b"), ("a",), ("b.txt",), 20, "second"),
+            Stage("c", make("c"), ("b",), ("c.txt",), 30, "third"),
+            Stage("ship", make("ship"), (), ("ship.txt",), 1, "ship"))
+
+
+def _release(out, calls, options=None, **kw):
+    return Release(out, options, stages=_stubs(calls, **kw), log=None, device=lambda: "stub device",
+                   commit=lambda: "abc123")
+
+
+def test_stages_run_in_order_and_resume_skips_done_ones(tmp_path):
+    calls = []
+    assert _release(tmp_path, calls).run(["a,b"]) == ["a", "b"]
+    assert calls == ["a", "b"]
+    assert _release(tmp_path, calls).run() == ["c", "ship"]       # a and b are done: skipped
+    assert _release(tmp_path, calls).run() == []
+    assert calls == ["a", "b", "c", "ship"]
+    # a stage whose output is gone runs again; forcing a stage reruns it and what depends on it
+    (tmp_path / "c" / "c.txt").unlink()
+    rel = _release(tmp_path, calls)
+    assert rel.status("c") == "incomplete"
+    assert rel.run() == ["c"]
+    assert _release(tmp_path, calls).run(force=["b"]) == ["b", "c"]
+    assert _release(tmp_path, calls).run(["a"], force=["a"]) == ["a"]
+    rel = _release(tmp_path, calls)
+    assert rel.status("b") == "stale" and rel.status("a") == "done"   # b ran before a's rerun
+    assert rel.status("c") == "done"                                  # b itself has not run again
+    assert rel.run(["b", "c"]) == ["b", "c"]
+
+
+def test_release_json_records_each_stage(tmp_path):
+    calls = []
+    _release(tmp_path, calls, options={"scale": "tiny"}).run(["a"])
+    with pytest.raises(RuntimeError, match="b broke"):
+        _release(tmp_path, calls, fail=("b",)).run(["b"])
+    rec = json.loads((tmp_path / "release.json").read_text())
+    assert rec["release"] == tmp_path.name and rec["order"] == ["a", "b", "c", "ship"]
+    assert rec["options"] == {"scale": "tiny", "policy_config": "tools/configs/policy_release.json",
+                              "from_policy": None}
+    a, b = rec["stages"]["a"], rec["stages"]["b"]
+    assert a["status"] == "done" and a["command"] == "make a" and a["config"] == {"n": 1}
+    assert a["figures"] == {"value": 1} and a["outputs"] == ["a.txt"]
+    assert a["commit"] == "abc123" and a["device"] == "stub device" and a["wall_s"] >= 0
+    assert a["started"] <= a["ended"] and a["attempts"] == 1 and a["run"] == 1 and b["run"] == 2
+    assert b["status"] == "failed" and b["error"] == "RuntimeError: b broke" and "traceback" in b
+    rel = _release(tmp_path, calls)
+    assert rel.status("b") == "failed" and rel.status("c") == "pending"
+    assert rel.run(["b"]) == ["b"] and rel.entry("b")["attempts"] == 2 and "error" not in rel.entry("b")
+    table = rel.table()
+    assert "a " in table and "done" in table and "pending" in table and "H100" in table
+
+
+def test_plan_errors_name_the_stage(tmp_path):
+    rel = _release(tmp_path, [])
+    with pytest.raises(ValueError, match="unknown stage 'x'; stages: a, b, c, ship"):
+        rel.plan(["a,x"])
+    with pytest.raises(ValueError, match="--force: unknown stage 'y'"):
+        rel.plan(force=["y"])
+    with pytest.raises(ValueError, match="stage 'c' needs stage 'b', which is pending"):
+        rel.plan(["c"])
+    assert rel.plan(["b,a"]) == ["a", "b"]                               # release order, not the given one
+    with pytest.raises(ValueError, match=r"cannot ship: stage\(s\) a, b, c not done"):
+        rel.plan(["ship"])
+    assert rel.plan(["ship"], allow_partial=True) == ["ship"]
+    with pytest.raises(ValueError, match="--allow-partial applies to an explicit --stages ship"):
+        rel.plan(allow_partial=True)
+    assert rel.plan() == ["a", "b", "c", "ship"]                        # all in one call: ship last
+
+
+def test_recorded_options_may_not_change(tmp_path):
+    _release(tmp_path, [], options={"scale": "tiny"}).run(["a"])
+    assert _release(tmp_path, []).options.scale == "tiny"               # resumed with the recorded ones
+    with pytest.raises(ValueError, match="started with scale = 'tiny', not 'full'"):
+        _release(tmp_path, [], options={"scale": "full"})
+    with pytest.raises(ValueError, match="scale must be one of"):
+        _release(tmp_path / "new", [], options={"scale": "huge"})
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="is a file, not a release folder"):
+        _release(tmp_path / "file", [])
+
+
+def test_stage_list_is_the_pipeline():
+    names = [s.name for s in STAGES]
+    from mjxsysid.cli.release import STAGE_NAMES
+    assert tuple(names) == STAGE_NAMES
+    for i, s in enumerate(STAGES):                                      # dependencies come earlier
+        assert all(names.index(d) < i for d in s.needs), s.name
+        assert 0 < s.estimate_s <= 600, s.name                          # each fits a 10-minute GPU call
+    assert sum(s.estimate_s for s in STAGES) <= 45 * 60
+
+
+def _cli(capsys, *args):
+    rc = main(["release", *map(str, args)])
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_cli_errors_are_one_line(tmp_path, capsys):
+    for args, msg in (((tmp_path / "r", "--stages", "policy,bogus"), "unknown stage 'bogus'"),
+                      ((tmp_path / "r", "--stages", "decoders"), "stage 'decoders' needs stage 'pairs'"),
+                      ((tmp_path / "r", "--policy-config", tmp_path / "none.json"), "config file not found"),
+                      ((tmp_path / "r", "--from-policy", tmp_path / "none.npz"), "policy weights not found"),
+                      ((tmp_path / "r", "--list"), "no release in"),
+                      ((tmp_path / "r", "--stages", "ship"), "cannot ship")):
+        rc, out, err = _cli(capsys, "--out", *args)
+        assert rc == 2 and msg in err and len(err.strip().splitlines()) == 1, (args, err)
+    (tmp_path / "f").write_text("x")
+    rc, _, err = _cli(capsys, "--out", tmp_path / "f", "--list")
+    assert rc == 2 and "is a file, not a release folder" in err
+    assert not (tmp_path / "r").exists()                                # nothing written by a refused call
+
+
+def test_cli_list_shows_recorded_stages(tmp_path, capsys):
+    rel = Release(tmp_path, {"scale": "tiny"}, log=None)
+    rel.record["stages"]["policy"] = {"status": "done", "started": "2026-01-01T00:00:00+00:00",
+                                      "ended": "2026-01-01T00:02:00+00:00", "wall_s": 120.0}
+    (tmp_path / "policy").mkdir()
+    (tmp_path / "policy" / "policy.npz").write_bytes(b"")
+    rel.save()
+    rc, out, _ = _cli(capsys, "--out", tmp_path, "--list")
+    assert rc == 0
+    lines = {ln.split()[0]: ln for ln in out.splitlines()[2:-1]}
+    assert list(lines) == [s.name for s in STAGES]
+    assert "done" in lines["policy"] and "120 s" in lines["policy"] and "2026-01-01T00:02:00" in lines["policy"]
+    assert "pending" in lines["pairs"] and "(tiny;" in out
+
+
+def test_ship_tree_carries_release_provenance(tmp_path):
+    """build_tree on stage folders holding the shipped weights: each provenance JSON says which
+    release, stage, commit and device made it; --allow-partial leaves out what is missing."""
+    pre = ROOT / "mjxsysid" / "pretrained"
+    rel = Release(tmp_path / "rel", {"scale": "tiny"}, log=None, device=lambda: "dev", commit=lambda: "c0ffee")
+    for stage, f in (("policy", "policy.npz"), ("decoders", "cfm.npz"), ("decoders", "regression.npz")):
+        (rel.stage_dir(stage)).mkdir(parents=True, exist_ok=True)
+        shutil.copy(pre / f, rel.stage_dir(stage) / f)
+    (rel.stage_dir("policy_eval")).mkdir()
+    (rel.stage_dir("policy_eval") / "eval.json").write_text(json.dumps({"n": 10}))
+    (rel.stage_dir("policy_eval") / "heldout").mkdir()
+    (rel.stage_dir("policy_eval") / "heldout" / "results.json").write_text("{}")
+    for name in ("policy", "pairs", "decoders", "policy_eval"):
+        rel.record["stages"][name] = {"status": "done", "started": "2026-01-01T00:00:00+00:00",
+                                      "ended": "2026-01-01T00:01:00+00:00", "wall_s": 60.0, "commit": "c0ffee",
+                                      "device": "dev", "command": f"stage {name}"}
+    with pytest.raises(FileNotFoundError, match="not written"):
+        build_tree(rel, tmp_path / "tree")
+    left = build_tree(rel, tmp_path / "tree", partial=True)
+    assert "seq_decoder/cfm_seq.npz" in left and "noise/noise_sensitivity.json" in left
+    tree = tmp_path / "tree"
+    pol = json.loads((tree / "mjxsysid/pretrained/policy.json").read_text())
+    assert pol["release"] == {"dir": "rel", "path": str(rel.out.resolve()), "commit": "c0ffee", "stage": "policy",
+                              "stage_wall_s": 60.0, "stage_ended": "2026-01-01T00:01:00+00:00", "device": "dev",
+                              "scale": "tiny"}
+    assert pol["evaluation"] == {"n": 10} and pol["config"]["num_envs"] > 0
+    cfm = json.loads((tree / "mjxsysid/pretrained/cfm.json").read_text())
+    assert cfm["release"]["stage"] == "decoders" and cfm["data"]["pairs_sha256"]
+    assert (tree / "docs/runs/policy/eval.json").is_file()
+    assert not (tree / "mjxsysid/pretrained/cfm_seq.json").exists()
+
+
+@pytest.mark.slow
+def test_tiny_release_end_to_end(tmp_path, capsys):
+    """Every stage at CPU size through the CLI (minutes of compiles): the record, the shipped tree
+    (weights + provenance tied to the release, docs run files, regenerated pages), then a re-run
+    that has nothing to do."""
+    out = tmp_path / "rel"
+    rc, stdout, _ = _cli(capsys, "--out", out, "--tiny", "-q")
+    assert rc == 0, stdout
+    rec = json.loads((out / "release.json").read_text())
+    assert [rec["stages"][s.name]["status"] for s in STAGES] == ["done"] * len(STAGES)
+    ship = out / "ship"
+    for f in ("policy", "cfm", "regression", "cfm_seq"):
+        prov = json.loads((ship / "mjxsysid/pretrained" / f"{f}.json").read_text())
+        assert prov["release"]["dir"] == "rel" and prov["release"]["scale"] == "tiny"
+        assert (ship / "mjxsysid/pretrained" / f"{f}.npz").is_file()
+    assert "Fair comparisons" in (ship / "docs/fair_comparisons.md").read_text()
+    assert (ship / "docs/runs/tuning/tune_slow/results.json").is_file()
+    assert (ship / "docs/runs/decoders/seq_decoder_eval.json").is_file()
+    assert rec["stages"]["pairs"]["config"]["imu"]["randomize_imu"] is True      # the release config's IMU
+    rc, _, err = _cli(capsys, "--out", out, "-q")
+    assert rc == 0 and "stages run" not in err
+    assert json.loads((out / "release.json").read_text())["runs"] == rec["runs"]    # nothing ran again
