@@ -1,0 +1,115 @@
+"""Wall time against quality of policy-training configurations (issue 30): a table and a figure.
+
+    python tools/speed_table.py RUNS_DIR [RUNS_DIR ...] --reference shipped=EVAL.json --out docs/runs/benchmarks/speed
+
+Each run folder (as `tools/gpu_speed.sh` leaves them) holds ``policy.npz`` (its metadata: the
+config, wall time and, since issue 30, the phase timings), ``train.txt`` (the command's wall time,
+``command_wall_s``) and ``eval_fast/eval.json`` (``mjxsysid evaluate-policy --fast``). The
+``--reference`` evaluations (e.g. the shipped policy's, same command) are rows without a training.
+Writes OUT/speed.json, OUT/speed.md and OUT/speed.png (success and RMSE ratio against wall time).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+from pathlib import Path
+
+
+def run_row(d: Path) -> dict:
+    from mjxsysid.checkpoint import load_meta
+    meta = load_meta(d / "policy.npz")
+    cfg = meta["config"]
+    ev = json.loads((d / "eval_fast" / "eval.json").read_text())
+    m = re.search(r"command_wall_s (\d+) ms", (d / "train.txt").read_text()) if (d / "train.txt").exists() else None
+    sm = ev["summary"]
+    return {"name": d.name, "num_envs": cfg["num_envs"], "unroll": cfg["unroll"], "iterations": cfg["iterations"],
+            "epochs": cfg["epochs"], "minibatches": cfg["minibatches"], "seed": cfg["seed"],
+            "reset_per_unroll": cfg.get("reset_per_unroll", False),
+            "sensor_randomized": bool(cfg["env"].get("randomize_imu", False)),
+            "env_steps": meta.get("env_steps"), "updates": cfg["iterations"] * cfg["epochs"] * cfg["minibatches"],
+            "train_wall_s": meta.get("wall_s"), "command_wall_s": int(m.group(1)) / 1e3 if m else None,
+            "timing": meta.get("timing"), "device": meta.get("device"),
+            "success": sm["success_policy"], "rmse_ratio": sm["rmse_ratio"],
+            "r2_tw_cmds": sm["train_cmds"]["r2_thrust_to_weight"], "r2_tw_flight": sm["flight"]["r2_thrust_to_weight"]}
+
+
+def reference_row(name: str, path: Path) -> dict:
+    sm = json.loads(path.read_text())["summary"]
+    return {"name": name, "success": sm["success_policy"], "rmse_ratio": sm["rmse_ratio"],
+            "r2_tw_cmds": sm["train_cmds"]["r2_thrust_to_weight"], "r2_tw_flight": sm["flight"]["r2_thrust_to_weight"]}
+
+
+def fmt(x, spec):
+    return "—" if x is None else format(x, spec)
+
+
+def table(rows: list[dict]) -> str:
+    head = ("| run | envs × unroll × iterations | epochs × minibatches (updates) | episode starts | env steps | "
+            "training loop | command (compile, start-up incl.) | success | RMSE / oracle | R² T/W (cmds / flight) |\n"
+            "|---|---|---|---|---|---|---|---|---|---|\n")
+    out = []
+    for r in rows:
+        if "num_envs" not in r:
+            out.append(f"| {r['name']} | | | | | | | {r['success']:.1%} | {r['rmse_ratio']:.3f} | "
+                       f"{r['r2_tw_cmds']:.3f} / {r['r2_tw_flight']:.3f} |")
+            continue
+        out.append(f"| {r['name']} | {r['num_envs']} × {r['unroll']} × {r['iterations']} | {r['epochs']} × "
+                   f"{r['minibatches']} ({r['updates'] / 1e3:.0f} k) | "
+                   f"{'once per unroll' if r['reset_per_unroll'] else 'every step'} | {r['env_steps'] / 1e6:.0f} M | "
+                   f"{fmt(r['train_wall_s'], '.0f')} s | {fmt(r['command_wall_s'], '.0f')} s | {r['success']:.1%} | "
+                   f"{r['rmse_ratio']:.3f} | {r['r2_tw_cmds']:.3f} / {r['r2_tw_flight']:.3f} |")
+    return head + "\n".join(out) + "\n"
+
+
+def figure(rows: list[dict], path: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
+    for r in rows:
+        if r.get("command_wall_s") is None:
+            continue
+        for a, k in zip(ax, ("rmse_ratio", "success")):
+            a.plot(r["command_wall_s"], r[k], "o")
+            a.annotate(r["name"], (r["command_wall_s"], r[k]), fontsize=8, xytext=(4, 4), textcoords="offset points")
+    refs = [r for r in rows if r.get("command_wall_s") is None]
+    for i, r in enumerate(refs):
+        for a, k in zip(ax, ("rmse_ratio", "success")):
+            a.axhline(r[k], ls="--", c=f"C{7 + i % 3}", lw=1, label=r["name"])
+    ax[0].axhline(1.05, c="r", lw=1)
+    ax[0].set(xlabel="training command wall time (s, one H100, compile included)", ylabel="RMSE / oracle (lemniscate)",
+              title="tracking on the default prior (target ≤ 1.05)")
+    ax[1].axhline(0.99, c="r", lw=1)
+    ax[1].set(xlabel="training command wall time (s)", ylabel="success", title="success (target ≥ 99 %)")
+    for a in ax:
+        a.axvline(60, c="r", lw=1, ls=":")
+        if refs:
+            a.legend(fontsize=8, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("runs", type=Path, nargs="+")
+    ap.add_argument("--reference", action="append", default=[], metavar="NAME=EVAL.json")
+    ap.add_argument("--out", type=Path, required=True)
+    args = ap.parse_args()
+    rows = []
+    for spec in args.reference:
+        name, _, path = spec.partition("=")
+        rows.append(reference_row(name, Path(path)))
+    for d in args.runs:
+        if not (d / "policy.npz").is_file() or not (d / "eval_fast" / "eval.json").is_file():
+            raise SystemExit(f"{d}: expected policy.npz and eval_fast/eval.json (a tools/gpu_speed.sh run)")
+        rows.append(run_row(d))
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "speed.json").write_text(json.dumps(rows, indent=2) + "\n")
+    (args.out / "speed.md").write_text(table(rows))
+    figure(rows, args.out / "speed.png")
+    print(table(rows))
+
+
+if __name__ == "__main__":
+    main()
