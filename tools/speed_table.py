@@ -2,7 +2,8 @@
 
     python tools/speed_table.py RUNS_DIR [RUNS_DIR ...] --reference shipped=EVAL.json --out docs/runs/benchmarks/speed
 
-Each run folder (as `tools/gpu_speed.sh` leaves them) holds ``policy.npz`` (its metadata: the
+Each run folder (as `tools/gpu_speed.sh` leaves them) holds ``policy.npz`` (or its metadata alone as
+``policy_meta.json``, as kept in docs/runs) (its metadata: the
 config, wall time and, since issue 30, the phase timings), ``train.txt`` (the command's wall time,
 ``command_wall_s``) and ``eval_fast/eval.json`` (``mjxsysid evaluate-policy --fast``). The
 ``--reference`` evaluations (e.g. the shipped policy's, same command) are rows without a training.
@@ -17,8 +18,11 @@ from pathlib import Path
 
 
 def run_row(d: Path) -> dict:
-    from mjxsysid.checkpoint import load_meta
-    meta = load_meta(d / "policy.npz")
+    if (d / "policy.npz").is_file():
+        from mjxsysid.checkpoint import load_meta
+        meta = load_meta(d / "policy.npz")
+    else:   # runs kept in docs/runs without their weights: the metadata alone
+        meta = json.loads((d / "policy_meta.json").read_text())
     cfg = meta["config"]
     ev = json.loads((d / "eval_fast" / "eval.json").read_text())
     m = re.search(r"command_wall_s (\d+) ms", (d / "train.txt").read_text()) if (d / "train.txt").exists() else None
@@ -101,8 +105,10 @@ def main():
         name, _, path = spec.partition("=")
         rows.append(reference_row(name, Path(path)))
     for d in args.runs:
-        if not (d / "policy.npz").is_file() or not (d / "eval_fast" / "eval.json").is_file():
-            raise SystemExit(f"{d}: expected policy.npz and eval_fast/eval.json (a tools/gpu_speed.sh run)")
+        if not any((d / f).is_file() for f in ("policy.npz", "policy_meta.json")) or \
+                not (d / "eval_fast" / "eval.json").is_file():
+            raise SystemExit(f"{d}: expected policy.npz (or policy_meta.json) and eval_fast/eval.json "
+                             "(a tools/gpu_speed.sh run)")
         rows.append(run_row(d))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "speed.json").write_text(json.dumps(rows, indent=2) + "\n")
