@@ -171,16 +171,22 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
         rec = read_log(flight_or_log)
         th = None if truth is None else to_theta(truth)
         ref = resolve_policy(policy or "mjxsysid", weights)
-        zhat_t, times = log_latents(ref, rec, source=flight_or_log, checks=checks)
+        # The decoders first: the log's IMU noise is judged against what they were trained under.
+        cfm, reg = load_decoders(decoders, ref, allow_mismatch=allow_mismatch, warn=print)
+        seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=print,
+                                                                     allow_mismatch=allow_mismatch)
+        zhat_t, times = log_latents(ref, rec, source=flight_or_log, checks=checks,
+                                    imu_limit=_logcheck.imu_noise_limit(cfm, reg, seq))
     else:
         raise ValueError(f"decode takes a FlightResult of mjxsysid.fly or a flight-log path, "
                          f"got {type(flight_or_log).__name__}")
     if th is not None and np.shape(th) != (P.N_PARAMS,):
         raise ValueError(f"truth must be one vehicle, θ ({P.N_PARAMS},); got shape {np.shape(th)}")
     check_window(window, float(times[-1]))
-    cfm, reg = load_decoders(decoders, ref, allow_mismatch=allow_mismatch, warn=print)
-    seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=print,
-                                                                 allow_mismatch=allow_mismatch)
+    if not isinstance(flight_or_log, (str, Path)):
+        cfm, reg = load_decoders(decoders, ref, allow_mismatch=allow_mismatch, warn=print)
+        seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=print,
+                                                                     allow_mismatch=allow_mismatch)
     flight_checks(rec, decoders_prior(seq, cfm), checks)
     for f in checks["findings"]:
         _logcheck.warn(f)

@@ -206,6 +206,29 @@ def test_imu_noise_estimate_against_injected_levels(paper_log):
             assert len(found) == 1 and found[0].level == "warning" and "IMU noise" in found[0].message, (mult, found)
 
 
+def test_imu_noise_limit_follows_the_decoders_training(paper_log):
+    """The warning's limit is what the decoders' training pairs flew (their provenance): the
+    shipped decoders (pairs without IMU metadata, or a clean IMU) keep IMU_NOISE_LIMIT; decoders
+    trained on a randomised IMU up to gyro 0.05 / accelerometer 0.5 (white or vibration) raise it
+    there, so a × 3 log no longer warns; with several decoders the strictest limit holds."""
+    from types import SimpleNamespace as NS
+    lim = L.IMU_NOISE_LIMIT
+
+    def dec(imu):
+        return NS(meta={"data": {"pairs_meta": {} if imu is None else {"imu": imu}}})
+
+    clean = {"gyro_noise": 0.0, "accel_noise": 0.0, "gyro_vibration": 0.0, "accel_vibration": 0.0}
+    noisy = {"gyro_noise": 0.05, "accel_noise": 0.2, "gyro_vibration": 0.01, "accel_vibration": 0.5,
+             "randomize_imu": True}
+    assert L.imu_noise_limit() == lim and L.imu_noise_limit(None, dec(None)) == lim
+    assert L.imu_noise_limit(dec(clean)) == lim
+    assert L.imu_noise_limit(dec(noisy)) == {"gyro_noise": 0.05, "accel_noise": 0.5}
+    assert L.imu_noise_limit(dec(noisy), dec(clean)) == lim
+    rec = _with_white_noise(paper_log[0], 0.03, 0.3, seed=3)
+    assert [f.level for f in L.check_log(rec)].count("warning") >= 1
+    assert not [f for f in L.check_log(rec, imu_limit=L.imu_noise_limit(dec(noisy))) if "IMU noise" in f.message]
+
+
 def test_imu_noise_warning_reaches_every_output(paper_log, tmp_path, capsys):
     """× 5 the hardware-like white noise added to a correct log: `decode --log -q` says it on
     stderr, in summary.json (_checks.warnings and the estimates) and in summary.md. (Added after

@@ -37,7 +37,8 @@ from mjxsysid.progress import stages
 from mjxsysid.render.posterior import plot_decoded_over_time, plot_marginals
 from mjxsysid.render.video import render_rollout
 from mjxsysid.rollout.flight import fly_vehicles, make_reference, one_flight, seen_imu
-from mjxsysid.studies.logcheck import LogError, check_log, check_replay, estimate_vehicle, prior_check, warn
+from mjxsysid.studies.logcheck import (LogError, check_log, check_replay, estimate_vehicle, imu_noise_limit,
+                                       prior_check, warn)
 
 LOG_COLUMNS = ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "a_cmd", "omega_cmd_x",
                "omega_cmd_y", "omega_cmd_z", "motor_1", "motor_2", "motor_3", "motor_4")
@@ -365,15 +366,18 @@ def decode_posterior(zhat_t, times, truth=None, *, decoder, regression, rate: fl
     return dict(dec, theta_true=truth, summary=summary)
 
 
-def log_latents(policy, rec: dict, *, source="flight log", checks: dict | None = None):
+def log_latents(policy, rec: dict, *, source="flight log", checks: dict | None = None,
+                imu_limit: dict | None = None):
     """ẑ (T, 8) and times (T,) (s from the log's start, first step at 2 ms) of a flight log read
     by :func:`read_log`, rebuilt by the frozen ``policy`` (a name, path or PolicyRef).
 
     The log's physics is checked first (:func:`~mjxsysid.studies.logcheck.check_log`): a log
     that cannot be right raises :class:`~mjxsysid.studies.logcheck.LogError` (naming ``source``)
     before any replay; then the policy's own actions on the logged inputs are compared with the
-    logged motor commands. The findings (warnings) are appended to ``checks["findings"]``."""
-    found = check_log(rec)
+    logged motor commands. The findings (warnings) are appended to ``checks["findings"]``.
+    ``imu_limit``: the IMU noise the decoders are calibrated under
+    (:func:`~mjxsysid.studies.logcheck.imu_noise_limit`; default its shipped decoders' limit)."""
+    found = check_log(rec, imu_limit=imu_limit)
     if any(f.level == "error" for f in found):
         raise LogError(source, found)
     ctrl = resolve_policy(policy).load()
@@ -501,7 +505,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     flight = None
     checks = {}
     if log is not None:
-        zhat_t, times = log_latents(ref, rec, source=log, checks=checks)
+        zhat_t, times = log_latents(ref, rec, source=log, checks=checks, imu_limit=imu_noise_limit(cfm, reg, seq))
         truth = None if truth is None else np.asarray(truth, np.float32)
     else:
         flight, _, _ = fly_vehicles(theta, controller="policy", policy=ref, reference=reference,

@@ -186,18 +186,20 @@ def rotor_order_fit(rec: dict) -> dict:
 
 
 # -------------------------------------------------------------------------------- checks
-def check_log(rec: dict, *, policy=None, zhat=None) -> list[Finding]:
+def check_log(rec: dict, *, policy=None, zhat=None, imu_limit: dict | None = None) -> list[Finding]:
     """Physical plausibility of a flight log read by
     [read_log][mjxsysid.studies.decode.read_log] (``rec``: t, imu (T, 6), a_cmd, omega_cmd (T, 3),
     motor (T, 4)). ``policy``: the loaded latent policy being decoded, and ``zhat`` (T, 8) its
     replay of the log (both optional): then the policy's own actions on the logged inputs are
-    compared with the logged motor commands. -> findings, errors first."""
+    compared with the logged motor commands. ``imu_limit``: the IMU noise the decoders are
+    calibrated under (:func:`imu_noise_limit`; default :data:`IMU_NOISE_LIMIT`). -> findings,
+    errors first."""
     out = []
     out += _check_specific_force(rec)
     out += _check_gyro(rec)
     if not any(f.level == "error" for f in out):   # the dynamics checks need sane units
         out += _check_motors(rec)
-        out += check_imu_noise(rec)
+        out += check_imu_noise(rec, imu_limit)
         if policy is not None and zhat is not None and hasattr(policy, "replay_actions"):
             out += check_replay(rec, policy, zhat)
     return sorted(out, key=lambda f: f.level != "error")
@@ -303,6 +305,27 @@ and accelerometer 0.05 m/s²; at twice that (0.01 / 0.1, the tuning experiment's
 simulator) their 90 % intervals cover the truth as often as on clean flights, at four times that the
 angular authorities' coverage falls 6–10 points, at ten times 25 (docs/noise.md): the limit lies
 between, at three times. Correct logs of the prior read at most 0.008 rad/s (docs/decoding.md)."""
+
+
+def imu_noise_limit(*decoders) -> dict:
+    """The IMU noise past which a log is flagged, for these decoders (objects with a ``meta``
+    dict, as :func:`~mjxsysid.cfm.load.load_decoders` returns; None entries skipped): the IMU their
+    training pairs flew (``meta['data']['pairs_meta']['imu']``, recorded by ``collect``) where it
+    reaches past :data:`IMU_NOISE_LIMIT` — white noise or rotor vibration, the larger, per sensor;
+    with ``randomize_imu`` those are the maxima of the per-flight levels — else
+    :data:`IMU_NOISE_LIMIT`. Several decoders: the strictest (the smallest limit)."""
+    limits = []
+    for d in decoders:
+        imu = ((getattr(d, "meta", None) or {}).get("data") or {}).get("pairs_meta", {}).get("imu")
+        if not imu:
+            limits.append(dict(IMU_NOISE_LIMIT))
+            continue
+        trained = {"gyro_noise": max(float(imu.get("gyro_noise", 0.0)), float(imu.get("gyro_vibration", 0.0))),
+                   "accel_noise": max(float(imu.get("accel_noise", 0.0)), float(imu.get("accel_vibration", 0.0)))}
+        limits.append({k: max(IMU_NOISE_LIMIT[k], trained[k]) for k in IMU_NOISE_LIMIT})
+    if not limits:
+        return dict(IMU_NOISE_LIMIT)
+    return {k: min(lim[k] for lim in limits) for k in IMU_NOISE_LIMIT}
 
 
 def estimate_imu_noise(rec: dict) -> dict:
