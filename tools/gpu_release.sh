@@ -6,8 +6,11 @@
 # device tool returns at most 8 files of 16 MiB), so what finished comes back even if a later group
 # is cut off at the call's time limit (BUDGET_S, default 585 s, shared by the groups).
 #   bash tools/gpu_release.sh runs/release policy pairs,decoders seq_pairs,seq_decoder decoder_eval
+# The device's checkout sits on the session's base commit: give the code's commit on the command
+# line (MJXSYSID_COMMIT=$(git rev-parse HEAD) evaluated here, before the call) for the record.
 set -uo pipefail
 export PYTHONPATH=$PWD/.site:$PWD PYTHONUNBUFFERED=1
+[ -n "${MJXSYSID_COMMIT:-}" ] || echo "note: MJXSYSID_COMMIT not set: the record's commit will be the device checkout's base (+dirty)"
 OUT=${OUT:-/tmp/out}; R=${1:?usage: gpu_release.sh RELEASE_DIR GROUP...}; shift
 mkdir -p "$OUT" "$R"
 pack() {
