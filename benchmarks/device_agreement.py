@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
 import sys
 from pathlib import Path
@@ -28,6 +27,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _bench import write_json
 
 
 def rel_diff(a, b) -> float:
@@ -109,9 +109,7 @@ def main():
           f"({d1} vs {d2} devices) | after {args.seconds:g} s: devices {res['final_rel_diff_devices']:.2e}, "
           f"one-ulp θ {res['final_rel_diff_one_ulp']:.2e} | vehicles differing {res['vehicles_differing_devices']}"
           f"/{args.vehicles}", flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(res, indent=2) + "\n")
-    print(f"wrote {args.out}", file=sys.stderr)
+    write_json(args.out, res)
     return 0
 
 

@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
 import platform
 import sys
@@ -38,16 +37,12 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from _bench import wall_times, write_json
 
 
 def best_of(fn, repeats: int) -> float:
     """Minimum wall time (s) of ``fn()`` (which blocks on its result) over ``repeats`` calls."""
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t)
-    return min(times)
+    return min(wall_times(fn, repeats))
 
 
 def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
@@ -163,9 +158,7 @@ def main():
                   f"{weak['env_steps_per_s'] / 1e6:8.3f} M env-steps/s | "
                   f"throughput ×{res[name]['weak']['throughput_ratio']:.2f}", flush=True)
     if jax.process_index() == 0:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(res, indent=2) + "\n")
-        print(f"wrote {args.out}", file=sys.stderr)
+        write_json(args.out, res)
     return 0
 
 

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import os
 import platform
 import sys
@@ -35,16 +34,12 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _bench import wall_times, write_json
 
 
 def median_time(fn, repeats: int) -> float:
     """Median wall time (s) of ``fn()`` (which blocks) over ``repeats`` calls."""
-    ts = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return float(np.median(ts))
+    return float(np.median(wall_times(fn, repeats)))
 
 
 def parse_config(text: str) -> dict:
@@ -171,9 +166,7 @@ def main():
         for k in [k for k in m if k != "iteration"]:
             print(f"  {k:22s} {m[k]:9.2f} ms  {m[k] / it * 100:6.1f} %")
         print(f"  host round trip        {r['host_round_trip_ms']:9.2f} ms per iteration", flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(res, indent=2) + "\n")
-    print(f"wrote {args.out}", file=sys.stderr)
+    write_json(args.out, res)
 
 
 if __name__ == "__main__":

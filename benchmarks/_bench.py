@@ -1,0 +1,25 @@
+"""Helpers shared by the benchmark scripts (run as ``python benchmarks/NAME.py``: this folder is
+on ``sys.path``)."""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+
+def wall_times(fn, repeats: int) -> list[float]:
+    """Wall times (s) of ``repeats`` calls of ``fn()`` (which blocks on its result)."""
+    out = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t)
+    return out
+
+
+def write_json(path: Path, res: dict) -> None:
+    """Write a benchmark's result JSON (creating its folder) and say so on stderr."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(res, indent=2) + "\n")
+    print(f"wrote {path}", file=sys.stderr)
