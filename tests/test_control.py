@@ -237,9 +237,28 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
     assert s["oracle"]["prior_vehicles"]["success_rate"] == 1.0
     assert s["policy"]["paper_vehicle"]["pos_rmse_m"] < 0.05
     assert sum(s["paper_vehicle_posterior"][n]["inside"] for n in P.PARAM_NAMES) >= 15
+    # the flight-level posterior (shipped cfm_seq.npz) beside the instant one: all latents at 10 s
+    assert s["flight_level"]["available"] and s["flight_level"]["n_latents"] == 99
+    fl = s["paper_vehicle_posterior_flight"]["thrust_to_weight"]
+    assert np.isfinite([fl["q05"], fl["q95"]]).all() and fl["q05"] < fl["q95"] and "inside" in fl
+    assert "flight-level: mean" in (out / "summary.md").read_text()
     for f in ("tracking.png", "oracle_vs_nominal.png", "summary.md", "flight.npz", "marginals.png",
               "decoded_over_time.png"):
         assert (out / f).exists(), f
+    assert "samples_window" in np.load(out / "decoded.npz")
+
+
+def test_demo_without_sequence_decoder_says_flight_level_unavailable():
+    """A policy without cfm_seq.npz: the demo's summary and figure say the flight-level posterior
+    is unavailable (the demo itself runs instant-only; test_demo_runs covers the shipped one)."""
+    from mjxsysid.policy.interface import resolve_policy
+    from mjxsysid.studies.decode import every_times
+    from mjxsysid.studies.demo import decoded_caption, flight_level_info
+    info = flight_level_info({}, None, resolve_policy("mjxsysid"))
+    assert not info["available"] and "unavailable" in info["note"] and "unavailable" in decoded_caption(info)
+    t = 0.2 + 0.1 * np.arange(99)
+    np.testing.assert_allclose(every_times(t, 0.5), np.r_[0.2, np.arange(1, 21) * 0.5], atol=1e-9)
+    np.testing.assert_allclose(every_times(np.array([0.2, 10.0]), 0.5), [0.2, 10.0])
 
 
 def test_fly_vehicles_takes_one_force_step_per_vehicle():

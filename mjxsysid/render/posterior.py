@@ -10,41 +10,68 @@ import numpy as np
 from mjxsysid import params as P
 
 
-def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-level", title: str | None = None):
+IDENTIFIABLE_LABELS = {"thrust_to_weight": "thrust-to-weight 4 k_t Ω_max² / (m g)  [–]",
+                       "torque_ratio": "torque ratio κ = k_τ / k_t  [m]",
+                       "angular_authority[0]": "roll authority l k_t Ω_max² / J_x  [rad/s²]",
+                       "angular_authority[1]": "pitch authority l k_t Ω_max² / J_y  [rad/s²]",
+                       "angular_authority[2]": "yaw authority l k_t Ω_max² / J_z  [rad/s²]"}
+
+
+def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-level", title: str | None = None,
+                           caption: str | None = None):
     """ẑ and the identifiable combinations (median, 5–95 % band) over time: the single-latent
-    (instant) posterior and, if decoded, the window's (flight-level) one; ``title`` above all."""
+    (instant) posterior and, if decoded, the window's (flight-level) one (at its own decode
+    times ``times_window`` when given); ``title`` above all in red (a warning), ``caption``
+    below it in black (what the bands are)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
     t = dec["times"]
+    tw = dec.get("times_window", t)
     ident = np.asarray(P.identifiable(dec["samples"]))  # (K, S, 5)
     identw = np.asarray(P.identifiable(dec["samples_window"])) if "samples_window" in dec else None
-    fig, ax = plt.subplots(2, 3, figsize=(14, 6.5))
+    fig, ax = plt.subplots(2, 3, figsize=(14, 7.2))
     ax = ax.flat
-    ax[0].plot(t, dec["zhat"])
-    ax[0].set_title("latent ẑ (8 dims)")
+    ax[0].plot(t, dec["zhat"], lw=1)
+    ax[0].set_title("policy latent ẑ (8 dims, read at 10 Hz)", fontsize=10)
+    reg = np.asarray(P.identifiable(dec["regression"]))
+    mark = dict(marker="o", ms=3) if identw is not None and len(tw) < len(t) else {}
     for j, n in enumerate(P.IDENTIFIABLE_NAMES):
         a = ax[j + 1]
         lo, med, hi = np.percentile(ident[:, :, j], [5, 50, 95], 1)
-        a.fill_between(t, lo, hi, alpha=0.25, color="tab:blue", label="instant 5–95 %")
-        a.plot(t, med, color="tab:blue", label="instant median")
+        a.fill_between(t, lo, hi, alpha=0.2, color="tab:blue", lw=0, label="instant p(θ | ẑ(t)) 5–95 %")
+        a.plot(t, med, color="tab:blue", lw=1.2, label="instant median")
         if identw is not None:
             lo, med, hi = np.percentile(identw[:, :, j], [5, 50, 95], 1)
-            a.fill_between(t, lo, hi, alpha=0.35, color="tab:green", label=f"{window_label} 5–95 %")
-            a.plot(t, med, color="tab:green", label=f"{window_label} median")
-        a.plot(t, np.asarray(P.identifiable(dec["regression"]))[:, j], "--", label="regression")
+            a.fill_between(tw, lo, hi, alpha=0.3, color="tab:green", lw=0, label=f"{window_label} 5–95 %")
+            a.plot(tw, lo, color="tab:green", lw=0.8, ls=":")
+            a.plot(tw, hi, color="tab:green", lw=0.8, ls=":")
+            a.plot(tw, med, color="darkgreen", lw=1.8, label=f"{window_label} median", **mark)
+        a.plot(t, reg[:, j], "--", color="tab:orange", lw=1, label="regression (point)")
         if truth is not None:
-            a.axhline(float(np.asarray(P.identifiable(truth))[j]), color="k", label="true")
-        a.set_title(n)
+            a.axhline(float(np.asarray(P.identifiable(truth))[j]), color="k", lw=1.5, label="true")
+        a.set_title(IDENTIFIABLE_LABELS.get(n, n), fontsize=10)
         if n != "torque_ratio":
             a.set_yscale("log")
+            lo_, hi_ = a.get_ylim()
+            if hi_ / lo_ < 30:   # within about a decade: plain numbers 1–9 × 10^k (not 3×10²)
+                a.yaxis.set_major_locator(LogLocator(subs=np.arange(1.0, 10.0)))
+                a.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+                a.yaxis.set_minor_formatter(NullFormatter())
     for a in ax:
         a.set_xlabel("time (s)")
         a.grid(alpha=0.3)
-    ax[1].legend(fontsize=8)
+    handles, labels = ax[1].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=9, frameon=False)
+    top = 0.97
     if title:
-        fig.suptitle(title, color="tab:red")
-    fig.tight_layout()
+        fig.suptitle(title, color="tab:red", y=0.995)
+        top = 0.93
+    if caption:
+        fig.text(0.5, top, caption, ha="center", va="top", fontsize=9.5, wrap=True)
+        top -= 0.045 * (caption.count("\n") + 1)
+    fig.tight_layout(rect=(0, 0.05, 1, top))
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path

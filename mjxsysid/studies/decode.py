@@ -288,16 +288,28 @@ def window_bounds(latent_times, report_times, window):
     return starts, ends
 
 
+def every_times(times, every: float) -> np.ndarray:
+    """Of the increasing decode ``times`` (K,), those nearest each multiple of ``every`` s within
+    them, the first and last included (unique, increasing)."""
+    times = np.asarray(times)
+    grid = np.arange(np.ceil(times[0] / every - 1e-6), np.floor(times[-1] / every + 1e-6) + 1) * every
+    near = np.abs(times[None, :] - grid[:, None]).argmin(1) if grid.size else np.zeros(0, int)
+    return times[np.unique(np.concatenate([[0, len(times) - 1], near]))]
+
+
 def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, decoder=None,
                    regression=None, start: float = N.HISTORY * 0.002, window="instant", seq_decoder=None,
-                   max_decodes: int | None = MAX_DECODES):
+                   max_decodes: int | None = MAX_DECODES, window_every: float | None = None):
     """Decode ẑ (T, 8) sampled at ``rate`` Hz after ``start`` s — at most ``max_decodes`` times
     (evenly spaced, the last included; None: no limit). Returns dict with times (K,), zhat (K, 8),
     samples (K, S, 19) physical (single latent), regression (K, 19) physical, decode_rate_hz ().
     Decoders default to the shipped ones of mjxsysid's policy. With a ``window`` other than
     'instant' and a ``seq_decoder``: also samples_window (K, S, 19), the flight-level posterior
     given the latents at the sequence decoder's rate (10 Hz) in the window, and n_window (K,),
-    the number of latents in it. The windows are encoded incrementally
+    the number of latents in it, at the decode times times_window (K,) — all of them, or with
+    ``window_every`` (s) only those nearest each multiple of it, the first and last included
+    (the window's posterior sampled in one batch at fewer times: what the demo does). The
+    windows are encoded incrementally
     (:meth:`~mjxsysid.cfm.sequence.SequenceDecoder.encode_flight`): time and memory grow
     linearly with the flight."""
     if not rate > 0:
@@ -306,6 +318,8 @@ def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, d
         raise ValueError(f"--samples must be >= 2, got {samples}")
     if max_decodes is not None and max_decodes < 1:
         raise ValueError(f"max_decodes must be >= 1, got {max_decodes}")
+    if window_every is not None and not window_every > 0:
+        raise ValueError(f"window_every must be > 0 s, got {window_every}")
     window = parse_window(window)
     times = np.asarray(times)
     idx = decode_indices(times, rate, start)
@@ -322,7 +336,9 @@ def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, d
            "decode_rate_hz": np.float64(rate_used)}
     if window != "instant" and seq_decoder is not None:
         lidx = decode_indices(times, float(seq_decoder.meta.get("traj_rate_hz", 10.0)), start)
-        starts, ends = window_bounds(times[lidx], out["times"], window)
+        wt = out["times"] if window_every is None else every_times(out["times"], window_every)
+        out["times_window"] = wt
+        starts, ends = window_bounds(times[lidx], wt, window)
         # Past the longest window the decoder was trained on (max_len latents) every latent still
         # enters the pooled features and the count feature saturates: calibrated on 60 s flights
         # (docs/runs/flight_logs/long_flight_calibration.json; a sliding window of trained length was the
