@@ -544,6 +544,28 @@ def xadap_training_prior(**overrides) -> XAdapPrior:
 
 
 XADAP_PRIOR = XAdapPrior()
+def widened_prior(prior: Prior, amount: float, name: str | None = None) -> Prior:
+    """``prior`` widened by ``amount`` (natural-log units) in every direction, knowing nothing of
+    where a policy is weak: every sampled range (arm length, κ, drag noise, thrust-to-weight, η,
+    τ_m) moves out by a factor e^amount at both ends (lo e^−a, hi e^a; η's upper end and the drag
+    noise's stay below 2 so the draws remain physical) and the external-torque scales grow by
+    e^a. The flyability limits (``twr_min_eff``, ``twr_max_eff``) stay: every draw can still fly.
+    The fair control of issue 28 (``experiments.probe_loop``, variant ``widened``)."""
+    if not (np.isfinite(amount) and amount >= 0):
+        raise ValueError(f"widened_prior: amount must be a finite number >= 0 (log units), got {amount}")
+    f = float(np.exp(amount))
+
+    def wide(r, cap=None):
+        lo, hi = r[0] / f, r[1] * f
+        return (lo, min(hi, cap) if cap is not None else hi)
+
+    return dataclasses.replace(
+        prior, name=name or f"{prior.name}_widened_{amount:.2f}", arm=wide(prior.arm), kappa=wide(prior.kappa),
+        drag_noise=wide(prior.drag_noise, 1.99), twr=wide(prior.twr), eta=wide(prior.eta, 1.99),
+        motor_time_constant=wide(prior.motor_time_constant), ext_torque_xy=prior.ext_torque_xy * f,
+        ext_torque_z=prior.ext_torque_z * f)
+
+
 PRIORS = {"default": DEFAULT_PRIOR, "slow_actuators": SLOW_ACTUATOR_PRIOR, "wide_actuators": WIDE_ACTUATOR_PRIOR,
           "xadap": XADAP_PRIOR, "stress": STRESS_PRIOR,
           "stress_wide": STRESS_WIDE_PRIOR}

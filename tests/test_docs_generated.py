@@ -40,7 +40,7 @@ def test_probing_page_quotes_the_probe_loop_run():
     r = json.loads((ROOT / "docs" / "runs" / "probing" / "probe_loop" / "results.json").read_text())["numbers"]
     text = (ROOT / "docs" / "probing.md").read_text()
     names = {"given": "given (shipped)", "probed": "probed, round 1", "probed2": "probed, round 2",
-             "probed3": "probed, round 3", "uniform": "uniform widening (control)"}
+             "probed3": "probed, round 3", "uniform": "stress-prior draws (control that knows the test)"}
     rows = {line.split("|")[1].strip(): line for line in text.splitlines() if line.startswith("| ")}
     for p, ev in r["evaluation"].items():
         row = rows[names[p]]

@@ -27,7 +27,8 @@ def add_experiment(sub) -> None:
                          "steady_rotor_state, true_rotor_state, baseline_start, protect, apply_best, "
                          "cem_3_iterations, horizon_1s (tune-*: see docs/fair_comparisons.md), no_lead_in "
                          "(tune-lemniscate), single_latent (robustness: the paper's single-latent CFM), accumulate "
-                         "(probe-loop: each round fine-tunes the current policy on a re-scored replay buffer)")
+                         "(probe-loop: each round fine-tunes the current policy on a re-scored replay buffer), widened "
+                         "(probe-loop: a fair control on the default prior widened by the probe's reach, same budget)")
     ex.add_argument("--methods", default=None, metavar="M1,M2",
                     help="tune-*: the methods to fly (default: the experiment's own; naive, baseline, cfm, "
                          "nominal_cem, oracle_cem)")

@@ -90,9 +90,14 @@ class LoopConfig:
     decoder: tuple = ()
     accumulate: bool = False
     replay_draws: int = 4096
+    widened: bool = False
 
 
-VARIANTS = ("accumulate",)
+VARIANTS = ("accumulate", "widened")
+"""``accumulate``: each round fine-tunes the current policy on a re-scored replay buffer;
+``widened``: a second control, the default prior widened in every direction by as far as the
+probe reached (:func:`probe_reach`, :func:`mjxsysid.params.widened_prior`), trained with the
+probed policy's whole budget (issue 28's fair control: it knows nothing of where the policy is weak)."""
 FULL = LoopConfig()
 QUICK = LoopConfig(vehicles=8, period=5.0, control_systems=64, probe=ProbeConfig.quick(),
                    train=(("iterations", 4), ("num_envs", 64), ("unroll", 16), ("epochs", 2), ("minibatches", 4),
@@ -100,14 +105,54 @@ QUICK = LoopConfig(vehicles=8, period=5.0, control_systems=64, probe=ProbeConfig
                    latent_vehicles=64, pairs=(256, 64), collect_steps=150, decoder=(("epochs", 2), ("width", 64), ("blocks", 2)))
 
 
-def train_config(cfg: LoopConfig, seed: int, focus=None, init_from=None) -> TrainConfig:
+def train_config(cfg: LoopConfig, seed: int, focus=None, init_from=None, iterations: int | None = None) -> TrainConfig:
     """What every policy of the loop is trained with: the shipped TrainConfig with ``cfg.train``'s
     overrides, ``seed``, and a fraction ``cfg.focus_weight`` of episodes on the systems of the
-    weak-system file ``focus``; ``init_from``: the policy.npz it starts from (None: afresh)."""
+    weak-system file ``focus``; ``init_from``: the policy.npz it starts from (None: afresh);
+    ``iterations``: another length than the config's (the widened control's whole budget)."""
+    over = {} if iterations is None else {"iterations": int(iterations)}
     base = TrainConfig.from_dict({**TrainConfig().to_dict(), **dict(cfg.train), "seed": seed,
                                   "focus": None if focus is None else str(focus),
-                                  "init_from": None if init_from is None else str(init_from)})
+                                  "init_from": None if init_from is None else str(init_from), **over})
     return dataclasses.replace(base, env=dataclasses.replace(base.env, focus_weight=cfg.focus_weight))
+
+
+REACH_QUANTILE = 0.05
+"""Systems' tails (5 % and 95 %) that :func:`probe_reach` compares with the prior's extremes."""
+
+
+def _ident_log(theta) -> np.ndarray:
+    """log T/W, log κ, log angular authorities (3), log τ_m of θ (n, 19) -> (n, 6)."""
+    theta = np.asarray(theta, np.float64)
+    return np.log(np.concatenate([np.asarray(P.identifiable(theta), np.float64), theta[:, P.TAU_M, None]], -1))
+
+
+def probe_reach(systems, prior="default", n: int = 20_000, seed: int = 0) -> dict:
+    """How far (natural-log units) the probe's systems (n, 19) reach past ``prior`` along what a
+    flight reveals — log thrust-to-weight, log κ, log angular authorities, log τ_m: per quantity the
+    larger of (the prior's minimum − the systems' 5 % quantile) and (their 95 % quantile − the
+    prior's maximum), 0 where they stay inside; ``amount``: the largest, the widening of
+    :func:`mjxsysid.params.widened_prior` for the fair control."""
+    systems = np.asarray(systems, np.float64)
+    if systems.ndim != 2 or systems.shape[1] != P.N_PARAMS or len(systems) == 0:
+        raise ValueError(f"probe_reach: systems must have shape (n, {P.N_PARAMS}), n >= 1; got {systems.shape}")
+    ref = _ident_log(P.get_prior(prior).sample(jax.random.PRNGKey(seed), n))
+    got = _ident_log(systems)
+    lo = ref.min(0) - np.quantile(got, REACH_QUANTILE, axis=0)
+    hi = np.quantile(got, 1 - REACH_QUANTILE, axis=0) - ref.max(0)
+    per = np.maximum(0.0, np.maximum(lo, hi))
+    names = ("thrust_to_weight", "torque_ratio", "angular_authority[0]", "angular_authority[1]",
+             "angular_authority[2]", "motor_time_constant")
+    return {"per_quantity": dict(zip(names, per.tolist())), "amount": float(per.max()), "systems": len(systems)}
+
+
+def control_budget(cfg: LoopConfig, base: TrainConfig, given_weights) -> tuple[int, str | None]:
+    """(iterations, init_from) of the widened control: the last probed policy's whole training —
+    ``rounds`` fine-tunes of ``base.iterations`` from the given policy (``accumulate``), or one
+    training of ``base.iterations`` from scratch."""
+    if cfg.accumulate:
+        return base.iterations * cfg.rounds, str(given_weights)
+    return base.iterations, None
 
 
 def evaluate_on(policy, theta, *, period: float, seed: int = 0) -> dict:
@@ -226,10 +271,10 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     out = Path(out)
     log = (lambda m: print(m, file=sys.stderr, flush=True)) if progress else (lambda m: None)
     cfg = cfg or (QUICK if quick else FULL)
-    if variant is not None:
-        if variant not in VARIANTS:
-            raise ValueError(f"probe-loop: unknown variant {variant!r}; choose from {VARIANTS}")
-        cfg = dataclasses.replace(cfg, accumulate=True)
+    for v in ([] if variant is None else [x.strip() for x in str(variant).split(",") if x.strip()]):
+        if v not in VARIANTS:
+            raise ValueError(f"probe-loop: unknown variant {v!r}; choose from {VARIANTS}")
+        cfg = dataclasses.replace(cfg, **{v: True})
     if cfg.replay_draws < 1:
         raise ValueError(f"replay_draws must be >= 1, got {cfg.replay_draws}")
     if not 0.0 < cfg.focus_weight <= 1.0:
@@ -237,9 +282,9 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     if cfg.rounds < 1:
         raise ValueError(f"rounds must be >= 1, got {cfg.rounds}")
     ref = resolve_policy(policy or "mjxsysid")
-    if cfg.accumulate and ref.kind != "mjxsysid":
-        raise ValueError(f"probe-loop --variant accumulate fine-tunes the given policy: it must be an mjxsysid "
-                         f"policy, got {ref.kind}")
+    if (cfg.accumulate or cfg.widened) and ref.kind != "mjxsysid":
+        raise ValueError(f"probe-loop --variant accumulate/widened trains from or beside the given policy: it must be "
+                         f"an mjxsysid policy, got {ref.kind}")
     cfg_dict = to_jsonable({"quick": quick, "seed": seed, "policy": ref.label, "policy_sha256": ref.sha256(),
                             "decoders": None if decoders is None else str(decoders), **dataclasses.asdict(cfg)})
     out.mkdir(parents=True, exist_ok=True)
@@ -249,11 +294,12 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     base = train_config(cfg, seed)
     refs, ev, probes, calib, replay = {"given": ref}, {}, {}, {}, {}
 
-    def trained(name: str, focus: Path, init_from=None):
+    def trained(name: str, focus: Path, init_from=None, iterations=None):
         def _train():
-            log(f"probe-loop: training the {name} policy ({base.iterations} iterations, {cfg.focus_weight:.0%} of "
+            tc = train_config(cfg, seed, focus, init_from, iterations)
+            log(f"probe-loop: training the {name} policy ({tc.iterations} iterations, {cfg.focus_weight:.0%} of "
                 f"episodes on {focus.name}{'' if init_from is None else ', from ' + str(init_from)})")
-            return train(train_config(cfg, seed, focus, init_from), out / name, log=log)["wall_s"]
+            return train(tc, out / name, log=log)["wall_s"]
         stage(f"train_{name}", _train)
         refs[name] = resolve_policy(out / name / "policy.npz")
         ev[name] = stage(f"eval_{name}", lambda: eval_sets(refs[name], cfg, seed))
@@ -305,6 +351,16 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     stress = np.asarray(P.get_prior("stress").sample(jax.random.PRNGKey(seed + 29), cfg.control_systems))
     save_weak(out / "uniform_stress.npz", stress, meta={"found_by": "uniform draws of the stress prior (control)"})
     trained("uniform", out / "uniform_stress.npz")
+    reach = None
+    if cfg.widened:   # the fair control: as far as the probe reached, in every direction, with the same budget
+        reach = stage("probe_reach", lambda: probe_reach(np.concatenate(weak_sets), seed=seed))
+        wide = P.widened_prior(P.DEFAULT_PRIOR, reach["amount"])
+        draws = np.asarray(wide.sample(jax.random.PRNGKey(seed + 31), cfg.control_systems))
+        save_weak(out / "widened_default.npz", draws,
+                  meta={"found_by": f"uniform draws of the default prior widened by {reach['amount']:.3f} (log) in every "
+                                    "direction: the probe's reach (fair control)"})
+        iters, init = control_budget(cfg, base, ref.weights)
+        trained("widened", out / "widened_default.npz", init_from=init, iterations=iters)
     on_weak = {r: {p: stage(f"weak_{p}" if r == 1 else f"weak{r}_{p}",
                             lambda p=p, r=r: on_weak_systems(refs[p], weak_sets[r - 1], probe_cfg)) for p in refs}
                for r in range(1, cfg.rounds + 1)}
@@ -314,6 +370,8 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     final = _pname(cfg.rounds)
     numbers = {"evaluation": ev, "final_policy": final, "probes": {r: _probe_summary(p) for r, p in probes.items()},
                "calibration": calib, "on_weak_systems": on_weak, "stage_wall_s": stage.wall}
+    if reach is not None:
+        numbers["probe_reach"] = reach
     if replay:
         numbers["replay"] = {r: {k: v for k, v in rec.items() if k != "badness"} for r, rec in replay.items()}
     numbers["headline"] = {f"{p}_{s}_rmse_ratio": ev[p][s]["rmse_ratio"] for p in ev for s in ("default", "stress")}
@@ -341,6 +399,8 @@ def _targets(ev: dict, final: str, calib: dict | None) -> dict:
          "probed_beats_uniform_on_stress": _ratio(pr["stress"]) < _ratio(un["stress"]),
          "default_success_ge_0.99": pr["default"]["success_policy"] >= 0.99,
          "default_rmse_le_1.05x_oracle": _ratio(pr["default"]) <= 1.05}
+    if "widened" in ev:
+        t["probed_beats_widened_on_stress"] = _ratio(pr["stress"]) < _ratio(ev["widened"]["stress"])
     if pr.get("latent"):
         t["default_twr_r2_ge_0.9"] = pr["latent"]["r2_thrust_to_weight"] >= 0.9
     if calib:
@@ -353,7 +413,9 @@ def _label(p: str, given: str) -> str:
     if p == "given":
         return f"given ({given})"
     if p == "uniform":
-        return "uniform widening (control)"
+        return "stress-prior draws (control that knows the test)"
+    if p == "widened":
+        return "default prior widened by the probe's reach (fair control, same budget)"
     r = 1 if p == "probed" else int(p[len("probed"):])
     return f"probed + retrained, round {r}"
 
