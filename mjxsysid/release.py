@@ -453,10 +453,12 @@ def _imu_config(rel: Release):
     env = (load_meta(rel.policy_path).get("config") or {}).get("env", {})
     if not env.get("randomize_imu"):
         return SimConfig(), ""
-    keys = ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias", "gyro_vibration", "accel_vibration")
+    keys = ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias", "gyro_vibration", "accel_vibration",
+            "imu_clean_fraction")
     cfg = SimConfig(**{k: float(env.get(k, 0.0)) for k in keys}, randomize_imu=True)
     flags = (f" --imu-noise {cfg.gyro_noise:g} {cfg.accel_noise:g} --imu-bias {cfg.gyro_bias:g} {cfg.accel_bias:g}"
-             f" --imu-vibration {cfg.gyro_vibration:g} {cfg.accel_vibration:g} --randomize-imu")
+             f" --imu-vibration {cfg.gyro_vibration:g} {cfg.accel_vibration:g} --randomize-imu"
+             + (f" --imu-clean-fraction {cfg.imu_clean_fraction:g}" if cfg.imu_clean_fraction else ""))
     return cfg, flags
 
 

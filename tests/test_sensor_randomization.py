@@ -48,6 +48,30 @@ def test_collect_flags():
         collect("unused", n_train=1, n_test=1, sim_config={"gyro_noise": 0.05})
 
 
+def test_a_share_of_clean_flights():
+    """imu_clean_fraction: that share of the per-flight draws has a clean IMU (both levels 0, so no
+    bias either), the rest draw as before; a bad share or one without randomize_imu is an error
+    naming it, in the simulator and in `collect`'s flags."""
+    import jax
+    from mjxsysid import params as P
+    from mjxsysid.sim import Quadrotor
+    sim = Quadrotor(SimConfig(**RANGE, imu_clean_fraction=0.3))
+    keys = jax.random.split(jax.random.PRNGKey(0), 1000)
+    st = jax.jit(jax.vmap(lambda k: sim.init(P.PAPER_HARDWARE, k)))(keys)
+    level, bias = np.asarray(st.imu_level), np.asarray(st.imu_bias)
+    clean = np.all(level == 0, 1)
+    assert 0.25 < clean.mean() < 0.35, clean.mean()
+    assert np.all(bias[clean] == 0) and level[~clean].min() > 0 and level[~clean].max() < 1
+    for bad in (dict(RANGE, imu_clean_fraction=1.5), dict(gyro_noise=0.05, imu_clean_fraction=0.3)):
+        with pytest.raises(ValueError, match="imu_clean_fraction"):
+            SimConfig(**bad)
+    args = argparse.Namespace(imu_noise=(0.05, 0.5), imu_bias=(0.025, 0.25), imu_vibration=(0.0, 0.0),
+                              randomize_imu=True, imu_clean_fraction=0.3)
+    assert imu_config(args) == SimConfig(**RANGE, imu_clean_fraction=0.3)
+    with pytest.raises(ValueError, match="--imu-clean-fraction needs --randomize-imu"):
+        imu_config(argparse.Namespace(**{**vars(args), "randomize_imu": False}))
+
+
 @pytest.mark.slow
 def test_tiny_pipeline_with_randomized_imu(tmp_path):
     """collect (randomised IMU) -> train-cfm on those pairs, at tiny size, through the CLI; the

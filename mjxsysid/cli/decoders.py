@@ -37,6 +37,8 @@ def add_collect(sub) -> None:
                    help="std of rotor vibration on the IMU, rad/s and m/s² (default none)")
     c.add_argument("--randomize-imu", action="store_true",
                    help="the --imu-* values are maxima: each flight draws its own levels in [0, 1] x them")
+    c.add_argument("--imu-clean-fraction", type=float, default=0.0, metavar="F",
+                   help="with --randomize-imu: this share of flights has a clean IMU (default 0)")
     c.set_defaults(handler=cmd_collect)
 
 
@@ -50,7 +52,12 @@ def imu_config(args):
             if not v >= 0:
                 raise ValueError(f"--{flag.replace('_', '-')} must be >= 0 (rad/s, m/s²), got {v}")
             kw[name] = float(v)
-    return SimConfig(**kw, randomize_imu=bool(args.randomize_imu))
+    f = float(getattr(args, "imu_clean_fraction", 0.0))
+    if not 0.0 <= f <= 1.0:
+        raise ValueError(f"--imu-clean-fraction must be in [0, 1], got {f}")
+    if f > 0 and not args.randomize_imu:
+        raise ValueError("--imu-clean-fraction needs --randomize-imu (it is a share of the per-flight draws)")
+    return SimConfig(**kw, randomize_imu=bool(args.randomize_imu), imu_clean_fraction=f)
 
 
 def cmd_collect(args) -> int:

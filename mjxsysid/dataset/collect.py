@@ -211,7 +211,7 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
 
 
 IMU_SETTINGS = ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias", "gyro_vibration", "accel_vibration",
-                "imu_latency", "randomize_imu")
+                "imu_latency", "randomize_imu", "imu_clean_fraction")
 
 
 def imu_settings(cfg: SimConfig) -> dict:

@@ -30,7 +30,7 @@ from mjxsysid.sim.quadrotor import Quadrotor, SimConfig, SimState, hover_rotor_s
 
 
 IMU_FIELDS = ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias", "gyro_vibration", "accel_vibration",
-              "randomize_imu")
+              "randomize_imu", "imu_clean_fraction")
 """The EnvConfig settings passed on to the simulator's IMU (:class:`~mjxsysid.sim.SimConfig`)."""
 
 
@@ -47,6 +47,7 @@ class EnvConfig:
     gyro_vibration: float = 0.0         # rad/s: std of rotor vibration (SimConfig)
     accel_vibration: float = 0.0        # m/s²
     randomize_imu: bool = False         # the IMU settings above are maxima, levels drawn per episode
+    imu_clean_fraction: float = 0.0     # with randomize_imu: this share of episodes has a clean IMU
     force_sigma_max: float = 0.15       # × m g: per-episode σ of the random world force
     excite_rate: tuple = (2.0, 2.0, 1.0)  # max ω excitation (rad/s)
     excite_thrust: float = 2.0          # max a_cmd excitation (m/s²)

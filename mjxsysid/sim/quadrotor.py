@@ -45,7 +45,9 @@ class SimConfig:
     into the 0 – 1/(2 dt) band the IMU samples) and ``vibration_bandwidth_hz``. Off (0) by
     default; the other settings' noise is the same with it off. pos_limit (m), vel_limit (m/s),
     rate_limit (rad/s): a vehicle beyond any of these, or with a non-finite state, is flagged
-    ``diverged`` and frozen.
+    ``diverged`` and frozen. randomize_imu: the noise, bias and vibration settings are maxima, each
+    flight drawing its levels uniform in [0, 1] × them; imu_clean_fraction: with it, that share of
+    flights has a clean IMU (both levels 0).
     """
     dt: float = 0.002
     substeps: int = 1
@@ -60,6 +62,7 @@ class SimConfig:
     vibration_hz: float = 0.0
     vibration_bandwidth_hz: float = 20.0
     randomize_imu: bool = False
+    imu_clean_fraction: float = 0.0
     pos_limit: float = 1.0e3
     vel_limit: float = 100.0
     rate_limit: float = 200.0
@@ -75,6 +78,10 @@ class SimConfig:
                   "accel_vibration", "vibration_hz"):
             if not getattr(self, f) >= 0:
                 raise ValueError(f"SimConfig.{f} must be >= 0, got {getattr(self, f)}")
+        if not 0.0 <= self.imu_clean_fraction <= 1.0:
+            raise ValueError(f"SimConfig.imu_clean_fraction must be in [0, 1], got {self.imu_clean_fraction}")
+        if self.imu_clean_fraction > 0 and not self.randomize_imu:
+            raise ValueError("SimConfig.imu_clean_fraction needs randomize_imu (it is a share of the per-flight draws)")
         if not 0 < self.vibration_bandwidth_hz < 0.5 / self.dt:
             raise ValueError(f"SimConfig.vibration_bandwidth_hz must be in (0, {0.5 / self.dt:g}) Hz "
                              f"(the IMU's Nyquist band), got {self.vibration_bandwidth_hz}")
@@ -304,6 +311,9 @@ class Quadrotor:
         if c.randomize_imu:  # a Python branch: without it the key stream is unchanged
             k_bias, k_level = jax.random.split(k_bias)
             level = jax.random.uniform(k_level, (2,), jnp.float32)
+            if c.imu_clean_fraction > 0:   # that share of flights has a clean IMU (levels 0)
+                k_level, k_clean = jax.random.split(k_level)
+                level = jnp.where(jax.random.uniform(k_clean) < c.imu_clean_fraction, 0.0, level)
         scale = jnp.array([c.gyro_bias] * 3 + [c.accel_bias] * 3, jnp.float32)
         bias = level[1] * scale * jax.random.normal(k_bias, (6,))
         # Initial reading: the given rates and the hover specific force, +g along body z.
