@@ -154,6 +154,13 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
         raise ValueError(f"samples must be >= 2, got {samples}")
     window = parse_window(window)
     checks = {}
+
+    def decoders_for(ref):
+        cfm, reg = load_decoders(decoders, ref, allow_mismatch=allow_mismatch, warn=print)
+        seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=print,
+                                                                     allow_mismatch=allow_mismatch)
+        return cfm, reg, seq
+
     if isinstance(flight_or_log, FlightResult):
         res = flight_or_log
         if res.controller != "policy":
@@ -163,6 +170,7 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
             raise ValueError("this flight was flown by another policy than the one given; decode it "
                              "with the policy that flew it (leave policy=None)")
         ref = res.policy
+        cfm, reg, seq = decoders_for(ref)
         one = res.one(index)
         zhat_t, times = np.asarray(one.latent), np.asarray(one.time)
         th = res.theta[index] if truth is None else to_theta(truth)
@@ -171,10 +179,7 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
         rec = read_log(flight_or_log)
         th = None if truth is None else to_theta(truth)
         ref = resolve_policy(policy or "mjxsysid", weights)
-        # The decoders first: the log's IMU noise is judged against what they were trained under.
-        cfm, reg = load_decoders(decoders, ref, allow_mismatch=allow_mismatch, warn=print)
-        seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=print,
-                                                                     allow_mismatch=allow_mismatch)
+        cfm, reg, seq = decoders_for(ref)   # first: the log's IMU noise is judged against their training
         zhat_t, times = log_latents(ref, rec, source=flight_or_log, checks=checks,
                                     imu_limit=_logcheck.imu_noise_limit(cfm, reg, seq))
     else:
@@ -183,10 +188,6 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
     if th is not None and np.shape(th) != (P.N_PARAMS,):
         raise ValueError(f"truth must be one vehicle, θ ({P.N_PARAMS},); got shape {np.shape(th)}")
     check_window(window, float(times[-1]))
-    if not isinstance(flight_or_log, (str, Path)):
-        cfm, reg = load_decoders(decoders, ref, allow_mismatch=allow_mismatch, warn=print)
-        seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=print,
-                                                                     allow_mismatch=allow_mismatch)
     flight_checks(rec, decoders_prior(seq, cfm), checks)
     for f in checks["findings"]:
         _logcheck.warn(f)

@@ -544,6 +544,8 @@ def xadap_training_prior(**overrides) -> XAdapPrior:
 
 
 XADAP_PRIOR = XAdapPrior()
+
+
 def widened_prior(prior: Prior, amount: float, name: str | None = None) -> Prior:
     """``prior`` widened by ``amount`` (natural-log units) in every direction, knowing nothing of
     where a policy is weak: every sampled range (arm length, κ, drag noise, thrust-to-weight, η,

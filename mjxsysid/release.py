@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import hashlib
 import importlib.util
 import json
 import os
@@ -111,9 +110,9 @@ def _now() -> str:
 
 
 def _device() -> str:
-    import jax
-    d = jax.devices()[0]
-    return f"{getattr(d, 'device_kind', str(d))} ({d.platform}, {jax.device_count()} device(s)), jax {jax.__version__}"
+    from mjxsysid.experiments.common import device_info
+    d = device_info()
+    return f"{d['device_kind']} ({d['platform']}, {d['device_count']} device(s)), jax {d['jax']}"
 
 
 def _commit() -> str | None:
@@ -357,14 +356,6 @@ def _link(src: Path, dst: Path) -> None:
         shutil.copy2(src, dst)
 
 
-def _sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 # ----------------------------------------------------------------------------------------
 # the stages
 # ----------------------------------------------------------------------------------------
@@ -384,6 +375,7 @@ def train_config(options: Options) -> dict:
 def stage_policy(rel: Release, out: Path) -> dict:
     """Train the policy (``train-policy --config``; it checkpoints and resumes itself), or adopt
     ``options.from_policy``."""
+    from mjxsysid.policy.interface import file_sha256
     from mjxsysid.checkpoint import load_meta
     if rel.options.from_policy:
         src = Path(rel.options.from_policy)
@@ -392,7 +384,7 @@ def stage_policy(rel: Release, out: Path) -> dict:
         shutil.copyfile(src, out / "policy.npz")
         meta = load_meta(out / "policy.npz")
         return {"command": f"adopted {src} (no training)",
-                "config": {"adopted_from": str(src), "sha256": _sha256(out / "policy.npz"),
+                "config": {"adopted_from": str(src), "sha256": file_sha256(out / "policy.npz"),
                            "train_config": meta.get("config")},
                 "figures": {"trained_wall_s": meta.get("wall_s"), "trained_on": meta.get("device")}}
     from mjxsysid.policy.train import TrainConfig, train
@@ -403,7 +395,7 @@ def stage_policy(rel: Release, out: Path) -> dict:
     return {"command": f"mjxsysid train-policy --config {rel.options.policy_config} --out {out}"
                        + (" (tiny sizes: mjxsysid.release.TINY_TRAIN)" if rel.options.scale == "tiny" else ""),
             "config": cfg_dict,
-            "figures": {"train_wall_s": res["wall_s"], "sha256": _sha256(out / "policy.npz"),
+            "figures": {"train_wall_s": res["wall_s"], "sha256": file_sha256(out / "policy.npz"),
                         **{k: stats[k] for k in ("reward", "rate_err", "thrust_err", "latent_err_rel",
                                                  "latent_min_std") if k in stats}}}
 
@@ -417,6 +409,7 @@ def _previous_policy() -> Path | None:
 def stage_policy_eval(rel: Release, out: Path) -> dict:
     """``evaluate-policy`` at the release size (eval.json) and ``evaluate-policy --held-out`` of
     the release's policy against the shipped (previous) one (heldout/results.*)."""
+    from mjxsysid.policy.interface import file_sha256
     from mjxsysid.experiments.heldout import SETS, run as heldout_run
     from mjxsysid.policy.evaluate import evaluate_policy
     sz = rel.sizes
@@ -424,7 +417,7 @@ def stage_policy_eval(rel: Release, out: Path) -> dict:
     (out / "eval.json").write_text(json.dumps(ev, indent=2) + "\n")
     policies = {"release": str(rel.policy_path)}
     prev = _previous_policy()
-    if prev is not None and _sha256(prev) != _sha256(rel.policy_path):
+    if prev is not None and file_sha256(prev) != file_sha256(rel.policy_path):
         policies["previous"] = str(prev)
     sets = sz["heldout_sets"] or SETS
     ho = heldout_run(out / "heldout", policies, sets=sets, vehicles=sz["heldout_vehicles"],
@@ -453,9 +446,8 @@ def _imu_config(rel: Release):
     env = (load_meta(rel.policy_path).get("config") or {}).get("env", {})
     if not env.get("randomize_imu"):
         return SimConfig(), ""
-    keys = ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias", "gyro_vibration", "accel_vibration",
-            "imu_clean_fraction")
-    cfg = SimConfig(**{k: float(env.get(k, 0.0)) for k in keys}, randomize_imu=True)
+    from mjxsysid.policy.env import IMU_FIELDS
+    cfg = SimConfig(**{k: env.get(k, getattr(SimConfig(), k)) for k in IMU_FIELDS})
     flags = (f" --imu-noise {cfg.gyro_noise:g} {cfg.accel_noise:g} --imu-bias {cfg.gyro_bias:g} {cfg.accel_bias:g}"
              f" --imu-vibration {cfg.gyro_vibration:g} {cfg.accel_vibration:g} --randomize-imu"
              + (f" --imu-clean-fraction {cfg.imu_clean_fraction:g}" if cfg.imu_clean_fraction else ""))
@@ -463,6 +455,7 @@ def _imu_config(rel: Release):
 
 
 def _collect(rel: Release, out: Path, *, seconds, sizes) -> dict:
+    from mjxsysid.policy.interface import file_sha256
     from mjxsysid.dataset.collect import collect, imu_settings, load_pairs
     n_train, n_test, batch = sizes
     sim, flags = _imu_config(rel)
@@ -474,7 +467,7 @@ def _collect(rel: Release, out: Path, *, seconds, sizes) -> dict:
     return {"command": cmd, "config": {"train": n_train, "test": n_test, "batch": batch, "seconds": seconds,
                                        "prior": meta.get("prior"), "imu": imu_settings(sim)},
             "figures": {"failed_train": int(arrays["failed_train"].sum()), "failed_test": int(arrays["failed_test"].sum()),
-                        "pairs_sha256": _sha256(path)}}
+                        "pairs_sha256": file_sha256(path)}}
 
 
 def stage_pairs(rel: Release, out: Path) -> dict:

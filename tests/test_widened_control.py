@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from mjxsysid import params as P
-from mjxsysid.experiments.probe_loop import QUICK, _ident_log, control_budget, probe_reach, run
+from mjxsysid.experiments.probe_loop import QUICK, control_budget, probe_reach, run
+from mjxsysid.policy.train import identifiable_log
 from mjxsysid.policy.train import TrainConfig
 
 
@@ -21,7 +22,7 @@ def test_widened_prior_is_the_prior_at_zero_and_wider_and_valid_beyond():
     assert wide.eta[1] <= 1.99 and wide.ext_torque_xy == pytest.approx(0.02 * np.exp(0.4))
     th = np.asarray(wide.sample(key, 2000))
     P.validate_theta(th)                                    # every draw a valid vehicle
-    a, b = _ident_log(base), _ident_log(th)
+    a, b = np.asarray(identifiable_log(base)), np.asarray(identifiable_log(th))
     assert (b.min(0) < a.min(0)).sum() >= 4 and (b.max(0) > a.max(0)).sum() >= 4   # wider both ways
     with pytest.raises(ValueError, match="amount must be"):
         P.widened_prior(P.DEFAULT_PRIOR, -0.1)

@@ -54,7 +54,7 @@ from mjxsysid.policy.evaluate import env_rollout, latent_of_rollout
 from mjxsysid.policy.env import EnvConfig, TrainEnv
 from mjxsysid.policy.focus import load_weak, replay_resample, save_weak
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.policy.train import TrainConfig, train
+from mjxsysid.policy.train import IDENT_TARGET_NAMES, TrainConfig, identifiable_log, train
 from mjxsysid.probe import ProbeConfig, make_fly, run_probe, system_badness
 from mjxsysid.render.probe import plot_probe_loop
 from mjxsysid.rollout.flight import fly_vehicles
@@ -121,12 +121,6 @@ REACH_QUANTILE = 0.05
 """Systems' tails (5 % and 95 %) that :func:`probe_reach` compares with the prior's extremes."""
 
 
-def _ident_log(theta) -> np.ndarray:
-    """log T/W, log κ, log angular authorities (3), log τ_m of θ (n, 19) -> (n, 6)."""
-    theta = np.asarray(theta, np.float64)
-    return np.log(np.concatenate([np.asarray(P.identifiable(theta), np.float64), theta[:, P.TAU_M, None]], -1))
-
-
 def probe_reach(systems, prior="default", n: int = 20_000, seed: int = 0) -> dict:
     """How far (natural-log units) the probe's systems (n, 19) reach past ``prior`` along what a
     flight reveals — log thrust-to-weight, log κ, log angular authorities, log τ_m: per quantity the
@@ -136,13 +130,12 @@ def probe_reach(systems, prior="default", n: int = 20_000, seed: int = 0) -> dic
     systems = np.asarray(systems, np.float64)
     if systems.ndim != 2 or systems.shape[1] != P.N_PARAMS or len(systems) == 0:
         raise ValueError(f"probe_reach: systems must have shape (n, {P.N_PARAMS}), n >= 1; got {systems.shape}")
-    ref = _ident_log(P.get_prior(prior).sample(jax.random.PRNGKey(seed), n))
-    got = _ident_log(systems)
+    ref = np.asarray(identifiable_log(P.get_prior(prior).sample(jax.random.PRNGKey(seed), n)))
+    got = np.asarray(identifiable_log(systems.astype(np.float32)))
     lo = ref.min(0) - np.quantile(got, REACH_QUANTILE, axis=0)
     hi = np.quantile(got, 1 - REACH_QUANTILE, axis=0) - ref.max(0)
     per = np.maximum(0.0, np.maximum(lo, hi))
-    names = ("thrust_to_weight", "torque_ratio", "angular_authority[0]", "angular_authority[1]",
-             "angular_authority[2]", "motor_time_constant")
+    names = [n.removeprefix("log_") for n in IDENT_TARGET_NAMES]
     return {"per_quantity": dict(zip(names, per.tolist())), "amount": float(per.max()), "systems": len(systems)}
 
 

@@ -81,7 +81,7 @@ class TrainConfig:
     # Episode starts: False (the shipped policy's training) computes a fresh reset for every
     # environment at every step and keeps it where an episode ended; True draws one per
     # environment per unroll (``unroll`` × fewer resets; the rollout's largest cost after the
-    # simulator step, docs/runs/train_profile.json).
+    # simulator step, docs/runs/benchmarks/train_profile.json).
     reset_per_unroll: bool = False
     checkpoint_every: int = 50
     log_every: int = 10
@@ -545,7 +545,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
         env_state = distributed.shard_batch(env_state, cfg.num_envs, mesh=mesh)
     steps_per_it = cfg.num_envs * cfg.unroll
     t_start = time.time()
-    # Where this call's wall time goes (docs/runs/speed): building the trainer, initialising and
+    # Where this call's wall time goes (BENCHMARKS.md, issue 30): building the trainer, initialising and
     # resetting (compiles), the first iteration (its compile), the loop, checkpoints, the export.
     timing = {"setup_s": t_start - t_enter, "first_iteration_s": 0.0, "checkpoint_s": 0.0}
     wall_prev = load_meta(ckpt).get("wall_s", 0.0) if (resume and ckpt.exists()) else 0.0
@@ -554,7 +554,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     t_log, it_log = time.time(), int(ts.iteration)
     bar = progress(total=cfg.iterations, initial=int(ts.iteration), desc="train-policy", unit="it")
     # The iteration count is kept on the host: iterations are dispatched back to back and the
-    # host waits on the device only where it logs or checkpoints (docs/runs/train_profile.json).
+    # host waits on the device only where it logs or checkpoints (docs/runs/benchmarks/train_profile.json).
     it = int(ts.iteration)
     while it < cfg.iterations:
         ts, env_state, stats = trainer.iteration(ts, env_state)
