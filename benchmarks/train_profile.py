@@ -100,6 +100,8 @@ def profile(overrides: dict, repeats: int, iters: int) -> dict:
     def forward(prm, e):
         s, _, _, _ = jax.vmap(lambda st: tr.env.policy_input(prm, st))(e)
 
+        # The small terms in t and the carry keep every step's forwards live and unhoisted (XLA
+        # would otherwise drop unused outputs or lift loop-invariant work out of the scan).
         def body(c, t):
             z_theta = nets.encode(prm, e.theta_norm)
             z = jax.lax.cond(t % phi_every == 0, lambda h: nets.adapt(prm, h), lambda h: c, e.history)
