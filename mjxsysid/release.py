@@ -26,6 +26,7 @@ checkout this package runs from.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import datetime
 import importlib.util
@@ -138,6 +139,7 @@ class Release:
         self.by_name = {s.name: s for s in self.stages}
         self.log = log or (lambda m: None)
         self._device, self._commit = device, commit
+        self._mine: set[str] = set()   # stages this process ran: the only entries its saves write
         self.record = self._load()
         given = dataclasses.asdict(options) if isinstance(options, Options) else dict(options or {})
         unknown = sorted(set(given) - {f.name for f in dataclasses.fields(Options)})
@@ -173,14 +175,58 @@ class Release:
         rec.setdefault("stages", {})
         return rec
 
-    def save(self) -> None:
+    @contextlib.contextmanager
+    def _locked(self):
+        """The record's lock (``DIR/release.lock``, an advisory ``flock``): processes running other
+        stages of one release at once (one per GPU) read, merge and write the record in turn."""
         self.out.mkdir(parents=True, exist_ok=True)
+        with open(self.out / (RECORD + ".lock"), "a") as fh:
+            try:
+                import fcntl
+            except ImportError:   # no flock (Windows): one process per release
+                yield
+                return
+            fcntl.flock(fh, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(fh, fcntl.LOCK_UN)
+
+    def _merge(self) -> None:
+        """Take the record on disk (another process may have run stages since this one read it),
+        keeping this process's own stage entries and the larger run count. Call with the lock."""
+        if not (self.out / RECORD).exists():
+            return
+        disk = self._load()
+        for name in self._mine:
+            disk["stages"][name] = self.record["stages"][name]
+        disk["runs"] = max(int(disk.get("runs", 0)), int(self.record.get("runs", 0)))
+        self.record = disk
+
+    def _write(self) -> None:
         self.record.update(release=self.out.name, options=dataclasses.asdict(self.options),
                            order=[s.name for s in self.stages])
         self.record.setdefault("created", _now())
-        tmp = self.out / (RECORD + ".tmp")
+        tmp = self.out / f"{RECORD}.{os.getpid()}.tmp"
         tmp.write_text(json.dumps(self.record, indent=2, ensure_ascii=False) + "\n")
         os.replace(tmp, self.out / RECORD)
+
+    def save(self) -> None:
+        """Write the record: the one on disk with this process's stage entries merged in (so
+        several processes can run different stages of one release at once)."""
+        with self._locked():
+            self._merge()
+            self._write()
+
+    def _begin(self, name: str, entry: dict) -> None:
+        """Record ``name`` as started with the next run number (atomic across processes)."""
+        with self._locked():
+            self._merge()
+            self.record["runs"] = int(self.record.get("runs", 0)) + 1
+            entry["run"] = self.record["runs"]
+            self.record["stages"][name] = entry
+            self._mine.add(name)
+            self._write()
 
     def stage_dir(self, name: str) -> Path:
         return self.out / name
@@ -276,11 +322,9 @@ class Release:
             shutil.rmtree(out)
         out.mkdir(parents=True, exist_ok=True)
         prev = self.entry(stage.name)
-        self.record["runs"] = int(self.record.get("runs", 0)) + 1
-        entry = {"status": "started", "run": self.record["runs"], "started": _now(),
+        entry = {"status": "started", "run": 0, "started": _now(),
                  "attempts": int(prev.get("attempts", 0)) + 1, "commit": self._commit(), "device": self._device()}
-        self.record["stages"][stage.name] = entry
-        self.save()
+        self._begin(stage.name, entry)
         self.log(f"[release] {stage.name}: {stage.what} (≈ {stage.estimate_s / 60:.1f} min on an H100)")
         t0 = time.time()
         try:
@@ -344,16 +388,22 @@ class Release:
 
 
 def _link(src: Path, dst: Path) -> None:
-    """dst becomes a hard link of src (a copy where links fail); an existing dst is replaced."""
+    """dst becomes a hard link of src (a copy where links fail); an existing dst is replaced
+    atomically (linked under a temporary name, then renamed: processes running other stages at
+    once may link the same file)."""
     if not src.is_file():
         raise FileNotFoundError(f"{src} not found (is its stage done?)")
-    if dst.exists() or dst.is_symlink():
-        dst.unlink()
     dst.parent.mkdir(parents=True, exist_ok=True)
+    if dst.is_file() and os.path.samefile(src, dst):   # linked already (rename would leave the temporary)
+        return
+    tmp = dst.with_name(f"{dst.name}.{os.getpid()}.tmp")
+    if tmp.exists() or tmp.is_symlink():
+        tmp.unlink()
     try:
-        os.link(src, dst)
+        os.link(src, tmp)
     except OSError:
-        shutil.copy2(src, dst)
+        shutil.copy2(src, tmp)
+    os.replace(tmp, dst)
 
 
 # ----------------------------------------------------------------------------------------

@@ -53,6 +53,47 @@ def test_stages_run_in_order_and_resume_skips_done_ones(tmp_path):
     assert rel.run(["b", "c"]) == ["b", "c"]
 
 
+def _fork_stubs(calls, hook=None):
+    """a -> (b, c) -> ship: b and c need only a, so two processes may run them at once; ``hook``
+    runs inside b (to interleave another release object there)."""
+    def make(name):
+        def run(rel, out):
+            calls.append(name)
+            if name == "b" and hook:
+                hook()
+            (out / f"{name}.txt").write_text(name)
+            return {"command": f"make {name}", "figures": {"value": name}}
+        return run
+    return (Stage("a", make("a"), (), ("a.txt",), 10, "first"),
+            Stage("b", make("b"), ("a",), ("b.txt",), 20, "one branch"),
+            Stage("c", make("c"), ("a",), ("c.txt",), 30, "the other"),
+            Stage("ship", make("ship"), (), ("ship.txt",), 1, "ship"))
+
+
+def test_stages_of_one_release_run_by_two_processes_at_once_keep_both_records(tmp_path):
+    """Two Release objects (as two processes, one per GPU) run b and c of one folder while the
+    other is mid-stage: the record keeps both entries and distinct run numbers, and the linked
+    files of one folder can be made by both."""
+    calls = []
+    Release(tmp_path, stages=_fork_stubs(calls), log=None, device=lambda: "d", commit=lambda: "x").run(["a"])
+    other = Release(tmp_path, stages=_fork_stubs(calls), log=None, device=lambda: "d", commit=lambda: "x")
+    first = Release(tmp_path, stages=_fork_stubs(calls, hook=lambda: other.run(["c"])), log=None,
+                    device=lambda: "d", commit=lambda: "x")
+    assert first.run(["b"]) == ["b"]        # c ran (in `other`) while b was running
+    rec = json.loads((tmp_path / "release.json").read_text())
+    assert {k: v["status"] for k, v in rec["stages"].items()} == {"a": "done", "b": "done", "c": "done"}
+    runs = sorted(v["run"] for v in rec["stages"].values())
+    assert runs == [1, 2, 3] and rec["runs"] == 3
+    assert rec["stages"]["b"]["run"] == 2 and rec["stages"]["c"]["run"] == 3
+    fresh = Release(tmp_path, stages=_fork_stubs(calls), log=None, device=lambda: "d", commit=lambda: "x")
+    assert [fresh.status(n) for n in "abc"] == ["done"] * 3
+    from mjxsysid.release import _link
+    src = tmp_path / "a" / "a.txt"
+    _link(src, tmp_path / "set" / "a.txt")
+    _link(src, tmp_path / "set" / "a.txt")     # replacing an existing link
+    assert (tmp_path / "set" / "a.txt").read_text() == "a" and sorted(p.name for p in (tmp_path / "set").iterdir()) == ["a.txt"]
+
+
 def test_release_json_records_each_stage(tmp_path):
     calls = []
     _release(tmp_path, calls, options={"scale": "tiny"}).run(["a"])
