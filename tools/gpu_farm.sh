@@ -25,16 +25,20 @@ mkdir -p "$OUT" "$FARM/done" "$FARM/logs"; rm -rf "$FARM/claim" "$FARM/failed"; 
 PACK=${PACK:-$(grep -v '^#' "$JOBS" | grep -o 'runs/[A-Za-z0-9_.-]*' | sort -u | tr '\n' ' ')}
 t() { echo "+$(( $(date +%s) - T0 ))s"; }
 
-pack() {
+pack() {   # one archive per group of PACK (groups joined by ';'): each must stay under 16 MiB
   exec 9>"$FARM/pack.lock"; flock 9
-  # shellcheck disable=SC2086
-  tar czf "$OUT/farm_small.tar.gz.tmp" --exclude='pairs.npz' --exclude='checkpoint.npz' --exclude='*.tmp.npz' \
-    --exclude='cfm.npz' --exclude='regression.npz' --exclude='cfm_seq.npz' --exclude='claim' \
-    "$FARM" $PACK 2>/dev/null
-  mv -f "$OUT/farm_small.tar.gz.tmp" "$OUT/farm_small.tar.gz"
+  local i=0 group
+  IFS=';' read -ra groups <<<"$FARM $PACK"
+  for group in "${groups[@]}"; do
+    i=$((i + 1))
+    # shellcheck disable=SC2086
+    tar czf "$OUT/farm_small$i.tar.gz.tmp" --exclude='pairs.npz' --exclude='checkpoint.npz' --exclude='*.tmp.npz' \
+      --exclude='cfm.npz' --exclude='regression.npz' --exclude='cfm_seq.npz' --exclude='claim' $group 2>/dev/null
+    mv -f "$OUT/farm_small$i.tar.gz.tmp" "$OUT/farm_small$i.tar.gz"
+  done
   local n=0
   for f in ${FETCH:-}; do
-    [ -f "$f" ] && [ $n -lt 7 ] && { cp "$f" "$OUT/$(echo "$f" | tr / _)"; n=$((n + 1)); }
+    [ -f "$f" ] && [ $n -lt $((8 - i)) ] && { cp "$f" "$OUT/$(echo "$f" | tr / _)"; n=$((n + 1)); }
   done
   flock -u 9
 }
@@ -44,6 +48,7 @@ worker() {   # GPU
   while :; do
     local ran=0 waiting=0
     while IFS='|' read -r name where needs cmd; do
+      [[ $name == \#* ]] && continue
       name=$(echo "$name" | xargs); where=$(echo "$where" | xargs); needs=$(echo "$needs" | xargs)
       [ -z "$name" ] && continue; [[ $name == \#* ]] && continue
       [ -e "$FARM/done/$name" ] || [ -e "$FARM/claim/$name" ] && continue
