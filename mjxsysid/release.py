@@ -76,13 +76,16 @@ class Stage:
     its record fields: ``command`` (the CLI equivalent, a string), ``config`` (a dict) and
     ``figures`` (its key outputs, a dict). ``needs``: stages that must be done first;
     ``outputs``: files (relative to ``out``) whose existence a done record is checked against;
-    ``estimate_s``: GPU time on one H100 (s), from BENCHMARKS.md and the recorded wall times."""
+    ``estimate_s``: GPU time on one H100 (s), from BENCHMARKS.md and the recorded wall times;
+    ``after``: stages not required, but whose run after this one makes it stale (``ship`` after
+    ``tables``)."""
     name: str
     run: Callable
     needs: tuple = ()
     outputs: tuple = ()
     estimate_s: float = 0.0
     what: str = ""
+    after: tuple = ()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -250,6 +253,8 @@ class Release:
             d = self.entry(dep)
             if d.get("status") != "done" or d.get("run", 0) > e.get("run", 0):
                 return "stale"
+        if any(self.entry(dep).get("run", 0) > e.get("run", 0) for dep in stage.after):
+            return "stale"
         return "done"
 
     def done(self, name: str) -> bool:
@@ -793,6 +798,24 @@ def _copy(src: Path, dst: Path, *, link: bool = False) -> None:
         shutil.copy2(src, dst)
 
 
+_TRAINING_KEYS = ("command", "commit", "device", "jax", "wall_s", "env_steps", "mean_train_steps_per_s")
+
+
+def _adopted_training(from_policy) -> dict:
+    """For a release that adopted a policy (``--from-policy``): how that policy was trained, from
+    the provenance JSON beside it (its command, commit, device, wall time, steps/s: the release
+    did not train it), and where it came from. Empty for a release that trained its own."""
+    if not from_policy:
+        return {}
+    src = Path(from_policy)
+    out = {"adopted_from": str(src)}
+    prov = src.with_suffix(".json")
+    if prov.is_file():
+        prior = json.loads(prov.read_text())
+        out.update({k: prior[k] for k in _TRAINING_KEYS if k in prior})
+    return out
+
+
 def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
     """Lay out what a release ships, as a tree rooted at ``tree``: mjxsysid/pretrained/ (the
     weights, hard-linked, and their provenance JSON, each with a ``release`` section: the release
@@ -826,6 +849,7 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
         prov = policy_provenance(rel.policy_path, ev, train_log=rel.stage_dir("policy") / "train_log.jsonl",
                                  command=f"{cmd}  (stage policy: {stage_cmd})", commit=rel.entry("policy").get("commit"))
         prov["evaluation_command"] = rel.entry("policy_eval").get("command") or prov["evaluation_command"]
+        prov.update(_adopted_training(rel.options.from_policy))
         prov["release"] = release_info("policy")
         (pre / "policy.json").write_text(json.dumps(prov, indent=2, ensure_ascii=False) + "\n")
     evals = {"single": rel.stage_dir("decoder_eval") / "single" / "decoder_eval.json",
@@ -954,7 +978,8 @@ STAGES = (
           ("tree/docs/fair_comparisons.md", "tree/docs/noise.md"), 5,
           "lay out the shipped tree and regenerate docs/fair_comparisons.md and docs/noise.md's tables"),
     Stage("ship", stage_ship, (), ("shipped.json",), 5,
-          "copy weights + provenance into mjxsysid/pretrained/, run files into docs/runs/<kind>/, the pages"),
+          "copy weights + provenance into mjxsysid/pretrained/, run files into docs/runs/<kind>/, the pages",
+          after=("tables",)),
 )
 """The stages of a release, in order (see the module doc)."""
 

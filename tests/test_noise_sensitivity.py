@@ -39,3 +39,14 @@ def test_plot_checks_shapes(tmp_path):
                                names=["p", "q", "r"])
     with pytest.raises(ValueError, match="same decoders"):
         plot_noise_sensitivity(["a"], {"x": np.zeros((1, 1))}, {}, tmp_path / "f.png", names=["p"])
+
+
+def test_figure_names_whose_decoders_and_edge_coverages_count_as_calibrated():
+    """The figure's title names a candidate's decoders (not "shipped"); a coverage of exactly
+    0.850 of 1,000 flights counts as within ±5 points (float round-off), 0.849 does not."""
+    from mjxsysid.cfm.pipeline import WITHIN_5_POINTS
+    from mjxsysid.studies.noise import _whose
+    assert _whose({"decoders": "runs/release_clean/decoder_set"}) == "decoders of release_clean"
+    assert _whose({"decoders": None}) == _whose({"decoders": "x/mjxsysid/pretrained"}) == "shipped decoders"
+    assert abs(850 / 1000 - 0.9) <= WITHIN_5_POINTS and abs(950 / 1000 - 0.9) <= WITHIN_5_POINTS
+    assert not abs(849 / 1000 - 0.9) <= WITHIN_5_POINTS

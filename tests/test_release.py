@@ -1,5 +1,6 @@
 """`mjxsysid release`: the stage plan, resuming, the release.json record and the CLI's errors, on
 stub stages (default tier, no JAX work); the tiny end-to-end release on the CPU (slow)."""
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -51,6 +52,12 @@ def test_stages_run_in_order_and_resume_skips_done_ones(tmp_path):
     assert rel.status("b") == "stale" and rel.status("a") == "done"   # b ran before a's rerun
     assert rel.status("c") == "done"                                  # b itself has not run again
     assert rel.run(["b", "c"]) == ["b", "c"]
+    # ship needs nothing, but a later run of a stage it comes ``after`` makes it stale
+    stubs = list(_stubs(calls))
+    stubs[3] = Stage("ship", stubs[3].run, (), ("ship.txt",), 1, "ship", after=("c",))
+    rel = Release(tmp_path, stages=stubs, log=None, device=lambda: "d", commit=lambda: "x")
+    assert rel.status("ship") == "stale" and rel.run(["ship"]) == ["ship"]
+    assert Release(tmp_path, stages=stubs, log=None).status("ship") == "done"
 
 
 def _fork_stubs(calls, hook=None):
@@ -221,6 +228,13 @@ def test_ship_tree_carries_release_provenance(tmp_path):
     assert cfm["release"]["stage"] == "decoders" and cfm["data"]["pairs_sha256"]
     assert (tree / "docs/runs/policy/eval.json").is_file()
     assert not (tree / "mjxsysid/pretrained/cfm_seq.json").exists()
+    # a release that adopted a policy keeps how it was trained (command, commit) from the JSON beside it
+    shipped = json.loads((pre / "policy.json").read_text())
+    rel.options = dataclasses.replace(rel.options, from_policy=str(pre / "policy.npz"))
+    build_tree(rel, tmp_path / "tree2", partial=True)
+    pol = json.loads((tmp_path / "tree2/mjxsysid/pretrained/policy.json").read_text())
+    assert pol["command"] == shipped["command"] and pol["commit"] == shipped["commit"]
+    assert pol["adopted_from"] == str(pre / "policy.npz") and pol["release"]["commit"] == "c0ffee"
 
 
 @pytest.mark.slow

@@ -45,7 +45,7 @@ import jax
 import numpy as np
 
 from mjxsysid import params as P
-from mjxsysid.cfm.pipeline import evaluate_decoders, train_decoders
+from mjxsysid.cfm.pipeline import WITHIN_5_POINTS, evaluate_decoders, train_decoders
 from mjxsysid.cfm.train import CFMConfig
 from mjxsysid.dataset.collect import collect, latents_in_flight
 from mjxsysid.experiments.common import fmt_ms, markdown_table, to_jsonable, write_results
@@ -398,7 +398,7 @@ def _targets(ev: dict, final: str, calib: dict | None) -> dict:
         t["default_twr_r2_ge_0.9"] = pr["latent"]["r2_thrust_to_weight"] >= 0.9
     if calib:
         cov = calib["coverage_identifiable"]
-        t["decoders_identifiable_90pct_within_5_points"] = all(abs(v[1] - 0.9) <= 0.05 for v in cov.values())
+        t["decoders_identifiable_90pct_within_5_points"] = all(abs(v[1] - 0.9) <= WITHIN_5_POINTS for v in cov.values())
     return t
 
 

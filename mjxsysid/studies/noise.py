@@ -182,8 +182,17 @@ def figure(res: dict, path) -> Path:
     cov = {k: np.array([[v[kk]["coverage_90_identifiable"][n] for n in names] for v in lv]) for k, kk in kinds.items()}
     wid = {k: np.array([[v[kk]["width_90_identifiable_log"][n] for n in names] for v in lv]) for k, kk in kinds.items()}
     return plot_noise_sensitivity([v["label"] for v in lv], cov, wid, path, names=names,
-                                  title=f"shipped decoders under IMU noise: {res['scored']} held-out vehicles, "
+                                  title=f"{_whose(res)} under IMU noise: {res['scored']} held-out vehicles, "
                                         f"{res['seconds']:g} s flights")
+
+
+def _whose(res: dict) -> str:
+    """'shipped decoders', or the decoders' folder (e.g. a release's decoder set)."""
+    dec = res.get("decoders")
+    if not dec or "pretrained" in str(dec):
+        return "shipped decoders"
+    parts = Path(str(dec)).parts
+    return f"decoders of {parts[-2] if parts[-1] == 'decoder_set' and len(parts) > 1 else parts[-1]}"
 
 
 def replace_tables(page: str, results: dict) -> str:
