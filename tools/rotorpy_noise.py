@@ -24,6 +24,7 @@ centre of mass (specific force and body rates, FLU) plus the level's noise.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 import tempfile
@@ -45,6 +46,7 @@ LEVELS = ("clean", "x1", "x5_bias", "x5_white", "x20")
 LABELS = {"clean": "clean", "x1": "× 1 (white + bias)", "x5_bias": "× 5 bias only",
           "x5_white": "× 5 white only", "x20": "× 20 (white + bias)"}
 ROTORPY_ORDER = (1, 0, 3, 2)   # mjxsysid's rotor i is RotorPy's rotor ROTORPY_ORDER[i] (and back: the same)
+PRETRAINED = Path(P.__file__).resolve().parent / "pretrained"   # the shipped policy and decoders
 PIP = ".venv/bin/pip install rotorpy==3.0.0  (or the wheel: .venv/bin/pip install rotorpy-3.0.0-py3-none-any.whl)"
 
 
@@ -144,7 +146,8 @@ def main():
     ap.add_argument("--worn-motor", type=int, default=1, choices=(1, 2, 3, 4), help="mjxsysid's rotor number")
     ap.add_argument("--eta", type=float, default=0.8, help="the worn motor's effectiveness")
     ap.add_argument("--seed", type=int, default=0, help="IMU noise draws and decoding (decode's --seed)")
-    ap.add_argument("--logs", type=Path, default=None, help="keep the logs and decode outputs here (default: a temporary folder)")
+    ap.add_argument("--logs", type=Path, default=None,
+                    help="keep the logs, truth.json and decode outputs here (default: a temporary folder)")
     ap.add_argument("--quick", action="store_true", help="smoke run: 2 s flights, clean and × 5 white, 20 samples")
     a = ap.parse_args()
     if a.quick:
@@ -169,7 +172,8 @@ def main():
            "rotorpy": getattr(rotorpy, "__version__", None) or _dist_version("rotorpy"),
            "vehicle": P.theta_to_dict(theta), "worn_motor": a.worn_motor, "eta": a.eta, "seconds": a.seconds,
            "reference": "lemniscate, period 10 s, size (1, 1, 0.3) m", "samples": a.samples, "seed": a.seed,
-           "policy": json.loads((Path(P.__file__).parent / "pretrained" / "policy.json").read_text()).get("command"),
+           "weights_sha256": {f: hashlib.sha256((PRETRAINED / f).read_bytes()).hexdigest()[:16]
+                              for f in ("policy.npz", "cfm_seq.npz", "cfm.npz", "regression.npz")},
            "levels": {}}
     for lv in levels:
         t1 = time.time()
@@ -211,7 +215,9 @@ def _dist_version(name):
 def table(res) -> str:
     lines = [f"RotorPy {res['rotorpy']} (aerodynamics on), the paper vehicle with motor {res['worn_motor']} at "
              f"η {res['eta']}, {res['seconds']:g} s of the 10 s lemniscate, decoded as `decode --log … --truth` "
-             f"(flight-level, {res['samples']} samples, seed {res['seed']}). `{res['command']}`, {res['wall_s']:.0f} s.", "",
+             f"(flight-level, {res['samples']} samples, seed {res['seed']}), the shipped policy and decoders "
+             f"(sha256 {', '.join(f'{k} {v}' for k, v in res['weights_sha256'].items())}). "
+             f"`{res['command']}`, {res['wall_s']:.0f} s.", "",
              "| IMU | tracking RMSE | truth inside 5–95 % (of 24) | outside | log warnings |", "|---|---|---|---|---|"]
     for lv, r in res["levels"].items():
         rmse = f"{100 * r['rmse_m']:.1f} cm" + (f" (lost at {r['flown_s']:.1f} s)" if r["lost"] else "")

@@ -1,0 +1,59 @@
+"""tools/rotorpy_noise.py (issue 29's RotorPy case): the mapping of θ onto RotorPy's parameters
+(no RotorPy needed), the one-line error without it, and a short flight when it is installed."""
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mjxsysid import params as P
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _tool():
+    spec = importlib.util.spec_from_file_location("rotorpy_noise", ROOT / "tools" / "rotorpy_noise.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_vehicle_maps_onto_rotorpy_parameters():
+    """Hover thrust of the mapped rotors carries the weight; the rotors sit at the arm length in
+    RotorPy's order with mjxsysid's yaw signs; the linear drag equals D at hover speed; the worn
+    motor is the one asked for."""
+    T = _tool()
+    theta = T.worn_vehicle(2, 0.8)
+    assert theta[P.ETA.start + 1] == pytest.approx(0.8) and theta[P.ETA.start] == pytest.approx(1.0)
+    q = T.rotorpy_params(theta)
+    hover = np.sqrt(q["mass"] * P.GRAVITY / (4 * q["k_eta"]))
+    assert 4 * q["k_eta"] * hover ** 2 == pytest.approx(q["mass"] * P.GRAVITY, rel=1e-6)
+    arms = [np.linalg.norm(q["rotor_pos"][f"r{i}"][:2]) for i in range(1, 5)]
+    np.testing.assert_allclose(arms, theta[P.ARM], rtol=1e-6)
+    fl = q["rotor_pos"]["r1"]
+    assert fl[0] > 0 and fl[1] > 0                        # RotorPy's rotor 1 is front-left (FLU)
+    assert 4 * q["k_d"] * hover == pytest.approx(float(theta[P.DRAG][0]), rel=1e-6)
+    assert q["tau_m"] == pytest.approx(float(theta[P.TAU_M])) and q["rotor_speed_max"] == pytest.approx(float(theta[P.OMEGA_MAX]))
+    with pytest.raises(ValueError):
+        T.worn_vehicle(1, -0.5)
+
+
+def test_without_rotorpy_the_tool_names_the_install_command(tmp_path):
+    code = ("import sys, runpy; sys.modules['rotorpy'] = None; sys.argv = ['x', '--quick', '--out', %r]; "
+            "runpy.run_path(%r, run_name='__main__')" % (str(tmp_path), str(ROOT / "tools" / "rotorpy_noise.py")))
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 1 and "pip install rotorpy" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.slow
+def test_quick_flight_decodes_the_clean_log(tmp_path):
+    pytest.importorskip("rotorpy")
+    r = subprocess.run([sys.executable, str(ROOT / "tools" / "rotorpy_noise.py"), "--quick", "--out", str(tmp_path)],
+                       capture_output=True, text=True, cwd=ROOT)
+    assert r.returncode == 0, r.stderr[-2000:]
+    import json
+    res = json.loads((tmp_path / "rotorpy_noise.json").read_text())
+    clean = res["levels"]["clean"]
+    assert clean["rmse_m"] < 0.10 and clean["inside"] >= 20 and not clean["lost"]
