@@ -59,6 +59,10 @@ def test_probe_loop_runs_written_before_the_variant_still_resume(tmp_path):
     _check_config(tmp_path, cfg, resume=True)                            # the new keys at their defaults
     with pytest.raises(ValueError, match="another config"):
         _check_config(tmp_path, {**cfg, "accumulate": True}, resume=True)
+    # the probe's seed is the loop's (runs before 2026-11-26 recorded the default, 0): they resume
+    cfg1 = {**cfg, "seed": 1, "probe": {**cfg["probe"], "seed": 1}}
+    (tmp_path / "loop_config.json").write_text(json.dumps({**cfg1, "probe": {**cfg["probe"], "seed": 0}}))
+    _check_config(tmp_path, cfg1, resume=True)
 
 
 @pytest.mark.slow

@@ -233,10 +233,13 @@ class _Stages:
 
 def _check_config(out: Path, cfg_dict: dict, resume: bool):
     """Refuse to resume a run of another config in ``out`` (LoopConfig keys added since the run
-    was written read as their defaults)."""
+    was written read as their defaults; the probe's seed, recorded as its default before
+    2026-11-26 although the probe always ran on the loop's seed, read as the loop's)."""
     path = out / "loop_config.json"
     if path.is_file() and resume:
         saved = json.loads(path.read_text())
+        if isinstance(saved.get("probe"), dict) and "seed" in saved:
+            saved["probe"] = {**saved["probe"], "seed": saved["seed"]}
         defaults = to_jsonable(dataclasses.asdict(LoopConfig()))
         if {**{k: v for k, v in defaults.items() if k not in saved}, **saved} != cfg_dict:
             raise ValueError(f"{out} holds a probe-loop run with another config or policy; use a new --out")
@@ -278,12 +281,13 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     if (cfg.accumulate or cfg.widened) and ref.kind != "mjxsysid":
         raise ValueError(f"probe-loop --variant accumulate/widened trains from or beside the given policy: it must be "
                          f"an mjxsysid policy, got {ref.kind}")
+    cfg = dataclasses.replace(cfg, probe=dataclasses.replace(cfg.probe, seed=seed))   # the probe runs on the loop's seed
     cfg_dict = to_jsonable({"quick": quick, "seed": seed, "policy": ref.label, "policy_sha256": ref.sha256(),
                             "decoders": None if decoders is None else str(decoders), **dataclasses.asdict(cfg)})
     out.mkdir(parents=True, exist_ok=True)
     _check_config(out, cfg_dict, resume)
     stage = _Stages(out, log)
-    probe_cfg = dataclasses.replace(cfg.probe, seed=seed)
+    probe_cfg = cfg.probe
     base = train_config(cfg, seed)
     refs, ev, probes, calib, replay = {"given": ref}, {}, {}, {}, {}
 
