@@ -77,10 +77,16 @@ def figure(rows: list[dict], path: Path) -> None:
         for a, k in zip(ax, ("rmse_ratio", "success")):
             a.plot(r["command_wall_s"], r[k], "o")
             a.annotate(r["name"], (r["command_wall_s"], r[k]), fontsize=8, xytext=(4, 4), textcoords="offset points")
-    refs = [r for r in rows if r.get("command_wall_s") is None]
-    for i, r in enumerate(refs):
+    refs = [r for r in rows if r.get("command_wall_s") is None]   # runs without a command time: a band
+    if refs:
+        names = ", ".join(r["name"] for r in refs)
         for a, k in zip(ax, ("rmse_ratio", "success")):
-            a.axhline(r[k], ls="--", c=f"C{7 + i % 3}", lw=1, label=r["name"])
+            v = [r[k] for r in refs]
+            a.axhspan(min(v), max(v), color="0.85", zorder=0,
+                      label=f"{len(v)} runs without a command time: {min(v):.3f}–{max(v):.3f}")
+            for x in v:
+                a.axhline(x, ls="--", c="0.5", lw=0.8, zorder=1)
+        fig.suptitle(f"grey band: {names}", fontsize=8)
     ax[0].axhline(1.05, c="r", lw=1)
     ax[0].set(xlabel="training command wall time (s, one H100, compile included)", ylabel="RMSE / oracle (lemniscate)",
               title="tracking on the default prior (target ≤ 1.05)")
@@ -89,7 +95,7 @@ def figure(rows: list[dict], path: Path) -> None:
     for a in ax:
         a.axvline(60, c="r", lw=1, ls=":")
         if refs:
-            a.legend(fontsize=8, loc="best")
+            a.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
