@@ -45,6 +45,8 @@ ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_POLICY_CONFIG = "tools/configs/policy_release.json"
 """The policy stage's TrainConfig overrides (relative paths: to the working directory, else to ROOT)."""
 RECORD = "release.json"
+ADOPTED_PROVENANCE = "adopted_policy.json"
+"""The adopted policy's provenance JSON, kept by the policy stage of a ``--from-policy`` release."""
 SCALES = ("full", "tiny")
 
 TINY_TRAIN = dict(num_envs=64, unroll=16, iterations=4, epochs=2, minibatches=4, log_every=1, checkpoint_every=2,
@@ -437,6 +439,8 @@ def stage_policy(rel: Release, out: Path) -> dict:
         if not src.is_file():
             raise FileNotFoundError(f"--from-policy: policy weights not found: {src}")
         shutil.copyfile(src, out / "policy.npz")
+        if src.with_suffix(".json").is_file():   # how it was trained: kept for the shipped provenance
+            shutil.copyfile(src.with_suffix(".json"), out / ADOPTED_PROVENANCE)
         meta = load_meta(out / "policy.npz")
         return {"command": f"adopted {src} (no training)",
                 "config": {"adopted_from": str(src), "sha256": file_sha256(out / "policy.npz"),
@@ -801,15 +805,15 @@ def _copy(src: Path, dst: Path, *, link: bool = False) -> None:
 _TRAINING_KEYS = ("command", "commit", "device", "jax", "wall_s", "env_steps", "mean_train_steps_per_s")
 
 
-def _adopted_training(from_policy) -> dict:
+def _adopted_training(rel: Release) -> dict:
     """For a release that adopted a policy (``--from-policy``): how that policy was trained, from
-    the provenance JSON beside it (its command, commit, device, wall time, steps/s: the release
-    did not train it), and where it came from. Empty for a release that trained its own."""
-    if not from_policy:
+    the provenance JSON the policy stage kept beside it (its command, commit, device, wall time,
+    steps/s: the release did not train it), and where it came from. Empty for a release that
+    trained its own."""
+    if not rel.options.from_policy:
         return {}
-    src = Path(from_policy)
-    out = {"adopted_from": str(src)}
-    prov = src.with_suffix(".json")
+    out = {"adopted_from": rel.options.from_policy}
+    prov = rel.stage_dir("policy") / ADOPTED_PROVENANCE
     if prov.is_file():
         prior = json.loads(prov.read_text())
         out.update({k: prior[k] for k in _TRAINING_KEYS if k in prior})
@@ -849,7 +853,7 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
         prov = policy_provenance(rel.policy_path, ev, train_log=rel.stage_dir("policy") / "train_log.jsonl",
                                  command=f"{cmd}  (stage policy: {stage_cmd})", commit=rel.entry("policy").get("commit"))
         prov["evaluation_command"] = rel.entry("policy_eval").get("command") or prov["evaluation_command"]
-        prov.update(_adopted_training(rel.options.from_policy))
+        prov.update(_adopted_training(rel))
         prov["release"] = release_info("policy")
         (pre / "policy.json").write_text(json.dumps(prov, indent=2, ensure_ascii=False) + "\n")
     evals = {"single": rel.stage_dir("decoder_eval") / "single" / "decoder_eval.json",

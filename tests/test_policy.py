@@ -327,3 +327,16 @@ def test_fast_eval_tiny_on_shipped_policy():
     for k in ("train_cmds", "flight"):
         assert 0.0 < s[k]["z_err_rel"] < 1.5 and s[k]["z_min_std"] > 0.02
         assert all(np.isfinite(v) for v in s[k].values())
+
+
+def test_warm_start_normalizer_check_allows_float32_rounding_only():
+    """init_from accepts a policy whose normaliser differs in the last bits (another device's
+    reductions), not one of another prior, nor one with other keys."""
+    from mjxsysid.policy.train import _same_normalizer
+    norm = {"shift": [0.1, -2.0, 3.5], "scale": [1.0, 0.5, 2.0]}
+    near = {k: (np.asarray(v) * (1 + 1e-7)).tolist() for k, v in norm.items()}
+    far = {k: (np.asarray(v) * 1.01 + 0.01).tolist() for k, v in norm.items()}
+    assert _same_normalizer(norm, near)
+    assert not _same_normalizer(norm, far)
+    assert not _same_normalizer(norm, {**norm, "flow_map": [[1.0]]})
+    assert not _same_normalizer(norm, {k: v[:-1] for k, v in norm.items()})

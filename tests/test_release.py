@@ -230,6 +230,7 @@ def test_ship_tree_carries_release_provenance(tmp_path):
     assert not (tree / "mjxsysid/pretrained/cfm_seq.json").exists()
     # a release that adopted a policy keeps how it was trained (command, commit) from the JSON beside it
     shipped = json.loads((pre / "policy.json").read_text())
+    shutil.copy(pre / "policy.json", rel.stage_dir("policy") / "adopted_policy.json")   # as the stage keeps it
     rel.options = dataclasses.replace(rel.options, from_policy=str(pre / "policy.npz"))
     build_tree(rel, tmp_path / "tree2", partial=True)
     pol = json.loads((tmp_path / "tree2/mjxsysid/pretrained/policy.json").read_text())

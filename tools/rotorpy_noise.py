@@ -24,7 +24,6 @@ centre of mass (specific force and body rates, FLU) plus the level's noise.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import sys
 import tempfile
@@ -39,6 +38,7 @@ from mjxsysid import params as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.policy.controller import PolicyController
+from mjxsysid.policy.interface import PRETRAINED_DIR, file_sha256
 from mjxsysid.studies.decode import LOG_DT, run_decode, write_log
 from mjxsysid.studies.noise import LEVELS as NOISE_LEVELS
 
@@ -46,7 +46,6 @@ LEVELS = ("clean", "x1", "x5_bias", "x5_white", "x20")
 LABELS = {"clean": "clean", "x1": "× 1 (white + bias)", "x5_bias": "× 5 bias only",
           "x5_white": "× 5 white only", "x20": "× 20 (white + bias)"}
 ROTORPY_ORDER = (1, 0, 3, 2)   # mjxsysid's rotor i is RotorPy's rotor ROTORPY_ORDER[i] (and back: the same)
-PRETRAINED = Path(P.__file__).resolve().parent / "pretrained"   # the shipped policy and decoders
 PIP = ".venv/bin/pip install rotorpy==3.0.0  (or the wheel: .venv/bin/pip install rotorpy-3.0.0-py3-none-any.whl)"
 
 
@@ -172,7 +171,7 @@ def main():
            "rotorpy": getattr(rotorpy, "__version__", None) or _dist_version("rotorpy"),
            "vehicle": P.theta_to_dict(theta), "worn_motor": a.worn_motor, "eta": a.eta, "seconds": a.seconds,
            "reference": "lemniscate, period 10 s, size (1, 1, 0.3) m", "samples": a.samples, "seed": a.seed,
-           "weights_sha256": {f: hashlib.sha256((PRETRAINED / f).read_bytes()).hexdigest()[:16]
+           "weights_sha256": {f: file_sha256(PRETRAINED_DIR / f)[:16]
                               for f in ("policy.npz", "cfm_seq.npz", "cfm.npz", "regression.npz")},
            "levels": {}}
     for lv in levels:
