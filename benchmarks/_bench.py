@@ -23,3 +23,18 @@ def write_json(path: Path, res: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(res, indent=2) + "\n")
     print(f"wrote {path}", file=sys.stderr)
+
+
+def config_overrides(pairs: list[str]) -> dict:
+    """``KEY=VALUE`` strings (``--set``) -> a dict of TrainConfig overrides, values read as JSON
+    (``true``, ``2``, ``0.1``) or else kept as strings."""
+    out = {}
+    for p in pairs:
+        key, sep, value = p.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"--set: expected KEY=VALUE, got {p!r}")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out

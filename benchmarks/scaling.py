@@ -37,7 +37,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
-from _bench import wall_times, write_json
+from _bench import config_overrides, wall_times, write_json
 
 
 def best_of(fn, repeats: int) -> float:
@@ -68,8 +68,9 @@ def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
 def bench_train(devices: int, args, envs: int | None = None) -> dict:
     from mjxsysid import distributed as D
     from mjxsysid.policy.train import TrainConfig, Trainer
-    cfg = TrainConfig(num_envs=envs or args.envs, unroll=args.unroll, minibatches=args.minibatches,
-                      iterations=1500, reset_per_unroll=args.reset_per_unroll)
+    cfg = TrainConfig(**{"iterations": 1500, "unroll": args.unroll, "minibatches": args.minibatches,
+                         "reset_per_unroll": args.reset_per_unroll, **config_overrides(args.set),
+                         "num_envs": envs or args.envs})
     with D.limit_devices(devices):
         mesh = D.batch_mesh(divides=cfg.num_envs)
         tr = Trainer(cfg, mesh)
@@ -106,6 +107,8 @@ def main():
     ap.add_argument("--reset-per-unroll", action="store_true",
                     help="train: TrainConfig.reset_per_unroll (episode starts drawn once per unroll)")
     ap.add_argument("--no-weak", action="store_true", help="skip the weak-scaling runs")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="train: further TrainConfig fields (e.g. epochs=4 flat_optimizer=true)")
     ap.add_argument("--out", type=Path, default=Path("docs/runs/benchmarks/scaling.json"))
     args = ap.parse_args()
     for k in ("vehicles", "steps", "envs", "unroll", "minibatches", "iterations", "repeats"):
@@ -126,8 +129,8 @@ def main():
                        "devices": n_all, "processes": jax.process_count(), "host": platform.node(),
                        "cpu_count": os.cpu_count(), "jax": jax.__version__,
                        "xla_flags": os.environ.get("XLA_FLAGS", "")},
-           "config": {k: getattr(args, k) for k in ("vehicles", "steps", "envs", "unroll", "minibatches",
-                                                     "iterations", "repeats")}}
+           "config": {**{k: getattr(args, k) for k in ("vehicles", "steps", "envs", "unroll", "minibatches",
+                                                        "iterations", "repeats")}, "set": config_overrides(args.set)}}
     if dev.platform == "cpu":
         res["note"] = ("CPU run: a correctness run of the sharded path end to end, not a speed figure "
                        "(forced host devices share the same cores)")

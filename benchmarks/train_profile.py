@@ -20,6 +20,9 @@ sum to slightly more than the fused iteration (each pays its own launch). Prints
 
     python benchmarks/train_profile.py --configs 4096x32x4x8 16384x32x4x8 --out docs/runs/benchmarks/train_profile.json
     python benchmarks/train_profile.py --configs 64x8x2x2 --repeats 2   # CPU smoke test
+    python benchmarks/train_profile.py --configs 16384x32x4x8 --set flat_optimizer=true reset_per_unroll=true
+
+``--set KEY=VALUE`` applies further TrainConfig fields to every profiled config.
 """
 from __future__ import annotations
 
@@ -34,7 +37,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
-from _bench import wall_times, write_json
+from _bench import config_overrides, wall_times, write_json
 
 
 def median_time(fn, repeats: int) -> float:
@@ -146,16 +149,20 @@ def main():
                     help="ENVSxUNROLLxEPOCHSxMINIBATCHES, one profile each")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--iterations", type=int, default=10, help="iterations per timed call of the whole iteration")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="further TrainConfig fields for every config (e.g. flat_optimizer=true)")
     ap.add_argument("--out", type=Path, default=Path("docs/runs/benchmarks/train_profile.json"))
     args = ap.parse_args()
     if args.repeats < 1 or args.iterations < 1:
         ap.error("--repeats and --iterations must be >= 1")
-    configs = [parse_config(c) for c in args.configs]
+    extra = config_overrides(args.set)
+    configs = [dict(parse_config(c), **extra) for c in args.configs]
     dev = jax.devices()[0]
     res = {"command": " ".join([os.path.basename(sys.executable), *sys.argv]),
            "date": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
            "machine": {"platform": dev.platform, "device_kind": getattr(dev, "device_kind", ""),
-                       "host": platform.node(), "cpu_count": os.cpu_count(), "jax": jax.__version__},
+                       "host": platform.node(), "cpu_count": os.cpu_count(), "jax": jax.__version__,
+                       "xla_flags": os.environ.get("XLA_FLAGS", "")},
            "profiles": []}
     for c in configs:
         r = profile(c, args.repeats, args.iterations)

@@ -2,7 +2,9 @@
 # Independent GPU jobs spread over every GPU of the device machine, one job per GPU at a time
 # (Python 3.12 + jax there, MuJoCo/MJX from .site, see README "GPU").
 #   bash tools/gpu_farm.sh JOBS_FILE
-# JOBS_FILE: one job a line, `NAME|GPU|NEEDS|COMMAND` (GPU: an index, or * for any free one; NEEDS:
+# JOBS_FILE: one job a line, `NAME|GPU|NEEDS|COMMAND` (GPU: an index, * for any free one, or indices
+# joined by + for a job on several GPUs, e.g. 0+1: GPU 0's worker runs it once GPU 1 is idle, and GPU 1's
+# worker starts nothing while it is pending; put such jobs first); NEEDS:
 # job names joined by commas, or -); `#` starts a comment. Each GPU's worker runs, in file order,
 # the first job that is not done, not taken, meant for it, and whose NEEDS are done; a job is done
 # when its command exits 0 (FARM/done/NAME). The command must resume what an earlier call left
@@ -46,13 +48,24 @@ pack() {   # one archive per group of PACK (groups joined by ';'): each must sta
 worker() {   # GPU
   local gpu=$1
   while :; do
-    local ran=0 waiting=0
+    local ran=0 waiting=0 reserved=0
+    # A pending several-GPU job that needs this GPU (not as its first): start nothing until it is over.
+    while IFS='|' read -r name where needs cmd; do
+      name=$(echo "$name" | xargs); where=$(echo "$where" | xargs)
+      [[ -z $name || $name == \#* || $where != *+* ]] && continue
+      [ -e "$FARM/done/$name" ] || [ -e "$FARM/failed/$name" ] && continue
+      [[ "+${where#*+}+" == *"+$gpu+"* ]] && reserved=1
+    done < "$JOBS"
+    if [ $reserved = 1 ]; then
+      [ $(( END - $(date +%s) )) -ge 20 ] || return
+      sleep 5; continue
+    fi
     while IFS='|' read -r name where needs cmd; do
       [[ $name == \#* ]] && continue
       name=$(echo "$name" | xargs); where=$(echo "$where" | xargs); needs=$(echo "$needs" | xargs)
       [ -z "$name" ] && continue; [[ $name == \#* ]] && continue
       [ -e "$FARM/done/$name" ] || [ -e "$FARM/claim/$name" ] && continue
-      [ "$where" = "*" ] || [ "$where" = "$gpu" ] || continue
+      [ "$where" = "*" ] || [ "$where" = "$gpu" ] || [ "${where%%+*}" = "$gpu" ] || continue
       local ready=1 blocked=0
       for d in ${needs//,/ }; do
         [ "$d" = - ] && continue
@@ -62,12 +75,18 @@ worker() {   # GPU
       [ $blocked = 1 ] && continue
       [ $ready = 1 ] || { waiting=1; continue; }
       mkdir "$FARM/claim/$name" 2>/dev/null || continue
+      local gpus=$gpu locks=() g fd
+      [[ $where == *+* ]] && gpus=${where//+/,}
+      for g in ${gpus//,/ }; do   # each GPU's lock: held by whoever runs on it
+        exec {fd}>"$FARM/gpu$g.lock"; flock "$fd"; locks+=("$fd")
+      done
       local left=$(( END - $(date +%s) ))
-      [ $left -lt 20 ] && { rmdir "$FARM/claim/$name"; return; }
-      echo "[$(t) gpu $gpu] $name: start ($left s left)"
-      echo "=== $(date -u +%FT%TZ) gpu $gpu, $left s left: $cmd" >> "$FARM/logs/$name.log"
-      CUDA_VISIBLE_DEVICES=$gpu timeout --kill-after=15 "$left" bash -c "$cmd" >> "$FARM/logs/$name.log" 2>&1
+      [ $left -lt 20 ] && { rmdir "$FARM/claim/$name"; for fd in "${locks[@]}"; do exec {fd}>&-; done; return; }
+      echo "[$(t) gpu $gpus] $name: start ($left s left)"
+      echo "=== $(date -u +%FT%TZ) gpu $gpus, $left s left: $cmd" >> "$FARM/logs/$name.log"
+      CUDA_VISIBLE_DEVICES=$gpus timeout --kill-after=15 "$left" bash -c "$cmd" >> "$FARM/logs/$name.log" 2>&1
       local rc=$?
+      for fd in "${locks[@]}"; do exec {fd}>&-; done
       if [ $rc = 0 ]; then touch "$FARM/done/$name"; echo "[$(t) gpu $gpu] $name: done"
       else touch "$FARM/failed/$name"; echo "[$(t) gpu $gpu] $name: exit $rc$([ $rc = 124 ] && echo ' (cut at the budget)')"
            grep -v -i warp "$FARM/logs/$name.log" | tail -4 | sed 's/^/    /'; fi

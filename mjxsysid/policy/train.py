@@ -24,6 +24,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 import json
+import os
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -83,6 +84,15 @@ class TrainConfig:
     # environment per unroll (``unroll`` × fewer resets; the rollout's largest cost after the
     # simulator step, docs/runs/benchmarks/train_profile.json).
     reset_per_unroll: bool = False
+    # Speed options of issue 30 (off by default: the shipped policy's protocol). ``flat_optimizer``:
+    # Adam and the gradient clip on one concatenated parameter vector (optax.flatten; the same update up
+    # to float reassociation in fewer, larger kernels). ``update_unroll``: gradient steps unrolled per
+    # loop trip of the update (fewer device-side loop iterations). ``lr_decay``: the learning rate
+    # falls linearly to ``lr_final`` × learning_rate over training (a schedule; changes the result).
+    flat_optimizer: bool = False
+    update_unroll: int = 1
+    lr_decay: bool = False
+    lr_final: float = 0.1
     checkpoint_every: int = 50
     log_every: int = 10
     env: EnvConfig = EnvConfig()
@@ -103,11 +113,13 @@ class TrainConfig:
         if unknown:
             raise ValueError(f"unknown training config key(s) {unknown}; known: {sorted(known)}")
         cfg = cls(**d, env=env)
-        for k in ("num_envs", "unroll", "iterations", "epochs", "minibatches"):
+        for k in ("num_envs", "unroll", "iterations", "epochs", "minibatches", "update_unroll"):
             if getattr(cfg, k) < 1:
                 raise ValueError(f"config {k} must be >= 1, got {getattr(cfg, k)}")
         if (cfg.num_envs * cfg.unroll) % cfg.minibatches or cfg.num_envs % cfg.minibatches:
             raise ValueError("num_envs and num_envs × unroll must be divisible by minibatches")
+        if not 0.0 <= cfg.lr_final <= 1.0:
+            raise ValueError(f"config lr_final must be in [0, 1] (a fraction of learning_rate), got {cfg.lr_final}")
         return cfg
 
 
@@ -249,6 +261,18 @@ def identifiable_projection(normalizer: P.Normalizer, prior: P.Prior, n: int = 2
     return project(jax.random.PRNGKey(seed))
 
 
+def optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
+    """Gradient clip + Adam of ``cfg``: constant learning rate, or with ``lr_decay`` a linear fall to
+    ``lr_final`` × learning_rate over the run's gradient steps; with ``flat_optimizer`` on one
+    concatenated parameter vector."""
+    lr = cfg.learning_rate
+    if cfg.lr_decay:
+        lr = optax.linear_schedule(cfg.learning_rate, cfg.learning_rate * cfg.lr_final,
+                                   cfg.iterations * cfg.epochs * cfg.minibatches)
+    opt = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(lr))
+    return optax.flatten(opt) if cfg.flat_optimizer else opt
+
+
 LOSS_WEIGHT_FIELDS = ("lambda1", "lambda2", "var_coef", "var_target", "rec_coef", "rec_ident_coef")
 
 
@@ -268,16 +292,23 @@ class LossWeights:
         return cls(**{f: jnp.float32(getattr(cfg, f)) for f in LOSS_WEIGHT_FIELDS})
 
 
+def normalize_advantages(adv):
+    """Advantages (..., B) standardised over their last axis (each minibatch on its own). Done for
+    all of an epoch's minibatches before its gradient steps: the statistics do not depend on the
+    parameters, so a sharded update needs no collective for them inside each step."""
+    return (adv - adv.mean(-1, keepdims=True)) / (adv.std(-1, keepdims=True) + 1e-8)
+
+
 def loss_fn(params, nets, cfg: TrainConfig, w: LossWeights, ident_proj, mb: Batch, adv, ret,
             snap_theta, snap_hist, beta):
-    """Joint loss of one minibatch (mb leaves (B, ...), snapshots (S, ...)); ident_proj (19, 6)
-    from :func:`identifiable_projection`. Returns (loss, aux)."""
+    """Joint loss of one minibatch (mb leaves (B, ...), snapshots (S, ...)); ``adv`` (B,) already
+    normalised over the minibatch (:func:`normalize_advantages`); ident_proj (19, 6) from
+    :func:`identifiable_projection`. Returns (loss, aux)."""
     z_theta = nets.encode(params, mb.theta_norm)
     z = jnp.where(mb.use_zhat[:, None], jax.lax.stop_gradient(mb.zhat), z_theta)
     mean, log_std = nets.act(params, mb.state, z)
     logp = gaussian_logp(mb.raw, mean, log_std)
     ratio = jnp.exp(logp - mb.logp)
-    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
     pg = -jnp.mean(jnp.minimum(ratio * adv, jnp.clip(ratio, 1 - cfg.clip, 1 + cfg.clip) * adv))
     v = nets.value(params, mb.state, mb.theta_norm, jax.lax.stop_gradient(z))
     vf = 0.5 * jnp.mean((v - ret) ** 2)
@@ -309,7 +340,9 @@ class Trainer:
         self.cfg = cfg
         self.env = TrainEnv(cfg.env, focus_theta=None if cfg.focus is None else load_weak(cfg.focus)[0])
         self.nets = self.env.nets
-        self.opt = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(cfg.learning_rate))
+        self.opt = optimizer(cfg)
+        self._compiling = None   # a background compile of the iteration (start_compile)
+        self._compiled = None
         self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior,
                                                   yaw_authority=cfg.ident_yaw_authority)
         self.mesh = mesh if mesh is not None and mesh.size > 1 else None
@@ -332,8 +365,49 @@ class Trainer:
         return distributed.replicate(tree, self.mesh) if self.mesh is not None else tree
 
     def iteration(self, ts: TrainState, env_state: EnvState):
-        """One training iteration under ``self.weights`` -> (ts, env_state, stats)."""
+        """One training iteration under ``self.weights`` -> (ts, env_state, stats). After
+        :meth:`start_compile`, the first call waits for that compile and later ones run its executable."""
+        if self._compiling is not None:
+            thread, box = self._compiling
+            thread.join()
+            self._compiling = None
+            if "error" in box:
+                raise box["error"]
+            self._compiled = box["compiled"]
+        if self._compiled is not None:
+            return self._compiled(ts, env_state, self.weights)
         return self._iteration_jit(ts, env_state, self.weights)
+
+    def abstract_state(self):
+        """Shapes and dtypes (jax.ShapeDtypeStruct trees) of (TrainState, EnvState) as
+        :meth:`init` and :meth:`reset` make them, without computing them."""
+        key = jax.random.PRNGKey(0)
+        ts = jax.eval_shape(lambda k: self._fresh_state(self.nets.init(k), k), key)
+        return ts, jax.eval_shape(self._reset, key, jnp.float32(0.0))
+
+    def start_compile(self) -> None:
+        """Compile the iteration in a background thread (XLA compiles without holding the GIL),
+        so that the compile overlaps the setup that follows (init, reset, loading a checkpoint):
+        the cold start of ``train`` costs the longer of the two instead of their sum. The next
+        :meth:`iteration` waits for it (and raises what it raised)."""
+        import threading
+        if self._compiling is not None or self._compiled is not None:
+            return
+        ts, env = self.abstract_state()
+        box = {}
+
+        def work():
+            try:
+                t0 = time.time()
+                box["compiled"] = self._iteration_jit.lower(ts, env, self.weights).compile()
+                box["seconds"] = time.time() - t0
+            except Exception as e:   # noqa: BLE001 - re-raised in the caller's thread by iteration()
+                box["error"] = e
+
+        thread = threading.Thread(target=work, name="mjxsysid-compile", daemon=True)
+        thread.start()
+        self._compiling = (thread, box)
+        self.compile_box = box
 
     def reweighted(self, cfg: TrainConfig) -> "Trainer":
         """A trainer for ``cfg`` sharing this one's compiled iteration; ``cfg`` may differ from
@@ -350,6 +424,9 @@ class Trainer:
         params = self.nets.init(key)
         if self.cfg.init_from is not None:
             params = {**params, **self.warm_start_params()}
+        return self._fresh_state(params, key)
+
+    def _fresh_state(self, params, key) -> TrainState:
         return TrainState(params=params, opt_state=self.opt.init(params), iteration=jnp.int32(0),
                           key=jax.random.fold_in(key, 1))
 
@@ -451,7 +528,8 @@ class Trainer:
             sperm = jax.random.permutation(jax.random.fold_in(k, 1), cfg.num_envs).reshape(m, -1)
             # One gather per leaf and epoch (minibatches × rows), sliced by the scan: the same
             # minibatches as gathering each one inside it, in fewer, larger kernels.
-            shuffled = (*jax.tree.map(lambda x: x[perm], flat), snap_theta[sperm], snap_hist[sperm])
+            mb, adv, ret = jax.tree.map(lambda x: x[perm], flat)
+            shuffled = (mb, normalize_advantages(adv), ret, snap_theta[sperm], snap_hist[sperm])
 
             def minibatch(carry, batch):
                 params, opt_state = carry
@@ -462,7 +540,7 @@ class Trainer:
                 updates, opt_state = self.opt.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), dict(aux, loss=loss)
 
-            return jax.lax.scan(minibatch, carry, shuffled)
+            return jax.lax.scan(minibatch, carry, shuffled, unroll=min(cfg.update_unroll, m))
 
         (params, opt_state), aux = jax.lax.scan(epoch, (params, opt_state), jax.random.split(key, cfg.epochs))
         return params, opt_state, aux
@@ -494,16 +572,21 @@ def load_policy_params(path):
     return params, load_meta(path)
 
 
-def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer: Trainer | None = None) -> dict:
+def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer: Trainer | None = None,
+          background_compile: bool | None = None) -> dict:
     """Train with checkpoints in ``out_dir`` (``checkpoint.npz``: training state and the
     environments' state, so an interrupted run resumed from it continues exactly as an
     uninterrupted one; resumed if present and ``resume``). Writes ``policy.npz`` (shipped
     format) and ``train_log.jsonl``. Returns the last stats and wall time. A progress bar
     (:mod:`mjxsysid.progress`) advances per iteration with the key metrics. ``trainer``: a
     prebuilt :class:`Trainer` for ``cfg`` (e.g. from :meth:`Trainer.reweighted`, to share its
-    compile)."""
+    compile). ``background_compile`` (default on; the environment variable
+    ``MJXSYSID_BACKGROUND_COMPILE=0`` turns it off, for timing the difference): the iteration
+    compiles in a background thread while the states are made (:meth:`Trainer.start_compile`)."""
 
     t_enter = time.time()
+    if background_compile is None:
+        background_compile = os.environ.get("MJXSYSID_BACKGROUND_COMPILE", "1") != "0"
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if trainer is not None and trainer.cfg != cfg:
@@ -511,7 +594,10 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     mesh = distributed.batch_mesh(divides=cfg.num_envs)
     if trainer is not None and (trainer.mesh.size if trainer.mesh is not None else 1) != mesh.size:
         raise ValueError(f"train: the trainer was built for another device mesh than the {mesh.size} device(s)")
-    trainer = trainer or Trainer(cfg, mesh)
+    if trainer is None:
+        trainer = Trainer(cfg, mesh)
+        if background_compile:
+            trainer.start_compile()   # the iteration compiles while the states below are made
     ts = trainer.init(jax.random.PRNGKey(cfg.seed))
     ckpt = out / "checkpoint.npz"
     env_state = None
@@ -580,6 +666,8 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     logf.close()
     wall = wall_prev + time.time() - t_start
     timing["loop_s"] = time.time() - t_start
+    if "seconds" in getattr(trainer, "compile_box", {}):
+        timing["iteration_compile_s"] = trainer.compile_box["seconds"]   # in the background, from setup on
     if jax.process_index() == 0:
         export_policy(ts.params, out / "policy.npz", {
             "config": cfg.to_dict(), "normalizer": trainer.env.normalizer.to_dict(),
