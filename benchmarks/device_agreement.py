@@ -59,13 +59,12 @@ def update_params(envs: int, devices):
     env = one.reset(jax.random.PRNGKey(1), jnp.float32(0.0))
     p, beta = schedules(cfg, jnp.int32(50))
     env, batch, last_value = jax.jit(lambda prm, e: one._rollout(prm, e, jax.random.PRNGKey(2), p, 50))(ts.params, env)
-    flat = one._advantages(batch, last_value)
     with D.limit_devices(devices):
         tr = Trainer(cfg, D.batch_mesh(divides=envs))
         params, opt_state = tr.place((ts.params, ts.opt_state))
         snap_theta, snap_hist = (D.shard_batch(x, envs) if tr.mesh is not None else x
                                  for x in (env.theta_norm, env.history))
-        flat = D.shard_batch(flat, envs * cfg.unroll) if tr.mesh is not None else flat
+        flat = jax.jit(tr._advantages)(batch, last_value)   # on a mesh: (D, T·N/D, ...), device by device
         out = jax.jit(tr._update)(params, opt_state, flat, snap_theta, snap_hist, jax.random.PRNGKey(4),
                                   tr.place(beta), tr.weights)
         return jax.tree.map(np.asarray, out[0]), (tr.mesh.size if tr.mesh is not None else 1)

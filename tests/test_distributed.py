@@ -102,10 +102,14 @@ def test_collect_pairs_two_devices_equal_one():
 @pytest.mark.slow
 def test_training_iteration_two_devices_equals_one():
     """One full PPO iteration (about 5 minutes on 2 CPU cores, compiles; the fast tier checks
-    the data-parallel update on a small loss below)."""
+    the data-parallel update on a small loss below). One minibatch: on a mesh each device
+    shuffles its own samples (test_local_minibatches_partition_each_device), so with several
+    minibatches their composition differs from one device's; with one, every sample is in it
+    on both. The compiled iteration moves no samples between the devices (no all-gather)."""
     r = run_two_devices("""
+        import re
         from mjxsysid.policy.train import TrainConfig, Trainer
-        cfg = TrainConfig(num_envs=8, unroll=4, epochs=1, minibatches=2, iterations=10)
+        cfg = TrainConfig(num_envs=8, unroll=4, epochs=1, minibatches=1, iterations=10)
         def one_iteration(mesh):
             tr = Trainer(cfg, mesh)
             ts = tr.place(tr.init(jax.random.PRNGKey(0)))
@@ -116,18 +120,54 @@ def test_training_iteration_two_devices_equals_one():
             ts1, env1, s1 = one_iteration(D.batch_mesh(divides=cfg.num_envs))
         ts2, env2, s2 = one_iteration(D.batch_mesh(divides=cfg.num_envs))
         p0 = Trainer(cfg).init(jax.random.PRNGKey(0)).params
+        tr2 = Trainer(cfg, D.batch_mesh(divides=cfg.num_envs))
+        hlo = tr2._iteration_jit.lower(*tr2.abstract_state(), tr2.weights).compile().as_text()
         print(json.dumps({"env_sharded_over": len(jax.tree.leaves(env2)[0].sharding.device_set),
+                          "all_gathers": len(re.findall(r" all-gather(?:-start)?\(", hlo)),
+                          "all_reduces": len(re.findall(r" all-reduce(?:-start)?\(", hlo)),
                           "loss1": float(s1["loss"]), "loss2": float(s2["loss"]),
                           "param_rel_diff": maxdiff(ts1.params, ts2.params),
                           "param_change": maxdiff(ts1.params, p0),
                           "env_diff": maxdiff(env1.theta, env2.theta)}))
     """)
     assert r["env_sharded_over"] == 2
+    assert r["all_gathers"] == 0 and r["all_reduces"] >= 1   # gradients summed, samples never moved
     assert np.isfinite(r["loss1"])
     assert abs(r["loss1"] - r["loss2"]) <= 1e-5 * max(1.0, abs(r["loss1"]))
     assert r["param_change"] > 1e-6                          # the update moved the parameters
     assert r["param_rel_diff"] <= 1e-5
     assert r["env_diff"] <= 1e-6
+
+
+def test_local_minibatches_partition_each_device():
+    """Trainer._local_minibatches on 2 devices: every epoch's minibatches hold each sample once,
+    rows of one sample stay together across leaves, and each device's slice of every minibatch
+    comes from its own environments (so the shuffle moves nothing between the devices)."""
+    r = run_two_devices("""
+        from mjxsysid.policy.train import TrainConfig, Trainer
+        cfg = TrainConfig(num_envs=16, unroll=4, epochs=1, minibatches=4, iterations=10)
+        tr = Trainer(cfg, D.batch_mesh(divides=cfg.num_envs))
+        t, n, d = cfg.unroll, cfg.num_envs, 2
+        ids = np.arange(t * n, dtype=np.float32).reshape(t, n)          # sample id = t·N + env
+        env_of = np.broadcast_to(np.arange(n, dtype=np.float32), (t, n))
+        # The layout Trainer._advantages gives on a mesh: (D, T·N/D), device by device.
+        flat = tuple(D.shard_batch(x.reshape(t, d, n // d).swapaxes(0, 1).reshape(d, -1), d) for x in (ids, env_of, ids))
+        snaps = D.shard_batch((np.arange(n, dtype=np.float32), np.arange(n, dtype=np.float32) * 10), n)
+        (a, b, c), (s1, s2) = jax.jit(tr._local_minibatches)(jax.random.PRNGKey(0), flat, snaps)
+        a, b, c, s1, s2 = map(np.asarray, (a, b, c, s1, s2))
+        half = a.shape[1] // 2
+        print(json.dumps({"shape": list(a.shape), "snap_shape": list(s1.shape),
+                          "each_once": sorted(a.ravel().tolist()) == list(range(t * n)),
+                          "snaps_once": sorted(s1.ravel().tolist()) == list(range(n)),
+                          "rows_together": bool(np.array_equal(a, c) and np.array_equal(s2, 10 * s1)
+                                                and np.array_equal(b, a % n)),
+                          "device0_local": bool(np.all(b[:, :half] < n // 2) and np.all(s1[:, :s1.shape[1] // 2] < n // 2)),
+                          "device1_local": bool(np.all(b[:, half:] >= n // 2) and np.all(s1[:, s1.shape[1] // 2:] >= n // 2)),
+                          "shuffled": bool(not np.array_equal(np.sort(a, 1), a))}))
+    """)
+    assert r["shape"] == [4, 16] and r["snap_shape"] == [4, 4]
+    assert r["each_once"] and r["snaps_once"] and r["rows_together"]
+    assert r["device0_local"] and r["device1_local"] and r["shuffled"]
 
 
 @pytest.mark.slow

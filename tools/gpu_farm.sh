@@ -51,8 +51,8 @@ worker() {   # GPU
     local ran=0 waiting=0 reserved=0
     # A pending several-GPU job that needs this GPU (not as its first): start nothing until it is over.
     while IFS='|' read -r name where needs cmd; do
+      [[ $name == \#* || $where != *+* ]] && continue
       name=$(echo "$name" | xargs); where=$(echo "$where" | xargs)
-      [[ -z $name || $name == \#* || $where != *+* ]] && continue
       [ -e "$FARM/done/$name" ] || [ -e "$FARM/failed/$name" ] && continue
       [[ "+${where#*+}+" == *"+$gpu+"* ]] && reserved=1
     done < "$JOBS"

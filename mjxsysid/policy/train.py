@@ -341,8 +341,8 @@ class Trainer:
         self.env = TrainEnv(cfg.env, focus_theta=None if cfg.focus is None else load_weak(cfg.focus)[0])
         self.nets = self.env.nets
         self.opt = optimizer(cfg)
-        self._compiling = None   # a background compile of the iteration (start_compile)
-        self._compiled = None
+        self._compiling = {}     # background compiles (start_compile): name -> (thread, box)
+        self._compiled = {}
         self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior,
                                                   yaw_authority=cfg.ident_yaw_authority)
         self.mesh = mesh if mesh is not None and mesh.size > 1 else None
@@ -350,15 +350,18 @@ class Trainer:
             self.weights = LossWeights.of(cfg)
             self._iteration_jit = jax.jit(self._iteration)
             self.reset = jax.jit(self._reset)
+            self._start_jit = jax.jit(self._start)
             return
-        if cfg.num_envs % self.mesh.size:
-            raise ValueError(f"num_envs ({cfg.num_envs}) must be a multiple of the {self.mesh.size} devices")
+        if cfg.num_envs % (self.mesh.size * cfg.minibatches):
+            raise ValueError(f"num_envs ({cfg.num_envs}) must be a multiple of the {self.mesh.size} devices × "
+                             f"{cfg.minibatches} minibatches (each device shuffles its own environments' samples)")
         shared = NamedSharding(self.mesh, PartitionSpec())
         envs = NamedSharding(self.mesh, PartitionSpec(distributed.AXIS))
         self.weights = self.place(LossWeights.of(cfg))
         self._iteration_jit = jax.jit(self._iteration, in_shardings=(shared, envs, shared),
                                       out_shardings=(shared, envs, shared))
         self.reset = jax.jit(self._reset, in_shardings=(shared, shared), out_shardings=envs)
+        self._start_jit = jax.jit(self._start, in_shardings=shared, out_shardings=(shared, envs))
 
     def place(self, tree):
         """Replicate a training state (or any pytree of shared arrays) over the mesh."""
@@ -367,47 +370,72 @@ class Trainer:
     def iteration(self, ts: TrainState, env_state: EnvState):
         """One training iteration under ``self.weights`` -> (ts, env_state, stats). After
         :meth:`start_compile`, the first call waits for that compile and later ones run its executable."""
-        if self._compiling is not None:
-            thread, box = self._compiling
-            thread.join()
-            self._compiling = None
-            if "error" in box:
-                raise box["error"]
-            self._compiled = box["compiled"]
-        if self._compiled is not None:
-            return self._compiled(ts, env_state, self.weights)
+        compiled = self._ready("iteration")
+        if compiled is not None:
+            return compiled(ts, env_state, self.weights)
         return self._iteration_jit(ts, env_state, self.weights)
+
+    def start(self, key):
+        """A fresh run in one compiled call: the training state of :meth:`init` (a warm start's
+        weights loaded outside the call) and the environments of :meth:`reset` at the first
+        iteration's schedule, on ``jax.random.fold_in(ts.key, 123)`` -> (TrainState, EnvState)."""
+        warm = self.warm_start_params() if self.cfg.init_from is not None else {}
+        compiled = self._ready("start") if not warm else None
+        if compiled is not None:
+            return compiled(self.place(key))
+        if warm:
+            ts = self.place(self._fresh_state({**self.nets.init(key), **warm}, key))
+            return ts, self.reset(*self.place((jax.random.fold_in(ts.key, 123), schedules(self.cfg, 0)[0])))
+        return self._start_jit(self.place(key))
+
+    def _start(self, key):
+        ts = self._fresh_state(self.nets.init(key), key)
+        return ts, self._reset(jax.random.fold_in(ts.key, 123), schedules(self.cfg, ts.iteration)[0])
 
     def abstract_state(self):
         """Shapes and dtypes (jax.ShapeDtypeStruct trees) of (TrainState, EnvState) as
-        :meth:`init` and :meth:`reset` make them, without computing them."""
-        key = jax.random.PRNGKey(0)
-        ts = jax.eval_shape(lambda k: self._fresh_state(self.nets.init(k), k), key)
-        return ts, jax.eval_shape(self._reset, key, jnp.float32(0.0))
+        :meth:`start` makes them, without computing them."""
+        return jax.eval_shape(self._start, jax.random.PRNGKey(0))
+
+    def _ready(self, name):
+        """The executable of a background compile ``name`` (waiting for it), or None."""
+        if name in self._compiling:
+            thread, box = self._compiling.pop(name)
+            thread.join()
+            if "error" in box:
+                raise box["error"]
+            self._compiled[name] = box["compiled"]
+        return self._compiled.get(name)
 
     def start_compile(self) -> None:
-        """Compile the iteration in a background thread (XLA compiles without holding the GIL),
-        so that the compile overlaps the setup that follows (init, reset, loading a checkpoint):
-        the cold start of ``train`` costs the longer of the two instead of their sum. The next
-        :meth:`iteration` waits for it (and raises what it raised)."""
+        """Compile the iteration and :meth:`start` in background threads (XLA compiles without
+        holding the GIL), so that they compile side by side and the iteration's compile overlaps
+        the setup that follows (starting, loading a checkpoint): the cold start of ``train`` costs
+        the longest of them instead of their sum. :meth:`start` and :meth:`iteration` wait for
+        their executable (and raise what its compile raised). ``compile_seconds``: each compile's
+        wall time once done."""
         import threading
-        if self._compiling is not None or self._compiled is not None:
+        if self._compiling or self._compiled:
             return
+        key = jax.ShapeDtypeStruct((2,), jnp.uint32)
         ts, env = self.abstract_state()
-        box = {}
+        self.compile_seconds = {}
+        jobs = {"start": lambda: self._start_jit.lower(key),
+                "iteration": lambda: self._iteration_jit.lower(ts, env, self.weights)}
+        for name, lower in jobs.items():
+            box = {}
 
-        def work():
-            try:
-                t0 = time.time()
-                box["compiled"] = self._iteration_jit.lower(ts, env, self.weights).compile()
-                box["seconds"] = time.time() - t0
-            except Exception as e:   # noqa: BLE001 - re-raised in the caller's thread by iteration()
-                box["error"] = e
+            def work(lower=lower, box=box, name=name):
+                try:
+                    t0 = time.time()
+                    box["compiled"] = lower().compile()
+                    self.compile_seconds[name] = time.time() - t0
+                except Exception as e:   # noqa: BLE001 - re-raised in the caller's thread by _ready()
+                    box["error"] = e
 
-        thread = threading.Thread(target=work, name="mjxsysid-compile", daemon=True)
-        thread.start()
-        self._compiling = (thread, box)
-        self.compile_box = box
+            thread = threading.Thread(target=work, name=f"mjxsysid-compile-{name}", daemon=True)
+            thread.start()
+            self._compiling[name] = (thread, box)
 
     def reweighted(self, cfg: TrainConfig) -> "Trainer":
         """A trainer for ``cfg`` sharing this one's compiled iteration; ``cfg`` may differ from
@@ -510,10 +538,18 @@ class Trainer:
 
     def _advantages(self, batch: Batch, last_value):
         """GAE over the rollout (T, N) and flattening to samples: -> (batch, adv, ret) with
-        leaves (T·N, ...)."""
+        leaves (T·N, ...), or on a mesh of D devices (D, T·N/D, ...), device by device."""
         cfg = self.cfg
         adv, ret = gae(batch.reward, batch.value, batch.done, last_value, cfg.gamma, cfg.gae_lambda)
-        return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), (batch, adv, ret))
+        if self.mesh is None:
+            return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), (batch, adv, ret))
+        # On a mesh of D devices, each device's samples together: leaves (D, T·N/D, ...), so that
+        # flattening moves nothing between the devices (a time-major flatten of the sharded N would).
+        d, t, n = self.mesh.size, cfg.unroll, cfg.num_envs
+        sh = NamedSharding(self.mesh, PartitionSpec(distributed.AXIS))
+        return jax.tree.map(lambda a: jax.lax.with_sharding_constraint(
+            a.reshape((t, d, n // d) + a.shape[2:]).swapaxes(0, 1).reshape((d, t * (n // d)) + a.shape[2:]), sh),
+            (batch, adv, ret))
 
     def _update(self, params, opt_state, flat, snap_theta, snap_hist, key, beta, weights: LossWeights):
         """``epochs`` × ``minibatches`` gradient steps of :func:`loss_fn` on the flattened
@@ -524,12 +560,16 @@ class Trainer:
         m = cfg.minibatches
 
         def epoch(carry, k):
-            perm = jax.random.permutation(k, n).reshape(m, -1)
-            sperm = jax.random.permutation(jax.random.fold_in(k, 1), cfg.num_envs).reshape(m, -1)
-            # One gather per leaf and epoch (minibatches × rows), sliced by the scan: the same
-            # minibatches as gathering each one inside it, in fewer, larger kernels.
-            mb, adv, ret = jax.tree.map(lambda x: x[perm], flat)
-            shuffled = (mb, normalize_advantages(adv), ret, snap_theta[sperm], snap_hist[sperm])
+            if self.mesh is None:
+                perm = jax.random.permutation(k, n).reshape(m, -1)
+                sperm = jax.random.permutation(jax.random.fold_in(k, 1), cfg.num_envs).reshape(m, -1)
+                # One gather per leaf and epoch (minibatches × rows), sliced by the scan: the same
+                # minibatches as gathering each one inside it, in fewer, larger kernels.
+                mb, adv, ret = jax.tree.map(lambda x: x[perm], flat)
+                snaps = (snap_theta[sperm], snap_hist[sperm])
+            else:
+                (mb, adv, ret), snaps = self._local_minibatches(k, flat, (snap_theta, snap_hist))
+            shuffled = (mb, normalize_advantages(adv), ret, *snaps)
 
             def minibatch(carry, batch):
                 params, opt_state = carry
@@ -544,6 +584,32 @@ class Trainer:
 
         (params, opt_state), aux = jax.lax.scan(epoch, (params, opt_state), jax.random.split(key, cfg.epochs))
         return params, opt_state, aux
+
+    def _local_minibatches(self, key, flat, snaps):
+        """An epoch's minibatches on a mesh of D devices, each device shuffling its own samples:
+        flat leaves (D, T·N/D, ...) (:meth:`_advantages` on a mesh), snapshot leaves (N, ...), the N
+        environments sharded in D blocks. Returns (flat, snaps) with leaves (m, B, ...): minibatch j
+        is the j-th slice of every device's shuffled samples, device d's slice on device d. A global
+        permutation (the one-device path) would move the whole rollout and every history between the
+        devices each iteration (an all-gather of both); this moves nothing. The minibatches are as
+        random (each a uniform draw within each device's share), not the same as one device's."""
+        cfg, d, m = self.cfg, self.mesh.size, self.cfg.minibatches
+        sh = NamedSharding(self.mesh, PartitionSpec(distributed.AXIS))
+
+        def local(x):   # (D, L, ...) -> shuffled per device -> (m, D·L/m, ...) minibatches
+            x = jax.lax.with_sharding_constraint(x, sh)
+            length = x.shape[1]
+            perm = jax.vmap(lambda k: jax.random.permutation(k, length))(jax.random.split(kk, d))
+            x = jax.vmap(lambda a, p: a[p])(x, perm)
+            x = x.reshape((d, m, length // m) + x.shape[2:]).swapaxes(0, 1)
+            return x.reshape((m, d * (length // m)) + x.shape[3:])
+
+        n = cfg.num_envs
+        kk = key   # every leaf of the rollout shuffled by the same permutations: rows stay together
+        rollout = jax.tree.map(local, flat)
+        kk = jax.random.fold_in(key, 1)
+        snapshots = jax.tree.map(lambda x: local(x.reshape((d, n // d) + x.shape[1:])), snaps)
+        return rollout, snapshots
 
 
 POLICY_MODULES = ("mu", "phi", "pi", "aux")
@@ -598,27 +664,24 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
         trainer = Trainer(cfg, mesh)
         if background_compile:
             trainer.start_compile()   # the iteration compiles while the states below are made
-    ts = trainer.init(jax.random.PRNGKey(cfg.seed))
+    ts, env_state = trainer.start(jax.random.PRNGKey(cfg.seed))   # a fresh run: state and environments
     ckpt = out / "checkpoint.npz"
-    env_state = None
     if resume and ckpt.exists():
         meta = load_meta(ckpt)
         if not _same_config(meta.get("config"), cfg):
             raise ValueError(f"{ckpt} was written with a different config; use a new --out or --no-resume")
         if meta.get("with_env"):
-            p0, _ = schedules(cfg, ts.iteration)
-            ts, env_state = load_tree(ckpt, (ts, trainer.reset(jax.random.fold_in(ts.key, 123), p0)))
+            ts, env_state = load_tree(ckpt, (ts, env_state))
+            # resumed environments: shard their batch axis like a fresh reset's
+            env_state = distributed.shard_batch(env_state, cfg.num_envs, mesh=mesh)
         else:  # older checkpoints hold the training state only: environments restart
             ts = load_tree(ckpt, ts)
+            p0, _ = schedules(cfg, ts.iteration)
+            env_state = trainer.reset(*trainer.place((jax.random.fold_in(ts.key, 123), p0)))
         log(f"resumed from {ckpt} at iteration {int(ts.iteration)}")
     if mesh.size > 1:
         log(f"{cfg.num_envs} environments sharded over {mesh.size} devices ({jax.process_count()} process(es))")
     ts = trainer.place(ts)
-    if env_state is None:
-        p0, _ = schedules(cfg, ts.iteration)
-        env_state = trainer.reset(*trainer.place((jax.random.fold_in(ts.key, 123), p0)))
-    else:  # resumed environments: shard their batch axis like a fresh reset's
-        env_state = distributed.shard_batch(env_state, cfg.num_envs, mesh=mesh)
     steps_per_it = cfg.num_envs * cfg.unroll
     t_start = time.time()
     # Where this call's wall time goes (BENCHMARKS.md, issue 30): building the trainer, initialising and
@@ -666,8 +729,8 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     logf.close()
     wall = wall_prev + time.time() - t_start
     timing["loop_s"] = time.time() - t_start
-    if "seconds" in getattr(trainer, "compile_box", {}):
-        timing["iteration_compile_s"] = trainer.compile_box["seconds"]   # in the background, from setup on
+    for name, sec in getattr(trainer, "compile_seconds", {}).items():   # compiled in the background
+        timing[f"{name}_compile_s"] = sec
     if jax.process_index() == 0:
         export_policy(ts.params, out / "policy.npz", {
             "config": cfg.to_dict(), "normalizer": trainer.env.normalizer.to_dict(),
