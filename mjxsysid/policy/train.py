@@ -326,6 +326,14 @@ def loss_fn(params, nets, cfg: TrainConfig, w: LossWeights, ident_proj, mb: Batc
                   "rec_ident": rec_id, "approx_kl": jnp.mean(mb.logp - logp), "log_std": jnp.mean(log_std)}
 
 
+def _host_device():
+    """JAX's CPU device, or None (the default device) where JAX runs without a CPU backend."""
+    try:
+        return jax.devices("cpu")[0]
+    except RuntimeError:
+        return None
+
+
 class Trainer:
     """Builds the jitted iteration for a config. ``init(key)``, ``iteration(ts, env_state)``;
     ``reweighted(cfg)``: the same compiled iteration under another config's loss weights.
@@ -338,13 +346,17 @@ class Trainer:
 
     def __init__(self, cfg: TrainConfig = TrainConfig(), mesh=None):
         self.cfg = cfg
-        self.env = TrainEnv(cfg.env, focus_theta=None if cfg.focus is None else load_weak(cfg.focus)[0])
+        # The one-off constants (the prior's normaliser, the identifiable projection) on the CPU:
+        # their dozens of eager ops compile in milliseconds there, in tenths of seconds each on a
+        # GPU (seconds of every training start); the jitted functions take them as constants.
+        with jax.default_device(_host_device()):
+            self.env = TrainEnv(cfg.env, focus_theta=None if cfg.focus is None else load_weak(cfg.focus)[0])
+            self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior,
+                                                      yaw_authority=cfg.ident_yaw_authority)
         self.nets = self.env.nets
         self.opt = optimizer(cfg)
         self._compiling = {}     # background compiles (start_compile): name -> (thread, box)
         self._compiled = {}
-        self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior,
-                                                  yaw_authority=cfg.ident_yaw_authority)
         self.mesh = mesh if mesh is not None and mesh.size > 1 else None
         if self.mesh is None:
             self.weights = LossWeights.of(cfg)
@@ -660,8 +672,10 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     mesh = distributed.batch_mesh(divides=cfg.num_envs)
     if trainer is not None and (trainer.mesh.size if trainer.mesh is not None else 1) != mesh.size:
         raise ValueError(f"train: the trainer was built for another device mesh than the {mesh.size} device(s)")
+    t_built = None
     if trainer is None:
         trainer = Trainer(cfg, mesh)
+        t_built = time.time()
         if background_compile:
             trainer.start_compile()   # the iteration compiles while the states below are made
     ts, env_state = trainer.start(jax.random.PRNGKey(cfg.seed))   # a fresh run: state and environments
@@ -687,6 +701,8 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     # Where this call's wall time goes (BENCHMARKS.md, issue 30): building the trainer, initialising and
     # resetting (compiles), the first iteration (its compile), the loop, checkpoints, the export.
     timing = {"setup_s": t_start - t_enter, "first_iteration_s": 0.0, "checkpoint_s": 0.0}
+    if t_built is not None:
+        timing["construct_s"] = t_built - t_enter   # of setup: building the Trainer (before any compile starts)
     wall_prev = load_meta(ckpt).get("wall_s", 0.0) if (resume and ckpt.exists()) else 0.0
     logf = open(out / "train_log.jsonl", "a")
     stats = {}
