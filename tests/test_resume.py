@@ -131,13 +131,15 @@ def test_sequence_decoder_resume_gives_the_uninterrupted_weights(tmp_path):
 @pytest.mark.slow
 def test_policy_resume_gives_the_uninterrupted_weights(tmp_path):
     """Slow (two compiles of a PPO iteration, ≈ 2–3 min on a 2-core CPU). The environments'
-    state is in the checkpoint, so a resumed run continues bit for bit."""
+    state is in the checkpoint, so a resumed run continues bit for bit (and the iteration compiled
+    in the background computes what the jitted one does)."""
     from mjxsysid.checkpoint import load_tree
     from mjxsysid.policy.train import POLICY_MODULES, TrainConfig, train
     from mjxsysid.policy import networks as N
     cfg = TrainConfig(iterations=6, num_envs=32, unroll=8, epochs=1, minibatches=2, log_every=1,
                       checkpoint_every=2)
-    train(cfg, tmp_path / "full", resume=False, log=lambda m: None)
+    # The uninterrupted run on the jitted path, the cut and resumed one compiled in the background.
+    train(cfg, tmp_path / "full", resume=False, log=lambda m: None, background_compile=False)
     with pytest.raises(Stop):  # killed while logging iteration 5: the checkpoint holds iteration 4
         train(cfg, tmp_path / "cut", resume=False, log=_interrupt_at("it     5/"))
     lines = []

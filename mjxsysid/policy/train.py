@@ -84,13 +84,12 @@ class TrainConfig:
     # environment per unroll (``unroll`` × fewer resets; the rollout's largest cost after the
     # simulator step, docs/runs/benchmarks/train_profile.json).
     reset_per_unroll: bool = False
-    # Speed options of issue 30 (off by default: the shipped policy's protocol). ``flat_optimizer``:
-    # Adam and the gradient clip on one concatenated parameter vector (optax.flatten; the same update up
-    # to float reassociation in fewer, larger kernels). ``update_unroll``: gradient steps unrolled per
-    # loop trip of the update (fewer device-side loop iterations). ``lr_decay``: the learning rate
-    # falls linearly to ``lr_final`` × learning_rate over training (a schedule; changes the result).
+    # Options of issue 30 (off by default: the shipped policy's protocol). ``flat_optimizer``: Adam and
+    # the gradient clip on one concatenated parameter vector (optax.flatten; the same update up to float
+    # reassociation; no measurable speed-up on an H200, docs/runs/benchmarks/train_profile_16k_4x8_flat_*.json).
+    # ``lr_decay``: the learning rate falls linearly to ``lr_final`` × learning_rate over the run's
+    # gradient steps (what brought the fast configs to the shipped quality, BENCHMARKS.md).
     flat_optimizer: bool = False
-    update_unroll: int = 1
     lr_decay: bool = False
     lr_final: float = 0.1
     checkpoint_every: int = 50
@@ -113,7 +112,7 @@ class TrainConfig:
         if unknown:
             raise ValueError(f"unknown training config key(s) {unknown}; known: {sorted(known)}")
         cfg = cls(**d, env=env)
-        for k in ("num_envs", "unroll", "iterations", "epochs", "minibatches", "update_unroll"):
+        for k in ("num_envs", "unroll", "iterations", "epochs", "minibatches"):
             if getattr(cfg, k) < 1:
                 raise ValueError(f"config {k} must be >= 1, got {getattr(cfg, k)}")
         if (cfg.num_envs * cfg.unroll) % cfg.minibatches or cfg.num_envs % cfg.minibatches:
@@ -592,7 +591,7 @@ class Trainer:
                 updates, opt_state = self.opt.update(grads, opt_state, params)
                 return (optax.apply_updates(params, updates), opt_state), dict(aux, loss=loss)
 
-            return jax.lax.scan(minibatch, carry, shuffled, unroll=min(cfg.update_unroll, m))
+            return jax.lax.scan(minibatch, carry, shuffled)
 
         (params, opt_state), aux = jax.lax.scan(epoch, (params, opt_state), jax.random.split(key, cfg.epochs))
         return params, opt_state, aux
@@ -752,6 +751,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
             "config": cfg.to_dict(), "normalizer": trainer.env.normalizer.to_dict(),
             "iterations": int(ts.iteration), "env_steps": int(ts.iteration) * steps_per_it,
             "wall_s": wall, "final_stats": {k: float(v) for k, v in stats.items()},
-            "device": str(jax.devices()[0]), "devices": mesh.size, "jax": jax.__version__, "timing": timing})
+            "device": str(jax.devices()[0]), "device_kind": getattr(jax.devices()[0], "device_kind", ""),
+            "devices": mesh.size, "jax": jax.__version__, "timing": timing})
     log("time: " + ", ".join(f"{k[:-2].replace('_', ' ')} {v:.1f} s" for k, v in timing.items()))
     return {"stats": {k: float(v) for k, v in stats.items()}, "wall_s": wall, "timing": timing}
