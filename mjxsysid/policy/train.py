@@ -668,7 +668,10 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     out.mkdir(parents=True, exist_ok=True)
     if trainer is not None and trainer.cfg != cfg:
         raise ValueError("train: the trainer was built for a different config")
-    mesh = distributed.batch_mesh(divides=cfg.num_envs)
+    # Each device shuffles its own environments' samples into every minibatch: the device count must
+    # divide num_envs / minibatches.
+    mesh = distributed.batch_mesh(divides=cfg.num_envs // cfg.minibatches if cfg.num_envs % cfg.minibatches == 0
+                                  else cfg.num_envs)
     if trainer is not None and (trainer.mesh.size if trainer.mesh is not None else 1) != mesh.size:
         raise ValueError(f"train: the trainer was built for another device mesh than the {mesh.size} device(s)")
     t_built = None
