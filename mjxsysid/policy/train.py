@@ -428,7 +428,7 @@ class Trainer:
         import threading
         if self._compiling or self._compiled:
             return
-        key = jax.ShapeDtypeStruct((2,), jnp.uint32)
+        key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
         ts, env = self.abstract_state()
         self.compile_seconds = {}
         jobs = {"start": lambda: self._start_jit.lower(key),
@@ -607,19 +607,19 @@ class Trainer:
         cfg, d, m = self.cfg, self.mesh.size, self.cfg.minibatches
         sh = NamedSharding(self.mesh, PartitionSpec(distributed.AXIS))
 
-        def local(x):   # (D, L, ...) -> shuffled per device -> (m, D·L/m, ...) minibatches
+        def local(x, k):   # (D, L, ...) -> shuffled per device with keys from k -> (m, D·L/m, ...) minibatches
             x = jax.lax.with_sharding_constraint(x, sh)
             length = x.shape[1]
-            perm = jax.vmap(lambda k: jax.random.permutation(k, length))(jax.random.split(kk, d))
+            perm = jax.vmap(lambda kd: jax.random.permutation(kd, length))(jax.random.split(k, d))
             x = jax.vmap(lambda a, p: a[p])(x, perm)
             x = x.reshape((d, m, length // m) + x.shape[2:]).swapaxes(0, 1)
             return x.reshape((m, d * (length // m)) + x.shape[3:])
 
         n = cfg.num_envs
-        kk = key   # every leaf of the rollout shuffled by the same permutations: rows stay together
-        rollout = jax.tree.map(local, flat)
-        kk = jax.random.fold_in(key, 1)
-        snapshots = jax.tree.map(lambda x: local(x.reshape((d, n // d) + x.shape[1:])), snaps)
+        # Every leaf shuffled by the same permutations (one key per group): a sample's rows stay together.
+        rollout = jax.tree.map(lambda x: local(x, key), flat)
+        k_snap = jax.random.fold_in(key, 1)
+        snapshots = jax.tree.map(lambda x: local(x.reshape((d, n // d) + x.shape[1:]), k_snap), snaps)
         return rollout, snapshots
 
 
