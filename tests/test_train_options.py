@@ -81,7 +81,7 @@ def test_background_compile_error_raises_in_the_caller():
     def broken(ts, env, weights):
         raise ValueError("bad iteration for the test")
     tr._iteration_jit = jax.jit(broken)
-    tr._start_jit = jax.jit(lambda key: key)      # a trivial start: only the iteration's compile matters here
+    tr._start_jit = jax.jit(lambda params, key: key)   # a trivial start: only the iteration's compile matters here
     tr.start_compile()
     with pytest.raises(ValueError, match="bad iteration for the test"):
         tr.iteration(None, None)                  # raises before running anything

@@ -372,7 +372,7 @@ class Trainer:
         self._iteration_jit = jax.jit(self._iteration, in_shardings=(shared, envs, shared),
                                       out_shardings=(shared, envs, shared))
         self.reset = jax.jit(self._reset, in_shardings=(shared, shared), out_shardings=envs)
-        self._start_jit = jax.jit(self._start, in_shardings=shared, out_shardings=(shared, envs))
+        self._start_jit = jax.jit(self._start, in_shardings=(shared, shared), out_shardings=(shared, envs))
 
     def place(self, tree):
         """Replicate a training state (or any pytree of shared arrays) over the mesh."""
@@ -387,26 +387,26 @@ class Trainer:
         return self._iteration_jit(ts, env_state, self.weights)
 
     def start(self, key):
-        """A fresh run in one compiled call: the training state of :meth:`init` (a warm start's
-        weights loaded outside the call) and the environments of :meth:`reset` at the first
-        iteration's schedule, on ``jax.random.fold_in(ts.key, 123)`` -> (TrainState, EnvState)."""
-        warm = self.warm_start_params() if self.cfg.init_from is not None else {}
-        compiled = self._ready("start") if not warm else None
-        if compiled is not None:
-            return compiled(self.place(key))
-        if warm:
-            ts = self.place(self._fresh_state({**self.nets.init(key), **warm}, key))
-            return ts, self.reset(*self.place((jax.random.fold_in(ts.key, 123), schedules(self.cfg, 0)[0])))
-        return self._start_jit(self.place(key))
+        """A fresh run: the training state of :meth:`init` (a warm start's weights in place of the
+        fresh ones) and the environments of :meth:`reset` at the first iteration's schedule, on
+        ``jax.random.fold_in(ts.key, 123)`` -> (TrainState, EnvState). The parameters come from the
+        networks' own (shared) init; optimiser state and episodes from one compiled call."""
+        params = self.nets.init(key)
+        if self.cfg.init_from is not None:
+            params = {**params, **self.warm_start_params()}
+        compiled = self._ready("start")
+        run = compiled if compiled is not None else self._start_jit
+        return run(*self.place((params, key)))
 
-    def _start(self, key):
-        ts = self._fresh_state(self.nets.init(key), key)
+    def _start(self, params, key):
+        ts = self._fresh_state(params, key)
         return ts, self._reset(jax.random.fold_in(ts.key, 123), schedules(self.cfg, ts.iteration)[0])
 
     def abstract_state(self):
         """Shapes and dtypes (jax.ShapeDtypeStruct trees) of (TrainState, EnvState) as
         :meth:`start` makes them, without computing them."""
-        return jax.eval_shape(self._start, jax.random.PRNGKey(0))
+        key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
+        return jax.eval_shape(self._start, jax.eval_shape(self.nets.init, key), key)
 
     def _ready(self, name):
         """The executable of a background compile ``name`` (waiting for it), or None."""
@@ -429,9 +429,10 @@ class Trainer:
         if self._compiling or self._compiled:
             return
         key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
+        params = jax.eval_shape(self.nets.init, key)
         ts, env = self.abstract_state()
         self.compile_seconds = {}
-        jobs = {"start": lambda: self._start_jit.lower(key),
+        jobs = {"start": lambda: self._start_jit.lower(params, key),
                 "iteration": lambda: self._iteration_jit.lower(ts, env, self.weights)}
         for name, lower in jobs.items():
             box = {}
