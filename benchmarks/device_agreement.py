@@ -51,7 +51,7 @@ def flight_positions(theta, seconds: float, devices):
 
 def update_params(envs: int, devices):
     from mjxsysid import distributed as D
-    from mjxsysid.policy.train import TrainConfig, Trainer, schedules
+    from mjxsysid.policy.train import TrainConfig, Trainer, schedules, training_mesh
     cfg = TrainConfig(num_envs=envs, unroll=8, epochs=1, minibatches=1, iterations=100)
     # The rollout batch comes from one device (the same data for both updates).
     one = Trainer(cfg)
@@ -60,7 +60,7 @@ def update_params(envs: int, devices):
     p, beta = schedules(cfg, jnp.int32(50))
     env, batch, last_value = jax.jit(lambda prm, e: one._rollout(prm, e, jax.random.PRNGKey(2), p, 50))(ts.params, env)
     with D.limit_devices(devices):
-        tr = Trainer(cfg, D.batch_mesh(divides=envs))
+        tr = Trainer(cfg, training_mesh(cfg))
         params, opt_state = tr.place((ts.params, ts.opt_state))
         snap_theta, snap_hist = (D.shard_batch(x, envs) if tr.mesh is not None else x
                                  for x in (env.theta_norm, env.history))

@@ -67,12 +67,12 @@ def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
 
 def bench_train(devices: int, args, envs: int | None = None) -> dict:
     from mjxsysid import distributed as D
-    from mjxsysid.policy.train import TrainConfig, Trainer
+    from mjxsysid.policy.train import TrainConfig, Trainer, training_mesh
     cfg = TrainConfig(**{"iterations": 1500, "unroll": args.unroll, "minibatches": args.minibatches,
                          "reset_per_unroll": args.reset_per_unroll, **config_overrides(args.set),
                          "num_envs": envs or args.envs})
     with D.limit_devices(devices):
-        mesh = D.batch_mesh(divides=cfg.num_envs)
+        mesh = training_mesh(cfg)
         tr = Trainer(cfg, mesh)
         ts = tr.place(tr.init(jax.random.PRNGKey(0)))
         env = tr.reset(*tr.place((jax.random.PRNGKey(1), np.float32(0.0))))

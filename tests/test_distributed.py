@@ -108,7 +108,7 @@ def test_training_iteration_two_devices_equals_one():
     on both. The compiled iteration moves no samples between the devices (no all-gather)."""
     r = run_two_devices("""
         import re
-        from mjxsysid.policy.train import TrainConfig, Trainer
+        from mjxsysid.policy.train import TrainConfig, Trainer, training_mesh
         cfg = TrainConfig(num_envs=8, unroll=4, epochs=1, minibatches=1, iterations=10)
         def one_iteration(mesh):
             tr = Trainer(cfg, mesh)
@@ -117,10 +117,10 @@ def test_training_iteration_two_devices_equals_one():
             ts, env, stats = tr.iteration(ts, env)
             return ts, env, stats
         with D.limit_devices(1):
-            ts1, env1, s1 = one_iteration(D.batch_mesh(divides=cfg.num_envs))
-        ts2, env2, s2 = one_iteration(D.batch_mesh(divides=cfg.num_envs))
+            ts1, env1, s1 = one_iteration(training_mesh(cfg))
+        ts2, env2, s2 = one_iteration(training_mesh(cfg))
         p0 = Trainer(cfg).init(jax.random.PRNGKey(0)).params
-        tr2 = Trainer(cfg, D.batch_mesh(divides=cfg.num_envs))
+        tr2 = Trainer(cfg, training_mesh(cfg))
         hlo = tr2._iteration_jit.lower(*tr2.abstract_state(), tr2.weights).compile().as_text()
         print(json.dumps({"env_sharded_over": len(jax.tree.leaves(env2)[0].sharding.device_set),
                           "all_gathers": len(re.findall(r" all-gather(?:-start)?\(", hlo)),
@@ -144,9 +144,9 @@ def test_local_minibatches_partition_each_device():
     rows of one sample stay together across leaves, and each device's slice of every minibatch
     comes from its own environments (so the shuffle moves nothing between the devices)."""
     r = run_two_devices("""
-        from mjxsysid.policy.train import TrainConfig, Trainer
+        from mjxsysid.policy.train import TrainConfig, Trainer, training_mesh
         cfg = TrainConfig(num_envs=16, unroll=4, epochs=1, minibatches=4, iterations=10)
-        tr = Trainer(cfg, D.batch_mesh(divides=cfg.num_envs))
+        tr = Trainer(cfg, training_mesh(cfg))
         t, n, d = cfg.unroll, cfg.num_envs, 2
         ids = np.arange(t * n, dtype=np.float32).reshape(t, n)          # sample id = t·N + env
         env_of = np.broadcast_to(np.arange(n, dtype=np.float32), (t, n))

@@ -87,8 +87,8 @@ worker() {   # GPU
       CUDA_VISIBLE_DEVICES=$gpus timeout --kill-after=15 "$left" bash -c "$cmd" >> "$FARM/logs/$name.log" 2>&1
       local rc=$?
       for fd in "${locks[@]}"; do exec {fd}>&-; done
-      if [ $rc = 0 ]; then touch "$FARM/done/$name"; echo "[$(t) gpu $gpu] $name: done"
-      else touch "$FARM/failed/$name"; echo "[$(t) gpu $gpu] $name: exit $rc$([ $rc = 124 ] && echo ' (cut at the budget)')"
+      if [ $rc = 0 ]; then touch "$FARM/done/$name"; echo "[$(t) gpu $gpus] $name: done"
+      else touch "$FARM/failed/$name"; echo "[$(t) gpu $gpus] $name: exit $rc$([ $rc = 124 ] && echo ' (cut at the budget)')"
            grep -v -i warp "$FARM/logs/$name.log" | tail -4 | sed 's/^/    /'; fi
       pack; ran=1; break
     done < "$JOBS"

@@ -10,17 +10,12 @@ set -uo pipefail
 export PYTHONPATH=$PWD/.site:$PWD PYTHONUNBUFFERED=1
 OUT=${OUT:-/tmp/out}; RUNS=${1:?runs dir}; mkdir -p "$OUT" "$RUNS"
 pack() { tar czf "$OUT/speed.tar.gz" --exclude=checkpoint.npz "$RUNS" 2>/dev/null; }
-M="python3 -m mjxsysid.cli"
-train_eval() {   # GPU CONFIG...
+train_eval() {   # GPU CONFIG...: tools/speed_job.sh for each config on that GPU
   local gpu=$1; shift
   for c in "$@"; do
-    local name; name=$(basename "$c" .json); local d="$RUNS/$name"; mkdir -p "$d"
-    local t0; t0=$(date +%s%N)
-    CUDA_VISIBLE_DEVICES=$gpu $M train-policy --config "$c" --out "$d" --no-resume -q > "$d/train.txt" 2>&1
-    echo "command_wall_s $(( ($(date +%s%N) - t0) / 1000000 )) ms" >> "$d/train.txt"
-    CUDA_VISIBLE_DEVICES=$gpu $M evaluate-policy --fast --vehicles ${EVAL_VEHICLES:-1000} --weights "$d/policy.npz" \
-      --out "$d/eval_fast" -q > "$d/eval.txt" 2>&1
-    echo "[gpu $gpu] $name done: $(tail -1 "$d/train.txt")"; pack
+    local name; name=$(basename "$c" .json)
+    CUDA_VISIBLE_DEVICES=$gpu bash tools/speed_job.sh "$RUNS/$name" "$c" "${EVAL_VEHICLES:-1000}" > "$RUNS/$name.log" 2>&1
+    echo "[gpu $gpu] $name done: $(grep command_wall "$RUNS/$name/train.txt")"; pack
   done
 }
 bg=

@@ -25,6 +25,7 @@ import copy
 import dataclasses
 import json
 import os
+import threading
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -387,26 +388,35 @@ class Trainer:
         return self._iteration_jit(ts, env_state, self.weights)
 
     def start(self, key):
-        """A fresh run: the training state of :meth:`init` (a warm start's weights in place of the
-        fresh ones) and the environments of :meth:`reset` at the first iteration's schedule, on
-        ``jax.random.fold_in(ts.key, 123)`` -> (TrainState, EnvState). The parameters come from the
-        networks' own (shared) init; optimiser state and episodes from one compiled call."""
+        """A fresh run: the training state of :meth:`init` and the environments of :meth:`reset` at
+        the first iteration's schedule, on ``jax.random.fold_in(ts.key, 123)`` -> (TrainState,
+        EnvState). The parameters come from :meth:`initial_params`; optimiser state and episodes
+        from one compiled call."""
+        compiled = self._ready("start")
+        run = compiled if compiled is not None else self._start_jit
+        return run(*self.place((self.initial_params(key), key)))
+
+    def initial_params(self, key) -> dict:
+        """The networks' fresh parameters (their own, shared init), with a warm start's μ, φ, π and
+        auxiliary decoder in place where ``init_from`` is set."""
         params = self.nets.init(key)
         if self.cfg.init_from is not None:
             params = {**params, **self.warm_start_params()}
-        compiled = self._ready("start")
-        run = compiled if compiled is not None else self._start_jit
-        return run(*self.place((params, key)))
+        return params
 
     def _start(self, params, key):
         ts = self._fresh_state(params, key)
         return ts, self._reset(jax.random.fold_in(ts.key, 123), schedules(self.cfg, ts.iteration)[0])
 
+    def _abstract_start_inputs(self):
+        """Shapes and dtypes of :meth:`_start`'s inputs (parameters, key)."""
+        key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
+        return jax.eval_shape(self.nets.init, key), key
+
     def abstract_state(self):
         """Shapes and dtypes (jax.ShapeDtypeStruct trees) of (TrainState, EnvState) as
         :meth:`start` makes them, without computing them."""
-        key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
-        return jax.eval_shape(self._start, jax.eval_shape(self.nets.init, key), key)
+        return jax.eval_shape(self._start, *self._abstract_start_inputs())
 
     def _ready(self, name):
         """The executable of a background compile ``name`` (waiting for it), or None."""
@@ -425,12 +435,10 @@ class Trainer:
         the longest of them instead of their sum. :meth:`start` and :meth:`iteration` wait for
         their executable (and raise what its compile raised). ``compile_seconds``: each compile's
         wall time once done."""
-        import threading
         if self._compiling or self._compiled:
             return
-        key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
-        params = jax.eval_shape(self.nets.init, key)
-        ts, env = self.abstract_state()
+        params, key = self._abstract_start_inputs()
+        ts, env = jax.eval_shape(self._start, params, key)
         self.compile_seconds = {}
         jobs = {"start": lambda: self._start_jit.lower(params, key),
                 "iteration": lambda: self._iteration_jit.lower(ts, env, self.weights)}
@@ -461,10 +469,7 @@ class Trainer:
         return new
 
     def init(self, key) -> TrainState:
-        params = self.nets.init(key)
-        if self.cfg.init_from is not None:
-            params = {**params, **self.warm_start_params()}
-        return self._fresh_state(params, key)
+        return self._fresh_state(self.initial_params(key), key)
 
     def _fresh_state(self, params, key) -> TrainState:
         return TrainState(params=params, opt_state=self.opt.init(params), iteration=jnp.int32(0),
@@ -650,6 +655,14 @@ def load_policy_params(path):
     return params, load_meta(path)
 
 
+def training_mesh(cfg: TrainConfig):
+    """The data-parallel mesh for ``cfg``: the most devices (of those JAX sees) that divide
+    ``num_envs / minibatches``, since each device shuffles its own environments' samples into every
+    minibatch (:meth:`Trainer._local_minibatches`)."""
+    whole = cfg.num_envs % cfg.minibatches == 0
+    return distributed.batch_mesh(divides=cfg.num_envs // cfg.minibatches if whole else cfg.num_envs)
+
+
 def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer: Trainer | None = None,
           background_compile: bool | None = None) -> dict:
     """Train with checkpoints in ``out_dir`` (``checkpoint.npz``: training state and the
@@ -669,10 +682,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     out.mkdir(parents=True, exist_ok=True)
     if trainer is not None and trainer.cfg != cfg:
         raise ValueError("train: the trainer was built for a different config")
-    # Each device shuffles its own environments' samples into every minibatch: the device count must
-    # divide num_envs / minibatches.
-    mesh = distributed.batch_mesh(divides=cfg.num_envs // cfg.minibatches if cfg.num_envs % cfg.minibatches == 0
-                                  else cfg.num_envs)
+    mesh = training_mesh(cfg)
     if trainer is not None and (trainer.mesh.size if trainer.mesh is not None else 1) != mesh.size:
         raise ValueError(f"train: the trainer was built for another device mesh than the {mesh.size} device(s)")
     t_built = None
