@@ -81,6 +81,9 @@ def add_train_cfm(sub) -> None:
     tc.add_argument("--epochs", type=int, default=None, help="override CFMConfig.epochs (default 100)")
     tc.add_argument("--width", type=int, default=None, help="override CFMConfig.width (default 512)")
     tc.add_argument("--batch", type=int, default=None, help="override CFMConfig.batch (default 256)")
+    tc.add_argument("--seed", type=int, default=None,
+                    help="override CFMConfig.seed (default 0): the decoders' initialisation, minibatch order and "
+                         "validation split")
     tc.add_argument("--no-resume", action="store_true",
                     help="start afresh even if OUT holds checkpoints or decoders of an earlier run")
     tc.add_argument("--kinds", default=None,
@@ -106,7 +109,7 @@ def cmd_train_cfm(args) -> int:
         if got != want.sha256():
             raise ValueError(f"{args.pairs}: these pairs were not collected with {want.label}")
     over = {k: v for k, v in (("epochs", args.epochs), ("width", args.width), ("batch", args.batch),
-                              ("coords", args.coords)) if v is not None}
+                              ("seed", args.seed), ("coords", args.coords)) if v is not None}
     cfg = dataclasses.replace(CFMConfig(), **over)
     kinds = None if args.kinds is None else tuple(k.strip() for k in args.kinds.split(",") if k.strip())
     seq_cfg = {"epochs": args.seq_epochs} if args.seq_epochs is not None else None
