@@ -2,6 +2,7 @@
 decay) and the start and iteration compiled in background threads (the same results as the jitted
 path; a failed compile raises in the caller)."""
 import dataclasses
+import json
 
 import jax
 import jax.numpy as jnp
@@ -85,3 +86,26 @@ def test_background_compile_error_raises_in_the_caller():
     tr.start_compile()
     with pytest.raises(ValueError, match="bad iteration for the test"):
         tr.iteration(None, None)                  # raises before running anything
+
+
+def test_lr_constant_modules_keep_the_learning_rate():
+    """lr_constant: under lr_decay the named modules' Adam step stays at learning_rate while the
+    others' falls to lr_final × it; the config takes a JSON list and rejects unknown modules and
+    flat Adam (one vector, one rate)."""
+    cfg = TrainConfig.from_dict({"iterations": 4, "epochs": 1, "minibatches": 1, "learning_rate": 1e-2,
+                                 "lr_decay": True, "lr_final": 0.1, "lr_constant": ["phi"]})
+    assert cfg.lr_constant == ("phi",)
+    params = {k: {"w": jnp.zeros(2)} for k in ("mu", "phi", "pi", "v", "aux")}
+    grads = {k: {"w": jnp.full(2, 0.3)} for k in params}
+    last = _steps(optimizer(cfg), params, grads, 5)[-1]           # step 4 of 4: the decayed rate
+    np.testing.assert_allclose(-np.asarray(last["phi"]["w"]), 1e-2, rtol=1e-3)
+    for k in ("mu", "pi", "v", "aux"):
+        np.testing.assert_allclose(-np.asarray(last[k]["w"]), 1e-3, rtol=1e-3)
+    # Without lr_constant the split is not made: the same update as one Adam.
+    whole = _steps(optimizer(dataclasses.replace(cfg, lr_constant=())), params, grads, 5)[-1]
+    np.testing.assert_allclose(-np.asarray(whole["phi"]["w"]), 1e-3, rtol=1e-3)
+    with pytest.raises(ValueError, match="unknown module"):
+        TrainConfig.from_dict({"lr_constant": ["psi"]})
+    with pytest.raises(ValueError, match="flat_optimizer"):
+        TrainConfig.from_dict({"lr_constant": ["phi"], "flat_optimizer": True})
+    assert TrainConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg   # survives a checkpoint's JSON

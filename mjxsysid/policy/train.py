@@ -46,6 +46,9 @@ from mjxsysid.policy.focus import load_weak
 from mjxsysid.progress import progress
 
 
+PARAM_MODULES = ("mu", "phi", "pi", "v", "aux")   # the networks' parameter groups (Networks.init)
+
+
 @dataclasses.dataclass(frozen=True)
 class TrainConfig:
     """Defaults reproduce the shipped weights (see mjxsysid/pretrained/policy.json)."""
@@ -93,6 +96,10 @@ class TrainConfig:
     flat_optimizer: bool = False
     lr_decay: bool = False
     lr_final: float = 0.1
+    # Modules (of :data:`PARAM_MODULES`) whose learning rate stays constant under ``lr_decay``: the
+    # adaptation module φ learns only from the alignment loss, and Adam makes its step size the learning
+    # rate whatever that loss's weight, so a short run with a decayed rate leaves ẑ short of z^θ.
+    lr_constant: tuple[str, ...] = ()
     checkpoint_every: int = 50
     log_every: int = 10
     env: EnvConfig = EnvConfig()
@@ -121,6 +128,16 @@ class TrainConfig:
         if not 0.0 <= cfg.lr_final <= 1.0:
             raise ValueError(f"config lr_final must be in [0, 1] (a fraction of learning_rate), got {cfg.lr_final}")
         return cfg
+
+    def __post_init__(self):
+        if isinstance(self.lr_constant, (list, str)):    # JSON gives a list
+            object.__setattr__(self, "lr_constant", tuple([self.lr_constant] if isinstance(self.lr_constant, str)
+                                                          else self.lr_constant))
+        bad = sorted(set(self.lr_constant) - set(PARAM_MODULES))
+        if bad:
+            raise ValueError(f"config lr_constant: unknown module(s) {bad}; modules: {list(PARAM_MODULES)}")
+        if self.lr_constant and self.flat_optimizer:
+            raise ValueError("config lr_constant needs flat_optimizer=false (one flat Adam has one learning rate)")
 
 
 def _same_normalizer(a: dict, b: dict) -> bool:
@@ -263,13 +280,21 @@ def identifiable_projection(normalizer: P.Normalizer, prior: P.Prior, n: int = 2
 
 def optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
     """Gradient clip + Adam of ``cfg``: constant learning rate, or with ``lr_decay`` a linear fall to
-    ``lr_final`` × learning_rate over the run's gradient steps; with ``flat_optimizer`` on one
-    concatenated parameter vector."""
+    ``lr_final`` × learning_rate over the run's gradient steps (except the modules of
+    ``lr_constant``); with ``flat_optimizer`` on one concatenated parameter vector."""
     lr = cfg.learning_rate
     if cfg.lr_decay:
         lr = optax.linear_schedule(cfg.learning_rate, cfg.learning_rate * cfg.lr_final,
                                    cfg.iterations * cfg.epochs * cfg.minibatches)
-    opt = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), optax.adam(lr))
+    adam = optax.adam(lr)
+    if cfg.lr_decay and cfg.lr_constant:
+        # Adam is per parameter: two Adams on a split of the modules are one Adam with two rates.
+        const = set(cfg.lr_constant)
+        adam = optax.multi_transform(
+            {"decay": adam, "constant": optax.adam(cfg.learning_rate)},
+            lambda params: {k: jax.tree.map(lambda _, k=k: "constant" if k in const else "decay", v)
+                            for k, v in params.items()})
+    opt = optax.chain(optax.clip_by_global_norm(cfg.max_grad_norm), adam)
     return optax.flatten(opt) if cfg.flat_optimizer else opt
 
 
