@@ -106,7 +106,7 @@ def test_training_iteration_two_devices_equals_one():
     shuffles its own samples (test_local_minibatches_partition_each_device), so with several
     minibatches their composition differs from one device's; with one, every sample is in it
     on both. The compiled iteration moves no samples between the devices (no all-gather)."""
-    r = run_two_devices("""
+    r = run_two_devices(r"""
         import re
         from mjxsysid.policy.train import TrainConfig, Trainer, training_mesh
         cfg = TrainConfig(num_envs=8, unroll=4, epochs=1, minibatches=1, iterations=10)

@@ -71,11 +71,29 @@ def _start_processes(args) -> None:
         args.out = Path(tempfile.mkdtemp(prefix=f"mjxsysid_p{jax.process_index()}_"))
 
 
+def _compilation_cache() -> None:
+    """JAX's persistent compilation cache for the command's programs: a command run again (another
+    seed of the same config, an evaluation of another policy) loads what it compiled instead of
+    compiling it again (a policy training's cold start on a GPU spends ~25 s compiling, BENCHMARKS.md).
+    ``MJXSYSID_JAX_CACHE``: the folder (default ~/.cache/mjxsysid/jax; ``0``: off). A cache the process
+    already set (the tests' conftest) is kept."""
+    import os
+    where = os.environ.get("MJXSYSID_JAX_CACHE", str(Path.home() / ".cache" / "mjxsysid" / "jax"))
+    if where == "0":
+        return
+    import jax
+    if jax.config.jax_compilation_cache_dir:
+        return
+    jax.config.update("jax_compilation_cache_dir", where)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)   # what is worth a file
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     from mjxsysid.progress import set_quiet
     set_quiet(True if args.quiet else None)
     try:
+        _compilation_cache()
         _start_processes(args)
         return args.handler(args)
     except (ValueError, OSError) as e:  # bad inputs (FileNotFoundError is an OSError)

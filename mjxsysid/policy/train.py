@@ -391,6 +391,8 @@ class Trainer:
             self.weights = LossWeights.of(cfg)
             self._iteration_jit = jax.jit(self._iteration)
             self._collect_jit, self._learn_jit = jax.jit(self._collect), jax.jit(self._learn)
+            self._episodes_jit, self._fresh_keys_jit = jax.jit(self._episodes), jax.jit(self._fresh_keys)
+            self._start_state_jit = jax.jit(self._start_state)
             self.reset = jax.jit(self._reset)
             self._start_jit = jax.jit(self._start)
             return
@@ -403,8 +405,12 @@ class Trainer:
         self._iteration_jit = jax.jit(self._iteration, in_shardings=(shared, envs, shared),
                                       out_shardings=(shared, envs, shared))
         # The rollout's samples (leaves (D, T·N/D, ...)) and snapshots stay on the devices that made them.
-        self._collect_jit = jax.jit(self._collect, in_shardings=(shared, envs),
+        self._collect_jit = jax.jit(self._collect, in_shardings=(shared, envs, envs),
                                     out_shardings=(envs, envs, envs, shared))
+        self._episodes_jit = jax.jit(self._episodes, in_shardings=(envs, shared), out_shardings=envs)
+        self._fresh_keys_jit = jax.jit(self._fresh_keys, in_shardings=(shared,), out_shardings=(envs, shared))
+        self._start_state_jit = jax.jit(self._start_state, in_shardings=(shared, shared),
+                                        out_shardings=(shared, envs, shared, envs))
         self._learn_jit = jax.jit(self._learn, in_shardings=(shared, envs, envs, shared),
                                   out_shardings=(shared, shared))
         self.reset = jax.jit(self._reset, in_shardings=(shared, shared), out_shardings=envs)
@@ -418,7 +424,10 @@ class Trainer:
         """One training iteration under ``self.weights`` -> (ts, env_state, stats). After
         :meth:`start_compile`, the first call waits for that compile and later ones run its executable."""
         if self.split:
-            env_state, flat, snaps, roll_stats = self._executable("collect")(ts, env_state)
+            fresh = None
+            if self.cfg.reset_per_unroll:   # this unroll's episode starts, by the program start() also runs
+                fresh = self._executable("episodes")(*self._executable("fresh_keys")(ts))
+            env_state, flat, snaps, roll_stats = self._executable("collect")(ts, env_state, fresh)
             ts, stats = self._executable("learn")(ts, flat, snaps, self.weights)
             return ts, env_state, {**stats, **roll_stats}
         return self._executable("iteration")(ts, env_state, self.weights)
@@ -428,7 +437,11 @@ class Trainer:
         the first iteration's schedule, on ``jax.random.fold_in(ts.key, 123)`` -> (TrainState,
         EnvState). The parameters come from :meth:`initial_params`; optimiser state and episodes
         from one compiled call."""
-        return self._executable("start")(*self.place((self.initial_params(key), key)))
+        params, key = self.place((self.initial_params(key), key))
+        if not self.split:
+            return self._executable("start")(params, key)
+        ts, keys, p, offsets = self._executable("start_state")(params, key)
+        return ts, self._executable("episodes")(keys, p).replace(step=offsets)
 
     def initial_params(self, key) -> dict:
         """The networks' fresh parameters (their own, shared init), with a warm start's μ, φ, π and
@@ -442,6 +455,13 @@ class Trainer:
         ts = self._fresh_state(params, key)
         return ts, self._reset(jax.random.fold_in(ts.key, 123), schedules(self.cfg, ts.iteration)[0])
 
+    def _start_state(self, params, key):
+        """:meth:`_start` but the episodes: -> (TrainState, keys (N, 2), p, step offsets (N,)), so
+        that the environments come from the same :meth:`_episodes` program as every unroll's starts."""
+        ts = self._fresh_state(params, key)
+        keys, offsets = self._reset_keys(jax.random.fold_in(ts.key, 123))
+        return ts, keys, schedules(self.cfg, ts.iteration)[0], offsets
+
     def _abstract_start_inputs(self):
         """Shapes and dtypes of :meth:`_start`'s inputs (parameters, key)."""
         key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
@@ -453,7 +473,8 @@ class Trainer:
         return jax.eval_shape(self._start, *self._abstract_start_inputs())
 
     def _executable(self, name):
-        """What runs ``name`` (start, iteration, collect, learn): its background-compiled executable
+        """What runs ``name`` (start, iteration; split: start_state, episodes, fresh_keys, collect,
+        learn): its background-compiled executable
         (:meth:`start_compile`), else its jitted function."""
         compiled = self._ready(name)
         return compiled if compiled is not None else getattr(self, f"_{name}_jit")
@@ -480,12 +501,20 @@ class Trainer:
         params, key = self._abstract_start_inputs()
         ts, env = jax.eval_shape(self._start, params, key)
         self.compile_seconds = {}
-        jobs = {"start": lambda: self._start_jit.lower(params, key)}
         if self.split:
-            _, flat, snaps, _ = jax.eval_shape(self._collect, ts, env)
-            jobs["collect"] = lambda: self._collect_jit.lower(ts, env)
-            jobs["learn"] = lambda: self._learn_jit.lower(ts, flat, snaps, self.weights)
+            # Each program once: the episodes (the environments' reset, the start's and every unroll's),
+            # the rollout, the update; the start's state and the unroll's keys are small.
+            _, keys, p, _ = jax.eval_shape(self._start_state, params, key)
+            _, flat, snaps, _ = jax.eval_shape(self._collect, ts, env, None)
+            fresh = jax.eval_shape(self._episodes, keys, p) if self.cfg.reset_per_unroll else None
+            jobs = {"start_state": lambda: self._start_state_jit.lower(params, key),
+                    "episodes": lambda: self._episodes_jit.lower(keys, p),
+                    "collect": lambda: self._collect_jit.lower(ts, env, fresh),
+                    "learn": lambda: self._learn_jit.lower(ts, flat, snaps, self.weights)}
+            if self.cfg.reset_per_unroll:
+                jobs["fresh_keys"] = lambda: self._fresh_keys_jit.lower(ts)
         else:
+            jobs = {"start": lambda: self._start_jit.lower(params, key)}
             jobs["iteration"] = lambda: self._iteration_jit.lower(ts, env, self.weights)
         for name, lower in jobs.items():
             box = {}
@@ -536,13 +565,29 @@ class Trainer:
         return warm
 
     def _reset(self, key, p):
-        keys = jax.random.split(key, self.cfg.num_envs)
-        st = jax.vmap(lambda k: self.env.reset(k, p))(keys)
-        # Desynchronise episodes so resets spread over time.
-        offs = jax.random.randint(jax.random.fold_in(key, 7), (self.cfg.num_envs,), 0, self.cfg.env.episode_steps)
-        return st.replace(step=offs)
+        keys, offsets = self._reset_keys(key)
+        return self._episodes(keys, p).replace(step=offsets)
 
-    def _rollout(self, params, env_state: EnvState, key, p, it):
+    def _reset_keys(self, key):
+        """The environments' keys (N, 2) and step offsets (N,) of a reset on ``key``: the offsets
+        desynchronise the episodes so that resets spread over time."""
+        offsets = jax.random.randint(jax.random.fold_in(key, 7), (self.cfg.num_envs,), 0, self.cfg.env.episode_steps)
+        return jax.random.split(key, self.cfg.num_envs), offsets
+
+    def _episodes(self, keys, p):
+        """Fresh episodes at curriculum value ``p``: keys (N, 2) -> EnvState (N, ...)."""
+        return jax.vmap(lambda k: self.env.reset(k, p))(keys)
+
+    def _fresh_keys(self, ts: TrainState):
+        """The keys (N, 2) and curriculum value of the episode starts of ``ts``'s unroll
+        (``reset_per_unroll``): what :meth:`_rollout` draws them from."""
+        _, k_roll, _ = jax.random.split(ts.key, 3)
+        return jax.random.split(jax.random.split(k_roll)[1], self.cfg.num_envs), schedules(self.cfg, ts.iteration)[0]
+
+    def _rollout(self, params, env_state: EnvState, key, p, it, fresh=None):
+        """``unroll`` steps of every environment -> (env_state, batch (T, N, ...), last value (N,)).
+        ``fresh`` (``reset_per_unroll``): the unroll's episode starts (:meth:`_fresh_keys`), made here
+        if None."""
         cfg, env = self.cfg, self.env
 
         def one(st, k, refresh, fresh):
@@ -558,11 +603,13 @@ class Trainer:
                       failed=tr.failed, rate_err=tr.rate_err, thrust_err=tr.thrust_err)
             return new, b
 
-        fresh = None
         if cfg.reset_per_unroll:
             key, k_fresh = jax.random.split(key)
-            fresh = distributed.constrain_batch(
-                jax.vmap(lambda k: env.reset(k, p))(jax.random.split(k_fresh, cfg.num_envs)), self.mesh)
+            if fresh is None:
+                fresh = self._episodes(jax.random.split(k_fresh, cfg.num_envs), p)
+            fresh = distributed.constrain_batch(fresh, self.mesh)
+        else:
+            fresh = None
 
         def body(st, x):
             k, t = x
@@ -578,17 +625,18 @@ class Trainer:
 
     def _iteration(self, ts: TrainState, env_state: EnvState, weights: LossWeights):
         """One iteration as one program: :meth:`_collect` then :meth:`_learn`."""
-        env_state, flat, snaps, roll_stats = self._collect(ts, env_state)
+        env_state, flat, snaps, roll_stats = self._collect(ts, env_state, None)
         ts, stats = self._learn(ts, flat, snaps, weights)
         return ts, env_state, {**stats, **roll_stats}
 
-    def _collect(self, ts: TrainState, env_state: EnvState):
+    def _collect(self, ts: TrainState, env_state: EnvState, fresh=None):
         """The rollout under ``ts.params`` and its advantages -> (env_state, flat, snaps, stats):
         flat = (batch, adv, ret) of :meth:`_advantages`, snaps = the environments' (θ_norm (N, 19),
-        history (N, 100, 14)) at the end of the unroll, stats = the rollout's scalars."""
+        history (N, 100, 14)) at the end of the unroll, stats = the rollout's scalars. ``fresh``:
+        the unroll's episode starts (``reset_per_unroll``), made inside if None."""
         p, _ = schedules(self.cfg, ts.iteration)
         _, k_roll, _ = jax.random.split(ts.key, 3)
-        env_state, batch, last_value = self._rollout(ts.params, env_state, k_roll, p, ts.iteration)
+        env_state, batch, last_value = self._rollout(ts.params, env_state, k_roll, p, ts.iteration, fresh)
         stats = dict(reward=batch.reward.mean(), fail_rate=batch.failed.mean(), rate_err=batch.rate_err.mean(),
                      thrust_err=batch.thrust_err.mean(), p_zhat=p)
         return env_state, self._advantages(batch, last_value), (env_state.theta_norm, env_state.history), stats
