@@ -121,10 +121,7 @@ def test_training_iteration_two_devices_equals_one():
         ts2, env2, s2 = one_iteration(training_mesh(cfg))
         p0 = Trainer(cfg).init(jax.random.PRNGKey(0)).params
         tr2 = Trainer(cfg, training_mesh(cfg))
-        ts_a, env_a = tr2.abstract_state()
-        _, flat, snaps, _ = jax.eval_shape(tr2._collect, ts_a, env_a)
-        hlo = (tr2._collect_jit.lower(ts_a, env_a).compile().as_text()       # the two programs that run
-               + tr2._learn_jit.lower(ts_a, flat, snaps, tr2.weights).compile().as_text())
+        hlo = tr2._iteration_jit.lower(*tr2.abstract_state(), tr2.weights).compile().as_text()
         print(json.dumps({"env_sharded_over": len(jax.tree.leaves(env2)[0].sharding.device_set),
                           "all_gathers": len(re.findall(r" all-gather(?:-start)?\(", hlo)),
                           "all_reduces": len(re.findall(r" all-reduce(?:-start)?\(", hlo)),

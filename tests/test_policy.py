@@ -283,7 +283,7 @@ def test_loss_weight_options_share_the_compile_and_train(tiny_trainer, over):
     ts, env = t0.init(jax.random.PRNGKey(0)), t0.reset(jax.random.PRNGKey(1), jnp.float32(0.0))
     base, _, base_stats = t0.iteration(ts, env)
     t = t0.reweighted(dataclasses.replace(t0.cfg, **over))
-    assert t._collect_jit is t0._collect_jit and t._learn_jit is t0._learn_jit and t.cfg != t0.cfg
+    assert t._iteration_jit is t0._iteration_jit and t.cfg != t0.cfg
     new, env2, stats = t.iteration(ts, env)
     assert all(np.isfinite(float(v)) for v in stats.values()), stats
     assert float(stats["rec_ident"]) > 0 and float(base_stats["rec_ident"]) > 0

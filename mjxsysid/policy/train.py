@@ -13,10 +13,9 @@ Joint loss per minibatch (shapes: B samples of the rollout, S snapshots of histo
       + β(t) ‖mean π(s, z) − r_expert‖²            behaviour cloning from K_θ(true θ), decaying
 
 The policy sees z^θ = μ(θ) or, with probability p(t) per episode, ẑ = φ(history) (held,
-stop-gradient); p(t) = 0 during warm-up, then rises linearly to p_max. An iteration is two jitted
-functions, collect (rollout scan, GAE) and learn (epochs × minibatches scans), compiled side by
-side (or one, ``Trainer(split=False)``); the host loop prints progress and checkpoints between
-iterations. The loss weights travel into the jitted
+stop-gradient); p(t) = 0 during warm-up, then rises linearly to p_max. The whole iteration
+(rollout scan, GAE, epochs × minibatches scans) is one jitted function; the host loop prints
+progress and checkpoints between iterations. The loss weights travel into the jitted
 iteration as a traced :class:`LossWeights` pytree, so trials that differ only in them share one
 compile (:meth:`Trainer.reweighted`).
 """
@@ -370,11 +369,8 @@ class Trainer:
     compiler all-reduces the gradients; the update is that of one device up to float
     reassociation. Pass states through :meth:`place` first. None or one device: unchanged."""
 
-    def __init__(self, cfg: TrainConfig = TrainConfig(), mesh=None, split: bool | None = None):
+    def __init__(self, cfg: TrainConfig = TrainConfig(), mesh=None):
         self.cfg = cfg
-        # Two executables (collect: rollout and advantages; learn: the update) instead of one: they
-        # compile side by side in start_compile, which halves the cold start's critical path.
-        self.split = os.environ.get("MJXSYSID_SPLIT_ITERATION", "1") != "0" if split is None else split
         # The one-off constants (the prior's normaliser, the identifiable projection) on the CPU:
         # their dozens of eager ops compile in milliseconds there, in tenths of seconds each on a
         # GPU (seconds of every training start); the jitted functions take them as constants.
@@ -390,9 +386,6 @@ class Trainer:
         if self.mesh is None:
             self.weights = LossWeights.of(cfg)
             self._iteration_jit = jax.jit(self._iteration)
-            self._collect_jit, self._learn_jit = jax.jit(self._collect), jax.jit(self._learn)
-            self._episodes_jit, self._fresh_keys_jit = jax.jit(self._episodes), jax.jit(self._fresh_keys)
-            self._start_state_jit = jax.jit(self._start_state)
             self.reset = jax.jit(self._reset)
             self._start_jit = jax.jit(self._start)
             return
@@ -404,15 +397,6 @@ class Trainer:
         self.weights = self.place(LossWeights.of(cfg))
         self._iteration_jit = jax.jit(self._iteration, in_shardings=(shared, envs, shared),
                                       out_shardings=(shared, envs, shared))
-        # The rollout's samples (leaves (D, T·N/D, ...)) and snapshots stay on the devices that made them.
-        self._collect_jit = jax.jit(self._collect, in_shardings=(shared, envs, envs),
-                                    out_shardings=(envs, envs, envs, shared))
-        self._episodes_jit = jax.jit(self._episodes, in_shardings=(envs, shared), out_shardings=envs)
-        self._fresh_keys_jit = jax.jit(self._fresh_keys, in_shardings=(shared,), out_shardings=(envs, shared))
-        self._start_state_jit = jax.jit(self._start_state, in_shardings=(shared, shared),
-                                        out_shardings=(shared, envs, shared, envs))
-        self._learn_jit = jax.jit(self._learn, in_shardings=(shared, envs, envs, shared),
-                                  out_shardings=(shared, shared))
         self.reset = jax.jit(self._reset, in_shardings=(shared, shared), out_shardings=envs)
         self._start_jit = jax.jit(self._start, in_shardings=(shared, shared), out_shardings=(shared, envs))
 
@@ -423,25 +407,19 @@ class Trainer:
     def iteration(self, ts: TrainState, env_state: EnvState):
         """One training iteration under ``self.weights`` -> (ts, env_state, stats). After
         :meth:`start_compile`, the first call waits for that compile and later ones run its executable."""
-        if self.split:
-            fresh = None
-            if self.cfg.reset_per_unroll:   # this unroll's episode starts, by the program start() also runs
-                fresh = self._executable("episodes")(*self._executable("fresh_keys")(ts))
-            env_state, flat, snaps, roll_stats = self._executable("collect")(ts, env_state, fresh)
-            ts, stats = self._executable("learn")(ts, flat, snaps, self.weights)
-            return ts, env_state, {**stats, **roll_stats}
-        return self._executable("iteration")(ts, env_state, self.weights)
+        compiled = self._ready("iteration")
+        if compiled is not None:
+            return compiled(ts, env_state, self.weights)
+        return self._iteration_jit(ts, env_state, self.weights)
 
     def start(self, key):
         """A fresh run: the training state of :meth:`init` and the environments of :meth:`reset` at
         the first iteration's schedule, on ``jax.random.fold_in(ts.key, 123)`` -> (TrainState,
         EnvState). The parameters come from :meth:`initial_params`; optimiser state and episodes
         from one compiled call."""
-        params, key = self.place((self.initial_params(key), key))
-        if not self.split:
-            return self._executable("start")(params, key)
-        ts, keys, p, offsets = self._executable("start_state")(params, key)
-        return ts, self._executable("episodes")(keys, p).replace(step=offsets)
+        compiled = self._ready("start")
+        run = compiled if compiled is not None else self._start_jit
+        return run(*self.place((self.initial_params(key), key)))
 
     def initial_params(self, key) -> dict:
         """The networks' fresh parameters (their own, shared init), with a warm start's μ, φ, π and
@@ -455,13 +433,6 @@ class Trainer:
         ts = self._fresh_state(params, key)
         return ts, self._reset(jax.random.fold_in(ts.key, 123), schedules(self.cfg, ts.iteration)[0])
 
-    def _start_state(self, params, key):
-        """:meth:`_start` but the episodes: -> (TrainState, keys (N, 2), p, step offsets (N,)), so
-        that the environments come from the same :meth:`_episodes` program as every unroll's starts."""
-        ts = self._fresh_state(params, key)
-        keys, offsets = self._reset_keys(jax.random.fold_in(ts.key, 123))
-        return ts, keys, schedules(self.cfg, ts.iteration)[0], offsets
-
     def _abstract_start_inputs(self):
         """Shapes and dtypes of :meth:`_start`'s inputs (parameters, key)."""
         key = jax.eval_shape(lambda: jax.random.PRNGKey(0))
@@ -471,13 +442,6 @@ class Trainer:
         """Shapes and dtypes (jax.ShapeDtypeStruct trees) of (TrainState, EnvState) as
         :meth:`start` makes them, without computing them."""
         return jax.eval_shape(self._start, *self._abstract_start_inputs())
-
-    def _executable(self, name):
-        """What runs ``name`` (start, iteration; split: start_state, episodes, fresh_keys, collect,
-        learn): its background-compiled executable
-        (:meth:`start_compile`), else its jitted function."""
-        compiled = self._ready(name)
-        return compiled if compiled is not None else getattr(self, f"_{name}_jit")
 
     def _ready(self, name):
         """The executable of a background compile ``name`` (waiting for it), or None."""
@@ -501,21 +465,8 @@ class Trainer:
         params, key = self._abstract_start_inputs()
         ts, env = jax.eval_shape(self._start, params, key)
         self.compile_seconds = {}
-        if self.split:
-            # Each program once: the episodes (the environments' reset, the start's and every unroll's),
-            # the rollout, the update; the start's state and the unroll's keys are small.
-            _, keys, p, _ = jax.eval_shape(self._start_state, params, key)
-            _, flat, snaps, _ = jax.eval_shape(self._collect, ts, env, None)
-            fresh = jax.eval_shape(self._episodes, keys, p) if self.cfg.reset_per_unroll else None
-            jobs = {"start_state": lambda: self._start_state_jit.lower(params, key),
-                    "episodes": lambda: self._episodes_jit.lower(keys, p),
-                    "collect": lambda: self._collect_jit.lower(ts, env, fresh),
-                    "learn": lambda: self._learn_jit.lower(ts, flat, snaps, self.weights)}
-            if self.cfg.reset_per_unroll:
-                jobs["fresh_keys"] = lambda: self._fresh_keys_jit.lower(ts)
-        else:
-            jobs = {"start": lambda: self._start_jit.lower(params, key)}
-            jobs["iteration"] = lambda: self._iteration_jit.lower(ts, env, self.weights)
+        jobs = {"start": lambda: self._start_jit.lower(params, key),
+                "iteration": lambda: self._iteration_jit.lower(ts, env, self.weights)}
         for name, lower in jobs.items():
             box = {}
 
@@ -565,29 +516,13 @@ class Trainer:
         return warm
 
     def _reset(self, key, p):
-        keys, offsets = self._reset_keys(key)
-        return self._episodes(keys, p).replace(step=offsets)
+        keys = jax.random.split(key, self.cfg.num_envs)
+        st = jax.vmap(lambda k: self.env.reset(k, p))(keys)
+        # Desynchronise episodes so resets spread over time.
+        offs = jax.random.randint(jax.random.fold_in(key, 7), (self.cfg.num_envs,), 0, self.cfg.env.episode_steps)
+        return st.replace(step=offs)
 
-    def _reset_keys(self, key):
-        """The environments' keys (N, 2) and step offsets (N,) of a reset on ``key``: the offsets
-        desynchronise the episodes so that resets spread over time."""
-        offsets = jax.random.randint(jax.random.fold_in(key, 7), (self.cfg.num_envs,), 0, self.cfg.env.episode_steps)
-        return jax.random.split(key, self.cfg.num_envs), offsets
-
-    def _episodes(self, keys, p):
-        """Fresh episodes at curriculum value ``p``: keys (N, 2) -> EnvState (N, ...)."""
-        return jax.vmap(lambda k: self.env.reset(k, p))(keys)
-
-    def _fresh_keys(self, ts: TrainState):
-        """The keys (N, 2) and curriculum value of the episode starts of ``ts``'s unroll
-        (``reset_per_unroll``): what :meth:`_rollout` draws them from."""
-        _, k_roll, _ = jax.random.split(ts.key, 3)
-        return jax.random.split(jax.random.split(k_roll)[1], self.cfg.num_envs), schedules(self.cfg, ts.iteration)[0]
-
-    def _rollout(self, params, env_state: EnvState, key, p, it, fresh=None):
-        """``unroll`` steps of every environment -> (env_state, batch (T, N, ...), last value (N,)).
-        ``fresh`` (``reset_per_unroll``): the unroll's episode starts (:meth:`_fresh_keys`), made here
-        if None."""
+    def _rollout(self, params, env_state: EnvState, key, p, it):
         cfg, env = self.cfg, self.env
 
         def one(st, k, refresh, fresh):
@@ -603,13 +538,11 @@ class Trainer:
                       failed=tr.failed, rate_err=tr.rate_err, thrust_err=tr.thrust_err)
             return new, b
 
+        fresh = None
         if cfg.reset_per_unroll:
             key, k_fresh = jax.random.split(key)
-            if fresh is None:
-                fresh = self._episodes(jax.random.split(k_fresh, cfg.num_envs), p)
-            fresh = distributed.constrain_batch(fresh, self.mesh)
-        else:
-            fresh = None
+            fresh = distributed.constrain_batch(
+                jax.vmap(lambda k: env.reset(k, p))(jax.random.split(k_fresh, cfg.num_envs)), self.mesh)
 
         def body(st, x):
             k, t = x
@@ -624,29 +557,12 @@ class Trainer:
         return env_state, batch, last_value
 
     def _iteration(self, ts: TrainState, env_state: EnvState, weights: LossWeights):
-        """One iteration as one program: :meth:`_collect` then :meth:`_learn`."""
-        env_state, flat, snaps, roll_stats = self._collect(ts, env_state, None)
-        ts, stats = self._learn(ts, flat, snaps, weights)
-        return ts, env_state, {**stats, **roll_stats}
-
-    def _collect(self, ts: TrainState, env_state: EnvState, fresh=None):
-        """The rollout under ``ts.params`` and its advantages -> (env_state, flat, snaps, stats):
-        flat = (batch, adv, ret) of :meth:`_advantages`, snaps = the environments' (θ_norm (N, 19),
-        history (N, 100, 14)) at the end of the unroll, stats = the rollout's scalars. ``fresh``:
-        the unroll's episode starts (``reset_per_unroll``), made inside if None."""
-        p, _ = schedules(self.cfg, ts.iteration)
-        _, k_roll, _ = jax.random.split(ts.key, 3)
-        env_state, batch, last_value = self._rollout(ts.params, env_state, k_roll, p, ts.iteration, fresh)
-        stats = dict(reward=batch.reward.mean(), fail_rate=batch.failed.mean(), rate_err=batch.rate_err.mean(),
-                     thrust_err=batch.thrust_err.mean(), p_zhat=p)
-        return env_state, self._advantages(batch, last_value), (env_state.theta_norm, env_state.history), stats
-
-    def _learn(self, ts: TrainState, flat, snaps, weights: LossWeights):
-        """The update on :meth:`_collect`'s samples -> (the next TrainState, stats: the losses'
-        means and the latent's health on the snapshots)."""
-        _, beta = schedules(self.cfg, ts.iteration)
-        key, _, k_perm = jax.random.split(ts.key, 3)
-        snap_theta, snap_hist = snaps
+        cfg = self.cfg
+        p, beta = schedules(cfg, ts.iteration)
+        key, k_roll, k_perm = jax.random.split(ts.key, 3)
+        env_state, batch, last_value = self._rollout(ts.params, env_state, k_roll, p, ts.iteration)
+        flat = self._advantages(batch, last_value)
+        snap_theta, snap_hist = env_state.theta_norm, env_state.history  # (N, 19), (N, 100, 14)
         params, opt_state, aux = self._update(ts.params, ts.opt_state, flat, snap_theta, snap_hist,
                                               k_perm, beta, weights)
         # Latent health on the snapshots: alignment error relative to the spread of z^θ.
@@ -654,10 +570,13 @@ class Trainer:
         zhat = self.nets.adapt(params, snap_hist)
         spread = jnp.sqrt(jnp.sum(jnp.var(z_theta, 0)))
         stats = {k: v.mean() for k, v in aux.items()}
-        stats.update(bc_weight=beta,
+        stats.update(reward=batch.reward.mean(), fail_rate=batch.failed.mean(),
+                     rate_err=batch.rate_err.mean(), thrust_err=batch.thrust_err.mean(),
+                     p_zhat=p, bc_weight=beta,
                      latent_err_rel=jnp.sqrt(jnp.mean(jnp.sum((z_theta - zhat) ** 2, -1))) / spread,
                      latent_min_std=jnp.sqrt(jnp.var(z_theta, 0)).min())
-        return TrainState(params=params, opt_state=opt_state, iteration=ts.iteration + 1, key=key), stats
+        ts = TrainState(params=params, opt_state=opt_state, iteration=ts.iteration + 1, key=key)
+        return ts, env_state, stats
 
     def _advantages(self, batch: Batch, last_value):
         """GAE over the rollout (T, N) and flattening to samples: -> (batch, adv, ret) with
