@@ -36,7 +36,10 @@ def xla_optimised_test():
     """:func:`xla_optimised` for a whole test (``@pytest.mark.usefixtures("xla_optimised_test")``)."""
     with xla_optimised():
         yield
-jax.config.update("jax_compilation_cache_dir", os.environ.get("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache")))
+# The suite's cache, also for the `mjxsysid` commands the tests run as subprocesses (the CLI's own
+# default is ~/.cache/mjxsysid/jax).
+os.environ.setdefault("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache"))
+jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 

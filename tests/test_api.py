@@ -134,3 +134,26 @@ def test_fly_and_decode_api_match_the_cli(tmp_path, capsys):
     assert "inside" in from_log["summary"]["mass"]
     with pytest.raises(ValueError, match="latent policy"):
         mjxsysid.decode(dataclasses.replace(res, controller="oracle"))
+
+
+def test_cli_compilation_cache(monkeypatch, tmp_path):
+    """The CLI turns on JAX's persistent compilation cache in MJXSYSID_JAX_CACHE (0: off) and keeps
+    one the process already set (the suite's, here)."""
+    import jax
+
+    from mjxsysid.cli import _compilation_cache
+    suite = jax.config.jax_compilation_cache_dir
+    assert suite
+    monkeypatch.setenv("MJXSYSID_JAX_CACHE", str(tmp_path / "c"))
+    _compilation_cache()
+    assert jax.config.jax_compilation_cache_dir == suite          # kept
+    try:
+        jax.config.update("jax_compilation_cache_dir", None)
+        monkeypatch.setenv("MJXSYSID_JAX_CACHE", "0")
+        _compilation_cache()
+        assert jax.config.jax_compilation_cache_dir is None      # off
+        monkeypatch.setenv("MJXSYSID_JAX_CACHE", str(tmp_path / "c"))
+        _compilation_cache()
+        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "c")
+    finally:
+        jax.config.update("jax_compilation_cache_dir", suite)
