@@ -176,14 +176,16 @@ def test_episode_starts_once_per_unroll(params):
     precomputed start (same vehicle and reference; its own random stream), the others fly on."""
     env = TrainEnv(EnvConfig())
 
-    @jax.jit
-    def run(k1, k2):
-        st, fresh = env.reset(k1, 0.0), env.reset(k2, 0.0)
+    @jax.jit   # one reset and one step compiled (vmapped over the pair), not two of each
+    def run(keys):
+        st, fresh = (jax.tree.map(lambda x, i=i: x[i], jax.vmap(lambda k: env.reset(k, 0.0))(keys)) for i in (0, 1))
         last = st.replace(step=jnp.int32(env.config.episode_steps - 1))
-        s, z, _, obs = env.policy_input(params, last)
-        return st, fresh, [env.step(params, x, jnp.zeros(4), obs, 0.0, False, fresh) for x in (last, st)]
+        _, _, _, obs = env.policy_input(params, last)
+        pair = jax.tree.map(lambda a, b: jnp.stack([a, b]), last, st)
+        out = jax.vmap(lambda x: env.step(params, x, jnp.zeros(4), obs, 0.0, False, fresh))(pair)
+        return st, fresh, [jax.tree.map(lambda x, i=i: x[i], out) for i in (0, 1)]
 
-    st, fresh, ((ended, t_end), (going, t_go)) = run(jax.random.PRNGKey(1), jax.random.PRNGKey(2))
+    st, fresh, ((ended, t_end), (going, t_go)) = run(jnp.stack([jax.random.PRNGKey(1), jax.random.PRNGKey(2)]))
     assert bool(t_end.done) and not bool(t_go.done)
     np.testing.assert_array_equal(np.asarray(ended.theta), np.asarray(fresh.theta))
     np.testing.assert_array_equal(np.asarray(ended.sim.pos), np.asarray(fresh.sim.pos))
