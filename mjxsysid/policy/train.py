@@ -710,6 +710,11 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     mesh = training_mesh(cfg)
     if trainer is not None and (trainer.mesh.size if trainer.mesh is not None else 1) != mesh.size:
         raise ValueError(f"train: the trainer was built for another device mesh than the {mesh.size} device(s)")
+    ckpt = out / "checkpoint.npz"
+    # A checkpoint of another config is an error before anything compiles (a compile started in the
+    # background would run on after the error, holding the CPU).
+    if resume and ckpt.exists() and not _same_config(load_meta(ckpt).get("config"), cfg):
+        raise ValueError(f"{ckpt} was written with a different config; use a new --out or --no-resume")
     t_built = None
     if trainer is None:
         trainer = Trainer(cfg, mesh)
@@ -717,11 +722,8 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
         if background_compile:
             trainer.start_compile()   # the iteration compiles while the states below are made
     ts, env_state = trainer.start(jax.random.PRNGKey(cfg.seed))   # a fresh run: state and environments
-    ckpt = out / "checkpoint.npz"
     if resume and ckpt.exists():
         meta = load_meta(ckpt)
-        if not _same_config(meta.get("config"), cfg):
-            raise ValueError(f"{ckpt} was written with a different config; use a new --out or --no-resume")
         if meta.get("with_env"):
             ts, env_state = load_tree(ckpt, (ts, env_state))
             # resumed environments: shard their batch axis like a fresh reset's
