@@ -56,9 +56,12 @@ XDIST_GROUPS = {
     "policy-training": ("test_policy", "test_sequence"),
 }
 _GROUP_OF = {f: g for g, files in XDIST_GROUPS.items() for f in files}
-# Queue order, longest first (CPU seconds of the default tier, 2026-11-24); files not listed last.
-_QUEUE = ("policy-training", "policy-flights", "test_sim", "test_control", "test_experiments_robustness",
-          "test_tune", "test_resume", "test_distributed", "test_cfm", "test_xadap_fly", "test_export")
+# Queue order, longest first (seconds of the default tier, `pytest --durations=0`, 2026-11-26), so
+# that the short files come last and fill in; files not listed after them.
+_QUEUE = ("policy-training", "policy-flights", "test_control", "test_sim", "test_tune", "test_experiments_robustness",
+          "test_cfm", "test_distributed", "test_resume", "test_logcheck", "test_references", "test_render",
+          "test_export", "test_train_options", "test_docs_generated", "test_focus", "test_heldout", "test_inputs",
+          "test_sensor_randomization", "test_params", "test_widened_control")
 
 
 def pytest_configure(config):
