@@ -130,9 +130,8 @@ class TrainConfig:
         return cfg
 
     def __post_init__(self):
-        if isinstance(self.lr_constant, (list, str)):    # JSON gives a list
-            object.__setattr__(self, "lr_constant", tuple([self.lr_constant] if isinstance(self.lr_constant, str)
-                                                          else self.lr_constant))
+        if isinstance(self.lr_constant, list):    # JSON gives a list
+            object.__setattr__(self, "lr_constant", tuple(self.lr_constant))
         bad = sorted(set(self.lr_constant) - set(PARAM_MODULES))
         if bad:
             raise ValueError(f"config lr_constant: unknown module(s) {bad}; modules: {list(PARAM_MODULES)}")
@@ -393,7 +392,7 @@ class Trainer:
             raise ValueError(f"num_envs ({cfg.num_envs}) must be a multiple of the {self.mesh.size} devices × "
                              f"{cfg.minibatches} minibatches (each device shuffles its own environments' samples)")
         shared = NamedSharding(self.mesh, PartitionSpec())
-        envs = NamedSharding(self.mesh, PartitionSpec(distributed.AXIS))
+        envs = self._batch_sharding = NamedSharding(self.mesh, PartitionSpec(distributed.AXIS))
         self.weights = self.place(LossWeights.of(cfg))
         self._iteration_jit = jax.jit(self._iteration, in_shardings=(shared, envs, shared),
                                       out_shardings=(shared, envs, shared))
@@ -588,10 +587,9 @@ class Trainer:
         # On a mesh of D devices, each device's samples together: leaves (D, T·N/D, ...), so that
         # flattening moves nothing between the devices (a time-major flatten of the sharded N would).
         d, t, n = self.mesh.size, cfg.unroll, cfg.num_envs
-        sh = NamedSharding(self.mesh, PartitionSpec(distributed.AXIS))
         return jax.tree.map(lambda a: jax.lax.with_sharding_constraint(
-            a.reshape((t, d, n // d) + a.shape[2:]).swapaxes(0, 1).reshape((d, t * (n // d)) + a.shape[2:]), sh),
-            (batch, adv, ret))
+            a.reshape((t, d, n // d) + a.shape[2:]).swapaxes(0, 1).reshape((d, t * (n // d)) + a.shape[2:]),
+            self._batch_sharding), (batch, adv, ret))
 
     def _update(self, params, opt_state, flat, snap_theta, snap_hist, key, beta, weights: LossWeights):
         """``epochs`` × ``minibatches`` gradient steps of :func:`loss_fn` on the flattened
@@ -636,10 +634,9 @@ class Trainer:
         devices each iteration (an all-gather of both); this moves nothing. The minibatches are as
         random (each a uniform draw within each device's share), not the same as one device's."""
         cfg, d, m = self.cfg, self.mesh.size, self.cfg.minibatches
-        sh = NamedSharding(self.mesh, PartitionSpec(distributed.AXIS))
 
         def local(x, k):   # (D, L, ...) -> shuffled per device with keys from k -> (m, D·L/m, ...) minibatches
-            x = jax.lax.with_sharding_constraint(x, sh)
+            x = jax.lax.with_sharding_constraint(x, self._batch_sharding)
             length = x.shape[1]
             perm = jax.vmap(lambda kd: jax.random.permutation(kd, length))(jax.random.split(k, d))
             x = jax.vmap(lambda a, p: a[p])(x, perm)
@@ -711,9 +708,10 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     if trainer is not None and (trainer.mesh.size if trainer.mesh is not None else 1) != mesh.size:
         raise ValueError(f"train: the trainer was built for another device mesh than the {mesh.size} device(s)")
     ckpt = out / "checkpoint.npz"
+    meta = load_meta(ckpt) if (resume and ckpt.exists()) else None   # the run to resume
     # A checkpoint of another config is an error before anything compiles (a compile started in the
     # background would run on after the error, holding the CPU).
-    if resume and ckpt.exists() and not _same_config(load_meta(ckpt).get("config"), cfg):
+    if meta is not None and not _same_config(meta.get("config"), cfg):
         raise ValueError(f"{ckpt} was written with a different config; use a new --out or --no-resume")
     t_built = None
     if trainer is None:
@@ -722,8 +720,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
         if background_compile:
             trainer.start_compile()   # the iteration compiles while the states below are made
     ts, env_state = trainer.start(jax.random.PRNGKey(cfg.seed))   # a fresh run: state and environments
-    if resume and ckpt.exists():
-        meta = load_meta(ckpt)
+    if meta is not None:
         if meta.get("with_env"):
             ts, env_state = load_tree(ckpt, (ts, env_state))
             # resumed environments: shard their batch axis like a fresh reset's
@@ -743,7 +740,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     timing = {"setup_s": t_start - t_enter, "first_iteration_s": 0.0, "checkpoint_s": 0.0}
     if t_built is not None:
         timing["construct_s"] = t_built - t_enter   # of setup: building the Trainer (before any compile starts)
-    wall_prev = load_meta(ckpt).get("wall_s", 0.0) if (resume and ckpt.exists()) else 0.0
+    wall_prev = meta.get("wall_s", 0.0) if meta is not None else 0.0
     logf = open(out / "train_log.jsonl", "a")
     stats = {}
     t_log, it_log = time.time(), int(ts.iteration)
