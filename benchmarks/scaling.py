@@ -5,7 +5,9 @@ every device (:mod:`mjxsysid.distributed`), after a warm-up call that compiles:
 
 - ``collect``: ``latents_in_flight`` — the shipped policy flying ``--vehicles`` prior vehicles
   ``--steps`` control steps under excitation (what ``mjxsysid collect`` does per batch);
-  env-steps/s = vehicles × steps / wall;
+  env-steps/s = vehicles × steps / wall; also the flight alone (``fly_batch`` with the inputs
+  drawn beforehand: ``flight_*`` in the JSON), which leaves out the policy's loading and the
+  excitation's draws on the host;
 - ``train``: iterations of the policy training (rollout + GAE + PPO/alignment updates) with
   ``--envs`` environments × ``--unroll`` steps; env-steps/s = envs × unroll × iterations / wall.
 
@@ -48,21 +50,30 @@ def best_of(fn, repeats: int) -> float:
 def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
     from mjxsysid import distributed as D
     from mjxsysid import params as P
-    from mjxsysid.dataset.collect import latents_in_flight
+    from mjxsysid.control.high_level import Cascade
+    from mjxsysid.dataset.collect import last_latent_and_failure, latents_in_flight, lemniscate_excitation
     from mjxsysid.policy.interface import resolve_policy
+    from mjxsysid.rollout.flight import broadcast
+    from mjxsysid.rollout.harness import fly_batch
     from mjxsysid.sim import Quadrotor
     ref, sim = resolve_policy("mjxsysid"), Quadrotor()
     vehicles = vehicles or args.vehicles
     theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), vehicles))
     key = jax.random.PRNGKey(1)
+    # the flight alone (inputs drawn beforehand; their sharding and the results' return included)
+    flight_args = (sim, theta, ref.batched(vehicles), broadcast(Cascade.make("baseline"), vehicles),
+                   *lemniscate_excitation(key, theta), args.steps)
     with D.limit_devices(devices):
         run = lambda: latents_in_flight(ref, theta, key, steps=args.steps, sim=sim)  # host arrays: blocks
         t0 = time.perf_counter()
         z, _ = run()
         first = time.perf_counter() - t0
         wall = best_of(run, args.repeats)
+        flight = best_of(lambda: jax.block_until_ready(
+            fly_batch(*flight_args, reduce=last_latent_and_failure)), args.repeats)
     return {"devices": D.device_count() if devices is None else devices, "vehicles": vehicles,
-            "first_call_s": first, "wall_s": wall, "env_steps_per_s": vehicles * args.steps / wall, "_z": z}
+            "first_call_s": first, "wall_s": wall, "env_steps_per_s": vehicles * args.steps / wall,
+            "flight_wall_s": flight, "flight_env_steps_per_s": vehicles * args.steps / flight, "_z": z}
 
 
 def bench_train(devices: int, args, envs: int | None = None) -> dict:
@@ -157,9 +168,14 @@ def main():
             weak.pop("_loss", None)
             res[name]["weak"] = {"all_devices": weak,
                                  "throughput_ratio": weak["env_steps_per_s"] / one["env_steps_per_s"]}
+            if name == "collect":
+                res[name]["weak"]["flight_throughput_ratio"] = (weak["flight_env_steps_per_s"]
+                                                                / one["flight_env_steps_per_s"])
             print(f"{name:8s} weak:   {many['devices']} devices × the per-device batch "
                   f"{weak['env_steps_per_s'] / 1e6:8.3f} M env-steps/s | "
-                  f"throughput ×{res[name]['weak']['throughput_ratio']:.2f}", flush=True)
+                  f"throughput ×{res[name]['weak']['throughput_ratio']:.2f}"
+                  + (f" (the flight alone ×{res[name]['weak']['flight_throughput_ratio']:.2f})"
+                     if name == "collect" else ""), flush=True)
     if jax.process_index() == 0:
         write_json(args.out, res)
     return 0

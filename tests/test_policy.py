@@ -251,6 +251,54 @@ def test_collect_pairs_tiny(collected_pairs, tmp_path):
         load_pairs(tmp_path / "nope")
 
 
+def test_collect_reducers_keep_what_collect_returns():
+    """collect's flights are reduced inside the compiled flight (only ẑ and the failure flag
+    leave the devices): the reducers pick the same numbers as the whole flight would give."""
+    from types import SimpleNamespace
+    from mjxsysid.dataset.collect import LatentsAt, last_latent_and_failure
+    from mjxsysid.rollout.harness import failure_mask
+    T = 7
+    lat = jnp.arange(T * 8, dtype=jnp.float32).reshape(T, 8)
+    pos = jnp.zeros((T, 3)).at[:, 2].set(1.0)
+
+    def flight(bad_step=None):
+        p = pos if bad_step is None else pos.at[bad_step, 2].set(-0.1)   # a crash at bad_step
+        return SimpleNamespace(latent=lat, ref_pos=jnp.zeros((T, 3)).at[:, 2].set(1.0),
+                               frame=SimpleNamespace(pos=p, diverged=jnp.zeros(T, bool)))
+    for bad, failed in ((None, False), (2, True), (T - 1, True)):
+        z, f = last_latent_and_failure(flight(bad))
+        np.testing.assert_array_equal(z, lat[-1])
+        assert bool(f) is failed and bool(f) == bool(failure_mask(flight(bad))[-1])
+        zt, f2 = LatentsAt((1, 4, 6))(flight(bad))
+        np.testing.assert_array_equal(zt, lat[jnp.asarray([1, 4, 6])])
+        assert bool(f2) is failed
+    assert hash(LatentsAt((1, 4))) == hash(LatentsAt((1, 4)))   # the compiled flight is reused
+
+
+@pytest.mark.slow
+def test_collect_reduced_flight_equals_whole_flight():
+    """latents_in_flight / latent_trajectories_in_flight (reduced in the compiled flight) give
+    bit for bit what the whole flight gives (fly_batch without reduce, then indexed)."""
+    from mjxsysid.dataset import collect as C
+    from mjxsysid.sim import Quadrotor
+    theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(1), 3))
+    key, n = jax.random.PRNGKey(2), 3
+    low, high = resolve_policy("mjxsysid").batched(n), C.broadcast(C.Cascade.make("baseline"), n)
+    zt, _, f, _ = C.latent_trajectories_in_flight("mjxsysid", theta, key, seconds=0.5)
+    _, idx, steps = C.trajectory_times(0.5)
+    k_man, k_fly = jax.random.split(key)
+    ref, dist, _ = C.random_manoeuvres(k_man, theta, 0.5, C.MANOEUVRES, 0)
+    fl = C.fly_batch(Quadrotor(), theta, low, high, ref, dist, k_fly, steps)
+    np.testing.assert_array_equal(zt, np.asarray(fl.latent[:, idx]))
+    np.testing.assert_array_equal(f, np.asarray(jax.vmap(C.failure_mask)(fl))[:, -1])
+    assert float(np.std(zt)) > 1e-3                                   # real latents
+    z, f = C.latents_in_flight("mjxsysid", theta, key, steps=120)
+    ref, dist, k_fly = C.lemniscate_excitation(key, theta)
+    fl = C.fly_batch(Quadrotor(), theta, low, high, ref, dist, k_fly, 120)
+    np.testing.assert_array_equal(z, np.asarray(fl.latent[:, -1]))
+    np.testing.assert_array_equal(f, np.asarray(jax.vmap(C.failure_mask)(fl))[:, -1])
+
+
 def test_identifiable_projection_is_exact():
     """(y − y') A equals the standardised difference of log T/W, log κ, log authority, log τ_m."""
     norm = P.prior_normalizer("default", n=4000)

@@ -17,6 +17,7 @@ Gaussian force (σ up to 0.03 m g). ẑ is recorded at 10 Hz from 0.2 s on (the 
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import json
 import time
@@ -46,14 +47,38 @@ def latents_in_flight(policy, theta, key, *, weights=None, steps: int = 750, sim
     theta = np.asarray(theta, np.float32)
     n = len(theta)
     sim = sim or Quadrotor()
-    k_ref, k_force, k_fly = jax.random.split(key, 3)
     low = resolve_policy(policy, weights).batched(n)
+    ref, dist, k_fly = lemniscate_excitation(key, theta)
+    z, failed = fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), ref, dist, k_fly, steps,
+                          reduce=last_latent_and_failure)
+    return np.asarray(z), np.asarray(failed)
+
+
+def lemniscate_excitation(key, theta):
+    """The single-latent pairs' excitation of θ (n, 19): (random lemniscates (leaves (n, ...)),
+    Disturbance batch with a Gaussian world force of σ up to 0.1 m g per axis, the flight's key)."""
+    n = len(theta)
+    k_ref, k_force, k_fly = jax.random.split(key, 3)
     sigma = jax.random.uniform(k_force, (n, 1), minval=0.0, maxval=0.1) * theta[:, P.MASS, None] * P.GRAVITY
     dist = broadcast(Disturbance.make(), n).replace(sigma=jnp.broadcast_to(sigma, (n, 3)))
-    fl = fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), random_lemniscates(k_ref, n),
-                   dist, k_fly, steps)
-    failed = np.asarray(jax.vmap(failure_mask)(fl))[:, -1]
-    return np.asarray(fl.latent[:, -1]), failed
+    return random_lemniscates(k_ref, n), dist, k_fly
+
+
+@dataclasses.dataclass(frozen=True)
+class LatentsAt:
+    """A flight reducer (hashable, so the compiled flight is cached per step set): one flight
+    (leaves (T, ...)) -> (ẑ at the control steps ``idx`` (L, 8), failed by the last step ())."""
+    idx: tuple
+
+    def __call__(self, flight):
+        return flight.latent[jnp.asarray(self.idx)], failure_mask(flight)[-1]
+
+
+def last_latent_and_failure(flight):
+    """One flight (leaves (T, ...)) -> (ẑ at the last step (8,), failed by then ()): what
+    :func:`latents_in_flight` keeps, reduced inside the compiled flight so that only (n, 9)
+    numbers per batch leave the devices, not the (n, T, ...) trajectories."""
+    return flight.latent[-1], failure_mask(flight)[-1]
 
 
 MANOEUVRES = ("lemniscate", "minsnap", "hover_step")
@@ -126,9 +151,9 @@ def latent_trajectories_in_flight(policy, theta, key, *, seconds: float = 10.0, 
     k_man, k_fly = jax.random.split(key)
     ref, dist, kind = random_manoeuvres(k_man, theta, seconds, manoeuvres, seed)
     low = resolve_policy(policy, weights).batched(n)
-    fl = fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), ref, dist, k_fly, steps)
-    failed = np.asarray(jax.vmap(failure_mask)(fl))[:, -1]
-    return np.asarray(fl.latent[:, idx]), times, failed, kind
+    zt, failed = fly_batch(sim, theta, low, broadcast(Cascade.make("baseline"), n), ref, dist, k_fly, steps,
+                           reduce=LatentsAt(tuple(int(i) for i in idx)))
+    return np.asarray(zt), times, np.asarray(failed), kind
 
 
 def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,

@@ -206,7 +206,8 @@ def fly_batch(sim: Quadrotor, theta, low, high, ref, disturbance, key, steps: in
     every vehicle gets ``key`` itself, i.e. the same disturbance and noise realisation; a key
     batch (B, 2) gives vehicle b the key ``key[b]``. ``reduce``: a module-level function
     Flight -> pytree applied to each vehicle's flight inside the compiled function (so only
-    what it returns is kept, e.g. error traces of large ensembles); returns its batched result.
+    what it returns is kept, e.g. error traces of large ensembles; any hashable callable, e.g. a
+    frozen dataclass, as the compiled function is cached on it); returns its batched result.
 
     The batch is sharded over every device (:mod:`mjxsysid.distributed`: padded to a multiple
     of the device count, the padding dropped from the result); per-vehicle keys are drawn
