@@ -193,5 +193,5 @@ def collected_pairs(tmp_path_factory):
     if not PRETRAINED.exists():
         pytest.skip("no shipped policy weights")
     out = tmp_path_factory.mktemp("collect")
-    assert main(["collect", "--out", str(out), "--train", "6", "--test", "2", "--batch", "4"]) == 0
+    assert main(["collect", "--out", str(out), "--train", "6", "--test", "2", "--batch", "8"]) == 0
     return out
