@@ -362,6 +362,17 @@ def test_latent_health_and_trial_summary_on_a_synthetic_latent():
     assert s["train_cmds"]["r2_kappa"] < 0.1
     np.testing.assert_allclose(s["train_cmds"]["z_err_rel"], 0.001 * np.sqrt(8) / np.sqrt(z_theta.var(0).sum()), rtol=0.1)
     assert s["rmse_ratio"] == 1.02 and s["success_policy"] == 1.0
+    assert lat["n"] == 600 and "note" not in lat
+    # Too few vehicles (a policy whose flights all failed: none are left): no figure, not an R² of 1.
+    none = latent_health(z_theta[:0], zhat[:0], th[:0], th[:0])
+    assert none["n"] == 0 and "unavailable" in none["note"]
+    s0 = trial_summary({"latent": none, "latent_flight": latent_health(z_theta[:3], zhat[:3], th[:3], th[:3]),
+                        "lemniscate": lem})
+    for k in ("train_cmds", "flight"):
+        assert all(np.isnan(v) for v in s0[k].values()), s0[k]
+        assert not s0[k]["r2_thrust_to_weight"] >= 0.9                  # the bar is failed, not passed
+    from mjxsysid.policy.evaluate import linear_probe_r2
+    assert np.isnan(linear_probe_r2(zhat[:2], th[:2])).all()          # an empty held-out split
 
 
 @pytest.mark.slow

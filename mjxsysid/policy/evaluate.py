@@ -68,11 +68,15 @@ def _env_rollout(env: TrainEnv, params, keys, steps: int, expert: bool):
 
 
 def linear_probe_r2(x, y, train_frac=0.7, seed=0):
-    """R² on held-out rows of a least-squares fit y ≈ [x, 1] W. x (n, d), y (n, k) -> (k,)."""
+    """R² on held-out rows of a least-squares fit y ≈ [x, 1] W. x (n, d), y (n, k) -> (k,).
+    NaN where there is nothing to measure it on (fewer than 2 rows on either side of the
+    split): an empty held-out set has no residual, which is not an R² of 1."""
     x, y = np.asarray(x, np.float64), np.asarray(y, np.float64)
     idx = np.random.default_rng(seed).permutation(len(x))
     ntr = int(train_frac * len(x))
     tr, te = idx[:ntr], idx[ntr:]
+    if len(tr) < 2 or len(te) < 2:
+        return np.full(y.shape[1:] or (1,), np.nan)
     xa = np.concatenate([x, np.ones((len(x), 1))], 1)
     w, *_ = np.linalg.lstsq(xa[tr], y[tr], rcond=None)
     pred = xa[te] @ w
@@ -81,14 +85,29 @@ def linear_probe_r2(x, y, train_frac=0.7, seed=0):
     return 1.0 - ss_res / np.maximum(ss_tot, 1e-12)
 
 
+LATENT_MIN_VEHICLES = 10
+
+
 def latent_health(z_theta, zhat, theta_norm, theta) -> dict:
+    """How well ẑ (n, 8) tracks z^θ (n, 8) and what a linear probe reads from it (θ_norm (n, 19),
+    θ (n, 19)). With fewer than :data:`LATENT_MIN_VEHICLES` rows (e.g. a policy whose flights all
+    failed: they are left out) every figure is NaN and ``note`` says why; ``n`` is the row count."""
     z_theta, zhat = np.asarray(z_theta), np.asarray(zhat)
+    n = len(zhat)
+    if n < LATENT_MIN_VEHICLES:
+        nan = float("nan")
+        return {"n": n, "note": f"latent statistics unavailable: {n} vehicle(s) to measure them on, "
+                                f"at least {LATENT_MIN_VEHICLES} needed (failed flights are left out)",
+                "z_err_rms": nan, "z_spread": nan, "z_err_rel": nan,
+                "z_theta_std": [nan] * zhat.shape[-1], "zhat_std": [nan] * zhat.shape[-1],
+                "probe_r2_theta": dict.fromkeys(P.PARAM_NAMES, nan),
+                "probe_r2_identifiable": dict.fromkeys(P.IDENTIFIABLE_NAMES, nan)}
     spread = float(np.sqrt(z_theta.var(0).sum()))
     err = float(np.sqrt(((z_theta - zhat) ** 2).sum(-1).mean()))
     ident = np.asarray(P.identifiable(theta))
     ident = np.where(np.arange(ident.shape[1]) == 1, ident, np.log(ident))  # log of positive ratios
     return {
-        "z_err_rms": err, "z_spread": spread, "z_err_rel": err / spread,
+        "n": n, "z_err_rms": err, "z_spread": spread, "z_err_rel": err / spread,
         "z_theta_std": z_theta.std(0).tolist(), "zhat_std": zhat.std(0).tolist(),
         "probe_r2_theta": dict(zip(P.PARAM_NAMES, linear_probe_r2(zhat, theta_norm).tolist())),
         "probe_r2_identifiable": dict(zip(P.IDENTIFIABLE_NAMES, linear_probe_r2(zhat, ident).tolist())),
@@ -228,6 +247,9 @@ def fast_eval(params, *, n_probe: int = 2000, n_lem: int = 500, seed: int = 0, s
     good = ~failed
     out["latent_flight"] = latent_health(env.nets.encode(params, tn)[good], zhat[good], tn[good], theta[good])
     out["latent_flight"]["failed"] = int(failed.sum())
+    for k in ("latent", "latent_flight"):
+        if "note" in out[k]:
+            log(f"  fast eval: {k}: {out[k]['note']}")
     st.start("lemniscate")
     log(f"  fast eval: lemniscate ({n_lem} vehicles)")
     theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.fold_in(key, 1), n_lem))
