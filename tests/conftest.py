@@ -208,7 +208,9 @@ def pytest_unconfigure(config):
     every plugin unconfigured: ``os._exit`` after closing the in-process notebooks' IPython shell.
     A normal exit spent about 9 s tearing down what the worker holds (JAX's atexit hook clears
     every jit cache one by one, IPython's resets the shell with a full garbage collection, then
-    the interpreter frees thousands of traced and compiled programs), and the tier waited for it."""
+    the interpreter frees thousands of traced and compiled programs), and the tier waited for it.
+    ``MJXSYSID_TESTS_FULL_EXIT=1`` keeps the normal exit (e.g. for a coverage run, whose data a
+    worker writes at exit)."""
     mod = sys.modules.get("IPython.core.interactiveshell")
     if mod is not None and mod.InteractiveShell.initialized():
         shell = mod.InteractiveShell.instance()
