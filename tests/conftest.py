@@ -45,9 +45,10 @@ jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 # Python's cyclic garbage collector: a worker's heap (JAX's traces, jaxprs and caches) makes every
-# full collection cost 0.2-0.5 s, and the default thresholds ran one every few seconds (16 in 52 s
-# of the policy-flights files, 2.3 s). Collecting less often: 3 (0.7 s) in the same files. Memory
-# stays bounded (the collector still runs; the tier's peak 4.4-4.6 GB against 4.3 GB before).
+# full collection cost up to 0.35 s, and the default thresholds ran 16 of them in 52 s of
+# test_api/test_notebooks/test_decode (-n 0); with these, 3 (the collector's time there 4.4 -> 2.3 s,
+# 1.6 s of it the notebooks' own resets, now skipped: _reset_shell). Memory stays bounded (the
+# collector still runs; the tier's peak 4.4-4.6 GB against 4.3 GB before).
 gc.set_threshold(10_000, 20, 100)
 
 

@@ -35,6 +35,8 @@ def test_network_shapes_and_jit(params):
     mean, log_std = jax.jit(NETS.act)(params, s, z)
     assert z.shape == zh.shape == (5, 8) and mean.shape == (5, 4) and log_std.shape == (4,)
     assert NETS.value(params, s, th, z).shape == (5,)
+    from mjxsysid.policy.train import PARAM_MODULES
+    assert set(params) == set(PARAM_MODULES)        # lr_constant's modules are the networks' groups
     assert NETS.decode(params, z).shape == (5, 19)
     assert np.all(np.abs(np.asarray(mean)) <= 1) and np.all(np.abs(np.asarray(zh)) <= 1)
     # φ mirrors the XAdap layout: 100 steps -> conv lengths 24, 20, 16 -> 512 features.

@@ -107,5 +107,7 @@ def test_lr_constant_modules_keep_the_learning_rate():
     with pytest.raises(ValueError, match="unknown module"):
         TrainConfig.from_dict({"lr_constant": ["psi"]})
     with pytest.raises(ValueError, match="flat_optimizer"):
-        TrainConfig.from_dict({"lr_constant": ["phi"], "flat_optimizer": True})
+        TrainConfig.from_dict({"lr_constant": ["phi"], "flat_optimizer": True, "lr_decay": True})
+    with pytest.raises(ValueError, match="lr_decay"):
+        TrainConfig.from_dict({"lr_constant": ["phi"]})
     assert TrainConfig.from_dict(json.loads(json.dumps(cfg.to_dict()))) == cfg   # survives a checkpoint's JSON

@@ -13,8 +13,8 @@ release's CFM and Regression trained on its pairs, one folder per decoder seed) 
 calibration (parameters within ±5 points of 90 % coverage) and energy score; ``--reference-decoders
 NAME=DIR`` gives a reference's. ``--cold-start DIR``: timing-only runs (DIR/<run>/, a policy's
 metadata and train.txt, no evaluation) as OUT/cold_start.md, where each start-up second went.
-Writes OUT/speed.json, OUT/speed.md (the summary, then every run) and OUT/speed.png (success and
-RMSE ratio against wall time).
+Writes OUT/speed.json, OUT/speed.md (the summary, then every run) and OUT/speed.png (the tracking
+ratio and the decoders' energy score against wall time).
 """
 from __future__ import annotations
 
@@ -145,8 +145,7 @@ def mean_of(rs: list[dict], key: str, spec: str) -> str:
 
 
 def cold_start(root: Path) -> str:
-    """Where each timing run's start-up went (``root/<run>/``: policy_meta.json or policy.npz, and
-    train.txt): the command's wall time, the Trainer's construction, each program's compile (in
+    """Where each timing run's start-up went (``root/<run>/``: policy_meta.json and train.txt): the command's wall time, the Trainer's construction, each program's compile (in
     background threads, side by side), the wait for the first iteration, the loop."""
     head = ("| run | card | command | construct | compiles (background) | setup (to the loop) | first iteration | "
             "loop (all iterations) |\n|---|---|---|---|---|---|---|---|\n")
@@ -235,8 +234,9 @@ def main():
     figure(rows, args.out / "speed.png")
     print(summary(rows) + "\n" + table(rows))
     if args.cold_start is not None:
-        (args.out / "cold_start.md").write_text(cold_start(args.cold_start))
-        print(cold_start(args.cold_start))
+        text = cold_start(args.cold_start)
+        (args.out / "cold_start.md").write_text(text)
+        print(text)
 
 
 if __name__ == "__main__":

@@ -137,6 +137,8 @@ class TrainConfig:
             raise ValueError(f"config lr_constant: unknown module(s) {bad}; modules: {list(PARAM_MODULES)}")
         if self.lr_constant and self.flat_optimizer:
             raise ValueError("config lr_constant needs flat_optimizer=false (one flat Adam has one learning rate)")
+        if self.lr_constant and not self.lr_decay:
+            raise ValueError("config lr_constant needs lr_decay=true (without the decay every rate is constant)")
 
 
 def _same_normalizer(a: dict, b: dict) -> bool:
@@ -286,7 +288,7 @@ def optimizer(cfg: TrainConfig) -> optax.GradientTransformation:
         lr = optax.linear_schedule(cfg.learning_rate, cfg.learning_rate * cfg.lr_final,
                                    cfg.iterations * cfg.epochs * cfg.minibatches)
     adam = optax.adam(lr)
-    if cfg.lr_decay and cfg.lr_constant:
+    if cfg.lr_constant:     # (only with lr_decay: TrainConfig checks)
         # Adam is per parameter: two Adams on a split of the modules are one Adam with two rates.
         const = set(cfg.lr_constant)
         adam = optax.multi_transform(
