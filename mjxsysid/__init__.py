@@ -13,7 +13,7 @@ See :mod:`mjxsysid.api` and the README's "Python API" section.
 __version__ = "0.1.0"
 
 _API = ("Finding", "FlightResult", "LogError", "check_log", "decode", "fly", "load_vehicle", "paper_vehicle", "prior_vehicles",
-        "save_vehicle", "to_theta")
+        "read_ulog", "save_vehicle", "to_theta")
 __all__ = list(_API) + ["__version__"]
 
 

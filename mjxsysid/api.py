@@ -26,12 +26,13 @@ from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import CONTROLLERS, fly_vehicles, metrics_dict, one_flight, save_flight, seen_imu
 from mjxsysid.rollout.harness import metrics_to_host
 from mjxsysid.studies.decode import (check_window, checks_summary, decode_posterior, decoders_prior, flight_checks,
-                                     log_latents, parse_window, read_log)
+                                     log_latents, parse_window, read_any_log, read_log)
+from mjxsysid.logs.ulog import read_ulog
 from mjxsysid.studies import logcheck as _logcheck
 from mjxsysid.studies.logcheck import Finding, LogError
 
 __all__ = ["Finding", "FlightResult", "LogError", "check_log", "decode", "fly", "load_vehicle", "paper_vehicle", "prior_vehicles",
-           "save_vehicle", "to_theta"]
+           "read_ulog", "save_vehicle", "to_theta"]
 
 load_vehicle = P.load_vehicle
 save_vehicle = P.save_vehicle
@@ -198,14 +199,14 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
 
 
 def check_log(log, *, policy=None, weights=None, prior: str | None = "wide_actuators") -> list:
-    """The physical plausibility checks of ``mjxsysid decode --log``, alone: a flight-log CSV
-    path (or the dict of arrays :func:`~mjxsysid.studies.decode.read_log` returns) -> a list of
+    """The physical plausibility checks of ``mjxsysid decode --log``, alone: a flight-log CSV or
+    PX4 ULog (``.ulg``) path (or the dict of arrays :func:`~mjxsysid.studies.decode.read_log` returns) -> a list of
     :class:`Finding` (level 'error', 'warning' or 'out_of_prior', the column, the message;
     empty: nothing found). Errors do not raise here. ``policy`` (default the shipped one; None
     with ``prior=None`` skips the replay): the policy's own actions on the logged inputs are
     compared with the logged motor commands; ``prior``: the decoders' training prior the
     log-only vehicle estimates are compared with (None: not compared)."""
-    rec = read_log(log) if isinstance(log, (str, Path)) else log
+    rec = read_any_log(log) if isinstance(log, (str, Path)) else log
     found = _logcheck.check_log(rec)
     if not any(f.level == "error" for f in found):
         ctrl = resolve_policy(policy or "mjxsysid", weights).load()

@@ -8,6 +8,7 @@
     mjxsysid fly --policy xadap --weights DIR ...   any frozen latent policy (NAME or a path)
     mjxsysid view [--vehicle V.json] [--task hover|lemniscate|minsnap|force_step]   dm_control's viewer
     mjxsysid collect | train-cfm | evaluate-decoder | decode | replay | demo  [--policy NAME|PATH]
+    mjxsysid check-log FILE [--segment T0:T1]   a flight log's checks alone (CSV or PX4 ULog); exit 2/1/0
     mjxsysid export [--weights policy.npz] --out policy.onnx   the policy as ONNX, checked in onnxruntime
     mjxsysid release --out DIR [--stages S1,S2] [--list]   a release in resumable stages (docs/release.md)
 
@@ -36,6 +37,7 @@ COMMANDS = (
     decoders.add_train_cfm,
     decoders.add_evaluate_decoder,
     studies.add_decode,
+    studies.add_check_log,
     studies.add_replay,
     tune.add_tune,
     probe.add_probe,

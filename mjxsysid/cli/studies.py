@@ -1,4 +1,4 @@
-"""`mjxsysid decode | replay`: decoding a flight or a log, and action replay.
+"""`mjxsysid decode | check-log | replay`: decoding a flight or a log, checking a log, and action replay.
 
 Each command's parser (``add_*``) stands beside its handler (``cmd_*``). Handlers import what
 they run when they run: `mjxsysid --help` stays instant (no JAX or MuJoCo import).
@@ -15,7 +15,12 @@ from mjxsysid.cli._common import FLIGHT_NAMES, add_policy, echo, policy_ref, pos
 def add_decode(sub) -> None:
     dc = sub.add_parser("decode", help="fly a vehicle (or replay a log) with the policy and decode its latent")
     dc.add_argument("--vehicle", type=Path, default=None, help="vehicle JSON (default: the paper vehicle)")
-    dc.add_argument("--log", type=Path, default=None, help="decode a recorded flight instead (CSV, see README)")
+    dc.add_argument("--log", type=Path, default=None,
+                    help="decode a recorded flight instead: a CSV (the contract: docs/decoding.md) or a PX4 ULog "
+                         ".ulg (docs/px4.md)")
+    dc.add_argument("--segment", default=None, metavar="T0:T1",
+                    help="with --log: decode only this part, in seconds (a ULog: since its start; default its armed, "
+                         "airborne segment; a CSV: its t column)")
     dc.add_argument("--truth", type=Path, default=None,
                     help="with --log: the logged vehicle's JSON, if known (the summary then says whether "
                          "each true parameter is inside the decoded interval)")
@@ -49,15 +54,82 @@ def cmd_decode(args) -> int:
     truth = None if args.truth is None else P.load_vehicle(args.truth)
     from mjxsysid.studies.decode import parse_window
     window = parse_window(args.window)
+    if args.segment is not None and args.log is None:
+        raise ValueError("--segment needs --log")
     theta = None if args.log else (P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware())
-    summary = run_decode(args.out, theta=theta, log=args.log, reference=args.reference, period=args.period,
-                         duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
-                         decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
-                         echo=lambda m: echo(m, file=sys.stderr))
+    existed = Path(args.out).exists()
+    try:
+        summary = run_decode(args.out, theta=theta, log=args.log, reference=args.reference, period=args.period,
+                             duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
+                             decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
+                             echo=lambda m: echo(m, file=sys.stderr), segment=args.segment)
+    except BaseException:
+        if not existed and Path(args.out).is_dir():   # no half-written output folder of this run left behind
+            import shutil
+            shutil.rmtree(args.out, ignore_errors=True)
+        raise
     print(json.dumps({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES}))
     print(f"wrote {args.out}/decoded.npz, summary.json, marginals.png, decoded_over_time.png"
           + (", decoded.mp4" if args.video else ""), file=sys.stderr)
     return 0
+
+
+def add_check_log(sub) -> None:
+    ck = sub.add_parser("check-log", help="the physical plausibility checks of a flight log alone (CSV or PX4 ULog)")
+    ck.add_argument("log", type=Path, metavar="FILE",
+                    help="a flight-log CSV (docs/decoding.md) or a PX4 ULog .ulg (docs/px4.md)")
+    ck.add_argument("--segment", default=None, metavar="T0:T1",
+                    help="check only this part, in seconds (a ULog: since its start; default its armed, airborne "
+                         "segment; a CSV: its t column)")
+    ck.add_argument("--prior", default="wide_actuators",
+                    help="the decoders' training prior the log-only vehicle estimates are compared with "
+                         "(default wide_actuators, the shipped decoders'; 'none': not compared)")
+    ck.add_argument("--json", action="store_true", help="print the findings and estimates as JSON instead of a table")
+    ck.set_defaults(handler=cmd_check_log)
+
+
+def cmd_check_log(args) -> int:
+    """Exit 2 on an error finding, 1 on a warning or out-of-prior finding, 0 on none."""
+    from mjxsysid.studies import logcheck as L
+    from mjxsysid.studies.decode import read_any_log
+    rec = read_any_log(args.log, args.segment)
+    found = L.check_log(rec)
+    est = None
+    if not any(f.level == "error" for f in found):
+        est = L.estimate_vehicle(rec)
+        if args.prior.lower() != "none":
+            found += L.prior_check(rec, args.prior, est)
+    src = rec.get("source")
+    if args.json:
+        tau = L.motor_time_constant(est) if est else (None, None)
+        print(json.dumps({"findings": [f.as_dict() for f in found], "estimates": est,
+                          "notes": [tau[1]] if est and tau[0] is None else [], "source": src,
+                          "resampled": rec.get("resampled")}, indent=2, default=float))
+    else:
+        t = rec["t"]
+        print(f"{args.log}: {len(t)} rows, {t[-1] - t[0] + 0.002:.2f} s"
+              + (f" ({src['format']}, segment {src['segment']['t0']:.3f}–{src['segment']['t1']:.3f} s: "
+                 f"{src['segment']['why']})" if src else ""))
+        for k, how in (rec.get("resampled") or {}).items():
+            print(f"  {k}: {how}")
+        if est:
+            tau, why = L.motor_time_constant(est)
+            print(f"estimates: thrust-to-weight {est['thrust_to_weight']:.3g}, motor time constant "
+                  + (f"{tau * 1e3:.3g} ms" if tau is not None else "not estimable")
+                  + f", weakest motor {est['min_motor_effectiveness']:.2g}, IMU noise {est['gyro_noise']:.2g} rad/s "
+                    f"/ {est['accel_noise']:.2g} m/s²")
+            if tau is None:
+                print(f"note: {why}")
+        if not found:
+            print("no findings")
+        else:
+            rows = [(f.level.replace("_", " "), f.column, f.message) for f in found]
+            w0, w1 = max(len(r[0]) for r in rows), max(len(r[1]) for r in rows)
+            print(f"{'level':<{w0}}  {'columns':<{w1}}  message")
+            for lv, col, msg in rows:
+                print(f"{lv:<{w0}}  {col:<{w1}}  {msg}")
+    levels = {f.level for f in found}
+    return 2 if "error" in levels else 1 if levels & {"warning", "out_of_prior"} else 0
 
 
 def add_replay(sub) -> None:

@@ -126,6 +126,29 @@ def read_log(path) -> dict:
     return _record(col, motor)
 
 
+def read_any_log(path, segment=None) -> dict:
+    """A flight log by its suffix: ``.ulg`` a PX4 ULog (:func:`~mjxsysid.logs.ulog.read_ulog`, cut
+    at its armed, airborne segment or ``segment`` 't0:t1'), anything else the CSV of
+    :func:`read_log` (``segment``: rows with t0 ≤ t ≤ t1, t in the log's own clock)."""
+    if Path(path).suffix.lower() == ".ulg":
+        from mjxsysid.logs.ulog import read_ulog
+        return read_ulog(path, segment)
+    rec = read_log(path)
+    if segment is None:
+        return rec
+    from mjxsysid.logs.ulog import parse_segment
+    t0, t1 = parse_segment(segment)
+    keep = np.ones(len(rec["t"]), bool)
+    if t0 is not None:
+        keep &= rec["t"] >= t0
+    if t1 is not None:
+        keep &= rec["t"] <= t1
+    if keep.sum() < N.HISTORY:
+        raise ValueError(f"{path}: --segment {segment}: {int(keep.sum())} rows in it (the log runs "
+                         f"{rec['t'][0]:.6g}–{rec['t'][-1]:.6g} s); need at least {N.HISTORY}")
+    return {k: v[keep] for k, v in rec.items()}
+
+
 def time_step_problem(median_dt: float) -> str:
     """What a log's median time step ``median_dt`` (in the log's unit) says, when it is not
     2 ms in seconds: the unit (ms, µs, ns) or another rate, and the fix."""
@@ -225,9 +248,11 @@ def _is_number(text: str) -> bool:
 
 
 def write_log(path, t, imu, a_cmd, omega_cmd, motor) -> Path:
-    """Write a flight log in the documented CSV format."""
+    """Write a flight log in the documented CSV format (time with 15 significant digits: boot-time
+    stamps keep their 2 ms steps; the other columns 7, float32's precision)."""
     arr = np.column_stack([t, imu, a_cmd, omega_cmd, motor])
-    np.savetxt(path, arr, delimiter=",", header=",".join(LOG_COLUMNS), comments="", fmt="%.7g")
+    np.savetxt(path, arr, delimiter=",", header=",".join(LOG_COLUMNS), comments="",
+               fmt=["%.15g"] + ["%.7g"] * (arr.shape[1] - 1))
     return Path(path)
 
 
@@ -431,12 +456,26 @@ def flight_checks(rec: dict, prior: str | None, checks: dict | None = None) -> d
 
 def checks_summary(checks: dict) -> dict:
     """The ``_checks`` entry of summary.json: warnings and out-of-prior findings as text, the
-    log-only estimates, the prior compared with, and ``out_of_prior`` (bool)."""
+    log-only estimates, the prior compared with, ``out_of_prior`` (bool), ``notes`` (what the
+    log could not tell: e.g. the motor time constant not estimable, its estimate then no
+    measurement) and, for a log read from another format (a ULog), ``source`` (topics, rates,
+    segment, conversions) and ``resampled`` (how each column group reached 2 ms)."""
+    from mjxsysid.studies.logcheck import motor_time_constant
     found = checks.get("findings", [])
     oop = [str(f) for f in found if f.level == "out_of_prior"]
-    return {"warnings": [str(f) for f in found if f.level == "warning"], "out_of_prior": oop,
-            "is_out_of_prior": bool(oop), "prior": checks.get("prior"),
-            "estimates": {k: float(v) for k, v in checks.get("estimates", {}).items()}}
+    est = checks.get("estimates", {})
+    notes = []
+    if est:
+        tau, why = motor_time_constant(est)
+        notes += [why] if tau is None else []
+    out = {"warnings": [str(f) for f in found if f.level == "warning"], "out_of_prior": oop,
+           "is_out_of_prior": bool(oop), "prior": checks.get("prior"),
+           "estimates": {k: float(v) for k, v in est.items()}, "notes": notes,
+           "motor_time_constant_estimable": bool(est) and motor_time_constant(est)[0] is not None}
+    for k in ("source", "resampled"):
+        if checks.get(k) is not None:
+            out[k] = checks[k]
+    return out
 
 
 OUT_OF_PRIOR_TITLE = "OUT OF THE DECODERS' PRIOR — bands not calibrated: "
@@ -468,7 +507,7 @@ def write_summary_md(summary: dict, path) -> Path:
 
 def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
                samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print,
-               policy="mjxsysid", decoders=None, window="flight", truth=None, warn=warn) -> dict:
+               policy="mjxsysid", decoders=None, window="flight", truth=None, warn=warn, segment=None) -> dict:
     """Fly θ (or replay ``log``) with a frozen latent policy (``policy``, ``weights``: see
     :func:`~mjxsysid.policy.interface.resolve_policy`; default the shipped one), decode at
     ``rate`` Hz with that policy's decoders (or those in ``decoders``), write out/decoded.npz,
@@ -480,6 +519,8 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     single-latent one, ``_window`` what was used. Without a sequence decoder, falls back to
     'instant' and says so. ``truth`` (θ (19,), with ``log`` only): the logged vehicle's known
     parameters; the summary then reports ``true`` and ``inside`` as for a flown vehicle.
+    ``log``: a CSV or a PX4 ULog (``.ulg``, :func:`read_any_log`); ``segment`` 't0:t1': the part
+    of it to decode (a ULog's default: its armed, airborne segment).
 
     A log is checked for physical plausibility before any decoding
     (:mod:`mjxsysid.studies.logcheck`): a log that cannot be right raises ``LogError`` (a
@@ -500,7 +541,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
         if truth.shape != (P.N_PARAMS,):
             raise ValueError(f"truth: one θ of shape ({P.N_PARAMS},) expected, got {truth.shape}")
     window = parse_window(window)
-    rec = read_log(log) if log is not None else None
+    rec = read_any_log(log, segment) if log is not None else None
     if theta is not None:
         theta = P.validate_theta(theta, what="vehicle")
         if theta.shape != (P.N_PARAMS,):
@@ -519,7 +560,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
                 + (["video"] if video and log is None else []), desc="decode")
     st.start("flying" if log is None else "replaying the log")
     flight = None
-    checks = {}
+    checks = {k: rec[k] for k in ("source", "resampled") if rec is not None and k in rec}   # a ULog's reading
     if log is not None:
         zhat_t, times = log_latents(ref, rec, source=log, checks=checks, imu_limit=imu_noise_limit(cfm, reg, seq))
         truth = None if truth is None else np.asarray(truth, np.float32)

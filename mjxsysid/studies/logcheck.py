@@ -145,12 +145,105 @@ pieces of that many rows in all (physics does not change along a flight; the cos
 def fit_rows(rec: dict, max_rows: int = FIT_ROWS) -> dict:
     """``rec`` itself, or for a log longer than ``max_rows`` six evenly spaced contiguous pieces of
     it, ``max_rows`` rows in all, joined (imu and motor only: what the fits read)."""
-    t = len(rec["motor"])
+    t = len(rec["imu"])
     if t <= max_rows:
         return rec
     k, n = 6, max_rows // 6
     idx = np.concatenate([np.arange(s, s + n) for s in np.linspace(0, t - n, k).astype(int)])
-    return {"imu": np.asarray(rec["imu"])[idx], "motor": np.asarray(rec["motor"])[idx]}
+    out = {k: np.asarray(rec[k])[idx] for k in ("imu", "motor") if k in rec}
+    for key in ("native", "resampled"):    # what the checks know of the columns' own rates
+        if key in rec:
+            out[key] = rec[key]
+    return out
+
+
+# ------------------------------------------------------------------- columns' own rates
+MIN_ORDER_RATE_HZ = 100.0
+"""Hz: the motor-command rate below which the rotor order and τ_m cannot be told from the log:
+the rotors follow their commands within τ_m (5–100 ms), so commands held for longer than 10 ms
+no longer show which rotor moved the vehicle when (PX4 logs its motors at 10 Hz by default)."""
+
+RESAMPLED_FRACTION = 0.5
+"""Share of rows at which a column group is exactly held (no change) or exactly linear (zero
+second difference on every channel) past which it is taken as resampled from a lower rate."""
+
+
+def detect_resampled(t, x):
+    """Whether the columns ``x`` (T, k) sampled at ``t`` (T,) were brought to their grid from a
+    lower rate -> None (not resampled), or (how, native rate Hz, knot rows): 'held (zero-order)' if
+    every channel repeats its previous row on most rows, 'interpolated (linear)' if every
+    channel's second difference is zero (to the CSV's 7 digits) on most rows; the knot rows are
+    the native samples."""
+    x = np.asarray(x, np.float64).reshape(len(x), -1)
+    if len(x) < 10:
+        return None
+    span = max(float(t[-1] - t[0]), DT)
+    same = np.all(np.diff(x, axis=0) == 0, axis=1)
+    if same.mean() > RESAMPLED_FRACTION:
+        knots = np.concatenate([[0], np.flatnonzero(~same) + 1])
+        return "held (zero-order)", len(knots) / span, knots
+    d2 = np.diff(x, 2, axis=0)
+    scale = np.maximum(np.maximum(np.abs(x[:-2]), np.abs(x[1:-1])), np.abs(x[2:]))
+    lin = np.all(np.abs(d2) <= 3e-7 * scale + 1e-12, axis=1)
+    if lin.mean() > RESAMPLED_FRACTION:
+        knots = np.concatenate([[0], np.flatnonzero(~lin) + 1, [len(x) - 1]])
+        return "interpolated (linear)", len(knots) / span, knots
+    return None
+
+
+def column_rates(rec: dict) -> dict:
+    """For the imu and motor column groups: {group: (rate Hz, how, native (t, values) or None)} —
+    the rate at which the group was sampled before it reached the 2 ms grid: what the reader
+    declared (``rec["native"]``, ``rec["resampled"]``: :func:`~mjxsysid.logs.ulog.read_ulog`),
+    else what :func:`detect_resampled` finds (a CSV resampled from a lower rate: its native
+    samples are its knots), else 500 Hz 'native'."""
+    out = {}
+    native, said = rec.get("native") or {}, rec.get("resampled") or {}
+    t = np.asarray(rec["t"], np.float64) if "t" in rec else DT * np.arange(len(rec["imu"]))
+    for key in ("imu", "motor"):
+        if key not in rec and key not in native:
+            continue
+        if key in native:
+            tn, xn = native[key]
+            d = np.diff(np.asarray(tn, np.float64))
+            rate = float(1.0 / np.median(d[d > 0])) if np.any(d > 0) else 1.0 / DT
+            out[key] = (rate, said.get(key, "native"), (np.asarray(tn, np.float64), np.asarray(xn, np.float64)))
+            continue
+        found = detect_resampled(t, rec[key])
+        if found is None:
+            out[key] = (1.0 / DT, "native", None)
+        else:
+            how, rate, knots = found
+            x = np.asarray(rec[key], np.float64)
+            out[key] = (rate, f"{how} from about {rate:.3g} Hz (detected: the column values)", (t[knots], x[knots]))
+    return out
+
+
+def _resampled(rate: float) -> bool:
+    return abs(rate * DT - 1.0) > 0.05
+
+
+def check_resampled(rec: dict) -> list[Finding]:
+    """A warning naming each column group a CSV carries resampled from a lower rate (held or
+    linearly interpolated: detected from its values), what it was, and what the checks do about
+    it. A reader that declares its resampling (``rec["resampled"]``, a ULog) is not warned for it
+    here (the source says it); the checks that cannot work at its rate say so themselves."""
+    out = []
+    declared = rec.get("resampled") or {}
+    for key, (rate, how, _) in column_rates(rec).items():
+        if key in declared or not _resampled(rate):
+            continue
+        cols = "gyro_x … acc_z" if key == "imu" else "motor_1, motor_2, motor_3, motor_4"
+        out.append(Finding("warning", cols, f"the {key} columns look {how}: not sampled every 2 ms step. The "
+                           f"decoders read the policy's 500 Hz inputs; a log resampled from another rate does not "
+                           f"give the inputs the policy saw (docs/decoding.md). The checks read the native "
+                           f"samples (the knots) where they can"))
+    return out
+
+
+EXCITED_ALPHA = 1.0
+"""rad/s²: the spread of the (smoothed) angular acceleration below which a flight is too still
+to tell the rotor order (a hover in still air)."""
 
 
 def rotor_order_fit(rec: dict) -> dict:
@@ -180,7 +273,11 @@ def rotor_order_fit(rec: dict) -> dict:
         scores[order] = float(np.mean([r if k > 0 else -1.0 for k, r in zip(ks, r2)]))
         gains[order] = np.asarray(ks)
     best = max(scores, key=scores.get)
-    excited = bool(np.std(np.diff(gyro, axis=0)) > 0 and max(scores.values()) > 0.2)
+    # Excited: the angular acceleration varies well above what the gyro's noise makes of it
+    # (a moving average of n differences of white noise σ has std σ √2 / (n dt)).
+    sigma = estimate_imu_noise({"imu": np.asarray(rec["imu"])})["gyro_noise"]
+    floor = sigma * np.sqrt(2.0) / (SMOOTH_STEPS * DT)
+    excited = bool(np.std(alpha) > max(3.0 * floor, EXCITED_ALPHA))
     return {"scores": scores, "gains": gains, "best": best, "given": scores[(0, 1, 2, 3)], "tau": best_tau,
             "excited": excited, "given_r2": float(best_s)}
 
@@ -191,14 +288,22 @@ def check_log(rec: dict, *, policy=None, zhat=None, imu_limit: dict | None = Non
     [read_log][mjxsysid.studies.decode.read_log] (``rec``: t, imu (T, 6), a_cmd, omega_cmd (T, 3),
     motor (T, 4)). ``policy``: the loaded latent policy being decoded, and ``zhat`` (T, 8) its
     replay of the log (both optional): then the policy's own actions on the logged inputs are
-    compared with the logged motor commands. ``imu_limit``: the IMU noise the decoders are
-    calibrated under (:func:`imu_noise_limit`; default :data:`IMU_NOISE_LIMIT`). -> findings,
-    errors first."""
+    compared with the logged motor commands (without them there is no replay check here: the
+    policy's replay is :func:`check_replay`, run by ``decode`` and ``mjxsysid.check_log``).
+    ``imu_limit``: the IMU noise the decoders are calibrated under (:func:`imu_noise_limit`;
+    default :data:`IMU_NOISE_LIMIT`). Columns resampled from a lower rate (declared by the reader
+    in ``rec["native"]`` / ``rec["resampled"]``, or detected in a CSV) are named, and each check
+    reads the native samples or says that it cannot tell at that rate. -> findings, errors first."""
     out = []
     out += _check_specific_force(rec)
     out += _check_gyro(rec)
-    if not any(f.level == "error" for f in out):   # the dynamics checks need sane units
+    if not any(f.level == "error" for f in out):   # the thrust checks need a sane accelerometer
+        out += _check_thrust(rec)
+        out += _check_a_cmd(rec)
+    if not any(f.level == "error" for f in out):   # the dynamics checks need sane units and thrust
+        out += check_resampled(rec)
         out += _check_motors(rec)
+        out += _check_thrust_model(rec)
         out += check_imu_noise(rec, imu_limit)
         if policy is not None and zhat is not None and hasattr(policy, "replay_actions"):
             out += check_replay(rec, policy, zhat)
@@ -270,11 +375,123 @@ def _check_gyro(rec) -> list[Finding]:
     return out
 
 
+IDLE_COMMAND = 0.05
+"""Normalised rotor-speed command below which a rotor is taken as stopped or idling (a
+multirotor hovers at 0.4–0.9; PX4's idle spin is about 0.2 of Ω_max)."""
+
+TWR_IMPOSSIBLE = 25.0
+"""Thrust-to-weight past which the motor commands cannot be what holds the vehicle up (the most
+powerful racing quadrotors reach about 15): the specific force is not supported by them."""
+
+
+def _check_thrust(rec) -> list[Finding]:
+    """An error for a log whose rotors do not carry the vehicle: motor commands at idle or zero
+    on most rows (disarmed, on the ground, a bench log), or a specific force far beyond what the
+    commands could produce."""
+    u = np.asarray(rec["motor"], np.float64)
+    acc_z = np.asarray(rec["imu"], np.float64)[:, 5]
+    cols = "motor_1, motor_2, motor_3, motor_4"
+    idle = float(np.mean(u.max(1) < IDLE_COMMAND))
+    if idle > 0.5:
+        return [Finding("error", cols, f"every motor command is below {IDLE_COMMAND:g} of full rotor speed on "
+                        f"{idle:.0%} of the rows: the rotors were stopped or idling (disarmed, on the ground, a "
+                        f"bench log), nothing carried the vehicle, there is no flight to decode. Cut the airborne "
+                        f"part (--segment T0:T1; a ULog is cut at its armed, airborne segment)")]
+    s2 = float((u ** 2).sum(1).mean())
+    twr = 4.0 * float(acc_z.mean()) / (P.GRAVITY * max(s2, 1e-12))
+    if acc_z.mean() > 0.5 * P.GRAVITY and twr > TWR_IMPOSSIBLE:
+        return [Finding("error", cols, f"the specific force (mean {acc_z.mean():.3g} m/s² on z) is not supported by "
+                        f"the motor commands (mean Σu² {s2:.3g}): it would need a thrust-to-weight of {twr:.3g}. "
+                        f"The rotors did not carry the vehicle (on the ground, a bench log), or the motor columns "
+                        f"are not Ω_cmd/Ω_max (docs/decoding.md, 'Converting autopilot outputs')")]
+    return []
+
+
+A_CMD_RATIO = (0.67, 1.5)
+"""How far the mean a_cmd may lie from the mean specific force along z (a ratio) before it is
+flagged: a_cmd is the mass-normalised collective thrust the vehicle was commanded, which the
+accelerometer measures along body z (drag and the rotors' lag average out over a flight)."""
+
+
+def _check_a_cmd(rec) -> list[Finding]:
+    a = np.asarray(rec["a_cmd"], np.float64)
+    acc_z = float(np.asarray(rec["imu"], np.float64)[:, 5].mean())
+    if acc_z < 0.5 * P.GRAVITY:
+        return []
+    lo, hi = float(a.min()), float(a.max())
+    if lo >= -1e-6 and hi <= 1.0 + 1e-6:
+        return [Finding("error", "a_cmd", f"a_cmd lies in [0, 1] (mean {a.mean():.3g}) while the specific force along "
+                        f"z averages {acc_z:.3g} m/s²: it looks like a normalised thrust setpoint (PX4's "
+                        f"vehicle_thrust_setpoint), not m/s². a_cmd is the commanded mass-normalised collective "
+                        f"thrust in m/s²: multiply by g / hover thrust (PX4: hover_thrust_estimate or "
+                        f"MPC_THR_HOVER; docs/px4.md)")]
+    ratio = float(a.mean()) / acc_z
+    if not A_CMD_RATIO[0] < ratio < A_CMD_RATIO[1]:
+        return [Finding("warning", "a_cmd", f"a_cmd averages {a.mean():.3g} m/s², the specific force along z it "
+                        f"commands {acc_z:.3g} m/s² (ratio {ratio:.2g}): a_cmd is the mass-normalised collective "
+                        f"thrust commanded (m/s², about g at hover); check its unit and scale (docs/decoding.md)")]
+    return []
+
+
+THRUST_MODEL_RATIO = 0.3
+"""The hover-balance ratio (:func:`thrust_model_fit`) below which the motor columns are taken as
+throttles: thrust ∝ Ω² gives 1 without drag and about 0.5 with the vertical drag of the prior's
+vehicles (the paper vehicle 0.54); columns that are throttles (thrust ∝ the column, read as Ω)
+give half of that (0.12–0.14 on the same flights)."""
+
+
+def thrust_model_fit(rec, tau: float = 0.02) -> dict:
+    """The thrust model against the hover balance: acc_z ≈ k Σ ū² fitted on the changes along the
+    flight (ū the motor columns lagged by ``tau``) and the balance of the means,
+    mean acc_z / mean Σ ū². For columns Ω_cmd/Ω_max (thrust ∝ ū²) the two agree (``ratio``
+    k / balance about 1, less with vertical drag); for throttles (thrust ∝ ū: the columns' square is
+    the thrust's) the changes are twice as steep in Σ ū² as the balance: the ratio halves.
+    -> ``ratio``, ``r2`` of the fit."""
+    rec = fit_rows(rec)
+    x = _smooth((_lag(np.asarray(rec["motor"], np.float64), tau) ** 2).sum(1))
+    y = _smooth(np.asarray(rec["imu"], np.float64)[:, 5])
+    k, r2 = _fit(x, y)
+    return {"ratio": float(k * x.mean() / max(float(y.mean()), 1e-12)), "r2": float(r2)}
+
+
+def _check_thrust_model(rec) -> list[Finding]:
+    fit = thrust_model_fit(rec)
+    if fit["r2"] > 0.5 and fit["ratio"] < THRUST_MODEL_RATIO:
+        return [Finding("warning", "motor_1, motor_2, motor_3, motor_4",
+                        f"the specific force changes along the flight with Σ motor² at {fit['ratio']:.2f} of the "
+                        f"gain the hover balance gives (mean acc_z / mean Σ motor²; R² {fit['r2']:.2f}); rotor-speed "
+                        f"commands give 0.5–1, throttles half that: the motor columns look like throttles (thrust linear in the column), "
+                        f"not rotor-speed commands. Thrust ∝ Ω²: for an ESC whose thrust is linear in throttle, "
+                        f"Ω_cmd/Ω_max = √throttle (PX4: √((1 − f) u + f u²) with THR_MDL_FAC f; docs/px4.md)")]
+    return []
+
+
+def estimate_thrust_lag(rec) -> dict:
+    """The motor time constant from the specific force: the lag (of :data:`LAGS`) with which
+    Σ ū² (the commands lagged, squared) best fits acc_z -> ``tau`` (s) and ``r2``."""
+    rec = fit_rows(rec)
+    u = np.asarray(rec["motor"], np.float64)
+    y = _smooth(np.asarray(rec["imu"], np.float64)[:, 5])
+    best = (LAGS[0], -np.inf)
+    for tau in LAGS:
+        r2 = _fit(_smooth((_lag(u, tau) ** 2).sum(1)), y)[1]
+        if r2 > best[1]:
+            best = (tau, r2)
+    return {"tau": float(best[0]), "r2": float(best[1])}
+
+
 def _check_motors(rec) -> list[Finding]:
+    cols = "motor_1, motor_2, motor_3, motor_4"
+    rate = column_rates(rec)["motor"][0]
+    if rate < MIN_ORDER_RATE_HZ:
+        return [Finding("warning", cols, f"cannot tell the rotor order at this motor rate ({rate:.3g} Hz): the rotors "
+                        f"follow their commands within a few tens of ms, commands {1e3 / rate:.3g} ms apart do not "
+                        f"show which rotor turned the vehicle; the order is taken as given (for a ULog: from its "
+                        f"parameters). Log the motor commands at ≥ {MIN_ORDER_RATE_HZ:g} Hz to have it checked "
+                        f"(PX4: docs/px4.md, 'Logging rates')")]
     fit = rotor_order_fit(rec)
     if not fit["excited"]:
         return []
-    cols = "motor_1, motor_2, motor_3, motor_4"
     given, best, sbest = fit["given"], fit["best"], fit["scores"][fit["best"]]
     gains = fit["gains"][(0, 1, 2, 3)]
     if best != (0, 1, 2, 3) and sbest > 0.5 and sbest - given > 0.25:
@@ -334,14 +551,22 @@ def estimate_imu_noise(rec: dict) -> dict:
     three axes -> ``gyro_noise`` (rad/s), ``accel_noise`` (m/s²). A per-flight bias does not enter
     (differences remove it); narrow-band vibration counts as far as it reaches the upper band (a
     tone at a quarter of the sampling rate or above reads as about its std, far below it less).
-    The first 0.2 s are skipped (take-off); a long log reads :func:`fit_rows` of it."""
+    The first 0.2 s are skipped (take-off); a long log reads :func:`fit_rows` of it. An IMU
+    resampled from a lower rate (:func:`column_rates`) is read at its native samples: the level
+    is then per native sample (``imu_rate_hz`` says at which rate)."""
     from math import comb
-    imu = np.asarray(fit_rows(rec)["imu"], np.float64)
-    imu = imu[min(100, len(imu) // 4):]
+    imu = None
+    rate, _, nat = column_rates(rec)["imu"]
+    if nat is not None:                 # interpolated values have no noise: read the native samples
+        imu = nat[1][-FIT_ROWS:]
+    if imu is None:
+        imu = np.asarray(fit_rows(rec)["imu"], np.float64)
+    skip = int(round(0.2 * rate))           # the first 0.2 s (take-off)
+    imu = imu[min(skip, len(imu) // 4):]
     k = NOISE_DIFF_ORDER
     d = np.diff(imu, n=k, axis=0)
     sd = 1.4826 * np.median(np.abs(d - np.median(d, 0)), 0) / np.sqrt(comb(2 * k, k))
-    return {"gyro_noise": float(np.median(sd[:3])), "accel_noise": float(np.median(sd[3:]))}
+    return {"gyro_noise": float(np.median(sd[:3])), "accel_noise": float(np.median(sd[3:])), "imu_rate_hz": float(rate)}
 
 
 def check_imu_noise(rec: dict, limit: dict | None = None, est: dict | None = None) -> list[Finding]:
@@ -353,8 +578,10 @@ def check_imu_noise(rec: dict, limit: dict | None = None, est: dict | None = Non
     if not over:
         return []
     cols = ", ".join(c for k, c in (("gyro_noise", "gyro_x/y/z"), ("accel_noise", "acc_x/y/z")) if k in over)
+    rate = est.get("imu_rate_hz", 1.0 / DT)
+    per = "per sample" if not _resampled(rate) else f"per native sample at {rate:.3g} Hz"
     return [Finding("warning", cols, f"IMU noise about {est['gyro_noise']:.2g} rad/s (gyro) and "
-                    f"{est['accel_noise']:.2g} m/s² (accelerometer) per sample, from the log's sample-to-sample "
+                    f"{est['accel_noise']:.2g} m/s² (accelerometer) {per}, from the log's sample-to-sample "
                     f"changes: past what the decoders were calibrated under ({limit['gyro_noise']:g} rad/s, "
                     f"{limit['accel_noise']:g} m/s²). High-frequency IMU noise (rotor vibration, an unfiltered "
                     f"sensor) reads as a smaller, quicker vehicle: the decoded bands are likely too low in mass "
@@ -412,6 +639,8 @@ def estimate_vehicle(rec: dict, fit: dict | None = None) -> dict:
     ``motor_time_constant``, the lag of the angular acceleration behind the commands, and
     ``torque_fit_r2``, how well that fit explains it; ``gyro_noise`` and ``accel_noise`` from
     :func:`estimate_imu_noise`."""
+    full = rec
+    motor_rate = column_rates(rec)["motor"][0]
     fit = rotor_order_fit(rec) if fit is None else fit
     rec = fit_rows(rec)
     acc_z = np.asarray(rec["imu"], np.float64)[:, 5]
@@ -422,8 +651,33 @@ def estimate_vehicle(rec: dict, fit: dict | None = None) -> dict:
     ms = u2[skip:].mean(0)
     twr = 4.0 * float(acc_z[skip:].mean()) / (P.GRAVITY * max(float(ms.sum()), 1e-12))
     eta = (1.0 / np.maximum(ms, 1e-12)) / np.mean(1.0 / np.maximum(ms, 1e-12))
-    return {"thrust_to_weight": twr, "motor_time_constant": float(fit["tau"]), "torque_fit_r2": fit["given_r2"],
-            "min_motor_effectiveness": float(eta.min()), **estimate_imu_noise(rec)}
+    lag = estimate_thrust_lag(rec) if motor_rate >= MIN_ORDER_RATE_HZ else {"tau": float("nan"), "r2": 0.0}
+    torque_r2 = fit["given_r2"] if motor_rate >= MIN_ORDER_RATE_HZ else 0.0
+    return {"thrust_to_weight": twr, "motor_time_constant": float(fit["tau"]), "torque_fit_r2": torque_r2,
+            "motor_time_constant_thrust": lag["tau"], "thrust_fit_r2": lag["r2"], "motor_rate_hz": float(motor_rate),
+            "min_motor_effectiveness": float(eta.min()), **estimate_imu_noise(full)}
+
+
+TAU_FIT_R2 = 0.5
+"""R² a fit (torque or thrust) must reach for its lag to count as the motor time constant."""
+
+
+def motor_time_constant(est: dict):
+    """τ_m from :func:`estimate_vehicle`'s estimates: the torque fit's lag where it explains the
+    angular acceleration (R² > :data:`TAU_FIT_R2`), else the thrust fit's (the lag of the specific
+    force behind Σ ū²) where that explains acc_z -> (τ s, 'torque' | 'thrust'), or (None, why not)."""
+    if est.get("torque_fit_r2", 0.0) > TAU_FIT_R2:
+        return float(est["motor_time_constant"]), "torque"
+    if est.get("thrust_fit_r2", 0.0) > TAU_FIT_R2 and np.isfinite(est.get("motor_time_constant_thrust", np.nan)):
+        return float(est["motor_time_constant_thrust"]), "thrust"
+    rate = est.get("motor_rate_hz", 1.0 / DT)
+    if rate < MIN_ORDER_RATE_HZ:
+        return None, (f"the motor time constant is not estimable from this log: motor commands at {rate:.3g} Hz "
+                      f"(≥ {MIN_ORDER_RATE_HZ:g} Hz needed)")
+    return None, (f"the motor time constant is not estimable from this log: neither the angular acceleration "
+                  f"(R² {est.get('torque_fit_r2', 0.0):.2f}) nor the specific force (R² "
+                  f"{est.get('thrust_fit_r2', 0.0):.2f}) follows the lagged motor commands; the "
+                  f"motor_time_constant estimate is not a measurement")
 
 
 PRIOR_MARGIN = {"thrust_to_weight": 1.0, "motor_time_constant": 1.4, "motor_effectiveness": 1.0}
@@ -458,13 +712,13 @@ def prior_check(rec: dict, prior="wide_actuators", est: dict | None = None) -> l
         out.append(Finding("out_of_prior", "acc_z, motor_1..4",
                            f"thrust-to-weight about {twr:.3g} from the log (specific force per Σ motor²), outside "
                            f"the decoders' training prior ({lo:g}–{hi:g}): the decoded bands are not calibrated here"))
-    tau = est["motor_time_constant"]
+    tau, src = motor_time_constant(est)
     tlo, thi = b["motor_time_constant"]
-    if est["torque_fit_r2"] > 0.5 and (tau < tlo / m["motor_time_constant"]
-                                         or tau > thi * m["motor_time_constant"]):
+    if tau is not None and (tau < tlo / m["motor_time_constant"] or tau > thi * m["motor_time_constant"]):
+        what = ("lag of the angular acceleration behind the commands" if src == "torque"
+                else "lag of the specific force behind the commands")
         out.append(Finding("out_of_prior", "acc_z, motor_1..4",
-                           f"motor time constant about {tau * 1e3:.3g} ms from the log (lag of the specific force "
-                           f"behind the commands), outside the decoders' training prior ({tlo * 1e3:g}–{thi * 1e3:g} "
+                           f"motor time constant about {tau * 1e3:.3g} ms from the log ({what}), outside the decoders' training prior ({tlo * 1e3:g}–{thi * 1e3:g} "
                            f"ms): the decoded bands are not calibrated here"))
     eta = est["min_motor_effectiveness"]
     if eta < b["motor_effectiveness"][0] / m["motor_effectiveness"]:
