@@ -119,7 +119,7 @@ def test_cli_exit_2_before_decoding(paper_log, tmp_path, capsys):
     assert main(["decode", "--log", str(path), "--out", str(tmp_path / "d"), "-q"]) == 2
     err = capsys.readouterr().err
     assert "acc_x, acc_y, acc_z" in err and "multiply acc_x/y/z by 9.81" in err
-    assert not (tmp_path / "d" / "summary.json").exists()
+    assert not (tmp_path / "d").exists()          # no empty output folder left by a decode that stopped
 
 
 @pytest.fixture(scope="module")
@@ -265,3 +265,69 @@ def test_imu_noise_estimate_in_closed_loop():
             if check == "value":
                 np.testing.assert_allclose([est["gyro_noise"], est["accel_noise"]], [0.05, 0.5], rtol=0.1)
             assert L.check_imu_noise(rec), (cfg, est)
+
+
+# ---------------------------------------------------------------- issue 39: the holes a real log found
+def test_check_log_cli_exit_0_on_a_correct_log(paper_log, tmp_path, capsys):
+    rec, _ = paper_log
+    path = write_log(tmp_path / "ok.csv", rec["t"], rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+    assert main(["check-log", str(path)]) == 0
+    assert "no findings" in capsys.readouterr().out
+
+
+def test_motor_columns_that_explain_nothing_are_named(paper_log):
+    """`_check_motors`' 'no rotor order explains the rates' could never fire (it needed the best
+    score both > 0.2 and < 0.2): motor columns shuffled in time on a flight that moves."""
+    rec, _ = paper_log
+    shuffled = dict(rec, motor=rec["motor"][np.random.default_rng(0).permutation(len(rec["motor"]))])
+    found = L._check_motors(shuffled)
+    assert found and "do not explain the angular acceleration under any rotor order" in found[0].message
+
+
+def test_throttle_columns_are_named(paper_log):
+    """Throttle left as the motor columns (thrust linear in them: u², not u = Ω_cmd/Ω_max)."""
+    rec, _ = paper_log
+    u = np.asarray(rec["motor"])
+    found = [f for f in L.check_log(dict(rec, motor=(u / u.max()) ** 2)) if "throttles" in f.message]
+    assert found and found[0].level == "warning" and "√throttle" in found[0].message
+    assert not [f for f in L.check_log(rec) if "throttles" in f.message]
+
+
+def test_a_cmd_is_compared_with_the_specific_force(paper_log):
+    rec, _ = paper_log
+    normalised = dict(rec, a_cmd=rec["a_cmd"] / P.GRAVITY * 0.5)     # PX4's thrust setpoint, hover 0.5
+    found = L.check_log(normalised)
+    assert found[0].level == "error" and found[0].column == "a_cmd" and "[0, 1]" in found[0].message
+    found = L.check_log(dict(rec, a_cmd=rec["a_cmd"] * 3))
+    assert [f.column for f in found] == ["a_cmd"] and found[0].level == "warning"
+
+
+def test_no_thrust_is_an_error(paper_log):
+    rec, _ = paper_log
+    idle = dict(rec, motor=np.full_like(rec["motor"], 0.01))
+    found = L.check_log(idle)
+    assert found[0].level == "error" and "stopped or idling" in found[0].message
+    weak = dict(rec, motor=rec["motor"] * 0.15)      # Σu² far too small for the specific force
+    found = L.check_log(weak)
+    assert found[0].level == "error" and "not supported by the motor commands" in found[0].message
+
+
+def test_tau_from_the_specific_force_when_the_torque_fit_fails(paper_log):
+    """τ_m of 5 ms (below the prior's 20–100 ms) in a log whose torque fit fails (here the
+    gyro flat): read from the lag of the specific force behind Σ ū² and flagged; with nothing to
+    fit, summary's _checks says τ was not estimable."""
+    from mjxsysid.studies.decode import checks_summary
+    rec, _ = paper_log
+    u = np.asarray(rec["motor"], np.float64)
+    s2 = (L._lag(u, 0.005) ** 2).sum(1)
+    imu = np.array(rec["imu"], np.float64)
+    imu[:, 5] = s2 * (9.75 / s2.mean())
+    imu[:, :3] = 0.0
+    r = dict(rec, imu=imu)
+    est = L.estimate_vehicle(r)
+    assert est["torque_fit_r2"] < 0.5 and est["motor_time_constant_thrust"] == pytest.approx(0.005)
+    tau = [f for f in L.prior_check(r, est=est) if "motor time constant" in f.message]
+    assert tau and "5 ms" in tau[0].message and "specific force" in tau[0].message
+    flat = dict(rec, imu=np.column_stack([np.zeros((len(u), 5)), np.full(len(u), 9.75)]))
+    s = checks_summary({"estimates": L.estimate_vehicle(flat), "findings": []})
+    assert not s["motor_time_constant_estimable"] and "not estimable" in s["notes"][0]

@@ -1,0 +1,166 @@
+"""PX4 ULog logs (mjxsysid.logs.ulog, `mjxsysid check-log`, issue 39): the shipped PX4 sample
+(tests/data/sample_px4_events.ulg: jMAVSim's Iris, thrust-to-weight 2.04, thrust linear in the
+command, IMU 250 Hz, motors 10 Hz) read with no hand conversion, the conversions' pieces, and the
+checks that must not read resampled columns as if they were 500 Hz. numpy only: no JAX compile."""
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pyulog")
+
+from mjxsysid.cli import main
+from mjxsysid.logs import ulog as U
+from mjxsysid.studies import logcheck as L
+from mjxsysid.studies.decode import read_any_log, read_log, write_log
+
+SAMPLE = Path(__file__).parent / "data" / "sample_px4_events.ulg"
+
+
+@pytest.fixture(scope="module")
+def sample():
+    return U.read_ulog(SAMPLE)
+
+
+def test_sample_reads_as_the_log_contract(sample):
+    r = sample
+    n = len(r["t"])
+    assert r["imu"].shape == (n, 6) and r["motor"].shape == (n, 4) and r["omega_cmd"].shape == (n, 3)
+    assert r["a_cmd"].shape == (n,) and np.allclose(np.diff(r["t"]), 0.002)
+    seg = r["source"]["segment"]
+    assert 18.9 < seg["t0"] < 19.0 and 27.3 < seg["t1"] < 27.5 and "airborne" in seg["why"]   # ~8.5 s in flight
+    assert r["source"]["rates_hz"]["imu"] == pytest.approx(250, rel=0.02)
+    assert r["source"]["rates_hz"]["motor"] == pytest.approx(10, rel=0.02)
+    assert r["resampled"] == {"imu": "interpolated (linear) from 250 Hz", "motor": "held (zero-order) from 10 Hz",
+                              "omega_cmd": "held (zero-order) from 50 Hz", "a_cmd": "held (zero-order) from 50 Hz"}
+    conv = " ".join(r["source"]["conversions"])
+    assert "FRD" in conv and "√control" in conv and "front-right, back-left, front-left, back-right" in conv
+    assert set(r["native"]) == {"imu", "motor", "omega_cmd", "a_cmd"}
+    tn, xn = r["native"]["motor"]
+    assert xn.shape[1] == 4 and tn[0] <= r["t"][0] and tn[-1] >= r["t"][-1]
+    # FLU: +g on z at hover, motors in [0, 1], a_cmd about g in flight
+    assert 9.0 < r["imu"][:, 5].mean() < 10.5 and 0.3 < r["motor"].min() and r["motor"].max() <= 1
+    assert r["a_cmd"].mean() == pytest.approx(r["imu"][:, 5].mean(), rel=0.05)
+
+
+def test_sample_thrust_to_weight_is_jmavsims(sample):
+    """jMAVSim's Iris: 4 × 4 N, 0.8 kg: thrust-to-weight 2.04, with √control; about twice that
+    with the throttle read as the rotor-speed command (what the issue found by hand: 4.23)."""
+    assert L.estimate_vehicle(sample)["thrust_to_weight"] == pytest.approx(2.04, rel=0.06)
+    wrong = {k: sample[k] for k in ("t", "imu", "a_cmd", "omega_cmd")}
+    wrong["motor"] = sample["motor"] ** 2
+    assert L.estimate_vehicle(wrong)["thrust_to_weight"] > 4.0
+
+
+def test_sample_checks_say_what_the_rates_allow(sample):
+    found = L.check_log(sample)
+    assert [f.level for f in found] == ["warning"], found
+    assert "cannot tell the rotor order at this motor rate (10 Hz)" in found[0].message
+    est = L.estimate_vehicle(sample)
+    assert est["imu_rate_hz"] == pytest.approx(250, rel=0.02) and est["gyro_noise"] > 1e-4   # native samples, not ~1e-14
+    tau, why = L.motor_time_constant(est)
+    assert tau is None and "10 Hz" in why
+
+
+def test_segment_and_read_any_log(sample, tmp_path):
+    r = U.read_ulog(SAMPLE, "20:24")
+    assert r["t"][0] == pytest.approx(20.0, abs=0.005) and r["t"][-1] == pytest.approx(24.0, abs=0.005)
+    assert "--segment" in r["source"]["segment"]["why"]
+    assert read_any_log(SAMPLE, (20.0, 24.0))["t"].shape == r["t"].shape
+    with pytest.raises(ValueError, match="end must come after"):
+        U.read_ulog(SAMPLE, "24:20")
+    path = write_log(tmp_path / "x.csv", sample["t"], sample["imu"], sample["a_cmd"], sample["omega_cmd"], sample["motor"])
+    part = read_any_log(path, "20:22")
+    assert part["t"][0] >= 20 and part["t"][-1] <= 22 and len(part["t"]) == pytest.approx(1000, abs=2)
+
+
+def test_resampled_csv_is_detected_and_checks_read_its_knots(sample, tmp_path):
+    """The sample written as a CSV (what a user's hand conversion gives): read back with no
+    declared rates, the interpolated IMU and the held motors are named, the noise is read at the
+    knots (as from the native samples), the rotor order not fitted at 10 Hz."""
+    path = write_log(tmp_path / "px4.csv", sample["t"], sample["imu"], sample["a_cmd"], sample["omega_cmd"],
+                     sample["motor"])
+    rec = read_log(path)
+    found = L.check_log(rec)
+    text = " | ".join(str(f) for f in found)
+    assert "look interpolated (linear) from about 250 Hz" in text or "look interpolated (linear) from about 249" in text
+    assert "held (zero-order) from about 10" in text and "cannot tell the rotor order" in text
+    assert all(f.level == "warning" for f in found)
+    est, native = L.estimate_imu_noise(rec), L.estimate_imu_noise(sample)
+    assert est["gyro_noise"] == pytest.approx(native["gyro_noise"], rel=0.3)
+    assert est["accel_noise"] == pytest.approx(native["accel_noise"], rel=0.3)
+
+
+def test_write_log_keeps_boot_time_digits(sample, tmp_path):
+    t = 12345.678 + 0.002 * np.arange(len(sample["t"]))
+    path = write_log(tmp_path / "boot.csv", t, sample["imu"], sample["a_cmd"], sample["omega_cmd"], sample["motor"])
+    np.testing.assert_allclose(read_log(path)["t"], t, rtol=0, atol=1e-9)
+
+
+def test_airframe_and_rotor_order_from_parameters():
+    for bad, text in (({"MAV_TYPE": 13}, "hexarotor"), ({"CA_ROTOR_COUNT": 6}, "four rotors"),
+                      ({"CA_AIRFRAME": 1}, "not a multirotor")):
+        with pytest.raises(ValueError, match=text):
+            U.check_airframe(bad)
+    assert U.check_airframe({"MAV_TYPE": 2, "CA_ROTOR_COUNT": 4, "CA_AIRFRAME": 0})
+    assert U.rotor_order_from_params({})[0] == L.KNOWN_ORDERS[next(n for n in L.KNOWN_ORDERS if n.startswith("PX4"))]
+    geo = {"CA_ROTOR0_PX": 0.15, "CA_ROTOR0_PY": 0.2, "CA_ROTOR0_KM": 0.05,      # front-right
+           "CA_ROTOR1_PX": 0.15, "CA_ROTOR1_PY": -0.2, "CA_ROTOR1_KM": -0.05,    # front-left
+           "CA_ROTOR2_PX": -0.15, "CA_ROTOR2_PY": -0.2, "CA_ROTOR2_KM": 0.05,    # back-left
+           "CA_ROTOR3_PX": -0.15, "CA_ROTOR3_PY": 0.2, "CA_ROTOR3_KM": -0.05}    # back-right
+    assert U.rotor_order_from_params(geo)[0] == (0, 1, 2, 3)
+    with pytest.raises(ValueError, match="spin opposite"):
+        U.rotor_order_from_params({k: (-v if k.endswith("KM") else v) for k, v in geo.items()})
+    with pytest.raises(ValueError, match="same quadrant"):
+        U.rotor_order_from_params({**geo, "CA_ROTOR3_PY": -0.2})
+
+
+def test_thrust_model_pwm_limits_and_a_second_publisher():
+    u = np.linspace(0, 1, 11)
+    np.testing.assert_allclose(U.throttle_to_rotor_speed(u, 0.0), np.sqrt(u))
+    np.testing.assert_allclose(U.throttle_to_rotor_speed(u, 1.0), u)
+    assert U.throttle_to_rotor_speed(1.0, 0.4) == pytest.approx(1.0)
+    rng = np.random.default_rng(0)
+    pwm = np.concatenate([np.full((20, 4), 1000.0), 1400 + 100 * rng.random((200, 4))])
+    mixed = pwm.copy()
+    mixed[25::2] = 1500.0                     # a second publisher's constant rows, interleaved
+    keep, c = U.drop_interleaved_rows(mixed)
+    assert c == 1500.0 and keep[:20].all() and not keep[25::2].any() and keep[26::2].all()
+    assert U.drop_interleaved_rows(pwm)[1] is None
+    lo, hi, said = U.pwm_limits({"PWM_MAIN_MIN": 1230.0, "PWM_MAIN_MAX": 1950.0}, pwm)
+    assert (lo, hi) == (1000.0, 1950.0) and "idle at 1000" in said
+
+
+def test_pyulog_missing_names_the_extra(monkeypatch):
+    monkeypatch.setitem(sys.modules, "pyulog", None)
+    with pytest.raises(ImportError, match=r"pip install mjxsysid\[px4\]"):
+        U.read_ulog(SAMPLE)
+
+
+def test_check_log_cli_on_the_sample(capsys):
+    assert main(["check-log", str(SAMPLE)]) == 1           # a warning: motors at 10 Hz
+    out = capsys.readouterr().out
+    assert "thrust-to-weight 2.1" in out and "motor: held (zero-order) from 10 Hz" in out
+    assert "warning  motor_1, motor_2, motor_3, motor_4  cannot tell the rotor order" in out
+    assert "motor time constant not estimable" in out
+
+
+def test_check_log_cli_errors_on_a_disarmed_log(sample, tmp_path, capsys):
+    """A bench log: every motor at zero, the vehicle at rest (the issue's 'thrust-to-weight 3.9e12')."""
+    rest = np.zeros_like(sample["imu"])
+    rest[:, 5] = 9.81
+    path = write_log(tmp_path / "bench.csv", 0.002 * np.arange(len(rest)), rest, np.zeros(len(rest)),
+                     np.zeros((len(rest), 3)), np.zeros((len(rest), 4)))
+    assert main(["check-log", str(path)]) == 2
+    out = capsys.readouterr().out
+    assert "error" in out and "stopped or idling" in out
+    assert main(["check-log", str(SAMPLE), "--segment", "0:14"]) == 2   # the sample before arming
+
+
+def test_decode_help_points_to_the_contract_docs():
+    from mjxsysid.cli import build_parser
+    p = build_parser()
+    sub = next(a for a in p._actions if a.__class__.__name__ == "_SubParsersAction")
+    text = " ".join(sub.choices["decode"].format_help().split())
+    assert "docs/decoding.md" in text and "docs/px4.md" in text and "README" not in text
