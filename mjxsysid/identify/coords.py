@@ -1,0 +1,184 @@
+"""θ in the coordinates a flight log sees, and the stated physical prior of the log-grounded posterior.
+
+An IMU log of specific force and body rates, with the motor commands, obeys (DESIGN §3, the
+simulator's own equations; η_i = η̄ ρ_i, ρ the effectiveness relative to the mean η̄)::
+
+    acc_z        = (g / 4) · TWᵉ · Σ_i ρ_i s_i²                          (+ drag, + bias)
+    ω̇_x          = Aᵉ_x Σ_i ρ_i y_i s̄_i² + c_x + (J_y − J_z)/J_x · ω_y ω_z
+    ω̇_y          = Aᵉ_y Σ_i ρ_i (−x_i) s̄_i² + c_y + (J_z − J_x)/J_y · ω_z ω_x
+    ω̇_z          = Yᵉ Σ_i ρ_i σ_i s̄_i² + c_z + (J_x − J_y)/J_z · ω_x ω_y
+
+with s_i = Ω_i / Ω_max the rotor speed the first-order lag τ_m makes of the command, (x_i, y_i)
+the rotor directions, σ_i the spin signs, and
+
+- TWᵉ = 4 η̄ k_t Ω_max² / (m g): the thrust-to-weight of all four rotors at full speed (the
+  project's ``thrust_to_weight`` has η = 1: TWᵉ = η̄ · thrust_to_weight);
+- Aᵉ = η̄ l k_t Ω_max² / J: the angular authorities (``angular_authority`` × η̄); the inertia
+  ratios of the gyroscopic terms are ratios of them (J_y / J_x = Aᵉ_x / Aᵉ_y);
+- Yᵉ = η̄ κ k_t Ω_max² / J_z: the yaw authority (κ / l × Aᵉ_z);
+- c = τ_ext / J: the constant angular acceleration of the external torque;
+- ρ_i and τ_m themselves.
+
+These twelve numbers are the *visible* coordinates v. The other seven — mass, arm length,
+Ω_max, η̄ and the three drag coefficients — are *hidden*: no IMU log without position or
+velocity changes with them while v is held (scale: mass against thrust coefficient, arm length
+against inertia; drag acts through the velocity a log of IMU and motors does not carry).
+``theta_from(v, h)`` and ``visible/hidden_from_theta`` are exact inverses.
+
+The prior of the log-grounded posterior is stated in these coordinates, independent between v
+and h, so the posterior is exactly p(v | log) p(h): the hidden directions come out as broad as
+the prior says, by construction. :data:`PHYSICAL_PRIOR` is wider than every training prior of
+the decoders (checked in the tests against the training priors' draws), so a vehicle outside
+them is still identified.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxsysid import params as P
+
+V_NAMES = ("log_thrust_to_weight", "rel_effectiveness[0]", "rel_effectiveness[1]", "rel_effectiveness[2]",
+           "log_motor_time_constant", "log_authority[0]", "log_authority[1]", "log_authority[2]",
+           "log_yaw_authority", "ext_acc[0]", "ext_acc[1]", "ext_acc[2]")
+"""The visible coordinates v (12,): logs of positive quantities, ρ_1..3 (ρ_4 = 4 − Σ), c (rad/s²)."""
+N_V = len(V_NAMES)
+H_NAMES = ("log_mass", "log_arm_length", "log_max_rotor_speed", "mean_effectiveness",
+           "log_drag[0]", "log_drag[1]", "log_drag[2]")
+"""The hidden coordinates h (7,)."""
+N_H = len(H_NAMES)
+
+LOG_NAMES = ("thrust_to_weight_total", "motor_time_constant", "authority_total[0]", "authority_total[1]",
+             "authority_total[2]", "yaw_authority_total", "relative_effectiveness[0]", "relative_effectiveness[1]",
+             "relative_effectiveness[2]", "relative_effectiveness[3]", "external_acc[0]", "external_acc[1]",
+             "external_acc[2]")
+"""The physical quantities an IMU log identifies, in their units (see :func:`log_quantities`)."""
+LOG_UNITS = ("-", "s", "rad/s^2", "rad/s^2", "rad/s^2", "rad/s^2", "-", "-", "-", "-", "rad/s^2", "rad/s^2",
+             "rad/s^2")
+
+
+def _rho4(v):
+    return 4.0 - v[..., 1] - v[..., 2] - v[..., 3]
+
+
+def visible_from_theta(theta) -> jax.Array:
+    """θ (..., 19) -> v (..., 12) (module doc)."""
+    t = jnp.asarray(theta, jnp.float32)
+    eta = t[..., P.ETA]
+    eb = eta.mean(-1)
+    twr = P.thrust_to_weight(t) * eb
+    auth = P.angular_authority(t) * eb[..., None]
+    yaw = t[..., P.KTAU] / t[..., P.KT] / t[..., P.ARM] * auth[..., 2]
+    rho = eta / eb[..., None]
+    c = t[..., P.TAU_EXT] / t[..., P.INERTIA]
+    return jnp.concatenate([jnp.log(twr)[..., None], rho[..., :3], jnp.log(t[..., P.TAU_M])[..., None],
+                            jnp.log(auth), jnp.log(yaw)[..., None], c], -1)
+
+
+def hidden_from_theta(theta) -> jax.Array:
+    """θ (..., 19) -> h (..., 7) (module doc)."""
+    t = jnp.asarray(theta, jnp.float32)
+    return jnp.concatenate([jnp.log(t[..., P.MASS:P.MASS + 1]), jnp.log(t[..., P.ARM:P.ARM + 1]),
+                            jnp.log(t[..., P.OMEGA_MAX:P.OMEGA_MAX + 1]), t[..., P.ETA].mean(-1, keepdims=True),
+                            jnp.log(t[..., P.DRAG])], -1)
+
+
+def theta_from(v, h) -> jax.Array:
+    """v (..., 12), h (..., 7) -> θ (..., 19): the inverse of the two maps above."""
+    v, h = jnp.asarray(v, jnp.float32), jnp.asarray(h, jnp.float32)
+    m, arm, wmax, eb = jnp.exp(h[..., 0]), jnp.exp(h[..., 1]), jnp.exp(h[..., 2]), h[..., 3]
+    rho = jnp.concatenate([v[..., 1:4], _rho4(v)[..., None]], -1)
+    twr = jnp.exp(v[..., 0]) / eb
+    kt = twr * m * P.GRAVITY / (4.0 * wmax**2)
+    auth = jnp.exp(v[..., 5:8]) / eb[..., None]
+    inertia = (arm * kt * wmax**2)[..., None] / auth
+    kappa = arm * jnp.exp(v[..., 8]) / jnp.exp(v[..., 7])
+    tau_ext = v[..., 9:12] * inertia
+    return jnp.concatenate([m[..., None], arm[..., None], kt[..., None], (kappa * kt)[..., None], inertia,
+                            jnp.exp(h[..., 4:7]), wmax[..., None], eb[..., None] * rho,
+                            jnp.exp(v[..., 4])[..., None], tau_ext], -1)
+
+
+def log_quantities(theta) -> np.ndarray:
+    """θ (..., 19) -> the :data:`LOG_NAMES` quantities (..., 13) in physical units."""
+    v = np.asarray(visible_from_theta(theta), np.float64)
+    rho = np.concatenate([v[..., 1:4], (4.0 - v[..., 1:4].sum(-1))[..., None]], -1)
+    return np.concatenate([np.exp(v[..., [0, 4, 5, 6, 7, 8]]), rho, v[..., 9:12]], -1)
+
+
+@dataclasses.dataclass(frozen=True)
+class PhysicalPrior:
+    """The stated prior of the log-grounded posterior, independent uniform in each coordinate
+    (log-uniform for the positive quantities), truncated to valid vehicles: ρ_4 in ``rel_eff``
+    and the triangle inequality of J (1/Aᵉ_z ≤ 1/Aᵉ_x + 1/Aᵉ_y). Every range is physical
+    (units in the field names) and wider than the decoders' training priors."""
+    name: str = "physical"
+    thrust_to_weight_total: tuple[float, float] = (1.05, 15.0)
+    rel_eff: tuple[float, float] = (0.3, 1.7)
+    motor_time_constant_s: tuple[float, float] = (0.002, 0.3)
+    authority_rad_s2: tuple[float, float] = (10.0, 10_000.0)
+    yaw_authority_rad_s2: tuple[float, float] = (0.2, 3_000.0)
+    ext_acc_rad_s2: tuple[float, float] = (-150.0, 150.0)
+    mass_kg: tuple[float, float] = (0.02, 5.0)
+    arm_length_m: tuple[float, float] = (0.02, 0.6)
+    max_rotor_speed_rad_s: tuple[float, float] = (150.0, 20_000.0)
+    mean_effectiveness: tuple[float, float] = (0.5, 1.3)
+    drag_kg_s: tuple[float, float] = (0.001, 5.0)
+
+    def v_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Box of v (12,), (12,) (before the truncations)."""
+        lg = np.log
+        rows = [lg(self.thrust_to_weight_total)] + [self.rel_eff] * 3 + [lg(self.motor_time_constant_s)] \
+            + [lg(self.authority_rad_s2)] * 3 + [lg(self.yaw_authority_rad_s2)] + [self.ext_acc_rad_s2] * 3
+        b = np.asarray(rows, np.float64)
+        return b[:, 0], b[:, 1]
+
+    def h_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        lg = np.log
+        rows = [lg(self.mass_kg), lg(self.arm_length_m), lg(self.max_rotor_speed_rad_s), self.mean_effectiveness] \
+            + [lg(self.drag_kg_s)] * 3
+        b = np.asarray(rows, np.float64)
+        return b[:, 0], b[:, 1]
+
+    def v_valid(self, v) -> jax.Array:
+        """v (..., 12) -> (...) bool: inside the box, ρ_4 in range, J's triangle inequality."""
+        lo, hi = self.v_bounds()
+        v = jnp.asarray(v)
+        box = jnp.all((v >= lo) & (v <= hi), -1)
+        r4 = _rho4(v)
+        inv = jnp.exp(-v[..., 5:8])
+        return box & (r4 >= self.rel_eff[0]) & (r4 <= self.rel_eff[1]) & (inv[..., 2] <= inv[..., 0] + inv[..., 1])
+
+    def log_prob_v(self, v) -> jax.Array:
+        """Unnormalised log density of v (..., 12): 0 inside, −inf outside (a uniform prior)."""
+        return jnp.where(self.v_valid(v), 0.0, -jnp.inf)
+
+    def sample_v(self, key, n: int) -> np.ndarray:
+        """n draws of v (n, 12) (rejection from the box)."""
+        lo, hi = self.v_bounds()
+        out, have = [], 0
+        while have < n:
+            key, k = jax.random.split(key)
+            x = np.asarray(jax.random.uniform(k, (4 * n, N_V), jnp.float32, lo, hi))
+            x = x[np.asarray(self.v_valid(x))]
+            out.append(x)
+            have += len(x)
+        return np.concatenate(out)[:n]
+
+    def sample_h(self, key, n: int) -> np.ndarray:
+        """n draws of h (n, 7)."""
+        lo, hi = self.h_bounds()
+        return np.asarray(jax.random.uniform(key, (n, N_H), jnp.float32, lo, hi))
+
+    def contains_theta(self, theta) -> np.ndarray:
+        """θ (..., 19) -> (...) bool: inside this prior's support."""
+        v, h = visible_from_theta(theta), hidden_from_theta(theta)
+        lo, hi = self.h_bounds()
+        hin = np.all((np.asarray(h) >= lo - 1e-6) & (np.asarray(h) <= hi + 1e-6), -1)
+        return np.asarray(self.v_valid(v)) & hin
+
+
+PHYSICAL_PRIOR = PhysicalPrior()

@@ -1,0 +1,210 @@
+"""The likelihood of a flight log's IMU given its motor commands, under a candidate vehicle.
+
+Equation error over short windows started from the measured state (no open-loop rollout): the
+log is cut into non-overlapping windows of :data:`WINDOW_STEPS` control steps; in each,
+
+- the change of the measured body rates ω(t₀ + W) − ω(t₀) is compared with the integral of the
+  angular acceleration the motor commands imply (Euler's equation, :mod:`.coords`), the
+  gyroscopic term from the measured rates;
+- the mean measured specific force along body z over blocks of :data:`ACC_BLOCK_STEPS` is
+  compared with the thrust the commands imply, plus an accelerometer bias.
+
+The rotor speeds are the commands through the simulator's first-order lag, integrated exactly
+(:func:`~mjxsysid.sim.quadrotor.mean_square_speed`: the exact mean of s² over each step for the
+rates, the end-of-step s² for the accelerometer). The lag depends on τ_m alone, so the window
+sums of s² are computed once per log on a grid of τ_m (:data:`TAU_GRID`) and interpolated in
+log τ_m per candidate: a candidate then costs a few multiply-adds per window, and thousands are
+evaluated in one jitted call.
+
+Residuals are Student-t (ν = :data:`NU`: heavy tails for glitches), with a scale per channel
+(gyro x, y, z, accelerometer z) of √(k σ² + δ²): σ the IMU's white-noise level per sample
+(k = 2 for a difference of two gyro samples, 1 / W_eff for a mean of W_eff independent
+accelerometer samples) and δ a model-discrepancy term for physics the model lacks (aerodynamics,
+another simulator's motors, drag). σ is a parameter with its own evidence — the log's second
+differences, which for white noise have variance 6 σ² while a rigid body's signal barely enters
+— so the noise level is estimated jointly, not assumed; δ has only the residuals.
+"""
+from __future__ import annotations
+
+import dataclasses
+from math import comb
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.signal import lfilter
+
+from mjxsysid import params as P
+from mjxsysid.identify.coords import N_V
+
+DT = 0.002
+"""s: the log's row spacing (500 Hz)."""
+WINDOW_STEPS = 10
+"""Control steps per window (20 ms): short enough that the equation error started from the
+measured rates does not drift, long enough that a window's rate change stands above the noise."""
+ACC_BLOCK_STEPS = 250
+"""Control steps (0.5 s) over which the accelerometer residual is averaged: the specific force's
+largest unmodelled term, drag (−D_z v_z / m, the velocity not in an IMU log), varies over the
+manoeuvre's seconds, not the 20 ms windows; residuals of 20 ms would be strongly correlated and
+the thrust-to-weight overconfident."""
+MAX_WINDOWS = 3000
+"""Windows used at most (evenly spaced over a longer log): the cost stays bounded."""
+SKIP_S = 0.2
+"""s: the start of the log not used (the rotor lag starts from the first command)."""
+TAU_GRID = np.exp(np.linspace(np.log(0.0015), np.log(0.35), 64))
+"""s: the motor time constants the window features are computed at (log-spaced)."""
+NU = 4.0
+"""Degrees of freedom of the Student-t residuals."""
+CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "acc_z")
+N_NUIS = 9
+"""Nuisance parameters after v: log σ (4: gyro x, y, z, acc z), log δ (4, same channels), acc_z bias."""
+NUIS_NAMES = tuple(f"log_noise[{c}]" for c in CHANNELS) + tuple(f"log_discrepancy[{c}]" for c in CHANNELS) + (
+    "acc_z_bias",)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class LogData:
+    """A log reduced to what the likelihood reads (arrays; W windows, G grid points).
+
+    log_tau (G,); fg (G, W, 4) ∫ s_i² dt over each window per rotor; fa (G, Wa, 4) mean
+    end-of-step s_i² over each accelerometer block (:data:`ACC_BLOCK_STEPS`); dgyro (W, 3) measured rate change; gyq (W, 3) ∫ of the
+    gyroscopic products (ω_y ω_z, ω_z ω_x, ω_x ω_y) over each window; acc (Wa,) mean measured
+    acc_z per block; span () s per window; kvar (4,) the noise-variance factor per channel; n2 (4,),
+    s2 (4,) count and sum of squares of the channels' second differences (trimmed)."""
+    log_tau: jax.Array
+    fg: jax.Array
+    fa: jax.Array
+    dgyro: jax.Array
+    gyq: jax.Array
+    acc: jax.Array
+    span: jax.Array
+    kvar: jax.Array
+    n2: jax.Array
+    s2: jax.Array
+
+
+def _lag_features(u, taus):
+    """Motor commands u (T, 4) through the lag for every τ in ``taus`` (G,) -> mean s² over each
+    step (G, T, 4) and s² at each step's end (G, T, 4), starting at s = u[0]."""
+    ms, se = [], []
+    for tau in taus:
+        a = np.exp(-DT / tau)
+        # s_{k+1} = a s_k + (1 − a) u_k, s_0 = u_0
+        s_end = lfilter([1 - a], [1, -a], u, axis=0, zi=(a * u[0])[None])[0]
+        s0 = np.concatenate([u[:1], s_end[:-1]], 0)
+        d = s0 - u
+        r1 = tau / DT * (1 - a)
+        r2 = tau / (2 * DT) * (1 - a * a)
+        ms.append(u * u + 2 * u * d * r1 + d * d * r2)
+        se.append(s_end * s_end)
+    return np.stack(ms), np.stack(se)
+
+
+def noise_statistics(rec: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Second differences of gyro x/y/z and acc z per native sample (the native samples if the log
+    says it was resampled: ``rec["native"]["imu"]``), trimmed at 6 robust spreads -> count (4,),
+    sum of squares (4,) (variance 6 σ² per sample for white noise), and the native sample spacing
+    relative to 2 ms (≥ 1)."""
+    native = (rec.get("native") or {}).get("imu")
+    if native is not None:
+        t_nat, imu = np.asarray(native[0], np.float64), np.asarray(native[1], np.float64)
+        ratio = max(float(np.median(np.diff(t_nat))) / DT, 1.0) if len(t_nat) > 2 else 1.0
+    else:
+        imu, ratio = np.asarray(rec["imu"], np.float64), 1.0
+    x = imu[:, [0, 1, 2, 5]]
+    d = np.diff(x, n=2, axis=0)[::3]          # every third: independent for white noise
+    mad = 1.4826 * np.median(np.abs(d - np.median(d, 0)), 0) + 1e-12
+    keep = np.abs(d) <= 6 * mad
+    return keep.sum(0).astype(np.float64), np.where(keep, d * d, 0.0).sum(0), np.asarray(ratio)
+
+
+def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = MAX_WINDOWS) -> LogData:
+    """A log's arrays (``imu`` (T, 6) the reading each row's motor command was given, ``motor``
+    (T, 4) normalised rotor-speed commands, optional ``native``) -> :class:`LogData`."""
+    imu = np.asarray(rec["imu"], np.float64)
+    u = np.clip(np.asarray(rec["motor"], np.float64), 0.0, 1.0)
+    T = len(u)
+    W = int(window_steps)
+    start = int(round(SKIP_S / DT)) if T * DT > 4 * SKIP_S else 0
+    n_win = (T - 1 - start) // W
+    if n_win < 5:
+        raise ValueError(f"flight log: {T} rows ({T * DT:.2f} s) leave {max(n_win, 0)} windows of {W} steps for the "
+                         f"log-grounded posterior; need at least 5 (0.3 s of flight)")
+    ms, se = _lag_features(u, TAU_GRID)
+    k0 = start + W * np.arange(n_win)
+    if n_win > max_windows:
+        k0 = k0[np.linspace(0, n_win - 1, max_windows).astype(int)]
+    steps = k0[:, None] + np.arange(W)[None]               # (n, W): the steps of each window
+    fg = ms[:, steps].sum(2) * DT                           # (G, n, 4)
+    B = int(ACC_BLOCK_STEPS)
+    n_blk = (T - 1 - start) // B
+    if n_blk < 2:                       # a short log: blocks of what there is
+        B = max((T - 1 - start) // 2, W)
+        n_blk = (T - 1 - start) // B
+    bsteps = start + B * np.arange(n_blk)[:, None] + np.arange(B)[None]
+    fa = se[:, bsteps].mean(2)
+    g = imu[:, :3]
+    dgyro = g[k0 + W] - g[k0]
+    prod = np.stack([g[:, 1] * g[:, 2], g[:, 2] * g[:, 0], g[:, 0] * g[:, 1]], -1)
+    gyq = prod[steps].sum(1) * DT
+    acc = imu[bsteps + 1, 5].mean(1)
+    n2, s2, ratio = noise_statistics(rec)
+    kvar = np.array([2.0, 2.0, 2.0, ratio / B])
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    return LogData(f32(np.log(TAU_GRID)), f32(fg), f32(fa), f32(dgyro), f32(gyq), f32(acc), f32(W * DT),
+                   f32(kvar), f32(n2), f32(s2))
+
+
+_BASIS = np.stack([P.ROTOR_DIRECTIONS[:, 1], -P.ROTOR_DIRECTIONS[:, 0], P.YAW_SIGNS]).astype(np.float32)  # (3, 4)
+
+
+def _interp(log_tau, grid, f):
+    """Feature f (G, ...) at log τ (), linear in log τ between grid points (clamped)."""
+    x = jnp.clip(log_tau, grid[0], grid[-1])
+    i = jnp.clip(jnp.searchsorted(grid, x) - 1, 0, grid.shape[0] - 2)
+    w = (x - grid[i]) / (grid[i + 1] - grid[i])
+    return (1 - w) * f[i] + w * f[i + 1]
+
+
+def _student_t(r, scale):
+    """Sum of Student-t(ν = NU) log densities of residuals r (W,) at ``scale`` ()."""
+    z = r / scale
+    c = (jax.scipy.special.gammaln((NU + 1) / 2) - jax.scipy.special.gammaln(NU / 2)
+         - 0.5 * jnp.log(NU * jnp.pi))
+    return jnp.sum(c - jnp.log(scale) - (NU + 1) / 2 * jnp.log1p(z * z / NU))
+
+
+def predict(v, data: LogData):
+    """The windows' predicted rate changes (W, 3) and the blocks' mean acc_z without bias (Wa,) under the
+    visible coordinates v (12,) (:mod:`.coords`)."""
+    rho = jnp.concatenate([v[1:4], (4.0 - v[1] - v[2] - v[3])[None]])
+    fg = _interp(v[4], data.log_tau, data.fg)               # (W, 4)
+    fa = _interp(v[4], data.log_tau, data.fa)
+    auth = jnp.exp(jnp.concatenate([v[5:7], v[8:9]]))       # roll, pitch authority; yaw authority
+    torque = (fg * rho) @ jnp.asarray(_BASIS).T             # (W, 3)
+    a = jnp.exp(v[5:8])
+    inv = 1.0 / a                                            # ∝ J
+    gyro_coef = jnp.stack([(inv[1] - inv[2]) / inv[0], (inv[2] - inv[0]) / inv[1], (inv[0] - inv[1]) / inv[2]])
+    dgyro = auth * torque + gyro_coef * data.gyq + v[9:12] * data.span
+    acc = P.GRAVITY / 4.0 * jnp.exp(v[0]) * (fa @ rho)
+    return dgyro, acc
+
+
+def log_likelihood(x, data: LogData):
+    """log p(log | v, nuisances) for one parameter vector x (12 + 9,) = [v, log σ (4), log δ (4),
+    acc_z bias]: the Student-t window residuals plus the second differences' evidence on σ."""
+    v, ls, ld, bias = x[:N_V], x[N_V:N_V + 4], x[N_V + 4:N_V + 8], x[N_V + 8]
+    dgyro, acc = predict(v, data)
+    sig2, dl2 = jnp.exp(2 * ls), jnp.exp(2 * ld)
+    scale = jnp.sqrt(data.kvar * sig2 + dl2)
+    res = (_student_t(data.dgyro[:, 0] - dgyro[:, 0], scale[0]) + _student_t(data.dgyro[:, 1] - dgyro[:, 1], scale[1])
+           + _student_t(data.dgyro[:, 2] - dgyro[:, 2], scale[2]) + _student_t(data.acc - acc - bias, scale[3]))
+    var2 = comb(4, 2) * sig2                                 # variance of a second difference
+    noise = jnp.sum(-0.5 * data.n2 * jnp.log(var2) - 0.5 * data.s2 / var2)
+    return res + noise
+
+
+def noise_estimate(data: LogData) -> np.ndarray:
+    """σ per channel (4,) from the second differences alone (the maximum of their own likelihood)."""
+    return np.sqrt(np.asarray(data.s2) / np.maximum(np.asarray(data.n2), 1) / comb(4, 2))
