@@ -36,6 +36,9 @@ def add_decode(sub) -> None:
     dc.add_argument("--decoders", type=Path, default=None,
                     help="folder with cfm.npz and regression.npz, and cfm_seq.npz for --window flight|SECONDS "
                          "(default: the policy's shipped decoders)")
+    dc.add_argument("--log-grounded", action="store_true",
+                    help="with --log: also the experimental log-grounded posterior (the log's IMU given its motor "
+                         "commands, the decoded samples as proposal) and the information gap (docs/identify.md)")
     dc.add_argument("--seed", type=int, default=0)
     dc.add_argument("--video", action="store_true", help="render the true vehicle with decoded ghosts")
     dc.add_argument("--out", type=Path, required=True)
@@ -62,7 +65,8 @@ def cmd_decode(args) -> int:
         summary = run_decode(args.out, theta=theta, log=args.log, reference=args.reference, period=args.period,
                              duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
                              decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
-                             echo=lambda m: echo(m, file=sys.stderr), segment=args.segment)
+                             echo=lambda m: echo(m, file=sys.stderr), segment=args.segment,
+                             log_grounded=args.log_grounded)
     except BaseException:
         if not existed and Path(args.out).is_dir():   # no half-written output folder of this run left behind
             import shutil

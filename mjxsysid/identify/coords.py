@@ -117,7 +117,7 @@ class PhysicalPrior:
     (units in the field names) and wider than the decoders' training priors."""
     name: str = "physical"
     thrust_to_weight_total: tuple[float, float] = (1.05, 15.0)
-    rel_eff: tuple[float, float] = (0.3, 1.7)
+    rel_eff: tuple[float, float] = (0.25, 1.9)
     motor_time_constant_s: tuple[float, float] = (0.002, 0.3)
     authority_rad_s2: tuple[float, float] = (10.0, 10_000.0)
     yaw_authority_rad_s2: tuple[float, float] = (0.2, 3_000.0)
@@ -125,7 +125,7 @@ class PhysicalPrior:
     mass_kg: tuple[float, float] = (0.02, 5.0)
     arm_length_m: tuple[float, float] = (0.02, 0.6)
     max_rotor_speed_rad_s: tuple[float, float] = (150.0, 20_000.0)
-    mean_effectiveness: tuple[float, float] = (0.5, 1.3)
+    mean_effectiveness: tuple[float, float] = (0.45, 1.35)
     drag_kg_s: tuple[float, float] = (0.001, 5.0)
 
     def v_bounds(self) -> tuple[np.ndarray, np.ndarray]:

@@ -26,7 +26,7 @@ import numpy as np
 
 from mjxsysid.identify.coords import (N_V, PHYSICAL_PRIOR, PhysicalPrior, hidden_from_theta, theta_from,
                                       visible_from_theta)
-from mjxsysid.identify.likelihood import N_NUIS, LogData, log_likelihood, noise_estimate, prepare
+from mjxsysid.identify.likelihood import N_NUIS, LogData, linear_start, log_likelihood, noise_estimate, prepare
 
 PROPOSAL_WIDEN = 1.5
 """The decoded ensemble's Gaussian fit in v is widened by this factor (a defensive proposal)."""
@@ -35,8 +35,8 @@ MAX_KHAT = 0.7
 """Importance sampling is trusted when ESS ≥ 5 % of the draws and k̂ ≤ 0.7 (PSIS's threshold)."""
 PRIOR_SHARE = 0.3
 """Share of the prior in the SMC's starting mixture (the rest: the decoded proposal)."""
-NUIS_BOUNDS = (np.log(1e-7), np.log(5.0), np.log(1e-7), np.log(5.0), -3.0, 3.0)
-"""Uniform priors of the nuisances: log σ, log δ in [log 1e-7, log 5] (rad/s, m/s²), acc_z bias
+NUIS_BOUNDS = (np.log(1e-6), np.log(5.0), np.log(1e-6), np.log(5.0), -3.0, 3.0)
+"""Uniform priors of the nuisances: log σ, log δ in [log 1e-6, log 5] (rad/s, m/s²), acc_z bias
 in [−3, 3] m/s² (times :data:`ACC_BIAS_SD`'s normal)."""
 ACC_BIAS_SD = 0.3
 """m/s²: the accelerometer's z bias is N(0, 0.3²) a priori (a calibrated MEMS accelerometer's bias:
@@ -263,13 +263,15 @@ def laplace_proposal(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIO
     lo, hi = _box(prior)
     eps = 1e-4 * (hi - lo)
     xs = np.clip(np.asarray(xs), lo + eps, hi - eps)   # an optimum past the box's edge: its edge
+    # and J's triangle inequality: A_z no smaller than 1 / (1/A_x + 1/A_y)
+    xs[:, 7] = np.maximum(xs[:, 7], -np.log(np.exp(-xs[:, 5]) + np.exp(-xs[:, 6])) + 1e-4)
     lt = np.asarray(log_target(xs, data, prior))
     ok = np.isfinite(lt)
     if not ok.any():
         return None, None, None
     best = xs[np.argmax(np.where(ok, lt, -np.inf))]
     h = np.asarray(_hessian(jnp.asarray(best), data), np.float64)
-    h = 0.5 * (h + h.T)
+    h = np.nan_to_num(0.5 * (h + h.T), nan=0.0, posinf=1e12, neginf=-1e12)
     w, u = np.linalg.eigh(h)
     w = np.clip(w, 1e-6 * max(w.max(), 1e-12) + 1e-9, None)       # flat directions: broad, not infinite
     cov = (u / w) @ u.T
@@ -333,7 +335,9 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
                   np.asarray(visible_from_theta(np.asarray(decoded_theta)[:n_dec]), np.float32))
     sv = np.concatenate(sv)
     sn = np.broadcast_to(qn.mean, (len(sv), len(qn.mean)))
-    lap, mode, _ = laplace_proposal(data, np.concatenate([sv, sn], 1).astype(np.float32), prior)
+    x_lin = linear_start(data)
+    st = np.concatenate([x_lin[None], np.concatenate([sv, sn], 1)[:starts - 1]]).astype(np.float32)
+    lap, mode, _ = laplace_proposal(data, st, prior)
     out["mode"] = mode
     if chosen is None and lap is not None:
         x = lap.sample(k_lp, draws)

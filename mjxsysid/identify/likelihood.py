@@ -56,6 +56,10 @@ TAU_GRID = np.exp(np.linspace(np.log(0.0015), np.log(0.35), 64))
 NU = 4.0
 """Degrees of freedom of the Student-t residuals."""
 CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "acc_z")
+RESOLUTION = np.array([1e-4, 1e-4, 1e-4, 1e-3], np.float32)
+"""rad/s, m/s²: the finest residual scale per channel — a logged number's resolution (a 16-bit
+gyro at ±2000 °/s has 1e-3 rad/s steps; a CSV with 7 digits ~1e-5 relative): without a floor a
+noise-free simulated log would make every model error infinitely significant."""
 N_NUIS = 9
 """Nuisance parameters after v: log σ (4: gyro x, y, z, acc z), log δ (4, same channels), acc_z bias."""
 NUIS_NAMES = tuple(f"log_noise[{c}]" for c in CHANNELS) + tuple(f"log_discrepancy[{c}]" for c in CHANNELS) + (
@@ -197,7 +201,7 @@ def log_likelihood(x, data: LogData):
     v, ls, ld, bias = x[:N_V], x[N_V:N_V + 4], x[N_V + 4:N_V + 8], x[N_V + 8]
     dgyro, acc = predict(v, data)
     sig2, dl2 = jnp.exp(2 * ls), jnp.exp(2 * ld)
-    scale = jnp.sqrt(data.kvar * sig2 + dl2)
+    scale = jnp.sqrt(data.kvar * sig2 + dl2 + jnp.asarray(RESOLUTION) ** 2)
     res = (_student_t(data.dgyro[:, 0] - dgyro[:, 0], scale[0]) + _student_t(data.dgyro[:, 1] - dgyro[:, 1], scale[1])
            + _student_t(data.dgyro[:, 2] - dgyro[:, 2], scale[2]) + _student_t(data.acc - acc - bias, scale[3]))
     var2 = comb(4, 2) * sig2                                 # variance of a second difference
@@ -208,3 +212,43 @@ def log_likelihood(x, data: LogData):
 def noise_estimate(data: LogData) -> np.ndarray:
     """σ per channel (4,) from the second differences alone (the maximum of their own likelihood)."""
     return np.sqrt(np.asarray(data.s2) / np.maximum(np.asarray(data.n2), 1) / comb(4, 2))
+
+
+def linear_start(data: LogData) -> np.ndarray:
+    """A starting point (12 + 9,) for the optimiser from the log alone: at each τ_m of the grid the
+    windows' rate changes are linear in (authority × ρ_i per rotor, c, the gyroscopic coefficient),
+    so least squares per axis; the τ_m with the smallest total relative residual wins, ρ and the
+    authorities come from its per-rotor coefficients, thrust-to-weight from the accelerometer
+    blocks (no bias), the noise from the second differences and δ from the residuals."""
+    fg, fa = np.asarray(data.fg, np.float64), np.asarray(data.fa, np.float64)
+    dg, gyq, acc = np.asarray(data.dgyro, np.float64), np.asarray(data.gyq, np.float64), np.asarray(data.acc, np.float64)
+    span = float(data.span)
+    best = None
+    for g in range(fg.shape[0]):
+        coefs, cost, res = [], 0.0, []
+        for a in range(3):
+            X = np.concatenate([fg[g] * _BASIS[a], gyq[:, a:a + 1], np.full((len(dg), 1), span)], 1)
+            k, *_ = np.linalg.lstsq(X, dg[:, a], rcond=None)
+            r = dg[:, a] - X @ k
+            cost += float(r @ r) / max(float(dg[:, a] @ dg[:, a]), 1e-12)
+            coefs.append(k)
+            res.append(np.sqrt(np.mean(r * r)))
+        if best is None or cost < best[0]:
+            best = (cost, g, coefs, res)
+    _, g, coefs, res = best
+    kk = np.stack([c[:4] for c in coefs])                             # (3, 4): authority × ρ_i
+    means = kk.mean(1, keepdims=True)
+    ok = np.abs(means[:, 0]) > 1e-9
+    rho = np.clip((kk[ok] / means[ok]).mean(0) if ok.any() else np.ones(4), 0.35, 1.65)
+    rho = rho * 4.0 / rho.sum()
+    auth = np.clip(np.abs(means[:, 0]), 11.0, 9000.0)
+    f = fa[g] @ rho
+    twr = float(np.clip(4.0 / P.GRAVITY * (acc @ f) / max(float(f @ f), 1e-12), 1.1, 14.0))
+    ra = acc - P.GRAVITY / 4 * twr * f
+    az = 1.15 / (1 / auth[0] + 1 / auth[1])            # J_z a little below J_x + J_y (a flat vehicle)
+    v = np.concatenate([[np.log(twr)], rho[:3], [float(np.asarray(data.log_tau)[g])],
+                        np.log([auth[0], auth[1], max(az, 11.0)]), [np.log(auth[2])],
+                        np.clip([c[5] for c in coefs], -140, 140)])
+    sig = np.maximum(noise_estimate(data), 1e-6)
+    dl = np.maximum(np.array(res + [float(np.sqrt(np.mean(ra * ra)))]), 1e-5)
+    return np.concatenate([v, np.log(sig), np.log(dl), [0.0]]).astype(np.float32)

@@ -481,6 +481,25 @@ def checks_summary(checks: dict) -> dict:
 OUT_OF_PRIOR_TITLE = "OUT OF THE DECODERS' PRIOR — bands not calibrated: "
 
 
+def log_grounded_summary(rec: dict, decoded_theta, truth=None, *, seed: int = 0):
+    """The experimental log-grounded posterior (:mod:`mjxsysid.identify`) of a log's arrays
+    ``rec``, the decoded samples θ (S, 19) as its proposal -> (the ``_log_grounded`` entry of
+    summary.json: method, diagnostics, the log-identifiable quantities' bands and the information
+    gap; the posterior's θ samples (S', 19))."""
+    from mjxsysid.identify.gap import information_gap
+    from mjxsysid.identify.inference import log_grounded_posterior
+    from mjxsysid.identify.likelihood import CHANNELS
+    post = log_grounded_posterior(rec, decoded_theta, seed=seed)
+    diag = {k: post[k] for k in ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
+                                 "smc_tempering") if k in post}
+    nz = np.exp(np.median(post["nuisance"][:, :8], 0))
+    diag["imu_noise"] = {c: float(x) for c, x in zip(CHANNELS, nz[:4])}
+    diag["discrepancy"] = {c: float(x) for c, x in zip(CHANNELS, nz[4:])}
+    diag["acc_z_bias"] = float(np.median(post["nuisance"][:, 8]))
+    diag["gap"] = information_gap(decoded_theta, post["theta"], truth)
+    return json.loads(json.dumps(diag, default=float)), post["theta"]
+
+
 def write_summary_md(summary: dict, path) -> Path:
     """summary.md: the checks' warnings first (out of prior, suspicious log), then the decoded
     identifiable combinations and parameters (mean, 5–95 %, and the truth if known)."""
@@ -499,6 +518,21 @@ def write_summary_md(summary: dict, path) -> Path:
             true = f"{v['true']:.4g}" if "true" in v else ""
             inside = ("yes" if v["inside"] else "no") if "inside" in v else ""
             lines.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} | {true} | {inside} |")
+    if c.get("source") or c.get("resampled") or c.get("notes"):
+        lines += ["", "## What was done to the log", ""]
+        src = c.get("source") or {}
+        lines += [f"- {k}: {v}" for k, v in src.items() if k != "conversions"]
+        lines += [f"- conversion: {m}" for m in src.get("conversions", [])]
+        lines += [f"- {k}: {v}" for k, v in (c.get("resampled") or {}).items()]
+        lines += [f"- note: {m}" for m in c.get("notes", [])]
+    g = summary.get("_log_grounded")
+    if g:
+        from mjxsysid.identify.gap import gap_markdown
+        lines += ["", "## Log-grounded posterior (experimental) and the information gap", "",
+                  f"Method: {g['method']} (proposal: {g['proposal']}; decoded-proposal importance sampling: "
+                  f"{g.get('decoded_is')}). Not yet calibrated on simulated flights of the project's own simulator "
+                  f"(docs/identify.md): read it beside the decoded bands, not instead of them.", ""]
+        lines += gap_markdown(g["gap"])
     Path(path).write_text("\n".join(lines) + "\n")
     return Path(path)
 
@@ -507,7 +541,8 @@ def write_summary_md(summary: dict, path) -> Path:
 
 def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
                samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print,
-               policy="mjxsysid", decoders=None, window="flight", truth=None, warn=warn, segment=None) -> dict:
+               policy="mjxsysid", decoders=None, window="flight", truth=None, warn=warn, segment=None,
+               log_grounded=False) -> dict:
     """Fly θ (or replay ``log``) with a frozen latent policy (``policy``, ``weights``: see
     :func:`~mjxsysid.policy.interface.resolve_policy`; default the shipped one), decode at
     ``rate`` Hz with that policy's decoders (or those in ``decoders``), write out/decoded.npz,
@@ -589,6 +624,8 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
              f"({seq.max_len}): the count feature saturates there; calibration checked to 60 s flights "
              f"(docs/decoding.md)")
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
+    if log_grounded and log is not None:
+        summary["_log_grounded"], dec["samples_log_grounded"] = log_grounded_summary(rec, final, truth, seed=seed)
     np.savez_compressed(out / "decoded.npz", **dec)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     write_summary_md(summary, out / "summary.md")
