@@ -46,7 +46,7 @@ def main():
         rows.append({"seconds": sec, "method": post["method"], "inside": ((lo <= tq) & (tq <= hi)).tolist(),
                      "rel_error_median": (np.abs(np.median(q, 0) / tq - 1)).tolist(),
                      "log_width": np.log(hi[[0, 1, 2, 3]] / lo[[0, 1, 2, 3]]).tolist()})
-        print(f"vehicle {i}: {sec:.1f} s, {post['method']}, inside {int(sum(rows[-1]['inside']))}/{len(LOG_NAMES)}")
+        print(f"vehicle {i}: {sec:.1f} s, {post['method']}, inside {int(sum(rows[-1]['inside']))}/{len(LOG_NAMES)}", post.get("laplace_is"), np.round(post["weights"], 3))
     inside = np.array([r["inside"] for r in rows])
     err = np.array([r["rel_error_median"] for r in rows])
     res = {"vehicles": a.vehicles, "noise": a.noise, "prior": a.prior,

@@ -26,7 +26,7 @@ from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import CONTROLLERS, fly_vehicles, metrics_dict, one_flight, save_flight, seen_imu
 from mjxsysid.rollout.harness import metrics_to_host
 from mjxsysid.studies.decode import (check_window, checks_summary, decode_posterior, decoders_prior, flight_checks,
-                                     log_latents, parse_window, read_any_log, read_log)
+                                     ground_in_log, log_latents, parse_window, read_any_log, read_log)
 from mjxsysid.logs.ulog import read_ulog
 from mjxsysid.studies import logcheck as _logcheck
 from mjxsysid.studies.logcheck import Finding, LogError
@@ -126,7 +126,7 @@ def fly(vehicle=None, controller: str = "policy", *, reference: str = "lemniscat
 
 def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None, weights=None,
            decoders=None, seed: int = 0, truth=None, index: int = 0, allow_mismatch: bool = False,
-           window="flight") -> dict:
+           window="flight", decoder_only: bool = False, segment=None) -> dict:
     """Decode a policy's latent into a distribution of vehicles, as ``mjxsysid decode``.
 
     ``flight_or_log``: a :class:`FlightResult` of :func:`fly` with ``controller="policy"``
@@ -145,6 +145,13 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
     (K,); a number of seconds — a sliding window of that length; ``"instant"`` — the
     single-latent CFM alone. Without a sequence decoder it falls back to ``"instant"`` and
     ``summary["_window"]`` says which was used.
+
+    A log (CSV or PX4 ULog ``.ulg``; ``segment`` "t0:t1" as ``--segment``) is grounded in its own
+    physics unless ``decoder_only``: the summary's top-level entries are then the log-grounded
+    posterior's (:func:`mjxsysid.studies.decode.ground_in_log`: the log's IMU given its motor
+    commands under a physical prior, the decoded samples as its proposal), the decoders' under
+    ``summary["_decoder_only"]``, the information gap under ``summary["_log_grounded"]["gap"]``,
+    and ``samples_log_grounded`` (S, 19) is returned too.
 
     A log is checked first, as by :func:`check_log`: one that cannot be right raises
     :class:`LogError`; warnings and a flight outside the decoders' training prior are printed
@@ -177,7 +184,7 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
         th = res.theta[index] if truth is None else to_theta(truth)
         rec = {"imu": seen_imu(one.frame.imu), "motor": one.frame.motor_cmd}
     elif isinstance(flight_or_log, (str, Path)):
-        rec = read_log(flight_or_log)
+        rec = read_any_log(flight_or_log, segment=segment)
         th = None if truth is None else to_theta(truth)
         ref = resolve_policy(policy or "mjxsysid", weights)
         cfm, reg, seq = decoders_for(ref)   # first: the log's IMU noise is judged against their training
@@ -195,6 +202,8 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
     post = decode_posterior(zhat_t, times, th, decoder=cfm, regression=reg, rate=rate, samples=samples,
                             seed=seed, window=window, seq_decoder=seq)
     post["summary"]["_checks"] = checks_summary(checks)
+    if isinstance(flight_or_log, (str, Path)) and not decoder_only:
+        ground_in_log(post, post["summary"], rec, th, seed=seed)
     return post
 
 

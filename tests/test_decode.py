@@ -35,8 +35,8 @@ def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
     z = PolicyController.load().replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
     np.testing.assert_allclose(z, paper_flight.latent, atol=2e-4)
     # End to end through the CLI.
-    out = tmp_path / "dec"
-    assert main(["decode", "--log", str(path), "--samples", "20", "--out", str(out)]) == 0
+    out = tmp_path / "dec"   # the decoders alone (--decoder-only: the behaviour before the log-grounded posterior)
+    assert main(["decode", "--log", str(path), "--decoder-only", "--samples", "20", "--out", str(out)]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert set(P.PARAM_NAMES) <= set(s) and "true" not in s["mass"]
     # a correct log of a prior vehicle: the plausibility and out-of-prior checks find nothing
@@ -50,8 +50,16 @@ def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
     for n, v in zip(P.PARAM_NAMES, P.PAPER_HARDWARE):
         assert st[n]["true"] == pytest.approx(float(v), rel=1e-6)
         assert st[n]["inside"] == (st[n]["q05"] <= st[n]["true"] <= st[n]["q95"])
-        assert st[n]["mean"] == s[n]["mean"]           # the truth changes the report, not the decoding
+        assert st["_decoder_only"][n]["mean"] == s[n]["mean"]   # the truth changes the report, not the decoding
     assert sum(st[n]["inside"] for n in P.PARAM_NAMES) >= 15
+    assert "_log_grounded" not in s
+    # the posterior of record is the log-grounded one; the decoders' stays beside it
+    assert st["_posterior"] == "log-grounded" and set(P.PARAM_NAMES) <= set(st["_decoder_only"])
+    assert st["thrust_to_weight_total"]["inside"], st["thrust_to_weight_total"]
+    gap = st["_log_grounded"]["gap"]["thrust_to_weight_total"]
+    assert gap["seen_by_log"] and gap["log_inside"]
+    assert (out_t / "information_gap.png").stat().st_size > 0 and (out_t / "marginals_decoder_only.png").exists()
+    assert "information gap" in (out_t / "summary.md").read_text()
 
 
 def test_decode_summary_brackets_the_paper_vehicle(paper_flight):

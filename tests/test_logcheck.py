@@ -137,7 +137,7 @@ def test_out_of_prior_and_warnings_reach_every_output_under_quiet(fast_heavy_log
     assert 8.5 < est["thrust_to_weight"] < 13
     path = write_log(tmp_path / "oop.csv", rec["t"], rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
     out = tmp_path / "d"
-    assert main(["decode", "--log", str(path), "--samples", "8", "--window", "instant", "--out", str(out), "-q"]) == 0
+    assert main(["decode", "--log", str(path), "--samples", "8", "--window", "instant", "--decoder-only", "--out", str(out), "-q"]) == 0
     cap = capsys.readouterr()
     assert "out of prior: " in cap.err and "thrust-to-weight" in cap.err and "warning: a_cmd, omega_cmd" in cap.err
     assert cap.err.index("out of prior") < len(cap.err) and "thrust_to_weight" in cap.out   # numbers after
@@ -238,7 +238,7 @@ def test_imu_noise_warning_reaches_every_output(paper_log, tmp_path, capsys):
     kinds = [f for f in mjxsysid.check_log(path)]
     assert [f.column for f in kinds] == ["gyro_x/y/z, acc_x/y/z", "a_cmd, omega_cmd_x/y/z"], kinds
     out = tmp_path / "d"
-    assert main(["decode", "--log", str(path), "--samples", "8", "--window", "instant", "--out", str(out), "-q"]) == 0
+    assert main(["decode", "--log", str(path), "--samples", "8", "--window", "instant", "--decoder-only", "--out", str(out), "-q"]) == 0
     err = capsys.readouterr().err
     assert "warning: gyro_x/y/z, acc_x/y/z: IMU noise about" in err
     s = json.loads((out / "summary.json").read_text())

@@ -36,9 +36,10 @@ def add_decode(sub) -> None:
     dc.add_argument("--decoders", type=Path, default=None,
                     help="folder with cfm.npz and regression.npz, and cfm_seq.npz for --window flight|SECONDS "
                          "(default: the policy's shipped decoders)")
-    dc.add_argument("--log-grounded", action="store_true",
-                    help="with --log: also the experimental log-grounded posterior (the log's IMU given its motor "
-                         "commands, the decoded samples as proposal) and the information gap (docs/identify.md)")
+    dc.add_argument("--decoder-only", action="store_true",
+                    help="with --log: report the decoders' posterior alone (default: the log-grounded posterior — "
+                         "the log's IMU given its motor commands, the decoded samples as proposal — with the "
+                         "decoders' beside it and the information gap; docs/identify.md)")
     dc.add_argument("--seed", type=int, default=0)
     dc.add_argument("--video", action="store_true", help="render the true vehicle with decoded ghosts")
     dc.add_argument("--out", type=Path, required=True)
@@ -66,7 +67,7 @@ def cmd_decode(args) -> int:
                              duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
                              decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
                              echo=lambda m: echo(m, file=sys.stderr), segment=args.segment,
-                             log_grounded=args.log_grounded)
+                             decoder_only=args.decoder_only)
     except BaseException:
         if not existed and Path(args.out).is_dir():   # no half-written output folder of this run left behind
             import shutil
@@ -74,6 +75,7 @@ def cmd_decode(args) -> int:
         raise
     print(json.dumps({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES}))
     print(f"wrote {args.out}/decoded.npz, summary.json, marginals.png, decoded_over_time.png"
+          + (", marginals_decoder_only.png, information_gap.png" if "_log_grounded" in summary else "")
           + (", decoded.mp4" if args.video else ""), file=sys.stderr)
     return 0
 

@@ -4,7 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjxsysid.identify.coords import LOG_NAMES, LOG_UNITS, log_quantities
+from mjxsysid.identify.coords import LOG_NAMES, LOG_UNITS, PHYSICAL_PRIOR, PhysicalPrior, log_quantities
+
+UNSEEN_FRACTION = 0.5
+"""A log-grounded 90 % band wider than this share of the prior's range: the log did not see the
+quantity (it stays as broad as the prior says)."""
+
+
+def prior_widths(prior: PhysicalPrior = PHYSICAL_PRIOR) -> np.ndarray:
+    """Each LOG_NAMES quantity's prior range, in the units the gap measures widths in (log for the
+    positive ones, plain for τ_ext/J) -> (13,)."""
+    lo, hi = prior.v_bounds()
+    w = hi - lo
+    rho = np.log(prior.rel_eff[1] / prior.rel_eff[0])
+    return np.array([w[0], w[4], w[5], w[6], w[7], w[8], rho, rho, rho, rho, w[9], w[10], w[11]])
 
 
 def _band(q):
@@ -12,15 +25,32 @@ def _band(q):
     return lo, med, hi
 
 
-def information_gap(decoded_theta, grounded_theta, truth=None) -> dict:
+def log_summary(samples, truth=None) -> dict:
+    """θ samples (S, 19) (+ truth (19,)) -> {quantity of LOG_NAMES: {mean, q05, q95[, true, inside]}},
+    the form of :func:`~mjxsysid.cfm.posterior.summarize_posterior`."""
+    q = log_quantities(samples)
+    lo, hi = np.percentile(q, [5, 95], 0)
+    tq = None if truth is None else log_quantities(np.asarray(truth)[None])[0]
+    out = {}
+    for j, n in enumerate(LOG_NAMES):
+        d = {"mean": float(q[:, j].mean()), "q05": float(lo[j]), "q95": float(hi[j])}
+        if tq is not None:
+            d.update(true=float(tq[j]), inside=bool(lo[j] <= tq[j] <= hi[j]))
+        out[n] = d
+    return out
+
+
+def information_gap(decoded_theta, grounded_theta, truth=None, prior: PhysicalPrior = PHYSICAL_PRIOR) -> dict:
     """Decoded samples θ (S, 19) and log-grounded samples θ (S', 19) (and the truth (19,)) ->
     {quantity: {decoder_q05, decoder_q95, log_q05, log_median, log_q95, width_ratio (decoder
     width / log width; log-scale for positive quantities), decoder_holds_log_median[, true,
-    log_inside, decoder_inside]}}."""
+    log_inside, decoder_inside], prior_fraction (the log band's width over the prior's range),
+    seen_by_log (prior_fraction < :data:`UNSEEN_FRACTION`)}}."""
     qd, qg = log_quantities(decoded_theta), log_quantities(grounded_theta)
     dlo, _, dhi = _band(qd)
     glo, gmed, ghi = _band(qg)
     tq = None if truth is None else log_quantities(np.asarray(truth)[None])[0]
+    pw = prior_widths(prior)
     out = {}
     for j, name in enumerate(LOG_NAMES):
         pos = np.all(qd[:, j] > 0) and np.all(qg[:, j] > 0)
@@ -29,7 +59,9 @@ def information_gap(decoded_theta, grounded_theta, truth=None) -> dict:
         d = {"unit": LOG_UNITS[j], "decoder_q05": float(dlo[j]), "decoder_q95": float(dhi[j]),
              "log_q05": float(glo[j]), "log_median": float(gmed[j]), "log_q95": float(ghi[j]),
              "width_ratio": float(wd / wg) if wg > 0 else float("inf"),
-             "decoder_holds_log_median": bool(dlo[j] <= gmed[j] <= dhi[j])}
+             "decoder_holds_log_median": bool(dlo[j] <= gmed[j] <= dhi[j]),
+             "prior_fraction": float(wg / pw[j])}
+        d["seen_by_log"] = d["prior_fraction"] < UNSEEN_FRACTION
         if tq is not None:
             d.update(true=float(tq[j]), log_inside=bool(glo[j] <= tq[j] <= ghi[j]),
                      decoder_inside=bool(dlo[j] <= tq[j] <= dhi[j]))
@@ -40,12 +72,14 @@ def information_gap(decoded_theta, grounded_theta, truth=None) -> dict:
 def gap_markdown(gap: dict) -> list[str]:
     """The gap as summary.md lines (a table)."""
     has_truth = any("true" in v for v in gap.values())
-    head = "| quantity | decoder 5–95 % | log-grounded 5–95 % (median) | width ratio | decoder holds log median |"
-    lines = [head + (" true |" if has_truth else ""), "|---" * (5 + has_truth) + "|"]
+    head = ("| quantity | decoder 5–95 % | log-grounded 5–95 % (median) | width ratio | decoder holds log median "
+            "| seen by the log |")
+    lines = [head + (" true |" if has_truth else ""), "|---" * (6 + has_truth) + "|"]
     for k, v in gap.items():
         row = (f"| {k} ({v['unit']}) | {v['decoder_q05']:.4g} – {v['decoder_q95']:.4g} | {v['log_q05']:.4g} – "
                f"{v['log_q95']:.4g} ({v['log_median']:.4g}) | {v['width_ratio']:.3g} | "
-               f"{'yes' if v['decoder_holds_log_median'] else 'no'} |")
+               f"{'yes' if v['decoder_holds_log_median'] else 'no'} | "
+               f"{'yes' if v['seen_by_log'] else 'no: as broad as the prior'} |")
         if has_truth:
             row += f" {v['true']:.4g} |"
         lines.append(row)

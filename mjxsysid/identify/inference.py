@@ -1,15 +1,24 @@
 """The log-grounded posterior: the stated physical prior × the log's likelihood, with the decoded
 ensemble as the proposal and a tempered SMC where it misses.
 
-Target (21-d): p(v) p(nuisances) p(log | v, nuisances) (:mod:`.coords`, :mod:`.likelihood`);
-the hidden coordinates h are independent of the log, so θ = θ(v, h) with h drawn from the prior.
+Target: p(v) p(σ, bias) p(log | v, σ, bias; δ, w) (:mod:`.coords`, :mod:`.likelihood`), 17-d: the
+visible coordinates v (12), the IMU noise σ per channel (4) and the accelerometer bias. The
+discrepancy δ per channel and the weights w that discount correlated residuals
+(:func:`~.likelihood.residual_weights`) are set at the joint mode (empirical Bayes: both are
+properties of the log and the model, not of the vehicle, and δ's flat direction below the log's
+resolution would otherwise spoil every proposal). The hidden coordinates h are independent of the
+log, so θ = θ(v, h) with h drawn from the prior.
 
+0. **The mode.** BFGS (optimistix) from a linear least-squares start (at fixed τ_m the rate changes
+   are linear in authority × ρ), from the decoded samples and from prior draws; then δ and w are
+   fixed there and the mode found again in the 17 coordinates.
 1. **Importance sampling from the decoders.** The decoded samples θ (S, 19) mapped to v are
    fitted by a Gaussian (widened by :data:`PROPOSAL_WIDEN`), the nuisances' proposal centred on
    the log's own noise estimate; N draws are weighted by target / proposal. Reported: the
    effective sample size and Pareto k̂ of the weights' upper tail (Vehtari et al., PSIS; the
    generalised-Pareto fit is scipy's). The decoded density is the proposal only, never a factor
    of the target: the latent came from the same log.
+   Then from a Student-t at the mode with the inverse Hessian as its scale (the Laplace proposal).
 2. **Tempered SMC** (blackjax's adaptive tempered SMC, random-walk Metropolis moves whose
    covariance is the particles', re-estimated each stage) when the weights are unreliable
    (ESS < :data:`MIN_ESS_FRACTION` N or k̂ > :data:`MAX_KHAT`): from a mixture of the proposal and
@@ -26,7 +35,10 @@ import numpy as np
 
 from mjxsysid.identify.coords import (N_V, PHYSICAL_PRIOR, PhysicalPrior, hidden_from_theta, theta_from,
                                       visible_from_theta)
-from mjxsysid.identify.likelihood import N_NUIS, LogData, linear_start, log_likelihood, noise_estimate, prepare
+from mjxsysid.identify.likelihood import (N_NUIS, LogData, linear_start, log_likelihood, noise_estimate, prepare,
+                                          residual_weights)
+from mjxsysid.identify.likelihood import NU
+from mjxsysid.identify.likelihood import residuals as residual_fn
 
 PROPOSAL_WIDEN = 1.5
 """The decoded ensemble's Gaussian fit in v is widened by this factor (a defensive proposal)."""
@@ -44,20 +56,7 @@ ACC_BIAS_SD = 0.3
 coefficient), so a flat prior would leave thrust-to-weight to the bias's range."""
 
 
-def _nuis_lo_hi():
-    a, b, c, d, e, f = NUIS_BOUNDS
-    lo = np.array([a] * 4 + [c] * 4 + [e]); hi = np.array([b] * 4 + [d] * 4 + [f])
-    return lo, hi
-
-
-def log_prior(x, prior: PhysicalPrior = PHYSICAL_PRIOR):
-    """log p(x) up to a constant, x (21,) = [v, nuisances]."""
-    lo, hi = _nuis_lo_hi()
-    n = x[N_V:]
-    ok = jnp.all((n >= lo) & (n <= hi))
-    return prior.log_prob_v(x[:N_V]) + jnp.where(ok, 0.0, -jnp.inf) - 0.5 * (x[-1] / ACC_BIAS_SD) ** 2
-
-
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["mean", "chol"], meta_fields=[])
 @dataclasses.dataclass(frozen=True)
 class Gaussian:
     """A multivariate normal (mean (d,), chol (d, d) lower)."""
@@ -75,6 +74,30 @@ class Gaussian:
         return -0.5 * jnp.sum(z * z, -1) - logdet - 0.5 * len(self.mean) * np.log(2 * np.pi)
 
 
+@functools.partial(jax.tree_util.register_dataclass, data_fields=["mean", "chol"], meta_fields=["df"])
+@dataclasses.dataclass(frozen=True)
+class StudentT:
+    """A multivariate Student-t (location (d,), chol (d, d) of the scale, ``df``)."""
+    mean: np.ndarray
+    chol: np.ndarray
+    df: float = 5.0
+
+    def sample(self, key, n):
+        k1, k2 = jax.random.split(key)
+        z = jax.random.normal(k1, (n, len(self.mean)), jnp.float32)
+        g = jax.random.gamma(k2, self.df / 2, (n, 1)) / (self.df / 2)
+        return np.asarray(self.mean + (z / jnp.sqrt(g)) @ jnp.asarray(self.chol, jnp.float32).T, np.float32)
+
+    def log_prob(self, x):
+        d = len(self.mean)
+        z = jax.scipy.linalg.solve_triangular(jnp.asarray(self.chol, jnp.float32),
+                                              (x - jnp.asarray(self.mean, jnp.float32)).T, lower=True).T
+        logdet = jnp.sum(jnp.log(jnp.diag(jnp.asarray(self.chol, jnp.float32))))
+        c = (jax.scipy.special.gammaln((self.df + d) / 2) - jax.scipy.special.gammaln(self.df / 2)
+             - d / 2 * jnp.log(self.df * jnp.pi))
+        return c - logdet - (self.df + d) / 2 * jnp.log1p(jnp.sum(z * z, -1) / self.df)
+
+
 def decoded_proposal(decoded_theta, prior: PhysicalPrior = PHYSICAL_PRIOR, widen: float = PROPOSAL_WIDEN):
     """A Gaussian in v fitted to the decoded samples θ (S, 19) inside the prior (None if fewer than
     N_V + 2 of them are)."""
@@ -89,11 +112,10 @@ def decoded_proposal(decoded_theta, prior: PhysicalPrior = PHYSICAL_PRIOR, widen
 
 
 def nuisance_proposal(data: LogData) -> Gaussian:
-    """log σ near the second differences' estimate, log δ broad, the bias near 0."""
+    """log σ (4) near the second differences' estimate, the bias (1) near 0."""
     sig = np.maximum(noise_estimate(data), 1e-6)
-    mean = np.concatenate([np.log(sig), np.log(np.maximum(sig, 1e-3)) + 1.0, [0.0]])
-    sd = np.concatenate([np.full(4, 0.3), np.full(4, 2.5), [0.5]])
-    return Gaussian(mean, np.diag(sd))
+    mean = np.concatenate([np.log(sig), [0.0]]).astype(np.float32)
+    return Gaussian(mean, np.diag(np.array([0.2] * 4 + [ACC_BIAS_SD], np.float32)))
 
 
 def pareto_khat(log_w) -> float:
@@ -123,32 +145,209 @@ def ess(log_w) -> float:
     return float(w.sum() ** 2 / (w * w).sum())
 
 
+N_Y = N_V + 5
+"""The sampled coordinates: v (12), log σ (4), acc_z bias."""
+
+
+def _nuis_lo_hi():
+    a, b, c, d, e, f = NUIS_BOUNDS
+    return np.array([a] * 4 + [c] * 4 + [e]), np.array([b] * 4 + [d] * 4 + [f])
+
+
+def _y_lo_hi(prior):
+    lo, hi = prior.v_bounds()
+    nlo, nhi = _nuis_lo_hi()
+    return np.concatenate([lo, nlo[:4], nlo[8:]]), np.concatenate([hi, nhi[:4], nhi[8:]])
+
+
+def full_x(y, log_delta):
+    """y (..., 17) and log δ (4,) -> x (..., 21) = [v, log σ, log δ, bias]."""
+    y = jnp.asarray(y)
+    ld = jnp.broadcast_to(jnp.asarray(log_delta, y.dtype), y.shape[:-1] + (4,))
+    return jnp.concatenate([y[..., :N_V + 4], ld, y[..., N_V + 4:]], -1)
+
+
+def log_prior(x, prior: PhysicalPrior = PHYSICAL_PRIOR):
+    """log p(x) up to a constant, x (21,) = [v, log σ, log δ, bias]: the physical prior, uniform
+    nuisances, the bias N(0, :data:`ACC_BIAS_SD`²)."""
+    lo, hi = _nuis_lo_hi()
+    n = x[N_V:]
+    ok = jnp.all((n >= lo) & (n <= hi))
+    return prior.log_prob_v(x[:N_V]) + jnp.where(ok, 0.0, -jnp.inf) - 0.5 * (x[-1] / ACC_BIAS_SD) ** 2
+
+
+def _log_target_y(y, data, log_delta, weights, prior):
+    x = full_x(y, log_delta)
+    lp = log_prior(x, prior)
+    ll = log_likelihood(x, data, weights)
+    return jnp.where(jnp.isfinite(lp) & jnp.isfinite(ll), lp + ll, -jnp.inf)
+
+
 @functools.partial(jax.jit, static_argnames=("prior",))
-def _batch_log_target(x, data, prior):
-    lp = jax.vmap(lambda z: log_prior(z, prior))(x)
-    ll = jax.vmap(lambda z: log_likelihood(z, data))(x)
-    return jnp.where(jnp.isfinite(lp), lp + jnp.where(jnp.isfinite(ll), ll, -jnp.inf), -jnp.inf)
+def _batch_log_target(y, data, log_delta, weights, prior):
+    return jax.vmap(lambda z: _log_target_y(z, data, log_delta, weights, prior))(y)
 
 
-def log_target(x, data: LogData, prior: PhysicalPrior = PHYSICAL_PRIOR):
-    """log prior + log likelihood of a batch x (N, 21) -> (N,), in one jitted call."""
-    return _batch_log_target(jnp.asarray(x, jnp.float32), data, prior)
+def log_target(y, data: LogData, log_delta=None, weights=None, prior: PhysicalPrior = PHYSICAL_PRIOR):
+    """log prior + log likelihood of a batch y (N, 17) -> (N,), one jitted call (log δ (4,)
+    default 1e-4; weights (4,) default 1)."""
+    ld = jnp.full(4, np.log(1e-4), jnp.float32) if log_delta is None else jnp.asarray(log_delta, jnp.float32)
+    w = jnp.ones(4, jnp.float32) if weights is None else jnp.asarray(weights, jnp.float32)
+    return _batch_log_target(jnp.asarray(y, jnp.float32), data, ld, w, prior)
 
 
-def _mixture_log_prob(x, qv: Gaussian | None, qn: Gaussian, prior: PhysicalPrior, share: float, lap=None):
-    """log density of the SMC's starting mixture: ``share`` prior, the rest split between the
-    decoded proposal ``qv`` and the Laplace proposal ``lap`` (the nuisances from ``qn`` in the
-    first two components, from ``lap`` in the last)."""
+def _objective_x(x, data):
+    """−(log likelihood + the bias prior) of x (21,): smooth (the prior's box is checked after)."""
+    return -(log_likelihood(x, data) - 0.5 * (x[-1] / ACC_BIAS_SD) ** 2)
+
+
+def _objective_y(y, args):
+    data, ld, w = args
+    x = full_x(y, ld)
+    return -(log_likelihood(x, data, w) - 0.5 * (x[-1] / ACC_BIAS_SD) ** 2)
+
+
+@functools.partial(jax.jit, static_argnames=("max_steps",))
+def _fit_x(starts, data, max_steps=400):
+    """BFGS (optimistix) from each start (K, 21) -> optima (K, 21)."""
+    import optimistix as optx
+    solver = optx.BFGS(rtol=1e-7, atol=1e-7)
+    return jax.vmap(lambda x0: optx.minimise(lambda x, d: _objective_x(x, d), solver, x0, args=data,
+                                             max_steps=max_steps, throw=False).value)(starts)
+
+
+@functools.partial(jax.jit, static_argnames=("max_steps",))
+def _fit_y(y0, data, ld, w, max_steps=400):
+    import optimistix as optx
+    return optx.minimise(_objective_y, optx.BFGS(rtol=1e-8, atol=1e-8), y0, args=(data, ld, w),
+                         max_steps=max_steps, throw=False).value
+
+
+@jax.jit
+def _hessian_y(y, data, ld, w):
+    return jax.hessian(_objective_y)(y, (data, ld, w))
+
+
+def _project(x, prior):
+    """Optima (K, 21) into the prior's support: the box, and J's triangle inequality
+    (A_z no smaller than 1 / (1/A_x + 1/A_y))."""
+    lo, hi = prior.v_bounds()
+    nlo, nhi = _nuis_lo_hi()
+    lo, hi = np.concatenate([lo, nlo]), np.concatenate([hi, nhi])
+    eps = 1e-4 * (hi - lo)
+    x = np.clip(np.asarray(x, np.float64), lo + eps, hi - eps)
+    x[:, 7] = np.maximum(x[:, 7], -np.log(np.exp(-x[:, 5]) + np.exp(-x[:, 6])) + 1e-4)
+    r4 = 4.0 - x[:, 1:4].sum(1)
+    bad = (r4 < prior.rel_eff[0]) | (r4 > prior.rel_eff[1])
+    x[bad, 1:4] = 1.0
+    return x.astype(np.float32)
+
+
+@functools.partial(jax.jit, static_argnames=("max_steps",))
+def _fit_y_many(y0, data, ld, w, max_steps=400):
+    """BFGS (optimistix) over y from each start (K, 17), δ and w fixed -> optima (K, 17)."""
+    import optimistix as optx
+    solver = optx.BFGS(rtol=1e-8, atol=1e-8)
+    return jax.vmap(lambda y: optx.minimise(_objective_y, solver, y, args=(data, ld, w), max_steps=max_steps,
+                                            throw=False).value)(y0)
+
+
+def _ls_residuals(z, args):
+    """Standardised residuals for the least-squares stage: z (13,) = [v, bias], σ fixed in ``args``."""
+    data, ld, ls = args
+    x = jnp.concatenate([z[:N_V], ls, ld, z[N_V:]])
+    rg, ra, scale = residual_fn(x, data)
+    u = data.use
+    return jnp.concatenate([(rg * (u[:3] / scale[:3])).ravel(), ra * (u[3] / scale[3]), z[N_V:] / ACC_BIAS_SD])
+
+
+@functools.partial(jax.jit, static_argnames=("max_steps",))
+def _fit_ls_many(z0, data, ld, ls, max_steps=200):
+    """Levenberg–Marquardt (optimistix) on the standardised residuals from each start (K, 13)."""
+    import optimistix as optx
+    solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)
+    return jax.vmap(lambda z: optx.least_squares(_ls_residuals, solver, z, args=(data, ld, ls), max_steps=max_steps,
+                                                 throw=False).value)(z0)
+
+
+@jax.jit
+def _ls_jacobian(z, args, w):
+    """Jacobian of the standardised residuals, each channel's × √w (the tempering), at z (13,)."""
+    data = args[0]
+    nw = data.dgyro.shape[0]
+    sw = jnp.concatenate([jnp.repeat(jnp.sqrt(w[None, :3]), nw, 0).ravel(), jnp.full(data.acc.shape[0], jnp.sqrt(w[3])),
+                          jnp.ones(1)])
+    return jax.jacfwd(lambda q: _ls_residuals(q, args) * sw)(z)
+
+
+def _discrepancy(y, data, ld):
+    """δ per channel (4,) at y: what the residuals' mean square leaves beyond the noise and the
+    resolution (at least 1e-6)."""
+    from mjxsysid.identify.likelihood import RESOLUTION
+    rg, ra, _ = residual_fn(np.asarray(full_x(jnp.asarray(y)[None], ld))[0], data)
+    ms = np.array([np.mean(np.asarray(rg[:, k]) ** 2) for k in range(3)] + [np.mean(np.asarray(ra) ** 2)])
+    noise = np.asarray(data.kvar) * np.exp(2 * np.asarray(y[N_V:N_V + 4], np.float64)) + RESOLUTION.astype(np.float64) ** 2
+    return np.log(np.sqrt(np.maximum(ms - noise, 1e-12))).astype(np.float32)
+
+
+def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3):
+    """The mode from ``starts`` (K, 21) -> (x* (21,), log δ* (4,), weights (4,), y* (17,), the
+    Laplace Student-t at y*). δ is fixed while v, σ and the bias are fitted (BFGS from every start),
+    then set from the best fit's residuals, ``rounds`` times (δ free in the same fit would let a
+    poor start explain the rates as discrepancy and stay there); then the correlation discounts w
+    are set and the mode fitted once more."""
+    starts = np.asarray(starts, np.float32)
+    ys = np.concatenate([starts[:, :N_V + 4], starts[:, N_V + 8:]], 1)
+    ld = starts[0, N_V + 4:N_V + 8].astype(np.float32)
+    ones = jnp.ones(4, jnp.float32)
+    ls = ys[0, N_V:N_V + 4]
+    for r in range(rounds):
+        z = np.concatenate([ys[:, :N_V], ys[:, N_V + 4:]], 1)
+        z = np.asarray(_fit_ls_many(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls)))
+        fits = np.concatenate([z[:, :N_V], np.broadcast_to(ls, (len(z), 4)), z[:, N_V:]], 1)
+        fits = _project(np.asarray(full_x(fits, ld)), prior)
+        fits = np.concatenate([fits[:, :N_V + 4], fits[:, N_V + 8:]], 1)
+        lt = np.asarray(log_target(fits, data, ld, None, prior))
+        best = fits[int(np.argmax(np.where(np.isfinite(lt), lt, -np.inf)))]
+        ld = np.clip(_discrepancy(best, data, ld), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
+        ys = best[None] if r < rounds - 1 else ys
+    w = residual_weights(np.asarray(full_x(jnp.asarray(best)[None], ld))[0], data)
+    y = best
+    # Gauss–Newton precision of the tempered Student-t residuals at the least-squares mode (Fisher
+    # information (ν+1)/(ν+3) per standardised residual); σ's from its second differences (2 n per log σ)
+    z = jnp.concatenate([jnp.asarray(y[:N_V]), jnp.asarray(y[N_V + 4:])])
+    args = (data, jnp.asarray(ld), jnp.asarray(y[N_V:N_V + 4]))
+    jac = np.asarray(_ls_jacobian(z, args, jnp.asarray(w)), np.float64)
+    pz = (NU + 1) / (NU + 3) * jac.T @ jac
+    h = np.zeros((N_Y, N_Y))
+    iz = np.r_[0:N_V, N_V + 4]
+    h[np.ix_(iz, iz)] = pz
+    h[N_V:N_V + 4, N_V:N_V + 4] = np.diag(2.0 * np.asarray(data.n2, np.float64))
+    h = np.nan_to_num(0.5 * (h + h.T), nan=0.0, posinf=1e12, neginf=-1e12)
+    ev, u = np.linalg.eigh(h)
+    ev = np.clip(ev, 1e-9 + 1e-9 * max(ev.max(), 1e-12), None)      # flat directions: broad, not infinite
+    lo, hi = _y_lo_hi(prior)
+    prec = (u * ev) @ u.T + np.diag(1.0 / ((hi - lo) / 2) ** 2)        # no wider than the prior's box
+    cov = np.linalg.inv(prec)
+    lap = StudentT(y.astype(np.float32), (np.linalg.cholesky(0.5 * (cov + cov.T)) * LAPLACE_WIDEN).astype(np.float32))
+    return np.asarray(full_x(jnp.asarray(y)[None], ld))[0], ld, w, y, lap
+
+
+LAPLACE_WIDEN = 1.2
+"""The Laplace Student-t's scale is the inverse Hessian's × this (a defensive proposal)."""
+
+
+def _mixture_log_prob(y, qv, qn, lap, prior: PhysicalPrior, share: float):
+    """log density of the SMC's starting mixture over y (17,): ``share`` prior (v; the nuisances from
+    ``qn``), the rest split between the decoded proposal ``qv`` (with ``qn``) and ``lap``."""
     lo, hi = prior.v_bounds()
     vol = float(np.sum(np.log(hi - lo)))   # the box's volume (the truncation only adds a constant)
-    lp_prior = jnp.where(prior.v_valid(x[..., :N_V]), -vol, -jnp.inf) + qn.log_prob(x[..., N_V:])
-    comps = [jnp.log(share) + lp_prior] if share > 0 else []
-    rest = 1.0 - share
+    comps = [jnp.log(share) + jnp.where(prior.v_valid(y[..., :N_V]), -vol, -jnp.inf) + qn.log_prob(y[..., N_V:])]
     k = (qv is not None) + (lap is not None)
     if qv is not None:
-        comps.append(jnp.log(rest / k) + qv.log_prob(x[..., :N_V]) + qn.log_prob(x[..., N_V:]))
+        comps.append(jnp.log((1 - share) / k) + qv.log_prob(y[..., :N_V]) + qn.log_prob(y[..., N_V:]))
     if lap is not None:
-        comps.append(jnp.log(rest / k) + lap.log_prob(x))
+        comps.append(jnp.log((1 - share) / k) + lap.log_prob(y))
     out = comps[0]
     for c in comps[1:]:
         out = jnp.logaddexp(out, c)
@@ -156,48 +355,36 @@ def _mixture_log_prob(x, qv: Gaussian | None, qn: Gaussian, prior: PhysicalPrior
 
 
 @functools.partial(jax.jit, static_argnames=("prior", "n_mcmc", "max_stages", "share", "target_ess"))
-def _smc(key, x0, data, qv_mean, qv_chol, qn_mean, qn_chol, prior, n_mcmc, max_stages, share, target_ess,
-         lap_mean=None, lap_chol=None):
+def _smc(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, share, target_ess):
     import blackjax
     from blackjax.mcmc.random_walk import build_additive_step, normal
     from blackjax.smc.base import extend_params
 
-    qv = None if qv_mean is None else Gaussian(qv_mean, qv_chol)
-    qn = Gaussian(qn_mean, qn_chol)
-    lap = None if lap_mean is None else StudentT(lap_mean, lap_chol)
+    def logq(y):
+        return _mixture_log_prob(y, qv, qn, lap, prior, share)
 
-    def logq(x):
-        return _mixture_log_prob(x, qv, qn, prior, share, lap)
-
-    def logrest(x):   # target / q: what the tempering brings in
-        lt = log_prior(x, prior) + log_likelihood(x, data)
-        lt = jnp.where(jnp.isfinite(lt), lt, -jnp.inf)
-        return jnp.where(jnp.isfinite(lt), lt - logq(x), -1e30)
+    def logrest(y):   # target / q: what the tempering brings in
+        lt = _log_target_y(y, data, ld, w, prior)
+        return jnp.where(jnp.isfinite(lt), lt - logq(y), -1e30)
 
     rw = build_additive_step()
 
     def step(rng, state, logdensity_fn, chol):
         return rw(rng, state, logdensity_fn, normal(chol))
 
-    d = x0.shape[1]
+    dim = y0.shape[1]
 
-    def update(_key, state, info):
-        p = state.particles
-        cov = jnp.cov(p.T) + 1e-8 * jnp.eye(d)
-        return extend_params({"chol": 2.38 / jnp.sqrt(d) * jnp.linalg.cholesky(cov)})
+    def chol_of(p):
+        return 2.38 / jnp.sqrt(dim) * jnp.linalg.cholesky(jnp.cov(p.T) + 1e-8 * jnp.eye(dim))
 
-    cov0 = jnp.cov(x0.T) + 1e-8 * jnp.eye(d)
     smc = blackjax.inner_kernel_tuning(
         smc_algorithm=blackjax.adaptive_tempered_smc, logprior_fn=logq, loglikelihood_fn=logrest,
         mcmc_step_fn=step, mcmc_init_fn=blackjax.rmh.init, resampling_fn=blackjax.smc.resampling.systematic,
-        mcmc_parameter_update_fn=update,
-        initial_parameter_value=extend_params({"chol": 2.38 / jnp.sqrt(d) * jnp.linalg.cholesky(cov0)}),
-        num_mcmc_steps=n_mcmc, target_ess=target_ess)
-    state = smc.init(x0)
+        mcmc_parameter_update_fn=lambda _k, state, _i: extend_params({"chol": chol_of(state.particles)}),
+        initial_parameter_value=extend_params({"chol": chol_of(y0)}), num_mcmc_steps=n_mcmc, target_ess=target_ess)
 
     def cond(c):
-        s, i, _, _ = c
-        return (s.sampler_state.tempering_param < 1.0) & (i < max_stages)
+        return (c[0].sampler_state.tempering_param < 1.0) & (c[1] < max_stages)
 
     def body(c):
         s, i, k, acc = c
@@ -205,183 +392,91 @@ def _smc(key, x0, data, qv_mean, qv_chol, qn_mean, qn_chol, prior, n_mcmc, max_s
         s, info = smc.step(sub, s)
         return s, i + 1, k, acc + jnp.mean(info.update_info.is_accepted)
 
-    state, n, _, acc = jax.lax.while_loop(cond, body, (state, 0, key, 0.0))
-    return state.sampler_state.particles, state.sampler_state.weights, state.sampler_state.tempering_param, n, acc / jnp.maximum(n, 1)
+    state, n, _, acc = jax.lax.while_loop(cond, body, (smc.init(y0), 0, key, 0.0))
+    st = state.sampler_state
+    return st.particles, st.weights, st.tempering_param, n, acc / jnp.maximum(n, 1)
 
 
-@dataclasses.dataclass(frozen=True)
-class StudentT:
-    """A multivariate Student-t (location (d,), chol (d, d) of the scale, ``df``)."""
-    mean: np.ndarray
-    chol: np.ndarray
-    df: float = 5.0
-
-    def sample(self, key, n):
-        k1, k2 = jax.random.split(key)
-        z = jax.random.normal(k1, (n, len(self.mean)), jnp.float32)
-        g = jax.random.gamma(k2, self.df / 2, (n, 1)) / (self.df / 2)
-        return np.asarray(self.mean + (z / jnp.sqrt(g)) @ jnp.asarray(self.chol, jnp.float32).T, np.float32)
-
-    def log_prob(self, x):
-        d = len(self.mean)
-        z = jax.scipy.linalg.solve_triangular(jnp.asarray(self.chol, jnp.float32),
-                                              (x - jnp.asarray(self.mean, jnp.float32)).T, lower=True).T
-        logdet = jnp.sum(jnp.log(jnp.diag(jnp.asarray(self.chol, jnp.float32))))
-        c = (jax.scipy.special.gammaln((self.df + d) / 2) - jax.scipy.special.gammaln(self.df / 2)
-             - d / 2 * jnp.log(self.df * jnp.pi))
-        return c - logdet - (self.df + d) / 2 * jnp.log1p(jnp.sum(z * z, -1) / self.df)
+def _is(x, logq, data, ld, w, prior):
+    lw = np.asarray(log_target(x, data, ld, w, prior), np.float64) - np.asarray(logq, np.float64)
+    e = ess(lw)
+    return lw, {"ess": e, "ess_fraction": e / len(x), "khat": pareto_khat(lw)}
 
 
-def _objective(x, data):
-    """What the optimiser minimises: −(log likelihood + the bias prior), smooth (the prior's box
-    is checked on the result, not imposed)."""
-    return -(log_likelihood(x, data) - 0.5 * (x[-1] / ACC_BIAS_SD) ** 2)
-
-
-@functools.partial(jax.jit, static_argnames=("max_steps",))
-def _fit_modes(starts, data, max_steps=400):
-    """BFGS (optimistix) from each start (K, 21) -> optima (K, 21), objective values (K,)."""
-    import optimistix as optx
-
-    def one(x0):
-        sol = optx.minimise(lambda x, d: _objective(x, d), optx.BFGS(rtol=1e-7, atol=1e-7), x0, args=data,
-                            max_steps=max_steps, throw=False)
-        return sol.value, _objective(sol.value, data)
-
-    return jax.vmap(one)(starts)
-
-
-@jax.jit
-def _hessian(x, data):
-    return jax.hessian(_objective)(x, data)
-
-
-def laplace_proposal(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, widen: float = 1.3):
-    """The mode of the target found by BFGS from ``starts`` (K, 21) and a Student-t around it with
-    the inverse Hessian as its scale (× ``widen``) -> (StudentT or None, the mode, its objective)."""
-    xs, fs = _fit_modes(jnp.asarray(starts, jnp.float32), data)
-    lo, hi = _box(prior)
-    eps = 1e-4 * (hi - lo)
-    xs = np.clip(np.asarray(xs), lo + eps, hi - eps)   # an optimum past the box's edge: its edge
-    # and J's triangle inequality: A_z no smaller than 1 / (1/A_x + 1/A_y)
-    xs[:, 7] = np.maximum(xs[:, 7], -np.log(np.exp(-xs[:, 5]) + np.exp(-xs[:, 6])) + 1e-4)
-    lt = np.asarray(log_target(xs, data, prior))
-    ok = np.isfinite(lt)
-    if not ok.any():
-        return None, None, None
-    best = xs[np.argmax(np.where(ok, lt, -np.inf))]
-    h = np.asarray(_hessian(jnp.asarray(best), data), np.float64)
-    h = np.nan_to_num(0.5 * (h + h.T), nan=0.0, posinf=1e12, neginf=-1e12)
-    w, u = np.linalg.eigh(h)
-    w = np.clip(w, 1e-6 * max(w.max(), 1e-12) + 1e-9, None)       # flat directions: broad, not infinite
-    cov = (u / w) @ u.T
-    lo, hi = _box(prior)
-    span = np.diag(((hi - lo) / 2) ** 2)
-    cov = np.linalg.inv(np.linalg.inv(cov) + np.linalg.inv(span))  # no wider than the prior's box
-    return StudentT(best, np.linalg.cholesky(cov) * widen), best, float(lt.max())
-
-
-def _box(prior):
-    lo, hi = prior.v_bounds()
-    nlo, nhi = _nuis_lo_hi()
-    return np.concatenate([lo, nlo]), np.concatenate([hi, nhi])
-
-
-def _weights(x, logq, data, prior):
-    lw = np.asarray(log_target(x, data, prior), np.float64) - np.asarray(logq, np.float64)
-    return lw, ess(lw), pareto_khat(lw)
+def _reliable(diag) -> bool:
+    return diag["ess_fraction"] >= MIN_ESS_FRACTION and diag["khat"] <= MAX_KHAT
 
 
 def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                            samples: int = 1000, draws: int = 4096, particles: int = 2048, seed: int = 0,
-                           n_mcmc: int = 6, max_stages: int = 200, starts: int = 16,
+                           n_mcmc: int = 8, max_stages: int = 200, starts: int = 12,
                            force_smc: bool = False) -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
-    samples of this log, or None — as the proposal.
-
-    1. the decoded ensemble as the proposal (a Gaussian fit in v, the nuisances near the log's
-       noise estimate): importance weights, their ESS and Pareto k̂ (``decoded_is``): how far the
-       policy's knowledge is from what the log shows;
-    2. the target's mode by BFGS (optimistix) started from the decoded samples (and prior draws),
-       a Student-t at the inverse Hessian there as the refined proposal: importance weights again
-       (``laplace_is``);
-    3. if neither proposal's weights are reliable (ESS < :data:`MIN_ESS_FRACTION` of the draws or
-       k̂ > :data:`MAX_KHAT`), or ``force_smc``, a tempered SMC (blackjax) from a mixture of the
-       proposals and the prior.
+    samples of this log, or None — as the proposal (module doc).
 
     -> dict: ``theta`` (samples, 19) (hidden coordinates drawn from the prior), ``v`` (samples, 12),
-    ``nuisance`` (samples, 9), ``method`` ('decoded_is', 'laplace_is' or 'smc'), ``decoded_is`` and
-    ``laplace_is`` ({ess, ess_fraction, khat}), ``mode`` (21,) and for SMC ``smc_stages``,
-    ``smc_acceptance``, ``smc_tempering`` (1 when it reached the target)."""
+    ``nuisance`` (samples, 9: log σ (4), log δ (4, fixed), bias), ``method`` ('decoded_is',
+    'laplace_is' or 'smc'), ``decoded_is`` / ``laplace_is`` ({ess, ess_fraction, khat}),
+    ``weights`` (4,) the channels' correlation discounts, ``mode`` (21,), ``channels_used`` (4,),
+    and for SMC ``smc_stages``, ``smc_acceptance``, ``smc_tempering`` (1 when it reached the target)."""
     data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data)
     key = jax.random.PRNGKey(seed)
     k_is, k_n, k_smc, k_mix, k_h, k_res, k_st, k_lp = jax.random.split(key, 8)
     qv = None if decoded_theta is None else decoded_proposal(decoded_theta, prior)
     qn = nuisance_proposal(data)
-    out = {"proposal": "decoded" if qv is not None else "prior"}
-    chosen = None
-    if qv is not None:
-        x = np.concatenate([qv.sample(k_is, draws), qn.sample(k_n, draws)], 1)
-        lw, e, kh = _weights(x, qv.log_prob(x[:, :N_V]) + qn.log_prob(x[:, N_V:]), data, prior)
-        out["decoded_is"] = {"ess": e, "ess_fraction": e / draws, "khat": kh}
-        if e / draws >= MIN_ESS_FRACTION and kh <= MAX_KHAT and not force_smc:
-            chosen = ("decoded_is", x, lw)
-    # starting points of the optimiser: the decoded samples' v (the policy's knowledge), prior draws
-    n_dec = 0 if qv is None else starts // 2
-    sv = [prior.sample_v(k_st, starts - n_dec)]
-    if n_dec:
-        sv.insert(0, qv.sample(k_st, n_dec) if decoded_theta is None else
-                  np.asarray(visible_from_theta(np.asarray(decoded_theta)[:n_dec]), np.float32))
-    sv = np.concatenate(sv)
-    sn = np.broadcast_to(qn.mean, (len(sv), len(qn.mean)))
+    # 0. the mode: a linear start, the decoded samples, prior draws
     x_lin = linear_start(data)
-    st = np.concatenate([x_lin[None], np.concatenate([sv, sn], 1)[:starts - 1]]).astype(np.float32)
-    lap, mode, _ = laplace_proposal(data, st, prior)
-    out["mode"] = mode
-    if chosen is None and lap is not None:
-        x = lap.sample(k_lp, draws)
-        lw, e, kh = _weights(x, lap.log_prob(x), data, prior)
-        out["laplace_is"] = {"ess": e, "ess_fraction": e / draws, "khat": kh}
-        if e / draws >= MIN_ESS_FRACTION and kh <= MAX_KHAT and not force_smc:
-            chosen = ("laplace_is", x, lw)
+    sv = [prior.sample_v(k_st, max(starts // 3, 1))]
+    if decoded_theta is not None:
+        dv = np.asarray(visible_from_theta(np.asarray(decoded_theta, np.float32)), np.float32)
+        dv = dv[np.all(np.isfinite(dv), 1) & np.asarray(prior.v_valid(dv))][: starts - len(sv[0]) - 1]
+        sv.append(dv)
+    sv = np.concatenate(sv)
+    st = np.concatenate([x_lin[None], np.concatenate([sv, np.broadcast_to(x_lin[N_V:], (len(sv), N_NUIS))], 1)])
+    mode, ld, w, y_star, lap = find_mode(data, st.astype(np.float32), prior)
+    out = {"proposal": "decoded" if qv is not None else "prior", "mode": mode, "weights": w,
+           "channels_used": np.asarray(data.use)}
+    chosen = None
+    # 1. the decoded ensemble as the proposal
+    if qv is not None:
+        y = np.concatenate([qv.sample(k_is, draws), qn.sample(k_n, draws)], 1)
+        lw, out["decoded_is"] = _is(y, qv.log_prob(y[:, :N_V]) + qn.log_prob(y[:, N_V:]), data, ld, w, prior)
+        if _reliable(out["decoded_is"]) and not force_smc:
+            chosen = ("decoded_is", y, lw)
+    if chosen is None:
+        y = lap.sample(k_lp, draws)
+        lw, out["laplace_is"] = _is(y, lap.log_prob(y), data, ld, w, prior)
+        if _reliable(out["laplace_is"]) and not force_smc:
+            chosen = ("laplace_is", y, lw)
     if chosen is not None:
-        name, x, lw = chosen
-        w = np.exp(lw - lw.max())
-        idx = np.asarray(jax.random.choice(k_res, len(x), (samples,), p=jnp.asarray(w / w.sum())))
-        xs = x[idx]
+        name, y, lw = chosen
+        p = np.exp(lw - lw.max())
+        idx = np.asarray(jax.random.choice(k_res, len(y), (samples,), p=jnp.asarray(p / p.sum())))
+        ys = y[idx]
         out["method"] = name
-    else:
-        share = PRIOR_SHARE if qv is not None or lap is not None else 1.0
-        n_prior = int(round(share * particles))
-        xv = [prior.sample_v(k_mix, n_prior)]
+    else:   # 2. tempered SMC from a mixture of the proposals and the prior
+        n_prior = int(round(PRIOR_SHARE * particles))
+        parts = [np.concatenate([prior.sample_v(k_mix, n_prior), qn.sample(k_n, n_prior)], 1)]
         rest = particles - n_prior
-        if lap is not None:
-            n_lap = rest if qv is None else rest // 2
-            xl = lap.sample(k_lp, n_lap)
-            xv.append(xl[:, :N_V])
-            rest -= n_lap
-        if rest:
-            xv.append(qv.sample(k_is, rest))
-        x0 = np.concatenate([np.concatenate(xv), qn.sample(k_n, particles)], 1).astype(np.float32)
-        qs = qv if qv is not None else None
-        parts, wts, lam, n, acc = _smc(k_smc, jnp.asarray(x0), data, None if qs is None else qs.mean,
-                                       None if qs is None else qs.chol, qn.mean, qn.chol, prior, n_mcmc,
-                                       max_stages, float(share), 0.5,
-                                       None if lap is None else lap.mean, None if lap is None else lap.chol)
+        n_lap = rest if qv is None else rest // 2
+        parts.append(lap.sample(k_lp, n_lap))
+        if rest - n_lap:
+            parts.append(np.concatenate([qv.sample(k_is, rest - n_lap), qn.sample(k_n, rest - n_lap)], 1))
+        y0 = jnp.asarray(np.concatenate(parts), jnp.float32)
+        pts, wts, lam, n, acc = _smc(k_smc, y0, data, jnp.asarray(ld), jnp.asarray(w), qv, qn, lap, prior,
+                                     n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
         wts = np.asarray(wts, np.float64)
         idx = np.asarray(jax.random.choice(k_res, particles, (samples,), p=jnp.asarray(wts / wts.sum())))
-        xs = np.asarray(parts)[idx]
+        ys = np.asarray(pts)[idx]
         out.update(method="smc", smc_stages=int(n), smc_acceptance=float(acc), smc_tempering=float(lam))
-    v, nuis = xs[:, :N_V], xs[:, N_V:]
+    xs = np.asarray(full_x(ys, ld))
+    v = xs[:, :N_V]
     h = prior.sample_h(k_h, samples)
-    out.update(v=v, nuisance=nuis, theta=np.asarray(theta_from(v, h), np.float32))
+    out.update(v=v, nuisance=xs[:, N_V:], theta=np.asarray(theta_from(v, h), np.float32))
     return out
 
 
 def visible_truth(theta):
     """The visible and hidden coordinates of a known θ (19,) -> (v (12,), h (7,))."""
     return np.asarray(visible_from_theta(theta)), np.asarray(hidden_from_theta(theta))
-
-
-__all__ = ["log_grounded_posterior", "log_target", "decoded_proposal", "pareto_khat", "ess", "N_NUIS"]

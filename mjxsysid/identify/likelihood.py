@@ -47,6 +47,11 @@ ACC_BLOCK_STEPS = 250
 largest unmodelled term, drag (−D_z v_z / m, the velocity not in an IMU log), varies over the
 manoeuvre's seconds, not the 20 ms windows; residuals of 20 ms would be strongly correlated and
 the thrust-to-weight overconfident."""
+MIN_MOTOR_RATE_HZ = 100.0
+"""Hz: motor commands logged more sparsely than this (PX4's default 10 Hz) are interpolated
+linearly between their samples for the thrust, and the rate windows are not used: a rotor follows
+its command within tens of ms, so 20 ms rate changes cannot be explained by commands 100 ms apart
+(τ_m and the authorities then stay as broad as the prior, and the posterior says so)."""
 MAX_WINDOWS = 3000
 """Windows used at most (evenly spaced over a longer log): the cost stays bounded."""
 SKIP_S = 0.2
@@ -75,7 +80,9 @@ class LogData:
     end-of-step s_i² over each accelerometer block (:data:`ACC_BLOCK_STEPS`); dgyro (W, 3) measured rate change; gyq (W, 3) ∫ of the
     gyroscopic products (ω_y ω_z, ω_z ω_x, ω_x ω_y) over each window; acc (Wa,) mean measured
     acc_z per block; span () s per window; kvar (4,) the noise-variance factor per channel; n2 (4,),
-    s2 (4,) count and sum of squares of the channels' second differences (trimmed)."""
+    s2 (4,) count and sum of squares of the channels' second differences (trimmed); use (4,) 1 for
+    a channel the likelihood reads, 0 for one it cannot (the rates when the motors were logged
+    below :data:`MIN_MOTOR_RATE_HZ`)."""
     log_tau: jax.Array
     fg: jax.Array
     fa: jax.Array
@@ -86,6 +93,7 @@ class LogData:
     kvar: jax.Array
     n2: jax.Array
     s2: jax.Array
+    use: jax.Array
 
 
 def _lag_features(u, taus):
@@ -129,6 +137,12 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     imu = np.asarray(rec["imu"], np.float64)
     u = np.clip(np.asarray(rec["motor"], np.float64), 0.0, 1.0)
     T = len(u)
+    motor_rate = motor_rate_hz(rec)
+    use = np.ones(4)
+    if motor_rate < MIN_MOTOR_RATE_HZ:
+        t_nat, u_nat = (np.asarray(a, np.float64) for a in rec["native"]["motor"])
+        u = np.clip(np.stack([np.interp(rec["t"], t_nat, u_nat[:, i]) for i in range(4)], -1), 0.0, 1.0)
+        use[:3] = 0.0
     W = int(window_steps)
     start = int(round(SKIP_S / DT)) if T * DT > 4 * SKIP_S else 0
     n_win = (T - 1 - start) // W
@@ -157,7 +171,16 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     kvar = np.array([2.0, 2.0, 2.0, ratio / B])
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
     return LogData(f32(np.log(TAU_GRID)), f32(fg), f32(fa), f32(dgyro), f32(gyq), f32(acc), f32(W * DT),
-                   f32(kvar), f32(n2), f32(s2))
+                   f32(kvar), f32(n2), f32(s2), f32(use))
+
+
+def motor_rate_hz(rec: dict) -> float:
+    """The rate (Hz) the motor commands were logged at: their native samples' if the log says it
+    was resampled (``rec["native"]["motor"]``), else 500."""
+    nat = (rec.get("native") or {}).get("motor")
+    if nat is None or len(nat[0]) < 3:
+        return 1.0 / DT
+    return float(1.0 / max(np.median(np.diff(np.asarray(nat[0], np.float64))), 1e-9))
 
 
 _BASIS = np.stack([P.ROTOR_DIRECTIONS[:, 1], -P.ROTOR_DIRECTIONS[:, 0], P.YAW_SIGNS]).astype(np.float32)  # (3, 4)
@@ -195,18 +218,46 @@ def predict(v, data: LogData):
     return dgyro, acc
 
 
-def log_likelihood(x, data: LogData):
-    """log p(log | v, nuisances) for one parameter vector x (12 + 9,) = [v, log σ (4), log δ (4),
-    acc_z bias]: the Student-t window residuals plus the second differences' evidence on σ."""
+def residuals(x, data: LogData):
+    """Residuals of x (21,) (:func:`log_likelihood`): the windows' rate changes (W, 3), the
+    blocks' acc_z (Wa,), and each channel's scale (4,)."""
     v, ls, ld, bias = x[:N_V], x[N_V:N_V + 4], x[N_V + 4:N_V + 8], x[N_V + 8]
     dgyro, acc = predict(v, data)
-    sig2, dl2 = jnp.exp(2 * ls), jnp.exp(2 * ld)
-    scale = jnp.sqrt(data.kvar * sig2 + dl2 + jnp.asarray(RESOLUTION) ** 2)
-    res = (_student_t(data.dgyro[:, 0] - dgyro[:, 0], scale[0]) + _student_t(data.dgyro[:, 1] - dgyro[:, 1], scale[1])
-           + _student_t(data.dgyro[:, 2] - dgyro[:, 2], scale[2]) + _student_t(data.acc - acc - bias, scale[3]))
+    scale = jnp.sqrt(data.kvar * jnp.exp(2 * ls) + jnp.exp(2 * ld) + jnp.asarray(RESOLUTION) ** 2)
+    return data.dgyro - dgyro, data.acc - acc - bias, scale
+
+
+def log_likelihood(x, data: LogData, weights=None):
+    """log p(log | v, nuisances) for one parameter vector x (12 + 9,) = [v, log σ (4), log δ (4),
+    acc_z bias]: the Student-t window residuals plus the second differences' evidence on σ.
+    ``weights`` (4,): each channel's residual term multiplied by it (default 1: see
+    :func:`residual_weights`); a channel the log cannot inform (``data.use``) counts 0."""
+    ls = x[N_V:N_V + 4]
+    rg, ra, scale = residuals(x, data)
+    w = data.use if weights is None else data.use * weights
+    sig2 = jnp.exp(2 * ls)
+    res = (w[0] * _student_t(rg[:, 0], scale[0]) + w[1] * _student_t(rg[:, 1], scale[1])
+           + w[2] * _student_t(rg[:, 2], scale[2]) + w[3] * _student_t(ra, scale[3]))
     var2 = comb(4, 2) * sig2                                 # variance of a second difference
     noise = jnp.sum(-0.5 * data.n2 * jnp.log(var2) - 0.5 * data.s2 / var2)
     return res + noise
+
+
+def residual_weights(x, data: LogData) -> np.ndarray:
+    """Per channel (4,), the weight that makes correlated residuals count as the independent
+    evidence they are worth: at the parameters x (21,), the lag-1 autocorrelation φ of each
+    channel's residuals in time order gives (1 − φ)/(1 + φ) (the variance of a mean of an AR(1)
+    sequence over the white one's), 1 for φ ≤ 0, at least 0.02. A model error that follows the
+    manoeuvre (a clean log's residuals are not white) then widens the posterior instead of being
+    counted once per window."""
+    rg, ra, _ = residuals(jnp.asarray(x), data)
+    out = []
+    for r in [np.asarray(rg[:, k]) for k in range(3)] + [np.asarray(ra)]:
+        r = r - r.mean()
+        den = float(r @ r)
+        phi = float(r[1:] @ r[:-1]) / den if den > 0 and len(r) > 3 else 0.0
+        out.append(1.0 if phi <= 0 else max((1 - phi) / (1 + phi), 0.02))
+    return np.asarray(out, np.float32)
 
 
 def noise_estimate(data: LogData) -> np.ndarray:

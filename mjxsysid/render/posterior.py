@@ -154,3 +154,38 @@ def plot_rank_histograms(ranks, n_samples: int, path, *, pvalues, names: Sequenc
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_information_gap(gap: dict, path, title: str = "what the policy's latent knows vs what the log shows"):
+    """One panel per log-identifiable quantity (``gap`` of
+    :func:`mjxsysid.identify.gap.information_gap`): the decoder-only 5–95 % band (blue) against the
+    log-grounded one (green, its median as a dot), the truth as a black line if known; log scale
+    for positive quantities."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    names = list(gap)
+    cols = 5
+    rows = int(np.ceil(len(names) / cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 1.9 * rows + 0.8))
+    for ax, n in zip(axes.flat, names):
+        g = gap[n]
+        ax.plot([g["decoder_q05"], g["decoder_q95"]], [1, 1], lw=7, color="tab:blue", solid_capstyle="butt")
+        ax.plot([g["log_q05"], g["log_q95"]], [0, 0], lw=7, color="tab:green", solid_capstyle="butt")
+        ax.plot([g["log_median"]], [0], "o", color="darkgreen", ms=4)
+        if "true" in g:
+            ax.axvline(g["true"], color="k", lw=1.5)
+        vals = [g["decoder_q05"], g["decoder_q95"], g["log_q05"], g["log_q95"]] + ([g["true"]] if "true" in g else [])
+        if min(vals) > 0 and max(vals) / min(vals) > 3:
+            ax.set_xscale("log")
+        ax.set_yticks([0, 1], ["log", "decoder"], fontsize=8)
+        ax.set_ylim(-0.7, 1.7)
+        ax.set_title(f"{n} [{g['unit']}]\nwidth ratio {g['width_ratio']:.2g}", fontsize=9)
+        ax.tick_params(axis="x", labelsize=8)
+    for ax in list(axes.flat)[len(names):]:
+        ax.axis("off")
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)

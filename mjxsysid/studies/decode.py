@@ -34,7 +34,7 @@ from mjxsysid.dataset.collect import decode_indices
 from mjxsysid.policy import networks as N
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.progress import stages
-from mjxsysid.render.posterior import plot_decoded_over_time, plot_marginals
+from mjxsysid.render.posterior import plot_decoded_over_time, plot_information_gap, plot_marginals
 from mjxsysid.render.video import render_rollout
 from mjxsysid.rollout.flight import fly_vehicles, make_reference, one_flight, seen_imu
 from mjxsysid.studies.logcheck import (LogError, check_log, check_replay, estimate_vehicle, imu_noise_limit,
@@ -481,23 +481,38 @@ def checks_summary(checks: dict) -> dict:
 OUT_OF_PRIOR_TITLE = "OUT OF THE DECODERS' PRIOR — bands not calibrated: "
 
 
-def log_grounded_summary(rec: dict, decoded_theta, truth=None, *, seed: int = 0):
-    """The experimental log-grounded posterior (:mod:`mjxsysid.identify`) of a log's arrays
-    ``rec``, the decoded samples θ (S, 19) as its proposal -> (the ``_log_grounded`` entry of
-    summary.json: method, diagnostics, the log-identifiable quantities' bands and the information
-    gap; the posterior's θ samples (S', 19))."""
-    from mjxsysid.identify.gap import information_gap
+def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int = 0) -> dict:
+    """Make the log-grounded posterior (:mod:`mjxsysid.identify`) of a log's arrays ``rec`` the
+    posterior of record, the decoded samples (the window's at the end of the flight, else the
+    instant ones) as its proposal. In place: ``dec["samples_log_grounded"]`` (S, 19); ``summary``'s
+    top-level entries (19 parameters, identifiable combinations, and the log-identifiable
+    quantities of :data:`~mjxsysid.identify.coords.LOG_NAMES`) become the log-grounded posterior's,
+    the decoder-only entries move under ``_decoder_only``, and ``_log_grounded`` holds the method,
+    its diagnostics (ESS, Pareto k̂, SMC stages), the IMU noise, discrepancy and bias it estimated,
+    and the information gap. Returns ``summary``."""
+    from mjxsysid.identify.gap import information_gap, log_summary
     from mjxsysid.identify.inference import log_grounded_posterior
     from mjxsysid.identify.likelihood import CHANNELS
-    post = log_grounded_posterior(rec, decoded_theta, seed=seed)
+    final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
+    post = log_grounded_posterior(rec, final, seed=seed)
+    decoder_only = {k: summary.pop(k) for k in list(summary) if not k.startswith("_")}
+    decoder_only.update(log_summary(final, truth))
+    summary.update(summarize_posterior(post["theta"], truth))
+    summary.update(log_summary(post["theta"], truth))
+    summary["_decoder_only"] = decoder_only
     diag = {k: post[k] for k in ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
                                  "smc_tempering") if k in post}
     nz = np.exp(np.median(post["nuisance"][:, :8], 0))
     diag["imu_noise"] = {c: float(x) for c, x in zip(CHANNELS, nz[:4])}
     diag["discrepancy"] = {c: float(x) for c, x in zip(CHANNELS, nz[4:])}
     diag["acc_z_bias"] = float(np.median(post["nuisance"][:, 8]))
-    diag["gap"] = information_gap(decoded_theta, post["theta"], truth)
-    return json.loads(json.dumps(diag, default=float)), post["theta"]
+    diag["residual_weights"] = {c: float(x) for c, x in zip(CHANNELS, post["weights"])}
+    diag["channels_used"] = [c for c, u in zip(CHANNELS, post["channels_used"]) if u > 0]
+    diag["gap"] = information_gap(final, post["theta"], truth)
+    summary["_log_grounded"] = json.loads(json.dumps(diag, default=float))
+    summary["_posterior"] = "log-grounded"
+    dec["samples_log_grounded"] = post["theta"]
+    return summary
 
 
 def write_summary_md(summary: dict, path) -> Path:
@@ -511,7 +526,10 @@ def write_summary_md(summary: dict, path) -> Path:
     if c.get("warnings"):
         lines += ["**Warnings about the log:**", ""] + [f"- {m}" for m in c["warnings"]] + [""]
     w = summary.get("_window", {})
-    lines += [f"Posterior: {w.get('label', '')} at t = {w.get('t_end_s', float('nan')):.2f} s.", "",
+    which = ("log-grounded (the log's IMU given its motor commands under a physical prior; the decoded "
+             "samples its proposal)" if summary.get("_posterior") == "log-grounded" else
+             f"{w.get('label', '')} at t = {w.get('t_end_s', float('nan')):.2f} s")
+    lines += [f"Posterior: {which}.", "",
               "| quantity | mean | 5 % | 95 % | true | inside |", "|---|---|---|---|---|---|"]
     for k, v in summary.items():
         if isinstance(v, dict) and "mean" in v and "q05" in v:
@@ -528,10 +546,21 @@ def write_summary_md(summary: dict, path) -> Path:
     g = summary.get("_log_grounded")
     if g:
         from mjxsysid.identify.gap import gap_markdown
-        lines += ["", "## Log-grounded posterior (experimental) and the information gap", "",
-                  f"Method: {g['method']} (proposal: {g['proposal']}; decoded-proposal importance sampling: "
-                  f"{g.get('decoded_is')}). Not yet calibrated on simulated flights of the project's own simulator "
-                  f"(docs/identify.md): read it beside the decoded bands, not instead of them.", ""]
+        d = summary.get("_decoder_only", {})
+        lines += ["", "## Decoder-only posterior (what the policy's latent knows)", "",
+                  "| quantity | mean | 5 % | 95 % | true | inside |", "|---|---|---|---|---|---|"]
+        for k, v in d.items():
+            if isinstance(v, dict) and "mean" in v:
+                true = f"{v['true']:.4g}" if "true" in v else ""
+                inside = ("yes" if v["inside"] else "no") if "inside" in v else ""
+                lines.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} | {true} | {inside} |")
+        isd = g.get("decoded_is") or {}
+        lines += ["", "## The information gap: decoder-only against log-grounded", "",
+                  f"Method: {g['method']}; the decoded ensemble as importance proposal: ESS {isd.get('ess', float('nan')):.3g} "
+                  f"of {4096}, Pareto k̂ {isd.get('khat', float('nan')):.3g} (reliable: ESS ≥ 5 %, k̂ ≤ 0.7). Channels "
+                  f"used: {', '.join(g.get('channels_used', []))}. A width ratio above 1: the log pins the quantity "
+                  f"down more than the policy's latent does; a log-grounded band as wide as the prior: the log cannot "
+                  f"see it (docs/identify.md).", ""]
         lines += gap_markdown(g["gap"])
     Path(path).write_text("\n".join(lines) + "\n")
     return Path(path)
@@ -542,7 +571,7 @@ def write_summary_md(summary: dict, path) -> Path:
 def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
                samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print,
                policy="mjxsysid", decoders=None, window="flight", truth=None, warn=warn, segment=None,
-               log_grounded=False) -> dict:
+               decoder_only=False) -> dict:
     """Fly θ (or replay ``log``) with a frozen latent policy (``policy``, ``weights``: see
     :func:`~mjxsysid.policy.interface.resolve_policy`; default the shipped one), decode at
     ``rate`` Hz with that policy's decoders (or those in ``decoders``), write out/decoded.npz,
@@ -556,6 +585,11 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     parameters; the summary then reports ``true`` and ``inside`` as for a flown vehicle.
     ``log``: a CSV or a PX4 ULog (``.ulg``, :func:`read_any_log`); ``segment`` 't0:t1': the part
     of it to decode (a ULog's default: its armed, airborne segment).
+
+    A log's posterior of record is grounded in its own physics unless ``decoder_only``
+    (:func:`ground_in_log`: summary.json's top-level entries the log-grounded posterior's, the
+    decoders' under ``_decoder_only``, the information gap under ``_log_grounded``; also
+    marginals_decoder_only.png and information_gap.png).
 
     A log is checked for physical plausibility before any decoding
     (:mod:`mjxsysid.studies.logcheck`): a log that cannot be right raises ``LogError`` (a
@@ -591,7 +625,8 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     seq = None if window == "instant" else load_sequence_decoder(decoders, ref, echo=echo)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    st = stages(["flying" if log is None else "replaying the log", "decoding", "plots"]
+    st = stages(["flying" if log is None else "replaying the log", "decoding"]
+                + (["log-grounded posterior"] if log is not None and not decoder_only else []) + ["plots"]
                 + (["video"] if video and log is None else []), desc="decode")
     st.start("flying" if log is None else "replaying the log")
     flight = None
@@ -624,15 +659,23 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
              f"({seq.max_len}): the count feature saturates there; calibration checked to 60 s flights "
              f"(docs/decoding.md)")
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
-    if log_grounded and log is not None:
-        summary["_log_grounded"], dec["samples_log_grounded"] = log_grounded_summary(rec, final, truth, seed=seed)
+    if log is not None and not decoder_only:
+        st.start("log-grounded posterior")
+        ground_in_log(dec, summary, rec, truth, seed=seed)
     np.savez_compressed(out / "decoded.npz", **dec)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     write_summary_md(summary, out / "summary.md")
     st.start("plots")
-    plot_marginals(final, truth if truth is not None else np.full(19, np.nan), out / "marginals.png",
-                   point=dec["regression"][-1],
-                   title=f"{flag}decoded p(θ | ẑ, {label}) at t = {dec['times'][-1]:.1f} s")
+    t_true = truth if truth is not None else np.full(19, np.nan)
+    if "samples_log_grounded" in dec:
+        plot_marginals(dec["samples_log_grounded"], t_true, out / "marginals.png", point=dec["regression"][-1],
+                       title=f"{flag}log-grounded posterior p(θ | log) (the decoded samples its proposal)")
+        plot_marginals(final, t_true, out / "marginals_decoder_only.png", point=dec["regression"][-1],
+                       title=f"{flag}decoder-only p(θ | ẑ, {label}) at t = {dec['times'][-1]:.1f} s")
+        plot_information_gap(summary["_log_grounded"]["gap"], out / "information_gap.png")
+    else:
+        plot_marginals(final, t_true, out / "marginals.png", point=dec["regression"][-1],
+                       title=f"{flag}decoded p(θ | ẑ, {label}) at t = {dec['times'][-1]:.1f} s")
     plot_decoded_over_time(dec, truth, out / "decoded_over_time.png", window_label=label, title=flag or None)
     if video and flight is not None:
         st.start("video")
