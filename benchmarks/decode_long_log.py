@@ -1,12 +1,16 @@
 """Decode time and peak memory of `mjxsysid decode --log` against the log's length (issue 20 §4).
 
     python benchmarks/decode_long_log.py --minutes 0.1667 1 10 60 --out docs/runs/flight_logs/decode_long_log.json
+    python benchmarks/decode_long_log.py --minutes 1 --compare-decoder-only --out docs/runs/log_grounded/cost.json
 
 A 10 s flight of the shipped policy on the paper vehicle (a 10 s lemniscate, MJX) is written as
 a log and tiled to each length (time continuous; the IMU and commands repeat every 10 s, which
 changes nothing about the cost). Each length is decoded by the CLI with its defaults (flight
 window, 100 samples, 10 Hz: at most MAX_DECODES decode times) in a fresh process, timed, with
-its peak resident memory (ru_maxrss of the child).
+its peak resident memory (ru_maxrss of the child). ``--compare-decoder-only``: each length is
+decoded four times — with ``--decoder-only`` and by default (the log-grounded posterior added),
+each cold (a fresh JAX compilation cache) and then warm (the same cache again) — so the log-grounded
+posterior's cost is a difference measured in one run.
 """
 from __future__ import annotations
 
@@ -49,11 +53,54 @@ def tiled_log(base, seconds: float, path: Path) -> Path:
     return path
 
 
+def _decode(log: Path, out: Path, extra: list, cache: Path) -> tuple[float, float]:
+    import os
+    env = dict(os.environ, MJXSYSID_JAX_CACHE=str(cache))
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, "-c", (
+        "import resource, sys; from mjxsysid.cli import main; rc = main(sys.argv[1:]); "
+        "print('MAXRSS', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); sys.exit(rc)"),
+        "decode", "--log", str(log), "--out", str(out), "-q", *extra], capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    if r.returncode != 0:
+        sys.exit(f"decode of {log} failed:\n{r.stderr[-2000:]}")
+    rss = next(int(ln.split()[1]) for ln in r.stderr.splitlines() if ln.startswith("MAXRSS"))
+    return wall, rss * 1024 / 1e9
+
+
+def compare(args):
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        base = base_log(tmp / "base.csv")
+        for mins in args.minutes:
+            log = tiled_log(base, 60.0 * mins, tmp / f"log_{mins:g}.csv")
+            row = {"minutes": mins}
+            for mode, extra in (("decoder_only", ["--decoder-only"]), ("log_grounded", [])):
+                cache = tmp / f"cache_{mode}_{mins:g}"
+                for temp in ("cold", "warm"):
+                    wall, gb = _decode(log, tmp / f"dec_{mode}_{temp}", extra, cache)
+                    row[f"{mode}_{temp}_s"], row[f"{mode}_{temp}_gb"] = wall, gb
+                    print(f"{mins:6.3g} min {mode:13s} {temp}: {wall:6.1f} s, {gb:.2f} GB", flush=True)
+            for temp in ("cold", "warm"):
+                row[f"added_{temp}_s"] = row[f"log_grounded_{temp}_s"] - row[f"decoder_only_{temp}_s"]
+            rows.append(row)
+    res = {"benchmark": "decode_long_log --compare-decoder-only", "date": time.strftime("%Y-%m-%d"),
+           "machine": platform.node(), "cpus": len(__import__("os").sched_getaffinity(0)), "rows": rows}
+    print(json.dumps(res, indent=1))
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(res, indent=1) + "\n")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--minutes", type=float, nargs="+", default=[1 / 6, 1, 10])
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--compare-decoder-only", action="store_true")
     args = ap.parse_args()
+    if args.compare_decoder_only:
+        return compare(args)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)

@@ -50,7 +50,7 @@ def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
     for n, v in zip(P.PARAM_NAMES, P.PAPER_HARDWARE):
         assert st[n]["true"] == pytest.approx(float(v), rel=1e-6)
         assert st[n]["inside"] == (st[n]["q05"] <= st[n]["true"] <= st[n]["q95"])
-        assert st["_decoder_only"][n]["mean"] == s[n]["mean"]   # the truth changes the report, not the decoding
+        assert st["_decoder_only"][n]["mean"] == pytest.approx(s[n]["mean"], rel=1e-5)   # the truth changes the report, not the decoding
     assert sum(st[n]["inside"] for n in P.PARAM_NAMES) >= 15
     assert "_log_grounded" not in s
     # the posterior of record is the log-grounded one; the decoders' stays beside it

@@ -9,20 +9,22 @@ properties of the log and the model, not of the vehicle, and δ's flat direction
 resolution would otherwise spoil every proposal). The hidden coordinates h are independent of the
 log, so θ = θ(v, h) with h drawn from the prior.
 
-0. **The mode.** BFGS (optimistix) from a linear least-squares start (at fixed τ_m the rate changes
-   are linear in authority × ρ), from the decoded samples and from prior draws; then δ and w are
-   fixed there and the mode found again in the 17 coordinates.
+0. **The mode.** Levenberg–Marquardt (optimistix) on the standardised residuals from a linear
+   least-squares start (at fixed τ_m the rate changes are linear in authority × ρ), from the
+   decoded samples and from prior draws, δ re-set from the best fit's residuals between rounds;
+   then the correlation discounts w, and a Gauss–Newton precision of the tempered Student-t
+   residuals there (the Laplace proposal, a Student-t).
 1. **Importance sampling from the decoders.** The decoded samples θ (S, 19) mapped to v are
    fitted by a Gaussian (widened by :data:`PROPOSAL_WIDEN`), the nuisances' proposal centred on
    the log's own noise estimate; N draws are weighted by target / proposal. Reported: the
    effective sample size and Pareto k̂ of the weights' upper tail (Vehtari et al., PSIS; the
    generalised-Pareto fit is scipy's). The decoded density is the proposal only, never a factor
-   of the target: the latent came from the same log.
-   Then from a Student-t at the mode with the inverse Hessian as its scale (the Laplace proposal).
+   of the target: the latent came from the same log. Then from the Laplace proposal, likewise.
 2. **Tempered SMC** (blackjax's adaptive tempered SMC, random-walk Metropolis moves whose
    covariance is the particles', re-estimated each stage) when the weights are unreliable
-   (ESS < :data:`MIN_ESS_FRACTION` N or k̂ > :data:`MAX_KHAT`): from a mixture of the proposal and
-   the prior, tempered to the target (the path q^{1−λ} target^{λ}).
+   (ESS < :data:`MIN_ESS_FRACTION` N or k̂ > :data:`MAX_KHAT`): from a mixture of the prior
+   (:data:`PRIOR_SHARE`), the decoded and the Laplace proposals, tempered to the target (the path
+   q^{1−λ} target^{λ}).
 """
 from __future__ import annotations
 
@@ -196,38 +198,6 @@ def log_target(y, data: LogData, log_delta=None, weights=None, prior: PhysicalPr
     return _batch_log_target(jnp.asarray(y, jnp.float32), data, ld, w, prior)
 
 
-def _objective_x(x, data):
-    """−(log likelihood + the bias prior) of x (21,): smooth (the prior's box is checked after)."""
-    return -(log_likelihood(x, data) - 0.5 * (x[-1] / ACC_BIAS_SD) ** 2)
-
-
-def _objective_y(y, args):
-    data, ld, w = args
-    x = full_x(y, ld)
-    return -(log_likelihood(x, data, w) - 0.5 * (x[-1] / ACC_BIAS_SD) ** 2)
-
-
-@functools.partial(jax.jit, static_argnames=("max_steps",))
-def _fit_x(starts, data, max_steps=400):
-    """BFGS (optimistix) from each start (K, 21) -> optima (K, 21)."""
-    import optimistix as optx
-    solver = optx.BFGS(rtol=1e-7, atol=1e-7)
-    return jax.vmap(lambda x0: optx.minimise(lambda x, d: _objective_x(x, d), solver, x0, args=data,
-                                             max_steps=max_steps, throw=False).value)(starts)
-
-
-@functools.partial(jax.jit, static_argnames=("max_steps",))
-def _fit_y(y0, data, ld, w, max_steps=400):
-    import optimistix as optx
-    return optx.minimise(_objective_y, optx.BFGS(rtol=1e-8, atol=1e-8), y0, args=(data, ld, w),
-                         max_steps=max_steps, throw=False).value
-
-
-@jax.jit
-def _hessian_y(y, data, ld, w):
-    return jax.hessian(_objective_y)(y, (data, ld, w))
-
-
 def _project(x, prior):
     """Optima (K, 21) into the prior's support: the box, and J's triangle inequality
     (A_z no smaller than 1 / (1/A_x + 1/A_y))."""
@@ -241,15 +211,6 @@ def _project(x, prior):
     bad = (r4 < prior.rel_eff[0]) | (r4 > prior.rel_eff[1])
     x[bad, 1:4] = 1.0
     return x.astype(np.float32)
-
-
-@functools.partial(jax.jit, static_argnames=("max_steps",))
-def _fit_y_many(y0, data, ld, w, max_steps=400):
-    """BFGS (optimistix) over y from each start (K, 17), δ and w fixed -> optima (K, 17)."""
-    import optimistix as optx
-    solver = optx.BFGS(rtol=1e-8, atol=1e-8)
-    return jax.vmap(lambda y: optx.minimise(_objective_y, solver, y, args=(data, ld, w), max_steps=max_steps,
-                                            throw=False).value)(y0)
 
 
 def _ls_residuals(z, args):
@@ -292,14 +253,13 @@ def _discrepancy(y, data, ld):
 
 def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3):
     """The mode from ``starts`` (K, 21) -> (x* (21,), log δ* (4,), weights (4,), y* (17,), the
-    Laplace Student-t at y*). δ is fixed while v, σ and the bias are fitted (BFGS from every start),
-    then set from the best fit's residuals, ``rounds`` times (δ free in the same fit would let a
-    poor start explain the rates as discrepancy and stay there); then the correlation discounts w
-    are set and the mode fitted once more."""
+    Laplace Student-t at y*). δ and σ are fixed while v and the bias are fitted (Levenberg–Marquardt
+    from every start), δ then set from the best fit's residuals, ``rounds`` times (δ free in the
+    same fit lets a poor start explain the rates as discrepancy and stay there; a Student-t BFGS
+    from a good start wandered off in float32); then the correlation discounts w are set."""
     starts = np.asarray(starts, np.float32)
     ys = np.concatenate([starts[:, :N_V + 4], starts[:, N_V + 8:]], 1)
     ld = starts[0, N_V + 4:N_V + 8].astype(np.float32)
-    ones = jnp.ones(4, jnp.float32)
     ls = ys[0, N_V:N_V + 4]
     for r in range(rounds):
         z = np.concatenate([ys[:, :N_V], ys[:, N_V + 4:]], 1)
@@ -477,6 +437,3 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     return out
 
 
-def visible_truth(theta):
-    """The visible and hidden coordinates of a known θ (19,) -> (v (12,), h (7,))."""
-    return np.asarray(visible_from_theta(theta)), np.asarray(hidden_from_theta(theta))

@@ -494,7 +494,12 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     from mjxsysid.identify.inference import log_grounded_posterior
     from mjxsysid.identify.likelihood import CHANNELS
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
-    post = log_grounded_posterior(rec, final, seed=seed)
+    try:
+        post = log_grounded_posterior(rec, final, seed=seed)
+    except ValueError as e:        # a log too short for the likelihood's windows: the decoders alone, said so
+        summary["_log_grounded"] = {"skipped": str(e)}
+        summary["_posterior"] = "decoder-only"
+        return summary
     decoder_only = {k: summary.pop(k) for k in list(summary) if not k.startswith("_")}
     decoder_only.update(log_summary(final, truth))
     summary.update(summarize_posterior(post["theta"], truth))
@@ -544,7 +549,9 @@ def write_summary_md(summary: dict, path) -> Path:
         lines += [f"- {k}: {v}" for k, v in (c.get("resampled") or {}).items()]
         lines += [f"- note: {m}" for m in c.get("notes", [])]
     g = summary.get("_log_grounded")
-    if g:
+    if g and "skipped" in g:
+        lines += ["", f"**No log-grounded posterior:** {g['skipped']}. The bands above are the decoders' alone."]
+    elif g:
         from mjxsysid.identify.gap import gap_markdown
         d = summary.get("_decoder_only", {})
         lines += ["", "## Decoder-only posterior (what the policy's latent knows)", "",
