@@ -129,8 +129,28 @@ def test_the_decoded_proposal_is_not_a_factor_of_the_target():
     off[:, P.KT] *= 1.25                       # thrust-to-weight 25 % high, authorities with it
     tw = []
     for dec in (near, off):
-        post = log_grounded_posterior(rec, dec, samples=400, particles=512, seed=1)
+        post = log_grounded_posterior(rec, dec, samples=600, particles=1024, seed=1)
         tw.append(np.median(C.log_quantities(post["theta"])[:, 0]))
     assert abs(np.log(tw[1] / tw[0])) < 0.03, tw
     true = C.log_quantities(theta)[0]
     assert abs(np.log(tw[0] / true)) < 0.05
+
+
+@pytest.mark.xdist_group("identify")
+def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
+    """jMAVSim's Iris (PX4's sample log, motors logged at 10 Hz): thrust-to-weight 2.04 inside a band
+    within ±10 %; τ_m 5 ms inside; the rates are not used (10 Hz commands cannot explain them), so
+    the roll authority stays as broad as the prior — and the gap says it was not seen."""
+    from pathlib import Path
+    pytest.importorskip("pyulog")
+    from mjxsysid.identify.gap import information_gap
+    from mjxsysid.logs.ulog import read_ulog
+    rec = read_ulog(Path(__file__).parent / "data" / "sample_px4_events.ulg")
+    post = log_grounded_posterior(rec, None, samples=600, particles=1024, seed=0)
+    assert list(post["channels_used"]) == [0, 0, 0, 1]
+    q = C.log_quantities(post["theta"])
+    lo, hi = np.percentile(q, [5, 95], 0)
+    assert lo[0] <= 16 / (0.8 * P.GRAVITY) <= hi[0] and hi[0] / lo[0] < 1.2, (lo[0], hi[0])
+    assert lo[1] <= 0.005 <= hi[1]
+    gap = information_gap(post["theta"], post["theta"])
+    assert not gap["authority_total[0]"]["seen_by_log"] and gap["thrust_to_weight_total"]["seen_by_log"]

@@ -246,7 +246,8 @@ def _discrepancy(y, data, ld):
     resolution (at least 1e-6)."""
     from mjxsysid.identify.likelihood import RESOLUTION
     rg, ra, _ = residual_fn(np.asarray(full_x(jnp.asarray(y)[None], ld))[0], data)
-    ms = np.array([np.mean(np.asarray(rg[:, k]) ** 2) for k in range(3)] + [np.mean(np.asarray(ra) ** 2)])
+    wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
+    ms = np.array([np.mean(np.asarray(rg)[wv, k] ** 2) for k in range(3)] + [np.mean(np.asarray(ra)[bv] ** 2)])
     noise = np.asarray(data.kvar) * np.exp(2 * np.asarray(y[N_V:N_V + 4], np.float64)) + RESOLUTION.astype(np.float64) ** 2
     return np.log(np.sqrt(np.maximum(ms - noise, 1e-12))).astype(np.float32)
 

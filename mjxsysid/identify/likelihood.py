@@ -95,7 +95,9 @@ class LogData:
     acc_z per block; span () s per window; kvar (4,) the noise-variance factor per channel; n2 (4,),
     s2 (4,) count and sum of squares of the channels' second differences (trimmed); use (4,) 1 for
     a channel the likelihood reads, 0 for one it cannot (the rates when the motors were logged
-    below :data:`MIN_MOTOR_RATE_HZ`)."""
+    below :data:`MIN_MOTOR_RATE_HZ`); wmask (W,), bmask (Wa,) 1 for a window / block of the log, 0
+    for the padding that rounds their counts up to :func:`bucket` (one compiled program serves
+    every log of a bucket)."""
     log_tau: jax.Array
     fg: jax.Array
     fa: jax.Array
@@ -107,6 +109,8 @@ class LogData:
     n2: jax.Array
     s2: jax.Array
     use: jax.Array
+    wmask: jax.Array
+    bmask: jax.Array
 
 
 def _lag_features(u, taus):
@@ -188,8 +192,21 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     n2, s2, ratio = noise_statistics(rec)
     kvar = np.array([2.0 * ratio / W] * 3 + [ratio / B])
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
-    return LogData(f32(np.log(TAU_GRID)), f32(fg), f32(fa), f32(dgyro), f32(gyq), f32(acc), f32(W * DT),
-                   f32(kvar), f32(n2), f32(s2), f32(use))
+    nw, nb = bucket(len(k0)), bucket(len(acc))
+    return LogData(f32(np.log(TAU_GRID)), f32(_pad(fg, nw, 1)), f32(_pad(fa, nb, 1)), f32(_pad(dgyro, nw)),
+                   f32(_pad(gyq, nw)), f32(_pad(acc, nb)), f32(W * DT), f32(kvar), f32(n2), f32(s2), f32(use),
+                   f32(_pad(np.ones(len(k0)), nw)), f32(_pad(np.ones(len(acc)), nb)))
+
+
+def bucket(n: int) -> int:
+    """The padded count of ``n`` windows or blocks: the next power of two, at least 16."""
+    return max(16, 1 << int(np.ceil(np.log2(max(n, 1)))))
+
+
+def _pad(a, n: int, axis: int = 0):
+    width = [(0, 0)] * a.ndim
+    width[axis] = (0, n - a.shape[axis])
+    return np.pad(a, width)
 
 
 def motor_rate_hz(rec: dict) -> float:
@@ -212,12 +229,12 @@ def _interp(log_tau, grid, f):
     return (1 - w) * f[i] + w * f[i + 1]
 
 
-def _student_t(r, scale):
-    """Sum of Student-t(ν = NU) log densities of residuals r (W,) at ``scale`` ()."""
+def _student_t(r, scale, mask):
+    """Sum of Student-t(ν = NU) log densities of residuals r (W,) at ``scale`` (), over ``mask``."""
     z = r / scale
     c = (jax.scipy.special.gammaln((NU + 1) / 2) - jax.scipy.special.gammaln(NU / 2)
          - 0.5 * jnp.log(NU * jnp.pi))
-    return jnp.sum(c - jnp.log(scale) - (NU + 1) / 2 * jnp.log1p(z * z / NU))
+    return jnp.sum(mask * (c - jnp.log(scale) - (NU + 1) / 2 * jnp.log1p(z * z / NU)))
 
 
 def predict(v, data: LogData):
@@ -242,7 +259,7 @@ def residuals(x, data: LogData):
     v, ls, ld, bias = x[:N_V], x[N_V:N_V + 4], x[N_V + 4:N_V + 8], x[N_V + 8]
     dgyro, acc = predict(v, data)
     scale = jnp.sqrt(data.kvar * jnp.exp(2 * ls) + jnp.exp(2 * ld) + jnp.asarray(RESOLUTION) ** 2)
-    return data.dgyro - dgyro, data.acc - acc - bias, scale
+    return (data.dgyro - dgyro) * data.wmask[:, None], (data.acc - acc - bias) * data.bmask, scale
 
 
 def log_likelihood(x, data: LogData, weights=None):
@@ -254,8 +271,9 @@ def log_likelihood(x, data: LogData, weights=None):
     rg, ra, scale = residuals(x, data)
     w = data.use if weights is None else data.use * weights
     sig2 = jnp.exp(2 * ls)
-    res = (w[0] * _student_t(rg[:, 0], scale[0]) + w[1] * _student_t(rg[:, 1], scale[1])
-           + w[2] * _student_t(rg[:, 2], scale[2]) + w[3] * _student_t(ra, scale[3]))
+    wm, bm = data.wmask, data.bmask
+    res = (w[0] * _student_t(rg[:, 0], scale[0], wm) + w[1] * _student_t(rg[:, 1], scale[1], wm)
+           + w[2] * _student_t(rg[:, 2], scale[2], wm) + w[3] * _student_t(ra, scale[3], bm))
     var2 = comb(4, 2) * sig2                                 # variance of a second difference
     noise = jnp.sum(-0.5 * data.n2 * jnp.log(var2) - 0.5 * data.s2 / var2)
     return res + noise
@@ -269,8 +287,9 @@ def residual_weights(x, data: LogData) -> np.ndarray:
     manoeuvre (a clean log's residuals are not white) then widens the posterior instead of being
     counted once per window."""
     rg, ra, _ = residuals(jnp.asarray(x), data)
+    wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
     out = []
-    for r in [np.asarray(rg[:, k]) for k in range(3)] + [np.asarray(ra)]:
+    for r in [np.asarray(rg)[wv, k] for k in range(3)] + [np.asarray(ra)[bv]]:
         r = r - r.mean()
         den = float(r @ r)
         phi = float(r[1:] @ r[:-1]) / den if den > 0 and len(r) > 3 else 0.0
@@ -289,8 +308,10 @@ def linear_start(data: LogData) -> np.ndarray:
     so least squares per axis; the τ_m with the smallest total relative residual wins, ρ and the
     authorities come from its per-rotor coefficients, thrust-to-weight from the accelerometer
     blocks (no bias), the noise from the second differences and δ from the residuals."""
-    fg, fa = np.asarray(data.fg, np.float64), np.asarray(data.fa, np.float64)
-    dg, gyq, acc = np.asarray(data.dgyro, np.float64), np.asarray(data.gyq, np.float64), np.asarray(data.acc, np.float64)
+    wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
+    fg, fa = np.asarray(data.fg, np.float64)[:, wv], np.asarray(data.fa, np.float64)[:, bv]
+    dg, gyq = np.asarray(data.dgyro, np.float64)[wv], np.asarray(data.gyq, np.float64)[wv]
+    acc = np.asarray(data.acc, np.float64)[bv]
     span = float(data.span)
     best = None
     for g in range(fg.shape[0]):
