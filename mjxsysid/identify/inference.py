@@ -294,8 +294,10 @@ def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, roun
     return np.asarray(full_x(jnp.asarray(y)[None], ld))[0], ld, w, y, lap
 
 
-LAPLACE_WIDEN = 1.2
-"""The Laplace Student-t's scale is the inverse Hessian's × this (a defensive proposal)."""
+LAPLACE_WIDEN = 2.0
+"""The Laplace Student-t's scale is the inverse Hessian's × this (a defensive proposal; with 1.2
+and 8 moves per stage the SMC ended under-dispersed on clean logs: 8 MJX flights' 90 % coverage
+0.38–0.62, against 0.38–0.88 with 2.0 and 24 moves)."""
 
 
 def _mixture_log_prob(y, qv, qn, lap, prior: PhysicalPrior, share: float):
@@ -370,7 +372,7 @@ def _reliable(diag) -> bool:
 
 def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                            samples: int = 1000, draws: int = 4096, particles: int = 2048, seed: int = 0,
-                           n_mcmc: int = 8, max_stages: int = 200, starts: int = 12,
+                           n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
                            force_smc: bool = False) -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
