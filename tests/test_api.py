@@ -132,6 +132,9 @@ def test_fly_and_decode_api_match_the_cli(tmp_path, capsys):
     from_log = mjxsysid.decode(str(log), samples=20, rate=2.0, truth=mjxsysid.paper_vehicle())
     np.testing.assert_allclose(from_log["zhat"], post["zhat"], atol=2e-4)
     assert "inside" in from_log["summary"]["mass"]
+    # a log's posterior of record is the log-grounded one, the decoders' beside it
+    assert from_log["summary"]["_posterior"] == "log-grounded" and "mass" in from_log["summary"]["_decoder_only"]
+    assert from_log["samples_log_grounded"].shape[1] == 19
     with pytest.raises(ValueError, match="latent policy"):
         mjxsysid.decode(dataclasses.replace(res, controller="oracle"))
 

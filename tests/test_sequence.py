@@ -235,7 +235,7 @@ def test_decode_cli_windows(tmp_path, capsys):
     assert main(["decode", "--log", str(log), "--window", "5", "--decoders", str(d), "--out", str(tmp_path / "a")]) == 2
     assert "longer than the flight" in capsys.readouterr().err
     assert main(["decode", "--log", str(log), "--window", "0.3", "--samples", "8", "--decoders", str(d),
-                 "--out", str(tmp_path / "b")]) == 0
+                 "--decoder-only", "--out", str(tmp_path / "b")]) == 0
     s = json.loads((tmp_path / "b" / "summary.json").read_text())
     assert s["_window"]["window"] == 0.3 and s["_window"]["n_latents"] == 3 and "_instant" in s
     assert set(P.PARAM_NAMES) <= set(s) and set(P.PARAM_NAMES) <= set(s["_instant"])
@@ -243,7 +243,8 @@ def test_decode_cli_windows(tmp_path, capsys):
     assert dec["samples_window"].shape == dec["samples"].shape
     np.testing.assert_allclose(s["mass"]["mean"], dec["samples_window"][-1, :, 0].mean(), rtol=1e-5)
     (d / "cfm_seq.npz").unlink()
-    assert main(["decode", "--log", str(log), "--samples", "8", "--decoders", str(d), "--out", str(tmp_path / "c")]) == 0
+    assert main(["decode", "--log", str(log), "--samples", "8", "--decoders", str(d), "--decoder-only",
+                 "--out", str(tmp_path / "c")]) == 0
     assert "falling back to --window instant" in capsys.readouterr().err
     s = json.loads((tmp_path / "c" / "summary.json").read_text())
     assert s["_window"]["window"] == "instant" and "_instant" not in s
