@@ -219,7 +219,8 @@ def _ls_residuals(z, args):
     x = jnp.concatenate([z[:N_V], ls, ld, z[N_V:]])
     rg, ra, scale = residual_fn(x, data)
     u = data.use
-    return jnp.concatenate([(rg * (u[:3] / scale[:3])).ravel(), ra * (u[3] / scale[3]), z[N_V:] / ACC_BIAS_SD])
+    sg = jnp.sqrt(scale[:3] ** 2 + data.gfloor ** 2)
+    return jnp.concatenate([(rg * (u[:3] / sg)).ravel(), ra * (u[3] / scale[3]), z[N_V:] / ACC_BIAS_SD])
 
 
 @functools.partial(jax.jit, static_argnames=("max_steps",))
