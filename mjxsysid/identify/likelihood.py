@@ -66,8 +66,11 @@ MIN_MOTOR_RATE_HZ = 100.0
 linearly between their samples for the thrust, and the rate windows are not used: a rotor follows
 its command within tens of ms, so 20 ms rate changes cannot be explained by commands 100 ms apart
 (τ_m and the authorities then stay as broad as the prior, and the posterior says so)."""
-MAX_WINDOWS = 3000
-"""Windows used at most (evenly spaced over a longer log): the cost stays bounded."""
+MAX_WINDOWS = 256
+"""Rate windows used at most (evenly spaced over a longer log: 25.6 s of 100 ms windows). The
+posterior's cost grows with them (a 60 s log's 590 windows made `decode --log` 72–92 s slower on 2
+cores; 256 keep it near a 10 s log's); a longer log's extra windows would only narrow bands that
+the discrepancy and correlation terms, not the count, already set."""
 SKIP_S = (0.2, 1.0)
 """s: the start of the log not used — a tenth of it, within these bounds. The rotor speeds are
 reconstructed from the commands starting at the first command; a log that starts with rotors at
