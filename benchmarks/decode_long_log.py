@@ -53,9 +53,11 @@ def tiled_log(base, seconds: float, path: Path) -> Path:
     return path
 
 
-def _decode(log: Path, out: Path, extra: list, cache: Path) -> tuple[float, float]:
+def _decode(log: Path, out: Path, extra: list = (), cache: Path | None = None) -> tuple[float, float]:
+    """`mjxsysid decode --log LOG` in a fresh process (``cache``: its JAX compilation cache, default
+    the user's) -> (wall s, peak resident GB)."""
     import os
-    env = dict(os.environ, MJXSYSID_JAX_CACHE=str(cache))
+    env = dict(os.environ) if cache is None else dict(os.environ, MJXSYSID_JAX_CACHE=str(cache))
     t0 = time.perf_counter()
     r = subprocess.run([sys.executable, "-c", (
         "import resource, sys; from mjxsysid.cli import main; rc = main(sys.argv[1:]); "
@@ -108,18 +110,10 @@ def main():
         for mins in args.minutes:
             log = tiled_log(base, 60.0 * mins, tmp / f"log_{mins:g}.csv")
             out = tmp / f"dec_{mins:g}"
-            t0 = time.perf_counter()
-            r = subprocess.run([sys.executable, "-c", (
-                "import resource, sys; from mjxsysid.cli import main; rc = main(sys.argv[1:]); "
-                "print('MAXRSS', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); sys.exit(rc)"),
-                "decode", "--log", str(log), "--out", str(out), "-q"], capture_output=True, text=True)
-            wall = time.perf_counter() - t0
-            if r.returncode != 0:
-                sys.exit(f"decode of the {mins:g} min log failed:\n{r.stderr[-2000:]}")
-            rss = next(int(ln.split()[1]) for ln in r.stderr.splitlines() if ln.startswith("MAXRSS"))
+            wall, gb = _decode(log, out)
             s = json.loads((out / "summary.json").read_text())
             row = {"minutes": mins, "rows": int(round(60.0 * mins / 0.002)), "csv_mb": log.stat().st_size / 1e6,
-                   "wall_s": wall, "peak_rss_gb": rss * 1024 / 1e9, "n_decodes": s["_window"]["n_decodes"],
+                   "wall_s": wall, "peak_rss_gb": gb, "n_decodes": s["_window"]["n_decodes"],
                    "decode_rate_hz": s["_window"]["decode_rate_hz"], "n_latents": s["_window"]["n_latents"]}
             rows.append(row)
             print(f"{mins:7.3g} min  {row['rows']:>9,} rows  {row['csv_mb']:7.1f} MB  {wall:7.1f} s  "

@@ -26,7 +26,7 @@ from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import CONTROLLERS, fly_vehicles, metrics_dict, one_flight, save_flight, seen_imu
 from mjxsysid.rollout.harness import metrics_to_host
 from mjxsysid.studies.decode import (check_window, checks_summary, decode_posterior, decoders_prior, flight_checks,
-                                     ground_in_log, log_latents, parse_window, read_any_log, read_log)
+                                     ground_in_log, log_latents, parse_window, read_any_log)
 from mjxsysid.logs.ulog import read_ulog
 from mjxsysid.studies import logcheck as _logcheck
 from mjxsysid.studies.logcheck import Finding, LogError

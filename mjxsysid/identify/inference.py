@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid.identify.coords import (N_V, PHYSICAL_PRIOR, PhysicalPrior, hidden_from_theta, theta_from,
+from mjxsysid.identify.coords import (N_V, PHYSICAL_PRIOR, PhysicalPrior, theta_from,
                                       visible_from_theta)
 from mjxsysid.identify.likelihood import (N_NUIS, LogData, linear_start, log_likelihood, noise_estimate, prepare,
                                           residual_weights)
@@ -48,7 +48,7 @@ MIN_ESS_FRACTION = 0.05
 MAX_KHAT = 0.7
 """Importance sampling is trusted when ESS ≥ 5 % of the draws and k̂ ≤ 0.7 (PSIS's threshold)."""
 PRIOR_SHARE = 0.3
-"""Share of the prior in the SMC's starting mixture (the rest: the decoded proposal)."""
+"""Share of the prior in the SMC's starting mixture (the rest: the decoded and Laplace proposals)."""
 NUIS_BOUNDS = (np.log(1e-6), np.log(5.0), np.log(1e-6), np.log(5.0), -3.0, 3.0)
 """Uniform priors of the nuisances: log σ, log δ in [log 1e-6, log 5] (rad/s, m/s²), acc_z bias
 in [−3, 3] m/s² (times :data:`ACC_BIAS_SD`'s normal)."""
@@ -217,10 +217,9 @@ def _ls_residuals(z, args):
     """Standardised residuals for the least-squares stage: z (13,) = [v, bias], σ fixed in ``args``."""
     data, ld, ls = args
     x = jnp.concatenate([z[:N_V], ls, ld, z[N_V:]])
-    rg, ra, scale = residual_fn(x, data)
+    rg, sg, ra, sa = residual_fn(x, data)
     u = data.use
-    sg = jnp.sqrt(scale[:3] ** 2 + data.gfloor ** 2)
-    return jnp.concatenate([(rg * (u[:3] / sg)).ravel(), ra * (u[3] / scale[3]), z[N_V:] / ACC_BIAS_SD])
+    return jnp.concatenate([(rg * (u[:3] / sg)).ravel(), ra * (u[3] / sa), z[N_V:] / ACC_BIAS_SD])
 
 
 @functools.partial(jax.jit, static_argnames=("max_steps",))
@@ -242,15 +241,13 @@ def _ls_jacobian(z, args, w):
     return jax.jacfwd(lambda q: _ls_residuals(q, args) * sw)(z)
 
 
-def _discrepancy(y, data, ld):
-    """δ per channel (4,) at y: what the residuals' mean square leaves beyond the noise and the
-    resolution (at least 1e-6)."""
-    from mjxsysid.identify.likelihood import RESOLUTION
-    rg, ra, _ = residual_fn(np.asarray(full_x(jnp.asarray(y)[None], ld))[0], data)
+def _discrepancy(y, data):
+    """δ per channel (4,) at y (17,): what the residuals' mean square leaves beyond the scale they
+    have without a discrepancy (noise, resolution, the windows' floor; at least 1e-6)."""
+    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in residual_fn(full_x(jnp.asarray(y), np.full(4, -30.0)), data))
     wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
-    ms = np.array([np.mean(np.asarray(rg)[wv, k] ** 2) for k in range(3)] + [np.mean(np.asarray(ra)[bv] ** 2)])
-    noise = np.asarray(data.kvar) * np.exp(2 * np.asarray(y[N_V:N_V + 4], np.float64)) + RESOLUTION.astype(np.float64) ** 2
-    return np.log(np.sqrt(np.maximum(ms - noise, 1e-12))).astype(np.float32)
+    ms = np.array([np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)] + [np.mean(ra[bv] ** 2) - sa ** 2])
+    return np.log(np.sqrt(np.maximum(ms, 1e-12))).astype(np.float32)
 
 
 def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3):
@@ -271,7 +268,7 @@ def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, roun
         fits = np.concatenate([fits[:, :N_V + 4], fits[:, N_V + 8:]], 1)
         lt = np.asarray(log_target(fits, data, ld, None, prior))
         best = fits[int(np.argmax(np.where(np.isfinite(lt), lt, -np.inf)))]
-        ld = np.clip(_discrepancy(best, data, ld), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
+        ld = np.clip(_discrepancy(best, data), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
         ys = best[None] if r < rounds - 1 else ys
     w = residual_weights(np.asarray(full_x(jnp.asarray(best)[None], ld))[0], data)
     y = best

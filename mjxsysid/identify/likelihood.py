@@ -123,21 +123,24 @@ class LogData:
     gfloor: jax.Array
 
 
-def _lag_features(u, taus):
-    """Motor commands u (T, 4) through the lag for every τ in ``taus`` (G,) -> mean s² over each
-    step (G, T, 4) and s² at each step's end (G, T, 4), starting at s = u[0]."""
-    ms, se = [], []
+def _lag_features(u, taus, steps, tri, bsteps):
+    """Motor commands u (T, 4) through the lag for every τ in ``taus`` (G,), starting at s = u[0],
+    reduced at once to what the likelihood reads -> the windows' triangle-weighted sums of the mean
+    s² over each step (G, n, 4) (``steps`` (n, S), weights ``tri`` (S,)) and the blocks' mean s² at
+    the steps' ends (G, nb, 4) (``bsteps`` (nb, B)). One τ at a time: memory stays O(T), not
+    O(G T) (a one-hour log has 1.8 M steps)."""
+    fg, fa = [], []
     for tau in taus:
         a = np.exp(-DT / tau)
         # s_{k+1} = a s_k + (1 − a) u_k, s_0 = u_0
         s_end = lfilter([1 - a], [1, -a], u, axis=0, zi=(a * u[0])[None])[0]
-        s0 = np.concatenate([u[:1], s_end[:-1]], 0)
-        d = s0 - u
+        d = np.concatenate([u[:1], s_end[:-1]], 0)[steps] - u[steps]      # start of each step − command
+        us = u[steps]
         r1 = tau / DT * (1 - a)
         r2 = tau / (2 * DT) * (1 - a * a)
-        ms.append(u * u + 2 * u * d * r1 + d * d * r2)
-        se.append(s_end * s_end)
-    return np.stack(ms), np.stack(se)
+        fg.append(np.einsum("nsr,s->nr", us * us + 2 * us * d * r1 + d * d * r2, tri) * DT)
+        fa.append((s_end[bsteps] ** 2).mean(1))
+    return np.stack(fg), np.stack(fa)
 
 
 def noise_statistics(rec: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -158,6 +161,10 @@ def noise_statistics(rec: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return keep.sum(0).astype(np.float64), np.where(keep, d * d, 0.0).sum(0), np.asarray(ratio)
 
 
+class LogTooShort(ValueError):
+    """A log with fewer rate windows than the likelihood needs (:func:`prepare`)."""
+
+
 def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = MAX_WINDOWS) -> LogData:
     """A log's arrays (``imu`` (T, 6) the reading each row's motor command was given, ``motor``
     (T, 4) normalised rotor-speed commands, optional ``native``) -> :class:`LogData`."""
@@ -174,10 +181,9 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     start = int(round(float(np.clip(0.1 * T * DT, *SKIP_S)) / DT))
     n_win = (T - 1 - start) // (2 * W)
     if n_win < 5:
-        raise ValueError(f"flight log: {T} rows ({T * DT:.2f} s) leave {max(n_win, 0)} windows of {2 * W} steps for the "
+        raise LogTooShort(f"flight log: {T} rows ({T * DT:.2f} s) leave {max(n_win, 0)} windows of {2 * W} steps for the "
                          f"log-grounded posterior; need at least 5 ({(10 * W * DT + SKIP_S[0]):.1f} s of flight); "
                          f"decode it with --decoder-only")
-    ms, se = _lag_features(u, TAU_GRID)
     k0 = start + 2 * W * np.arange(n_win)
     if n_win > max_windows:
         k0 = k0[np.linspace(0, n_win - 1, max_windows).astype(int)]
@@ -185,14 +191,13 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     # rate changes weighted by a triangle (1/W … 1 … 1/W): see the module doc
     steps = k0[:, None] + np.arange(2 * W - 1)[None]       # (n, 2W − 1)
     tri = np.concatenate([np.arange(1, W + 1), np.arange(W - 1, 0, -1)]) / W
-    fg = np.einsum("gnsr,s->gnr", ms[:, steps], tri) * DT   # (G, n, 4)
     B = int(ACC_BLOCK_STEPS)
     n_blk = (T - 1 - start) // B
     if n_blk < 2:                       # a short log: blocks of what there is
         B = max((T - 1 - start) // 2, W)
         n_blk = (T - 1 - start) // B
     bsteps = start + B * np.arange(n_blk)[:, None] + np.arange(B)[None]
-    fa = se[:, bsteps].mean(2)
+    fg, fa = _lag_features(u, TAU_GRID, steps, tri, bsteps)   # (G, n, 4), (G, nb, 4)
     g = imu[:, :3]
     half = np.arange(W)
     dgyro = g[k0[:, None] + W + half].mean(1) - g[k0[:, None] + half].mean(1)
@@ -265,12 +270,15 @@ def predict(v, data: LogData):
 
 
 def residuals(x, data: LogData):
-    """Residuals of x (21,) (:func:`log_likelihood`): the windows' rate changes (W, 3), the
-    blocks' acc_z (Wa,), and each channel's scale (4,)."""
+    """Residuals of x (21,) (:func:`log_likelihood`) and their scales: the windows' rate changes
+    (W, 3) with each window's scale (W, 3) — the channel's noise, discrepancy and resolution and the
+    window's relative floor — and the blocks' acc_z (Wa,) with the accelerometer's scale (). The
+    padding's residuals are 0."""
     v, ls, ld, bias = x[:N_V], x[N_V:N_V + 4], x[N_V + 4:N_V + 8], x[N_V + 8]
     dgyro, acc = predict(v, data)
-    scale = jnp.sqrt(data.kvar * jnp.exp(2 * ls) + jnp.exp(2 * ld) + jnp.asarray(RESOLUTION) ** 2)
-    return (data.dgyro - dgyro) * data.wmask[:, None], (data.acc - acc - bias) * data.bmask, scale
+    var = data.kvar * jnp.exp(2 * ls) + jnp.exp(2 * ld) + jnp.asarray(RESOLUTION) ** 2
+    return ((data.dgyro - dgyro) * data.wmask[:, None], jnp.sqrt(var[:3] + data.gfloor ** 2),
+            (data.acc - acc - bias) * data.bmask, jnp.sqrt(var[3]))
 
 
 def log_likelihood(x, data: LogData, weights=None):
@@ -278,14 +286,12 @@ def log_likelihood(x, data: LogData, weights=None):
     acc_z bias]: the Student-t window residuals plus the second differences' evidence on σ.
     ``weights`` (4,): each channel's residual term multiplied by it (default 1: see
     :func:`residual_weights`); a channel the log cannot inform (``data.use``) counts 0."""
-    ls = x[N_V:N_V + 4]
-    rg, ra, scale = residuals(x, data)
+    rg, sg, ra, sa = residuals(x, data)
     w = data.use if weights is None else data.use * weights
-    sig2 = jnp.exp(2 * ls)
-    wm, bm = data.wmask, data.bmask
-    sg = jnp.sqrt(scale[:3] ** 2 + data.gfloor ** 2)          # (W, 3): the channel's scale and the window's floor
+    sig2 = jnp.exp(2 * x[N_V:N_V + 4])
+    wm = data.wmask
     res = (w[0] * _student_t(rg[:, 0], sg[:, 0], wm) + w[1] * _student_t(rg[:, 1], sg[:, 1], wm)
-           + w[2] * _student_t(rg[:, 2], sg[:, 2], wm) + w[3] * _student_t(ra, scale[3], bm))
+           + w[2] * _student_t(rg[:, 2], sg[:, 2], wm) + w[3] * _student_t(ra, sa, data.bmask))
     var2 = comb(4, 2) * sig2                                 # variance of a second difference
     noise = jnp.sum(-0.5 * data.n2 * jnp.log(var2) - 0.5 * data.s2 / var2)
     return res + noise
@@ -298,7 +304,7 @@ def residual_weights(x, data: LogData) -> np.ndarray:
     sequence over the white one's), 1 for φ ≤ 0, at least 0.02. A model error that follows the
     manoeuvre (a clean log's residuals are not white) then widens the posterior instead of being
     counted once per window."""
-    rg, ra, _ = residuals(jnp.asarray(x), data)
+    rg, _, ra, _ = residuals(jnp.asarray(x), data)
     wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
     out = []
     for r in [np.asarray(rg)[wv, k] for k in range(3)] + [np.asarray(ra)[bv]]:

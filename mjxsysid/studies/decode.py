@@ -464,14 +464,11 @@ def checks_summary(checks: dict) -> dict:
     found = checks.get("findings", [])
     oop = [str(f) for f in found if f.level == "out_of_prior"]
     est = checks.get("estimates", {})
-    notes = []
-    if est:
-        tau, why = motor_time_constant(est)
-        notes += [why] if tau is None else []
+    tau, why = motor_time_constant(est) if est else (None, None)
     out = {"warnings": [str(f) for f in found if f.level == "warning"], "out_of_prior": oop,
            "is_out_of_prior": bool(oop), "prior": checks.get("prior"),
-           "estimates": {k: float(v) for k, v in est.items()}, "notes": notes,
-           "motor_time_constant_estimable": bool(est) and motor_time_constant(est)[0] is not None}
+           "estimates": {k: float(v) for k, v in est.items()}, "notes": [why] if est and tau is None else [],
+           "motor_time_constant_estimable": tau is not None}
     for k in ("source", "resampled"):
         if checks.get(k) is not None:
             out[k] = checks[k]
@@ -492,11 +489,11 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     and the information gap. Returns ``summary``."""
     from mjxsysid.identify.gap import information_gap, log_summary
     from mjxsysid.identify.inference import log_grounded_posterior
-    from mjxsysid.identify.likelihood import CHANNELS
+    from mjxsysid.identify.likelihood import CHANNELS, LogTooShort
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     try:
         post = log_grounded_posterior(rec, final, seed=seed)
-    except ValueError as e:        # a log too short for the likelihood's windows: the decoders alone, said so
+    except LogTooShort as e:       # a log too short for the likelihood's windows: the decoders alone, said so
         summary["_log_grounded"] = {"skipped": str(e)}
         summary["_posterior"] = "decoder-only"
         return summary
