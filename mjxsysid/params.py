@@ -101,22 +101,34 @@ def rotor_positions(theta: jax.Array) -> jax.Array:
     return jnp.concatenate([xy, jnp.zeros(xy.shape[:-1] + (1,), xy.dtype)], -1)
 
 
-def thrust_to_weight(theta) -> jax.Array:
+def xp_of(*arrays):
+    """jax.numpy for traced or device arrays, NumPy otherwise: the same function then runs inside
+    jit and on the host, where eager jax.numpy would compile each operation on first use."""
+    return jnp if any(isinstance(a, jax.Array) for a in arrays) else np
+
+
+def _float32(theta):
+    """θ as float32 in its own array library (:func:`xp_of`), as jax.numpy would hold it."""
+    xp = xp_of(theta)
+    return xp, xp.asarray(theta, xp.float32)
+
+
+def thrust_to_weight(theta):
     """4 k_t Ω_max² / (m g) with η = 1. θ (..., 19) -> (...)."""
-    theta = jnp.asarray(theta)
+    _, theta = _float32(theta)
     return 4.0 * theta[..., KT] * theta[..., OMEGA_MAX] ** 2 / (theta[..., MASS] * GRAVITY)
 
 
-def torque_ratio(theta) -> jax.Array:
+def torque_ratio(theta):
     """κ = k_τ / k_t in metres. θ (..., 19) -> (...)."""
-    theta = jnp.asarray(theta)
+    _, theta = _float32(theta)
     return theta[..., KTAU] / theta[..., KT]
 
 
-def angular_authority(theta) -> jax.Array:
+def angular_authority(theta):
     """l k_t Ω_max² / J per axis (rad/s²): how hard the vehicle can be rotated.
     θ (..., 19) -> (..., 3)."""
-    theta = jnp.asarray(theta)
+    _, theta = _float32(theta)
     num = theta[..., ARM] * theta[..., KT] * theta[..., OMEGA_MAX] ** 2
     return num[..., None] / theta[..., INERTIA]
 
@@ -125,10 +137,12 @@ IDENTIFIABLE_NAMES = ("thrust_to_weight", "torque_ratio",
                       "angular_authority[0]", "angular_authority[1]", "angular_authority[2]")
 
 
-def identifiable(theta) -> jax.Array:
-    """The combinations a hover latent can reveal (DESIGN §6). θ (..., 19) -> (..., 5)."""
-    return jnp.concatenate([thrust_to_weight(theta)[..., None], torque_ratio(theta)[..., None],
-                            angular_authority(theta)], -1)
+def identifiable(theta):
+    """The combinations a hover latent can reveal (DESIGN §6). θ (..., 19) -> (..., 5); NumPy in,
+    NumPy out (:func:`xp_of`)."""
+    xp, theta = _float32(theta)
+    return xp.concatenate([thrust_to_weight(theta)[..., None], torque_ratio(theta)[..., None],
+                           angular_authority(theta)], -1)
 
 
 # ----------------------------------------------------------------------------------------
@@ -672,7 +686,8 @@ class Normalizer:
     ``flow_map`` (19, 19) and ``flow_offset`` (19,), optional: the coordinates a decoder learns
     in, v = y @ flow_map + flow_offset (:meth:`to_flow`, :meth:`from_flow`); None: v = y. See
     :func:`identifiable_flow_map`. ``normalize`` / ``denormalize`` never apply it: decoders
-    return samples in the standard y space whatever their flow coordinates."""
+    return samples in the standard y space whatever their flow coordinates. The four maps are
+    jitted (one program each per shape, not a dozen eager operations compiled one by one)."""
     shift: jax.Array
     scale: jax.Array
     flow_map: jax.Array | None = None
@@ -689,21 +704,25 @@ class Normalizer:
     def _f(theta):
         return jnp.where(LOG_MASK, jnp.log(jnp.where(LOG_MASK, theta + _LOG_EPS, 1.0)), theta)
 
+    @jax.jit
     def normalize(self, theta):
         """θ (..., 19) physical -> (..., 19) normalised."""
         return (self._f(jnp.asarray(theta)) - self.shift) / self.scale
 
+    @jax.jit
     def denormalize(self, y):
         """(..., 19) normalised -> θ (..., 19) physical."""
         f = jnp.asarray(y) * self.scale + self.shift
         return jnp.where(LOG_MASK, jnp.exp(f) - _LOG_EPS, f)
 
+    @jax.jit
     def to_flow(self, y):
         """Normalised y (..., 19) -> the decoder's flow coordinates v (..., 19)."""
         if self.flow_map is None:
             return jnp.asarray(y)
         return jnp.asarray(y) @ self.flow_map + self.flow_offset
 
+    @jax.jit
     def from_flow(self, v):
         """Flow coordinates v (..., 19) -> normalised y (..., 19) (exact inverse of :meth:`to_flow`)."""
         if self.flow_map is None:

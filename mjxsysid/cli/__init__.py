@@ -11,6 +11,7 @@
     mjxsysid check-log FILE [--segment T0:T1]   a flight log's checks alone (CSV or PX4 ULog); exit 2/1/0
     mjxsysid export [--weights policy.npz] --out policy.onnx   the policy as ONNX, checked in onnxruntime
     mjxsysid release --out DIR [--stages S1,S2] [--list]   a release in resumable stages (docs/release.md)
+    mjxsysid profile -- COMMAND ...   a command's compile time per JAX program (docs/testing.md)
 
 Policies: ``--policy mjxsysid`` (the shipped one; the default), ``--policy xadap --weights DIR``
 (the released Extreme-Adaptation policy: its folder or a converted .npz; $MJXSYSID_XADAP_DIR is
@@ -25,7 +26,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mjxsysid.cli import decoders, experiment, flights, policy, probe, release, studies, tune
+from mjxsysid.cli import decoders, experiment, flights, policy, probe, profile, release, studies, tune
 
 COMMANDS = (
     flights.add_demo,
@@ -44,6 +45,7 @@ COMMANDS = (
     experiment.add_experiment,
     policy.add_export,
     release.add_release,
+    profile.add_profile,
 )
 """Each command's parser builder, in the order `mjxsysid --help` lists them."""
 

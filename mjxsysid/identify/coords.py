@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
+from mjxsysid.params import xp_of
 
 V_NAMES = ("log_thrust_to_weight", "rel_effectiveness[0]", "rel_effectiveness[1]", "rel_effectiveness[2]",
            "log_motor_time_constant", "log_authority[0]", "log_authority[1]", "log_authority[2]",
@@ -64,42 +65,57 @@ def _rho4(v):
     return 4.0 - v[..., 1] - v[..., 2] - v[..., 3]
 
 
-def visible_from_theta(theta) -> jax.Array:
-    """θ (..., 19) -> v (..., 12) (module doc)."""
-    t = jnp.asarray(theta, jnp.float32)
+def visible_from_theta(theta):
+    """θ (..., 19) -> v (..., 12) (module doc); NumPy in, NumPy out (:func:`xp_of`)."""
+    xp = xp_of(theta)
+    t = xp.asarray(theta, xp.float32)
     eta = t[..., P.ETA]
     eb = eta.mean(-1)
-    twr = P.thrust_to_weight(t) * eb
-    auth = P.angular_authority(t) * eb[..., None]
+    wm2 = t[..., P.OMEGA_MAX] ** 2
+    twr = 4.0 * t[..., P.KT] * wm2 / (t[..., P.MASS] * P.GRAVITY) * eb
+    auth = (t[..., P.ARM] * t[..., P.KT] * wm2)[..., None] / t[..., P.INERTIA] * eb[..., None]
     yaw = t[..., P.KTAU] / t[..., P.KT] / t[..., P.ARM] * auth[..., 2]
     rho = eta / eb[..., None]
     c = t[..., P.TAU_EXT] / t[..., P.INERTIA]
-    return jnp.concatenate([jnp.log(twr)[..., None], rho[..., :3], jnp.log(t[..., P.TAU_M])[..., None],
-                            jnp.log(auth), jnp.log(yaw)[..., None], c], -1)
+    return xp.concatenate([xp.log(twr)[..., None], rho[..., :3], xp.log(t[..., P.TAU_M])[..., None],
+                           xp.log(auth), xp.log(yaw)[..., None], c], -1)
 
 
-def hidden_from_theta(theta) -> jax.Array:
+def hidden_from_theta(theta):
     """θ (..., 19) -> h (..., 7) (module doc)."""
-    t = jnp.asarray(theta, jnp.float32)
-    return jnp.concatenate([jnp.log(t[..., P.MASS:P.MASS + 1]), jnp.log(t[..., P.ARM:P.ARM + 1]),
-                            jnp.log(t[..., P.OMEGA_MAX:P.OMEGA_MAX + 1]), t[..., P.ETA].mean(-1, keepdims=True),
-                            jnp.log(t[..., P.DRAG])], -1)
+    xp = xp_of(theta)
+    t = xp.asarray(theta, xp.float32)
+    return xp.concatenate([xp.log(t[..., P.MASS:P.MASS + 1]), xp.log(t[..., P.ARM:P.ARM + 1]),
+                           xp.log(t[..., P.OMEGA_MAX:P.OMEGA_MAX + 1]), t[..., P.ETA].mean(-1, keepdims=True),
+                           xp.log(t[..., P.DRAG])], -1)
 
 
-def theta_from(v, h) -> jax.Array:
+def theta_from(v, h):
     """v (..., 12), h (..., 7) -> θ (..., 19): the inverse of the two maps above."""
-    v, h = jnp.asarray(v, jnp.float32), jnp.asarray(h, jnp.float32)
-    m, arm, wmax, eb = jnp.exp(h[..., 0]), jnp.exp(h[..., 1]), jnp.exp(h[..., 2]), h[..., 3]
-    rho = jnp.concatenate([v[..., 1:4], _rho4(v)[..., None]], -1)
-    twr = jnp.exp(v[..., 0]) / eb
+    xp = xp_of(v, h)
+    v, h = xp.asarray(v, xp.float32), xp.asarray(h, xp.float32)
+    m, arm, wmax, eb = xp.exp(h[..., 0]), xp.exp(h[..., 1]), xp.exp(h[..., 2]), h[..., 3]
+    rho = xp.concatenate([v[..., 1:4], _rho4(v)[..., None]], -1)
+    twr = xp.exp(v[..., 0]) / eb
     kt = twr * m * P.GRAVITY / (4.0 * wmax**2)
-    auth = jnp.exp(v[..., 5:8]) / eb[..., None]
+    auth = xp.exp(v[..., 5:8]) / eb[..., None]
     inertia = (arm * kt * wmax**2)[..., None] / auth
-    kappa = arm * jnp.exp(v[..., 8]) / jnp.exp(v[..., 7])
+    kappa = arm * xp.exp(v[..., 8]) / xp.exp(v[..., 7])
     tau_ext = v[..., 9:12] * inertia
-    return jnp.concatenate([m[..., None], arm[..., None], kt[..., None], (kappa * kt)[..., None], inertia,
-                            jnp.exp(h[..., 4:7]), wmax[..., None], eb[..., None] * rho,
-                            jnp.exp(v[..., 4])[..., None], tau_ext], -1)
+    return xp.concatenate([m[..., None], arm[..., None], kt[..., None], (kappa * kt)[..., None], inertia,
+                           xp.exp(h[..., 4:7]), wmax[..., None], eb[..., None] * rho,
+                           xp.exp(v[..., 4])[..., None], tau_ext], -1)
+
+
+def rng_of(key) -> np.random.Generator:
+    """A NumPy generator from a seed, a generator (returned as is) or a JAX key (its bits): draws
+    on the host compile nothing."""
+    if isinstance(key, np.random.Generator):
+        return key
+    if isinstance(key, (int, np.integer)):
+        return np.random.default_rng(int(key))
+    return np.random.default_rng(np.asarray(jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
+                                            else key).astype(np.uint64).ravel().tolist())
 
 
 def log_quantities(theta) -> np.ndarray:
@@ -143,35 +159,37 @@ class PhysicalPrior:
         b = np.asarray(rows, np.float64)
         return b[:, 0], b[:, 1]
 
-    def v_valid(self, v) -> jax.Array:
+    def v_valid(self, v):
         """v (..., 12) -> (...) bool: inside the box, ρ_4 in range, J's triangle inequality."""
         lo, hi = self.v_bounds()
-        v = jnp.asarray(v)
-        box = jnp.all((v >= lo) & (v <= hi), -1)
+        xp = xp_of(v)
+        v = xp.asarray(v)
+        box = xp.all((v >= lo) & (v <= hi), -1)
         r4 = _rho4(v)
-        inv = jnp.exp(-v[..., 5:8])
+        inv = xp.exp(-v[..., 5:8])
         return box & (r4 >= self.rel_eff[0]) & (r4 <= self.rel_eff[1]) & (inv[..., 2] <= inv[..., 0] + inv[..., 1])
 
-    def log_prob_v(self, v) -> jax.Array:
+    def log_prob_v(self, v):
         """Unnormalised log density of v (..., 12): 0 inside, −inf outside (a uniform prior)."""
-        return jnp.where(self.v_valid(v), 0.0, -jnp.inf)
+        xp = xp_of(v)
+        return xp.where(self.v_valid(v), 0.0, -xp.inf)
 
     def sample_v(self, key, n: int) -> np.ndarray:
-        """n draws of v (n, 12) (rejection from the box)."""
+        """n draws of v (n, 12) (rejection from the box); ``key``: see :func:`rng_of`."""
         lo, hi = self.v_bounds()
+        rng = rng_of(key)
         out, have = [], 0
         while have < n:
-            key, k = jax.random.split(key)
-            x = np.asarray(jax.random.uniform(k, (4 * n, N_V), jnp.float32, lo, hi))
-            x = x[np.asarray(self.v_valid(x))]
+            x = rng.uniform(lo, hi, (4 * n, N_V)).astype(np.float32)
+            x = x[self.v_valid(x)]
             out.append(x)
             have += len(x)
         return np.concatenate(out)[:n]
 
     def sample_h(self, key, n: int) -> np.ndarray:
-        """n draws of h (n, 7)."""
+        """n draws of h (n, 7); ``key``: see :func:`rng_of`."""
         lo, hi = self.h_bounds()
-        return np.asarray(jax.random.uniform(key, (n, N_H), jnp.float32, lo, hi))
+        return rng_of(key).uniform(lo, hi, (n, N_H)).astype(np.float32)
 
     def contains_theta(self, theta) -> np.ndarray:
         """θ (..., 19) -> (...) bool: inside this prior's support."""

@@ -30,15 +30,16 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid.identify.coords import (N_V, PHYSICAL_PRIOR, PhysicalPrior, theta_from,
-                                      visible_from_theta)
+from mjxsysid.identify.coords import (N_V, PHYSICAL_PRIOR, PhysicalPrior, rng_of, theta_from, visible_from_theta,
+                                      xp_of)
 from mjxsysid.identify.likelihood import (N_NUIS, LogData, linear_start, log_likelihood, noise_estimate, prepare,
-                                          residual_weights)
+                                          residual_weights, residuals_jit)
 from mjxsysid.identify.likelihood import NU
 from mjxsysid.identify.likelihood import residuals as residual_fn
 
@@ -58,22 +59,33 @@ ACC_BIAS_SD = 0.3
 coefficient), so a flat prior would leave thrust-to-weight to the bias's range."""
 
 
+def _solve_lower(chol, d):
+    """z with chol z = d for a batch d (..., k) (SciPy on the host, jax.scipy under jit)."""
+    if isinstance(d, jax.Array) or isinstance(chol, jax.Array):
+        c = jnp.asarray(chol, jnp.float32)
+        return jax.scipy.linalg.solve_triangular(c, jnp.reshape(d, (-1, c.shape[0])).T, lower=True).T.reshape(d.shape)
+    from scipy.linalg import solve_triangular
+    d = np.asarray(d, np.float64)
+    return solve_triangular(np.asarray(chol, np.float64), d.reshape(-1, d.shape[-1]).T, lower=True).T.reshape(d.shape)
+
+
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["mean", "chol"], meta_fields=[])
 @dataclasses.dataclass(frozen=True)
 class Gaussian:
-    """A multivariate normal (mean (d,), chol (d, d) lower)."""
+    """A multivariate normal (mean (d,), chol (d, d) lower). Draws on the host (NumPy: compile
+    nothing); ``log_prob`` on the host or inside jit (:func:`~.coords.xp_of`)."""
     mean: np.ndarray
     chol: np.ndarray
 
-    def sample(self, key, n):
-        z = jax.random.normal(key, (n, len(self.mean)), jnp.float32)
-        return np.asarray(self.mean + z @ self.chol.T, np.float32)
+    def sample(self, rng, n):
+        z = rng_of(rng).standard_normal((n, len(self.mean)))
+        return (np.asarray(self.mean) + z @ np.asarray(self.chol).T).astype(np.float32)
 
     def log_prob(self, x):
-        d = x - jnp.asarray(self.mean, jnp.float32)
-        z = jax.scipy.linalg.solve_triangular(jnp.asarray(self.chol, jnp.float32), d.T, lower=True).T
-        logdet = jnp.sum(jnp.log(jnp.diag(jnp.asarray(self.chol, jnp.float32))))
-        return -0.5 * jnp.sum(z * z, -1) - logdet - 0.5 * len(self.mean) * np.log(2 * np.pi)
+        xp = xp_of(x, self.mean)
+        z = _solve_lower(self.chol, x - self.mean)
+        logdet = xp.sum(xp.log(xp.diag(self.chol)))
+        return -0.5 * xp.sum(z * z, -1) - logdet - 0.5 * len(self.mean) * np.log(2 * np.pi)
 
 
 @functools.partial(jax.tree_util.register_dataclass, data_fields=["mean", "chol"], meta_fields=["df"])
@@ -84,20 +96,19 @@ class StudentT:
     chol: np.ndarray
     df: float = 5.0
 
-    def sample(self, key, n):
-        k1, k2 = jax.random.split(key)
-        z = jax.random.normal(k1, (n, len(self.mean)), jnp.float32)
-        g = jax.random.gamma(k2, self.df / 2, (n, 1)) / (self.df / 2)
-        return np.asarray(self.mean + (z / jnp.sqrt(g)) @ jnp.asarray(self.chol, jnp.float32).T, np.float32)
+    def sample(self, rng, n):
+        rng = rng_of(rng)
+        z = rng.standard_normal((n, len(self.mean)))
+        g = rng.gamma(self.df / 2, size=(n, 1)) / (self.df / 2)
+        return (np.asarray(self.mean) + (z / np.sqrt(g)) @ np.asarray(self.chol).T).astype(np.float32)
 
     def log_prob(self, x):
+        xp = xp_of(x, self.mean)
         d = len(self.mean)
-        z = jax.scipy.linalg.solve_triangular(jnp.asarray(self.chol, jnp.float32),
-                                              (x - jnp.asarray(self.mean, jnp.float32)).T, lower=True).T
-        logdet = jnp.sum(jnp.log(jnp.diag(jnp.asarray(self.chol, jnp.float32))))
-        c = (jax.scipy.special.gammaln((self.df + d) / 2) - jax.scipy.special.gammaln(self.df / 2)
-             - d / 2 * jnp.log(self.df * jnp.pi))
-        return c - logdet - (self.df + d) / 2 * jnp.log1p(jnp.sum(z * z, -1) / self.df)
+        z = _solve_lower(self.chol, x - self.mean)
+        logdet = xp.sum(xp.log(xp.diag(self.chol)))
+        c = math.lgamma((self.df + d) / 2) - math.lgamma(self.df / 2) - d / 2 * math.log(self.df * math.pi)
+        return c - logdet - (self.df + d) / 2 * xp.log1p(xp.sum(z * z, -1) / self.df)
 
 
 def decoded_proposal(decoded_theta, prior: PhysicalPrior = PHYSICAL_PRIOR, widen: float = PROPOSAL_WIDEN):
@@ -164,9 +175,13 @@ def _y_lo_hi(prior):
 
 def full_x(y, log_delta):
     """y (..., 17) and log δ (4,) -> x (..., 21) = [v, log σ, log δ, bias]."""
-    y = jnp.asarray(y)
-    ld = jnp.broadcast_to(jnp.asarray(log_delta, y.dtype), y.shape[:-1] + (4,))
-    return jnp.concatenate([y[..., :N_V + 4], ld, y[..., N_V + 4:]], -1)
+    xp = xp_of(y)
+    y = xp.asarray(y)
+    ld = xp.broadcast_to(xp.asarray(log_delta, y.dtype), y.shape[:-1] + (4,))
+    return xp.concatenate([y[..., :N_V + 4], ld, y[..., N_V + 4:]], -1)
+
+
+_residuals = residuals_jit
 
 
 def log_prior(x, prior: PhysicalPrior = PHYSICAL_PRIOR):
@@ -190,12 +205,23 @@ def _batch_log_target(y, data, log_delta, weights, prior):
     return jax.vmap(lambda z: _log_target_y(z, data, log_delta, weights, prior))(y)
 
 
+TARGET_CHUNK = 4096
+"""Candidates per call of the jitted target: a batch is padded to a multiple of it, so one program
+serves the mode's few fits, the importance draws and any batch a caller passes."""
+
+
 def log_target(y, data: LogData, log_delta=None, weights=None, prior: PhysicalPrior = PHYSICAL_PRIOR):
-    """log prior + log likelihood of a batch y (N, 17) -> (N,), one jitted call (log δ (4,)
-    default 1e-4; weights (4,) default 1)."""
+    """log prior + log likelihood of a batch y (N, 17) -> (N,), in jitted chunks of
+    :data:`TARGET_CHUNK` (log δ (4,) default 1e-4; weights (4,) default 1)."""
     ld = jnp.full(4, np.log(1e-4), jnp.float32) if log_delta is None else jnp.asarray(log_delta, jnp.float32)
     w = jnp.ones(4, jnp.float32) if weights is None else jnp.asarray(weights, jnp.float32)
-    return _batch_log_target(jnp.asarray(y, jnp.float32), data, ld, w, prior)
+    y = np.asarray(y, np.float32)
+    n = len(y)
+    pad = -n % TARGET_CHUNK
+    yp = np.concatenate([y, np.broadcast_to(y[:1], (pad, y.shape[1]))]) if pad else y
+    out = [np.asarray(_batch_log_target(jnp.asarray(yp[i:i + TARGET_CHUNK]), data, ld, w, prior))
+           for i in range(0, len(yp), TARGET_CHUNK)]
+    return np.concatenate(out)[:n]
 
 
 def _project(x, prior):
@@ -244,7 +270,7 @@ def _ls_jacobian(z, args, w):
 def _discrepancy(y, data):
     """δ per channel (4,) at y (17,): what the residuals' mean square leaves beyond the scale they
     have without a discrepancy (noise, resolution, the windows' floor; at least 1e-6)."""
-    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in residual_fn(full_x(jnp.asarray(y), np.full(4, -30.0)), data))
+    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in _residuals(np.asarray(full_x(y, np.full(4, -30.0))), data))
     wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
     ms = np.array([np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)] + [np.mean(ra[bv] ** 2) - sa ** 2])
     return np.log(np.sqrt(np.maximum(ms, 1e-12))).astype(np.float32)
@@ -269,12 +295,13 @@ def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, roun
         lt = np.asarray(log_target(fits, data, ld, None, prior))
         best = fits[int(np.argmax(np.where(np.isfinite(lt), lt, -np.inf)))]
         ld = np.clip(_discrepancy(best, data), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
-        ys = best[None] if r < rounds - 1 else ys
-    w = residual_weights(np.asarray(full_x(jnp.asarray(best)[None], ld))[0], data)
+        # the same number of rows every round: one compiled fit
+        ys = np.broadcast_to(best, ys.shape) if r < rounds - 1 else ys
+    w = residual_weights(full_x(best, ld), data)
     y = best
     # Gauss–Newton precision of the tempered Student-t residuals at the least-squares mode (Fisher
     # information (ν+1)/(ν+3) per standardised residual); σ's from its second differences (2 n per log σ)
-    z = jnp.concatenate([jnp.asarray(y[:N_V]), jnp.asarray(y[N_V + 4:])])
+    z = jnp.asarray(np.concatenate([y[:N_V], y[N_V + 4:]]))
     args = (data, jnp.asarray(ld), jnp.asarray(y[N_V:N_V + 4]))
     jac = np.asarray(_ls_jacobian(z, args, jnp.asarray(w)), np.float64)
     pz = (NU + 1) / (NU + 3) * jac.T @ jac
@@ -382,17 +409,22 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     ``weights`` (4,) the channels' correlation discounts, ``mode`` (21,), ``channels_used`` (4,),
     and for SMC ``smc_stages``, ``smc_acceptance``, ``smc_tempering`` (1 when it reached the target)."""
     data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data)
-    key = jax.random.PRNGKey(seed)
-    k_is, k_n, k_smc, k_mix, k_h, k_res, k_st, k_lp = jax.random.split(key, 8)
+    # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
+    r_is, r_n, r_mix, r_h, r_res, r_st, r_lp = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7))
+    k_smc = np.array([0, seed & 0xFFFFFFFF], np.uint32)
     qv = None if decoded_theta is None else decoded_proposal(decoded_theta, prior)
     qn = nuisance_proposal(data)
-    # 0. the mode: a linear start, the decoded samples, prior draws
+    # 0. the mode from ``starts`` starting points (always as many: one compiled fit): a linear
+    # start, the decoded samples, prior draws
     x_lin = linear_start(data)
-    sv = [prior.sample_v(k_st, max(starts // 3, 1))]
+    sv = [prior.sample_v(r_st, max(starts // 3, 1))]
     if decoded_theta is not None:
         dv = np.asarray(visible_from_theta(np.asarray(decoded_theta, np.float32)), np.float32)
         dv = dv[np.all(np.isfinite(dv), 1) & np.asarray(prior.v_valid(dv))][: starts - len(sv[0]) - 1]
         sv.append(dv)
+    n_fill = max(starts - 1 - sum(len(a) for a in sv), 0)
+    if n_fill:
+        sv.append(prior.sample_v(r_st, n_fill))
     sv = np.concatenate(sv)
     st = np.concatenate([x_lin[None], np.concatenate([sv, np.broadcast_to(x_lin[N_V:], (len(sv), N_NUIS))], 1)])
     mode, ld, w, y_star, lap = find_mode(data, st.astype(np.float32), prior)
@@ -401,39 +433,39 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     chosen = None
     # 1. the decoded ensemble as the proposal
     if qv is not None:
-        y = np.concatenate([qv.sample(k_is, draws), qn.sample(k_n, draws)], 1)
+        y = np.concatenate([qv.sample(r_is, draws), qn.sample(r_n, draws)], 1)
         lw, out["decoded_is"] = _is(y, qv.log_prob(y[:, :N_V]) + qn.log_prob(y[:, N_V:]), data, ld, w, prior)
         if _reliable(out["decoded_is"]) and not force_smc:
             chosen = ("decoded_is", y, lw)
     if chosen is None:
-        y = lap.sample(k_lp, draws)
+        y = lap.sample(r_lp, draws)
         lw, out["laplace_is"] = _is(y, lap.log_prob(y), data, ld, w, prior)
         if _reliable(out["laplace_is"]) and not force_smc:
             chosen = ("laplace_is", y, lw)
     if chosen is not None:
         name, y, lw = chosen
         p = np.exp(lw - lw.max())
-        idx = np.asarray(jax.random.choice(k_res, len(y), (samples,), p=jnp.asarray(p / p.sum())))
+        idx = r_res.choice(len(y), samples, p=p / p.sum())
         ys = y[idx]
         out["method"] = name
     else:   # 2. tempered SMC from a mixture of the proposals and the prior
         n_prior = int(round(PRIOR_SHARE * particles))
-        parts = [np.concatenate([prior.sample_v(k_mix, n_prior), qn.sample(k_n, n_prior)], 1)]
+        parts = [np.concatenate([prior.sample_v(r_mix, n_prior), qn.sample(r_n, n_prior)], 1)]
         rest = particles - n_prior
         n_lap = rest if qv is None else rest // 2
-        parts.append(lap.sample(k_lp, n_lap))
+        parts.append(lap.sample(r_lp, n_lap))
         if rest - n_lap:
-            parts.append(np.concatenate([qv.sample(k_is, rest - n_lap), qn.sample(k_n, rest - n_lap)], 1))
+            parts.append(np.concatenate([qv.sample(r_is, rest - n_lap), qn.sample(r_n, rest - n_lap)], 1))
         y0 = jnp.asarray(np.concatenate(parts), jnp.float32)
         pts, wts, lam, n, acc = _smc(k_smc, y0, data, jnp.asarray(ld), jnp.asarray(w), qv, qn, lap, prior,
                                      n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
         wts = np.asarray(wts, np.float64)
-        idx = np.asarray(jax.random.choice(k_res, particles, (samples,), p=jnp.asarray(wts / wts.sum())))
+        idx = r_res.choice(particles, samples, p=wts / wts.sum())
         ys = np.asarray(pts)[idx]
         out.update(method="smc", smc_stages=int(n), smc_acceptance=float(acc), smc_tempering=float(lam))
     xs = np.asarray(full_x(ys, ld))
     v = xs[:, :N_V]
-    h = prior.sample_h(k_h, samples)
+    h = prior.sample_h(r_h, samples)
     out.update(v=v, nuisance=xs[:, N_V:], theta=np.asarray(theta_from(v, h), np.float32))
     return out
 

@@ -281,6 +281,10 @@ def residuals(x, data: LogData):
             (data.acc - acc - bias) * data.bmask, jnp.sqrt(var[3]))
 
 
+residuals_jit = jax.jit(residuals)
+""":func:`residuals` compiled (once per log bucket): what host-side callers use."""
+
+
 def log_likelihood(x, data: LogData, weights=None):
     """log p(log | v, nuisances) for one parameter vector x (12 + 9,) = [v, log σ (4), log δ (4),
     acc_z bias]: the Student-t window residuals plus the second differences' evidence on σ.
@@ -304,7 +308,7 @@ def residual_weights(x, data: LogData) -> np.ndarray:
     sequence over the white one's), 1 for φ ≤ 0, at least 0.02. A model error that follows the
     manoeuvre (a clean log's residuals are not white) then widens the posterior instead of being
     counted once per window."""
-    rg, _, ra, _ = residuals(jnp.asarray(x), data)
+    rg, _, ra, _ = residuals_jit(jnp.asarray(x, jnp.float32), data)
     wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
     out = []
     for r in [np.asarray(rg)[wv, k] for k in range(3)] + [np.asarray(ra)[bv]]:
