@@ -11,7 +11,7 @@
     mjxsysid check-log FILE [--segment T0:T1]   a flight log's checks alone (CSV or PX4 ULog); exit 2/1/0
     mjxsysid export [--weights policy.npz] --out policy.onnx   the policy as ONNX, checked in onnxruntime
     mjxsysid release --out DIR [--stages S1,S2] [--list]   a release in resumable stages (docs/release.md)
-    mjxsysid profile -- COMMAND ...   a command's compile time per JAX program (docs/testing.md)
+    mjxsysid profile -- COMMAND ...   a command's compile time per JAX program (docs/cli.md)
 
 Policies: ``--policy mjxsysid`` (the shipped one; the default), ``--policy xadap --weights DIR``
 (the released Extreme-Adaptation policy: its folder or a converted .npz; $MJXSYSID_XADAP_DIR is

@@ -1,0 +1,40 @@
+"""`mjxsysid.profiling` and `mjxsysid profile`: compile time per JAX program, from JAX's own events."""
+import json
+
+import jax
+import jax.numpy as jnp
+import pytest
+
+from mjxsysid.profiling import compile_profile
+
+
+def test_compile_profile_names_each_program_and_counts_its_builds():
+    def profiled_twice(x):
+        return jnp.sin(x) * 2.0
+
+    f = jax.jit(profiled_twice)
+    with compile_profile() as prof:
+        f(jnp.ones(3))
+        f(jnp.ones(3))          # the same shape: no new build
+        f(jnp.ones(5))          # a new shape: a second build
+    p = prof.programs["jit(profiled_twice)"]
+    assert p.builds == 2 and p.compile > 0 and p.lower > 0
+    assert prof.programs["profiled_twice"].trace > 0          # tracing is recorded under the bare name
+    assert prof.wall >= prof.compile_s > 0
+    s = prof.summary(top=3)
+    assert s["builds"] >= 2 and len(s["top"]) <= 3 and "jit(profiled_twice)" in prof.table()
+    with compile_profile() as later:    # the listener is gone after the block
+        f(jnp.ones(3))
+    assert "jit(profiled_twice)" not in prof.programs or prof.programs["jit(profiled_twice)"].builds == 2
+    assert later.builds == 0
+
+
+def test_profile_command_runs_the_command_and_writes_json(tmp_path, capsys):
+    from mjxsysid.cli import main
+    pytest.importorskip("pyulog")
+    log = __import__("pathlib").Path(__file__).parent / "data" / "sample_px4_events.ulg"
+    rc = main(["profile", "--json", str(tmp_path / "p.json"), "--", "check-log", str(log), "--json"])
+    got = json.loads((tmp_path / "p.json").read_text())
+    assert got["command"][0] == "check-log" and got["exit"] == rc and got["wall_s"] > 0
+    assert "persistent-cache hits" in capsys.readouterr().err
+    assert main(["profile"]) == 2 and "name the command" in capsys.readouterr().err
