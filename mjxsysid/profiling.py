@@ -64,9 +64,9 @@ class Profile:
 
     def table(self, top: int = 10) -> str:
         s = self.summary(top)
-        lines = [f"wall {s['wall_s']:.1f} s: compiling {s['compile_s']:.1f} s (trace + lower + XLA), the rest "
-                 f"{s['other_s']:.1f} s; {s['programs']} programs, {s['builds']} builds, "
-                 f"{s['cache_hits']} persistent-cache hits",
+        lines = [(f"wall {s['wall_s']:.1f} s: compiling {s['compile_s']:.1f} s (trace + lower + XLA), the rest "
+                  f"{s['other_s']:.1f} s; {s['programs']} programs, {s['builds']} builds, "
+                  f"{s['cache_hits']} persistent-cache hits"),
                  f"{'program':<48} {'builds':>6} {'trace':>7} {'lower':>7} {'XLA':>7}"]
         for r in s["top"]:
             lines.append(f"{r['name'][:48]:<48} {r['builds']:>6} {r['trace_s']:>7.2f} {r['lower_s']:>7.2f} "
