@@ -128,9 +128,10 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     stage("decoding", "[3/4] decoding the policy's latent of the paper vehicle at 10 Hz with the shipped CFM"
           + (f" and, every {FLIGHT_EVERY_S:g} s, with the flight-level sequence decoder" if seq is not None else
              f" (flight-level posterior unavailable: no cfm_seq.npz in {ref.decoders_dir})"))
+    # every 10 Hz decode time of the 10 s flight (101; `decode`'s MAX_DECODES would thin them to 30)
     dec = decode_latents(one.latent, one.time, rate=10.0, samples=200, seed=seed, decoder=cfm,
                          regression=reg, window="flight" if seq is not None else "instant", seq_decoder=seq,
-                         window_every=FLIGHT_EVERY_S)
+                         window_every=FLIGHT_EVERY_S, max_decodes=None)
     post = summarize_posterior(dec["samples"][-1], theta[0])
     flight_info = flight_level_info(dec, seq, ref)
     post_flight = summarize_posterior(dec["samples_window"][-1], theta[0]) if seq is not None else None
