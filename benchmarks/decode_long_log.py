@@ -70,23 +70,31 @@ def _decode(log: Path, out: Path, extra: list = (), cache: Path | None = None) -
     return wall, rss * 1024 / 1e9
 
 
-def compare(args):
-    rows = []
+def _tiled_logs(minutes):
+    """(minutes, log path, scratch folder) per length, the logs tiled from one base flight in a
+    temporary folder (each log removed once the caller moves on)."""
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         base = base_log(tmp / "base.csv")
-        for mins in args.minutes:
+        for mins in minutes:
             log = tiled_log(base, 60.0 * mins, tmp / f"log_{mins:g}.csv")
-            row = {"minutes": mins}
-            for mode, extra in (("decoder_only", ["--decoder-only"]), ("log_grounded", [])):
-                cache = tmp / f"cache_{mode}_{mins:g}"
-                for temp in ("cold", "warm"):
-                    wall, gb = _decode(log, tmp / f"dec_{mode}_{temp}", extra, cache)
-                    row[f"{mode}_{temp}_s"], row[f"{mode}_{temp}_gb"] = wall, gb
-                    print(f"{mins:6.3g} min {mode:13s} {temp}: {wall:6.1f} s, {gb:.2f} GB", flush=True)
+            yield mins, log, tmp
+            log.unlink()
+
+
+def compare(args):
+    rows = []
+    for mins, log, tmp in _tiled_logs(args.minutes):
+        row = {"minutes": mins}
+        for mode, extra in (("decoder_only", ["--decoder-only"]), ("log_grounded", [])):
+            cache = tmp / f"cache_{mode}_{mins:g}"
             for temp in ("cold", "warm"):
-                row[f"added_{temp}_s"] = row[f"log_grounded_{temp}_s"] - row[f"decoder_only_{temp}_s"]
-            rows.append(row)
+                wall, gb = _decode(log, tmp / f"dec_{mode}_{temp}", extra, cache)
+                row[f"{mode}_{temp}_s"], row[f"{mode}_{temp}_gb"] = wall, gb
+                print(f"{mins:6.3g} min {mode:13s} {temp}: {wall:6.1f} s, {gb:.2f} GB", flush=True)
+        for temp in ("cold", "warm"):
+            row[f"added_{temp}_s"] = row[f"log_grounded_{temp}_s"] - row[f"decoder_only_{temp}_s"]
+        rows.append(row)
     res = {"benchmark": "decode_long_log --compare-decoder-only", "date": time.strftime("%Y-%m-%d"),
            "machine": platform.node(), "cpus": len(__import__("os").sched_getaffinity(0)), "rows": rows}
     print(json.dumps(res, indent=1))
@@ -104,22 +112,17 @@ def main():
     if args.compare_decoder_only:
         return compare(args)
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
-        tmp = Path(tmp)
-        base = base_log(tmp / "base.csv")
-        for mins in args.minutes:
-            log = tiled_log(base, 60.0 * mins, tmp / f"log_{mins:g}.csv")
-            out = tmp / f"dec_{mins:g}"
-            wall, gb = _decode(log, out)
-            s = json.loads((out / "summary.json").read_text())
-            row = {"minutes": mins, "rows": int(round(60.0 * mins / 0.002)), "csv_mb": log.stat().st_size / 1e6,
-                   "wall_s": wall, "peak_rss_gb": gb, "n_decodes": s["_window"]["n_decodes"],
-                   "decode_rate_hz": s["_window"]["decode_rate_hz"], "n_latents": s["_window"]["n_latents"]}
-            rows.append(row)
-            print(f"{mins:7.3g} min  {row['rows']:>9,} rows  {row['csv_mb']:7.1f} MB  {wall:7.1f} s  "
-                  f"{row['peak_rss_gb']:5.2f} GB  {row['n_decodes']} decodes at {row['decode_rate_hz']:.3g} Hz, "
-                  f"{row['n_latents']} latents", flush=True)
-            log.unlink()
+    for mins, log, tmp in _tiled_logs(args.minutes):
+        out = tmp / f"dec_{mins:g}"
+        wall, gb = _decode(log, out)
+        s = json.loads((out / "summary.json").read_text())
+        row = {"minutes": mins, "rows": int(round(60.0 * mins / 0.002)), "csv_mb": log.stat().st_size / 1e6,
+               "wall_s": wall, "peak_rss_gb": gb, "n_decodes": s["_window"]["n_decodes"],
+               "decode_rate_hz": s["_window"]["decode_rate_hz"], "n_latents": s["_window"]["n_latents"]}
+        rows.append(row)
+        print(f"{mins:7.3g} min  {row['rows']:>9,} rows  {row['csv_mb']:7.1f} MB  {wall:7.1f} s  "
+              f"{row['peak_rss_gb']:5.2f} GB  {row['n_decodes']} decodes at {row['decode_rate_hz']:.3g} Hz, "
+              f"{row['n_latents']} latents", flush=True)
     res = {"benchmark": "decode_long_log", "date": time.strftime("%Y-%m-%d"), "machine": platform.node(),
            "cpus": len(__import__("os").sched_getaffinity(0)), "python": platform.python_version(), "rows": rows}
     if args.out:

@@ -329,5 +329,7 @@ def test_tau_from_the_specific_force_when_the_torque_fit_fails(paper_log):
     tau = [f for f in L.prior_check(r, est=est) if "motor time constant" in f.message]
     assert tau and "5 ms" in tau[0].message and "specific force" in tau[0].message
     flat = dict(rec, imu=np.column_stack([np.zeros((len(u), 5)), np.full(len(u), 9.75)]))
+    # a constant IMU reads as held from a very low rate: its noise is read from the column as logged (0), not NaN
+    assert L.estimate_imu_noise(flat)["gyro_noise"] == 0.0
     s = checks_summary({"estimates": L.estimate_vehicle(flat), "findings": []})
     assert not s["motor_time_constant_estimable"] and "not estimable" in s["notes"][0]

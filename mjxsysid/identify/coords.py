@@ -35,8 +35,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import params as P
@@ -107,17 +105,6 @@ def theta_from(v, h):
                            xp.exp(v[..., 4])[..., None], tau_ext], -1)
 
 
-def rng_of(key) -> np.random.Generator:
-    """A NumPy generator from a seed, a generator (returned as is) or a JAX key (its bits): draws
-    on the host compile nothing."""
-    if isinstance(key, np.random.Generator):
-        return key
-    if isinstance(key, (int, np.integer)):
-        return np.random.default_rng(int(key))
-    return np.random.default_rng(np.asarray(jax.random.key_data(key) if jnp.issubdtype(key.dtype, jax.dtypes.prng_key)
-                                            else key).astype(np.uint64).ravel().tolist())
-
-
 def log_quantities(theta) -> np.ndarray:
     """θ (..., 19) -> the :data:`LOG_NAMES` quantities (..., 13) in physical units."""
     v = np.asarray(visible_from_theta(theta), np.float64)
@@ -174,10 +161,10 @@ class PhysicalPrior:
         xp = xp_of(v)
         return xp.where(self.v_valid(v), 0.0, -xp.inf)
 
-    def sample_v(self, key, n: int) -> np.ndarray:
-        """n draws of v (n, 12) (rejection from the box); ``key``: see :func:`rng_of`."""
+    def sample_v(self, rng, n: int) -> np.ndarray:
+        """n draws of v (n, 12) (rejection from the box); ``rng``: a NumPy generator or a seed."""
         lo, hi = self.v_bounds()
-        rng = rng_of(key)
+        rng = np.random.default_rng(rng)
         out, have = [], 0
         while have < n:
             x = rng.uniform(lo, hi, (4 * n, N_V)).astype(np.float32)
@@ -186,10 +173,10 @@ class PhysicalPrior:
             have += len(x)
         return np.concatenate(out)[:n]
 
-    def sample_h(self, key, n: int) -> np.ndarray:
-        """n draws of h (n, 7); ``key``: see :func:`rng_of`."""
+    def sample_h(self, rng, n: int) -> np.ndarray:
+        """n draws of h (n, 7); ``rng``: a NumPy generator or a seed."""
         lo, hi = self.h_bounds()
-        return rng_of(key).uniform(lo, hi, (n, N_H)).astype(np.float32)
+        return np.random.default_rng(rng).uniform(lo, hi, (n, N_H)).astype(np.float32)
 
     def contains_theta(self, theta) -> np.ndarray:
         """θ (..., 19) -> (...) bool: inside this prior's support."""

@@ -36,12 +36,26 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid.identify.coords import (N_V, PHYSICAL_PRIOR, PhysicalPrior, rng_of, theta_from, visible_from_theta,
-                                      xp_of)
-from mjxsysid.identify.likelihood import (N_NUIS, LogData, linear_start, log_likelihood, noise_estimate, prepare,
-                                          residual_weights, residuals_jit)
-from mjxsysid.identify.likelihood import NU
-from mjxsysid.identify.likelihood import residuals as residual_fn
+from mjxsysid.identify.coords import (
+    N_V,
+    PHYSICAL_PRIOR,
+    PhysicalPrior,
+    theta_from,
+    visible_from_theta,
+    xp_of,
+)
+from mjxsysid.identify.likelihood import (
+    N_NUIS,
+    NU,
+    LogData,
+    linear_start,
+    log_likelihood,
+    noise_estimate,
+    prepare,
+    residual_weights,
+    residuals,
+    residuals_jit,
+)
 
 PROPOSAL_WIDEN = 1.5
 """The decoded ensemble's Gaussian fit in v is widened by this factor (a defensive proposal)."""
@@ -78,7 +92,7 @@ class Gaussian:
     chol: np.ndarray
 
     def sample(self, rng, n):
-        z = rng_of(rng).standard_normal((n, len(self.mean)))
+        z = np.random.default_rng(rng).standard_normal((n, len(self.mean)))
         return (np.asarray(self.mean) + z @ np.asarray(self.chol).T).astype(np.float32)
 
     def log_prob(self, x):
@@ -97,7 +111,7 @@ class StudentT:
     df: float = 5.0
 
     def sample(self, rng, n):
-        rng = rng_of(rng)
+        rng = np.random.default_rng(rng)
         z = rng.standard_normal((n, len(self.mean)))
         g = rng.gamma(self.df / 2, size=(n, 1)) / (self.df / 2)
         return (np.asarray(self.mean) + (z / np.sqrt(g)) @ np.asarray(self.chol).T).astype(np.float32)
@@ -181,8 +195,6 @@ def full_x(y, log_delta):
     return xp.concatenate([y[..., :N_V + 4], ld, y[..., N_V + 4:]], -1)
 
 
-_residuals = residuals_jit
-
 
 def log_prior(x, prior: PhysicalPrior = PHYSICAL_PRIOR):
     """log p(x) up to a constant, x (21,) = [v, log σ, log δ, bias]: the physical prior, uniform
@@ -243,7 +255,7 @@ def _ls_residuals(z, args):
     """Standardised residuals for the least-squares stage: z (13,) = [v, bias], σ fixed in ``args``."""
     data, ld, ls = args
     x = jnp.concatenate([z[:N_V], ls, ld, z[N_V:]])
-    rg, sg, ra, sa = residual_fn(x, data)
+    rg, sg, ra, sa = residuals(x, data)
     u = data.use
     return jnp.concatenate([(rg * (u[:3] / sg)).ravel(), ra * (u[3] / sa), z[N_V:] / ACC_BIAS_SD])
 
@@ -270,7 +282,7 @@ def _ls_jacobian(z, args, w):
 def _discrepancy(y, data):
     """δ per channel (4,) at y (17,): what the residuals' mean square leaves beyond the scale they
     have without a discrepancy (noise, resolution, the windows' floor; at least 1e-6)."""
-    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in _residuals(np.asarray(full_x(y, np.full(4, -30.0))), data))
+    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in residuals_jit(full_x(y, np.full(4, -30.0)), data))
     wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
     ms = np.array([np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)] + [np.mean(ra[bv] ** 2) - sa ** 2])
     return np.log(np.sqrt(np.maximum(ms, 1e-12))).astype(np.float32)
@@ -279,14 +291,15 @@ def _discrepancy(y, data):
 def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3):
     """The mode from ``starts`` (K, 21) -> (x* (21,), log δ* (4,), weights (4,), y* (17,), the
     Laplace Student-t at y*). δ and σ are fixed while v and the bias are fitted (Levenberg–Marquardt
-    from every start), δ then set from the best fit's residuals, ``rounds`` times (δ free in the
+    from every start, in later rounds from its previous fit), δ then set from the best fit's
+    residuals, ``rounds`` times (δ free in the
     same fit lets a poor start explain the rates as discrepancy and stay there; a Student-t BFGS
     from a good start wandered off in float32); then the correlation discounts w are set."""
     starts = np.asarray(starts, np.float32)
     ys = np.concatenate([starts[:, :N_V + 4], starts[:, N_V + 8:]], 1)
     ld = starts[0, N_V + 4:N_V + 8].astype(np.float32)
     ls = ys[0, N_V:N_V + 4]
-    for r in range(rounds):
+    for _ in range(rounds):
         z = np.concatenate([ys[:, :N_V], ys[:, N_V + 4:]], 1)
         z = np.asarray(_fit_ls_many(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls)))
         fits = np.concatenate([z[:, :N_V], np.broadcast_to(ls, (len(z), 4)), z[:, N_V:]], 1)
@@ -295,8 +308,7 @@ def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, roun
         lt = np.asarray(log_target(fits, data, ld, None, prior))
         best = fits[int(np.argmax(np.where(np.isfinite(lt), lt, -np.inf)))]
         ld = np.clip(_discrepancy(best, data), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
-        # the same number of rows every round: one compiled fit
-        ys = np.broadcast_to(best, ys.shape) if r < rounds - 1 else ys
+        ys = fits       # every start refitted under the new δ: the same rows each round, one compiled fit
     w = residual_weights(full_x(best, ld), data)
     y = best
     # Gauss–Newton precision of the tempered Student-t residuals at the least-squares mode (Fisher
@@ -388,7 +400,7 @@ def _smc(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, share, ta
 def _is(x, logq, data, ld, w, prior):
     lw = np.asarray(log_target(x, data, ld, w, prior), np.float64) - np.asarray(logq, np.float64)
     e = ess(lw)
-    return lw, {"ess": e, "ess_fraction": e / len(x), "khat": pareto_khat(lw)}
+    return lw, {"ess": e, "draws": len(x), "ess_fraction": e / len(x), "khat": pareto_khat(lw)}
 
 
 def _reliable(diag) -> bool:
@@ -427,7 +439,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
         sv.append(prior.sample_v(r_st, n_fill))
     sv = np.concatenate(sv)
     st = np.concatenate([x_lin[None], np.concatenate([sv, np.broadcast_to(x_lin[N_V:], (len(sv), N_NUIS))], 1)])
-    mode, ld, w, y_star, lap = find_mode(data, st.astype(np.float32), prior)
+    mode, ld, w, _, lap = find_mode(data, st.astype(np.float32), prior)
     out = {"proposal": "decoded" if qv is not None else "prior", "mode": mode, "weights": w,
            "channels_used": np.asarray(data.use)}
     chosen = None

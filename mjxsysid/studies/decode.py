@@ -520,6 +520,17 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     return summary
 
 
+def _posterior_table(summary: dict) -> list[str]:
+    """summary.md's table rows of a posterior's summary entries (mean, 5–95 %, truth, inside)."""
+    rows = ["| quantity | mean | 5 % | 95 % | true | inside |", "|---|---|---|---|---|---|"]
+    for k, v in summary.items():
+        if isinstance(v, dict) and "mean" in v and "q05" in v:
+            true = f"{v['true']:.4g}" if "true" in v else ""
+            inside = ("yes" if v["inside"] else "no") if "inside" in v else ""
+            rows.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} | {true} | {inside} |")
+    return rows
+
+
 def write_summary_md(summary: dict, path) -> Path:
     """summary.md: the checks' warnings first (out of prior, suspicious log), then the decoded
     identifiable combinations and parameters (mean, 5–95 %, and the truth if known)."""
@@ -534,13 +545,7 @@ def write_summary_md(summary: dict, path) -> Path:
     which = ("log-grounded (the log's IMU given its motor commands under a physical prior; the decoded "
              "samples its proposal)" if summary.get("_posterior") == "log-grounded" else
              f"{w.get('label', '')} at t = {w.get('t_end_s', float('nan')):.2f} s")
-    lines += [f"Posterior: {which}.", "",
-              "| quantity | mean | 5 % | 95 % | true | inside |", "|---|---|---|---|---|---|"]
-    for k, v in summary.items():
-        if isinstance(v, dict) and "mean" in v and "q05" in v:
-            true = f"{v['true']:.4g}" if "true" in v else ""
-            inside = ("yes" if v["inside"] else "no") if "inside" in v else ""
-            lines.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} | {true} | {inside} |")
+    lines += [f"Posterior: {which}.", ""] + _posterior_table(summary)
     if c.get("source") or c.get("resampled") or c.get("notes"):
         lines += ["", "## What was done to the log", ""]
         src = c.get("source") or {}
@@ -554,17 +559,11 @@ def write_summary_md(summary: dict, path) -> Path:
     elif g:
         from mjxsysid.identify.gap import gap_markdown
         d = summary.get("_decoder_only", {})
-        lines += ["", "## Decoder-only posterior (what the policy's latent knows)", "",
-                  "| quantity | mean | 5 % | 95 % | true | inside |", "|---|---|---|---|---|---|"]
-        for k, v in d.items():
-            if isinstance(v, dict) and "mean" in v:
-                true = f"{v['true']:.4g}" if "true" in v else ""
-                inside = ("yes" if v["inside"] else "no") if "inside" in v else ""
-                lines.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} | {true} | {inside} |")
+        lines += ["", "## Decoder-only posterior (what the policy's latent knows)", ""] + _posterior_table(d)
         isd = g.get("decoded_is") or {}
         lines += ["", "## The information gap: decoder-only against log-grounded", "",
                   f"Method: {g['method']}; the decoded ensemble as importance proposal: ESS {isd.get('ess', float('nan')):.3g} "
-                  f"of {4096}, Pareto k̂ {isd.get('khat', float('nan')):.3g} (reliable: ESS ≥ 5 %, k̂ ≤ 0.7). Channels "
+                  f"of {isd.get('draws', '?')}, Pareto k̂ {isd.get('khat', float('nan')):.3g} (reliable: ESS ≥ 5 %, k̂ ≤ 0.7). Channels "
                   f"used: {', '.join(g.get('channels_used', []))}. A width ratio above 1: the log pins the quantity "
                   f"down more than the policy's latent does; a log-grounded band as wide as the prior: the log cannot "
                   f"see it (docs/identify.md).", ""]

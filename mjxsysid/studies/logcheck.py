@@ -559,9 +559,9 @@ def estimate_imu_noise(rec: dict) -> dict:
     from math import comb
     imu = None
     rate, _, nat = column_rates(rec)["imu"]
-    if nat is not None:                 # interpolated values have no noise: read the native samples
-        imu = nat[1][-FIT_ROWS:]
-    if imu is None:
+    if nat is not None and len(nat[1]) >= 4 * (NOISE_DIFF_ORDER + 2):
+        imu = nat[1][-FIT_ROWS:]        # interpolated values have no noise: read the native samples
+    if imu is None:                     # (a few "native" samples: a held constant column, read as logged)
         imu = np.asarray(fit_rows(rec)["imu"], np.float64)
     skip = int(round(0.2 * rate))           # the first 0.2 s (take-off)
     imu = imu[min(skip, len(imu) // 4):]
