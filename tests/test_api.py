@@ -58,6 +58,28 @@ def test_only_the_probe_lines_are_dropped_and_import_errors_surface(tmp_path, ca
     assert r.returncode == 1 and "ModuleNotFoundError" in r.stderr and "mujoco.mjx" in r.stderr
 
 
+AOT_LINE = ("E1126 14:46:36.199582   26128 cpu_aot_loader.cc:195] Loading XLA:CPU AOT result. Target machine "
+            "feature +prefer-no-gather is not  supported on the host machine. Machine type used for XLA:CPU "
+            "compilation doesn't match the machine type for execution. Compile machine features: [+avx]")
+
+
+def test_the_stderr_filter_drops_only_the_cache_loaders_lines_and_survives_a_crash():
+    from mjxsysid._quiet import is_aot_loader_line
+    assert is_aot_loader_line(AOT_LINE.encode()) and is_aot_loader_line(AOT_LINE.replace("gather", "scatter").encode())
+    assert not is_aot_loader_line(b"E1126 14:46:36.199582   26128 cpu_aot_loader.cc:195] Loading failed: bad file")
+    start = "import os, sys; from mjxsysid._quiet import filter_native_stderr; assert filter_native_stderr(); "
+    # the C++ logger writes to fd 2 directly; a partial line (a progress bar's "\r" redraw) goes through
+    r = subprocess.run([PY, "-c", start + f"os.write(2, {AOT_LINE + chr(10)!r}.encode()); os.write(2, b'bar 1/2\\r'); "
+                        "print('python stderr', file=sys.stderr); os.write(2, b'E1126 other error\\nno newline')"],
+                       capture_output=True, env=ENV)      # bytes: "\r" kept as written
+    assert r.returncode == 0 and r.stderr == b"bar 1/2\rpython stderr\nE1126 other error\nno newline"
+    # what was written before a crash still arrives (the filter is another process)
+    r = _run(start + "os.write(2, b'before the crash\\n'); import ctypes; ctypes.string_at(0)")
+    assert r.returncode != 0 and "before the crash\n" in r.stderr
+    r = subprocess.run([PY, "-c", start], capture_output=True, text=True, env=dict(ENV, MJXSYSID_RAW_STDERR="1"))
+    assert r.returncode == 1 and "AssertionError" in r.stderr     # MJXSYSID_RAW_STDERR=1: not installed
+
+
 def test_progress_bars_obey_quiet(capsys, monkeypatch):
     from mjxsysid import progress as pg
     monkeypatch.setenv("MJXSYSID_PROGRESS", "1")

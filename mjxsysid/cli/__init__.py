@@ -112,5 +112,13 @@ def main(argv=None) -> int:
         set_quiet(None)
 
 
+def entry() -> int:
+    """The `mjxsysid` console command: :func:`main` with XLA:CPU's spurious cache-loader lines
+    filtered from stderr (:func:`mjxsysid._quiet.filter_native_stderr`)."""
+    from mjxsysid._quiet import filter_native_stderr
+    filter_native_stderr()
+    return main()
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(entry())

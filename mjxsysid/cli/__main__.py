@@ -1,6 +1,6 @@
 """`python -m mjxsysid.cli ...`, as the `mjxsysid` command."""
 import sys
 
-from mjxsysid.cli import main
+from mjxsysid.cli import entry
 
-sys.exit(main())
+sys.exit(entry())
