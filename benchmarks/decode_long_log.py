@@ -28,7 +28,7 @@ import numpy as np
 
 
 def base_log(path: Path) -> tuple:
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.policy.interface import resolve_policy
     from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
     fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=resolve_policy("mjxsysid"),

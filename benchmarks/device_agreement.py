@@ -78,7 +78,7 @@ def main():
     ap.add_argument("--out", type=Path, default=Path("docs/runs/benchmarks/device_agreement.json"))
     args = ap.parse_args()
     from mjxsysid import distributed as D
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     n = D.device_count()
     if n < 2:
         print("one device: this needs at least 2 (on a CPU: XLA_FLAGS=--xla_force_host_platform_device_count=2)",

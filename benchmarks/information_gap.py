@@ -20,7 +20,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.identify.coords import LOG_NAMES
 from mjxsysid.identify.gap import information_gap

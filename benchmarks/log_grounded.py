@@ -20,7 +20,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.identify.coords import LOG_NAMES, log_quantities
 from mjxsysid.identify.inference import log_grounded_posterior
 from mjxsysid.rollout.flight import fly_vehicles, seen_imu

@@ -33,7 +33,7 @@ def main():
     ap.add_argument("--xadap", default=None, help="released Xadap weights (folder or .npz)")
     args = ap.parse_args()
 
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.rollout.flight import broadcast, make_low_level, make_reference
     from mjxsysid.rollout.harness import Disturbance, fly_batch
     from mjxsysid.control.high_level import Cascade

@@ -49,7 +49,7 @@ def best_of(fn, repeats: int) -> float:
 
 def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
     from mjxsysid import distributed as D
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.control.high_level import Cascade
     from mjxsysid.dataset.collect import last_latent_and_failure, latents_in_flight, lemniscate_excitation
     from mjxsysid.policy.interface import resolve_policy

@@ -47,7 +47,7 @@ def main():
 
     from mujoco import mjx
 
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.rollout.flight import broadcast
     from mjxsysid.rollout.harness import Disturbance, fly
     from mjxsysid.control.high_level import Cascade

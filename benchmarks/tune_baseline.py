@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.rollout.harness import Disturbance, batch_metrics, fly_batch
 from mjxsysid.control.high_level import GAIN_BOUNDS, GAIN_NAMES, PRESETS, Cascade
 from mjxsysid.control.low_level import KTheta

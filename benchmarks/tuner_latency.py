@@ -32,7 +32,7 @@ def main(argv=None):
     ap.add_argument("--out", default=None, help="also write the results as JSON here")
     a = ap.parse_args(argv)
 
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.cfm.load import load_decoders
     from mjxsysid.rollout.flight import broadcast, make_reference
     from mjxsysid.rollout.harness import Disturbance

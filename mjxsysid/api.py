@@ -10,7 +10,7 @@
 
 Thin wrappers over :func:`mjxsysid.rollout.flight.fly_vehicles`,
 :func:`mjxsysid.studies.decode.decode_posterior` and the vehicle-file readers of
-:mod:`mjxsysid.params`: the same checks, the same numbers as the command line.
+:mod:`mjxsysid.theta`: the same checks, the same numbers as the command line.
 """
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from typing import Mapping
 
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import CONTROLLERS, fly_vehicles, metrics_dict, one_flight, save_flight, seen_imu
@@ -54,7 +54,7 @@ def prior_vehicles(n: int, prior: str = "default", seed: int = 0) -> np.ndarray:
 def to_theta(v=None) -> np.ndarray:
     """θ from any vehicle description: None (the paper vehicle), a vehicle-file path, a vehicle
     dict (vehicle-file keys), or θ (19,) / (B, 19). Files and dicts get the full vehicle-file
-    checks (keys, types, physics, flyability); arrays :func:`mjxsysid.params.validate_theta`."""
+    checks (keys, types, physics, flyability); arrays :func:`mjxsysid.theta.validate_theta`."""
     if v is None:
         return P.paper_hardware()
     if isinstance(v, (str, Path)):

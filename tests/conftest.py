@@ -128,7 +128,7 @@ def xadap_paper_recording():
     """The released policy flying the paper vehicle 2 s on a 10 s lemniscate, recorded as
     action replay needs it (IMU the policy acted on, commands, motor commands, latents). 2 s:
     the shape of notebook 01's Xadap flight, whose kernel then loads this compile from the cache."""
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
     from mjxsysid.policy.interface import resolve_policy
     ref = resolve_policy("xadap", require_xadap("onnx"))

@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.policy.controller import PRETRAINED
 from mjxsysid.policy.focus import replay_resample, save_weak
 from mjxsysid.policy.train import TrainConfig, _same_config

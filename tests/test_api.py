@@ -120,7 +120,7 @@ def test_cli_quiet_flag_on_every_command():
 
 def test_fly_and_decode_api_match_the_cli(tmp_path, capsys):
     import mjxsysid
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.cli import main
 
     # The 2 s lemniscate flight of tests/test_decode.py and notebooks 01 / 04: one compile.

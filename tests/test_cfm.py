@@ -5,11 +5,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm import (CFMConfig, Decoder, GaussianSmoothedLinearPath, count_params,
                           init_params, load_decoder, random_baseline, save_decoder, train_cfm,
                           train_regression)
 from mjxsysid.cfm import calibration as C
+from mjxsysid.cfm.flow_coords import FlowNormalizer, decoder_normalizer
 from mjxsysid.cfm.sample import METHODS, point, sample
 from mjxsysid.render.posterior import plot_rank_histograms
 
@@ -280,7 +281,7 @@ def test_identifiable_flow_coordinates(tmp_path):
     """The 'identifiable' decoder coordinates: an exact, invertible log-linear map whose Ω_max and
     J axes are log thrust-to-weight (up to the η linearisation) and log angular authorities,
     standardised over the prior; saved with the decoder; samples come back in normalised θ."""
-    norm = P.prior_normalizer("default", n=20_000, coords="identifiable")
+    norm = decoder_normalizer("default", n=20_000, coords="identifiable")
     th = P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(5), 4000)
     y = norm.normalize(th)
     v = np.asarray(norm.to_flow(y))
@@ -293,10 +294,10 @@ def test_identifiable_flow_coordinates(tmp_path):
     keep = [j for j in range(19) if j not in (P.OMEGA_MAX, 4, 5, 6)]   # the other axes: y itself, rescaled
     for j in keep:
         assert abs(np.corrcoef(v[:, j], np.asarray(y)[:, j])[0, 1]) > 0.99999
-    plain = P.prior_normalizer("default", n=20_000)
+    plain = decoder_normalizer("default", n=20_000)
     np.testing.assert_array_equal(np.asarray(plain.to_flow(y)), np.asarray(y))
     with pytest.raises(ValueError, match="coordinates"):
-        P.prior_normalizer("default", n=100, coords="polar")
+        decoder_normalizer("default", n=100, coords="polar")
     with pytest.raises(ValueError, match="coords"):
         TINY.replace(coords="polar")
 
@@ -315,7 +316,7 @@ def test_identifiable_flow_coordinates(tmp_path):
     bad = norm.to_dict()
     bad["flow_map"] = np.zeros((19, 19)).tolist()
     with pytest.raises(ValueError, match="singular"):
-        P.Normalizer.from_dict(bad)
+        FlowNormalizer.from_dict(bad)
 
 
 def test_regression_early_stopping_keeps_the_best_validation_epoch():

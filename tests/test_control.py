@@ -6,7 +6,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.rollout.flight import fly_vehicles
 from mjxsysid.rollout.harness import Disturbance, Flight, metrics, summarize
 from mjxsysid.cli import main

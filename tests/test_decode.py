@@ -4,7 +4,7 @@ import json
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.studies.decode import LOG_COLUMNS, decode_latents, read_log, write_log
 from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
 from mjxsysid.cfm.posterior import summarize_posterior

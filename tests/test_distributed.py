@@ -58,7 +58,7 @@ def test_fly_batch_two_devices_equals_one_and_drops_padding():
     """K_θ under the cascade (the slow tier flies the shipped policy, whose weights are
     replicated, through the same fly_batch: collect and evaluation tests below)."""
     r = run_two_devices("""
-        from mjxsysid import params as P
+        from mjxsysid import theta as P
         from mjxsysid.rollout.flight import fly_vehicles
         theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 5))   # odd: one padded row
         with D.limit_devices(1):
@@ -83,7 +83,7 @@ def test_collect_pairs_two_devices_equal_one():
     """collect's flights (a few minutes on 2 CPU cores; the fast tier flies the same policy
     through the same fly_batch above)."""
     r = run_two_devices("""
-        from mjxsysid import params as P
+        from mjxsysid import theta as P
         from mjxsysid.dataset.collect import latents_in_flight
         theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(1), 3))
         with D.limit_devices(1):
@@ -306,7 +306,7 @@ def test_two_processes_equal_one(tmp_path):
         joined = D.maybe_initialize()
         import jax
         jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
-        from mjxsysid import params as P
+        from mjxsysid import theta as P
         from mjxsysid.rollout.flight import fly_vehicles
         theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 5))
         f, m, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.1, seed=3)

@@ -5,7 +5,7 @@ import pytest
 from absl.testing import absltest
 from dm_env import test_utils
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.envs import TASKS, PolicyAgent, ensemble_envs, make_env
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles, one_flight

@@ -7,7 +7,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 
 
 # ----------------------------------------------------------------------------- statistics

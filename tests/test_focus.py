@@ -3,7 +3,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cli import main
 from mjxsysid.policy.env import EnvConfig, TrainEnv
 from mjxsysid.policy.focus import load_weak, save_weak

@@ -1,4 +1,4 @@
-"""Held-out families (params.HELDOUT_FAMILIES) and the held-out evaluation: each family's defining
+"""Held-out families (theta.HELDOUT_FAMILIES) and the held-out evaluation: each family's defining
 damage, seeding and validity; the comparison with the oracle in closed form; the CLI's plumbing
 (flights replaced by a stand-in: the real flights are the docs/runs/probing/heldout run)."""
 import json
@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cli import main
 from mjxsysid.experiments import heldout as H
 

@@ -7,7 +7,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.identify import coords as C
 from mjxsysid.identify import likelihood as L
 from mjxsysid.identify.inference import log_grounded_posterior, log_target

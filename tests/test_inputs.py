@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.studies.decode import LOG_COLUMNS, read_log
 from mjxsysid.cli import main
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import mjxsysid
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cli import main
 from mjxsysid.policy.controller import PolicyController
 from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy

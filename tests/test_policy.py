@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.policy import networks as N
 from mjxsysid.checkpoint import load_tree, save_tree
 from mjxsysid.policy.controller import PRETRAINED, PolicyCarry, PolicyController

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cli import main
 from mjxsysid.probe import ProbeConfig, SearchConfig, closed_loop_badness, latent_search, system_badness
 

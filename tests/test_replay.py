@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import XADAP_DIR
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.control.low_level import Command, KTheta
 from mjxsysid.studies.replay import METHODS, action_metrics, lowpass, pearson, replay_commands, replay_flight
 

@@ -60,7 +60,7 @@ def test_cfm_resume_gives_the_uninterrupted_weights(tmp_path, monkeypatch, capsy
 
 def test_train_decoders_resumes_and_keeps_finished_decoders(tmp_path):
     """The pipeline: an interrupted regression run resumes; the finished CFM is kept, not retrained."""
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.cfm.pipeline import train_decoders
     rng = np.random.default_rng(0)
     theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 300))
@@ -88,7 +88,7 @@ def test_sequence_decoder_resume_gives_the_uninterrupted_weights(tmp_path):
     """train-cfm's sequence decoder (cfm_seq) checkpoints and resumes like the CFM (through the
     pipeline, as `mjxsysid train-cfm` runs it: one compiled config), and the pipeline keeps a
     finished cfm_seq.npz."""
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.cfm.pipeline import train_decoders
     from mjxsysid.cfm.sequence import SequenceDecoder, train_seq_cfm
     rng = np.random.default_rng(1)

@@ -53,7 +53,7 @@ def test_a_share_of_clean_flights():
     bias either), the rest draw as before; a bad share or one without randomize_imu is an error
     naming it, in the simulator and in `collect`'s flags."""
     import jax
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.sim import Quadrotor
     sim = Quadrotor(SimConfig(**RANGE, imu_clean_fraction=0.3))
     keys = jax.random.split(jax.random.PRNGKey(0), 1000)

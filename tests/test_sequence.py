@@ -1,6 +1,7 @@
 """Flight-level decoding (issue 11 §1): the sequence CFM p(θ | ẑ_1..ẑ_W), collect's latent
 trajectories, decode's window option."""
 import json
+from pathlib import Path
 
 import jax
 import numpy as np
@@ -8,12 +9,13 @@ import pytest
 
 from conftest import xla_optimised
 
-from mjxsysid import params as P
+import mjxsysid
+from mjxsysid import theta as P
 from mjxsysid.cfm import calibration as C
 from mjxsysid.cfm.sequence import (SeqCFMConfig, SequenceDecoder, init_params, random_windows,
                                    save_seq_decoder, train_seq_cfm, window_mask)
 
-PRETRAINED = P.__file__.replace("params.py", "pretrained")
+PRETRAINED = str(Path(mjxsysid.__file__).parent / "pretrained")
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import reference_dynamics as ref
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.sim import (Quadrotor, SimConfig, hover_rotor_speed, init_batch, rollout,
                           rollout_batch)
 from mjxsysid.sim.rollout import _batched_rollout
@@ -268,7 +268,7 @@ def test_rigid_twin_matches_the_mjx_simulator(sim):
     agree with MJX to float32 round-off."""
     import jax
     import jax.numpy as jnp
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.sim.rigid import RigidSim, from_sim_state
     twin = RigidSim(sim.config)
     th = jnp.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(4), 1)[0])

@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.rollout.flight import broadcast
 from mjxsysid.rollout.harness import Disturbance, Flight, fly_batch
 from mjxsysid.control.high_level import GAIN_BOUNDS, PRESETS, Cascade

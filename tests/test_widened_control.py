@@ -1,5 +1,5 @@
 """Issue 28's fair control: the default prior widened in every direction by as far as the probe
-reached (params.widened_prior, probe_loop.probe_reach), trained with the probed policy's budget
+reached (theta.widened_prior, probe_loop.probe_reach), trained with the probed policy's budget
 (probe_loop.control_budget). The loop's use of them runs with `--variant widened` (GPU)."""
 import dataclasses
 
@@ -7,7 +7,7 @@ import jax
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.experiments.probe_loop import QUICK, control_budget, probe_reach, run
 from mjxsysid.policy.train import identifiable_log
 from mjxsysid.policy.train import TrainConfig

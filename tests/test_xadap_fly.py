@@ -13,11 +13,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy.xadap import (build_history_input, normalize_state,
                                    xadap_encoder, xadap_policy)
-from mjxsysid.params import XAdapPrior, xadap_training_prior
+from mjxsysid.theta import XAdapPrior, xadap_training_prior
 from mjxsysid.policy.xadap_controller import (NN_TO_MJX, XAdapController, butterworth2,
                                               make_xadap_low_level)
 
@@ -49,7 +49,7 @@ def test_butterworth_matches_scipy():
 
 def test_training_prior_matches_released_statistics():
     pr = xadap_training_prior()
-    assert isinstance(pr, P.Prior) and isinstance(pr, XAdapPrior)
+    assert isinstance(pr, P.SizeFactorPrior) and isinstance(pr, XAdapPrior)
     th = np.asarray(pr.sample(jax.random.PRNGKey(0), 20_000))
     P.validate_theta(th)
     assert th[:, P.MASS].min() >= 0.04 - 1e-6 and th[:, P.MASS].max() <= 1.16 + 1e-6

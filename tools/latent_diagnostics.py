@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.policy import networks as N
 from mjxsysid.policy.env import EnvConfig, TrainEnv
 from mjxsysid.policy.evaluate import env_rollout, linear_probe_r2

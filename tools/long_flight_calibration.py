@@ -21,7 +21,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_sequence_decoder
 from mjxsysid.cfm.pipeline import _public, _usable_traj, posterior_scores
 from mjxsysid.dataset.collect import load_pairs

@@ -14,7 +14,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.experiments.tuning import HARDWARE_SIM
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.render.tuning import plot_prediction_error

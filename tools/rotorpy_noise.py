@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.policy.controller import PolicyController

@@ -13,7 +13,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.low_level import DEFAULT_RATE_GAINS, KTheta
 from mjxsysid.rollout.flight import broadcast, make_reference

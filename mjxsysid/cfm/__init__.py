@@ -1,6 +1,6 @@
 """Conditional flow-matching decoder p(θ | ẑ) (paper §III-B, §IV-A; DESIGN §6).
 
-Works in the normalised θ space (``mjxsysid.params.Normalizer``), conditioned on the policy
+Works in the normalised θ space (``mjxsysid.theta.Normalizer``), conditioned on the policy
 latent ẑ (8); physical units only at the :class:`Decoder` interface.
 
 - :mod:`~mjxsysid.cfm.path`        GaussianSmoothedLinearPath (σ, τ_max)

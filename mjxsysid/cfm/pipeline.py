@@ -17,8 +17,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm import calibration as C
+from mjxsysid.cfm.flow_coords import decoder_normalizer
 from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.cfm.sample import Decoder, random_baseline
 from mjxsysid.cfm.sequence import SeqCFMConfig, SequenceDecoder, save_seq_decoder, train_seq_cfm
@@ -93,7 +94,7 @@ def train_decoders(pairs, out, cfg: CFMConfig = CFMConfig(), *, kinds=None, seq_
                          f"collect them with `mjxsysid collect --seconds S`")
     out.mkdir(parents=True, exist_ok=True)
     log = tee(log, out / "train_log.txt")
-    norm = P.prior_normalizer(meta.get("prior", "default"), coords=cfg.coords)
+    norm = decoder_normalizer(meta.get("prior", "default"), coords=cfg.coords)
     flow = lambda theta: np.asarray(norm.to_flow(norm.normalize(theta)))   # what the networks learn
     th, z = _usable(arrays, "train")
     tv, zv = _usable(arrays, "test")

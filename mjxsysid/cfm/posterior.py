@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 
 
 def summarize_posterior(samples, truth=None) -> dict:

@@ -23,8 +23,9 @@ import jax
 import jax.numpy as jnp
 
 from mjxsysid import distributed
+from mjxsysid.cfm.flow_coords import FlowNormalizer
 from mjxsysid.cfm.train import CFMConfig, check_latents, load_decoder, make_network, save_decoder
-from mjxsysid.params import INERTIA, PAPER_HARDWARE
+from mjxsysid.theta import INERTIA, PAPER_HARDWARE
 
 METHODS = ("euler", "midpoint", "heun")
 
@@ -102,6 +103,9 @@ class Decoder:
     normalizer: object = None
     meta: dict = dataclasses.field(default_factory=dict)
 
+    def __post_init__(self):
+        object.__setattr__(self, "normalizer", FlowNormalizer.of(self.normalizer))
+
     @classmethod
     def load(cls, path) -> "Decoder":
         return cls(*load_decoder(path))
@@ -156,12 +160,12 @@ def random_baseline(key, n: int, nominal=None, *, spread: float = 0.5,
     Returns (n, 19) physical θ (float32). Pure in ``key``: pass a fresh key per call for fresh
     draws.
 
-    ``nominal`` defaults to :data:`mjxsysid.params.PAPER_HARDWARE`. The perturbation is
+    ``nominal`` defaults to :data:`mjxsysid.theta.PAPER_HARDWARE`. The perturbation is
     multiplicative, so entries that are 0 in the nominal (the external torque of the paper
     vehicle) stay 0. With ``fix_inertia`` (default) an inertia that violates the triangle
     inequality after perturbation (J_a > J_b + J_c; 47 % of draws for the paper vehicle,
     whose J_zz ≈ J_xx + J_yy) is clipped to J_b + J_c so the vehicle passes
-    ``params.validate_theta`` / MuJoCo; ``fix_inertia=False`` gives the literal paper baseline.
+    ``theta.validate_theta`` / MuJoCo; ``fix_inertia=False`` gives the literal paper baseline.
     """
     nom = jnp.asarray(PAPER_HARDWARE if nominal is None else nominal, jnp.float32)
     if nom.shape != (PAPER_HARDWARE.shape[0],):

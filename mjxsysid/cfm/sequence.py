@@ -40,7 +40,7 @@ from mjxsysid.cfm.networks import VelocityNet
 from mjxsysid.cfm.sample import METHODS, integrate
 from mjxsysid.cfm.train import FORMAT, CFMConfig, _normalizer_dict, _optimizer, fit_epochs, make_epoch
 from mjxsysid.checkpoint import load_meta, load_tree, save_tree
-from mjxsysid.params import Normalizer
+from mjxsysid.cfm.flow_coords import FlowNormalizer
 
 KIND = "cfm_seq"
 
@@ -406,6 +406,9 @@ class SequenceDecoder:
     meta: dict = dataclasses.field(default_factory=dict)
     kind: str = KIND
 
+    def __post_init__(self):
+        object.__setattr__(self, "normalizer", FlowNormalizer.of(self.normalizer))
+
     @classmethod
     def load(cls, path) -> "SequenceDecoder":
         full = load_meta(path)
@@ -420,7 +423,7 @@ class SequenceDecoder:
         norm = None
         if full.get("normalizer") is not None:
             try:
-                norm = Normalizer.from_dict(full["normalizer"])
+                norm = FlowNormalizer.from_dict(full["normalizer"])
                 ok = all(np.shape(getattr(norm, k)) == (cfg.theta_dim,) and np.all(np.isfinite(getattr(norm, k)))
                          for k in ("shift", "scale")) and np.all(np.asarray(norm.scale) > 0)
             except (KeyError, TypeError, ValueError) as e:

@@ -29,10 +29,10 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from mjxsysid.cfm.flow_coords import DECODER_COORDS, FlowNormalizer
 from mjxsysid.cfm.networks import RegressionNet, VelocityNet
 from mjxsysid.cfm.path import GaussianSmoothedLinearPath
 from mjxsysid.checkpoint import load_meta, load_tree, save_tree
-from mjxsysid.params import DECODER_COORDS, Normalizer
 from mjxsysid.progress import progress
 
 KINDS = ("cfm", "regression")
@@ -56,7 +56,7 @@ class CFMConfig:
     theta_dim: int = 19
     z_dim: int = 8
     seed: int = 0
-    # The flow's coordinates (params.DECODER_COORDS): "identifiable" puts log thrust-to-weight and the
+    # The flow's coordinates (cfm.flow_coords.DECODER_COORDS): "identifiable" puts log thrust-to-weight and the
     # log angular authorities on axes of the flow (calibrated T/W bands half as wide as in "theta",
     # normalised θ, on a latent that carries T/W: docs/runs/archive/latent_trials/latent_trials.md). Samples are θ either way.
     coords: str = "identifiable"
@@ -397,7 +397,7 @@ class LoadedDecoder(NamedTuple):
     kind: str
     params: dict
     cfg: CFMConfig
-    normalizer: object      # mjxsysid.params.Normalizer or None
+    normalizer: object      # mjxsysid.cfm.flow_coords.FlowNormalizer or None
     meta: dict
 
 
@@ -446,7 +446,7 @@ def load_decoder(path) -> LoadedDecoder:
     norm = None
     if full.get("normalizer") is not None:
         try:
-            norm = Normalizer.from_dict(full["normalizer"])
+            norm = FlowNormalizer.from_dict(full["normalizer"])
             bad = [k for k in ("shift", "scale") if np.shape(getattr(norm, k)) != (cfg.theta_dim,)
                    or not np.all(np.isfinite(getattr(norm, k)))]
         except (KeyError, TypeError, ValueError) as e:

@@ -64,7 +64,7 @@ def add_fly(sub) -> None:
 def cmd_fly(args) -> int:
     if args.video:
         prepare_render()
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.render.plots import plot_trajectory
     from mjxsysid.rollout.flight import fly_vehicles, one_flight, save_flight, write_metrics
 
@@ -121,7 +121,7 @@ def _fly_prior(args) -> int:
     import jax
     import numpy as np
 
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.render.plots import plot_trajectory
     from mjxsysid.rollout.flight import fly_vehicles, one_flight, random_minsnaps, save_flight, write_metrics
     from mjxsysid.rollout.harness import metrics_to_host
@@ -180,7 +180,7 @@ def cmd_view(args) -> int:
         from dm_control import viewer
     except ImportError:
         raise ValueError("mjxsysid view needs dm_control: pip install -e '.[dmc]'") from None
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.envs import PolicyAgent, make_env
     theta = P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware()
     env = make_env(theta, args.task, duration=args.duration, period=args.period, seed=args.seed)

@@ -69,7 +69,7 @@ def add_evaluate_policy(sub) -> None:
                    "trials (probes on 2 x VEHICLES, lemniscate on VEHICLES)")
     e.add_argument("--held-out", action="store_true",
                    help="every policy and the oracle on the default, stress and stress_wide priors and the "
-                   "held-out families (params.HELDOUT_FAMILIES): OUT/results.json and results.md")
+                   "held-out families (theta.HELDOUT_FAMILIES): OUT/results.json and results.md")
     e.add_argument("--sets", default=None, metavar="S1,S2",
                    help="--held-out: the sets to fly (default: all of them)")
     e.add_argument("--period", type=positive, default=10.0, help="--held-out: the lemniscate's period (s)")

@@ -49,7 +49,7 @@ def add_decode(sub) -> None:
 def cmd_decode(args) -> int:
     if args.video:
         prepare_render()
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.studies.decode import run_decode
     if args.log is not None and args.vehicle is not None:
         raise ValueError("give either --vehicle or --log, not both (the known vehicle of a log: --truth)")

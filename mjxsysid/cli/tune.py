@@ -41,7 +41,7 @@ def cmd_tune(args) -> int:
 
     if args.video:
         prepare_render()
-    from mjxsysid import params as P
+    from mjxsysid import theta as P
     from mjxsysid.experiments.tuning import FULL_TUNER, QUICK_TUNER
     from mjxsysid.render.tuning import plot_gains, plot_tracking
     from mjxsysid.rollout.flight import broadcast, make_reference

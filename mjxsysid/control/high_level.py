@@ -25,8 +25,8 @@ from flax import struct
 
 from mjxsysid.control.low_level import Command
 from mjxsysid.control.references import RefPoint
-from mjxsysid.params import GRAVITY
 from mjxsysid.sim.quadrotor import quat_to_mat
+from mjxsysid.theta import GRAVITY
 
 GAIN_NAMES = ("kp_xy", "kp_z", "kv_xy", "kv_z", "ki_xy", "ki_z", "katt_xy", "katt_z")
 GAIN_BOUNDS = np.array([[0.5, 20.0], [0.5, 20.0], [0.5, 12.0], [0.5, 12.0],

@@ -19,7 +19,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.sim.quadrotor import hover_rotor_speed
 
 

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import distributed
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.checkpoint import open_npz
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import MinSnap, Switch, stack

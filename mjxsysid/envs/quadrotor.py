@@ -36,7 +36,7 @@ from dm_control.rl import control  # noqa: E402
 from dm_control.suite import base  # noqa: E402
 from dm_control.utils import rewards  # noqa: E402
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.rollout.flight import make_reference
 from mjxsysid.sim.quadrotor import ASSET, BODY, SimConfig, hover_rotor_speed, mean_square_speed
@@ -237,7 +237,7 @@ def make_env(theta=None, task: str = "lemniscate", *, duration: float | None = N
 
 def ensemble_envs(thetas, task: str = "lemniscate", **kw) -> list[control.Environment]:
     """One environment per vehicle of a decoded ensemble (K, 19) (e.g. ``decode(...)``'s samples):
-    samples that are not physically valid are projected first (:func:`mjxsysid.params.project_valid`)."""
+    samples that are not physically valid are projected first (:func:`mjxsysid.theta.project_valid`)."""
     thetas = np.asarray(thetas, np.float64)
     if thetas.ndim != 2 or thetas.shape[1] != P.N_PARAMS:
         raise ValueError(f"thetas: shape (K, {P.N_PARAMS}) expected, got {thetas.shape}")

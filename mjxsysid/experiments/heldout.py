@@ -1,7 +1,7 @@
 """Held-out evaluation: every policy against the oracle on vehicles no method trains on.
 
 The sets (:data:`SETS`): the default prior, the stress prior, ``stress_wide`` and the held-out
-families of :data:`mjxsysid.params.HELDOUT_FAMILIES` (one motor at η 0.5, τ_m 0.08–0.10 s,
+families of :data:`mjxsysid.theta.HELDOUT_FAMILIES` (one motor at η 0.5, τ_m 0.08–0.10 s,
 thrust-to-weight 1.6–1.8, a constant roll/pitch torque as from an off-centre payload, a large
 constant yaw torque). Each set's vehicles are drawn once and flown by the oracle (the lag-aware
 K_θ with each vehicle's true θ, ``rollout.flight.make_low_level('oracle')``) and by every policy,
@@ -27,7 +27,7 @@ from typing import Mapping
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.experiments.common import markdown_table, mean_std, write_results
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles
@@ -40,7 +40,7 @@ RATIO_TARGET = 1.3
 
 def set_vehicles(name: str, n: int, seed: int = 0) -> np.ndarray:
     """θ (n, 19) of an evaluation set: a held-out family's own seeded vehicles
-    (:meth:`~mjxsysid.params.HeldOutFamily.vehicles`), a prior's draws (seeded by ``seed`` and the
+    (:meth:`~mjxsysid.theta.HeldOutFamily.vehicles`), a prior's draws (seeded by ``seed`` and the
     set's place in :data:`SETS`), or the paper vehicle (``'paper'``, n ignored)."""
     if name == "paper":
         return P.PAPER_HARDWARE[None].copy()

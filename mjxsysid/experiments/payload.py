@@ -24,7 +24,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Hover

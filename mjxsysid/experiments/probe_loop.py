@@ -1,7 +1,7 @@
 """`mjxsysid experiment probe-loop`: probe → retrain → evaluate → probe again (issue 18 §3).
 
 1. Evaluate the given policy (default: the shipped one) against the oracle (K_θ with the true θ)
-   on (a) the default prior, (b) the stress prior (``params.STRESS_PRIOR``: thrust-to-weight
+   on (a) the default prior, (b) the stress prior (``theta.STRESS_PRIOR``: thrust-to-weight
    1.5–2.5, τ_m 0.04–0.06 s, η down to 0.5, 2× the roll/pitch external torque), (c) the paper
    vehicle and (d) the first, wider stress prior (``stress_wide``: τ_m to 0.12 s, where the
    fixed-gain oracle itself fails; reported both ways), each flying a 10 s lemniscate; and the
@@ -44,7 +44,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.pipeline import WITHIN_5_POINTS, evaluate_decoders, train_decoders
 from mjxsysid.cfm.train import CFMConfig
 from mjxsysid.dataset.collect import collect, latents_in_flight
@@ -96,7 +96,7 @@ class LoopConfig:
 VARIANTS = ("accumulate", "widened")
 """``accumulate``: each round fine-tunes the current policy on a re-scored replay buffer;
 ``widened``: a second control, the default prior widened in every direction by as far as the
-probe reached (:func:`probe_reach`, :func:`mjxsysid.params.widened_prior`), trained with the
+probe reached (:func:`probe_reach`, :func:`mjxsysid.theta.widened_prior`), trained with the
 probed policy's whole budget (issue 28's fair control: it knows nothing of where the policy is weak)."""
 FULL = LoopConfig()
 QUICK = LoopConfig(vehicles=8, period=5.0, control_systems=64, probe=ProbeConfig.quick(),
@@ -126,7 +126,7 @@ def probe_reach(systems, prior="default", n: int = 20_000, seed: int = 0) -> dic
     flight reveals — log thrust-to-weight, log κ, log angular authorities, log τ_m: per quantity the
     larger of (the prior's minimum − the systems' 5 % quantile) and (their 95 % quantile − the
     prior's maximum), 0 where they stay inside; ``amount``: the largest, the widening of
-    :func:`mjxsysid.params.widened_prior` for the fair control."""
+    :func:`mjxsysid.theta.widened_prior` for the fair control."""
     systems = np.asarray(systems, np.float64)
     if systems.ndim != 2 or systems.shape[1] != P.N_PARAMS or len(systems) == 0:
         raise ValueError(f"probe_reach: systems must have shape (n, {P.N_PARAMS}), n >= 1; got {systems.shape}")

@@ -22,7 +22,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.experiments.common import markdown_table, mean_std, write_results
 from mjxsysid.policy.interface import resolve_policy

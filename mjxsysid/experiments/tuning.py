@@ -21,7 +21,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.control.references import Delayed, Lemniscate, stack
 from mjxsysid.experiments.common import fmt_ms, markdown_table, write_results

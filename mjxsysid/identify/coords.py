@@ -37,8 +37,8 @@ import dataclasses
 
 import numpy as np
 
-from mjxsysid import params as P
-from mjxsysid.params import xp_of
+from mjxsysid import theta as P
+from mjxsysid.theta import xp_of
 
 V_NAMES = ("log_thrust_to_weight", "rel_effectiveness[0]", "rel_effectiveness[1]", "rel_effectiveness[2]",
            "log_motor_time_constant", "log_authority[0]", "log_authority[1]", "log_authority[2]",

@@ -39,7 +39,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.signal import lfilter
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.identify.coords import N_V
 
 DT = 0.002

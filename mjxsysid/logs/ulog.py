@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 
 DT = 0.002
 """s: the grid the decoders read (500 Hz)."""

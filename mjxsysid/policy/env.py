@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.control.high_level import PRESETS, Cascade, Estimate
 from mjxsysid.control.low_level import Command, KTheta
 from mjxsysid.control.references import Lemniscate

@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import distributed
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.policy.controller import PolicyController

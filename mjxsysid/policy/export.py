@@ -44,7 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy import networks as N
 from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu

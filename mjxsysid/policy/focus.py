@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 
 
 def save_weak(path, theta, zhat=None, meta: dict | None = None) -> Path:

@@ -27,7 +27,7 @@ import flax.linen as nn
 import jax
 import jax.numpy as jnp
 
-from mjxsysid.params import GRAVITY, N_PARAMS
+from mjxsysid.theta import GRAVITY, N_PARAMS
 
 LATENT = 8
 OBS = 10

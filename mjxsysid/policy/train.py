@@ -38,7 +38,7 @@ from flax import struct
 from jax.sharding import NamedSharding, PartitionSpec
 
 from mjxsysid import distributed
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.policy import networks as N
 from mjxsysid.policy.env import EnvConfig, EnvState, TrainEnv
@@ -142,7 +142,7 @@ class TrainConfig:
 
 
 def _same_normalizer(a: dict, b: dict) -> bool:
-    """Two normalisers' dicts (:meth:`mjxsysid.params.Normalizer.to_dict`: lists of numbers) alike:
+    """Two normalisers' dicts (:meth:`mjxsysid.theta.Normalizer.to_dict`: lists of numbers) alike:
     the same keys and shapes, numbers equal to float32 rounding (a normaliser fitted on another
     device or with other XLA optimisations differs in the last bits of its reductions)."""
     if set(a) != set(b):
@@ -264,7 +264,7 @@ def identifiable_log(theta, yaw_authority: bool = False) -> jax.Array:
     return jnp.log(jnp.concatenate([ident, theta[..., P.TAU_M, None]], -1))
 
 
-def identifiable_projection(normalizer: P.Normalizer, prior: P.Prior, n: int = 20_000, seed: int = 0,
+def identifiable_projection(normalizer: P.Normalizer, prior: P.SizeFactorPrior, n: int = 20_000, seed: int = 0,
                             yaw_authority: bool = False):
     """A (19, 6) with (y − y') A = (identifiable_log(θ) − identifiable_log(θ')) / std_prior for
     normalised y = normalizer.normalize(θ). Exact: every combination is a signed sum of logs of

@@ -49,7 +49,7 @@ closed-loop checks in mjxsysid):
   = 20/s) destabilise vehicles with motor time constants ≥ 0.02 s (16 in-distribution
   vehicles, lemniscate: katt_xy 8.4 → 0 failures, 12 → 1, 16 → 4, 20 → 8).
 
-:func:`mjxsysid.params.xadap_training_prior` (``get_prior("xadap")``) is a prior whose samples match the
+:func:`mjxsysid.theta.xadap_training_prior` (``get_prior("xadap")``) is a prior whose samples match the
 released policy's training statistics (mean.csv/var.csv; README) — an in-distribution test set.
 """
 from __future__ import annotations

@@ -10,7 +10,7 @@ from typing import Sequence
 
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 
 ROTOR_COLORS = ("#d9472b", "#2f6fd6", "#e8963a", "#35a3c4")  # ccw red-ish, cw blue-ish
 ROTOR_STYLES = ("-", "-", "--", "--")  # rotors 3, 4 dashed so overlapping curves stay visible
@@ -211,10 +211,10 @@ def plot_prior_marginals(theta_samples, path, *, mark=None, names: Sequence[str]
                          mark_label: str = "mark", bins: int = 40, title: str | None = None) -> Path:
     """Histograms of the 19 marginals of θ samples (n, 19) in a 4 × 5 grid; returns the path.
 
-    Entries of :data:`mjxsysid.params.LOG_MASK` (positive scale parameters) use a log x axis
+    Entries of :data:`mjxsysid.theta.LOG_MASK` (positive scale parameters) use a log x axis
     (log-spaced bins) when all their samples are > 0. mark: optional vehicle (19,) drawn as a
     vertical line in every panel with its percentile among the samples (e.g. the paper
-    vehicle). names: 19 panel titles (default :data:`mjxsysid.params.PARAM_NAMES` with units).
+    vehicle). names: 19 panel titles (default :data:`mjxsysid.theta.PARAM_NAMES` with units).
     """
     th = _arr(theta_samples, "theta_samples")
     if th.ndim != 2 or th.shape[1] != P.N_PARAMS or th.shape[0] < 2:

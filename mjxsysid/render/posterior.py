@@ -7,7 +7,7 @@ from typing import Sequence
 
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 
 
 IDENTIFIABLE_LABELS = {"thrust_to_weight": "thrust-to-weight 4 k_t Ω_max² / (m g)  [–]",

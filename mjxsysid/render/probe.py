@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 
 QUANTITIES = ("thrust-to-weight", "roll authority (rad/s²)", "yaw authority (rad/s²)",
               "motor time constant τ_m (s)", "weakest motor η_min", "mass (kg)")

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 
 if TYPE_CHECKING:  # pragma: no cover
     import mujoco

@@ -15,7 +15,7 @@ import numpy as np
 from flax import struct
 
 from mjxsysid import distributed
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.sim.quadrotor import Frame, Quadrotor, hover_rotor_speed, quat_to_mat
 

@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid._quiet import import_mjx
 
 mjx = import_mjx()  # without MJX's "Failed to import warp" probe message
@@ -241,7 +241,7 @@ class Quadrotor:
     """The MJX quadrotor simulator.
 
     >>> sim = Quadrotor()
-    >>> theta = mjxsysid.params.paper_hardware()
+    >>> theta = mjxsysid.theta.paper_hardware()
     >>> s = sim.init(theta, jax.random.PRNGKey(0))
     >>> s = sim.step(theta, s, jnp.full(4, 0.5))
 

@@ -18,7 +18,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.sim.quadrotor import Frame, SimConfig, mean_square_speed, quat_to_mat
 
 

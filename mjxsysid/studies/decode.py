@@ -27,7 +27,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.dataset.collect import decode_indices
@@ -435,10 +435,10 @@ def log_latents(policy, rec: dict, *, source="flight log", checks: dict | None =
 
 def decoders_prior(*decoders) -> str | None:
     """The name of the prior the decoders were trained on (from their provenance), if it is a
-    size-factor prior of :mod:`mjxsysid.params` (what :func:`prior_check` compares with)."""
+    size-factor prior of :mod:`mjxsysid.theta` (what :func:`prior_check` compares with)."""
     for d in decoders:
         name = (getattr(d, "meta", None) or {}).get("data", {}).get("pairs_meta", {}).get("prior")
-        if name in P.PRIORS and isinstance(P.PRIORS[name], P.Prior):
+        if name in P.PRIORS and isinstance(P.PRIORS[name], P.SizeFactorPrior):
             return name
     return None
 

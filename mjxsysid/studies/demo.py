@@ -17,7 +17,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.policy.interface import resolve_policy

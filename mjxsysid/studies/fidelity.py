@@ -16,7 +16,7 @@ import time
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.sample import Decoder
 from mjxsysid.cfm.sequence import SequenceDecoder
 from mjxsysid.control.high_level import Cascade

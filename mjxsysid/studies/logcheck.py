@@ -38,7 +38,7 @@ import itertools
 
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 
 DT = 0.002
 """s: one control step (500 Hz)."""

@@ -24,7 +24,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.cfm.pipeline import _ident_log, _public, posterior_scores, prior_reference
 from mjxsysid.control.high_level import Cascade

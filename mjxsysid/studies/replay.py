@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.cfm.sample import random_baseline
 from mjxsysid.control.low_level import Command, KTheta

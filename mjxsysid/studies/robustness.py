@@ -32,7 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.dataset.collect import decode_indices

@@ -56,7 +56,7 @@ IDENTIFIABLE_NAMES = ("thrust_to_weight", "torque_ratio",
 
 
 def identifiable(theta):
-    """The combinations a hover latent can reveal (DESIGN §6). θ (..., 19) -> (..., 5); NumPy in,
+    """The combinations a hover latent can reveal (docs/concepts.md). θ (..., 19) -> (..., 5); NumPy in,
     NumPy out ([xp_of][mjxsysid.theta.derived.xp_of])."""
     xp, theta = _float32(theta)
     return xp.concatenate([thrust_to_weight(theta)[..., None], torque_ratio(theta)[..., None],

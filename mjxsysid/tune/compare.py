@@ -10,7 +10,7 @@ import time
 import jax
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.control.high_level import GAIN_NAMES
 from mjxsysid.policy.interface import resolve_policy

@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.cfm.sample import _sample
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.high_level import gains as gain_vector

@@ -1,10 +1,49 @@
+import dataclasses
 import json
 
 import jax
 import numpy as np
 import pytest
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
+
+
+def test_field_table_generates_the_layout():
+    """Every view of θ's layout is generated from the one field table: these are its values."""
+    assert P.PARAM_NAMES == (
+        "mass", "arm_length", "thrust_coeff", "torque_coeff", "inertia[0]", "inertia[1]", "inertia[2]",
+        "drag[0]", "drag[1]", "drag[2]", "max_rotor_speed", "motor_effectiveness[0]", "motor_effectiveness[1]",
+        "motor_effectiveness[2]", "motor_effectiveness[3]", "motor_time_constant",
+        "external_torque[0]", "external_torque[1]", "external_torque[2]")
+    assert P.PARAM_UNITS == ("kg", "m", "N/(rad/s)^2", "N m/(rad/s)^2", "kg m^2", "kg m^2", "kg m^2",
+                             "kg/s", "kg/s", "kg/s", "rad/s", "-", "-", "-", "-", "s", "N m", "N m", "N m")
+    assert P.N_PARAMS == 19 == sum(f.size for f in P.FIELDS)
+    assert (P.MASS, P.ARM, P.KT, P.KTAU, P.OMEGA_MAX, P.TAU_M) == (0, 1, 2, 3, 10, 15)
+    assert all(type(i) is int for i in (P.MASS, P.ARM, P.KT, P.KTAU, P.OMEGA_MAX, P.TAU_M))
+    assert (P.INERTIA, P.DRAG, P.ETA, P.TAU_EXT) == (slice(4, 7), slice(7, 10), slice(11, 15), slice(16, 19))
+    assert P.VEHICLE_KEYS == {
+        "mass": (slice(0, 1), None), "arm_length": (slice(1, 2), None), "thrust_coeff": (slice(2, 3), None),
+        "torque_coeff": (slice(3, 4), None), "inertia": (slice(4, 7), 3), "drag": (slice(7, 10), 3),
+        "max_rotor_speed": (slice(10, 11), None), "motor_effectiveness": (slice(11, 15), 4),
+        "motor_time_constant": (slice(15, 16), None), "external_torque": (slice(16, 19), 3)}
+    assert list(P.VEHICLE_KEYS) == [f.name for f in P.FIELDS] == list(P.SLICES)
+    assert P.LOG_MASK.dtype == bool and P.LOG_MASK.tolist() == [
+        True] * 11 + [False] * 4 + [True] + [False] * 3
+    assert P.POSITIVE_MASK.tolist() == [True] * 7 + [False] * 3 + [True] * 6 + [False] * 3
+    assert np.flatnonzero(P.NONNEGATIVE_MASK).tolist() == [7, 8, 9]
+    expected_offset = np.zeros(19, np.float32)
+    expected_offset[7:10] = 1e-3
+    np.testing.assert_array_equal(P.LOG_OFFSET, expected_offset)
+    assert P.LOG_OFFSET.dtype == np.float32
+
+
+def test_priors_are_siblings():
+    """XAdapPrior carries only the fields it samples from; every prior is a SizeFactorPrior."""
+    assert not isinstance(P.XADAP_PRIOR, P.Prior)
+    assert all(isinstance(p, P.SizeFactorPrior) for p in [*P.PRIORS.values(), *P.HELDOUT_FAMILIES.values()])
+    fields = {f.name for f in dataclasses.fields(P.XAdapPrior)}
+    assert {"mass_range", "drag_iso"} <= fields and not fields & {"mass_base", "mass_scale", "drag_xy", "drag_noise"}
+    assert P.get_prior(P.XADAP_PRIOR) is P.XADAP_PRIOR and P.get_prior("weak_motor") is P.HELDOUT_FAMILIES["weak_motor"]
 
 
 def test_names_units_and_nominal():
