@@ -9,7 +9,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Circle, FancyArrowPatch
 
-from mjxsysid import params as P
+from mjxsysid import theta as P
 from mjxsysid.render.plots import plot_prior_marginals
 
 HERE = Path(__file__).parent
