@@ -39,9 +39,10 @@ class FlowNormalizer(Normalizer):
         return (self.shift, self.scale, self.flow_map, self.flow_offset), None
 
     @classmethod
-    def of(cls, norm: Normalizer | None) -> FlowNormalizer | None:
-        """``norm`` as a FlowNormalizer (a plain normaliser gets no flow map); None stays None."""
-        if norm is None or isinstance(norm, cls):
+    def of(cls, norm):
+        """A plain [Normalizer][mjxsysid.theta.normalize.Normalizer] as a FlowNormalizer without a
+        flow map; anything else (a FlowNormalizer, None) as it is."""
+        if not isinstance(norm, Normalizer) or isinstance(norm, cls):
             return norm
         return cls(norm.shift, norm.scale)
 
