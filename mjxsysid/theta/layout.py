@@ -53,6 +53,7 @@ FIELDS: tuple[Field, ...] = (
     Field("external_torque", 3, "N m", positive=False, log=False,
           about="τ_ext: constant body-frame torque"),
 )
+"""θ's fields in order: the one place its layout is written."""
 
 _STARTS = np.cumsum([0] + [f.size for f in FIELDS]).tolist()
 N_PARAMS: int = _STARTS[-1]
