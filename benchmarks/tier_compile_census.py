@@ -51,7 +51,7 @@ def _write(config):
     (Path(where) / name).write_text(json.dumps([[f, p, k, v] for (f, p, k), v in _rows.items()]))
 
 
-try:        # tryfirst: before tests/conftest.py's worker exit
+try:        # tryfirst: before tests/support/worker_exit.py's worker exit
     import pytest
     pytest_unconfigure = pytest.hookimpl(tryfirst=True)(_write)
 except ImportError:      # run as a script without pytest

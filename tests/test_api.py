@@ -10,7 +10,7 @@ import sys
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from support.paths import ROOT
 
 PY = sys.executable
 ENV = dict(os.environ, PYTHONPATH=str(ROOT), MJXSYSID_PROGRESS="0")

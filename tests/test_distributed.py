@@ -18,7 +18,7 @@ import textwrap
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from support.paths import ROOT
 
 PRELUDE = """
 import json, os, sys
@@ -44,7 +44,7 @@ def maxdiff(a, b):
 def run_two_devices(body: str) -> dict:
     """Run PRELUDE + body on 2 forced CPU devices; the body prints one JSON line last."""
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
-               JAX_PLATFORMS="cpu", PYTHONPATH=str(ROOT))   # the suite's cache: conftest exports MJXSYSID_JAX_CACHE
+               JAX_PLATFORMS="cpu", PYTHONPATH=str(ROOT))   # the suite's cache: support.jax_setup exports MJXSYSID_JAX_CACHE
     env.pop("MJXSYSID_DEVICES", None)
     code = PRELUDE + textwrap.dedent(body)
     p = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=900)

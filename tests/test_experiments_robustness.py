@@ -284,8 +284,8 @@ def test_fidelity_identifies_on_a_held_out_flight():
 @pytest.mark.parametrize("kernel", [pytest.param(False, id="inprocess"),
                                     pytest.param(True, id="kernel", marks=pytest.mark.slow)])
 def test_notebook_03_executes(kernel, tmp_path, monkeypatch):
-    """In this interpreter (default tier) or in a Jupyter kernel (slow): see conftest.run_notebook."""
-    from conftest import run_notebook
+    """In this interpreter (default tier) or in a Jupyter kernel (slow): see support.notebooks.run_notebook."""
+    from support.notebooks import run_notebook
     outputs, rich = run_notebook("03_robustness.ipynb", tmp_path, monkeypatch, kernel=kernel,
                                  env={"MJXSYSID_NOTEBOOK_FAST": "1"})
     assert "inside decoded" in outputs and "energy distance" in outputs
@@ -295,7 +295,7 @@ def test_notebook_03_executes(kernel, tmp_path, monkeypatch):
 
 def test_provenance_commit_names_head_and_says_when_the_package_differs_from_it(monkeypatch):
     import subprocess
-    from conftest import ROOT
+    from support.paths import ROOT
     from mjxsysid.experiments.common import git_commit
     head = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True).stdout.strip()
     dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no", "--", "mjxsysid"],

@@ -3,7 +3,7 @@ import json
 
 import numpy as np
 import pytest
-from conftest import XADAP_DIR
+from support.paths import XADAP_DIR
 
 from mjxsysid.cli import main
 from mjxsysid.policy.interface import PRETRAINED_DIR, LatentPolicy, resolve_policy

@@ -1,12 +1,13 @@
 """Notebooks run end to end on fast settings.
 
-Default tier: the code cells run in this interpreter (conftest.run_notebook), sharing the jit
+Default tier: the code cells run in this interpreter (support.notebooks.run_notebook), sharing the jit
 caches of the tests whose flights have the notebooks' shapes (tests/test_decode.py,
 test_api.py, conftest.xadap_paper_recording; notebook 02 runs in tests/test_tune.py, beside
 the tuner's flights). Slow tier: the same notebooks and checks in a Jupyter kernel of their own,
 as a user runs them."""
 import pytest
-from conftest import ROOT, XADAP_DIR, have, run_notebook
+from support.paths import ROOT, XADAP_DIR, have
+from support.notebooks import run_notebook
 
 KERNEL = [pytest.param(False, id="inprocess"), pytest.param(True, id="kernel", marks=pytest.mark.slow)]
 

@@ -118,7 +118,7 @@ def tiny_trainer():
 
 
 # The tiny Trainer's iteration runs 16 times here and in test_loss_weight_options_*: compiled with XLA's
-# optimisations (conftest.xla_optimised) it is faster in all (measured: test_policy.py 72 -> 61 s).
+# optimisations (support.jax_setup.xla_optimised) it is faster in all (measured: test_policy.py 72 -> 61 s).
 @pytest.mark.usefixtures("xla_optimised_test")
 def test_tiny_training_improves_tracking_and_resumes(tmp_path, tiny_trainer):
     """16 iterations × 1024 steps (seconds after compile) cut the body-rate tracking error of the

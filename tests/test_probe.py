@@ -134,7 +134,7 @@ def test_probe_loop_quick_end_to_end(tmp_path):
 def test_notebook_05_executes(kernel, tmp_path, monkeypatch):
     """notebooks/05_probing.ipynb on its quick settings (≈ 1 min): one round — probe, the weak
     systems against the prior, a tiny focused training."""
-    from conftest import run_notebook
+    from support.notebooks import run_notebook
     outputs, _ = run_notebook("05_probing.ipynb", tmp_path, monkeypatch, kernel=kernel,
                               env={"MJXSYSID_NOTEBOOK_FAST": "1"})
     assert "weak latents:" in outputs and "trained 2 iterations" in outputs, outputs[-2000:]

@@ -4,7 +4,7 @@ import json
 import jax
 import numpy as np
 import pytest
-from conftest import XADAP_DIR
+from support.paths import XADAP_DIR
 
 from mjxsysid import theta as P
 from mjxsysid.control.low_level import Command, KTheta

@@ -7,7 +7,7 @@ import jax
 import numpy as np
 import pytest
 
-from conftest import xla_optimised
+from support.jax_setup import xla_optimised
 
 import mjxsysid
 from mjxsysid import theta as P

@@ -333,7 +333,8 @@ def test_tune_experiments_tiny(tmp_path):
 def test_notebook_02_executes(kernel, tmp_path, monkeypatch):
     """Notebook 02 on its fast settings, in this interpreter (default tier: it shares the
     compiled segments of the fixed-gains test above) or in a Jupyter kernel (slow)."""
-    from conftest import ROOT, run_notebook
+    from support.paths import ROOT
+    from support.notebooks import run_notebook
     if not (ROOT / "mjxsysid" / "pretrained" / "cfm.npz").exists():
         pytest.skip("no shipped decoder")
     outputs, _ = run_notebook("02_tuning.ipynb", tmp_path, monkeypatch, kernel=kernel,

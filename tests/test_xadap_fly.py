@@ -27,7 +27,7 @@ HOVER_IMU = jnp.array([0.0, 0.0, 0.0, 0.0, 0.0, G], jnp.float32)
 HOVER_CMD = Command(jnp.float32(G), jnp.zeros(3, jnp.float32))
 
 
-from conftest import XADAP_DIR  # noqa: E402
+from support.paths import XADAP_DIR  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -30,7 +30,7 @@ N_SAMPLES = 64
 TOL = 1e-5
 
 
-from conftest import XADAP_DIR, have as _have, require_xadap  # noqa: E402
+from support.paths import XADAP_DIR, have as _have, require_xadap  # noqa: E402
 
 
 needs_files = pytest.mark.skipif(
