@@ -2,7 +2,6 @@
 and helpers (paths, notebooks) are modules of tests/support/."""
 import pytest
 
-from support.jax_setup import xla_optimised
 from support.paths import XADAP_DIR, require_xadap
 
 pytest_plugins = ("support.jax_setup", "support.xdist_queue", "support.worker_exit")
@@ -11,6 +10,7 @@ pytest_plugins = ("support.jax_setup", "support.xdist_queue", "support.worker_ex
 @pytest.fixture
 def xla_optimised_test():
     """:func:`support.jax_setup.xla_optimised` for a whole test (``@pytest.mark.usefixtures("xla_optimised_test")``)."""
+    from support.jax_setup import xla_optimised
     with xla_optimised():
         yield
 
