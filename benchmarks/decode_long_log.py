@@ -1,7 +1,7 @@
 """Decode time and peak memory of `mjxsysid decode --log` against the log's length (issue 20 §4).
 
-    python benchmarks/decode_long_log.py --minutes 0.1667 1 10 60 --out docs/runs/flight_logs/decode_long_log.json
-    python benchmarks/decode_long_log.py --minutes 1 --compare-decoder-only --out docs/runs/log_grounded/cost.json
+    python benchmarks/decode_long_log.py --minutes 0.1667 1 10 60 --out docs/runs/measurements/benchmarks/decode_long_log.json
+    python benchmarks/decode_long_log.py --minutes 1 --compare-decoder-only --out docs/runs/measurements/log-grounded/cost.json
 
 A 10 s flight of the shipped policy on the paper vehicle (a 10 s lemniscate, MJX) is written as
 a log and tiled to each length (time continuous; the IMU and commands repeat every 10 s, which

@@ -12,7 +12,7 @@ Three measurements, each on one device (``limit_devices(1)``) and on every devic
   the one-ulp perturbation, it is float reassociation amplified by the closed loop, not a
   difference in what is computed.
 
-    python benchmarks/device_agreement.py --out docs/runs/benchmarks/device_agreement.json      # 2 GPUs
+    python benchmarks/device_agreement.py --out docs/runs/measurements/benchmarks/device_agreement.json      # 2 GPUs
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/device_agreement.py \\
         --vehicles 16 --seconds 1 --envs 16 --out /tmp/agreement.json                    # CPU check
 """
@@ -75,7 +75,7 @@ def main():
     ap.add_argument("--vehicles", type=int, default=1024)
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--envs", type=int, default=4096, help="environments of the update check")
-    ap.add_argument("--out", type=Path, default=Path("docs/runs/benchmarks/device_agreement.json"))
+    ap.add_argument("--out", type=Path, default=Path("docs/runs/measurements/benchmarks/device_agreement.json"))
     args = ap.parse_args()
     from mjxsysid import distributed as D
     from mjxsysid import theta as P

@@ -1,7 +1,7 @@
 """What a new user meets first, cold and warm: each path's wall time, its compile share and the
 programs that cost most (issue 41 §1).
 
-    python benchmarks/first_contact.py --out docs/runs/benchmarks/first_contact.json
+    python benchmarks/first_contact.py --out docs/runs/measurements/benchmarks/first_contact.json
     python benchmarks/first_contact.py --paths decode-10s --runs cold       # one path, cold only
 
 Each path runs as `mjxsysid profile --json F -- COMMAND ...` in a fresh process (JAX's in-memory

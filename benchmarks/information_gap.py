@@ -8,7 +8,7 @@ proposal, and reports per log-identifiable quantity: the median width ratio (dec
 log-grounded band), how often the decoder-only band holds the log-grounded median, both bands'
 coverage of the truth, and the decoded proposal's importance-sampling ESS.
 
-    python benchmarks/information_gap.py --vehicles 16 --level x1 --out docs/runs/log_grounded/gap_x1.json
+    python benchmarks/information_gap.py --vehicles 16 --level x1 --out docs/runs/measurements/log-grounded/gap_x1.json
 """
 from __future__ import annotations
 

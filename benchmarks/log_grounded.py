@@ -8,7 +8,7 @@ and the log alone), and reports per log-identifiable quantity whether the truth 
 90 % band and the band's width, plus the seconds per log.
 
     python benchmarks/log_grounded.py --vehicles 24 --levels clean,x1,x5_white,x5_vibration,x20 \
-        --out docs/runs/log_grounded/calibration.json
+        --out docs/runs/measurements/log-grounded/calibration.json
 """
 from __future__ import annotations
 

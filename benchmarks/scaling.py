@@ -15,11 +15,11 @@ It also records how far the all-device results are from the one-device ones (lat
 training loss after the timed iterations), as a check that the sharded run computes the same.
 
     # one GPU vs both GPUs of a 2-GPU machine (e.g. nvidia-h200-x2)
-    python benchmarks/scaling.py --vehicles 16384 --envs 4096 --out docs/runs/benchmarks/scaling.json
+    python benchmarks/scaling.py --vehicles 16384 --envs 4096 --out docs/runs/measurements/benchmarks/scaling.json
     # correctness run on a CPU with 2 forced host devices (not a speed figure)
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/scaling.py \\
         --vehicles 8 --steps 100 --envs 16 --unroll 8 --iterations 2 --repeats 1 \\
-        --out docs/runs/benchmarks/scaling_cpu_forced2.json
+        --out docs/runs/measurements/benchmarks/scaling_cpu_forced2.json
 
 Strong scaling (the same batch on 1 and on every device) and weak scaling (the per-device batch
 kept: every device × ``--vehicles`` / ``--envs``; the throughput ratio is n for perfect scaling).
@@ -120,7 +120,7 @@ def main():
     ap.add_argument("--no-weak", action="store_true", help="skip the weak-scaling runs")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                     help="train: further TrainConfig fields (e.g. epochs=4 flat_optimizer=true)")
-    ap.add_argument("--out", type=Path, default=Path("docs/runs/benchmarks/scaling.json"))
+    ap.add_argument("--out", type=Path, default=Path("docs/runs/measurements/benchmarks/scaling.json"))
     args = ap.parse_args()
     for k in ("vehicles", "steps", "envs", "unroll", "minibatches", "iterations", "repeats"):
         if getattr(args, k) < 1:

@@ -18,7 +18,7 @@ Each part is its own jit, timed on device-resident inputs with ``block_until_rea
 sum to slightly more than the fused iteration (each pays its own launch). Prints a table
 (ms per call and the share of the iteration) and writes JSON.
 
-    python benchmarks/train_profile.py --configs 4096x32x4x8 16384x32x4x8 --out docs/runs/benchmarks/train_profile.json
+    python benchmarks/train_profile.py --configs 4096x32x4x8 16384x32x4x8 --out docs/runs/measurements/benchmarks/train_profile.json
     python benchmarks/train_profile.py --configs 64x8x2x2 --repeats 2   # CPU smoke test
     python benchmarks/train_profile.py --configs 16384x32x4x8 --set flat_optimizer=true reset_per_unroll=true
 
@@ -151,7 +151,7 @@ def main():
     ap.add_argument("--iterations", type=int, default=10, help="iterations per timed call of the whole iteration")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                     help="further TrainConfig fields for every config (e.g. flat_optimizer=true)")
-    ap.add_argument("--out", type=Path, default=Path("docs/runs/benchmarks/train_profile.json"))
+    ap.add_argument("--out", type=Path, default=Path("docs/runs/measurements/benchmarks/train_profile.json"))
     args = ap.parse_args()
     if args.repeats < 1 or args.iterations < 1:
         ap.error("--repeats and --iterations must be >= 1")

@@ -535,7 +535,7 @@ def stage_pairs(rel: Release, out: Path) -> dict:
 
 
 def stage_seq_pairs(rel: Release, out: Path) -> dict:
-    """Flights of random manoeuvres with ẑ at 10 Hz (tools/seq_decoder_pipeline.sh's collect)."""
+    """Flights of random manoeuvres with ẑ at 10 Hz (tools/archive/seq_decoder_pipeline.sh's collect)."""
     return _collect(rel, out, seconds=rel.sizes["seq_seconds"], sizes=rel.sizes["seq_pairs"])
 
 
@@ -589,7 +589,7 @@ def stage_decoder_eval(rel: Release, out: Path) -> dict:
 
 
 def stage_noise(rel: Release, out: Path) -> dict:
-    """tools/noise_sensitivity.py's measurement (:func:`mjxsysid.studies.noise.noise_sensitivity`)
+    """The noise-sensitivity experiment's measurement (:func:`mjxsysid.studies.noise.noise_sensitivity`)
     at the docs' levels and at the low ones, with the figure."""
     from mjxsysid.studies.noise import DEFAULT_LEVELS, figure, noise_sensitivity
     sz = dict(rel.sizes["noise"])
@@ -599,9 +599,9 @@ def stage_noise(rel: Release, out: Path) -> dict:
         runs = {"noise_sensitivity.json": ("clean", "x1"), "noise_sensitivity_low.json": ("clean", "x1_white")}
     figures, cmds = {}, []
     for name, levels in runs.items():
-        cmd = (f"python tools/noise_sensitivity.py --vehicles {sz['vehicles']} --seconds {sz['seconds']} --samples "
-               f"{sz['samples']} --seed 4242 --levels {' '.join(levels)} --policy {rel.policy_path} --decoders {dec} "
-               f"--out {out / name}")
+        cmd = (f"mjxsysid.studies.noise.noise_sensitivity(vehicles={sz['vehicles']}, seconds={sz['seconds']}, "
+               f"samples={sz['samples']}, seed=4242, levels={list(levels)}, policy='{rel.policy_path}', "
+               f"decoders='{dec}') -> {out / name}")
         res = noise_sensitivity(policy=rel.policy_path, decoders=dec, seed=4242, levels=levels, log=rel.log, **sz)
         (out / name).write_text(json.dumps({"command": cmd, **res}, indent=1) + "\n")
         cmds.append(cmd)
@@ -660,12 +660,12 @@ TUNE_RUNS = {
                          None)),
 }
 """Per tune stage: (folder, experiment, seed, variant, methods) of each run: the runs of
-docs/fair_comparisons.md §7 (tools/gpu_tune.sh's, issue 26)."""
+docs/fair_comparisons.md §7 (tools/archive/gpu_tune.sh's, issue 26)."""
 STUDY_RUNS = (("robustness", "robustness", 0, None, None),
               ("robustness_single_latent", "robustness", 0, "single_latent", None),
               ("replay", "replay", 0, None, None),
               ("payload", "payload", 0, None, None))
-"""The studies stage's runs (tools/fair_baselines.sh's robustness and replay, and payload)."""
+"""The studies stage's runs (tools/archive/fair_baselines.sh's robustness and replay, and payload)."""
 
 
 def _tune_stage(key):
@@ -760,27 +760,30 @@ def decoder_provenance(path, kind: str, evaluation: dict, *, what: str = "of the
 
 DOCS_RUNS = (
     # (stage, path in the stage folder, path under docs/runs/)
-    ("policy_eval", "eval.json", "policy/eval.json"),
-    ("policy", "train_log.jsonl", "policy/train_log.jsonl"),
-    ("policy_eval", "heldout", "policy/heldout"),
-    ("decoder_eval", "single/decoder_eval.json", "decoders/decoder_eval.json"),
-    ("decoder_eval", "single/sbc_ranks.png", "decoders/sbc_ranks.png"),
-    ("decoder_eval", "single/paper_vehicle_posterior.png", "decoders/paper_vehicle_posterior.png"),
-    ("decoders", "train_log.txt", "decoders/train_log.txt"),
-    ("decoder_eval", "flight/decoder_eval.json", "decoders/seq_decoder_eval.json"),
-    ("seq_decoder", "train_log.txt", "decoders/seq_decoder_log.txt"),
-    ("noise", "noise_sensitivity.json", "noise/noise_sensitivity.json"),
-    ("noise", "noise_sensitivity_low.json", "noise/noise_sensitivity_low.json"),
-    *((key, folder, f"tuning/{folder}") for key, runs in TUNE_RUNS.items() for folder, *_ in runs),
-    *(("studies", folder, f"studies/{folder}") for folder, *_ in STUDY_RUNS),
-    ("fidelity", "closed_loop_fidelity.json", "studies/closed_loop_fidelity.json"),
-    ("fidelity", "closed_loop_fidelity_same_flight.json", "studies/closed_loop_fidelity_same_flight.json"),
+    ("policy_eval", "eval.json", "release/policy/eval.json"),
+    ("policy", "train_log.jsonl", "release/policy/train_log.jsonl"),
+    ("policy_eval", "heldout", "release/policy/heldout"),
+    ("decoder_eval", "single/decoder_eval.json", "release/decoders/decoder_eval.json"),
+    ("decoder_eval", "single/sbc_ranks.png", "release/decoders/sbc_ranks.png"),
+    ("decoder_eval", "single/paper_vehicle_posterior.png", "release/decoders/paper_vehicle_posterior.png"),
+    ("decoders", "train_log.txt", "release/decoders/train_log.txt"),
+    ("decoder_eval", "flight/decoder_eval.json", "release/decoders/seq_decoder_eval.json"),
+    ("seq_decoder", "train_log.txt", "release/decoders/seq_decoder_log.txt"),
+    ("noise", "noise_sensitivity.json", "release/noise/noise_sensitivity.json"),
+    ("noise", "noise_sensitivity_low.json", "release/noise/noise_sensitivity_low.json"),
+    *((key, folder, f"release/tuning/{folder}") for key, runs in TUNE_RUNS.items() for folder, *_ in runs),
+    *(("studies", folder, f"release/studies/{folder}") for folder, *_ in STUDY_RUNS),
+    ("fidelity", "closed_loop_fidelity.json", "release/studies/closed_loop_fidelity.json"),
+    ("fidelity", "closed_loop_fidelity_same_flight.json", "release/studies/closed_loop_fidelity_same_flight.json"),
 )
-"""The run outputs the docs quote, and where under docs/runs/ a release ships them (one folder
-per kind of run)."""
+"""The run outputs the docs quote, and where under docs/runs/release/ a release ships them (one
+folder per kind of run); ``ship`` replaces docs/runs/release/ whole."""
 OPTIONAL = ("train_log.jsonl", "single/paper_vehicle_posterior.png")
 """Files of DOCS_RUNS a done stage may lack: an adopted policy has no training log; a tiny release
 flies no paper vehicle."""
+RELEASE_RUNS = "release"
+"""The folder under docs/runs/ that holds exactly what the last release shipped (its run files and
+its record, release.json)."""
 DOCS_FILES = (("noise", "noise_sensitivity.png", "noise_sensitivity.png"),)
 """Figures the docs pages show directly (stage, file, path under docs/)."""
 SHIPPED = (("policy", "policy.npz"), ("decoders", "cfm.npz"), ("decoders", "regression.npz"),
@@ -823,7 +826,7 @@ def _adopted_training(rel: Release) -> dict:
 def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
     """Lay out what a release ships, as a tree rooted at ``tree``: mjxsysid/pretrained/ (the
     weights, hard-linked, and their provenance JSON, each with a ``release`` section: the release
-    folder, commit, stage, its wall time and device) and docs/runs/<kind>/ (:data:`DOCS_RUNS`),
+    folder, commit, stage, its wall time and device) and docs/runs/release/<kind>/ (:data:`DOCS_RUNS`),
     docs/ (:data:`DOCS_FILES`). ``partial``: skip what a stage not done did not write (else an
     error). Returns what was left out."""
     left_out = []
@@ -906,7 +909,7 @@ def stage_tables(rel: Release, out: Path) -> dict:
     page = fair.page(overlay=tree)
     (tree / "docs" / "fair_comparisons.md").write_text(page)
     runs = {f"docs/runs/{p}": json.loads((tree / "docs" / "runs" / p).read_text())
-            for p in ("noise/noise_sensitivity.json", "noise/noise_sensitivity_low.json")}
+            for p in ("release/noise/noise_sensitivity.json", "release/noise/noise_sensitivity_low.json")}
     (tree / "docs" / "noise.md").write_text(replace_tables((ROOT / "docs" / "noise.md").read_text(), runs))
     files = sorted(str(p.relative_to(tree)) for p in tree.rglob("*") if p.is_file())
     return {"command": "python tools/fair_tables.py (overlay: the release's run files); docs/noise.md's tables "
@@ -930,11 +933,16 @@ def stage_ship(rel: Release, out: Path) -> dict:
         left_out = build_tree(rel, tree, partial=True)
     dest = rel.ship_to
     files = []
+    if (tree / "docs" / "runs" / RELEASE_RUNS).is_dir() and (dest / "docs" / "runs" / RELEASE_RUNS).is_dir():
+        shutil.rmtree(dest / "docs" / "runs" / RELEASE_RUNS)      # replaced whole: no file of an earlier release stays
     for p in sorted(tree.rglob("*")):
         if p.is_file():
             r = p.relative_to(tree)
             _copy(p, dest / r)
             files.append(str(r))
+    if not left_out:
+        _copy(rel.out / RECORD, dest / "docs" / "runs" / RELEASE_RUNS / RECORD)     # the record as the ship began
+        files.append(f"docs/runs/{RELEASE_RUNS}/{RECORD}")
     (out / "shipped.json").write_text(json.dumps({"to": str(dest), "files": files, "left_out": left_out}, indent=2) + "\n")
     if left_out:
         rel.log(f"[release] ship: left out (stages not done): {', '.join(left_out)}")
@@ -958,7 +966,7 @@ STAGES = (
           ("single/decoder_eval.json", "flight/decoder_eval.json"), 55,
           "evaluate-decoder: CFM + Regression, and the flight-level decoder"),
     Stage("noise", stage_noise, ("decoders", "seq_decoder"), ("noise_sensitivity.json", "noise_sensitivity_low.json"),
-          85, "decoding under IMU noise (tools/noise_sensitivity.py)"),
+          85, "decoding under IMU noise (mjxsysid experiment noise-sensitivity)"),
     Stage("tune_nominal", _tune_stage("tune_nominal"), ("decoders", "seq_decoder"),
           tuple(f"{r[0]}/results.json" for r in TUNE_RUNS["tune_nominal"]), 215,
           "experiment tune-nominal, --variant baseline_start, protect"),
@@ -982,7 +990,7 @@ STAGES = (
           ("tree/docs/fair_comparisons.md", "tree/docs/noise.md"), 5,
           "lay out the shipped tree and regenerate docs/fair_comparisons.md and docs/noise.md's tables"),
     Stage("ship", stage_ship, (), ("shipped.json",), 5,
-          "copy weights + provenance into mjxsysid/pretrained/, run files into docs/runs/<kind>/, the pages",
+          "copy weights + provenance into mjxsysid/pretrained/, run files into docs/runs/release/<kind>/, the pages",
           after=("tables",)),
 )
 """The stages of a release, in order (see the module doc)."""

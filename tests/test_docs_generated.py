@@ -34,10 +34,10 @@ def test_documentation_site_builds_strictly(tmp_path):
 
 
 def test_probing_page_quotes_the_probe_loop_run():
-    """docs/probing.md's table quotes docs/runs/probing/probe_loop/results.json: every policy's success and
+    """docs/probing.md's table quotes docs/runs/measurements/probe-loop/results.json: every policy's success and
     RMSE ratio on the default and stress priors, its T/W R², and the targets met or missed."""
     import json
-    r = json.loads((ROOT / "docs" / "runs" / "probing" / "probe_loop" / "results.json").read_text())["numbers"]
+    r = json.loads((ROOT / "docs" / "runs" / "measurements" / "probe-loop" / "results.json").read_text())["numbers"]
     text = (ROOT / "docs" / "probing.md").read_text()
     names = {"given": "given (shipped)", "probed": "probed, round 1", "probed2": "probed, round 2",
              "probed3": "probed, round 3", "uniform": "stress-prior draws (control that knows the test)"}
@@ -53,8 +53,8 @@ def test_probing_page_quotes_the_probe_loop_run():
 
 
 def test_probing_page_quotes_the_held_out_run():
-    """docs/probing.md's held-out table is the one docs/runs/probing/heldout/results.md was written with."""
-    table = [line for line in (ROOT / "docs" / "runs" / "probing" / "heldout" / "results.md").read_text().splitlines()
+    """docs/probing.md's held-out table is the one docs/runs/measurements/held-out/probing/results.md was written with."""
+    table = [line for line in (ROOT / "docs" / "runs" / "measurements" / "held-out" / "probing" / "results.md").read_text().splitlines()
              if line.startswith("|")]
     text = (ROOT / "docs" / "probing.md").read_text()
     assert len(table) >= 3 and all(line in text for line in table)

@@ -1,6 +1,6 @@
 """Held-out families (theta.HELDOUT_FAMILIES) and the held-out evaluation: each family's defining
 damage, seeding and validity; the comparison with the oracle in closed form; the CLI's plumbing
-(flights replaced by a stand-in: the real flights are the docs/runs/probing/heldout run)."""
+(flights replaced by a stand-in: the real flights are the docs/runs/measurements/held-out/probing run)."""
 import json
 
 import numpy as np

@@ -1,6 +1,5 @@
-"""docs/noise.md's table is what tools/noise_sensitivity.py makes of its committed run, and the
-figure is drawn from it (the run itself takes minutes: `python tools/noise_sensitivity.py`)."""
-import importlib.util
+"""docs/noise.md's table is what mjxsysid.studies.noise makes of its committed run, and the
+figure is drawn from it (the run itself takes minutes: `mjxsysid experiment noise-sensitivity`)."""
 import json
 from pathlib import Path
 
@@ -10,15 +9,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def _tool():
-    spec = importlib.util.spec_from_file_location("noise_sensitivity", ROOT / "tools" / "noise_sensitivity.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def test_docs_table_and_figure_come_from_the_run(tmp_path):
-    tool = _tool()
+    from mjxsysid.studies import noise as tool
     doc = (ROOT / "docs/noise.md").read_text()
     parts = doc.split("<!-- BEGIN noise table ")[1:]
     assert len(parts) == 2
@@ -26,7 +18,7 @@ def test_docs_table_and_figure_come_from_the_run(tmp_path):
         run, rest = part.split(" ", 1)
         res = json.loads((ROOT / run).read_text())
         body = rest.split("-->", 1)[1].split("<!-- END noise table -->")[0]
-        assert body.strip() == tool.table(res).strip(), f"regenerate: python tools/noise_sensitivity.py --replot {run}"
+        assert body.strip() == tool.table(res).strip(), f"regenerate: mjxsysid.studies.noise.replace_tables on {run}"
         for name, lv in res["levels"].items():
             assert lv["sim"] == tool.LEVELS[name], name     # the levels the tool defines today
     assert tool.figure(res, tmp_path / "f.png").stat().st_size > 10_000

@@ -226,7 +226,7 @@ def test_ship_tree_carries_release_provenance(tmp_path):
     assert pol["evaluation"] == {"n": 10} and pol["config"]["num_envs"] > 0
     cfm = json.loads((tree / "mjxsysid/pretrained/cfm.json").read_text())
     assert cfm["release"]["stage"] == "decoders" and cfm["data"]["pairs_sha256"]
-    assert (tree / "docs/runs/policy/eval.json").is_file()
+    assert (tree / "docs/runs/release/policy/eval.json").is_file()
     assert not (tree / "mjxsysid/pretrained/cfm_seq.json").exists()
     # a release that adopted a policy keeps how it was trained (command, commit) from the JSON beside it
     shipped = json.loads((pre / "policy.json").read_text())
@@ -254,8 +254,8 @@ def test_tiny_release_end_to_end(tmp_path, capsys):
         assert prov["release"]["dir"] == "rel" and prov["release"]["scale"] == "tiny"
         assert (ship / "mjxsysid/pretrained" / f"{f}.npz").is_file()
     assert "Fair comparisons" in (ship / "docs/fair_comparisons.md").read_text()
-    assert (ship / "docs/runs/tuning/tune_slow/results.json").is_file()
-    assert (ship / "docs/runs/decoders/seq_decoder_eval.json").is_file()
+    assert (ship / "docs/runs/release/tuning/tune_slow/results.json").is_file()
+    assert (ship / "docs/runs/release/decoders/seq_decoder_eval.json").is_file()
     assert rec["stages"]["pairs"]["config"]["imu"]["randomize_imu"] is True      # the release config's IMU
     rc, _, err = _cli(capsys, "--out", out, "-q")
     assert rc == 0 and "stages run" not in err

@@ -1,30 +1,19 @@
-"""tools/rotorpy_noise.py (issue 29's RotorPy case): the mapping of θ onto RotorPy's parameters
+"""The rotorpy-noise experiment (mjxsysid.experiments.rotorpy_noise, RotorPy's case): the mapping of θ onto RotorPy's parameters
 (no RotorPy needed), the one-line error without it, and a short flight when it is installed."""
-import importlib.util
-import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from mjxsysid import theta as P
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _tool():
-    spec = importlib.util.spec_from_file_location("rotorpy_noise", ROOT / "tools" / "rotorpy_noise.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+from mjxsysid.experiments import get_experiment
+from mjxsysid.experiments import rotorpy_noise as T
 
 
 def test_vehicle_maps_onto_rotorpy_parameters():
     """Hover thrust of the mapped rotors carries the weight; the rotors sit at the arm length in
     RotorPy's order with mjxsysid's yaw signs; the linear drag equals D at hover speed; the worn
     motor is the one asked for."""
-    T = _tool()
     theta = T.worn_vehicle(2, 0.8)
     assert theta[P.ETA.start + 1] == pytest.approx(0.8) and theta[P.ETA.start] == pytest.approx(1.0)
     q = T.rotorpy_params(theta)
@@ -45,17 +34,14 @@ def test_without_rotorpy_the_tool_names_the_install_command(monkeypatch):
     for name in [m for m in sys.modules if m.startswith("rotorpy.")]:
         monkeypatch.delitem(sys.modules, name)
     with pytest.raises(SystemExit) as e:
-        _tool().import_rotorpy()
+        T.import_rotorpy()
     assert "pip install rotorpy" in str(e.value) and str(e.value).startswith("error: RotorPy is not installed")
 
 
 @pytest.mark.slow
 def test_quick_flight_decodes_the_clean_log(tmp_path):
     pytest.importorskip("rotorpy")
-    r = subprocess.run([sys.executable, str(ROOT / "tools" / "rotorpy_noise.py"), "--quick", "--out", str(tmp_path)],
-                       capture_output=True, text=True, cwd=ROOT)
-    assert r.returncode == 0, r.stderr[-2000:]
-    import json
-    res = json.loads((tmp_path / "rotorpy_noise.json").read_text())
+    res = get_experiment("rotorpy-noise")(tmp_path, quick=True, progress=False)["numbers"]
+    assert (tmp_path / "results.md").is_file()
     clean = res["levels"]["clean"]
     assert clean["rmse_m"] < 0.10 and clean["inside"] >= 20 and not clean["lost"]

@@ -34,7 +34,7 @@ def load(path: Path) -> dict:
     try:
         return json.loads(path.read_text())
     except FileNotFoundError:
-        sys.exit(f"fair_tables: missing run file {path} (run tools/fair_baselines.sh, or `mjxsysid release`)")
+        sys.exit(f"fair_tables: missing run file {path} (run tools/archive/fair_baselines.sh, or `mjxsysid release`)")
 
 
 def f3(x) -> str:
@@ -221,7 +221,7 @@ def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]
         "*its own* motor lag (τ_m, Ω_max) over the last 0.6 s of commands the controller sent",
         "(`tune.tuner.estimate_rotor_speed`; no hidden state read) and the rigid twin carries the IMU latency",
         "buffer. With the true θ a prediction then reproduces the flight to float round-off",
-        "([figure](runs/tuning/prediction_error/prediction_error.png), `tools/prediction_error.py`; tests in",
+        "([figure](runs/measurements/prediction-error/prediction_error.png), `mjxsysid experiment prediction-error`; tests in",
         "`tests/test_tune.py`). Same vehicles and seeds as the default protocol; Baseline and Nominal+CEM of",
         "a variant run that did not fly them come from the default run of the same seed (their flights do not",
         f"depend on the tuner's knobs). One {slow['device']['device_kind'].split(' 80GB')[0]}, {slow['date'][:10]}, "
@@ -276,7 +276,7 @@ def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]
         "rotor for the speed that moves it as a τ_m = 0.02 s motor would; it cancels the known external torque",
         "τ_ext; where a rotor saturates its mixer gives up yaw torque first, then up to 20 % of the collective",
         "thrust, before roll/pitch torque. The final design and its ablations, 128 vehicles per prior (`python",
-        f"tools/lag_oracle.py --vehicles 128`, {lag['config']['device']}, {lag['config']['date']}):",
+        f"mjxsysid experiment lag-oracle --vehicles 128`, {lag['config']['device']}, {lag['config']['date']}):",
         "",
         *lag_rows(lag),
         "",
@@ -289,7 +289,7 @@ def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]
         "",
         f"The final design flies {pct(lag['stress_wide']['k_theta_lag_0.02']['success'])} of `stress_wide` (K_θ "
         f"{pct(lag['stress_wide']['k_theta']['success'])}) on these 128 draws and {heldout['stress_wide']['oracle_success']:.1%} of the "
-        f"{heldout['stress_wide']['vehicles']['n']} drawn for the held-out evaluation (`docs/runs/probing/heldout/`): the target (≥ 90 %) is met on one",
+        f"{heldout['stress_wide']['vehicles']['n']} drawn for the held-out evaluation (`docs/runs/measurements/held-out/probing/`): the target (≥ 90 %) is met on one",
         "sample and missed by a vehicle on the other — at the edge, not clearly met. The vehicles it loses need",
         "80–98 % of Ω_max on their weakest rotor just to hover. It is no worse than K_θ",
         "on the default prior. It is the `oracle` of flights, policy evaluations and the probe since issue 26",
@@ -328,27 +328,27 @@ def page(overlay: Path | None = None) -> str:
 def _page() -> str:
     old = {k: load(OLD / k / "results.json") for k in ("tune_nominal", "tune_slow", "tune_lemniscate",
                                                          "robustness", "replay")}
-    new = {k: load(RUNS / "studies" / k / "results.json") for k in ("robustness", "robustness_single_latent", "replay")}
+    new = {k: load(RUNS / "release" / "studies" / k / "results.json") for k in ("robustness", "robustness_single_latent", "replay")}
     # the tune-* runs of issue 22 (the rotors started at the last command's steady state), kept
     new.update({k: load(RUNS / "archive" / "issue22_tuning" / k / "results.json")
                 for k in ("tune_nominal", "tune_slow", "tune_slow_heading_cost", "tune_lemniscate",
                           "tune_lemniscate_no_lead_in")})
-    t26 = {k: load(RUNS / "tuning" / k / "results.json") for k in ISSUE26_RUNS}
-    lag = load(RUNS / "oracle" / "lag_oracle_cpu128.json")
-    lag1k = load(RUNS / "oracle" / "lag_oracle.json")
-    nobc_replay = load(RUNS / "nobc" / "replay" / "results.json")
-    fid = load(RUNS / "studies" / "closed_loop_fidelity.json")
-    fid_same = load(RUNS / "studies" / "closed_loop_fidelity_same_flight.json")
+    t26 = {k: load(RUNS / "release" / "tuning" / k / "results.json") for k in ISSUE26_RUNS}
+    lag = load(RUNS / "measurements" / "lag-oracle" / "lag_oracle_cpu128.json")
+    lag1k = load(RUNS / "measurements" / "lag-oracle" / "lag_oracle.json")
+    nobc_replay = load(RUNS / "measurements" / "nobc" / "replay" / "results.json")
+    fid = load(RUNS / "release" / "studies" / "closed_loop_fidelity.json")
+    fid_same = load(RUNS / "release" / "studies" / "closed_loop_fidelity_same_flight.json")
     fid_old = load(OLD / "closed_loop_fidelity.json")
     dec_old = load(OLD / "decoder_eval.json")
-    dec_new = load(RUNS / "decoders" / "decoder_eval.json")
-    dec_nobc = load(RUNS / "nobc" / "dec" / "decoder_eval.json")
-    pol = load(RUNS / "policy" / "eval.json")
-    pol_nobc = load(RUNS / "nobc" / "eval" / "eval.json")
+    dec_new = load(RUNS / "release" / "decoders" / "decoder_eval.json")
+    dec_nobc = load(RUNS / "measurements" / "nobc" / "dec" / "decoder_eval.json")
+    pol = load(RUNS / "release" / "policy" / "eval.json")
+    pol_nobc = load(RUNS / "measurements" / "nobc" / "eval" / "eval.json")
     shipped_reg = load(ROOT / "mjxsysid" / "pretrained" / "regression.json")
     xadap_reg = load(ROOT / "mjxsysid" / "pretrained" / "xadap" / "regression.json")
-    xadap_dec = load(RUNS / "xadap" / "dec" / "decoder_eval.json")
-    xadap_replay = load(RUNS / "xadap" / "replay" / "replay.json")
+    xadap_dec = load(RUNS / "measurements" / "xadap" / "dec" / "decoder_eval.json")
+    xadap_replay = load(RUNS / "measurements" / "xadap" / "replay" / "replay.json")
     s_slow = new["tune_slow"]["numbers"]["ratios"]
     s_old = old["tune_slow"]["numbers"]["ratios"]
 
@@ -356,9 +356,9 @@ def _page() -> str:
          "",
          "Back to the [overview](index.md). *Generated by `python tools/fair_tables.py` from the run files in",
          "`docs/runs/archive/previous_protocol/` (the previous protocol) and today's in `docs/runs/<kind>/`",
-         f"({made_by(new['robustness'], '`tools/fair_baselines.sh OUT regression tune heading lemniscate robustness replay fidelity nobc`')};",
+         f"({made_by(new['robustness'], '`tools/archive/fair_baselines.sh OUT regression tune heading lemniscate robustness replay fidelity nobc`')};",
          f"issue 22's tune-* runs in `docs/runs/archive/issue22_tuning/`, {stamp(new['tune_slow'])};",
-         f"the tune-* runs of issue 26 (section 7) by {made_by(t26['tune_slow'], '`tools/gpu_tune.sh`')}; a release",
+         f"the tune-* runs of issue 26 (section 7) by {made_by(t26['tune_slow'], '`tools/archive/gpu_tune.sh`')}; a release",
          "(`mjxsysid release`) regenerates today's); do not edit by hand.*",
          "",
          "A line-by-line reading of the code against the paper found six places where a comparison favoured",
@@ -428,7 +428,7 @@ def _page() -> str:
          "about 2× on the whole flight; Oracle-CEM (true θ) loses exactly as much, so it is the take-off",
          "transient, not the decoded models. The last cycle (results.md) is better than Baseline under both.",
          "",
-         *issue26_section(t26, lag, lag1k, load(RUNS / "probing" / "heldout" / "results.json")["numbers"]["evaluation"]),
+         *issue26_section(t26, lag, lag1k, load(RUNS / "measurements" / "held-out" / "probing" / "results.json")["numbers"]["evaluation"]),
          "## 6b. Robustness: the flight-level decoder and the paper's single-latent CFM",
          "",
          *robustness_rows([("flight-level (sequence) decoder (default)", new["robustness"]),
@@ -436,7 +436,7 @@ def _page() -> str:
          "",
          "With the paper's single-latent CFM the paper vehicle's true lateral error leaves the decoded",
          "envelope almost at once: the headline (\"true inside\") holds only for the flight-level decoder,",
-         "which pools 10 s of latents. Both are reported in `docs/runs/studies/robustness*/`.",
+         "which pools 10 s of latents. Both are reported in `docs/runs/release/studies/robustness*/`.",
          "",
          "## 3. Regression with early stopping",
          "",
@@ -463,7 +463,7 @@ def _page() -> str:
          "evaluated like the shipped one:",
          "",
          *policy_rows([("shipped (`mjxsysid/pretrained/policy.npz`)", "2 → 0.05 (never 0)", pol),
-                       ("no imitation at the end (`docs/runs/nobc/policy.npz`)", "2 → 0 by mid-training", pol_nobc)]),
+                       ("no imitation at the end (`docs/runs/measurements/nobc/policy.npz`)", "2 → 0 by mid-training", pol_nobc)]),
          "",
          f"It flies every vehicle but at {pol_nobc['lemniscate']['rmse_ratio_policy_over_oracle']:.2f}× the oracle's RMSE (the bar",
          "for shipping it was ≤ 1.1×), and its decoders are less well calibrated; **it is not shipped**.",
@@ -485,7 +485,7 @@ def _page() -> str:
          "### The released XAdap policy's Regression",
          "",
          "The XAdap decoders (a policy mjxsysid did not train, no imitation of K_θ involved) had the same",
-         "over-trained Regression. Retrained with early stopping (`XADAP_WEIGHTS=W tools/fair_baselines.sh",
+         "over-trained Regression. Retrained with early stopping (`XADAP_WEIGHTS=W tools/archive/fair_baselines.sh",
          f"OUT xadap`; best epoch {xadap_reg['early_stopping']['best_epoch']} of {xadap_reg['config']['epochs']}; "
          "shipped in `mjxsysid/pretrained/xadap/`), beside its shipped CFM:",
          "",
@@ -500,7 +500,7 @@ def _page() -> str:
          "- The early-stopped Regression is still worse than the prior itself on the energy score, but in",
          "  action replay it now ties CFM's mean action on RMSE (and beats single-sample CFM on the 10 s, 15 s",
          "  and hover flights); CFM's mean action keeps the best PCC of the three decoders on every flight. Over the 32 prior vehicles",
-         "  (`docs/runs/xadap/replay/replay.md`) Regression has the lowest RMSE on every flight.",
+         "  (`docs/runs/measurements/xadap/replay/replay.md`) Regression has the lowest RMSE on every flight.",
          "",
          "## 5. Closed-loop fidelity on a held-out identification flight",
          "",

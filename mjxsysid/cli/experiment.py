@@ -14,11 +14,13 @@ from mjxsysid.cli._common import add_policy, policy_ref
 
 def add_experiment(sub) -> None:
     ex = sub.add_parser("experiment", help="run one of the paper's experiments (results.json, results.md, PNGs)")
-    ex.add_argument("name", help="tune-nominal | tune-slow | tune-lemniscate | robustness | payload | replay | probe-loop")
+    ex.add_argument("name", help="tune-nominal | tune-slow | tune-lemniscate | robustness | payload | replay | probe-loop | "
+                                 "probe-loop-seeds | lag-oracle | stress-prior-oracle | prediction-error | log-checks | "
+                                 "long-flight-calibration | noise-sensitivity | rotorpy-noise | speed-table")
     ex.add_argument("--quick", action="store_true", help="small CPU version (minutes; a smoke test)")
     ex.add_argument("--cpu", action="store_true",
                     help="tune-*: the full protocol with fewer vehicles and smaller ensembles (tens of minutes on a CPU)")
-    ex.add_argument("--seed", type=int, default=0)
+    ex.add_argument("--seed", type=int, default=None, help="default: the experiment's own (0 for most)")
     add_policy(ex)
     ex.add_argument("--decoders", type=Path, default=None,
                     help="folder with cfm.npz and regression.npz (default: the policy's shipped decoders)")
@@ -28,7 +30,11 @@ def add_experiment(sub) -> None:
                          "cem_3_iterations, horizon_1s (tune-*: see docs/fair_comparisons.md), no_lead_in "
                          "(tune-lemniscate), single_latent (robustness: the paper's single-latent CFM), accumulate "
                          "(probe-loop: each round fine-tunes the current policy on a re-scored replay buffer), widened "
-                         "(probe-loop: a fair control on the default prior widened by the probe's reach, same budget)")
+                         "(probe-loop: a fair control on the default prior widened by the probe's reach, same budget), low "
+                         "(noise-sensitivity: the levels below x 1)")
+    ex.add_argument("--inputs", type=Path, default=None, metavar="PATH",
+                    help="experiments that read earlier runs: probe-loop-seeds (a probe-loop run), "
+                         "long-flight-calibration (collect --seconds S pairs), speed-table (a folder of run folders)")
     ex.add_argument("--methods", default=None, metavar="M1,M2",
                     help="tune-*: the methods to fly (default: the experiment's own; naive, baseline, cfm, "
                          "nominal_cem, oracle_cem)")
@@ -61,7 +67,14 @@ def cmd_experiment(args) -> int:
             raise ValueError(f"--methods applies to the tune-* experiments, not {args.name}")
         from mjxsysid.tune.compare import check_methods
         kw["methods"] = check_methods(m.strip() for m in args.methods.split(",") if m.strip())
-    res = run(args.out, quick=args.quick, policy=policy_ref(args), seed=args.seed, **kw)
+    if args.inputs is not None:
+        import inspect
+        if "inputs" not in inspect.signature(run).parameters:
+            raise ValueError(f"experiment {args.name} does not take --inputs")
+        kw["inputs"] = args.inputs
+    if args.seed is not None:
+        kw["seed"] = args.seed
+    res = run(args.out, quick=args.quick, policy=policy_ref(args), **kw)
     print(json.dumps(res["numbers"].get("headline", {})))
     print(f"wrote {args.out}/results.json, results.md and figures ({res['wall_s']:.0f} s)", file=sys.stderr)
     return 0

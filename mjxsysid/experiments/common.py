@@ -1,6 +1,7 @@
 """What every experiment writes: results.json and results.md, with provenance."""
 from __future__ import annotations
 
+import contextvars
 import json
 import platform
 import subprocess
@@ -10,6 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from mjxsysid.policy.interface import file_sha256
+
+CALL: contextvars.ContextVar[dict | None] = contextvars.ContextVar("experiment_call", default=None)
+"""The experiment call in progress ({experiment, function, arguments}), set by the function
+:func:`mjxsysid.experiments.get_experiment` returns; :func:`write_results` records it."""
 
 
 def git_commit() -> str | None:
@@ -89,11 +94,15 @@ def write_results(out, name: str, *, config: dict, seeds: dict, numbers: dict, t
     """Write OUT/results.json and OUT/results.md; returns the JSON dict.
 
     policy: a :class:`~mjxsysid.policy.interface.PolicyRef` (its kind and weights hash are
-    recorded); decoders: the folder of the decoders used (their file hash is recorded).
+    recorded); decoders: the folder of the decoders used (their file hash is recorded). The
+    experiment's seed and its exact call (every argument, defaults included) are recorded as
+    ``seed`` and ``call`` when it runs through :func:`mjxsysid.experiments.get_experiment`.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    prov = {"experiment": name, "config": config, "seeds": seeds, "commit": git_commit(),
+    call = CALL.get()
+    prov = {"experiment": name, "seed": call["arguments"].get("seed") if call else seeds.get("seed"),
+            "call": call, "config": config, "seeds": seeds, "commit": git_commit(),
             "device": device_info(), "wall_s": round(time.time() - t0, 2),
             "date": time.strftime("%Y-%m-%d %H:%M:%S %Z")}
     if policy is not None:
@@ -109,3 +118,21 @@ def write_results(out, name: str, *, config: dict, seeds: dict, numbers: dict, t
             f"{prov['wall_s']:.0f} s, commit {str(prov['commit'])[:10]}\n\n")
     (out / "results.md").write_text(head + table_md + ("\n" + notes.strip() + "\n" if notes else ""))
     return res
+
+
+def leaf_table(numbers: dict, *, limit: int = 200) -> str:
+    """A markdown table of every numeric leaf of ``numbers`` ('a / b / c' paths), for the
+    measurements that have no table of their own; at most ``limit`` rows."""
+    rows = []
+
+    def walk(prefix, v):
+        if isinstance(v, dict):
+            for k, x in v.items():
+                walk(f"{prefix} / {k}" if prefix else str(k), x)
+        elif isinstance(v, (bool, np.bool_)):
+            rows.append([prefix, str(bool(v))])
+        elif isinstance(v, (int, float, np.integer, np.floating)):
+            rows.append([prefix, f"{float(v):.4g}"])
+
+    walk("", numbers)
+    return markdown_table(["quantity", "value"], rows[:limit])

@@ -5,12 +5,14 @@ priors (and the slow-actuator prior), 10 s lemniscate, seeded draws; with the la
 design choices taken out one at a time (the collective-thrust cut where a rotor saturates, the
 cancelled external torque).
 
-    python tools/lag_oracle.py --vehicles 1000 --out docs/runs/oracle/lag_oracle.json
+    mjxsysid experiment lag-oracle --out docs/runs/measurements/lag-oracle      # 1,000 vehicles per prior
 """
-import argparse
+from __future__ import annotations
+
 import json
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import jax
 import numpy as np
@@ -18,6 +20,7 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.low_level import KTheta, KThetaLag
+from mjxsysid.experiments.common import leaf_table, write_results
 from mjxsysid.rollout.flight import broadcast, make_reference
 from mjxsysid.rollout.harness import Disturbance, batch_metrics, fly_batch
 from mjxsysid.sim import Quadrotor
@@ -30,22 +33,26 @@ def fly(ctrl, theta, sim, steps, ref):
     return np.asarray(m["failed"]) > 0.5, np.asarray(m["pos_rmse_m"], np.float64)
 
 
-def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--vehicles", type=int, default=128)
-    ap.add_argument("--priors", default="default,stress,stress_wide,slow_actuators")
-    ap.add_argument("--target-tau", type=float, nargs="+", default=[0.02])
-    ap.add_argument("--all-variants", action="store_true",
-                    help="also the variant that keeps yaw with roll and pitch when a rotor saturates")
-    ap.add_argument("--out", default=None)
-    a = ap.parse_args(argv)
+FULL = {"vehicles": 1000, "priors": "default,stress,stress_wide,slow_actuators", "target_tau": [0.02],
+        "all_variants": False}
+"""The committed run's settings; ``all_variants`` adds the variant that keeps yaw with roll and
+pitch when a rotor saturates."""
+QUICK = {**FULL, "vehicles": 8, "priors": "default"}
+
+
+def run(out, *, quick=False, policy=None, seed=0, progress=True) -> dict:
+    """The oracle table (see the module doc) into OUT/results.json: per prior, each controller's
+    success rate and position RMSE over the vehicles every controller flies (``common``) and over
+    its own successes. ``policy`` is not used (no policy flies)."""
+    t0 = time.time()
+    a = SimpleNamespace(**(QUICK if quick else FULL))
     sim = Quadrotor()
     ref, duration = make_reference("lemniscate", period=10.0)
     steps = int(round(duration / sim.config.dt))
-    out = {"config": {"vehicles": a.vehicles, "reference": "lemniscate 10 s", "cascade": "baseline",
-                      "seed": 0, "device": jax.devices()[0].device_kind, "date": time.strftime("%Y-%m-%d")}}
+    found = {"config": {"vehicles": a.vehicles, "reference": "lemniscate 10 s", "cascade": "baseline",
+                      "seed": seed, "device": jax.devices()[0].device_kind, "date": time.strftime("%Y-%m-%d")}}
     for prior in a.priors.split(","):
-        theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(0), a.vehicles), np.float32)
+        theta = np.asarray(P.get_prior(prior).sample(jax.random.PRNGKey(seed), a.vehicles), np.float32)
         ctrls = {"k_theta": KTheta.make(theta)}
         for t in a.target_tau:
             mk = lambda **kw: KThetaLag.make(theta, dt=sim.config.dt, target_tau=t, **kw)  # noqa: E731
@@ -59,12 +66,10 @@ def main(argv=None):
         row = {k: {"success": float(1 - f.mean()), "pos_rmse_m_common": float(r[ok].mean()) if ok.any() else None,
                    "pos_rmse_m_own": float(r[~f].mean()) if (~f).any() else None} for k, (f, r) in res.items()}
         row["common_n"] = int(ok.sum())
-        out[prior] = row
-        print(prior, json.dumps(row), flush=True)
-    if a.out:
-        Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(a.out).write_text(json.dumps(out, indent=1))
-
-
-if __name__ == "__main__":
-    main()
+        found[prior] = row
+        if progress:
+            print(prior, json.dumps(row), flush=True)
+    numbers = {**found, "headline": {f"{p}_k_theta_success": found[p]["k_theta"]["success"]
+                                     for p in a.priors.split(",")}}
+    return write_results(Path(out), "lag-oracle", config={"quick": quick, **vars(a)}, seeds={"seed": seed},
+                         numbers=numbers, table_md=leaf_table(found), t0=t0)

@@ -6,18 +6,20 @@ and the out-of-prior signal's false-alarm rate (prior vehicles) and hit rate (ou
 The IMU-noise estimate is measured on flights the policy flew through known noise (white, bias,
 rotor vibration; multiples of the hardware-like levels): its error and how often it warns.
 
-    python tools/log_checks.py --vehicles 200 --seconds 6 --out docs/runs/flight_logs/log_checks.json
+    mjxsysid experiment log-checks --out docs/runs/measurements/log-checks    # 200 vehicles, 6 s
 """
-import argparse
+from __future__ import annotations
+
 import json
 import time
+from types import SimpleNamespace
 from collections import Counter
-from pathlib import Path
 
 import jax
 import numpy as np
 
 from mjxsysid import theta as P
+from mjxsysid.experiments.common import leaf_table, write_results
 from mjxsysid.policy.controller import PolicyController
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles, seen_imu
@@ -67,20 +69,21 @@ def check(pol, rec):
     return L.check_log(rec, policy=pol, zhat=z)
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--vehicles", type=int, default=200)
-    ap.add_argument("--outside", type=int, default=50, help="vehicles per out-of-prior set")
-    ap.add_argument("--seconds", type=float, default=6.0)
-    ap.add_argument("--seed", type=int, default=12345)
-    ap.add_argument("--out", type=Path, default=Path("docs/runs/flight_logs/log_checks.json"))
-    a = ap.parse_args()
+FULL = {"vehicles": 200, "outside": 50, "seconds": 6.0}
+"""The committed run's sizes (``outside``: vehicles per out-of-prior set)."""
+QUICK = {"vehicles": 4, "outside": 2, "seconds": 2.0}
+
+
+def run(out, *, quick=False, policy=None, seed=12345, progress=True) -> dict:
+    """The log checks measured (see the module doc) into OUT/results.json; ``seed`` draws the
+    held-out vehicles (the decoders' pairs used 0 and 1). The shipped policy flies (``policy``
+    is not used: the checks are the shipped policy's)."""
     t0 = time.time()
+    a = SimpleNamespace(**(QUICK if quick else FULL), seed=seed)
     pol = PolicyController.load()
     theta = np.asarray(P.WIDE_ACTUATOR_PRIOR.sample(jax.random.PRNGKey(a.seed), a.vehicles))
     recs, lost = flights(theta, a.seconds, a.seed)
-    res = {"command": "python tools/log_checks.py " + " ".join(f"--{k} {v}" for k, v in vars(a).items()),
-           "prior": "wide_actuators", "seconds": a.seconds, "prior_flights": len(recs), "prior_lost": lost}
+    res = {"prior": "wide_actuators", "seconds": a.seconds, "prior_flights": len(recs), "prior_lost": lost}
     # Correct logs: no finding of any kind; the out-of-prior signal's false alarms.
     clean = [check(pol, r) for r in recs]
     res["correct_logs_with_a_finding"] = sum(bool(f) for f in clean)
@@ -127,12 +130,11 @@ def main():
             **{f"{k}_estimate_median": float(np.median([x[k] for x in e])) if rs else None for k in ("gyro_noise", "accel_noise")},
             **{f"{k}_estimate_range": [float(np.min([x[k] for x in e])), float(np.max([x[k] for x in e]))] if rs else None
                for k in ("gyro_noise", "accel_noise")}}
-        print(name, res["imu_noise"][name], flush=True)
-    res["wall_s"] = round(time.time() - t0, 1)
-    a.out.parent.mkdir(parents=True, exist_ok=True)
-    a.out.write_text(json.dumps(res, indent=2) + "\n")
-    print(json.dumps({k: v for k, v in res.items() if k not in ("correct_log_findings",)}, indent=1))
-
-
-if __name__ == "__main__":
-    main()
+        if progress:
+            print(name, res["imu_noise"][name], flush=True)
+    if progress:
+        print(json.dumps({k: v for k, v in res.items() if k not in ("correct_log_findings",)}, indent=1))
+    numbers = {**res, "headline": {"correct_logs_with_a_finding": res["correct_logs_with_a_finding"],
+                                   "out_of_prior_false_alarm_rate": res["out_of_prior_false_alarm_rate"]}}
+    return write_results(out, "log-checks", config={"quick": quick, **vars(a)}, seeds={"seed": seed},
+                         numbers=numbers, table_md=leaf_table(res), t0=t0)

@@ -8,8 +8,8 @@ posterior). Reported per level: the tracking RMSE and how many of the 24 quantit
 and 5 identifiable combinations) have their truth inside the decoded 5–95 % interval.
 
     .venv/bin/pip install rotorpy==3.0.0          # not a dependency of mjxsysid
-    python tools/rotorpy_noise.py --out docs/runs/noise/rotorpy
-    python tools/rotorpy_noise.py --quick --out /tmp/rotorpy_quick   # 2 s, two levels: a smoke run
+    mjxsysid experiment rotorpy-noise --out docs/runs/measurements/rotorpy-noise
+    mjxsysid experiment rotorpy-noise --quick --out /tmp/rotorpy_quick   # 2 s, two levels: a smoke run
 
 The mapping of θ onto RotorPy: mass, inertia, arm (RotorPy's rotor order front-left, front-right,
 back-right, back-left; written to the log in mjxsysid's order), k_t -> k_eta, k_τ -> k_m (yaw signs
@@ -23,8 +23,6 @@ centre of mass (specific force and body rates, FLU) plus the level's noise.
 """
 from __future__ import annotations
 
-import argparse
-import json
 import sys
 import tempfile
 import time
@@ -37,6 +35,7 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.control.references import Lemniscate
+from mjxsysid.experiments.common import write_results
 from mjxsysid.policy.controller import PolicyController
 from mjxsysid.policy.interface import PRETRAINED_DIR, file_sha256
 from mjxsysid.studies.decode import LOG_DT, run_decode, write_log
@@ -136,25 +135,20 @@ def fly(theta, seconds: float, noise: dict, white, bias, ctrl) -> dict:
     return rec
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", type=Path, default=Path("docs/runs/noise/rotorpy"))
-    ap.add_argument("--levels", default=",".join(LEVELS), help=f"comma-separated, of {','.join(NOISE_LEVELS)}")
-    ap.add_argument("--seconds", type=float, default=10.0)
-    ap.add_argument("--samples", type=int, default=100, help="decoded samples (decode's default 100)")
-    ap.add_argument("--worn-motor", type=int, default=1, choices=(1, 2, 3, 4), help="mjxsysid's rotor number")
-    ap.add_argument("--eta", type=float, default=0.8, help="the worn motor's effectiveness")
-    ap.add_argument("--seed", type=int, default=0, help="IMU noise draws and decoding (decode's --seed)")
-    ap.add_argument("--logs", type=Path, default=None,
-                    help="keep the logs, truth.json and decode outputs here (default: a temporary folder)")
-    ap.add_argument("--quick", action="store_true", help="smoke run: 2 s flights, clean and × 5 white, 20 samples")
-    a = ap.parse_args()
-    if a.quick:
-        a.seconds, a.samples, a.levels = 2.0, 20, "clean,x5_white"
+FULL = {"levels": ",".join(LEVELS), "seconds": 10.0, "samples": 100, "worn_motor": 1, "eta": 0.8}
+"""The committed run's settings: ``samples`` decoded (decode's default), ``worn_motor`` mjxsysid's
+rotor number (1–4), ``eta`` its effectiveness."""
+QUICK = {**FULL, "seconds": 2.0, "samples": 20, "levels": "clean,x5_white"}
+
+
+def run(out, *, quick=False, policy=None, seed=0, progress=True) -> dict:
+    """The RotorPy flights and their decoding (see the module doc) into OUT/results.json,
+    results.md (the table) and OUT/logs/ (the logs, truth.json and decode outputs). ``seed``: the
+    IMU noise draws and decoding (decode's --seed). The shipped policy and decoders fly and decode
+    (``policy`` is not used)."""
+    from types import SimpleNamespace
+    a = SimpleNamespace(**(QUICK if quick else FULL), seed=seed, out=Path(out), logs=Path(out) / "logs")
     levels = a.levels.split(",")
-    bad = [lv for lv in levels if lv not in NOISE_LEVELS]
-    if bad:
-        ap.error(f"unknown level(s) {bad}; choose from {sorted(NOISE_LEVELS)}")
     import_rotorpy()
     import rotorpy
     t0 = time.time()
@@ -167,7 +161,7 @@ def main():
     work.mkdir(parents=True, exist_ok=True)
     truth = P.save_vehicle(theta, work / "truth.json")
     names = list(P.PARAM_NAMES) + list(P.IDENTIFIABLE_NAMES)
-    res = {"command": "python tools/rotorpy_noise.py " + " ".join(sys.argv[1:]),
+    res = {"command": f"mjxsysid experiment rotorpy-noise{' --quick' if quick else ''} --seed {seed} --out {out}",
            "rotorpy": getattr(rotorpy, "__version__", None) or _dist_version("rotorpy"),
            "vehicle": P.theta_to_dict(theta), "worn_motor": a.worn_motor, "eta": a.eta, "seconds": a.seconds,
            "reference": "lemniscate, period 10 s, size (1, 1, 0.3) m", "samples": a.samples, "seed": a.seed,
@@ -199,11 +193,10 @@ def main():
         res["levels"][lv] = row
         print(f"[{lv}] truth inside for {row['inside']}/24; outside: {', '.join(row['failing']) or '-'}", file=sys.stderr)
     res["wall_s"] = time.time() - t0
-    a.out.mkdir(parents=True, exist_ok=True)
-    (a.out / "rotorpy_noise.json").write_text(json.dumps(res, indent=2) + "\n")
-    (a.out / "rotorpy_noise.md").write_text(table(res))
-    print(table(res))
-    print(f"wrote {a.out}/rotorpy_noise.json, rotorpy_noise.md ({res['wall_s']:.0f} s; logs in {work})", file=sys.stderr)
+    res["headline"] = {f"{lv}_inside": r.get("inside") for lv, r in res["levels"].items()}
+    return write_results(a.out, "rotorpy-noise", config={"quick": quick, **{k: v for k, v in vars(a).items()
+                                                                            if k not in ("out", "logs")}},
+                         seeds={"seed": seed}, numbers=res, table_md=table(res), t0=t0)
 
 
 def _dist_version(name):
@@ -226,7 +219,3 @@ def table(res) -> str:
         warns = len(r["checks"]["warnings"]) + len(r["checks"]["out_of_prior"])
         lines.append(f"| {r['label']} | {rmse} | {r['inside']} | {', '.join(r['failing']) or '–'} | {warns} |")
     return "\n".join(lines) + "\n"
-
-
-if __name__ == "__main__":
-    main()

@@ -1,27 +1,29 @@
 """Wall time against quality of policy-training configurations (issue 30): a table and a figure.
 
-    python tools/speed_table.py RUNS_DIR [RUNS_DIR ...] --reference shipped=EVAL.json --out docs/runs/benchmarks/speed
+    mjxsysid experiment speed-table --inputs docs/runs/measurements/speed-table --out docs/runs/measurements/speed-table
 
-Each run folder (as `tools/gpu_speed.sh` leaves them) holds ``policy.npz`` (or its metadata alone as
+Each run folder (as `tools/archive/gpu_speed.sh` leaves them) holds ``policy.npz`` (or its metadata alone as
 ``policy_meta.json``, as kept in docs/runs) (its metadata: the
 config, wall time and, since issue 30, the phase timings), ``train.txt`` (the command's wall time,
 ``command_wall_s``) and ``eval_fast/eval.json`` (``mjxsysid evaluate-policy --fast``). The
-``--reference`` evaluations (e.g. the shipped policy's, same command) are rows without a training.
+reference evaluation (the shipped policy's, same command) is a row without a training.
 Runs whose names differ only in ``_seedN`` are seeds of one configuration: the summary table and
 the figure give each configuration's mean and range. A run's ``decoders*/decoder_eval.json`` (the
 release's CFM and Regression trained on its pairs, one folder per decoder seed) add the decoders'
-calibration (parameters within ±5 points of 90 % coverage) and energy score; ``--reference-decoders
-NAME=DIR`` gives a reference's. ``--cold-start DIR``: timing-only runs (DIR/<run>/, a policy's
-metadata and train.txt, no evaluation) as OUT/cold_start.md, where each start-up second went.
+calibration (parameters within ±5 points of 90 % coverage) and energy score; ``shipped_decoders/``
+gives the reference's. ``cold_start/``: timing-only runs (cold_start/<run>/, a policy's metadata
+and train.txt, no evaluation) as OUT/cold_start.md, where each start-up second went.
 Writes OUT/speed.json, OUT/speed.md (the summary, then every run) and OUT/speed.png (the tracking
 ratio and the decoders' energy score against wall time).
 """
 from __future__ import annotations
 
-import argparse
 import json
 import re
+import time
 from pathlib import Path
+
+from mjxsysid.experiments.common import write_results
 
 
 def run_row(d: Path) -> dict:
@@ -207,37 +209,34 @@ def figure(rows: list[dict], path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("runs", type=Path, nargs="+")
-    ap.add_argument("--reference", action="append", default=[], metavar="NAME=EVAL.json")
-    ap.add_argument("--reference-decoders", action="append", default=[], metavar="NAME=DIR",
-                    help="DIR/decoders*/decoder_eval.json: the decoder trainings of reference NAME")
-    ap.add_argument("--cold-start", type=Path, default=None, metavar="DIR",
-                    help="timing-only runs (DIR/<run>/policy_meta.json + train.txt): OUT/cold_start.md")
-    ap.add_argument("--out", type=Path, required=True)
-    args = ap.parse_args()
+def run(out, *, quick=False, policy=None, seed=0, progress=True, inputs=None) -> dict:
+    """The table and figure of the run folders under ``inputs`` (required; each subfolder with
+    eval_fast/eval.json and policy.npz or policy_meta.json is a run, in name order), with
+    ``inputs/shipped_eval_fast.json`` as the reference row 'shipped' (its decoders:
+    ``inputs/shipped_decoders/``) and ``inputs/cold_start/`` as OUT/cold_start.md where present.
+    Writes OUT/speed.json, speed.md, speed.png and results.json. Trains and flies nothing
+    (``quick``, ``policy``, ``seed`` are not used)."""
+    if inputs is None:
+        raise ValueError("speed-table needs --inputs DIR (a folder of tools/archive/gpu_speed.sh run folders)")
+    t0 = time.time()
+    inputs, out = Path(inputs), Path(out)
     rows = []
-    decs = {n: decoder_evals(Path(d)) for n, _, d in (x.partition("=") for x in args.reference_decoders)}
-    for spec in args.reference:
-        name, _, path = spec.partition("=")
-        rows.append(dict(reference_row(name, Path(path)), decoders=decs.get(name, [])))
-    for d in args.runs:
-        if not any((d / f).is_file() for f in ("policy.npz", "policy_meta.json")) or \
-                not (d / "eval_fast" / "eval.json").is_file():
-            raise SystemExit(f"{d}: expected policy.npz (or policy_meta.json) and eval_fast/eval.json "
-                             "(a tools/gpu_speed.sh run)")
-        rows.append(run_row(d))
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "speed.json").write_text(json.dumps(rows, indent=2) + "\n")
-    (args.out / "speed.md").write_text(summary(rows) + "\n" + table(rows))
-    figure(rows, args.out / "speed.png")
-    print(summary(rows) + "\n" + table(rows))
-    if args.cold_start is not None:
-        text = cold_start(args.cold_start)
-        (args.out / "cold_start.md").write_text(text)
-        print(text)
-
-
-if __name__ == "__main__":
-    main()
+    if (inputs / "shipped_eval_fast.json").is_file():
+        rows.append(dict(reference_row("shipped", inputs / "shipped_eval_fast.json"),
+                         decoders=decoder_evals(inputs / "shipped_decoders")))
+    for d in sorted(p for p in inputs.iterdir() if p.is_dir()):
+        if any((d / f).is_file() for f in ("policy.npz", "policy_meta.json")) and (d / "eval_fast" / "eval.json").is_file():
+            rows.append(run_row(d))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "speed.json").write_text(json.dumps(rows, indent=2) + "\n")
+    (out / "speed.md").write_text(summary(rows) + "\n" + table(rows))
+    figure(rows, out / "speed.png")
+    if progress:
+        print(summary(rows) + "\n" + table(rows))
+    if (inputs / "cold_start").is_dir():
+        text = cold_start(inputs / "cold_start")
+        (out / "cold_start.md").write_text(text)
+        if progress:
+            print(text)
+    return write_results(out, "speed-table", config={"inputs": str(inputs), "runs": len(rows)}, seeds={},
+                         numbers={"rows": rows, "headline": {"runs": len(rows)}}, table_md=summary(rows), t0=t0)

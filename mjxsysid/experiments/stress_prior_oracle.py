@@ -3,11 +3,13 @@
 its edges at a time brought back, on the stress prior that replaced it, and with rate gains
 lowered for slow motors (K_ω = min(K_ω, c / τ_m)). 10 s lemniscate, seeded draws.
 
-    python tools/stress_prior_oracle.py --vehicles 128 --out docs/runs/oracle/stress_prior_oracle.json
+    mjxsysid experiment stress-prior-oracle --out docs/runs/measurements/stress-prior-oracle   # 128 vehicles
 """
-import argparse
+from __future__ import annotations
+
 import dataclasses
 import json
+import time
 from pathlib import Path
 
 import jax
@@ -16,6 +18,7 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.low_level import DEFAULT_RATE_GAINS, KTheta
+from mjxsysid.experiments.common import leaf_table, write_results
 from mjxsysid.rollout.flight import broadcast, make_reference
 from mjxsysid.rollout.harness import Disturbance, batch_metrics, fly_batch
 from mjxsysid.sim import Quadrotor
@@ -36,11 +39,11 @@ def oracle_lost(theta, rate_scale=None) -> float:
     return float(np.mean(np.asarray(batch_metrics(flight)["failed"]) > 0.5))
 
 
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--vehicles", type=int, default=128)
-    ap.add_argument("--out", type=Path, required=True)
-    args = ap.parse_args()
+def run(out, *, quick=False, policy=None, seed=17, progress=True) -> dict:
+    """The oracle's losses per prior variant (see the module doc) into OUT/results.json: 128
+    vehicles per variant (``quick``: 8), drawn with PRNGKey(seed). ``policy`` is not used."""
+    t0 = time.time()
+    vehicles = 8 if quick else 128
     W, D = P.STRESS_WIDE_PRIOR, P.DEFAULT_PRIOR
     variants = {
         "stress_wide": W,
@@ -54,19 +57,20 @@ def main():
         "stress (tau_m 0.04-0.06, rotors >= 1.5x, 2x torque)": P.STRESS_PRIOR,
         "default": D,
     }
-    key = jax.random.PRNGKey(17)
-    res = {"vehicles": args.vehicles, "oracle_lost": {}, "oracle_lost_rate_gains_lowered": {}}
+    key = jax.random.PRNGKey(seed)
+    res = {"vehicles": vehicles, "oracle_lost": {}, "oracle_lost_rate_gains_lowered": {}}
     for name, prior in variants.items():
-        res["oracle_lost"][name] = oracle_lost(np.asarray(prior.sample(key, args.vehicles)))
-        print(f"{name:55s} oracle loses {res['oracle_lost'][name]:.1%}", flush=True)
-    theta = np.asarray(dataclasses.replace(W, twr_min_eff=1.5).sample(key, args.vehicles))
+        res["oracle_lost"][name] = oracle_lost(np.asarray(prior.sample(key, vehicles)))
+        if progress:
+            print(f"{name:55s} oracle loses {res['oracle_lost'][name]:.1%}", flush=True)
+    theta = np.asarray(dataclasses.replace(W, twr_min_eff=1.5).sample(key, vehicles))
     res["oracle_lost_rate_gains_lowered"]["stress_wide, rotors >= 1.5x"] = {"fixed gains": oracle_lost(theta)}
     for c in (1.6, 1.2, 0.8):
         res["oracle_lost_rate_gains_lowered"]["stress_wide, rotors >= 1.5x"][f"K_w = min(K_w, {c}/tau_m)"] = \
             oracle_lost(theta, c)
-    print(json.dumps(res["oracle_lost_rate_gains_lowered"], indent=1))
-    args.out.write_text(json.dumps(res, indent=1) + "\n")
-
-
-if __name__ == "__main__":
-    main()
+    if progress:
+        print(json.dumps(res["oracle_lost_rate_gains_lowered"], indent=1))
+    numbers = {**res, "headline": {"stress_oracle_lost": res["oracle_lost"][next(k for k in variants if
+                                                                                 k.startswith("stress ("))]}}
+    return write_results(Path(out), "stress-prior-oracle", config={"quick": quick, "vehicles": vehicles},
+                         seeds={"seed": seed}, numbers=numbers, table_md=leaf_table(res), t0=t0)

@@ -86,11 +86,11 @@ class TrainConfig:
     # Episode starts: False (the shipped policy's training) computes a fresh reset for every
     # environment at every step and keeps it where an episode ended; True draws one per
     # environment per unroll (``unroll`` × fewer resets; the rollout's largest cost after the
-    # simulator step, docs/runs/benchmarks/train_profile.json).
+    # simulator step, docs/runs/measurements/benchmarks/train_profile.json).
     reset_per_unroll: bool = False
     # Options of issue 30 (off by default: the shipped policy's protocol). ``flat_optimizer``: Adam and
     # the gradient clip on one concatenated parameter vector (optax.flatten; the same update up to float
-    # reassociation; no measurable speed-up on an H200, docs/runs/benchmarks/train_profile_16k_4x8_flat_*.json).
+    # reassociation; no measurable speed-up on an H200, docs/runs/measurements/benchmarks/train_profile_16k_4x8_flat_*.json).
     # ``lr_decay``: the learning rate falls linearly to ``lr_final`` × learning_rate over the run's
     # gradient steps (what brought the fast configs to the shipped quality, BENCHMARKS.md).
     flat_optimizer: bool = False
@@ -748,7 +748,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     t_log, it_log = time.time(), int(ts.iteration)
     bar = progress(total=cfg.iterations, initial=int(ts.iteration), desc="train-policy", unit="it")
     # The iteration count is kept on the host: iterations are dispatched back to back and the
-    # host waits on the device only where it logs or checkpoints (docs/runs/benchmarks/train_profile.json).
+    # host waits on the device only where it logs or checkpoints (docs/runs/measurements/benchmarks/train_profile.json).
     it = int(ts.iteration)
     while it < cfg.iterations:
         ts, env_state, stats = trainer.iteration(ts, env_state)

@@ -14,7 +14,7 @@ of the flight), the single-latent CFM (the last latent) and the Regression point
 last latent). For the posteriors: 90 % coverage per parameter and per identifiable combination,
 how many lie within ±5 points, the mean 90 % widths (identifiable ones in natural-log units) and
 their ratio to the clean level; for Regression the mean absolute error of the log identifiable
-combinations. ``python tools/noise_sensitivity.py`` is the command.
+combinations. ``mjxsysid experiment noise-sensitivity`` is the command.
 """
 from __future__ import annotations
 
@@ -61,7 +61,7 @@ LABELS = {"clean": "clean", "x0.5_white": "× 0.5 white (the policy's training)"
           "x5_white": "× 5 white only", "x5_bias": "× 5 bias only",
           "x5_vibration": "× 5 rotor vibration only", "x20": "× 20 (white + bias)"}
 DEFAULT_LEVELS = tuple(k for k in LEVELS if k not in ("x0.5_white", "x1_white"))
-"""The levels of docs/runs/noise/noise_sensitivity.json (the two low ones have their own run)."""
+"""The levels of docs/runs/release/noise/noise_sensitivity.json (the two low ones have their own run)."""
 
 
 def fly_level(cfg: dict, theta, ref, dist, key, steps, idx, policy):
@@ -87,7 +87,7 @@ def noise_sensitivity(*, policy="mjxsysid", decoders=None, vehicles: int = 150, 
     draws of its decoders' prior (key ``seed``; the pairs used seeds 0 and 1) for ``seconds`` at
     each of ``levels`` (names of :data:`LEVELS`); its decoders (the folder ``decoders`` with
     cfm.npz, regression.npz and cfm_seq.npz, checked against the policy; default its shipped ones)
-    draw ``samples`` per flight. Returns the result dict (see tools/noise_sensitivity.py's JSON);
+    draw ``samples`` per flight. Returns the result dict (see mjxsysid experiment noise-sensitivity's JSON);
     ``log`` is told the progress."""
     log = log or (lambda m: None)
     if vehicles < 2 or samples < 2:

@@ -23,7 +23,11 @@ from mjxsysid import theta as P
 from mjxsysid.policy import networks as N
 from mjxsysid.policy.env import EnvConfig, TrainEnv
 from mjxsysid.policy.evaluate import env_rollout, linear_probe_r2
-from mjxsysid.policy.train import IDENT_TARGET_NAMES, identifiable_log, load_policy_params
+from mjxsysid.policy.train import (
+    IDENT_TARGET_NAMES,
+    identifiable_log,
+    load_policy_params,
+)
 
 
 def main(argv=None) -> int:
