@@ -463,7 +463,7 @@ def _page() -> str:
          "evaluated like the shipped one:",
          "",
          *policy_rows([("shipped (`mjxsysid/pretrained/policy.npz`)", "2 → 0.05 (never 0)", pol),
-                       ("no imitation at the end (`docs/runs/measurements/nobc/policy.npz`)", "2 → 0 by mid-training", pol_nobc)]),
+                       ("no imitation at the end (`docs/runs/measurements/nobc/`)", "2 → 0 by mid-training", pol_nobc)]),
          "",
          f"It flies every vehicle but at {pol_nobc['lemniscate']['rmse_ratio_policy_over_oracle']:.2f}× the oracle's RMSE (the bar",
          "for shipping it was ≤ 1.1×), and its decoders are less well calibrated; **it is not shipped**.",

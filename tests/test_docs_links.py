@@ -1,0 +1,41 @@
+"""Every relative link of the Markdown pages (docs/*.md, README.md, BENCHMARKS.md, ARCHITECTURE.md)
+and every path `docs/runs/...` they name points at a file or folder that exists; docs/runs/README.md
+is what :func:`mjxsysid.runs_index.index` writes of today's docs/runs/."""
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+PAGES = sorted([*(ROOT / "docs").glob("*.md"), ROOT / "README.md", ROOT / "BENCHMARKS.md", ROOT / "ARCHITECTURE.md"])
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+RUNS_PATH = re.compile(r"docs/runs/[A-Za-z0-9_.\-/]*[A-Za-z0-9_\-/]")
+
+
+def broken_links(page: Path) -> list[str]:
+    """The relative links and docs/runs/ paths of ``page`` that point at nothing."""
+    text = page.read_text()
+    bad = []
+    for target in LINK.findall(text):
+        if re.match(r"^[a-z]+:", target) or target.startswith("#"):
+            continue
+        path = target.split("#", 1)[0]
+        if path and not (page.parent / path).exists():
+            bad.append(target)
+    for m in RUNS_PATH.finditer(text):
+        if text[m.end():m.end() + 1] in ("*", "{", "<") or "<" in m.group(0):
+            continue                               # a pattern (`seed*`, `{a,b}`, `<kind>`), not a path
+        if not (ROOT / m.group(0)).exists():
+            bad.append(m.group(0))
+    return bad
+
+
+@pytest.mark.parametrize("page", PAGES, ids=lambda p: p.name)
+def test_links_point_at_files(page):
+    assert broken_links(page) == []
+
+
+def test_runs_index_is_current():
+    from mjxsysid.runs_index import index
+    assert (ROOT / "docs" / "runs" / "README.md").read_text() == index(ROOT / "docs" / "runs"), \
+        "regenerate: python -m mjxsysid.runs_index"
