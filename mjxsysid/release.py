@@ -791,6 +791,17 @@ SHIPPED = (("policy", "policy.npz"), ("decoders", "cfm.npz"), ("decoders", "regr
 """(stage, weights file) shipped into mjxsysid/pretrained/ with a provenance JSON each."""
 
 
+def shrink_pngs(path: Path) -> None:
+    """Rewrite every PNG at or under ``path`` as a 256-colour palette image (a plot looks the same
+    at about half the bytes): the figures docs/runs/ keeps in git."""
+    from PIL import Image
+    for f in ([path] if path.is_file() else sorted(path.rglob("*.png"))):
+        if f.suffix == ".png":
+            with Image.open(f) as im:
+                small = im.convert("RGB").quantize(colors=256)
+            small.save(f, "PNG", optimize=True)
+
+
 def _copy(src: Path, dst: Path, *, link: bool = False) -> None:
     if dst.is_dir() and not dst.is_symlink():
         shutil.rmtree(dst)
@@ -878,6 +889,7 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
     for stage, src, dst in DOCS_RUNS:
         if have(stage, src):
             _copy(rel.stage_dir(stage) / src, tree / "docs" / "runs" / dst)
+            shrink_pngs(tree / "docs" / "runs" / dst)
     for stage, src, dst in DOCS_FILES:
         if have(stage, src):
             _copy(rel.stage_dir(stage) / src, tree / "docs" / dst)
