@@ -1,6 +1,6 @@
 """Every relative link of the Markdown pages (docs/*.md, README.md, BENCHMARKS.md, ARCHITECTURE.md)
 and every path `docs/runs/...` they name points at a file or folder that exists; docs/runs/README.md
-is what :func:`mjxsysid.runs_index.index` writes of today's docs/runs/."""
+is what :func:`mjxsysid.experiments.runs_index.index` writes of today's docs/runs/."""
 import re
 from pathlib import Path
 
@@ -36,6 +36,6 @@ def test_links_point_at_files(page):
 
 
 def test_runs_index_is_current():
-    from mjxsysid.runs_index import index
+    from mjxsysid.experiments.runs_index import index
     assert (ROOT / "docs" / "runs" / "README.md").read_text() == index(ROOT / "docs" / "runs"), \
-        "regenerate: python -m mjxsysid.runs_index"
+        "regenerate: python -m mjxsysid.experiments.runs_index"

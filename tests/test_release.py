@@ -260,3 +260,30 @@ def test_tiny_release_end_to_end(tmp_path, capsys):
     rc, _, err = _cli(capsys, "--out", out, "-q")
     assert rc == 0 and "stages run" not in err
     assert json.loads((out / "release.json").read_text())["runs"] == rec["runs"]    # nothing ran again
+
+
+def test_ship_replaces_docs_runs_release_whole(tmp_path):
+    """`ship` removes the previous release's docs/runs/release/ before copying the new tree (no file
+    of an earlier release stays) and ships the record beside the run files."""
+    from mjxsysid.release import stage_ship
+    stages = (Stage("tables", lambda r, o: {}, (), (), 1, "lay out"), Stage("ship", stage_ship, ("tables",), (), 1, "ship"))
+    rel = Release(tmp_path / "rel", {"scale": "tiny"}, ship_to=tmp_path / "dest", stages=stages, log=None,
+                  device=lambda: "dev", commit=lambda: "c0ffee")
+    rel.record["stages"]["tables"] = {"status": "done"}
+    rel.out.mkdir(parents=True, exist_ok=True)
+    (rel.out / "release.json").write_text(json.dumps(rel.record))
+    new = rel.stage_dir("tables") / "tree" / "docs" / "runs" / "release" / "policy" / "eval.json"
+    new.parent.mkdir(parents=True)
+    new.write_text("{}")
+    stale = tmp_path / "dest" / "docs" / "runs" / "release" / "old_kind" / "results.json"
+    stale.parent.mkdir(parents=True)
+    stale.write_text("{}")
+    kept = tmp_path / "dest" / "docs" / "runs" / "measurements" / "x" / "results.json"
+    kept.parent.mkdir(parents=True)
+    kept.write_text("{}")
+    (rel.stage_dir("ship")).mkdir(parents=True)
+    stage_ship(rel, rel.stage_dir("ship"))
+    runs = tmp_path / "dest" / "docs" / "runs"
+    assert not stale.exists() and kept.is_file()
+    assert (runs / "release" / "policy" / "eval.json").is_file()
+    assert json.loads((runs / "release" / "release.json").read_text())["stages"]["tables"]["status"] == "done"

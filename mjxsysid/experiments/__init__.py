@@ -45,6 +45,8 @@ def _plain(v):
         return [_plain(x) for x in v]
     if isinstance(v, dict):
         return {str(k): _plain(x) for k, x in v.items()}
+    if hasattr(v, "kind") and hasattr(v, "weights"):                # a PolicyRef
+        return {"kind": v.kind, "weights": str(v.weights)}
     return str(v)
 
 

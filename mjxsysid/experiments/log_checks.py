@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import json
 import time
-from types import SimpleNamespace
 from collections import Counter
+from types import SimpleNamespace
 
 import jax
 import numpy as np
