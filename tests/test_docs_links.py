@@ -39,3 +39,8 @@ def test_runs_index_is_current():
     from mjxsysid.experiments.runs_index import index
     assert (ROOT / "docs" / "runs" / "README.md").read_text() == index(ROOT / "docs" / "runs"), \
         "regenerate: python -m mjxsysid.experiments.runs_index"
+
+
+def test_docs_runs_holds_no_weights():
+    """Weights live in mjxsysid/pretrained/ only; docs/runs/ keeps an unshipped file's NAME_meta.json."""
+    assert sorted(str(p.relative_to(ROOT)) for p in (ROOT / "docs" / "runs").rglob("*.npz")) == []
