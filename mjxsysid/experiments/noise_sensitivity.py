@@ -40,6 +40,8 @@ def run(out, *, quick=False, policy=None, seed=4242, progress=True, decoders=Non
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     figure(res, out / "noise_sensitivity.png")
+    head = {f"{lv}_flight_level_identifiable_within_5": v["flight_level"]["identifiable_90_within_5_points"]
+            for lv, v in res["levels"].items()}
     return write_results(out, "noise-sensitivity", config={"quick": quick, "variant": variant, "levels": list(levels),
-                                                           **sz}, seeds={"seed": seed}, numbers=res,
+                                                           **sz}, seeds={"seed": seed}, numbers={**res, "headline": head},
                          table_md=table(res), t0=t0)
