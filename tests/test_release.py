@@ -8,7 +8,11 @@ from pathlib import Path
 import pytest
 
 from mjxsysid.cli import main
-from mjxsysid.release import STAGES, Release, Stage, build_tree
+from mjxsysid.release import Release
+from mjxsysid.release.layout import link
+from mjxsysid.release.provenance import call
+from mjxsysid.release.stages import STAGES, Stage, StageResult
+from mjxsysid.release.stages.ship import build_tree
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -21,7 +25,7 @@ def _stubs(calls, fail=()):
             if name in fail:
                 raise RuntimeError(f"{name} broke")
             (out / f"{name}.txt").write_text(name)
-            return {"command": f"make {name}", "config": {"n": 1}, "figures": {"value": len(calls)}}
+            return StageResult(calls=(call(make, name=name),), config={"n": 1}, figures={"value": len(calls)})
         return run
     return (Stage("a", make("a"), (), ("a.txt",), 10, "first"),
             Stage("b", make("b"), ("a",), ("b.txt",), 20, "second"),
@@ -69,7 +73,7 @@ def _fork_stubs(calls, hook=None):
             if name == "b" and hook:
                 hook()
             (out / f"{name}.txt").write_text(name)
-            return {"command": f"make {name}", "figures": {"value": name}}
+            return StageResult(figures={"value": name})
         return run
     return (Stage("a", make("a"), (), ("a.txt",), 10, "first"),
             Stage("b", make("b"), ("a",), ("b.txt",), 20, "one branch"),
@@ -94,10 +98,9 @@ def test_stages_of_one_release_run_by_two_processes_at_once_keep_both_records(tm
     assert rec["stages"]["b"]["run"] == 2 and rec["stages"]["c"]["run"] == 3
     fresh = Release(tmp_path, stages=_fork_stubs(calls), log=None, device=lambda: "d", commit=lambda: "x")
     assert [fresh.status(n) for n in "abc"] == ["done"] * 3
-    from mjxsysid.release import _link
     src = tmp_path / "a" / "a.txt"
-    _link(src, tmp_path / "set" / "a.txt")
-    _link(src, tmp_path / "set" / "a.txt")     # replacing an existing link
+    link(src, tmp_path / "set" / "a.txt")
+    link(src, tmp_path / "set" / "a.txt")     # replacing an existing link
     assert (tmp_path / "set" / "a.txt").read_text() == "a" and sorted(p.name for p in (tmp_path / "set").iterdir()) == ["a.txt"]
 
 
@@ -108,10 +111,10 @@ def test_release_json_records_each_stage(tmp_path):
         _release(tmp_path, calls, fail=("b",)).run(["b"])
     rec = json.loads((tmp_path / "release.json").read_text())
     assert rec["release"] == tmp_path.name and rec["order"] == ["a", "b", "c", "ship"]
-    assert rec["options"] == {"scale": "tiny", "policy_config": "tools/configs/policy_release.json",
-                              "from_policy": None}
+    assert rec["options"] == {"scale": "tiny", "policy_config": None, "from_policy": None}
     a, b = rec["stages"]["a"], rec["stages"]["b"]
-    assert a["status"] == "done" and a["command"] == "make a" and a["config"] == {"n": 1}
+    assert a["calls"] == [{"call": f"{__name__}._stubs.<locals>.make", "args": {"name": "a"}}]
+    assert a["status"] == "done" and a["config"] == {"n": 1}
     assert a["figures"] == {"value": 1} and a["outputs"] == ["a.txt"]
     assert a["commit"] == "abc123" and a["device"] == "stub device" and a["wall_s"] >= 0
     assert a["started"] <= a["ended"] and a["attempts"] == 1 and a["run"] == 1 and b["run"] == 2
@@ -155,7 +158,7 @@ def test_recorded_options_may_not_change(tmp_path):
 def test_stage_list_is_the_pipeline():
     names = [s.name for s in STAGES]
     from mjxsysid.cli.release import STAGE_NAMES
-    assert tuple(names) == STAGE_NAMES
+    assert tuple(names) == STAGE_NAMES == STAGES.names()
     for i, s in enumerate(STAGES):                                      # dependencies come earlier
         assert all(names.index(d) < i for d in s.needs), s.name
         assert 0 < s.estimate_s <= 600, s.name                          # each fits a 10-minute GPU call
@@ -174,7 +177,9 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
                       ((tmp_path / "r", "--policy-config", tmp_path / "none.json"), "config file not found"),
                       ((tmp_path / "r", "--from-policy", tmp_path / "none.npz"), "policy weights not found"),
                       ((tmp_path / "r", "--list"), "no release in"),
-                      ((tmp_path / "r", "--stages", "ship"), "cannot ship")):
+                      ((tmp_path / "r", "--stages", "ship"), "cannot ship"),
+                      ((tmp_path / "r", "--tiny"), "give its root (--docs-root"),
+                      ((tmp_path / "r", "--stages", "ship", "--allow-partial"), "give its root (--ship-to")):
         rc, out, err = _cli(capsys, "--out", *args)
         assert rc == 2 and msg in err and len(err.strip().splitlines()) == 1, (args, err)
     (tmp_path / "f").write_text("x")
@@ -213,7 +218,7 @@ def test_ship_tree_carries_release_provenance(tmp_path):
     for name in ("policy", "pairs", "decoders", "policy_eval"):
         rel.record["stages"][name] = {"status": "done", "started": "2026-01-01T00:00:00+00:00",
                                       "ended": "2026-01-01T00:01:00+00:00", "wall_s": 60.0, "commit": "c0ffee",
-                                      "device": "dev", "command": f"stage {name}"}
+                                      "device": "dev", "calls": [{"call": f"stage {name}", "args": {}}]}
     with pytest.raises(FileNotFoundError, match="not written"):
         build_tree(rel, tmp_path / "tree")
     left = build_tree(rel, tmp_path / "tree", partial=True)
@@ -226,7 +231,9 @@ def test_ship_tree_carries_release_provenance(tmp_path):
     assert pol["evaluation"] == {"n": 10} and pol["config"]["num_envs"] > 0
     cfm = json.loads((tree / "mjxsysid/pretrained/cfm.json").read_text())
     assert cfm["release"]["stage"] == "decoders" and cfm["data"]["pairs_sha256"]
-    assert (tree / "docs/runs/release/policy/eval.json").is_file()
+    assert cfm["calls"] == [{"call": "stage decoders", "args": {}}] and pol["calls"][0]["call"] == "stage policy"
+    assert pol["command"] == "mjxsysid release --out rel"
+    assert (tree / "docs/runs/policy/eval.json").is_file()
     assert not (tree / "mjxsysid/pretrained/cfm_seq.json").exists()
     # a release that adopted a policy keeps how it was trained (command, commit) from the JSON beside it
     shipped = json.loads((pre / "policy.json").read_text())
@@ -244,7 +251,7 @@ def test_tiny_release_end_to_end(tmp_path, capsys):
     (weights + provenance tied to the release, docs run files, regenerated pages), then a re-run
     that has nothing to do."""
     out = tmp_path / "rel"
-    rc, stdout, _ = _cli(capsys, "--out", out, "--tiny", "-q")
+    rc, stdout, _ = _cli(capsys, "--out", out, "--tiny", "--docs-root", ROOT, "-q")
     assert rc == 0, stdout
     rec = json.loads((out / "release.json").read_text())
     assert [rec["stages"][s.name]["status"] for s in STAGES] == ["done"] * len(STAGES)
@@ -254,36 +261,9 @@ def test_tiny_release_end_to_end(tmp_path, capsys):
         assert prov["release"]["dir"] == "rel" and prov["release"]["scale"] == "tiny"
         assert (ship / "mjxsysid/pretrained" / f"{f}.npz").is_file()
     assert "Fair comparisons" in (ship / "docs/fair_comparisons.md").read_text()
-    assert (ship / "docs/runs/release/tuning/tune_slow/results.json").is_file()
-    assert (ship / "docs/runs/release/decoders/seq_decoder_eval.json").is_file()
+    assert (ship / "docs/runs/tuning/tune_slow/results.json").is_file()
+    assert (ship / "docs/runs/decoders/seq_decoder_eval.json").is_file()
     assert rec["stages"]["pairs"]["config"]["imu"]["randomize_imu"] is True      # the release config's IMU
     rc, _, err = _cli(capsys, "--out", out, "-q")
     assert rc == 0 and "stages run" not in err
     assert json.loads((out / "release.json").read_text())["runs"] == rec["runs"]    # nothing ran again
-
-
-def test_ship_replaces_docs_runs_release_whole(tmp_path):
-    """`ship` removes the previous release's docs/runs/release/ before copying the new tree (no file
-    of an earlier release stays) and ships the record beside the run files."""
-    from mjxsysid.release import stage_ship
-    stages = (Stage("tables", lambda r, o: {}, (), (), 1, "lay out"), Stage("ship", stage_ship, ("tables",), (), 1, "ship"))
-    rel = Release(tmp_path / "rel", {"scale": "tiny"}, ship_to=tmp_path / "dest", stages=stages, log=None,
-                  device=lambda: "dev", commit=lambda: "c0ffee")
-    rel.record["stages"]["tables"] = {"status": "done"}
-    rel.out.mkdir(parents=True, exist_ok=True)
-    (rel.out / "release.json").write_text(json.dumps(rel.record))
-    new = rel.stage_dir("tables") / "tree" / "docs" / "runs" / "release" / "policy" / "eval.json"
-    new.parent.mkdir(parents=True)
-    new.write_text("{}")
-    stale = tmp_path / "dest" / "docs" / "runs" / "release" / "old_kind" / "results.json"
-    stale.parent.mkdir(parents=True)
-    stale.write_text("{}")
-    kept = tmp_path / "dest" / "docs" / "runs" / "measurements" / "x" / "results.json"
-    kept.parent.mkdir(parents=True)
-    kept.write_text("{}")
-    (rel.stage_dir("ship")).mkdir(parents=True)
-    stage_ship(rel, rel.stage_dir("ship"))
-    runs = tmp_path / "dest" / "docs" / "runs"
-    assert not stale.exists() and kept.is_file()
-    assert (runs / "release" / "policy" / "eval.json").is_file()
-    assert json.loads((runs / "release" / "release.json").read_text())["stages"]["tables"]["status"] == "done"

@@ -9,14 +9,14 @@ whose cfm_seq.json carries the ``sequence`` part of the evaluation). Copies the 
 regression.json beside them: config, seed, commit, device, wall time, training losses, the data
 they were trained on (pairs hash, policy hash, prior, seed) and the evaluation figures, all read
 from the files given
-(:func:`mjxsysid.release.decoder_provenance`; `mjxsysid release` ships the same way).
+(:func:`mjxsysid.release.provenance.decoder_provenance`; `mjxsysid release` ships the same way).
 """
 import argparse
 import json
 import shutil
 from pathlib import Path
 
-from mjxsysid.release import decoder_provenance
+from mjxsysid.release.provenance import decoder_provenance
 
 
 def main():

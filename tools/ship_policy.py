@@ -5,7 +5,7 @@
 Copies the weights to mjxsysid/pretrained/policy.npz and writes policy.json beside them:
 config, seed, commit, device, wall time, env steps, the command that reproduces them, and the
 evaluation figures (from `mjxsysid evaluate-policy`), all read from the files given
-(:func:`mjxsysid.release.policy_provenance`; `mjxsysid release` ships the same way, with a
+(:func:`mjxsysid.release.provenance.policy_provenance`; `mjxsysid release` ships the same way, with a
 ``release`` section added).
 """
 import argparse
@@ -13,7 +13,9 @@ import json
 import shutil
 from pathlib import Path
 
-from mjxsysid.release import ROOT, policy_provenance
+from mjxsysid.release.provenance import policy_provenance
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def main():

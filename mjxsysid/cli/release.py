@@ -12,7 +12,7 @@ from mjxsysid.cli._common import echo
 
 STAGE_NAMES = ("policy", "policy_eval", "pairs", "decoders", "seq_pairs", "seq_decoder", "decoder_eval", "noise",
                "tune_nominal", "tune_slow", "tune_slow_more", "tune_lemniscate", "studies", "fidelity", "tables",
-               "ship")  # = [s.name for s in mjxsysid.release.STAGES] (light import)
+               "ship")  # = mjxsysid.release.stages.STAGES.names() (light import)
 
 
 def add_release(sub) -> None:
@@ -29,21 +29,24 @@ def add_release(sub) -> None:
     r.add_argument("--tiny", action="store_true",
                    help="every stage at CPU-seconds size (the tests' end-to-end release); ships into OUT/ship")
     r.add_argument("--policy-config", type=Path, default=None, metavar="PATH",
-                   help="TrainConfig JSON of the policy stage (default tools/configs/policy_release.json: the "
-                        "default config with sensor randomisation)")
+                   help="TrainConfig JSON of the policy stage (default: the package's release/configs/"
+                        "policy_release.json, the default config with sensor randomisation)")
     r.add_argument("--from-policy", type=Path, default=None, metavar="POLICY.npz",
                    help="adopt these policy weights instead of training (a release of the shipped policy: "
                         "mjxsysid/pretrained/policy.npz)")
     r.add_argument("--ship-to", type=Path, default=None, metavar="ROOT",
                    help="the tree ship copies into: ROOT/mjxsysid/pretrained/, ROOT/docs/runs/<kind>/, ROOT/docs/ "
-                        "(default: this checkout; --tiny: OUT/ship)")
+                        "(a checkout: required for the ship stage; --tiny: default OUT/ship)")
+    r.add_argument("--docs-root", type=Path, default=None, metavar="ROOT",
+                   help="the checkout whose generated pages the tables stage regenerates over the release's run "
+                        "files (default: --ship-to's ROOT; required for the tables stage of a --tiny release)")
     r.add_argument("--allow-partial", action="store_true",
                    help="with --stages ship: ship what the done stages wrote although others are not done")
     r.set_defaults(handler=cmd_release)
 
 
 def cmd_release(args) -> int:
-    from mjxsysid.release import Release, config_path
+    from mjxsysid.release.runner import Release, config_path
     given = {}
     if args.tiny:
         given["scale"] = "tiny"
@@ -61,7 +64,7 @@ def cmd_release(args) -> int:
         raise ValueError(f"--out {args.out}: is a file, not a release folder")
     if args.list and not (args.out / "release.json").is_file():
         raise FileNotFoundError(f"--list: no release in {args.out} (no release.json)")
-    rel = Release(args.out, given, ship_to=args.ship_to, log=echo)
+    rel = Release(args.out, given, ship_to=args.ship_to, docs_root=args.docs_root, log=echo)
     if args.list:
         print(rel.table())
         return 0
@@ -69,6 +72,10 @@ def cmd_release(args) -> int:
     todo = rel.plan(select, args.force or (), args.allow_partial)   # errors before anything is written
     if "policy" in todo and not rel.options.from_policy and not config_path(rel.options.policy_config).is_file():
         raise FileNotFoundError(f"policy config file not found: {rel.options.policy_config}")
+    if "tables" in todo and rel.docs_root is None:
+        raise ValueError("stage tables regenerates the pages of a checkout: give its root (--docs-root ROOT)")
+    if "ship" in todo and rel.ship_to is None:
+        raise ValueError("stage ship copies into a checkout: give its root (--ship-to ROOT)")
     ran = rel.run(select, args.force or (), args.allow_partial)
     print(rel.table())
     if ran:
