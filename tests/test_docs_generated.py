@@ -8,8 +8,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_fair_comparisons_page_matches_the_runs():
-    """docs/fair_comparisons.md is what tools/fair_tables.py builds from the run files in
-    docs/runs/ (a hand edit, or a re-run without regenerating, fails here)."""
+    """docs/fair_comparisons.md and docs/noise.md's noise tables are what mjxsysid.release.pages
+    builds from the run files in docs/runs/ (`tools/fair_tables.py --check`: a hand edit, or a
+    re-run without regenerating, fails here)."""
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "fair_tables.py"), "--check"],
                        capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr

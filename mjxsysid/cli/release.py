@@ -46,7 +46,8 @@ def add_release(sub) -> None:
 
 
 def cmd_release(args) -> int:
-    from mjxsysid.release.runner import Release, config_path
+    from mjxsysid.release.runner import Release
+    from mjxsysid.release.stages.policy import config_path
     given = {}
     if args.tiny:
         given["scale"] = "tiny"

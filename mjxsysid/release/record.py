@@ -33,7 +33,7 @@ def load(out: Path) -> dict:
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise ValueError(f"{path}: not valid JSON ({e})") from None
     if not isinstance(rec, dict) or not isinstance(rec.get("stages", {}), dict):
-        raise ValueError(f"{path}: not a release record (expected an object with 'stages')")
+        raise ValueError(f"{path}: not a release record (expected an object with 'stages')")  # noqa: TRY004  (a bad file, not a bad argument)
     rec.setdefault("stages", {})
     return rec
 

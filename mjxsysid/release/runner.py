@@ -18,30 +18,19 @@ from mjxsysid.release.provenance import code_commit, device_name
 from mjxsysid.release.record import Record, now
 from mjxsysid.release.sizes import SCALES, SIZES
 from mjxsysid.release.stages import STAGES
+from mjxsysid.release.stages.policy import DEFAULT_POLICY_CONFIG
 from mjxsysid.release.stages.registry import Stage, StageResult
-
-DEFAULT_POLICY_CONFIG = Path(__file__).resolve().parent / "configs" / "policy_release.json"
-"""The policy stage's TrainConfig overrides unless a release names its own: the default config
-with sensor randomisation (package data)."""
-ADOPTED_PROVENANCE = "adopted_policy.json"
-"""The adopted policy's provenance JSON, kept by the policy stage of a ``--from-policy`` release."""
 
 
 @dataclasses.dataclass(frozen=True)
 class Options:
     """What defines a release, recorded in release.json when it starts: ``scale`` ('full' or
-    'tiny'), ``policy_config`` (the TrainConfig JSON the policy stage trains with; None:
-    :data:`DEFAULT_POLICY_CONFIG`) and ``from_policy`` (a policy.npz the policy stage adopts
-    instead of training, or None)."""
+    'tiny'), ``policy_config`` (the TrainConfig JSON the policy stage trains with; None: the
+    packaged [DEFAULT_POLICY_CONFIG][mjxsysid.release.stages.policy.DEFAULT_POLICY_CONFIG]) and
+    ``from_policy`` (a policy.npz the policy stage adopts instead of training, or None)."""
     scale: str = "full"
     policy_config: str | None = None
     from_policy: str | None = None
-
-
-def config_path(path) -> Path:
-    """The policy config a release trains with: ``path`` as given (absolute, or relative to the
-    working directory), or :data:`DEFAULT_POLICY_CONFIG` for None."""
-    return DEFAULT_POLICY_CONFIG if path is None else Path(path)
 
 
 class Release:

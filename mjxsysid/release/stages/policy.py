@@ -11,13 +11,24 @@ from mjxsysid.release.stages.registry import STAGES, StageResult
 if TYPE_CHECKING:
     from mjxsysid.release.runner import Release
 
+DEFAULT_POLICY_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "policy_release.json"
+"""The policy stage's TrainConfig overrides unless a release names its own: the default config
+with sensor randomisation (package data)."""
+ADOPTED_PROVENANCE = "adopted_policy.json"
+"""The adopted policy's provenance JSON, kept by the policy stage of a ``--from-policy`` release."""
+
+
+def config_path(path) -> Path:
+    """The policy config a release trains with: ``path`` as given (absolute, or relative to the
+    working directory), or :data:`DEFAULT_POLICY_CONFIG` for None."""
+    return DEFAULT_POLICY_CONFIG if path is None else Path(path)
+
 
 def train_config(rel: Release) -> dict:
     """The TrainConfig dict the policy stage trains with: the default config with the overrides
     of the release's policy config, and the sizes' ``train`` overrides on top (a tiny release:
     warm-started from the shipped policy unless the config names one)."""
     from mjxsysid.policy.train import TrainConfig, config_with_overrides
-    from mjxsysid.release.runner import config_path
     cfg = config_with_overrides(config_path(rel.options.policy_config))
     if rel.sizes.train:
         from mjxsysid.policy.interface import PRETRAINED_DIR
@@ -32,7 +43,6 @@ def policy(rel: Release, out: Path) -> StageResult:
     """Train the policy (it checkpoints and resumes itself), or adopt ``options.from_policy``."""
     from mjxsysid.checkpoint import load_meta
     from mjxsysid.policy.interface import file_sha256
-    from mjxsysid.release.runner import ADOPTED_PROVENANCE
     if rel.options.from_policy:
         src = Path(rel.options.from_policy)
         if not src.is_file():

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from mjxsysid.release import layout
 from mjxsysid.release.provenance import call, decoder_provenance, policy_provenance
+from mjxsysid.release.stages.policy import ADOPTED_PROVENANCE
 from mjxsysid.release.stages.registry import STAGES, StageResult
 
 if TYPE_CHECKING:
@@ -22,7 +23,6 @@ def _adopted_training(rel: Release) -> dict:
     the provenance JSON the policy stage kept beside it (its command, commit, device, wall time,
     steps/s: the release did not train it), and where it came from. Empty for a release that
     trained its own."""
-    from mjxsysid.release.runner import ADOPTED_PROVENANCE
     if not rel.options.from_policy:
         return {}
     out = {"adopted_from": rel.options.from_policy}
