@@ -267,3 +267,45 @@ def test_tiny_release_end_to_end(tmp_path, capsys):
     rc, _, err = _cli(capsys, "--out", out, "-q")
     assert rc == 0 and "stages run" not in err
     assert json.loads((out / "release.json").read_text())["runs"] == rec["runs"]    # nothing ran again
+
+
+def test_release_config_is_package_data_and_sizes_are_frozen():
+    """The default policy config ships inside the package (a wheel runs a release without a
+    checkout); the sizes cannot be changed by a stage."""
+    import mjxsysid
+    from mjxsysid.release.sizes import FULL, TINY
+    from mjxsysid.release.stages.policy import DEFAULT_POLICY_CONFIG, config_path
+    assert DEFAULT_POLICY_CONFIG.is_file() and Path(mjxsysid.__file__).parent in DEFAULT_POLICY_CONFIG.parents
+    assert config_path(None) == DEFAULT_POLICY_CONFIG and config_path("x.json") == Path("x.json")
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        TINY.eval_vehicles = 1
+    with pytest.raises(TypeError):
+        TINY.cfm["epochs"] = 1
+    assert FULL.train == {} and TINY.train["iterations"] == 4 and set(TINY.noise.levels) == set(FULL.noise.levels)
+
+
+def test_pages_read_a_release_tree_over_the_checkout(tmp_path):
+    """A generated page is a function of the checkout's run files with a release's tree laid over
+    them: no tree gives the checkout's page; a run file in the tree replaces the checkout's."""
+    from mjxsysid.release.layout import run_path
+    from mjxsysid.release.pages import check, noise
+    assert check(ROOT) == []
+    assert noise.page(ROOT) == (ROOT / noise.PAGE).read_text() == noise.page(ROOT, overlay=tmp_path)
+    rel = run_path("noise", "noise_sensitivity.json")
+    res = json.loads((ROOT / rel).read_text())
+    for v in res["levels"].values():
+        v["pos_rmse_m"]["median"] += 0.5
+    (tmp_path / rel).parent.mkdir(parents=True)
+    (tmp_path / rel).write_text(json.dumps(res))
+    page = noise.page(ROOT, overlay=tmp_path)
+    assert page != (ROOT / noise.PAGE).read_text() and page.count("\n") == (ROOT / noise.PAGE).read_text().count("\n")
+    with pytest.raises(FileNotFoundError, match="missing run file"):
+        noise.page(_bare_checkout(tmp_path))
+
+
+def _bare_checkout(tmp_path):
+    """A checkout with docs/noise.md but none of the run files it quotes."""
+    root = tmp_path / "bare"
+    (root / "docs").mkdir(parents=True)
+    shutil.copy(ROOT / "docs" / "noise.md", root / "docs" / "noise.md")
+    return root
