@@ -233,7 +233,7 @@ def test_ship_tree_carries_release_provenance(tmp_path):
     assert cfm["release"]["stage"] == "decoders" and cfm["data"]["pairs_sha256"]
     assert cfm["calls"] == [{"call": "stage decoders", "args": {}}] and pol["calls"][0]["call"] == "stage policy"
     assert pol["command"] == "mjxsysid release --out rel"
-    assert (tree / "docs/runs/policy/eval.json").is_file()
+    assert (tree / "docs/runs/release/policy/eval.json").is_file()
     assert not (tree / "mjxsysid/pretrained/cfm_seq.json").exists()
     # a release that adopted a policy keeps how it was trained (command, commit) from the JSON beside it
     shipped = json.loads((pre / "policy.json").read_text())
@@ -261,12 +261,40 @@ def test_tiny_release_end_to_end(tmp_path, capsys):
         assert prov["release"]["dir"] == "rel" and prov["release"]["scale"] == "tiny"
         assert (ship / "mjxsysid/pretrained" / f"{f}.npz").is_file()
     assert "Fair comparisons" in (ship / "docs/fair_comparisons.md").read_text()
-    assert (ship / "docs/runs/tuning/tune_slow/results.json").is_file()
-    assert (ship / "docs/runs/decoders/seq_decoder_eval.json").is_file()
+    assert (ship / "docs/runs/release/tuning/tune_slow/results.json").is_file()
+    assert (ship / "docs/runs/release/decoders/seq_decoder_eval.json").is_file()
     assert rec["stages"]["pairs"]["config"]["imu"]["randomize_imu"] is True      # the release config's IMU
     rc, _, err = _cli(capsys, "--out", out, "-q")
     assert rc == 0 and "stages run" not in err
     assert json.loads((out / "release.json").read_text())["runs"] == rec["runs"]    # nothing ran again
+
+
+def test_ship_replaces_docs_runs_release_whole(tmp_path):
+    """`ship` removes the previous release's docs/runs/release/ before copying the new tree (no file
+    of an earlier release stays) and ships the record beside the run files."""
+    from mjxsysid.release.stages.ship import ship
+    stages = (Stage("tables", lambda r, o: StageResult(), (), (), 1, "lay out"),
+              Stage("ship", ship, ("tables",), (), 1, "ship"))
+    rel = Release(tmp_path / "rel", {"scale": "tiny"}, ship_to=tmp_path / "dest", stages=stages, log=None,
+                  device=lambda: "dev", commit=lambda: "c0ffee")
+    rel.record["stages"]["tables"] = {"status": "done"}
+    rel.out.mkdir(parents=True, exist_ok=True)
+    (rel.out / "release.json").write_text(json.dumps(rel.record))
+    new = rel.stage_dir("tables") / "tree" / "docs" / "runs" / "release" / "policy" / "eval.json"
+    new.parent.mkdir(parents=True)
+    new.write_text("{}")
+    stale = tmp_path / "dest" / "docs" / "runs" / "release" / "old_kind" / "results.json"
+    stale.parent.mkdir(parents=True)
+    stale.write_text("{}")
+    kept = tmp_path / "dest" / "docs" / "runs" / "measurements" / "x" / "results.json"
+    kept.parent.mkdir(parents=True)
+    kept.write_text("{}")
+    (rel.stage_dir("ship")).mkdir(parents=True)
+    ship(rel, rel.stage_dir("ship"))
+    runs = tmp_path / "dest" / "docs" / "runs"
+    assert not stale.exists() and kept.is_file()
+    assert (runs / "release" / "policy" / "eval.json").is_file()
+    assert json.loads((runs / "release" / "release.json").read_text())["stages"]["tables"]["status"] == "done"
 
 
 def test_release_config_is_package_data_and_sizes_are_frozen():

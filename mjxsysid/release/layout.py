@@ -19,10 +19,13 @@ PRETRAINED = "mjxsysid/pretrained"
 DOCS = "docs"
 RUNS = "docs/runs"
 KINDS = {
-    # shipped by a release
-    "policy": "policy", "decoders": "decoders", "noise": "noise", "tuning": "tuning", "studies": "studies",
-    # measured outside a release, read by the generated pages
-    "oracle": "oracle", "nobc": "nobc", "xadap": "xadap", "probing": "probing",
+    # shipped by a release: docs/runs/release/, replaced whole at each ship
+    "policy": "release/policy", "decoders": "release/decoders", "noise": "release/noise",
+    "tuning": "release/tuning", "studies": "release/studies",
+    # measured outside a release (``mjxsysid experiment NAME``), read by the generated pages
+    "lag_oracle": "measurements/lag-oracle", "nobc": "measurements/nobc", "xadap": "measurements/xadap",
+    "held_out": "measurements/held-out",
+    # superseded protocols the pages show beside today's
     "previous_protocol": "archive/previous_protocol", "issue22_tuning": "archive/issue22_tuning",
 }
 """Per kind of run, its folder under :data:`RUNS`."""
@@ -31,6 +34,11 @@ KINDS = {
 def run_path(kind: str, *parts: str) -> str:
     """The path (relative to the tree's root) of a run file of ``kind``: docs/runs/<kind's folder>/parts."""
     return "/".join((RUNS, KINDS[kind], *parts))
+
+
+RELEASE_RUNS = f"{RUNS}/release"
+"""The folder that holds exactly what the last release shipped (its run files and its record,
+release.json): ``ship`` replaces it whole."""
 
 
 def pretrained_path(*parts: str) -> str:
@@ -67,6 +75,17 @@ SHIPPED = (("policy", "policy.npz"), ("decoders", "cfm.npz"), ("decoders", "regr
 """(stage, weights file) shipped into :data:`PRETRAINED` with a provenance JSON each."""
 PAGES = (f"{DOCS}/fair_comparisons.md", f"{DOCS}/noise.md")
 """The generated pages a release regenerates (paths in the shipped tree)."""
+
+
+def shrink_pngs(path: Path) -> None:
+    """Rewrite every PNG at or under ``path`` as a 256-colour palette image (a plot looks the same
+    at about half the bytes): the figures docs/runs/ keeps in git."""
+    from PIL import Image
+    for f in ([path] if path.is_file() else sorted(path.rglob("*.png"))):
+        if f.suffix == ".png":
+            with Image.open(f) as im:
+                small = im.convert("RGB").quantize(colors=256)
+            small.save(f, "PNG", optimize=True)
 
 
 def link(src: Path, dst: Path) -> None:

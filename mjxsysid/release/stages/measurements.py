@@ -17,7 +17,7 @@ _DECODED = ("decoders", "seq_decoder")
 
 
 @STAGES.add(needs=_DECODED, outputs=("noise_sensitivity.json", "noise_sensitivity_low.json"), estimate_s=85,
-            what="decoding under IMU noise (mjxsysid.studies.noise)")
+            what="decoding under IMU noise (mjxsysid experiment noise-sensitivity's measurement)")
 def noise(rel: Release, out: Path) -> StageResult:
     """The noise measurement ([noise_sensitivity][mjxsysid.studies.noise.noise_sensitivity]) at
     each level set of the sizes (the docs' levels and the low ones), with the figure."""

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 from mjxsysid.release import layout
 from mjxsysid.release.provenance import call, decoder_provenance, policy_provenance
+from mjxsysid.release.record import RECORD
 from mjxsysid.release.stages.policy import ADOPTED_PROVENANCE
 from mjxsysid.release.stages.registry import STAGES, StageResult
 
@@ -88,7 +89,11 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
                     evaluation_calls=rel.entry("decoder_eval").get("calls", []))
         prov["release"] = release_info(stage)
         (pre / f"{kind}.json").write_text(json.dumps(prov, indent=2, ensure_ascii=False) + "\n")
-    for stage, src, dst in (*layout.DOCS_RUNS, *layout.DOCS_FILES):
+    for stage, src, dst in layout.DOCS_RUNS:
+        if have(stage, src):
+            layout.copy(rel.stage_dir(stage) / src, tree / dst)
+            layout.shrink_pngs(tree / dst)
+    for stage, src, dst in layout.DOCS_FILES:
         if have(stage, src):
             layout.copy(rel.stage_dir(stage) / src, tree / dst)
     return left_out
@@ -120,10 +125,11 @@ def tables(rel: Release, out: Path) -> StageResult:
 
 
 @STAGES.add(outputs=("shipped.json",), estimate_s=5, after=("tables",),
-            what="copy weights + provenance into mjxsysid/pretrained/, run files into docs/runs/<kind>/, the pages")
+            what="copy weights + provenance into mjxsysid/pretrained/, run files into docs/runs/release/<kind>/, the pages")
 def ship(rel: Release, out: Path) -> StageResult:
     """Copy the tree of the tables stage (weights, provenance, docs run files, pages) into
-    ``rel.ship_to``. With ``allow_partial`` and the tables stage not done, a tree of whatever the
+    ``rel.ship_to``, replacing its docs/runs/release/ whole (with the record beside the run files).
+    With ``allow_partial`` and the tables stage not done, a tree of whatever the
     done stages wrote (no pages regenerated)."""
     if rel.ship_to is None:
         raise ValueError("stage ship copies into a checkout: give its root (--ship-to ROOT)")
@@ -138,11 +144,16 @@ def ship(rel: Release, out: Path) -> StageResult:
         left_out = build_tree(rel, tree, partial=True)
     dest = rel.ship_to
     files = []
+    if (tree / layout.RELEASE_RUNS).is_dir() and (dest / layout.RELEASE_RUNS).is_dir():
+        shutil.rmtree(dest / layout.RELEASE_RUNS)      # replaced whole: no file of an earlier release stays
     for p in sorted(tree.rglob("*")):
         if p.is_file():
             r = p.relative_to(tree)
             layout.copy(p, dest / r)
             files.append(str(r))
+    if not left_out:     # the record as the ship began, beside the run files it made
+        layout.copy(rel.out / RECORD, dest / layout.RELEASE_RUNS / RECORD)
+        files.append(f"{layout.RELEASE_RUNS}/{RECORD}")
     (out / "shipped.json").write_text(json.dumps({"to": str(dest), "files": files, "left_out": left_out},
                                                  indent=2) + "\n")
     if left_out:
