@@ -8,7 +8,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_fair_comparisons_page_matches_the_runs():
-    """docs/fair_comparisons.md and docs/noise.md's noise tables are what mjxsysid.release.pages
+    """docs/fair_comparisons.md, docs/noise.md's noise tables, docs/results.md and README's results table
+    are what mjxsysid.release.pages
     builds from the run files in docs/runs/ (`tools/fair_tables.py --check`: a hand edit, or a
     re-run without regenerating, fails here)."""
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "fair_tables.py"), "--check"],
@@ -18,6 +19,32 @@ def test_fair_comparisons_page_matches_the_runs():
     for heading in ("## 1. Nominal+CEM", "## 2. Action replay", "## 3. Regression", "## 5. Closed-loop",
                     "## 6a. tune-lemniscate", "## 6b. Robustness"):
         assert heading in text
+
+
+def test_results_rows_come_from_the_run_files(tmp_path):
+    """docs/results.md and README's results table are written from the run files: a changed figure
+    in a run file changes the row (here the policy's success rate over a copy of the checkout's
+    file), and a README without the generated block's markers is refused by name."""
+    import json
+    import shutil
+
+    import pytest
+
+    from mjxsysid.release.layout import run_path
+    from mjxsysid.release.pages import results
+    rows = results.rows(ROOT)
+    assert len(rows) >= results.README_ROWS and all(r.runs for r in rows)
+    rel = run_path("policy", "eval.json")
+    d = json.loads((ROOT / rel).read_text())
+    d["lemniscate"]["policy"]["success_rate"] = 0.5
+    (tmp_path / rel).parent.mkdir(parents=True)
+    (tmp_path / rel).write_text(json.dumps(d))
+    row = results.rows(ROOT, overlay=tmp_path)[0]
+    assert "**50 %**" in row.ours and "**missed**" in row.target
+    shutil.copy(ROOT / "README.md", tmp_path / "README.md")
+    (tmp_path / "README.md").write_text((tmp_path / "README.md").read_text().replace(results.BEGIN, ""))
+    with pytest.raises(ValueError, match="README.md has no generated results block"):
+        results.readme(tmp_path)
 
 
 def test_documentation_site_builds_strictly(tmp_path):

@@ -24,7 +24,7 @@ KINDS = {
     "tuning": "release/tuning", "studies": "release/studies",
     # measured outside a release (``mjxsysid experiment NAME``), read by the generated pages
     "lag_oracle": "measurements/lag-oracle", "nobc": "measurements/nobc", "xadap": "measurements/xadap",
-    "held_out": "measurements/held-out",
+    "held_out": "measurements/held-out", "log_grounded": "measurements/log-grounded",
     # superseded protocols the pages show beside today's
     "previous_protocol": "archive/previous_protocol", "issue22_tuning": "archive/issue22_tuning",
 }
@@ -73,7 +73,7 @@ DOCS_FILES = (("noise", "noise_sensitivity.png", f"{DOCS}/noise_sensitivity.png"
 SHIPPED = (("policy", "policy.npz"), ("decoders", "cfm.npz"), ("decoders", "regression.npz"),
            ("seq_decoder", "cfm_seq.npz"))
 """(stage, weights file) shipped into :data:`PRETRAINED` with a provenance JSON each."""
-PAGES = (f"{DOCS}/fair_comparisons.md", f"{DOCS}/noise.md")
+PAGES = (f"{DOCS}/fair_comparisons.md", f"{DOCS}/noise.md", f"{DOCS}/results.md")
 """The generated pages a release regenerates (paths in the shipped tree)."""
 
 

@@ -1,5 +1,6 @@
-"""The generated docs pages: [fair][mjxsysid.release.pages.fair] (docs/fair_comparisons.md) and
-[noise][mjxsysid.release.pages.noise] (docs/noise.md's tables), each a pure function of a
+"""The generated docs pages: [fair][mjxsysid.release.pages.fair] (docs/fair_comparisons.md),
+[noise][mjxsysid.release.pages.noise] (docs/noise.md's tables) and [results][mjxsysid.release.pages.results]
+(docs/results.md and README.md's results table), each a pure function of a
 checkout's root and, optionally, a release's tree laid over it; [check][mjxsysid.release.pages.check]
 tells which pages of a checkout differ from what its run files give."""
 from __future__ import annotations
@@ -9,8 +10,9 @@ from pathlib import Path
 
 def generate(root, overlay=None) -> dict[str, str]:
     """Each generated page's text (path relative to the checkout's root → Markdown)."""
-    from mjxsysid.release.pages import fair, noise
-    return {fair.PAGE: fair.page(root, overlay), noise.PAGE: noise.page(root, overlay)}
+    from mjxsysid.release.pages import fair, noise, results
+    return {fair.PAGE: fair.page(root, overlay), noise.PAGE: noise.page(root, overlay),
+            results.PAGE: results.page(root, overlay), results.README: results.readme(root, overlay)}
 
 
 def check(root) -> list[str]:

@@ -102,13 +102,13 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
 @STAGES.add(needs=("policy_eval", "decoder_eval", "noise", "tune_nominal", "tune_slow", "tune_slow_more",
                    "tune_lemniscate", "studies", "fidelity"),
             outputs=tuple(f"tree/{p}" for p in layout.PAGES), estimate_s=5,
-            what="lay out the shipped tree and regenerate docs/fair_comparisons.md and docs/noise.md's tables")
+            what="lay out the shipped tree and regenerate docs/fair_comparisons.md, docs/noise.md's tables and docs/results.md")
 def tables(rel: Release, out: Path) -> StageResult:
     """Lay out the shipped tree in out/tree (:func:`build_tree`) and regenerate the generated
     docs pages of ``rel.docs_root`` (a checkout) over it: docs/fair_comparisons.md (each run file
-    read from the tree where the release wrote one, else from the checkout) and the noise tables
-    of docs/noise.md."""
-    from mjxsysid.release.pages import fair, noise
+    read from the tree where the release wrote one, else from the checkout), the noise tables
+    of docs/noise.md and docs/results.md."""
+    from mjxsysid.release.pages import fair, noise, results
     if rel.docs_root is None:
         raise ValueError("stage tables regenerates the pages of a checkout: give its root (--docs-root ROOT)")
     tree = out / "tree"
@@ -117,9 +117,11 @@ def tables(rel: Release, out: Path) -> StageResult:
     build_tree(rel, tree)
     (tree / layout.PAGES[0]).write_text(fair.page(rel.docs_root, overlay=tree))
     (tree / layout.PAGES[1]).write_text(noise.page(rel.docs_root, overlay=tree))
+    (tree / layout.PAGES[2]).write_text(results.page(rel.docs_root, overlay=tree))
     files = sorted(str(p.relative_to(tree)) for p in tree.rglob("*") if p.is_file())
     return StageResult(calls=(call(build_tree, tree=tree), call(fair.page, root=rel.docs_root, overlay=tree),
-                              call(noise.page, root=rel.docs_root, overlay=tree)),
+                              call(noise.page, root=rel.docs_root, overlay=tree),
+                              call(results.page, root=rel.docs_root, overlay=tree)),
                        config={"tree": str(tree), "docs_root": str(rel.docs_root)},
                        figures={"files": len(files), "pages": list(layout.PAGES)})
 
