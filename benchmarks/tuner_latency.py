@@ -54,10 +54,11 @@ def main(argv=None):
         low = resolve_policy("mjxsysid").batched(b)
         # a realistic state to tune from: 0.3 s of flight with naive gains
         tf = fly_tuned(sim, theta, low, refs, broadcast(Disturbance.make(), b), "naive", jax.random.PRNGKey(0), 150)
+        from mjxsysid.tune import rotor_state as R
         from mjxsysid.tune import tuner as T
         carry = T._start(sim, *T._axes(low))(jnp.asarray(theta), low, refs,
                                              jnp.stack([jax.random.split(jax.random.PRNGKey(0), 2)] * b))
-        hist = T.push_history(T.empty_history(cfg.window(sim.config.dt), b), jnp.asarray(tf.flight.frame.motor_cmd))
+        hist = R.push_history(R.empty_history(cfg.window(sim.config.dt), b), jnp.asarray(tf.flight.frame.motor_cmd))
         incumbent = jnp.broadcast_to(jnp.asarray(tf.gains[:, -1]), (b, 8))
         tuner = OnlineTuner(sim, a.method, cfg, dec)
         state = tuner.init(b)

@@ -14,6 +14,7 @@ from mjxsysid.control.high_level import GAIN_BOUNDS, PRESETS, Cascade
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.sim.quadrotor import Frame
 from mjxsysid.tune import cem as C
+from mjxsysid.tune import rotor_state as R
 from mjxsysid.tune.tuner import CostWeights, OnlineTuner, TunerConfig, fly_tuned, predict, rollout_cost
 
 
@@ -135,7 +136,7 @@ def test_rotor_estimate_is_the_simulators_rotor_state_for_the_true_model(policy_
     it equals the simulator's rotor speeds to float round-off, while the window covers the
     flight (from the hover start) and once a 0.6 s window has forgotten its start (at e^{-W/τ_m});
     with a wrong τ_m (×0.5, ×2) or the old steady-state start it is measurably off."""
-    from mjxsysid.tune.tuner import CommandHistory, empty_history, estimate_rotor_speed, push_history, start_rotor_speed
+    from mjxsysid.tune.rotor_state import CommandHistory, empty_history, estimate_rotor_speed, push_history, start_rotor_speed
     est = jax.jit(lambda th, h: estimate_rotor_speed(th, h, sim.config))
     for name, (th, cmds, speed) in policy_flights.items():
         tau = float(th[P.TAU_M])
@@ -208,7 +209,6 @@ def test_tuner_finds_known_good_gains(paper_policy):
     naive gains must reach a predicted cost as good as the hand-tuned baseline's (known good)
     and well below the naive one."""
     from mjxsysid.sim.quadrotor import hover_rotor_speed
-    from mjxsysid.tune import tuner as T
     sim, theta, low, low0, lem, refs, carry, one = _paper_vehicle_at_rest(paper_policy)
     speed = hover_rotor_speed(jnp.asarray(theta[0]))
     cfg = TunerConfig(models=1, horizon=0.5, cem=C.CEMConfig(candidates=24, iterations=3))
@@ -228,7 +228,7 @@ def test_tuner_finds_known_good_gains(paper_policy):
     state = tuner.init(1)
     for u in range(4):
         state = C.cem_warm(state, cfg.cem) if u else state
-        state, gains, info = tuner.update(low, theta, refs, carry, T.empty_history(cfg.window(sim.config.dt), 1),
+        state, gains, info = tuner.update(low, theta, refs, carry, R.empty_history(cfg.window(sim.config.dt), 1),
                                           jnp.asarray(PRESETS["naive"])[None], 0, state, jax.random.PRNGKey(u))
     c_tuned = float(cost_of(gains[0]))
     assert c_base < 0.7 * c_naive, (c_base, c_naive)          # the problem separates the two presets
@@ -392,14 +392,14 @@ def test_a_protected_tuner_never_applies_gains_its_models_predict_worse(paper_po
     """protect = 1 with the true model (K = 1): the tuner switches only to gains the model predicts
     better than the incumbent, so the applied gains' predicted cost never exceeds the incumbent's
     (here the naive gains, which the fast lemniscate punishes: it does switch)."""
-    from mjxsysid.tune import tuner as T
+    from mjxsysid.sim.quadrotor import hover_rotor_speed
     sim, theta, low, low0, lem, refs, carry, one = _paper_vehicle_at_rest(paper_policy)
     cfg = TunerConfig(models=1, horizon=0.5, protect=1.0, cem=C.CEMConfig(candidates=24, iterations=3))
     tuner = OnlineTuner(sim, "oracle_cem", cfg)
-    hist = T.empty_history(cfg.window(sim.config.dt), 1)
+    hist = R.empty_history(cfg.window(sim.config.dt), 1)
     incumbent = jnp.asarray(PRESETS["naive"])[None]
     cost_of = jax.jit(lambda g: rollout_cost(predict(sim, jnp.asarray(theta[0]), low0, g, jnp.float32(12.0), lem, one,
-                                                     T.hover_rotor_speed(jnp.asarray(theta[0])), 0, 250), cfg.weights))
+                                                     hover_rotor_speed(jnp.asarray(theta[0])), 0, 250), cfg.weights))
     state = tuner.init(1)
     switched = []
     for u in range(3):

@@ -57,7 +57,7 @@ def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]
         "The tuner started every predictive rollout with each model's rotors at the steady state of the last",
         "motor command; with τ_m 0.05–0.10 s the real rotors are far from it. Now each of the K models runs",
         "*its own* motor lag (τ_m, Ω_max) over the last 0.6 s of commands the controller sent",
-        "(`tune.tuner.estimate_rotor_speed`; no hidden state read) and the rigid twin carries the IMU latency",
+        "(`tune.rotor_state.estimate_rotor_speed`; no hidden state read) and the rigid twin carries the IMU latency",
         "buffer. With the true θ a prediction then reproduces the flight to float round-off",
         "([figure](runs/measurements/prediction-error/prediction_error.png), `mjxsysid experiment prediction-error`; tests in",
         "`tests/test_tune.py`). Same vehicles and seeds as the default protocol; Baseline and Nominal+CEM of",
