@@ -7,7 +7,8 @@ it came from and the page that describes the protocol.
 """
 from __future__ import annotations
 
-from typing import Callable, NamedTuple
+from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
