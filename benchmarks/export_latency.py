@@ -33,7 +33,8 @@ def main():
     import jax
     import jax.numpy as jnp
 
-    from mjxsysid.policy import export as E
+    from mjxsysid.policy.export import graph as G
+    from mjxsysid.policy.export import run as E
     from mjxsysid.policy.interface import resolve_policy
 
     ref = resolve_policy("mjxsysid")
@@ -53,7 +54,7 @@ def main():
 
     # the same step in JAX (jit, CPU), batch 1
     params = ref.load().params
-    step = jax.jit(lambda *a: E.policy_step(params, *a))
+    step = jax.jit(lambda *a: G.policy_step(params, *a))
     f = E.feeds(rec, np.flatnonzero(~rec.refresh & ~rec.reset)[:1], refresh=False)
     jx = {}
     for name, refresh in (("step_us", False), ("refresh_step_us", True)):

@@ -43,7 +43,7 @@ def main():
     dev = jax.devices()[0]
     device = f"{dev.platform}:{getattr(dev, 'device_kind', '')}"
     sim = Quadrotor()
-    from mjxsysid.policy.xadap_controller import XAdapController
+    from mjxsysid.policy.xadap.controller import XAdapController
     ctrls = {"oracle": lambda th: make_low_level("oracle", th),
              "mjxsysid": lambda th: resolve_policy("mjxsysid").batched(len(th))}
     if args.xadap:

@@ -78,7 +78,9 @@ def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
 
 def bench_train(devices: int, args, envs: int | None = None) -> dict:
     from mjxsysid import distributed as D
-    from mjxsysid.policy.train import TrainConfig, Trainer, training_mesh
+    from mjxsysid.policy.adaptive.config import TrainConfig
+    from mjxsysid.policy.adaptive.trainer import Trainer
+    from mjxsysid.policy.adaptive.train import training_mesh
     cfg = TrainConfig(**{"iterations": 1500, "unroll": args.unroll, "minibatches": args.minibatches,
                          "reset_per_unroll": args.reset_per_unroll, **config_overrides(args.set),
                          "num_envs": envs or args.envs})

@@ -54,7 +54,9 @@ def parse_config(text: str) -> dict:
 
 
 def profile(overrides: dict, repeats: int, iters: int) -> dict:
-    from mjxsysid.policy.train import TrainConfig, Trainer, schedules
+    from mjxsysid.policy.adaptive.config import TrainConfig
+    from mjxsysid.policy.adaptive.trainer import Trainer
+    from mjxsysid.policy.adaptive.losses import schedules
     cfg = TrainConfig(**overrides)
     tr = Trainer(cfg)
     ts = tr.init(jax.random.PRNGKey(0))

@@ -24,7 +24,7 @@ def sim():
 @pytest.fixture(scope="module")
 def xadap_weights():
     require_xadap("onnx")
-    from mjxsysid.policy.xadap import load_xadap
+    from mjxsysid.policy.xadap.onnx_import import load_xadap
     return load_xadap(XADAP_DIR)
 
 
@@ -50,7 +50,7 @@ def collected_pairs(tmp_path_factory):
     """`mjxsysid collect` on tiny sizes with the shipped policy, run once for the tests that read
     its pairs (tests/test_policy.py) and latent trajectories (tests/test_sequence.py)."""
     from mjxsysid.cli import main
-    from mjxsysid.policy.controller import PRETRAINED
+    from mjxsysid.policy.adaptive.controller import PRETRAINED
     if not PRETRAINED.exists():
         pytest.skip("no shipped policy weights")
     out = tmp_path_factory.mktemp("collect")

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 from mjxsysid import theta as P
-from mjxsysid.policy.controller import PRETRAINED
-from mjxsysid.policy.focus import replay_resample, save_weak
-from mjxsysid.policy.train import TrainConfig, _same_config
+from mjxsysid.policy.adaptive.controller import PRETRAINED
+from mjxsysid.policy.adaptive.focus import replay_resample, save_weak
+from mjxsysid.policy.adaptive.config import TrainConfig
+from mjxsysid.policy.adaptive.train import _same_config
 
 TINY = dict(num_envs=64, unroll=16, epochs=2, minibatches=4, log_every=1, checkpoint_every=2)
 
@@ -71,7 +72,7 @@ def test_probe_loop_accumulate_quick_end_to_end(tmp_path):
     2 CPU cores): round 1 fine-tunes the shipped policy, round 2 round 1's, each on a replay buffer
     of every round so far, re-scored under the current policy and drawn ∝ badness."""
     from mjxsysid.experiments.probe_loop import QUICK, run
-    from mjxsysid.policy.focus import load_weak
+    from mjxsysid.policy.adaptive.focus import load_weak
     out = tmp_path / "acc"
     cfg = dataclasses.replace(QUICK, rounds=2, final_probe=False, replay_draws=256)
     r = run(out, quick=True, progress=False, cfg=cfg, variant="accumulate")

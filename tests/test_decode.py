@@ -31,7 +31,7 @@ def _log_from_flight(f):
 def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
     path = write_log(tmp_path / "flight.csv", *_log_from_flight(paper_flight))
     rec = read_log(path)
-    from mjxsysid.policy.controller import PolicyController
+    from mjxsysid.policy.adaptive.controller import PolicyController
     z = PolicyController.load().replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
     np.testing.assert_allclose(z, paper_flight.latent, atol=2e-4)
     # End to end through the CLI.

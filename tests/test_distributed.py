@@ -107,7 +107,9 @@ def test_training_iteration_two_devices_equals_one():
     on both. The compiled iteration moves no samples between the devices (no all-gather)."""
     r = run_two_devices(r"""
         import re
-        from mjxsysid.policy.train import TrainConfig, Trainer, training_mesh
+        from mjxsysid.policy.adaptive.config import TrainConfig
+        from mjxsysid.policy.adaptive.trainer import Trainer
+        from mjxsysid.policy.adaptive.train import training_mesh
         cfg = TrainConfig(num_envs=8, unroll=4, epochs=1, minibatches=1, iterations=10)
         def one_iteration(mesh):
             tr = Trainer(cfg, mesh)
@@ -143,7 +145,9 @@ def test_local_minibatches_partition_each_device():
     rows of one sample stay together across leaves, and each device's slice of every minibatch
     comes from its own environments (so the shuffle moves nothing between the devices)."""
     r = run_two_devices("""
-        from mjxsysid.policy.train import TrainConfig, Trainer, training_mesh
+        from mjxsysid.policy.adaptive.config import TrainConfig
+        from mjxsysid.policy.adaptive.trainer import Trainer
+        from mjxsysid.policy.adaptive.train import training_mesh
         cfg = TrainConfig(num_envs=16, unroll=4, epochs=1, minibatches=4, iterations=10)
         tr = Trainer(cfg, training_mesh(cfg))
         t, n, d = cfg.unroll, cfg.num_envs, 2
@@ -175,9 +179,10 @@ def test_evaluation_rollout_and_cfm_sampling_two_devices_equal_one():
     sampling over cases of evaluate-decoder / decode (3 cases: padded)."""
     r = run_two_devices("""
         from mjxsysid.cfm.sample import Decoder
-        from mjxsysid.policy.controller import PolicyController
-        from mjxsysid.policy.env import EnvConfig, TrainEnv
-        from mjxsysid.policy.evaluate import env_rollout
+        from mjxsysid.policy.adaptive.controller import PolicyController
+        from mjxsysid.policy.adaptive.config import EnvConfig
+        from mjxsysid.policy.adaptive.env import TrainEnv
+        from mjxsysid.policy.adaptive.evaluate import env_rollout
         from mjxsysid.cfm.load import load_decoders
         from mjxsysid.policy.interface import resolve_policy
         ctrl = PolicyController.load(None)

@@ -37,7 +37,7 @@ def jax_run(exported):
     """The JAX controller itself stepped over the recorded inputs: its state before and its
     outputs after every step."""
     from mjxsysid.control.low_level import Command
-    from mjxsysid.policy.controller import PolicyController
+    from mjxsysid.policy.adaptive.controller import PolicyController
     vec = exported[3]
     ctrl = PolicyController.load()
 
@@ -101,7 +101,7 @@ def test_free_running_onnx_matches_the_jax_controller_on_a_recorded_flight(expor
 
 @pytest.mark.parametrize("refresh", [False, True])
 def test_dynamic_batch_of_three(exported, jax_run, refresh):
-    from mjxsysid.policy.networks import Networks
+    from mjxsysid.policy.adaptive.networks import Networks
     _, out, _, vec = exported
     ctrl, ref = jax_run
     idx = np.array([0, 17, 33])  # step 0 carries reset; the others continue from the recorded state

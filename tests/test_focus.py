@@ -5,8 +5,9 @@ import pytest
 
 from mjxsysid import theta as P
 from mjxsysid.cli import main
-from mjxsysid.policy.env import EnvConfig, TrainEnv
-from mjxsysid.policy.focus import load_weak, save_weak
+from mjxsysid.policy.adaptive.config import EnvConfig
+from mjxsysid.policy.adaptive.env import TrainEnv
+from mjxsysid.policy.adaptive.focus import load_weak, save_weak
 
 
 def _weak():

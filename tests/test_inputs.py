@@ -344,7 +344,7 @@ def test_decoders_of_another_policy_are_an_error(tmp_path):
 
 def test_xadap_npz_and_pairs_files_named_errors(tmp_path):
     from mjxsysid.dataset.collect import load_pairs
-    from mjxsysid.policy.xadap import load_npz
+    from mjxsysid.policy.xadap.network import load_npz
     x = tmp_path / "xadap.npz"
     x.write_bytes(b"PK\x03\x04 truncated")
     with pytest.raises(ValueError, match="xadap.npz: not a readable Xadap weights file"):

@@ -54,7 +54,7 @@ def test_cli_policy_errors(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def xadap_npz(xadap_weights, tmp_path_factory):
-    from mjxsysid.policy.xadap import save_npz
+    from mjxsysid.policy.xadap.network import save_npz
     p = tmp_path_factory.mktemp("xadap") / "xadap.npz"
     save_npz(xadap_weights, p)
     return p

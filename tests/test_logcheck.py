@@ -12,7 +12,7 @@ import pytest
 import mjxsysid
 from mjxsysid import theta as P
 from mjxsysid.cli import main
-from mjxsysid.policy.controller import PolicyController
+from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
 from mjxsysid.studies import logcheck as L

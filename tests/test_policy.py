@@ -9,14 +9,25 @@ import numpy as np
 import pytest
 
 from mjxsysid import theta as P
-from mjxsysid.policy import networks as N
+from mjxsysid.policy.adaptive import networks as N
 from mjxsysid.checkpoint import load_tree, save_tree
-from mjxsysid.policy.controller import PRETRAINED, PolicyCarry, PolicyController
+from mjxsysid.policy.adaptive.controller import PRETRAINED, PolicyCarry, PolicyController
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.policy.env import EnvConfig, TrainEnv
-from mjxsysid.policy.train import (IDENT_TARGET_NAMES, Trainer, TrainConfig, alignment_losses, gae,
-                                   gaussian_logp, identifiable_log, identifiable_projection, schedules,
-                                   train, variance_loss)
+from mjxsysid.policy.adaptive.config import EnvConfig
+from mjxsysid.policy.adaptive.env import TrainEnv
+from mjxsysid.policy.adaptive.losses import (
+    IDENT_TARGET_NAMES,
+    alignment_losses,
+    gae,
+    gaussian_logp,
+    identifiable_log,
+    identifiable_projection,
+    schedules,
+    variance_loss,
+)
+from mjxsysid.policy.adaptive.trainer import Trainer
+from mjxsysid.policy.adaptive.config import TrainConfig
+from mjxsysid.policy.adaptive.train import train
 
 NETS = N.Networks()
 
@@ -35,7 +46,7 @@ def test_network_shapes_and_jit(params):
     mean, log_std = jax.jit(NETS.act)(params, s, z)
     assert z.shape == zh.shape == (5, 8) and mean.shape == (5, 4) and log_std.shape == (4,)
     assert NETS.value(params, s, th, z).shape == (5,)
-    from mjxsysid.policy.train import PARAM_MODULES
+    from mjxsysid.policy.adaptive.config import PARAM_MODULES
     assert set(params) == set(PARAM_MODULES)        # lr_constant's modules are the networks' groups
     assert NETS.decode(params, z).shape == (5, 19)
     assert np.all(np.abs(np.asarray(mean)) <= 1) and np.all(np.abs(np.asarray(zh)) <= 1)
@@ -155,8 +166,8 @@ def test_warm_start_loads_the_policy_and_says_what_is_wrong(tmp_path, tiny_train
     """TrainConfig.init_from: μ, φ, π and aux start from a policy.npz (the probe loop's accumulate
     variant fine-tunes this way); a missing or wrong file is an error naming init_from."""
     import copy
-    from mjxsysid.policy.focus import save_weak
-    from mjxsysid.policy.train import load_policy_params
+    from mjxsysid.policy.adaptive.focus import save_weak
+    from mjxsysid.policy.adaptive.weights import load_policy_params
     tr = copy.copy(tiny_trainer)                   # the tiny Trainer's compiled init, another config
     tr.cfg = dataclasses.replace(tiny_trainer.cfg, init_from=str(PRETRAINED))
     ts = tr.init(jax.random.PRNGKey(3))
@@ -351,7 +362,7 @@ def test_loss_weight_options_share_the_compile_and_train(tiny_trainer, over):
 def test_latent_health_and_trial_summary_on_a_synthetic_latent():
     """A latent that linearly codes log T/W and log τ_m (and nothing about κ) probes as such;
     trial_summary reads the headline numbers from it."""
-    from mjxsysid.policy.evaluate import latent_health, trial_summary
+    from mjxsysid.policy.adaptive.evaluate import latent_health, trial_summary
     th = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(2), 600))
     g = np.asarray(identifiable_log(th))
     rng = np.random.default_rng(0)
@@ -373,7 +384,7 @@ def test_latent_health_and_trial_summary_on_a_synthetic_latent():
     for k in ("train_cmds", "flight"):
         assert all(np.isnan(v) for v in s0[k].values()), s0[k]
         assert not s0[k]["r2_thrust_to_weight"] >= 0.9                  # the bar is failed, not passed
-    from mjxsysid.policy.evaluate import linear_probe_r2
+    from mjxsysid.policy.adaptive.evaluate import linear_probe_r2
     assert np.isnan(linear_probe_r2(zhat[:2], th[:2])).all()          # an empty held-out split
 
 
@@ -382,7 +393,7 @@ def test_latent_health_and_trial_summary_on_a_synthetic_latent():
 def test_fast_eval_tiny_on_shipped_policy():
     """fast_eval end to end (tiny sizes; minutes of CPU compiles): all headline numbers present
     and sane for the shipped policy, which flies every vehicle."""
-    from mjxsysid.policy.evaluate import fast_eval
+    from mjxsysid.policy.adaptive.evaluate import fast_eval
     ctrl = PolicyController.load()
     ev = fast_eval(ctrl.params, n_probe=48, n_lem=4, steps=250, flight_steps=200, period=10.0, log=lambda m: None)
     s = ev["summary"]
@@ -395,11 +406,11 @@ def test_fast_eval_tiny_on_shipped_policy():
 def test_warm_start_normalizer_check_allows_float32_rounding_only():
     """init_from accepts a policy whose normaliser differs in the last bits (another device's
     reductions), not one of another prior, nor one with other keys."""
-    from mjxsysid.policy.train import _same_normalizer
+    from mjxsysid.policy.adaptive.weights import same_normalizer
     norm = {"shift": [0.1, -2.0, 3.5], "scale": [1.0, 0.5, 2.0]}
     near = {k: (np.asarray(v) * (1 + 1e-7)).tolist() for k, v in norm.items()}
     far = {k: (np.asarray(v) * 1.01 + 0.01).tolist() for k, v in norm.items()}
-    assert _same_normalizer(norm, near)
-    assert not _same_normalizer(norm, far)
-    assert not _same_normalizer(norm, {**norm, "flow_map": [[1.0]]})
-    assert not _same_normalizer(norm, {k: v[:-1] for k, v in norm.items()})
+    assert same_normalizer(norm, near)
+    assert not same_normalizer(norm, far)
+    assert not same_normalizer(norm, {**norm, "flow_map": [[1.0]]})
+    assert not same_normalizer(norm, {k: v[:-1] for k, v in norm.items()})

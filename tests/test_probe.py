@@ -76,7 +76,7 @@ def test_probe_bad_input_is_one_line(tmp_path, capsys):
 def test_probe_quick_end_to_end(tmp_path):
     """`mjxsysid probe --quick` (≈ 45 s on 2 CPU cores): weak.npz loads as training focus, the
     report is written, and the weak latents are at least as bad as the anchors on average."""
-    from mjxsysid.policy.focus import load_weak
+    from mjxsysid.policy.adaptive.focus import load_weak
     out = tmp_path / "probe"
     assert main(["probe", "--quick", "--out", str(out), "-q"]) == 0
     theta, meta = load_weak(out / "weak.npz")
@@ -104,7 +104,7 @@ def test_probe_loop_quick_end_to_end(tmp_path):
     tiny retrained policy (the second with its predecessor's own decoders), the control, four
     evaluations, a last probe, the results files; a rerun reuses every stage; another config in
     the same folder is refused."""
-    from mjxsysid.policy.focus import load_weak
+    from mjxsysid.policy.adaptive.focus import load_weak
     out = tmp_path / "loop"
     assert main(["experiment", "probe-loop", "--quick", "--out", str(out), "-q"]) == 0
     r = json.loads((out / "results.json").read_text())

@@ -134,8 +134,10 @@ def test_policy_resume_gives_the_uninterrupted_weights(tmp_path):
     state is in the checkpoint, so a resumed run continues bit for bit (and the iteration compiled
     in the background computes what the jitted one does)."""
     from mjxsysid.checkpoint import load_tree
-    from mjxsysid.policy.train import POLICY_MODULES, TrainConfig, train
-    from mjxsysid.policy import networks as N
+    from mjxsysid.policy.adaptive.weights import POLICY_MODULES
+    from mjxsysid.policy.adaptive.config import TrainConfig
+    from mjxsysid.policy.adaptive.train import train
+    from mjxsysid.policy.adaptive import networks as N
     cfg = TrainConfig(iterations=6, num_envs=32, unroll=8, epochs=1, minibatches=2, log_every=1,
                       checkpoint_every=2)
     # The uninterrupted run on the jitted path, the cut and resumed one compiled in the background.

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 from mjxsysid.cli.decoders import imu_config
-from mjxsysid.policy.env import IMU_FIELDS, EnvConfig, TrainEnv
-from mjxsysid.policy.train import TrainConfig
+from mjxsysid.policy.adaptive.config import IMU_FIELDS, EnvConfig
+from mjxsysid.policy.adaptive.env import TrainEnv
+from mjxsysid.policy.adaptive.config import TrainConfig
 from mjxsysid.sim import SimConfig
 
 RANGE = dict(gyro_noise=0.05, accel_noise=0.5, gyro_bias=0.025, accel_bias=0.25, randomize_imu=True)
@@ -89,7 +90,7 @@ def test_tiny_pipeline_with_randomized_imu(tmp_path):
 @pytest.mark.slow
 def test_tiny_policy_training_with_randomized_imu(tmp_path):
     """Two PPO iterations of the tiny training with the noise range: it runs, finite."""
-    from mjxsysid.policy.train import train
+    from mjxsysid.policy.adaptive.train import train
     tiny = dict(num_envs=64, unroll=16, epochs=2, minibatches=4, log_every=1, checkpoint_every=4,
                 warmup=0.3, ramp=0.3)
     res = train(TrainConfig(iterations=2, env=EnvConfig(**RANGE), **tiny), tmp_path, resume=False, log=lambda *a, **k: None)

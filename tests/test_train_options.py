@@ -10,7 +10,8 @@ import numpy as np
 import optax
 import pytest
 
-from mjxsysid.policy.train import Trainer, TrainConfig, optimizer
+from mjxsysid.policy.adaptive.trainer import Trainer, optimizer
+from mjxsysid.policy.adaptive.config import TrainConfig
 
 MICRO = TrainConfig(num_envs=8, unroll=4, epochs=1, minibatches=2, iterations=2, reset_per_unroll=True)
 

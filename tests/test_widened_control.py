@@ -9,8 +9,8 @@ import pytest
 
 from mjxsysid import theta as P
 from mjxsysid.experiments.probe_loop import QUICK, control_budget, probe_reach, run
-from mjxsysid.policy.train import identifiable_log
-from mjxsysid.policy.train import TrainConfig
+from mjxsysid.policy.adaptive.losses import identifiable_log
+from mjxsysid.policy.adaptive.config import TrainConfig
 
 
 def test_widened_prior_is_the_prior_at_zero_and_wider_and_valid_beyond():

@@ -1,4 +1,4 @@
-"""The released Xadap policy as a low-level controller (mjxsysid.policy.xadap_controller).
+"""The released Xadap policy as a low-level controller (mjxsysid.policy.xadap.controller).
 
 Needs the released policy files (env var MJXSYSID_XADAP_DIR, default
 ``<repo>/../shared/external/xadap``) and the optional ``onnx`` package; the tests that need
@@ -15,11 +15,9 @@ import pytest
 
 from mjxsysid import theta as P
 from mjxsysid.control.low_level import Command
-from mjxsysid.policy.xadap import (build_history_input, normalize_state,
-                                   xadap_encoder, xadap_policy)
+from mjxsysid.policy.xadap.network import build_history_input, normalize_state, xadap_encoder, xadap_policy
 from mjxsysid.theta import XAdapPrior, xadap_training_prior
-from mjxsysid.policy.xadap_controller import (NN_TO_MJX, XAdapController, butterworth2,
-                                              make_xadap_low_level)
+from mjxsysid.policy.xadap.controller import NN_TO_MJX, XAdapController, butterworth2, make_xadap_low_level
 
 REPO = Path(__file__).resolve().parents[1]
 G = np.float32(P.GRAVITY)

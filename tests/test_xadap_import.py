@@ -14,16 +14,16 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxsysid.policy import xadap
-from mjxsysid.policy.xadap import (
+from mjxsysid.policy.xadap import network as xadap
+from mjxsysid.policy.xadap.network import (
     build_history_input,
     load_npz,
-    load_xadap,
     normalize_state,
     save_npz,
     xadap_encoder,
     xadap_policy,
 )
+from mjxsysid.policy.xadap.onnx_import import load_xadap
 
 REPO = Path(__file__).resolve().parents[1]
 N_SAMPLES = 64

@@ -6,7 +6,7 @@
 #   tools/xadap_pipeline.sh WEIGHTS OUT [STAGES]
 #
 # WEIGHTS: the folder of the released files (encoder.onnx, mlp.onnx, mean.csv, var.csv) or a
-# converted .npz (mjxsysid.policy.xadap.save_npz; no onnx needed then). OUT: output folder.
+# converted .npz (mjxsysid.policy.xadap.network.save_npz; no onnx needed then). OUT: output folder.
 # STAGES: any of "fly collect train evaluate replay" (default: all). Ship the decoders with
 #   cp OUT/dec/{cfm,regression}.{npz,json} mjxsysid/pretrained/xadap/
 set -euo pipefail

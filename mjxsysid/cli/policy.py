@@ -29,7 +29,8 @@ def add_train_policy(sub) -> None:
 
 
 def cmd_train_policy(args) -> int:
-    from mjxsysid.policy.train import TrainConfig, config_with_overrides, train
+    from mjxsysid.policy.adaptive.config import TrainConfig, config_with_overrides
+    from mjxsysid.policy.adaptive.train import train
     cfg_dict = config_with_overrides(args.config)
     for k, v in (("iterations", args.iterations), ("num_envs", args.num_envs), ("seed", args.seed)):
         if v is not None:
@@ -41,7 +42,7 @@ def cmd_train_policy(args) -> int:
             raise ValueError(f"--focus-weight must be in [0, 1], got {args.focus_weight}")
         cfg_dict["env"] = dict(cfg_dict["env"], focus_weight=args.focus_weight)
     if cfg_dict.get("focus") is not None:
-        from mjxsysid.policy.focus import load_weak
+        from mjxsysid.policy.adaptive.focus import load_weak
         n = len(load_weak(cfg_dict["focus"])[0])     # checked before anything trains
         echo(f"focus: {n} weak systems from {cfg_dict['focus']}, {cfg_dict['env']['focus_weight']:.0%} of episodes")
     try:
@@ -86,13 +87,13 @@ def cmd_evaluate_policy(args) -> int:
         raise ValueError("--weights: one policy (several only with --held-out)")
     args.weights = None if args.weights is None else Path(args.weights[0])
     args.vehicles = 1000 if args.vehicles is None else args.vehicles
-    from mjxsysid.policy.evaluate import evaluate_policy
+    from mjxsysid.policy.adaptive.evaluate import evaluate_policy
     if args.vehicles < 10:
         raise ValueError(f"--vehicles must be >= 10 (linear probes need data), got {args.vehicles}")
     args.out.mkdir(parents=True, exist_ok=True)
     if args.fast:
-        from mjxsysid.policy.controller import PolicyController
-        from mjxsysid.policy.evaluate import fast_eval
+        from mjxsysid.policy.adaptive.controller import PolicyController
+        from mjxsysid.policy.adaptive.evaluate import fast_eval
         ctrl = PolicyController.load(args.weights)
         res = fast_eval(ctrl.params, n_probe=2 * args.vehicles, n_lem=args.vehicles, seed=args.seed,
                         phi_every=ctrl.phi_every, log=echo)
@@ -139,7 +140,7 @@ def add_export(sub) -> None:
 
 
 def cmd_export(args) -> int:
-    from mjxsysid.policy.export import ExportConfig, check_out
+    from mjxsysid.policy.export.run import ExportConfig, check_out
     check_out(args.out)
     if args.calls < 10:
         raise ValueError(f"--calls must be >= 10, got {args.calls}")
@@ -155,7 +156,7 @@ def cmd_export(args) -> int:
     except ImportError as e:
         raise ValueError(f"export needs jax2onnx and onnxruntime ({e.name} missing): "
                          f"pip install 'mjxsysid[export]'") from None
-    from mjxsysid.policy.export import run_export
+    from mjxsysid.policy.export.run import run_export
     cfg = ExportConfig(flight_seconds=args.seconds, latency_calls=args.calls)
     d = run_export(ref, args.out, cfg, log=lambda m: print(m, file=sys.stderr, flush=True))
     par, lat = d["parity"], d["latency"]["batch_1"]

@@ -32,7 +32,7 @@ from mjxsysid import theta as P
 from mjxsysid.checkpoint import open_npz
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import MinSnap, Switch, stack
-from mjxsysid.policy import networks as N
+from mjxsysid.policy.adaptive import networks as N
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.progress import progress, tee
 from mjxsysid.rollout.flight import broadcast, random_lemniscates

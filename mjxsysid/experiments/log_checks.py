@@ -20,7 +20,7 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.experiments.common import leaf_table, write_results
-from mjxsysid.policy.controller import PolicyController
+from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles, seen_imu
 from mjxsysid.sim import Quadrotor, SimConfig

@@ -2,8 +2,8 @@
 
 A *latent policy* is a low-level controller (:mod:`mjxsysid.control.low_level`) that also
 exposes its latent. Both mjxsysid's own trained policy
-(:class:`~mjxsysid.policy.controller.PolicyController`) and the released Extreme-Adaptation
-policy (:class:`~mjxsysid.policy.xadap_controller.XAdapController`) implement it:
+(:class:`~mjxsysid.policy.adaptive.controller.PolicyController`) and the released Extreme-Adaptation
+policy (:class:`~mjxsysid.policy.xadap.controller.XAdapController`) implement it:
 
 =====================  ===================================================================
 ``init(key)``          empty per-episode memory (history buffer, last action, ẑ, counters)
@@ -38,9 +38,10 @@ import jax
 import numpy as np
 
 from mjxsysid.checkpoint import open_npz
-from mjxsysid.policy.controller import PolicyController
-from mjxsysid.policy.xadap import _FIELDS, load_npz, load_xadap
-from mjxsysid.policy.xadap_controller import XAdapController
+from mjxsysid.policy.adaptive.controller import PolicyController
+from mjxsysid.policy.xadap.network import FIELDS, load_npz
+from mjxsysid.policy.xadap.onnx_import import load_xadap
+from mjxsysid.policy.xadap.controller import XAdapController
 
 PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
 POLICY_NAMES = ("mjxsysid", "xadap")
@@ -127,7 +128,7 @@ def file_sha256(path) -> str:
 def _xadap_digest(path: Path) -> str:
     w = load_npz(path) if path.is_file() else load_xadap(path)
     h = hashlib.sha256()
-    for k in _FIELDS:
+    for k in FIELDS:
         h.update(np.ascontiguousarray(np.asarray(getattr(w, k))).tobytes())
     return h.hexdigest()
 

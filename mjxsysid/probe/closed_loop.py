@@ -29,7 +29,7 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.dataset.collect import latents_in_flight
-from mjxsysid.policy.focus import save_weak
+from mjxsysid.policy.adaptive.focus import save_weak
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.probe.search import SearchConfig, latent_search
 from mjxsysid.render.probe import QUANTITIES, plot_weak_vs_prior, quantities

@@ -31,7 +31,7 @@ from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.dataset.collect import decode_indices
-from mjxsysid.policy import networks as N
+from mjxsysid.policy.adaptive import networks as N
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.progress import stages
 from mjxsysid.render.posterior import plot_decoded_over_time, plot_information_gap, plot_marginals

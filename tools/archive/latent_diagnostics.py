@@ -20,14 +20,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import theta as P
-from mjxsysid.policy import networks as N
-from mjxsysid.policy.env import EnvConfig, TrainEnv
-from mjxsysid.policy.evaluate import env_rollout, linear_probe_r2
-from mjxsysid.policy.train import (
-    IDENT_TARGET_NAMES,
-    identifiable_log,
-    load_policy_params,
-)
+from mjxsysid.policy.adaptive import networks as N
+from mjxsysid.policy.adaptive.config import EnvConfig
+from mjxsysid.policy.adaptive.env import TrainEnv
+from mjxsysid.policy.adaptive.evaluate import env_rollout, linear_probe_r2
+from mjxsysid.policy.adaptive.losses import IDENT_TARGET_NAMES, identifiable_log
+from mjxsysid.policy.adaptive.weights import load_policy_params
 
 
 def main(argv=None) -> int:

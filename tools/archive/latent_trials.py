@@ -1,6 +1,6 @@
 """Short controlled trials on the policy latent (issue 11 §2): one factor changed at a time from
 the shipped TrainConfig, each trained for the same reduced number of iterations (the control is
-the shipped config at that length) and scored with :func:`mjxsysid.policy.evaluate.fast_eval`.
+the shipped config at that length) and scored with :func:`mjxsysid.policy.adaptive.evaluate.fast_eval`.
 
     python tools/latent_trials.py --out OUT [--iterations 400] [--budget-s 430] [--full-eval]
 
@@ -25,9 +25,14 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid.policy.evaluate import evaluate_policy, fast_eval
-from mjxsysid.policy.train import LOSS_WEIGHT_FIELDS, Trainer, TrainConfig, load_policy_params, train
-from mjxsysid.policy.env import EnvConfig, TrainEnv
+from mjxsysid.policy.adaptive.evaluate import evaluate_policy, fast_eval
+from mjxsysid.policy.adaptive.losses import LOSS_WEIGHT_FIELDS
+from mjxsysid.policy.adaptive.trainer import Trainer
+from mjxsysid.policy.adaptive.config import TrainConfig
+from mjxsysid.policy.adaptive.weights import load_policy_params
+from mjxsysid.policy.adaptive.train import train
+from mjxsysid.policy.adaptive.config import EnvConfig
+from mjxsysid.policy.adaptive.env import TrainEnv
 from mjxsysid.sim import Quadrotor
 
 BASE_ENV = EnvConfig()

@@ -23,7 +23,7 @@ def imu_config(rel: Release):
     env = (load_meta(rel.policy_path).get("config") or {}).get("env", {})
     if not env.get("randomize_imu"):
         return SimConfig()
-    from mjxsysid.policy.env import IMU_FIELDS
+    from mjxsysid.policy.adaptive.config import IMU_FIELDS
     return SimConfig(**{k: env.get(k, getattr(SimConfig(), k)) for k in IMU_FIELDS})
 
 

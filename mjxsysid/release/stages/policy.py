@@ -28,7 +28,7 @@ def train_config(rel: Release) -> dict:
     """The TrainConfig dict the policy stage trains with: the default config with the overrides
     of the release's policy config, and the sizes' ``train`` overrides on top (a tiny release:
     warm-started from the shipped policy unless the config names one)."""
-    from mjxsysid.policy.train import TrainConfig, config_with_overrides
+    from mjxsysid.policy.adaptive.config import TrainConfig, config_with_overrides
     cfg = config_with_overrides(config_path(rel.options.policy_config))
     if rel.sizes.train:
         from mjxsysid.policy.interface import PRETRAINED_DIR
@@ -55,7 +55,8 @@ def policy(rel: Release, out: Path) -> StageResult:
                            config={"adopted_from": str(src), "sha256": file_sha256(out / "policy.npz"),
                                    "train_config": meta.get("config")},
                            figures={"trained_wall_s": meta.get("wall_s"), "trained_on": meta.get("device")})
-    from mjxsysid.policy.train import TrainConfig, train
+    from mjxsysid.policy.adaptive.config import TrainConfig
+    from mjxsysid.policy.adaptive.train import train
     cfg_dict = train_config(rel)
     res = train(TrainConfig.from_dict(cfg_dict), out, resume=True, log=rel.log)
     stats = res["stats"]
@@ -80,7 +81,7 @@ def policy_eval(rel: Release, out: Path) -> StageResult:
 
     from mjxsysid.experiments.heldout import SETS
     from mjxsysid.experiments.heldout import run as heldout_run
-    from mjxsysid.policy.evaluate import evaluate_policy
+    from mjxsysid.policy.adaptive.evaluate import evaluate_policy
     from mjxsysid.policy.interface import file_sha256
     sz = rel.sizes
     ev = evaluate_policy(rel.policy_path, n=sz.eval_vehicles, seed=0, log=rel.log)

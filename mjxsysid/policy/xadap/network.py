@@ -1,12 +1,13 @@
-"""Importer for the released Extreme-Adaptation ("Xadap") quadrotor policy (ONNX → pure JAX).
+"""The released Extreme-Adaptation ("Xadap") quadrotor policy's networks in pure JAX.
 
 The released policy (``encoder.onnx``, ``mlp.onnx``, ``mean.csv``, ``var.csv``; see the
-README next to the files) is read once with ``onnx`` into an :class:`XAdapWeights` pytree;
-everything after that is plain ``jax.numpy`` and works under ``jit``/``vmap``/``grad``
-without ``onnx`` installed (use :func:`save_npz` / :func:`load_npz` to carry converted weights).
+README next to the files) is read once with ``onnx`` into an :class:`XAdapWeights` pytree
+(:func:`mjxsysid.policy.xadap.onnx_import.load_xadap`); everything here is plain ``jax.numpy``
+and works under ``jit``/``vmap``/``grad`` without ``onnx`` installed (use :func:`save_npz` /
+:func:`load_npz` to carry converted weights).
 
 The JAX functions follow the ONNX node lists exactly (opset 11, exported by PyTorch 2.1.2);
-:func:`load_xadap` refuses any graph whose node list, attributes or weight shapes differ.
+``load_xadap`` refuses any graph whose node list, attributes or weight shapes differ.
 
 ``encoder.onnx`` — adaptation module φ, input ``(1, 1200)`` → latent ``(1, 8)``::
 
@@ -67,7 +68,6 @@ from mjxsysid.checkpoint import open_npz
 
 __all__ = [
     "XAdapWeights",
-    "load_xadap",
     "xadap_encoder",
     "xadap_policy",
     "normalize_state",
@@ -94,13 +94,13 @@ HISTORY_DIM = HISTORY_LEN * OBS_DIM  # 1200
 POLICY_INPUT_DIM = OBS_DIM + LATENT_DIM  # 20
 N_STATS = 46  # 12 policy-input entries + 34 privileged parameters
 NORM_EPS = 1e-8
-_LEAKY_ALPHA = np.float32(0.01)  # stored in the graph as float32 0.009999999776482582
+LEAKY_ALPHA = np.float32(0.01)  # stored in the graph as float32 0.009999999776482582
 _HIGHEST = jax.lax.Precision.HIGHEST
 PRECISIONS = ("highest", "default")
 _NPZ_FORMAT = "mjxsysid.xadap/1"
 
 # Weight field name -> (ONNX initializer name, shape). Encoder first, then policy.
-_ENCODER_WEIGHTS: dict[str, tuple[str, tuple[int, ...]]] = {
+ENCODER_WEIGHTS: dict[str, tuple[str, tuple[int, ...]]] = {
     "enc_in_w": ("encoder.0.weight", (32, OBS_DIM)),
     "enc_in_b": ("encoder.0.bias", (32,)),
     "enc_conv0_w": ("conv_layers.0.weight", (32, 32, 8)),
@@ -112,7 +112,7 @@ _ENCODER_WEIGHTS: dict[str, tuple[str, tuple[int, ...]]] = {
     "enc_out_w": ("linear_output.0.weight", (LATENT_DIM, 512)),
     "enc_out_b": ("linear_output.0.bias", (LATENT_DIM,)),
 }
-_POLICY_WEIGHTS: dict[str, tuple[str, tuple[int, ...]]] = {
+POLICY_WEIGHTS: dict[str, tuple[str, tuple[int, ...]]] = {
     "pi_feat0_w": ("mlp_extractor.shared_net.0.weight", (128, OBS_DIM)),
     "pi_feat0_b": ("mlp_extractor.shared_net.0.bias", (128,)),
     "pi_feat1_w": ("mlp_extractor.shared_net.2.weight", (128, 128)),
@@ -179,13 +179,13 @@ class XAdapWeights:
     var: Any  # (46,)
 
 
-_FIELDS: tuple[str, ...] = tuple(_ENCODER_WEIGHTS) + tuple(_POLICY_WEIGHTS) + tuple(_STAT_SHAPES)
+FIELDS: tuple[str, ...] = tuple(ENCODER_WEIGHTS) + tuple(POLICY_WEIGHTS) + tuple(_STAT_SHAPES)
 _EXPECTED_SHAPES: dict[str, tuple[int, ...]] = {
-    **{k: v[1] for k, v in _ENCODER_WEIGHTS.items()},
-    **{k: v[1] for k, v in _POLICY_WEIGHTS.items()},
+    **{k: v[1] for k, v in ENCODER_WEIGHTS.items()},
+    **{k: v[1] for k, v in POLICY_WEIGHTS.items()},
     **_STAT_SHAPES,
 }
-assert set(_FIELDS) == {f.name for f in XAdapWeights.__dataclass_fields__.values()}
+assert set(FIELDS) == {f.name for f in XAdapWeights.__dataclass_fields__.values()}
 
 
 # --------------------------------------------------------------------------------------
@@ -228,7 +228,7 @@ def _conv1d(x: jax.Array, w, b, stride: int, precision=_HIGHEST) -> jax.Array:
 
 
 def _leaky_relu(x: jax.Array) -> jax.Array:
-    return jnp.where(x >= 0, x, jnp.asarray(_LEAKY_ALPHA, x.dtype) * x)
+    return jnp.where(x >= 0, x, jnp.asarray(LEAKY_ALPHA, x.dtype) * x)
 
 
 def _encoder_batched(w: XAdapWeights, x: jax.Array, pr=_HIGHEST) -> jax.Array:
@@ -325,262 +325,6 @@ def build_history_input(w: XAdapWeights, states, actions) -> jax.Array:
 
 
 # --------------------------------------------------------------------------------------
-# ONNX loading and graph validation
-# --------------------------------------------------------------------------------------
-
-
-class _Graph:
-    """Minimal view of an ONNX graph for structure checks."""
-
-    def __init__(self, onnx_mod, model, fname: str):
-        from onnx import numpy_helper
-
-        self.fname = fname
-        g = model.graph
-        self.inits = {t.name: numpy_helper.to_array(t) for t in g.initializer}
-        self.consts: dict[str, np.ndarray] = {}
-        self.nodes = []
-        for n in g.node:
-            attrs = {a.name: onnx_mod.helper.get_attribute_value(a) for a in n.attribute}
-            if n.op_type == "Constant":
-                if "value" not in attrs or len(n.output) != 1:
-                    self.fail(f"unsupported Constant node {n.name!r}")
-                self.consts[n.output[0]] = numpy_helper.to_array(attrs["value"])
-                continue
-            self.nodes.append((n.op_type, list(n.input), list(n.output), attrs))
-        self.inputs = [i for i in g.input if i.name not in self.inits]
-        self.outputs = list(g.output)
-
-    def fail(self, msg: str):
-        raise ValueError(f"{self.fname}: unexpected graph structure: {msg}")
-
-    def io_shape(self, vi) -> tuple:
-        return tuple(d.dim_value if d.HasField("dim_value") else d.dim_param
-                     for d in vi.type.tensor_type.shape.dim)
-
-    def check_io(self, in_shape: tuple, out_shape: tuple) -> tuple[str, str]:
-        if len(self.inputs) != 1 or len(self.outputs) != 1:
-            self.fail(f"expected 1 input and 1 output, got {len(self.inputs)} and "
-                      f"{len(self.outputs)}")
-        i, o = self.inputs[0], self.outputs[0]
-        for vi, want, what in ((i, in_shape, "input"), (o, out_shape, "output")):
-            if vi.type.tensor_type.elem_type != 1:  # TensorProto.FLOAT
-                self.fail(f"{what} {vi.name!r} is not float32")
-            got = self.io_shape(vi)
-            if len(got) != len(want) or any(isinstance(g_, int) and g_ != w_
-                                            for g_, w_ in zip(got, want)):
-                self.fail(f"{what} {vi.name!r} has shape {got}, expected {want}")
-        return i.name, o.name
-
-    def check_ops(self, expected: list[str]) -> None:
-        got = [n[0] for n in self.nodes]
-        if got != expected:
-            self.fail(f"non-Constant op sequence {got} != expected {expected}")
-
-    def const(self, name: str, what: str) -> np.ndarray:
-        if name in self.consts:
-            return self.consts[name]
-        if name in self.inits:
-            return self.inits[name]
-        self.fail(f"{what}: {name!r} is not a constant")
-
-    def weight(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
-        if name not in self.inits:
-            self.fail(f"missing initializer {name!r}")
-        a = self.inits[name]
-        if a.shape != shape or a.dtype != np.float32:
-            self.fail(f"initializer {name!r} has shape {a.shape} / dtype {a.dtype}, "
-                      f"expected {shape} / float32")
-        return a
-
-    def chain(self, start: int, x: str, spec: list[tuple]) -> str:
-        """Check nodes[start:start+len(spec)] form a chain fed by ``x``; returns last output.
-
-        spec entries: ("Gemm", W, b) | ("Tanh",) | ("LeakyRelu", alpha) | ("Flatten", axis)
-        | ("Reshape", shape) | ("Conv", W, b, kernel, stride).
-        """
-        for k, item in enumerate(spec):
-            op, ins, outs, attrs = self.nodes[start + k]
-            where = f"node {start + k} ({op})"
-            if op != item[0]:
-                self.fail(f"{where}: expected {item[0]}")
-            if not ins or ins[0] != x:
-                self.fail(f"{where}: data input {ins[:1]} is not {x!r}")
-            if len(outs) != 1:
-                self.fail(f"{where}: expected one output")
-            if op == "Gemm":
-                ok = (ins[1:] == [item[1], item[2]]
-                      and float(attrs.get("alpha", 1.0)) == 1.0
-                      and float(attrs.get("beta", 1.0)) == 1.0
-                      and int(attrs.get("transA", 0)) == 0
-                      and int(attrs.get("transB", 0)) == 1)
-                if not ok:
-                    self.fail(f"{where}: expected Gemm(x, {item[1]}, {item[2]}, alpha=1, "
-                              f"beta=1, transB=1), got inputs {ins}, attrs {attrs}")
-            elif op == "Tanh":
-                if len(ins) != 1:
-                    self.fail(f"{where}: unexpected inputs {ins}")
-            elif op == "LeakyRelu":
-                if abs(float(attrs.get("alpha", 0.01)) - item[1]) > 1e-7:
-                    self.fail(f"{where}: alpha {attrs.get('alpha')} != {item[1]}")
-            elif op == "Flatten":
-                if int(attrs.get("axis", 1)) != item[1]:
-                    self.fail(f"{where}: axis {attrs.get('axis')} != {item[1]}")
-            elif op == "Reshape":
-                shape = self.const(ins[1], where).tolist()
-                if shape != list(item[1]) or int(attrs.get("allowzero", 0)) != 0:
-                    self.fail(f"{where}: target shape {shape} != {list(item[1])}")
-            elif op == "Conv":
-                _, w_name, b_name, kernel, stride = item
-                ok = (ins[1:] == [w_name, b_name]
-                      and list(attrs.get("kernel_shape", [kernel])) == [kernel]
-                      and list(attrs.get("strides", [1])) == [stride]
-                      and list(attrs.get("pads", [0, 0])) == [0, 0]
-                      and list(attrs.get("dilations", [1])) == [1]
-                      and int(attrs.get("group", 1)) == 1
-                      and attrs.get("auto_pad", b"NOTSET") in (b"NOTSET", "NOTSET"))
-                if not ok:
-                    self.fail(f"{where}: expected Conv({w_name}, kernel {kernel}, stride "
-                              f"{stride}, no padding), got inputs {ins}, attrs {attrs}")
-            else:  # pragma: no cover - spec error
-                raise AssertionError(op)
-            x = outs[0]
-        return x
-
-    def check_slice(self, idx: int, x: str, start: int, end_pred, what: str) -> str:
-        op, ins, outs, _ = self.nodes[idx]
-        if op != "Slice" or len(ins) < 3 or ins[0] != x:
-            self.fail(f"node {idx}: expected Slice of {x!r} ({what})")
-        starts = self.const(ins[1], what).tolist()
-        ends = self.const(ins[2], what).tolist()
-        axes = self.const(ins[3], what).tolist() if len(ins) > 3 and ins[3] else [0]
-        steps = self.const(ins[4], what).tolist() if len(ins) > 4 and ins[4] else [1]
-        if not (starts == [start] and len(ends) == 1 and end_pred(ends[0])
-                and axes in ([1], [-1]) and steps == [1]):
-            self.fail(f"node {idx}: {what} Slice starts={starts} ends={ends} axes={axes} "
-                      f"steps={steps}")
-        return outs[0]
-
-
-def _import_onnx():
-    try:
-        import onnx
-    except ImportError as e:  # pragma: no cover - depends on environment
-        raise ImportError(
-            "load_xadap needs the optional 'onnx' package to read encoder.onnx/mlp.onnx: "
-            "pip install onnx  (or pip install 'mjxsysid[dev]'); converted weights saved "
-            "with save_npz() load without it via load_npz()."
-        ) from e
-    return onnx
-
-
-def _read_encoder(onnx_mod, path: Path) -> dict[str, np.ndarray]:
-    g = _Graph(onnx_mod, onnx_mod.load(str(path)), path.name)
-    x, y = g.check_io((1, HISTORY_DIM), (1, LATENT_DIM))
-    g.check_ops(["Reshape", "Gemm", "Tanh", "Reshape", "Conv", "LeakyRelu", "Conv",
-                 "LeakyRelu", "Conv", "LeakyRelu", "Flatten", "Gemm", "Tanh"])
-    a = float(_LEAKY_ALPHA)
-    out = g.chain(0, x, [
-        ("Reshape", (HISTORY_LEN, -1)),
-        ("Gemm", "encoder.0.weight", "encoder.0.bias"),
-        ("Tanh",),
-        ("Reshape", (1, -1, HISTORY_LEN)),
-        ("Conv", "conv_layers.0.weight", "conv_layers.0.bias", 8, 4),
-        ("LeakyRelu", a),
-        ("Conv", "conv_layers.2.weight", "conv_layers.2.bias", 5, 1),
-        ("LeakyRelu", a),
-        ("Conv", "conv_layers.4.weight", "conv_layers.4.bias", 5, 1),
-        ("LeakyRelu", a),
-        ("Flatten", 1),
-        ("Gemm", "linear_output.0.weight", "linear_output.0.bias"),
-        ("Tanh",),
-    ])
-    if out != y:
-        g.fail(f"final Tanh output {out!r} is not the graph output {y!r}")
-    return {k: g.weight(name, shape) for k, (name, shape) in _ENCODER_WEIGHTS.items()}
-
-
-def _read_policy(onnx_mod, path: Path) -> dict[str, np.ndarray]:
-    g = _Graph(onnx_mod, onnx_mod.load(str(path)), path.name)
-    x, y = g.check_io((1, POLICY_INPUT_DIM), (1, ACTION_DIM))
-    g.check_ops(["Slice", "Gemm", "Tanh", "Gemm", "Tanh", "Gemm", "Tanh", "Slice", "Concat",
-                 "Gemm", "Tanh", "Gemm", "Tanh", "Gemm", "Tanh",
-                 "Exp", "Mul", "Shape", "ConstantOfShape", "Add", "Add", "Shape", "Expand"])
-    obs = g.check_slice(0, x, 0, lambda e: e == -LATENT_DIM, "observation")
-    feat = g.chain(1, obs, [
-        ("Gemm", "mlp_extractor.shared_net.0.weight", "mlp_extractor.shared_net.0.bias"),
-        ("Tanh",),
-        ("Gemm", "mlp_extractor.shared_net.2.weight", "mlp_extractor.shared_net.2.bias"),
-        ("Tanh",),
-        ("Gemm", "mlp_extractor.shared_net.4.weight", "mlp_extractor.shared_net.4.bias"),
-        ("Tanh",),
-    ])
-    lat = g.check_slice(7, x, -LATENT_DIM, lambda e: e >= 2**31 - 1, "latent")
-    op, ins, outs, attrs = g.nodes[8]
-    if ins != [feat, lat] or int(attrs.get("axis", 0)) not in (1, -1):
-        g.fail(f"node 8: expected Concat([{feat!r}, {lat!r}], axis=1), got {ins}, {attrs}")
-    mean = g.chain(9, outs[0], [
-        ("Gemm", "mlp_extractor.policy_net.0.weight", "mlp_extractor.policy_net.0.bias"),
-        ("Tanh",),
-        ("Gemm", "mlp_extractor.policy_net.2.weight", "mlp_extractor.policy_net.2.bias"),
-        ("Tanh",),
-        ("Gemm", "action_net.0.weight", "action_net.0.bias"),
-        ("Tanh",),
-    ])
-    # Tail: Exp(log_std) ... Expand(mean, Shape(...)). The graph output must be the
-    # Expand of the mean head (the log-std branch only provides a shape).
-    if g.nodes[15][1] != ["log_std"]:
-        g.fail(f"node 15: expected Exp(log_std), got inputs {g.nodes[15][1]}")
-    op, ins, outs, _ = g.nodes[-1]
-    if ins[0] != mean or outs[0] != y:
-        g.fail(f"graph output {y!r} is not Expand of the mean head {mean!r} "
-               f"(Expand inputs {ins}, outputs {outs})")
-    return {k: g.weight(name, shape) for k, (name, shape) in _POLICY_WEIGHTS.items()}
-
-
-def _read_stats(path: Path) -> np.ndarray:
-    try:
-        a = np.loadtxt(path, dtype=np.float64, delimiter=None, ndmin=1).reshape(-1)
-    except ValueError as e:
-        raise ValueError(f"{path.name}: cannot parse as whitespace-separated numbers: {e}") from e
-    if a.shape != (N_STATS,):
-        raise ValueError(f"{path.name}: expected {N_STATS} values, got {a.size}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{path.name}: contains non-finite values")
-    return a
-
-
-def load_xadap(path) -> XAdapWeights:
-    """Read ``encoder.onnx``, ``mlp.onnx``, ``mean.csv``, ``var.csv`` from directory ``path``.
-
-    Checks every node, attribute and weight shape against the known graphs (see module
-    docstring) and raises ``ValueError`` naming the file on any mismatch;
-    ``FileNotFoundError`` names a missing directory or file. Needs ``onnx`` (imported
-    lazily; ``ImportError`` otherwise).
-    """
-    d = Path(path).expanduser()
-    if not d.is_dir():
-        raise FileNotFoundError(
-            f"Xadap policy directory not found: {str(d)!r} (expected encoder.onnx, mlp.onnx, "
-            "mean.csv, var.csv)")
-    files = {n: d / n for n in ("encoder.onnx", "mlp.onnx", "mean.csv", "var.csv")}
-    for n, p in files.items():
-        if not p.is_file():
-            raise FileNotFoundError(f"Xadap policy file missing: {str(p)!r} ({n})")
-    onnx_mod = _import_onnx()
-    arrays: dict[str, np.ndarray] = {}
-    arrays.update(_read_encoder(onnx_mod, files["encoder.onnx"]))
-    arrays.update(_read_policy(onnx_mod, files["mlp.onnx"]))
-    mean = _read_stats(files["mean.csv"])
-    var = _read_stats(files["var.csv"])
-    if np.any(var < 0):
-        raise ValueError("var.csv: contains negative variances")
-    arrays.update(mean=mean, var=var, obs_mean=mean[:OBS_DIM].copy(),
-                  obs_var=var[:OBS_DIM].copy())
-    return XAdapWeights(**{k: np.array(arrays[k]) for k in _FIELDS})
-
-
-# --------------------------------------------------------------------------------------
 # Compact converted copy (.npz, no pickle)
 # --------------------------------------------------------------------------------------
 
@@ -590,7 +334,7 @@ def save_npz(w: XAdapWeights, path) -> None:
 
     Arrays keep their dtypes (float32 weights, float64 statistics); no pickled objects.
     """
-    arrays = {k: np.asarray(getattr(w, k)) for k in _FIELDS}
+    arrays = {k: np.asarray(getattr(w, k)) for k in FIELDS}
     np.savez(path, __format__=np.array(_NPZ_FORMAT), **arrays)
 
 
@@ -607,10 +351,10 @@ def load_npz(path) -> XAdapWeights:
         if fmt != _NPZ_FORMAT:
             raise ValueError(f"{p.name}: not an Xadap weights file (format {fmt!r}, "
                              f"expected {_NPZ_FORMAT!r})")
-        missing = [k for k in _FIELDS if k not in keys]
+        missing = [k for k in FIELDS if k not in keys]
         if missing:
             raise ValueError(f"{p.name}: missing arrays {missing}")
-        arrays = {k: np.array(z[k]) for k in _FIELDS}
+        arrays = {k: np.array(z[k]) for k in FIELDS}
     for k, a in arrays.items():
         if a.shape != _EXPECTED_SHAPES[k]:
             raise ValueError(f"{p.name}: array {k!r} has shape {a.shape}, expected "

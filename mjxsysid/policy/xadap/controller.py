@@ -16,7 +16,7 @@ closed-loop checks in mjxsysid):
   mjxsysid's body frame (x forward, y left, z up) is the network's frame: no sign change
   (positive roll / pitch / yaw-rate commands produce positive body rates in closed loop).
 * **policy input** (20) = [normalize_state([s_k, r_{k−1}]) (12), ẑ_k (8)].
-* **adaptation input** (1200) = :func:`~mjxsysid.policy.xadap.build_history_input` of the
+* **adaptation input** (1200) = :func:`~mjxsysid.policy.xadap.network.build_history_input` of the
   last 100 *previous* policy steps (oldest first): at step k the history holds
   s_{k−100..k−1} and r_{k−100..k−1}; s_k and r_k are appended *after* φ and π ran (as the
   wrapper does; appending s_k first flies identically). ẑ_k = φ(history) is recomputed at
@@ -64,7 +64,7 @@ import numpy as np
 from flax import struct
 
 from mjxsysid.control.low_level import Command
-from mjxsysid.policy.xadap import (
+from mjxsysid.policy.xadap.network import (
     ACTION_DIM,
     HISTORY_LEN,
     LATENT_DIM,
@@ -73,11 +73,11 @@ from mjxsysid.policy.xadap import (
     XAdapWeights,
     build_history_input,
     load_npz,
-    load_xadap,
     normalize_state,
     xadap_encoder,
     xadap_policy,
 )
+from mjxsysid.policy.xadap.onnx_import import load_xadap
 
 __all__ = [
     "XAdapController",
@@ -157,7 +157,7 @@ class XAdapController:
              accel_filter: bool | str = True,
              accel_cutoff_hz: float = 30.0, precision: str = "highest") -> "XAdapController":
         """Build from a directory of the released files (``encoder.onnx`` ...; needs ``onnx``),
-        an ``.npz`` from :func:`~mjxsysid.policy.xadap.save_npz`, or :class:`XAdapWeights`.
+        an ``.npz`` from :func:`~mjxsysid.policy.xadap.network.save_npz`, or :class:`XAdapWeights`.
 
         rate_hz: policy rate; must divide the simulator rate 1/sim_dt. accel_filter: True /
         "butter" (Butterworth designed for rate_hz), "wrapper" (the published wrapper's

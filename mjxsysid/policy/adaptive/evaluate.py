@@ -27,8 +27,9 @@ from mjxsysid import distributed
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Lemniscate
-from mjxsysid.policy.controller import PolicyController
-from mjxsysid.policy.env import EnvConfig, TrainEnv
+from mjxsysid.policy.adaptive.controller import PolicyController
+from mjxsysid.policy.adaptive.config import EnvConfig
+from mjxsysid.policy.adaptive.env import TrainEnv
 from mjxsysid.progress import stages
 from mjxsysid.rollout.flight import broadcast, fly_vehicles, random_lemniscates
 from mjxsysid.rollout.harness import Disturbance, batch_metrics, failure_mask, fly_batch, summarize

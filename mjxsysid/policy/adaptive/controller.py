@@ -2,7 +2,7 @@
 :mod:`mjxsysid.control.low_level`): ``init(key)``, ``step(carry, imu, command)``, plus
 ``latent(carry)`` -> the current ẑ, so downstream tools (decoding, experiments) can read it.
 
-Deployment mirrors training exactly (:mod:`mjxsysid.policy.env`): observation from the IMU and
+Deployment mirrors training exactly (:mod:`mjxsysid.policy.adaptive.env`): observation from the IMU and
 the command, policy state [obs, r_{t−1}], the deterministic action (the mean), history push, and
 ẑ = φ(history) refreshed every ``phi_every`` steps (0 until the first refresh).
 """
@@ -16,10 +16,10 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjxsysid.control.low_level import Command
-from mjxsysid.policy import networks as N
-from mjxsysid.policy.train import load_policy_params
+from mjxsysid.policy.adaptive import networks as N
+from mjxsysid.policy.adaptive.weights import load_policy_params
 
-PRETRAINED = Path(__file__).resolve().parent.parent / "pretrained" / "policy.npz"
+PRETRAINED = Path(__file__).resolve().parents[2] / "pretrained" / "policy.npz"
 
 
 class PolicyCarry(NamedTuple):

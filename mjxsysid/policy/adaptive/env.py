@@ -15,8 +15,6 @@ tube around its reference. Everything is unbatched and pure; training vmaps it.
 """
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 from flax import struct
@@ -25,43 +23,9 @@ from mjxsysid import theta as P
 from mjxsysid.control.high_level import PRESETS, Cascade, Estimate
 from mjxsysid.control.low_level import Command, KTheta
 from mjxsysid.control.references import Lemniscate
-from mjxsysid.policy import networks as N
+from mjxsysid.policy.adaptive import networks as N
+from mjxsysid.policy.adaptive.config import IMU_FIELDS, EnvConfig
 from mjxsysid.sim.quadrotor import Quadrotor, SimConfig, SimState, hover_rotor_speed, quat_to_mat
-
-
-IMU_FIELDS = ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias", "gyro_vibration", "accel_vibration",
-              "randomize_imu", "imu_clean_fraction")
-"""The EnvConfig settings passed on to the simulator's IMU (:class:`~mjxsysid.sim.SimConfig`)."""
-
-
-@dataclasses.dataclass(frozen=True)
-class EnvConfig:
-    """Training-environment settings (static)."""
-    prior: str = "default"
-    episode_steps: int = 1000           # 2 s at 500 Hz
-    phi_every: int = 10                 # ẑ refreshed every this many steps
-    gyro_noise: float = 0.005           # rad/s per step
-    accel_noise: float = 0.05           # m/s² per step
-    gyro_bias: float = 0.0              # rad/s: std of a per-episode gyro bias
-    accel_bias: float = 0.0             # m/s²: std of a per-episode accelerometer bias
-    gyro_vibration: float = 0.0         # rad/s: std of rotor vibration (SimConfig)
-    accel_vibration: float = 0.0        # m/s²
-    randomize_imu: bool = False         # the IMU settings above are maxima, levels drawn per episode
-    imu_clean_fraction: float = 0.0     # with randomize_imu: this share of episodes has a clean IMU
-    force_sigma_max: float = 0.15       # × m g: per-episode σ of the random world force
-    excite_rate: tuple = (2.0, 2.0, 1.0)  # max ω excitation (rad/s)
-    excite_thrust: float = 2.0          # max a_cmd excitation (m/s²)
-    excite_hold: float = 0.3            # mean hold time of an excitation level (s)
-    period_range: tuple = (5.0, 15.0)   # lemniscate period (s)
-    size_max: tuple = (1.5, 1.5, 0.3)   # lemniscate size (m)
-    yaw_amplitude_max: float = 0.5      # rad
-    tube: float = 3.0                   # m
-    w_rate: float = 0.25
-    w_thrust: float = 0.05
-    w_smooth: float = 0.1
-    w_sat: float = 0.2
-    fail_penalty: float = -20.0
-    focus_weight: float = 0.3           # with focus systems: the fraction of episodes flying one of them
 
 
 @struct.dataclass
