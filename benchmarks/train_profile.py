@@ -55,8 +55,8 @@ def parse_config(text: str) -> dict:
 
 def profile(overrides: dict, repeats: int, iters: int) -> dict:
     from mjxsysid.policy.adaptive.config import TrainConfig
-    from mjxsysid.policy.adaptive.trainer import Trainer
     from mjxsysid.policy.adaptive.losses import schedules
+    from mjxsysid.policy.adaptive.trainer import Trainer
     cfg = TrainConfig(**overrides)
     tr = Trainer(cfg)
     ts = tr.init(jax.random.PRNGKey(0))

@@ -9,12 +9,15 @@ import numpy as np
 import pytest
 
 from mjxsysid import theta as P
-from mjxsysid.policy.adaptive import networks as N
 from mjxsysid.checkpoint import load_tree, save_tree
-from mjxsysid.policy.adaptive.controller import PRETRAINED, PolicyCarry, PolicyController
-from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.policy.adaptive.config import EnvConfig
-from mjxsysid.policy.adaptive.env import TrainEnv
+from mjxsysid.policy.adaptive import networks as N
+from mjxsysid.policy.adaptive.config import EnvConfig, TrainConfig
+from mjxsysid.policy.adaptive.controller import (
+    PRETRAINED,
+    PolicyCarry,
+    PolicyController,
+)
+from mjxsysid.policy.adaptive.env import TrainEnv, training_env
 from mjxsysid.policy.adaptive.losses import (
     IDENT_TARGET_NAMES,
     alignment_losses,
@@ -25,9 +28,9 @@ from mjxsysid.policy.adaptive.losses import (
     schedules,
     variance_loss,
 )
-from mjxsysid.policy.adaptive.trainer import Trainer
-from mjxsysid.policy.adaptive.config import TrainConfig
 from mjxsysid.policy.adaptive.train import train
+from mjxsysid.policy.adaptive.trainer import Trainer
+from mjxsysid.policy.interface import resolve_policy
 
 NETS = N.Networks()
 
@@ -195,7 +198,7 @@ def test_episode_starts_once_per_unroll(params):
         last = st.replace(step=jnp.int32(env.config.episode_steps - 1))
         _, _, _, obs = env.policy_input(params, last)
         pair = jax.tree.map(lambda a, b: jnp.stack([a, b]), last, st)
-        out = jax.vmap(lambda x: env.step(params, x, jnp.zeros(4), obs, 0.0, False, fresh))(pair)
+        out = jax.vmap(lambda x: training_env(env).step(params, x, jnp.zeros(4), obs, 0.0, False, fresh))(pair)
         return st, fresh, [jax.tree.map(lambda x, i=i: x[i], out) for i in (0, 1)]
 
     st, fresh, ((ended, t_end), (going, t_go)) = run(jnp.stack([jax.random.PRNGKey(1), jax.random.PRNGKey(2)]))

@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from mjxsysid.cli.decoders import imu_config
-from mjxsysid.policy.adaptive.config import IMU_FIELDS, EnvConfig
+from mjxsysid.policy.adaptive.config import IMU_FIELDS, EnvConfig, TrainConfig
 from mjxsysid.policy.adaptive.env import TrainEnv
-from mjxsysid.policy.adaptive.config import TrainConfig
 from mjxsysid.sim import SimConfig
 
 RANGE = dict(gyro_noise=0.05, accel_noise=0.5, gyro_bias=0.025, accel_bias=0.25, randomize_imu=True)

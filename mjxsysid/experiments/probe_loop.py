@@ -50,14 +50,13 @@ from mjxsysid.cfm.train import CFMConfig
 from mjxsysid.dataset.collect import collect, latents_in_flight
 from mjxsysid.experiments.common import fmt_ms, markdown_table, to_jsonable, write_results
 from mjxsysid.experiments.heldout import compare_with_oracle
-from mjxsysid.policy.adaptive.evaluate import env_rollout, latent_of_rollout
-from mjxsysid.policy.adaptive.config import EnvConfig
+from mjxsysid.policy.adaptive.config import EnvConfig, TrainConfig
 from mjxsysid.policy.adaptive.env import TrainEnv
+from mjxsysid.policy.adaptive.evaluate import env_rollout, latent_of_rollout
 from mjxsysid.policy.adaptive.focus import load_weak, replay_resample, save_weak
-from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.policy.adaptive.losses import IDENT_TARGET_NAMES, identifiable_log
-from mjxsysid.policy.adaptive.config import TrainConfig
 from mjxsysid.policy.adaptive.train import train
+from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.probe import ProbeConfig, make_fly, run_probe, system_badness
 from mjxsysid.render.probe import plot_probe_loop
 from mjxsysid.rollout.flight import fly_vehicles

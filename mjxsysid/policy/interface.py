@@ -39,9 +39,9 @@ import numpy as np
 
 from mjxsysid.checkpoint import open_npz
 from mjxsysid.policy.adaptive.controller import PolicyController
+from mjxsysid.policy.xadap.controller import XAdapController
 from mjxsysid.policy.xadap.network import FIELDS, load_npz
 from mjxsysid.policy.xadap.onnx_import import load_xadap
-from mjxsysid.policy.xadap.controller import XAdapController
 
 PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
 POLICY_NAMES = ("mjxsysid", "xadap")

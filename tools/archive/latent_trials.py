@@ -25,14 +25,13 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from mjxsysid.policy.adaptive.config import EnvConfig, TrainConfig
+from mjxsysid.policy.adaptive.env import TrainEnv
 from mjxsysid.policy.adaptive.evaluate import evaluate_policy, fast_eval
 from mjxsysid.policy.adaptive.losses import LOSS_WEIGHT_FIELDS
-from mjxsysid.policy.adaptive.trainer import Trainer
-from mjxsysid.policy.adaptive.config import TrainConfig
-from mjxsysid.policy.adaptive.weights import load_policy_params
 from mjxsysid.policy.adaptive.train import train
-from mjxsysid.policy.adaptive.config import EnvConfig
-from mjxsysid.policy.adaptive.env import TrainEnv
+from mjxsysid.policy.adaptive.trainer import Trainer
+from mjxsysid.policy.adaptive.weights import load_policy_params
 from mjxsysid.sim import Quadrotor
 
 BASE_ENV = EnvConfig()

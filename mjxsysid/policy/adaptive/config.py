@@ -9,7 +9,6 @@ import dataclasses
 import json
 from pathlib import Path
 
-
 IMU_FIELDS = ("gyro_noise", "accel_noise", "gyro_bias", "accel_bias", "gyro_vibration", "accel_vibration",
               "randomize_imu", "imu_clean_fraction")
 """The EnvConfig settings passed on to the simulator's IMU (:class:`~mjxsysid.sim.SimConfig`)."""

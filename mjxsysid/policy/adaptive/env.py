@@ -11,7 +11,10 @@ Reward per step (tracking the *commanded* collective thrust and body rates)::
     r = 1 − w_rate ‖ω − ω_cmd‖ − w_thrust |f_z − a_cmd| − w_smooth ‖r_t − r_{t−1}‖² − w_sat sat_t
 
 and ``fail_penalty`` with termination when the vehicle diverges, flips over or leaves a 3 m
-tube around its reference. Everything is unbatched and pure; training vmaps it.
+tube around its reference. Everything is unbatched and pure; training vmaps it. :meth:`TrainEnv.step`
+steps the simulator only; the wrappers :class:`LatentRefresh` (ẑ = φ(history) every
+``phi_every`` steps) and :class:`AutoReset` (finished episodes restarted in place) make the
+step that training and evaluation roll (:func:`training_env`).
 """
 from __future__ import annotations
 
@@ -25,7 +28,13 @@ from mjxsysid.control.low_level import Command, KTheta
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.policy.adaptive import networks as N
 from mjxsysid.policy.adaptive.config import IMU_FIELDS, EnvConfig
-from mjxsysid.sim.quadrotor import Quadrotor, SimConfig, SimState, hover_rotor_speed, quat_to_mat
+from mjxsysid.sim.quadrotor import (
+    Quadrotor,
+    SimConfig,
+    SimState,
+    hover_rotor_speed,
+    quat_to_mat,
+)
 
 
 @struct.dataclass
@@ -134,17 +143,14 @@ class TrainEnv:
         return 2.0 * u - 1.0
 
     # --------------------------------------------------------------------------------- step
-    def step(self, params, state: EnvState, raw, obs, p_zhat, refresh, fresh: EnvState | None = None):
-        """Apply raw action r (4,) (obs: this step's observation). ``refresh`` (a scalar shared
-        by the whole batch, so vmap keeps a real branch): recompute ẑ = φ(history) now.
-        Returns (state, Transition); finished episodes are reset in place: to a new
-        :meth:`reset` (computed every step, for every environment, and selected where done),
-        or, given ``fresh``, to that precomputed episode start (its random stream re-keyed per
-        step, so an environment that ends twice before ``fresh`` is redrawn flies the same
-        vehicle and reference with new noise)."""
+    def step(self, state: EnvState, raw, obs):
+        """One simulator step of raw action r (4,) (obs (10,): this step's observation, pushed to
+        the history with r) -> (state, Transition). Pure: ẑ is left as it is and an episode that
+        ends here is not restarted (the wrappers :class:`LatentRefresh` and :class:`AutoReset`
+        do both)."""
         c = self.config
         dt = self.sim.config.dt
-        key, k_force, k_ex, k_hold, k_reset = jax.random.split(state.key, 5)
+        key, k_force, k_ex, k_hold, _ = jax.random.split(state.key, 5)   # the fifth: reset_key
         raw = jnp.clip(raw, -1.0, 1.0)
         history = N.push_history(state.history, obs, raw)
         force = state.force_sigma * jax.random.normal(k_force, (3,))
@@ -166,14 +172,65 @@ class TrainEnv:
                            state.excite)
         cmd = Command(a_cmd=jnp.maximum(cmd.a_cmd + excite[0], 0.0), omega_cmd=cmd.omega_cmd + excite[1:])
         step = state.step + 1
-        zhat = jax.lax.cond(refresh, lambda h: self.nets.adapt(params, h), lambda h: state.zhat, history)
         upright = quat_to_mat(sim.quat)[2, 2] > 0.0
         failed = sim.diverged | ~upright | (jnp.linalg.norm(sim.pos - r.pos) > c.tube)
         done = failed | (step >= c.episode_steps)
         reward = jnp.where(failed, c.fail_penalty, reward)
         new = state.replace(sim=sim, integral=integral, excite=excite, command=cmd, history=history,
-                            last_raw=raw, zhat=zhat, step=step, key=key)
-        start = self.reset(k_reset, p_zhat) if fresh is None else fresh.replace(key=k_reset)
-        new = jax.tree.map(lambda a, b: jnp.where(done, a, b), start, new)
+                            last_raw=raw, step=step, key=key)
         return new, Transition(reward=reward, done=done, failed=failed, rate_err=rate_err,
                                thrust_err=thrust_err)
+
+
+def reset_key(state: EnvState) -> jax.Array:
+    """The key an episode that ends at this step restarts from: the fifth of the five keys
+    :meth:`TrainEnv.step` splits ``state.key`` into."""
+    return jax.random.split(state.key, 5)[4]
+
+
+class Wrapper:
+    """An environment around another one (MuJoCo Playground's ``Wrapper``): every attribute
+    it does not define (``reset``, ``policy_input``, ``nets``, ``config`` ...) is the wrapped
+    environment's."""
+
+    def __init__(self, env):
+        self.env = env
+
+    def __getattr__(self, name):
+        if name == "env" or name.startswith("__"):     # not yet set (copy, pickle)
+            raise AttributeError(name)
+        return getattr(self.env, name)
+
+
+class LatentRefresh(Wrapper):
+    """The wrapped step, then ẑ = φ(history) recomputed where ``refresh``."""
+
+    def step(self, params, state: EnvState, raw, obs, refresh):
+        """``refresh``: a scalar shared by the whole batch, so vmap keeps a real branch (φ runs
+        only on refresh steps). Returns (state, Transition)."""
+        new, tr = self.env.step(state, raw, obs)
+        zhat = jax.lax.cond(refresh, lambda h: self.nets.adapt(params, h), lambda h: state.zhat, new.history)
+        return new.replace(zhat=zhat), tr
+
+
+class AutoReset(Wrapper):
+    """The wrapped step (:class:`LatentRefresh`'s), then every finished episode restarted in
+    place."""
+
+    def step(self, params, state: EnvState, raw, obs, p_zhat, refresh, fresh: EnvState | None = None):
+        """Returns (state, Transition). Where ``Transition.done``, the state is a new
+        :meth:`TrainEnv.reset` on :func:`reset_key` (computed every step, for every environment,
+        and selected where done; ``p_zhat``: its probability of flying on ẑ) or, given ``fresh``,
+        that precomputed episode start (its random stream re-keyed per step, so an environment
+        that ends twice before ``fresh`` is redrawn flies the same vehicle and reference with
+        new noise)."""
+        k_reset = reset_key(state)
+        new, tr = self.env.step(params, state, raw, obs, refresh)
+        start = self.reset(k_reset, p_zhat) if fresh is None else fresh.replace(key=k_reset)
+        return jax.tree.map(lambda a, b: jnp.where(tr.done, a, b), start, new), tr
+
+
+def training_env(env: TrainEnv) -> AutoReset:
+    """``env`` as training and evaluation roll it: ẑ refreshed on schedule, episodes restarted
+    where they end (``step(params, state, raw, obs, p_zhat, refresh, fresh=None)``)."""
+    return AutoReset(LatentRefresh(env))

@@ -27,12 +27,18 @@ from mjxsysid import distributed
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Lemniscate
-from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.adaptive.config import EnvConfig
-from mjxsysid.policy.adaptive.env import TrainEnv
+from mjxsysid.policy.adaptive.controller import PolicyController
+from mjxsysid.policy.adaptive.env import TrainEnv, training_env
 from mjxsysid.progress import stages
 from mjxsysid.rollout.flight import broadcast, fly_vehicles, random_lemniscates
-from mjxsysid.rollout.harness import Disturbance, batch_metrics, failure_mask, fly_batch, summarize
+from mjxsysid.rollout.harness import (
+    Disturbance,
+    batch_metrics,
+    failure_mask,
+    fly_batch,
+    summarize,
+)
 from mjxsysid.sim import Quadrotor
 
 SERIES = ("rate_err", "thrust_err", "failed")  # (steps, n) outputs of env_rollout
@@ -53,12 +59,13 @@ def env_rollout(env: TrainEnv, params, key, n: int, steps: int, expert: bool):
 def _env_rollout(env: TrainEnv, params, keys, steps: int, expert: bool):
     """:func:`env_rollout` on per-environment keys (n, 2): the one vmap boundary."""
     st = jax.vmap(lambda k: env.reset(k, 1.0))(keys)  # policy sees ẑ everywhere
+    rolled = training_env(env)
 
     def body(st, t):
         def one(s_):
             s, z, _, obs = env.policy_input(params, s_)
             raw = env.expert_raw(s_) if expert else env.nets.act(params, s, z)[0]
-            new, tr = env.step(params, s_, raw, obs, 1.0, t % env.config.phi_every == 0)
+            new, tr = rolled.step(params, s_, raw, obs, 1.0, t % env.config.phi_every == 0)
             return new, (tr.rate_err, tr.thrust_err, tr.failed)
         return jax.vmap(one)(st)
 

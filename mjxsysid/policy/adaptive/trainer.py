@@ -20,7 +20,7 @@ from jax.sharding import NamedSharding, PartitionSpec
 
 from mjxsysid import distributed
 from mjxsysid.policy.adaptive.config import TrainConfig
-from mjxsysid.policy.adaptive.env import EnvState, TrainEnv
+from mjxsysid.policy.adaptive.env import EnvState, TrainEnv, training_env
 from mjxsysid.policy.adaptive.focus import load_weak
 from mjxsysid.policy.adaptive.losses import (
     LOSS_WEIGHT_FIELDS,
@@ -88,7 +88,7 @@ class Trainer:
         # their dozens of eager ops compile in milliseconds there, in tenths of seconds each on a
         # GPU (seconds of every training start); the jitted functions take them as constants.
         with jax.default_device(_host_device()):
-            self.env = TrainEnv(cfg.env, focus_theta=None if cfg.focus is None else load_weak(cfg.focus)[0])
+            self.env = training_env(TrainEnv(cfg.env, focus_theta=None if cfg.focus is None else load_weak(cfg.focus)[0]))
             self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior,
                                                       yaw_authority=cfg.ident_yaw_authority)
         self.nets = self.env.nets

@@ -20,7 +20,13 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy.adaptive import networks as N
-from mjxsysid.policy.export.graph import MOTOR_ORDER, OBS_FIELDS, OPSET, normalisation, to_onnx_model
+from mjxsysid.policy.export.graph import (
+    MOTOR_ORDER,
+    OBS_FIELDS,
+    OPSET,
+    normalisation,
+    to_onnx_model,
+)
 from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
 
 
