@@ -65,6 +65,7 @@ class Transition(struct.PyTreeNode):
     failed: jax.Array
     rate_err: jax.Array
     thrust_err: jax.Array
+    reset_key: jax.Array      # (2,) the key an episode that ends here restarts from (AutoReset)
 
 
 class TrainEnv:
@@ -150,7 +151,7 @@ class TrainEnv:
         do both)."""
         c = self.config
         dt = self.sim.config.dt
-        key, k_force, k_ex, k_hold, _ = jax.random.split(state.key, 5)   # the fifth: reset_key
+        key, k_force, k_ex, k_hold, k_reset = jax.random.split(state.key, 5)
         raw = jnp.clip(raw, -1.0, 1.0)
         history = N.push_history(state.history, obs, raw)
         force = state.force_sigma * jax.random.normal(k_force, (3,))
@@ -179,13 +180,7 @@ class TrainEnv:
         new = state.replace(sim=sim, integral=integral, excite=excite, command=cmd, history=history,
                             last_raw=raw, step=step, key=key)
         return new, Transition(reward=reward, done=done, failed=failed, rate_err=rate_err,
-                               thrust_err=thrust_err)
-
-
-def reset_key(state: EnvState) -> jax.Array:
-    """The key an episode that ends at this step restarts from: the fifth of the five keys
-    :meth:`TrainEnv.step` splits ``state.key`` into."""
-    return jax.random.split(state.key, 5)[4]
+                               thrust_err=thrust_err, reset_key=k_reset)
 
 
 class Wrapper:
@@ -219,14 +214,13 @@ class AutoReset(Wrapper):
 
     def step(self, params, state: EnvState, raw, obs, p_zhat, refresh, fresh: EnvState | None = None):
         """Returns (state, Transition). Where ``Transition.done``, the state is a new
-        :meth:`TrainEnv.reset` on :func:`reset_key` (computed every step, for every environment,
-        and selected where done; ``p_zhat``: its probability of flying on ẑ) or, given ``fresh``,
-        that precomputed episode start (its random stream re-keyed per step, so an environment
-        that ends twice before ``fresh`` is redrawn flies the same vehicle and reference with
-        new noise)."""
-        k_reset = reset_key(state)
+        :meth:`TrainEnv.reset` on ``Transition.reset_key`` (computed every step, for every
+        environment, and selected where done; ``p_zhat``: its probability of flying on ẑ) or,
+        given ``fresh``, that precomputed episode start (its random stream re-keyed per step, so
+        an environment that ends twice before ``fresh`` is redrawn flies the same vehicle and
+        reference with new noise)."""
         new, tr = self.env.step(params, state, raw, obs, refresh)
-        start = self.reset(k_reset, p_zhat) if fresh is None else fresh.replace(key=k_reset)
+        start = self.reset(tr.reset_key, p_zhat) if fresh is None else fresh.replace(key=tr.reset_key)
         return jax.tree.map(lambda a, b: jnp.where(tr.done, a, b), start, new), tr
 
 
