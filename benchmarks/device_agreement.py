@@ -52,9 +52,9 @@ def flight_positions(theta, seconds: float, devices):
 def update_params(envs: int, devices):
     from mjxsysid import distributed as D
     from mjxsysid.policy.adaptive.config import TrainConfig
-    from mjxsysid.policy.adaptive.trainer import Trainer
     from mjxsysid.policy.adaptive.losses import schedules
     from mjxsysid.policy.adaptive.train import training_mesh
+    from mjxsysid.policy.adaptive.trainer import Trainer
     cfg = TrainConfig(num_envs=envs, unroll=8, epochs=1, minibatches=1, iterations=100)
     # The rollout batch comes from one device (the same data for both updates).
     one = Trainer(cfg)

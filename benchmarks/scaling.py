@@ -51,7 +51,11 @@ def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
     from mjxsysid import distributed as D
     from mjxsysid import theta as P
     from mjxsysid.control.high_level import Cascade
-    from mjxsysid.dataset.collect import last_latent_and_failure, latents_in_flight, lemniscate_excitation
+    from mjxsysid.dataset.collect import (
+        last_latent_and_failure,
+        latents_in_flight,
+        lemniscate_excitation,
+    )
     from mjxsysid.policy.interface import resolve_policy
     from mjxsysid.rollout.flight import broadcast
     from mjxsysid.rollout.harness import fly_batch
@@ -79,8 +83,8 @@ def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
 def bench_train(devices: int, args, envs: int | None = None) -> dict:
     from mjxsysid import distributed as D
     from mjxsysid.policy.adaptive.config import TrainConfig
-    from mjxsysid.policy.adaptive.trainer import Trainer
     from mjxsysid.policy.adaptive.train import training_mesh
+    from mjxsysid.policy.adaptive.trainer import Trainer
     cfg = TrainConfig(**{"iterations": 1500, "unroll": args.unroll, "minibatches": args.minibatches,
                          "reset_per_unroll": args.reset_per_unroll, **config_overrides(args.set),
                          "num_envs": envs or args.envs})

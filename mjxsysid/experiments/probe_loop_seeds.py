@@ -13,8 +13,8 @@ from pathlib import Path
 
 from mjxsysid.experiments.common import leaf_table, to_jsonable, write_results
 from mjxsysid.experiments.probe_loop import FULL, eval_sets, train_config
-from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.policy.adaptive.train import train
+from mjxsysid.policy.interface import resolve_policy
 
 POLICIES = ("probed2", "uniform")
 """The policies retrained: the loop's round-2 policy and its uniform-widening control."""
