@@ -48,7 +48,7 @@ def xadap_paper_recording():
 @pytest.fixture(scope="session")
 def collected_pairs(tmp_path_factory):
     """`mjxsysid collect` on tiny sizes with the shipped policy, run once for the tests that read
-    its pairs (tests/test_policy.py) and latent trajectories (tests/test_sequence.py)."""
+    its pairs (tests/policy/test_policy.py) and latent trajectories (tests/cfm/test_sequence.py)."""
     from mjxsysid.cli import main
     from mjxsysid.policy.adaptive.controller import PRETRAINED
     if not PRETRAINED.exists():

@@ -123,7 +123,7 @@ def test_fly_and_decode_api_match_the_cli(tmp_path, capsys):
     from mjxsysid import theta as P
     from mjxsysid.cli import main
 
-    # The 2 s lemniscate flight of tests/test_decode.py and notebooks 01 / 04: one compile.
+    # The 2 s lemniscate flight of tests/studies/test_decode.py and notebooks 01 / 04: one compile.
     res = mjxsysid.fly(mjxsysid.paper_vehicle(), controller="policy", reference="lemniscate", period=10.0,
                        duration=2.0)
     assert res.flight.latent.shape[:2] == (1, 1000) and not res.metrics["failed"]

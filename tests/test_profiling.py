@@ -6,6 +6,7 @@ import jax.numpy as jnp
 import pytest
 
 from mjxsysid.profiling import compile_profile
+from support.paths import DATA
 
 
 def test_compile_profile_names_each_program_and_counts_its_builds():
@@ -33,7 +34,7 @@ def test_compile_profile_names_each_program_and_counts_its_builds():
 def test_profile_command_runs_the_command_and_writes_json(tmp_path, capsys):
     from mjxsysid.cli import main
     pytest.importorskip("pyulog")
-    log = __import__("pathlib").Path(__file__).parent / "data" / "sample_px4_events.ulg"
+    log = DATA / "sample_px4_events.ulg"
     rc = main(["profile", "--json", str(tmp_path / "p.json"), "--", "check-log", str(log), "--json"])
     got = json.loads((tmp_path / "p.json").read_text())
     assert got["command"][0] == "check-log" and got["exit"] == rc and got["wall_s"] > 0

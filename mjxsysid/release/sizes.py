@@ -87,7 +87,7 @@ FULL = Sizes(
     quick=False, fidelity=FidelitySizes(vehicles=20, models=100, duration=4.0))
 
 TINY = Sizes(
-    # tests/test_policy.py's tiny trainer (4 iterations), warm-started from the shipped policy
+    # tests/policy/test_policy.py's tiny trainer (4 iterations), warm-started from the shipped policy
     # (``init_from``) so that the tiny policy still flies and the later stages have flights to decode
     train=_frozen(num_envs=64, unroll=16, iterations=4, epochs=2, minibatches=4, log_every=1, checkpoint_every=2,
                   warmup=0.3, ramp=0.3),

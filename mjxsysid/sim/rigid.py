@@ -7,7 +7,7 @@ the state at the start of the step, ``v ← v + h a``, ``p ← p + h v``, ``q �
 of η k_t Ω² over it — written directly in JAX without MuJoCo's generic machinery. It has no
 IMU noise or bias (predictions are deterministic) and no contacts; the IMU latency is the
 simulator's (a buffer of the true readings, carried over from the simulator's state). The tuner flies K × N
-short rollouts per update with it; ``tests/test_sim.py`` checks it against the MJX simulator.
+short rollouts per update with it; ``tests/sim/test_sim.py`` checks it against the MJX simulator.
 
 ``RigidSim`` implements what :func:`~mjxsysid.rollout.harness.run_loop` needs of a simulator:
 ``config.dt``, ``step(θ, state, motor_cmd, force_world)`` and ``frame(state, motor_cmd, force)``.

@@ -5,6 +5,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
+"""The checkout."""
+DATA = ROOT / "tests" / "data"
+"""The suite's data files (a PX4 sample log, the CLI help golden file)."""
 
 # The released XAdap policy (not shipped): located like the package does, skipped when absent.
 XADAP_DIR = Path(os.environ.get("MJXSYSID_XADAP_DIR", ROOT.parent / "shared" / "external" / "xadap"))

@@ -18,7 +18,7 @@ _GROUP_OF = {f: g for g, files in XDIST_GROUPS.items() for f in files}
 _QUEUE = ("policy-training", "policy-flights", "test_control", "test_sim", "test_tune", "test_experiments_robustness",
           "test_cfm", "test_distributed", "test_resume", "test_logcheck", "test_references", "test_render",
           "test_export", "test_train_options", "test_docs_generated", "test_focus", "test_heldout", "test_inputs",
-          "test_sensor_randomization", "test_theta", "test_widened_control")
+          "test_sensor_randomization", "test_theta", "test_probe_loop")
 
 
 def pytest_configure(config):

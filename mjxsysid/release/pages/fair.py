@@ -60,7 +60,7 @@ def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]
         "(`tune.rotor_state.estimate_rotor_speed`; no hidden state read) and the rigid twin carries the IMU latency",
         "buffer. With the true θ a prediction then reproduces the flight to float round-off",
         "([figure](runs/measurements/prediction-error/prediction_error.png), `mjxsysid experiment prediction-error`; tests in",
-        "`tests/test_tune.py`). Same vehicles and seeds as the default protocol; Baseline and Nominal+CEM of",
+        "`tests/tune/test_tune.py`). Same vehicles and seeds as the default protocol; Baseline and Nominal+CEM of",
         "a variant run that did not fly them come from the default run of the same seed (their flights do not",
         (f"depend on the tuner's knobs). One {slow['device']['device_kind'].split(' 80GB')[0]}, {slow['date'][:10]}, "
         f"code of commit {str(slow['commit']).split()[0][:10]} (the run files' commit field; the tuner is that of 5144f62)."),

@@ -8,6 +8,7 @@ from mjxsysid.cli import main
 from mjxsysid.policy.adaptive.config import EnvConfig
 from mjxsysid.policy.adaptive.env import TrainEnv
 from mjxsysid.policy.adaptive.focus import load_weak, save_weak
+from mjxsysid.policy.adaptive.focus import replay_resample
 
 
 def _weak():
@@ -59,3 +60,18 @@ def test_train_policy_focus_errors_are_one_line(tmp_path, capsys):
     assert main(["train-policy", "--focus-weight", "1.5", "--out", str(tmp_path / "r")]) == 2
     assert "--focus-weight must be in [0, 1]" in capsys.readouterr().err
     assert not (tmp_path / "r").exists()
+
+
+def test_replay_draws_follow_the_badness():
+    th = np.tile(P.PAPER_HARDWARE, (3, 1)).astype(np.float32)
+    th[:, P.MASS] = [0.5, 0.6, 0.7]
+    got = replay_resample(th, [0.0, 1.0, 3.0], 4000, seed=1)
+    assert got.shape == (4000, 19)
+    frac = [(got[:, P.MASS] == m).mean() for m in th[:, P.MASS]]
+    assert frac[0] == 0 and abs(frac[2] - 0.75) < 0.03
+    np.testing.assert_array_equal(got, replay_resample(th, [0.0, 1.0, 3.0], 4000, seed=1))
+    for w, msg in (([0, 0, 0], "not all 0"), ([1, -1, 1], ">= 0"), ([1, 1], r"shape \(3,\)")):
+        with pytest.raises(ValueError, match=msg):
+            replay_resample(th, w, 10)
+    with pytest.raises(ValueError, match="replay draws"):
+        replay_resample(th, [1, 1, 1], 0)

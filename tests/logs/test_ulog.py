@@ -3,7 +3,6 @@
 command, IMU 250 Hz, motors 10 Hz) read with no hand conversion, the conversions' pieces, and the
 checks that must not read resampled columns as if they were 500 Hz. numpy only: no JAX compile."""
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,8 +13,9 @@ from mjxsysid.cli import main
 from mjxsysid.logs import ulog as U
 from mjxsysid.studies import logcheck as L
 from mjxsysid.studies.decode import read_any_log, read_log, write_log
+from support.paths import DATA
 
-SAMPLE = Path(__file__).parent / "data" / "sample_px4_events.ulg"
+SAMPLE = DATA / "sample_px4_events.ulg"
 
 
 @pytest.fixture(scope="module")

@@ -13,8 +13,8 @@ from mjxsysid.release.layout import link
 from mjxsysid.release.provenance import call
 from mjxsysid.release.stages import STAGES, Stage, StageResult
 from mjxsysid.release.stages.ship import build_tree
+from support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def _stubs(calls, fail=()):

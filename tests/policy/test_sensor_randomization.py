@@ -1,6 +1,6 @@
 """Sensor randomisation options (default off): IMU white noise, bias and vibration whose levels are
 drawn per episode / per flight, for the policy's training env, the collected (θ, ẑ) pairs and so
-the decoders trained on them. The simulator's side: tests/test_sim.py."""
+the decoders trained on them. The simulator's side: tests/sim/test_sim.py."""
 import argparse
 import json
 
@@ -11,6 +11,7 @@ from mjxsysid.cli.decoders import imu_config
 from mjxsysid.policy.adaptive.config import IMU_FIELDS, EnvConfig, TrainConfig
 from mjxsysid.policy.adaptive.env import TrainEnv
 from mjxsysid.sim import SimConfig
+from support.paths import ROOT
 
 RANGE = dict(gyro_noise=0.05, accel_noise=0.5, gyro_bias=0.025, accel_bias=0.25, randomize_imu=True)
 
@@ -26,8 +27,7 @@ def test_defaults_change_nothing():
 def test_training_config_reaches_the_env_simulator():
     """A train-policy --config JSON with the noise range (tools/configs/policy_sensor_randomized.json)
     builds an env whose simulator draws the levels per episode up to that range."""
-    from pathlib import Path
-    over = json.loads((Path(__file__).resolve().parent.parent / "tools/configs/policy_sensor_randomized.json").read_text())
+    over = json.loads((ROOT / "tools/configs/policy_sensor_randomized.json").read_text())
     cfg = TrainConfig.from_dict({**TrainConfig().to_dict(), "env": {**TrainConfig().to_dict()["env"], **over["env"]}})
     sim = TrainEnv(cfg.env).sim.config
     for k in IMU_FIELDS:

@@ -5,8 +5,8 @@ import re
 from pathlib import Path
 
 import pytest
+from support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
 PAGES = sorted([*(ROOT / "docs").glob("*.md"), ROOT / "README.md", ROOT / "BENCHMARKS.md", ROOT / "ARCHITECTURE.md"])
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 RUNS_PATH = re.compile(r"docs/runs/[A-Za-z0-9_.\-/]*[A-Za-z0-9_\-/]")

@@ -11,6 +11,7 @@ from mjxsysid import theta as P
 from mjxsysid.identify import coords as C
 from mjxsysid.identify import likelihood as L
 from mjxsysid.identify.inference import log_grounded_posterior, log_target
+from support.paths import DATA
 
 DT = 0.002
 
@@ -132,11 +133,10 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     """jMAVSim's Iris (PX4's sample log, motors logged at 10 Hz): thrust-to-weight 2.04 inside a band
     within ±10 %; τ_m 5 ms inside; the rates are not used (10 Hz commands cannot explain them), so
     the roll authority stays as broad as the prior — and the gap says it was not seen."""
-    from pathlib import Path
     pytest.importorskip("pyulog")
     from mjxsysid.identify.gap import information_gap
     from mjxsysid.logs.ulog import read_ulog
-    rec = read_ulog(Path(__file__).parent / "data" / "sample_px4_events.ulg")
+    rec = read_ulog(DATA / "sample_px4_events.ulg")
     post = log_grounded_posterior(rec, None, samples=600, particles=1024, seed=0)
     assert list(post["channels_used"]) == [0, 0, 0, 1]
     q = C.log_quantities(post["theta"])

@@ -3,8 +3,8 @@
 import subprocess
 import sys
 from pathlib import Path
+from support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_import_contracts_are_kept():

@@ -2,11 +2,11 @@
 module per command group (tests/data/cli_help.json): a changed flag, default or help text fails
 here, so it is changed on purpose (regenerate the file) or not at all."""
 import json
-from pathlib import Path
 
 from mjxsysid.cli import build_parser
+from support.paths import DATA
 
-GOLDEN = Path(__file__).parent / "data" / "cli_help.json"
+GOLDEN = DATA / "cli_help.json"
 
 
 def _helps() -> dict:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from mjxsysid import theta as P
+from mjxsysid.policy.adaptive.losses import identifiable_log
 
 
 def test_field_table_generates_the_layout():
@@ -166,3 +167,18 @@ def test_normalizer_round_trip(prior_samples):
 def test_unknown_prior():
     with pytest.raises(ValueError, match="unknown prior"):
         P.get_prior("fast")
+
+
+def test_widened_prior_is_the_prior_at_zero_and_wider_and_valid_beyond():
+    key = jax.random.PRNGKey(3)
+    base = np.asarray(P.DEFAULT_PRIOR.sample(key, 2000))
+    np.testing.assert_array_equal(np.asarray(P.widened_prior(P.DEFAULT_PRIOR, 0.0).sample(key, 2000)), base)
+    wide = P.widened_prior(P.DEFAULT_PRIOR, 0.4)
+    assert wide.motor_time_constant == pytest.approx((0.02 / np.exp(0.4), 0.04 * np.exp(0.4)))
+    assert wide.eta[1] <= 1.99 and wide.ext_torque_xy == pytest.approx(0.02 * np.exp(0.4))
+    th = np.asarray(wide.sample(key, 2000))
+    P.validate_theta(th)                                    # every draw a valid vehicle
+    a, b = np.asarray(identifiable_log(base)), np.asarray(identifiable_log(th))
+    assert (b.min(0) < a.min(0)).sum() >= 4 and (b.max(0) > a.max(0)).sum() >= 4   # wider both ways
+    with pytest.raises(ValueError, match="amount must be"):
+        P.widened_prior(P.DEFAULT_PRIOR, -0.1)

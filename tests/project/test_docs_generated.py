@@ -2,9 +2,8 @@
 import os
 import subprocess
 import sys
-from pathlib import Path
+from support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_fair_comparisons_page_matches_the_runs():

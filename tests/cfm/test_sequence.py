@@ -228,7 +228,7 @@ def test_decode_cli_windows(tmp_path, capsys):
         assert last.startswith("mjxsysid decode: error: --window") and msg in last, last
     d = _tiny_seq_decoders(tmp_path)
     # A 2 s "log" of a vehicle at rest-ish hover (the policy's history is rebuilt from it): the
-    # length of the 2 s flight logs of tests/test_decode.py (one compiled replay).
+    # length of the 2 s flight logs of tests/studies/test_decode.py (one compiled replay).
     n = 1000
     t = 0.002 * np.arange(n)
     imu = np.zeros((n, 6))
@@ -254,7 +254,7 @@ def test_decode_cli_windows(tmp_path, capsys):
 
 def test_collect_latent_trajectories(collected_pairs, tmp_path):
     """collect records ẑ at 10 Hz over a 10 s flight of random manoeuvres (the collect run of
-    tests/test_policy.py::test_collect_pairs_tiny: conftest.collected_pairs)."""
+    tests/policy/test_policy.py::test_collect_pairs_tiny: conftest.collected_pairs)."""
     from mjxsysid.cli import main
     from mjxsysid.dataset.collect import MANOEUVRES, load_pairs
     arrays, meta = load_pairs(collected_pairs)

@@ -6,7 +6,6 @@ them skip with a message otherwise.
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -19,13 +18,12 @@ from mjxsysid.policy.xadap.network import build_history_input, normalize_state, 
 from mjxsysid.theta import XAdapPrior, xadap_training_prior
 from mjxsysid.policy.xadap.controller import NN_TO_MJX, XAdapController, butterworth2, make_xadap_low_level
 
-REPO = Path(__file__).resolve().parents[1]
+from support.paths import ROOT, XADAP_DIR
+
+REPO = ROOT
 G = np.float32(P.GRAVITY)
 HOVER_IMU = jnp.array([0.0, 0.0, 0.0, 0.0, 0.0, G], jnp.float32)
 HOVER_CMD = Command(jnp.float32(G), jnp.zeros(3, jnp.float32))
-
-
-from support.paths import XADAP_DIR  # noqa: E402
 
 
 @pytest.fixture(scope="module")

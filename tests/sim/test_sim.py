@@ -5,7 +5,7 @@ import mujoco
 import numpy as np
 import pytest
 
-import reference_dynamics as ref
+from support import reference_dynamics as ref
 from mjxsysid import theta as P
 from mjxsysid.sim import (Quadrotor, SimConfig, hover_rotor_speed, init_batch, rollout,
                           rollout_batch)

@@ -7,6 +7,8 @@ import numpy as np
 import pytest
 
 from mjxsysid.cfm.train import CFMConfig, train_cfm
+from mjxsysid.policy.adaptive.config import TrainConfig
+from mjxsysid.policy.adaptive.train import _same_config
 
 
 class Stop(Exception):
@@ -151,3 +153,15 @@ def test_policy_resume_gives_the_uninterrupted_weights(tmp_path):
     tmpl = {k: tmpl[k] for k in POLICY_MODULES}
     _leaves_equal(load_tree(tmp_path / "cut" / "policy.npz", tmpl, finite=True),
                   load_tree(tmp_path / "full" / "policy.npz", tmpl, finite=True))
+
+
+TINY_TRAIN = dict(num_envs=64, unroll=16, epochs=2, minibatches=4, log_every=1, checkpoint_every=2)
+
+
+def test_checkpoints_written_before_init_from_still_resume():
+    cfg = TrainConfig(iterations=2, **TINY_TRAIN)
+    saved = json.loads(json.dumps(cfg.to_dict()))
+    saved.pop("init_from")
+    assert _same_config(saved, cfg)
+    assert not _same_config({**saved, "iterations": 3}, cfg) and not _same_config(None, cfg)
+    assert not _same_config({**saved, "init_from": "x.npz"}, cfg)

@@ -246,7 +246,7 @@ def test_deployed_controller_equals_training_policy(params):
 @pytest.mark.skipif(not PRETRAINED.exists(), reason="no shipped policy weights")
 def test_pretrained_policy_hovers_and_tracks_paper_vehicle():
     from mjxsysid.rollout.flight import fly_vehicles
-    # 5 s: the hover of tests/test_experiments_robustness.py::test_payload_tiny (one compile)
+    # 5 s: the hover of tests/experiments/test_experiments_robustness.py::test_payload_tiny (one compile)
     _, m, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=resolve_policy("mjxsysid"),
                            reference="hover", duration=5.0)
     assert not bool(m["failed"][0])

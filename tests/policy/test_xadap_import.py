@@ -7,7 +7,6 @@ the tests that need them skip with a message otherwise.
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -25,12 +24,11 @@ from mjxsysid.policy.xadap.network import (
 )
 from mjxsysid.policy.xadap.onnx_import import load_xadap
 
-REPO = Path(__file__).resolve().parents[1]
+from support.paths import ROOT, XADAP_DIR, have as _have, require_xadap
+
+REPO = ROOT
 N_SAMPLES = 64
 TOL = 1e-5
-
-
-from support.paths import XADAP_DIR, have as _have, require_xadap  # noqa: E402
 
 
 needs_files = pytest.mark.skipif(

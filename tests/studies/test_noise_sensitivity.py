@@ -1,12 +1,11 @@
 """docs/noise.md's table is what mjxsysid.studies.noise makes of its committed run, and the
 figure is drawn from it (the run itself takes minutes: `mjxsysid experiment noise-sensitivity`)."""
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
+from support.paths import ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def test_docs_table_and_figure_come_from_the_run(tmp_path):

@@ -3,7 +3,6 @@ policy, written as CSV, then spoiled by the common mistakes; every mistake must 
 a warning naming it, and correct logs of prior vehicles must raise nothing."""
 import json
 import re
-from pathlib import Path
 
 import jax
 import numpy as np
@@ -17,10 +16,10 @@ from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
 from mjxsysid.studies import logcheck as L
 from mjxsysid.studies.decode import read_log, write_log
+from support.paths import ROOT
 
 pytestmark = pytest.mark.skipif(not (PRETRAINED_DIR / "cfm.npz").exists(), reason="no shipped decoder")
 
-ROOT = Path(__file__).resolve().parent.parent
 
 
 def _recs(theta, seconds=2.0):

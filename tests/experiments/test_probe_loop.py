@@ -1,43 +1,18 @@
-"""Probing that accumulates: the replay buffer's weighted draws, old checkpoints' configs (the warm
-start of training from a policy's weights: tests/test_policy.py, beside the tiny Trainer), and the probe loop's accumulate variant (its tiny
-end-to-end run is `slow`; its checks of input run here)."""
+"""The probe → retrain loop (mjxsysid.experiments.probe_loop): its accumulate variant (a replay buffer of
+every round's weak systems; the tiny end-to-end run is `slow`, its checks of input run here), the fair
+widened control (the prior widened as far as the probe reached, trained with the probed policy's budget;
+the loop's use of it runs with `--variant widened`, GPU), and resuming runs written before a variant."""
 import dataclasses
 import json
 
+import jax
 import numpy as np
 import pytest
 
 from mjxsysid import theta as P
-from mjxsysid.policy.adaptive.controller import PRETRAINED
-from mjxsysid.policy.adaptive.focus import replay_resample, save_weak
+from mjxsysid.experiments.probe_loop import QUICK, control_budget, probe_reach, run
 from mjxsysid.policy.adaptive.config import TrainConfig
-from mjxsysid.policy.adaptive.train import _same_config
-
-TINY = dict(num_envs=64, unroll=16, epochs=2, minibatches=4, log_every=1, checkpoint_every=2)
-
-
-def test_replay_draws_follow_the_badness():
-    th = np.tile(P.PAPER_HARDWARE, (3, 1)).astype(np.float32)
-    th[:, P.MASS] = [0.5, 0.6, 0.7]
-    got = replay_resample(th, [0.0, 1.0, 3.0], 4000, seed=1)
-    assert got.shape == (4000, 19)
-    frac = [(got[:, P.MASS] == m).mean() for m in th[:, P.MASS]]
-    assert frac[0] == 0 and abs(frac[2] - 0.75) < 0.03
-    np.testing.assert_array_equal(got, replay_resample(th, [0.0, 1.0, 3.0], 4000, seed=1))
-    for w, msg in (([0, 0, 0], "not all 0"), ([1, -1, 1], ">= 0"), ([1, 1], r"shape \(3,\)")):
-        with pytest.raises(ValueError, match=msg):
-            replay_resample(th, w, 10)
-    with pytest.raises(ValueError, match="replay draws"):
-        replay_resample(th, [1, 1, 1], 0)
-
-
-def test_checkpoints_written_before_init_from_still_resume():
-    cfg = TrainConfig(iterations=2, **TINY)
-    saved = json.loads(json.dumps(cfg.to_dict()))
-    saved.pop("init_from")
-    assert _same_config(saved, cfg)
-    assert not _same_config({**saved, "iterations": 3}, cfg) and not _same_config(None, cfg)
-    assert not _same_config({**saved, "init_from": "x.npz"}, cfg)
+from mjxsysid.policy.adaptive.controller import PRETRAINED
 
 
 def test_probe_loop_accumulate_checks_its_input_first(tmp_path):
@@ -85,3 +60,26 @@ def test_probe_loop_accumulate_quick_end_to_end(tmp_path):
     assert load_meta(out / "probed2" / "policy.npz")["config"]["init_from"] == str(out / "probed" / "policy.npz")
     assert load_meta(out / "probed" / "policy.npz")["config"]["init_from"] == str(PRETRAINED)
     assert set(json.loads((out / "results.json").read_text())["numbers"]["replay"]) == {"1", "2"}
+
+
+def test_probe_reach_measures_how_far_systems_leave_the_prior():
+    inside = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(5), 500))
+    r0 = probe_reach(inside, n=4000)
+    assert r0["amount"] < 0.05, r0                          # the prior's own draws stay inside
+    slow = inside.copy()
+    slow[:, P.TAU_M] = 0.08                                  # twice the prior's slowest motor
+    r = probe_reach(slow, n=4000)
+    assert r["per_quantity"]["motor_time_constant"] == pytest.approx(np.log(2.0), abs=0.02)
+    assert r["amount"] == pytest.approx(np.log(2.0), abs=0.02)
+    assert r["per_quantity"]["thrust_to_weight"] < 0.05
+    with pytest.raises(ValueError, match="probe_reach: systems must have shape"):
+        probe_reach(np.zeros((0, P.N_PARAMS)))
+
+
+def test_control_budget_is_the_probed_policys_whole_training(tmp_path):
+    base = TrainConfig(iterations=100)
+    assert control_budget(dataclasses.replace(QUICK, rounds=3, accumulate=True), base, "w.npz") == (300, "w.npz")
+    assert control_budget(dataclasses.replace(QUICK, rounds=3), base, "w.npz") == (100, None)
+    with pytest.raises(ValueError, match="unknown variant 'widen'"):
+        run(tmp_path / "x", quick=True, progress=False, variant="accumulate,widen")
+    assert not (tmp_path / "x").exists()

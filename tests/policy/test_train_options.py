@@ -7,7 +7,6 @@ import json
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optax
 import pytest
 
 from mjxsysid.policy.adaptive.trainer import Trainer, optimizer

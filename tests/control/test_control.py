@@ -221,7 +221,7 @@ def test_cli_argument_errors(capsys, argv, match):
 @pytest.mark.parametrize("decode_rate", [pytest.param(None, marks=pytest.mark.slow, id="10Hz"),
                                          pytest.param(1 / 9.8, id="first_and_last")])
 def test_demo_runs(tmp_path, monkeypatch, decode_rate):
-    """The quick-start demo end to end (no video here: tests/test_render.py covers rendering).
+    """The quick-start demo end to end (no video here: tests/render/test_render.py covers rendering).
     Decoding all 99 latents of the 10 s flight (200 samples each) dominates this test on a CPU:
     the default tier decodes only ẑ at 0.2 s and at 10 s (the posterior the summary reports);
     `-m slow` runs the demo unchanged."""
