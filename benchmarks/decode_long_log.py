@@ -45,7 +45,7 @@ def tiled_log(base, seconds: float, path: Path) -> Path:
     cols = [np.tile(x, (reps,) + (1,) * (x.ndim - 1))[:n] for x in (imu, a, w, m)]
     tt = 0.002 * np.arange(n)
     arr = np.column_stack([tt, *cols])
-    from mjxsysid.studies.decode import LOG_COLUMNS
+    from mjxsysid.logs.csvlog import LOG_COLUMNS
     with open(path, "w") as f:
         f.write(",".join(LOG_COLUMNS) + "\n")
         for i in range(0, n, 100_000):      # chunks: the writer's memory stays small too

@@ -22,14 +22,15 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
+from mjxsysid.logs import checks as _logcheck
+from mjxsysid.logs.checks import Finding, LogError
+from mjxsysid.logs.csvlog import read_any_log
+from mjxsysid.logs.ulog import read_ulog
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import CONTROLLERS, fly_vehicles, metrics_dict, one_flight, save_flight, seen_imu
 from mjxsysid.rollout.harness import metrics_to_host
 from mjxsysid.studies.decode import (check_window, checks_summary, decode_posterior, decoders_prior, flight_checks,
-                                     ground_in_log, log_latents, parse_window, read_any_log)
-from mjxsysid.logs.ulog import read_ulog
-from mjxsysid.studies import logcheck as _logcheck
-from mjxsysid.studies.logcheck import Finding, LogError
+                                     ground_in_log, log_latents, parse_window)
 
 __all__ = ["Finding", "FlightResult", "LogError", "check_log", "decode", "fly", "load_vehicle", "paper_vehicle", "prior_vehicles",
            "read_ulog", "save_vehicle", "to_theta"]
@@ -209,7 +210,7 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
 
 def check_log(log, *, policy=None, weights=None, prior: str | None = "wide_actuators") -> list:
     """The physical plausibility checks of ``mjxsysid decode --log``, alone: a flight-log CSV or
-    PX4 ULog (``.ulg``) path (or the dict of arrays :func:`~mjxsysid.studies.decode.read_log` returns) -> a list of
+    PX4 ULog (``.ulg``) path (or the dict of arrays :func:`~mjxsysid.logs.csvlog.read_log` returns) -> a list of
     :class:`Finding` (level 'error', 'warning' or 'out_of_prior', the column, the message;
     empty: nothing found). Errors do not raise here. ``policy`` (default the shipped one; None
     with ``prior=None`` skips the replay): the policy's own actions on the logged inputs are

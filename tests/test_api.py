@@ -146,7 +146,7 @@ def test_fly_and_decode_api_match_the_cli(tmp_path, capsys):
     with np.load(tmp_path / "dec" / "decoded.npz") as f:
         np.testing.assert_allclose(f["samples"], post["samples"], rtol=1e-5)
     # A flight-log path decodes too; an oracle flight has no latent to decode.
-    from mjxsysid.studies.decode import write_log
+    from mjxsysid.logs.csvlog import write_log
     from mjxsysid.rollout.flight import seen_imu
     one = res.one()
     log = write_log(tmp_path / "f.csv", one.time - 0.002, seen_imu(one.frame.imu), one.a_cmd,

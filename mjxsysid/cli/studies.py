@@ -96,8 +96,8 @@ def add_check_log(sub) -> None:
 
 def cmd_check_log(args) -> int:
     """Exit 2 on an error finding, 1 on a warning or out-of-prior finding, 0 on none."""
-    from mjxsysid.studies import logcheck as L
-    from mjxsysid.studies.decode import read_any_log
+    from mjxsysid.logs import checks as L
+    from mjxsysid.logs.csvlog import read_any_log
     rec = read_any_log(args.log, args.segment)
     found = L.check_log(rec)
     est = None

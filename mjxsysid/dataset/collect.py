@@ -89,7 +89,7 @@ _MINSNAP_POOL = 512
 def trajectory_times(seconds: float, rate: float = TRAJ_RATE_HZ, dt: float = 0.002):
     """(times (L,) s, step indices (L,), number of control steps) at which a ``seconds``-long
     flight's latent is recorded at ``rate`` Hz (the decode times of
-    :func:`mjxsysid.studies.decode.decode_indices`: from 0.2 s on, every 1/rate s). Raises ValueError for a flight shorter than
+    :func:`decode_indices`: from 0.2 s on, every 1/rate s). Raises ValueError for a flight shorter than
     the policy history (0.2 s)."""
     steps = int(round(seconds / dt))
     if not seconds > 0 or steps * dt < 0.2 - 1e-9:

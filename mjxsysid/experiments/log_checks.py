@@ -1,7 +1,7 @@
 """The flight-log checks measured (docs/decoding.md, 'Checking a log'): the shipped policy flies
 held-out vehicles of the decoders' prior (wide_actuators, a seed the decoders never saw) and
 vehicles outside it; every correct log must pass without a finding, every common mistake
-(:data:`mjxsysid.studies.logcheck.MISTAKES`) must end in an error or a warning that names it,
+(:data:`mjxsysid.logs.checks.MISTAKES`) must end in an error or a warning that names it,
 and the out-of-prior signal's false-alarm rate (prior vehicles) and hit rate (outside) are counted.
 The IMU-noise estimate is measured on flights the policy flew through known noise (white, bias,
 rotor vibration; multiples of the hardware-like levels): its error and how often it warns.
@@ -24,7 +24,7 @@ from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles, seen_imu
 from mjxsysid.sim import Quadrotor, SimConfig
-from mjxsysid.studies import logcheck as L
+from mjxsysid.logs import checks as L
 
 
 def out_of_prior_sets(theta, rng) -> dict:

@@ -36,9 +36,10 @@ from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.experiments.common import write_results
+from mjxsysid.logs.csvlog import LOG_DT, write_log
 from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.interface import PRETRAINED_DIR, file_sha256
-from mjxsysid.studies.decode import LOG_DT, run_decode, write_log
+from mjxsysid.studies.decode import run_decode
 from mjxsysid.studies.noise import LEVELS as NOISE_LEVELS
 
 LEVELS = ("clean", "x1", "x5_bias", "x5_white", "x20")

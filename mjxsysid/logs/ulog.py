@@ -1,11 +1,11 @@
-"""PX4 ULog flight logs -> the arrays of :func:`~mjxsysid.studies.decode.read_log` (docs/px4.md).
+"""PX4 ULog flight logs -> the arrays of :func:`~mjxsysid.logs.csvlog.read_log` (docs/px4.md).
 
 :func:`read_ulog` picks the topics a PX4 log carries, converts them to mjxsysid's log contract
 (body frame FLU, SI units, normalised rotor-speed commands Ω_cmd/Ω_max in mjxsysid's rotor order,
 a 2 ms grid), cuts the armed, airborne segment and says what it did: ``rec["source"]`` (topics,
 native rates, the segment and why, every conversion as a sentence), ``rec["resampled"]`` (how each
 column group was brought to 2 ms) and ``rec["native"]`` (the samples before resampling, for the
-checks that must not read interpolated values: :mod:`mjxsysid.studies.logcheck`).
+checks that must not read interpolated values: :mod:`mjxsysid.logs.checks`).
 
 pyulog is an optional dependency (``pip install mjxsysid[px4]``), imported when a log is read.
 """
@@ -219,7 +219,7 @@ def _topic(ulog, name, multi_id=0):
 
 
 def read_ulog(path, segment=None) -> dict:
-    """Read a PX4 ULog flight log -> the arrays of :func:`~mjxsysid.studies.decode.read_log`
+    """Read a PX4 ULog flight log -> the arrays of :func:`~mjxsysid.logs.csvlog.read_log`
     (t (T,) in s since the log's start, imu (T, 6), a_cmd (T,), omega_cmd (T, 3), motor (T, 4) on
     a 2 ms grid) over the armed, airborne segment (or ``segment``: 't0:t1' or (t0, t1), seconds
     since the log's start), plus ``native`` {group: (t (N,), values)} the samples before

@@ -219,7 +219,7 @@ def test_sequence_decoder_of_another_policy_is_an_error(tmp_path):
 def test_decode_cli_windows(tmp_path, capsys):
     """Bad windows are one-line errors (exit 2) before anything flies; a log replay decodes with a
     window and falls back to instant without a sequence decoder."""
-    from mjxsysid.studies.decode import write_log
+    from mjxsysid.logs.csvlog import write_log
     from mjxsysid.cli import main
     for w, msg in (("0", "must be > 0"), ("-2", "must be > 0"), ("soon", "'flight', 'instant'"),
                    ("30", "longer than the flight")):

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mjxsysid import theta as P
-from mjxsysid.studies.decode import LOG_COLUMNS, read_log
+from mjxsysid.logs.csvlog import LOG_COLUMNS, read_log
 from mjxsysid.cli import main
 
 SETTINGS = settings(max_examples=60, deadline=None,

@@ -11,8 +11,8 @@ pytest.importorskip("pyulog")
 
 from mjxsysid.cli import main
 from mjxsysid.logs import ulog as U
-from mjxsysid.studies import logcheck as L
-from mjxsysid.studies.decode import read_any_log, read_log, write_log
+from mjxsysid.logs import checks as L
+from mjxsysid.logs.csvlog import read_any_log, read_log, write_log
 from support.paths import DATA
 
 SAMPLE = DATA / "sample_px4_events.ulg"

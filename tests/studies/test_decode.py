@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from mjxsysid import theta as P
-from mjxsysid.studies.decode import LOG_COLUMNS, decode_latents, read_log, write_log
+from mjxsysid.logs.csvlog import LOG_COLUMNS, read_log, write_log
+from mjxsysid.studies.decode import decode_latents
 from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
 from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.cli import main
@@ -138,7 +139,7 @@ def test_closed_loop_fidelity_runs():
 def test_read_log_fast_path_equals_the_careful_parser_and_memory_limit(paper_flight, tmp_path, monkeypatch):
     """A clean log is read by numpy's C parser; an extra text column sends the same rows through
     the careful parser: the arrays agree exactly. A log that cannot fit is one line naming the limit."""
-    import mjxsysid.studies.decode as D
+    import mjxsysid.logs.csvlog as D
     clean = write_log(tmp_path / "clean.csv", *_log_from_flight(paper_flight))
     lines = clean.read_text().splitlines()
     (tmp_path / "extra.csv").write_text("\n".join([lines[0] + ",pilot"] + [ln + ",bob" for ln in lines[1:]]) + "\n")

@@ -1,4 +1,4 @@
-"""Physical plausibility of flight logs (mjxsysid.studies.logcheck): logs flown here by the shipped
+"""Physical plausibility of flight logs (mjxsysid.logs.checks): logs flown here by the shipped
 policy, written as CSV, then spoiled by the common mistakes; every mistake must end in exit 2 or
 a warning naming it, and correct logs of prior vehicles must raise nothing."""
 import json
@@ -14,8 +14,11 @@ from mjxsysid.cli import main
 from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
-from mjxsysid.studies import logcheck as L
-from mjxsysid.studies.decode import read_log, write_log
+from mjxsysid.logs import checks as L
+from mjxsysid.logs.checks.plausibility import check_gyro
+from mjxsysid.logs.checks.rotors import check_motors
+from mjxsysid.logs.checks.signals import lagged
+from mjxsysid.logs.csvlog import read_log, write_log
 from support.paths import ROOT
 
 pytestmark = pytest.mark.skipif(not (PRETRAINED_DIR / "cfm.npz").exists(), reason="no shipped decoder")
@@ -96,9 +99,9 @@ def test_gyro_rate_tracking_gain(paper_log):
     rec, _ = paper_log
     slow = dict(rec, imu=rec["imu"].copy(), omega_cmd=rec["omega_cmd"] * 0.1)
     slow["imu"][:, :3] = np.rad2deg(rec["imu"][:, :3] * 0.1)
-    found = L._check_gyro(slow)
+    found = check_gyro(slow)
     assert found and "deg/s" in str(found[0]) and "gain" in str(found[0])
-    assert not L._check_gyro(rec)
+    assert not check_gyro(rec)
 
 
 @pytest.mark.parametrize("kind,text", [("time_in_ms", "milliseconds"), ("motor_pwm", "PWM")])
@@ -279,7 +282,7 @@ def test_motor_columns_that_explain_nothing_are_named(paper_log):
     score both > 0.2 and < 0.2): motor columns shuffled in time on a flight that moves."""
     rec, _ = paper_log
     shuffled = dict(rec, motor=rec["motor"][np.random.default_rng(0).permutation(len(rec["motor"]))])
-    found = L._check_motors(shuffled)
+    found = check_motors(shuffled)
     assert found and "do not explain the angular acceleration under any rotor order" in found[0].message
 
 
@@ -318,7 +321,7 @@ def test_tau_from_the_specific_force_when_the_torque_fit_fails(paper_log):
     from mjxsysid.studies.decode import checks_summary
     rec, _ = paper_log
     u = np.asarray(rec["motor"], np.float64)
-    s2 = (L._lag(u, 0.005) ** 2).sum(1)
+    s2 = (lagged(u, 0.005) ** 2).sum(1)
     imu = np.array(rec["imu"], np.float64)
     imu[:, 5] = s2 * (9.75 / s2.mean())
     imu[:, :3] = 0.0

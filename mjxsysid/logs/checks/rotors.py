@@ -1,0 +1,131 @@
+"""What the motor columns drive: the rotor order (Euler's equation, every one of the 24 orders
+fitted), the thrust model (rotor-speed commands or throttles) and the lag of thrust behind them."""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+
+from mjxsysid.logs.checks.findings import Finding
+from mjxsysid.logs.checks.noise import estimate_imu_noise
+from mjxsysid.logs.checks.rates import MIN_ORDER_RATE_HZ, column_rates
+from mjxsysid.logs.checks.signals import (DT, LAGS, SMOOTH_STEPS, fit_line, fit_rows, lagged, order_name, smooth,
+                                          torque_basis)
+
+EXCITED_ALPHA = 1.0
+"""rad/s²: the spread of the (smoothed) angular acceleration below which a flight is too still
+to tell the rotor order (a hover in still air)."""
+
+
+def rotor_order_fit(rec: dict) -> dict:
+    """Fit the angular acceleration (gyro, differentiated and smoothed) to the torque the motor
+    commands imply for each of the 24 rotor orders. -> dict: ``scores`` {order: mean R² over
+    roll, pitch, yaw (an axis with a negative gain counts −1)}, ``gains`` {order: (3,)},
+    ``best`` order, ``given`` score of the log's own order (0, 1, 2, 3), ``tau`` the lag used,
+    ``excited`` whether the flight moved the vehicle enough to tell (rate changes above noise).
+    A long log is fitted on :func:`fit_rows` of it."""
+    rec = fit_rows(rec)
+    u2 = np.asarray(rec["motor"], np.float64) ** 2
+    gyro = np.asarray(rec["imu"], np.float64)[:, :3]
+    alpha = smooth(np.diff(gyro, axis=0) / DT)                           # (T−n, 3)
+    basis = torque_basis()
+    best_tau, best_s, cache = None, -np.inf, {}
+    for tau in LAGS:  # the lag from the log's own order (the rotor time constant); every order then uses it
+        uf = smooth(lagged(u2, tau)[:-1])  # row t: the rotors over step t, which alpha[t] spans
+        s = np.mean([fit_line(uf @ basis[k], alpha[:, k])[1] for k in range(3)])
+        cache[tau] = uf
+        if s > best_s:
+            best_tau, best_s = tau, s
+    uf = cache[best_tau]
+    scores, gains = {}, {}
+    for order in itertools.permutations(range(4)):
+        b = basis[:, list(order)]          # column j is rotor order[j]
+        ks, r2 = zip(*(fit_line(uf @ b[k], alpha[:, k]) for k in range(3)))
+        scores[order] = float(np.mean([r if k > 0 else -1.0 for k, r in zip(ks, r2)]))
+        gains[order] = np.asarray(ks)
+    best = max(scores, key=scores.get)
+    # Excited: the angular acceleration varies well above what the gyro's noise makes of it
+    # (a moving average of n differences of white noise σ has std σ √2 / (n dt)).
+    sigma = estimate_imu_noise({"imu": np.asarray(rec["imu"])})["gyro_noise"]
+    floor = sigma * np.sqrt(2.0) / (SMOOTH_STEPS * DT)
+    excited = bool(np.std(alpha) > max(3.0 * floor, EXCITED_ALPHA))
+    return {"scores": scores, "gains": gains, "best": best, "given": scores[(0, 1, 2, 3)], "tau": best_tau,
+            "excited": excited, "given_r2": float(best_s)}
+
+
+THRUST_MODEL_RATIO = 0.3
+"""The hover-balance ratio (:func:`thrust_model_fit`) below which the motor columns are taken as
+throttles: thrust ∝ Ω² gives 1 without drag and about 0.5 with the vertical drag of the prior's
+vehicles (the paper vehicle 0.54); columns that are throttles (thrust ∝ the column, read as Ω)
+give half of that (0.12–0.14 on the same flights)."""
+
+
+def thrust_model_fit(rec, tau: float = 0.02) -> dict:
+    """The thrust model against the hover balance: acc_z ≈ k Σ ū² fitted on the changes along the
+    flight (ū the motor columns lagged by ``tau``) and the balance of the means,
+    mean acc_z / mean Σ ū². For columns Ω_cmd/Ω_max (thrust ∝ ū²) the two agree (``ratio``
+    k / balance about 1, less with vertical drag); for throttles (thrust ∝ ū: the columns' square is
+    the thrust's) the changes are twice as steep in Σ ū² as the balance: the ratio halves.
+    -> ``ratio``, ``r2`` of the fit."""
+    rec = fit_rows(rec)
+    x = smooth((lagged(np.asarray(rec["motor"], np.float64), tau) ** 2).sum(1))
+    y = smooth(np.asarray(rec["imu"], np.float64)[:, 5])
+    k, r2 = fit_line(x, y)
+    return {"ratio": float(k * x.mean() / max(float(y.mean()), 1e-12)), "r2": float(r2)}
+
+
+def check_thrust_model(rec) -> list[Finding]:
+    fit = thrust_model_fit(rec)
+    if fit["r2"] > 0.5 and fit["ratio"] < THRUST_MODEL_RATIO:
+        return [Finding("warning", "motor_1, motor_2, motor_3, motor_4",
+                        f"the specific force changes along the flight with Σ motor² at {fit['ratio']:.2f} of the "
+                        f"gain the hover balance gives (mean acc_z / mean Σ motor²; R² {fit['r2']:.2f}); rotor-speed "
+                        f"commands give 0.5–1, throttles half that: the motor columns look like throttles (thrust linear in the column), "
+                        f"not rotor-speed commands. Thrust ∝ Ω²: for an ESC whose thrust is linear in throttle, "
+                        f"Ω_cmd/Ω_max = √throttle (PX4: √((1 − f) u + f u²) with THR_MDL_FAC f; docs/px4.md)")]
+    return []
+
+
+def estimate_thrust_lag(rec) -> dict:
+    """The motor time constant from the specific force: the lag (of :data:`LAGS`) with which
+    Σ ū² (the commands lagged, squared) best fits acc_z -> ``tau`` (s) and ``r2``."""
+    rec = fit_rows(rec)
+    u = np.asarray(rec["motor"], np.float64)
+    y = smooth(np.asarray(rec["imu"], np.float64)[:, 5])
+    best = (LAGS[0], -np.inf)
+    for tau in LAGS:
+        r2 = fit_line(smooth((lagged(u, tau) ** 2).sum(1)), y)[1]
+        if r2 > best[1]:
+            best = (tau, r2)
+    return {"tau": float(best[0]), "r2": float(best[1])}
+
+
+def check_motors(rec) -> list[Finding]:
+    cols = "motor_1, motor_2, motor_3, motor_4"
+    rate = column_rates(rec)["motor"][0]
+    if rate < MIN_ORDER_RATE_HZ:
+        return [Finding("warning", cols, f"cannot tell the rotor order at this motor rate ({rate:.3g} Hz): the rotors "
+                        f"follow their commands within a few tens of ms, commands {1e3 / rate:.3g} ms apart do not "
+                        f"show which rotor turned the vehicle; the order is taken as given (for a ULog: from its "
+                        f"parameters). Log the motor commands at ≥ {MIN_ORDER_RATE_HZ:g} Hz to have it checked "
+                        f"(PX4: docs/px4.md, 'Logging rates')")]
+    fit = rotor_order_fit(rec)
+    if not fit["excited"]:
+        return []
+    given, best, sbest = fit["given"], fit["best"], fit["scores"][fit["best"]]
+    gains = fit["gains"][(0, 1, 2, 3)]
+    if best != (0, 1, 2, 3) and sbest > 0.5 and sbest - given > 0.25:
+        wrong_sign = [a for a, k in zip(("roll", "pitch", "yaw"), gains) if k <= 0]
+        lvl = "error" if any(a in ("roll", "pitch") for a in wrong_sign) else "warning"
+        what = (f"in this order the motors' torque turns the vehicle against its measured "
+                f"{'/'.join(wrong_sign)} acceleration" if wrong_sign else "")
+        reorder = ", ".join(f"motor_{j + 1} = column {best.index(j) + 1}" for j in range(4))
+        return [Finding(lvl, cols, f"the angular acceleration fits the torque of another rotor order clearly better "
+                        f"(mean R² {sbest:.2f} vs {given:.2f} for mjxsysid's order{'; ' + what if what else ''}): "
+                        f"the columns look like {order_name(best)}; mjxsysid's order is front-right, front-left, "
+                        f"back-left, back-right: reorder ({reorder})")]
+    if sbest < 0.2:
+        return [Finding("warning", cols, f"the motor commands do not explain the angular acceleration under any rotor "
+                        f"order (best mean R² {sbest:.2f}): are motor_1..4 normalised rotor-speed commands Ω_cmd/Ω_max "
+                        f"(not body rates, torques or PWM)? See docs/decoding.md, 'Converting autopilot outputs'")]
+    return []
