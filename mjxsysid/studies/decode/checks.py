@@ -14,7 +14,7 @@ def log_latents(policy, rec: dict, *, source="flight log", checks: dict | None =
                 imu_limit: dict | None = None):
 
     """ẑ (T, 8) and times (T,) (s from the log's start, first step at 2 ms) of a flight log read
-    by :func:`read_log`, rebuilt by the frozen ``policy`` (a name, path or PolicyRef).
+    by :func:`~mjxsysid.logs.csvlog.read_log`, rebuilt by the frozen ``policy`` (a name, path or PolicyRef).
 
     The log's physics is checked first (:func:`~mjxsysid.logs.checks.check_log`): a log
     that cannot be right raises :class:`~mjxsysid.logs.checks.LogError` (naming ``source``)
@@ -36,7 +36,7 @@ def log_latents(policy, rec: dict, *, source="flight log", checks: dict | None =
 
 def decoders_prior(*decoders) -> str | None:
     """The name of the prior the decoders were trained on (from their provenance), if it is a
-    size-factor prior of :mod:`mjxsysid.theta` (what :func:`prior_check` compares with)."""
+    size-factor prior of :mod:`mjxsysid.theta` (what :func:`~mjxsysid.logs.checks.prior.prior_check` compares with)."""
     for d in decoders:
         name = (getattr(d, "meta", None) or {}).get("data", {}).get("pairs_meta", {}).get("prior")
         if name in P.PRIORS and isinstance(P.PRIORS[name], P.SizeFactorPrior):

@@ -91,7 +91,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     single-latent one, ``_window`` what was used. Without a sequence decoder, falls back to
     'instant' and says so. ``truth`` (θ (19,), with ``log`` only): the logged vehicle's known
     parameters; the summary then reports ``true`` and ``inside`` as for a flown vehicle.
-    ``log``: a CSV or a PX4 ULog (``.ulg``, :func:`read_any_log`); ``segment`` 't0:t1': the part
+    ``log``: a CSV or a PX4 ULog (``.ulg``, :func:`~mjxsysid.logs.csvlog.read_any_log`); ``segment`` 't0:t1': the part
     of it to decode (a ULog's default: its armed, airborne segment).
 
     A log's posterior of record is grounded in its own physics unless ``decoder_only``
