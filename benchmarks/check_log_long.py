@@ -23,8 +23,8 @@ def main():
     ap.add_argument("--minutes", type=float, default=10.0)
     ap.add_argument("--repeats", type=int, default=3)
     a = ap.parse_args()
-    from mjxsysid.logs.ulog import read_ulog
     from mjxsysid.logs.csvlog import write_log
+    from mjxsysid.logs.ulog import read_ulog
     r = read_ulog(ROOT / "tests" / "data" / "sample_px4_events.ulg")
     k = int(np.ceil(a.minutes * 60 / (len(r["t"]) * 0.002)))
     cols = {c: np.concatenate([r[c]] * k)[: int(a.minutes * 60 / 0.002)] for c in ("imu", "a_cmd", "omega_cmd", "motor")}

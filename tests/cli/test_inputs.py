@@ -11,8 +11,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mjxsysid import theta as P
-from mjxsysid.logs.csvlog import LOG_COLUMNS, read_log
 from mjxsysid.cli import main
+from mjxsysid.logs.csvlog import LOG_COLUMNS, read_log
 
 SETTINGS = settings(max_examples=60, deadline=None,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])

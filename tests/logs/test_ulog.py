@@ -10,8 +10,8 @@ import pytest
 pytest.importorskip("pyulog")
 
 from mjxsysid.cli import main
-from mjxsysid.logs import ulog as U
 from mjxsysid.logs import checks as L
+from mjxsysid.logs import ulog as U
 from mjxsysid.logs.csvlog import read_any_log, read_log, write_log
 from support.paths import DATA
 

@@ -5,11 +5,11 @@ import numpy as np
 import pytest
 
 from mjxsysid import theta as P
-from mjxsysid.logs.csvlog import LOG_COLUMNS, read_log, write_log
-from mjxsysid.studies.decode import decode_latents
-from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
 from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.cli import main
+from mjxsysid.logs.csvlog import LOG_COLUMNS, read_log, write_log
+from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
+from mjxsysid.studies.decode import decode_latents
 
 pytestmark = pytest.mark.skipif(not (PRETRAINED_DIR / "cfm.npz").exists(), reason="no shipped decoder")
 

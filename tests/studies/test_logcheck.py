@@ -11,14 +11,14 @@ import pytest
 import mjxsysid
 from mjxsysid import theta as P
 from mjxsysid.cli import main
-from mjxsysid.policy.adaptive.controller import PolicyController
-from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
-from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
 from mjxsysid.logs import checks as L
 from mjxsysid.logs.checks.plausibility import check_gyro
 from mjxsysid.logs.checks.rotors import check_motors
 from mjxsysid.logs.checks.signals import lagged
 from mjxsysid.logs.csvlog import read_log, write_log
+from mjxsysid.policy.adaptive.controller import PolicyController
+from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
+from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
 from support.paths import ROOT
 
 pytestmark = pytest.mark.skipif(not (PRETRAINED_DIR / "cfm.npz").exists(), reason="no shipped decoder")
