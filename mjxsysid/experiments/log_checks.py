@@ -97,7 +97,7 @@ def run(out, *, quick=False, policy=None, seed=12345, progress=True) -> dict:
     mist = {}
     for kind in L.MISTAKES:
         if kind in ("time_in_ms", "motor_pwm"):
-            continue  # caught on reading (read_log): tested on CSV files in tests/studies/test_logcheck.py
+            continue  # caught on reading (read_log): tested on CSV files in tests/logs/test_logcheck.py
         levels, named = Counter(), []
         for r in recs:
             bad = L.make_mistake({k: v for k, v in r.items() if k != "imu_after"}, kind, imu_after=r["imu_after"])

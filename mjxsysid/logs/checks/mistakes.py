@@ -1,5 +1,5 @@
 """Common mistakes made on purpose to a correct log: what the checks must catch (the log-checks
-experiment, tests/test_logcheck.py)."""
+experiment, tests/logs/test_logcheck.py)."""
 from __future__ import annotations
 
 import numpy as np
