@@ -20,11 +20,11 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.experiments.common import leaf_table, write_results
+from mjxsysid.logs import checks as L
 from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles, seen_imu
 from mjxsysid.sim import Quadrotor, SimConfig
-from mjxsysid.logs import checks as L
 
 
 def out_of_prior_sets(theta, rng) -> dict:
