@@ -39,7 +39,8 @@ def add_release(sub) -> None:
                         "(a checkout: required for the ship stage; --tiny: default OUT/ship)")
     r.add_argument("--docs-root", type=Path, default=None, metavar="ROOT",
                    help="the checkout whose generated pages the tables stage regenerates over the release's run "
-                        "files (default: --ship-to's ROOT; required for the tables stage of a --tiny release)")
+                        "files (default: --ship-to's ROOT; required for the tables stage of a full release; a --tiny release "
+                        "without it lays out its tree and regenerates no page)")
     r.add_argument("--allow-partial", action="store_true",
                    help="with --stages ship: ship what the done stages wrote although others are not done")
     r.set_defaults(handler=cmd_release)
@@ -73,7 +74,7 @@ def cmd_release(args) -> int:
     todo = rel.plan(select, args.force or (), args.allow_partial)   # errors before anything is written
     if "policy" in todo and not rel.options.from_policy and not config_path(rel.options.policy_config).is_file():
         raise FileNotFoundError(f"policy config file not found: {rel.options.policy_config}")
-    if "tables" in todo and rel.docs_root is None:
+    if "tables" in todo and rel.docs_root is None and rel.options.scale != "tiny":
         raise ValueError("stage tables regenerates the pages of a checkout: give its root (--docs-root ROOT)")
     if "ship" in todo and rel.ship_to is None:
         raise ValueError("stage ship copies into a checkout: give its root (--ship-to ROOT)")

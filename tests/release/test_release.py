@@ -178,7 +178,7 @@ def test_cli_errors_are_one_line(tmp_path, capsys):
                       ((tmp_path / "r", "--from-policy", tmp_path / "none.npz"), "policy weights not found"),
                       ((tmp_path / "r", "--list"), "no release in"),
                       ((tmp_path / "r", "--stages", "ship"), "cannot ship"),
-                      ((tmp_path / "r", "--tiny"), "give its root (--docs-root"),
+                      ((tmp_path / "r",), "give its root (--docs-root"),
                       ((tmp_path / "r", "--stages", "ship", "--allow-partial"), "give its root (--ship-to")):
         rc, out, err = _cli(capsys, "--out", *args)
         assert rc == 2 and msg in err and len(err.strip().splitlines()) == 1, (args, err)

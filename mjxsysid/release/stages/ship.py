@@ -101,29 +101,33 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
 
 @STAGES.add(needs=("policy_eval", "decoder_eval", "noise", "tune_nominal", "tune_slow", "tune_slow_more",
                    "tune_lemniscate", "studies", "fidelity"),
-            outputs=tuple(f"tree/{p}" for p in layout.PAGES), estimate_s=5,
+            outputs=("tree",), estimate_s=5,
             what="lay out the shipped tree and regenerate docs/fair_comparisons.md, docs/noise.md's tables and docs/results.md")
 def tables(rel: Release, out: Path) -> StageResult:
     """Lay out the shipped tree in out/tree (:func:`build_tree`) and regenerate the generated
     docs pages of ``rel.docs_root`` (a checkout) over it: docs/fair_comparisons.md (each run file
     read from the tree where the release wrote one, else from the checkout), the noise tables
-    of docs/noise.md and docs/results.md."""
+    of docs/noise.md and docs/results.md. The pages quote runs a release does not make (earlier
+    protocols, measurements): without a checkout (``docs_root`` None, allowed for a tiny release
+    only, e.g. from an installed wheel) the tree is laid out and no page is regenerated."""
     from mjxsysid.release.pages import fair, noise, results
-    if rel.docs_root is None:
+    if rel.docs_root is None and rel.options.scale != "tiny":
         raise ValueError("stage tables regenerates the pages of a checkout: give its root (--docs-root ROOT)")
     tree = out / "tree"
     if tree.exists():
         shutil.rmtree(tree)
     build_tree(rel, tree)
-    (tree / layout.PAGES[0]).write_text(fair.page(rel.docs_root, overlay=tree))
-    (tree / layout.PAGES[1]).write_text(noise.page(rel.docs_root, overlay=tree))
-    (tree / layout.PAGES[2]).write_text(results.page(rel.docs_root, overlay=tree))
+    calls = [call(build_tree, tree=tree)]
+    if rel.docs_root is None:
+        rel.log("[release] tables: no --docs-root: the tree is laid out, the docs pages are not regenerated")
+    else:
+        for page, path in zip((fair.page, noise.page, results.page), layout.PAGES, strict=True):
+            (tree / path).write_text(page(rel.docs_root, overlay=tree))
+            calls.append(call(page, root=rel.docs_root, overlay=tree))
     files = sorted(str(p.relative_to(tree)) for p in tree.rglob("*") if p.is_file())
-    return StageResult(calls=(call(build_tree, tree=tree), call(fair.page, root=rel.docs_root, overlay=tree),
-                              call(noise.page, root=rel.docs_root, overlay=tree),
-                              call(results.page, root=rel.docs_root, overlay=tree)),
-                       config={"tree": str(tree), "docs_root": str(rel.docs_root)},
-                       figures={"files": len(files), "pages": list(layout.PAGES)})
+    return StageResult(calls=tuple(calls),
+                       config={"tree": str(tree), "docs_root": None if rel.docs_root is None else str(rel.docs_root)},
+                       figures={"files": len(files), "pages": [] if rel.docs_root is None else list(layout.PAGES)})
 
 
 @STAGES.add(outputs=("shipped.json",), estimate_s=5, after=("tables",),
