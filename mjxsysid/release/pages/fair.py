@@ -11,12 +11,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
 from mjxsysid.release.layout import DOCS, pretrained_path, run_path
 from mjxsysid.release.pages.fair_rows import (
-    NOMINAL,
-    SLOW,
     decoder_rows,
     fidelity_rows,
     lag_rows,
@@ -24,6 +21,7 @@ from mjxsysid.release.pages.fair_rows import (
     merged_rows,
     pct,
     policy_rows,
+    ratio,
     replay_rows,
     robustness_rows,
     stamp,
@@ -37,16 +35,6 @@ ISSUE26_RUNS = ("tune_slow", "tune_slow_seed7", "tune_slow_true_rotor_state", "t
                 "tune_slow_heading_cost", "tune_slow_baseline_start", "tune_slow_seed7_baseline_start",
                 "tune_nominal", "tune_nominal_baseline_start", "tune_nominal_protect", "tune_lemniscate",
                 "tune_lemniscate_no_lead_in", "tune_lemniscate_no_lead_in_baseline_start")
-
-
-def _ratio(d: dict, base: dict, m: str = "cfm_tuned") -> str:
-    """m over Baseline on the same vehicles as :func:`merged_rows` (those no method of the
-    experiment lost; a method ``d`` lacks comes from ``base``)."""
-    methods = SLOW if "nominal_cem" in base["numbers"] else NOMINAL
-    pv = {k: (d if k in d["numbers"] else base)["numbers"][k]["per_vehicle"] for k in methods}
-    ok = ~np.any([np.asarray(pv[k]["failed"], bool) for k in methods], 0)
-    r = np.asarray(pv[m]["pos_rmse_m"])[ok].mean() / np.asarray(pv["baseline"]["pos_rmse_m"])[ok].mean()
-    return f"{r:.2f}×"
 
 
 def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]:
@@ -92,15 +80,15 @@ def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]
         "",
         "What the tables say:",
         "- **The start of the prediction was the fault.** On tune-slow seed 0 the rotor estimate takes CFM-tuned",
-        (f"  from {_ratio(t['tune_slow_steady_rotor_state'], slow)} to {_ratio(slow, slow)} Baseline's RMSE and Oracle-CEM from "
-        f"{_ratio(t['tune_slow_steady_rotor_state'], slow, 'oracle_cem')} to {_ratio(slow, slow, 'oracle_cem')}; seed 7: "
-        f"{_ratio(slow7, slow7)} and {_ratio(slow7, slow7, 'oracle_cem')} (targets ≤ 0.70× and ≤ 0.6×; the paper 0.77×)."),
+        (f"  from {ratio(t['tune_slow_steady_rotor_state'], slow)} to {ratio(slow, slow)} Baseline's RMSE and Oracle-CEM from "
+        f"{ratio(t['tune_slow_steady_rotor_state'], slow, 'oracle_cem')} to {ratio(slow, slow, 'oracle_cem')}; seed 7: "
+        f"{ratio(slow7, slow7)} and {ratio(slow7, slow7, 'oracle_cem')} (targets ≤ 0.70× and ≤ 0.6×; the paper 0.77×)."),
         "  Starting every model from the *true* rotor speeds is worse for the decoded ensemble",
-        f"  ({_ratio(t['tune_slow_true_rotor_state'], slow)}): a model whose τ_m differs from the truth predicts",
+        f"  ({ratio(t['tune_slow_true_rotor_state'], slow)}): a model whose τ_m differs from the truth predicts",
         "  better from the rotor state its own lag implies than from a state it could not have reached.",
-        "- tune-nominal: CFM-tuned " + _ratio(t["tune_nominal"], t["tune_nominal"]) + " Baseline (target ≤ 0.85×: missed), Oracle-CEM "
-        + _ratio(t["tune_nominal"], t["tune_nominal"], "oracle_cem") + " (≤ 0.8×: met). Started from the Baseline gains",
-        "  the tuner reaches " + _ratio(t["tune_nominal_baseline_start"], t["tune_nominal"]) + " — a knob chosen after seeing the",
+        "- tune-nominal: CFM-tuned " + ratio(t["tune_nominal"], t["tune_nominal"]) + " Baseline (target ≤ 0.85×: missed), Oracle-CEM "
+        + ratio(t["tune_nominal"], t["tune_nominal"], "oracle_cem") + " (≤ 0.8×: met). Started from the Baseline gains",
+        "  the tuner reaches " + ratio(t["tune_nominal_baseline_start"], t["tune_nominal"]) + " — a knob chosen after seeing the",
         "  default's result, so the default stays the paper's (the tuner starts from the Naive gains) and both are shown.",
         "- tune-lemniscate: CFM-tuned beats Baseline at every period with the lead-in; launched onto the moving",
         "  reference from the Naive gains it loses about 2× (Oracle-CEM as much: the start, not the models);",

@@ -158,11 +158,15 @@ SLOW = ["baseline", "nominal_cem", "cfm_tuned", "oracle_cem"]
 NOMINAL = ["naive", "baseline", "cfm_tuned", "oracle_cem"]
 
 
-def _ratio(d: dict, base: dict, m: str = "cfm_tuned") -> str:
-    """m over Baseline on the same vehicles as :func:`merged_rows` (those no method of the
-    experiment lost; a method ``d`` lacks comes from ``base``)."""
+def ratio_over_baseline(d: dict, base: dict, m: str = "cfm_tuned") -> float:
+    """m's mean position RMSE over Baseline's on the same vehicles as :func:`merged_rows` (those no
+    method of the experiment lost; a method the tune-* run ``d`` lacks comes from ``base``)."""
     methods = SLOW if "nominal_cem" in base["numbers"] else NOMINAL
     pv = {k: (d if k in d["numbers"] else base)["numbers"][k]["per_vehicle"] for k in methods}
     ok = ~np.any([np.asarray(pv[k]["failed"], bool) for k in methods], 0)
-    r = np.asarray(pv[m]["pos_rmse_m"])[ok].mean() / np.asarray(pv["baseline"]["pos_rmse_m"])[ok].mean()
-    return f"{r:.2f}×"
+    return float(np.asarray(pv[m]["pos_rmse_m"])[ok].mean() / np.asarray(pv["baseline"]["pos_rmse_m"])[ok].mean())
+
+
+def ratio(d: dict, base: dict, m: str = "cfm_tuned") -> str:
+    """:func:`ratio_over_baseline` as the pages print it ("0.71×")."""
+    return f"{ratio_over_baseline(d, base, m):.2f}×"

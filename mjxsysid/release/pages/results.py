@@ -10,10 +10,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import NamedTuple
 
-import numpy as np
 
 from mjxsysid.release.layout import DOCS, run_path
-from mjxsysid.release.pages.fair_rows import SLOW
+from mjxsysid.release.pages.fair_rows import ratio_over_baseline
 from mjxsysid.release.pages.runs import RunFiles
 
 PAGE = f"{DOCS}/results.md"
@@ -93,13 +92,8 @@ def _log_grounded(runs: RunFiles) -> Row:
 
 def _tune_slow(runs: RunFiles) -> Row:
     rels = [run_path("tuning", k, "results.json") for k in ("tune_slow", "tune_slow_seed7")]
-    ratios = []
-    for rel in rels:
-        num = runs.load(rel)["numbers"]
-        pv = {k: num[k]["per_vehicle"] for k in SLOW}
-        ok = ~np.any([np.asarray(pv[k]["failed"], bool) for k in SLOW], 0)
-        base = np.asarray(pv["baseline"]["pos_rmse_m"])[ok].mean()
-        ratios.append({m: np.asarray(pv[m]["pos_rmse_m"])[ok].mean() / base for m in ("cfm_tuned", "oracle_cem")})
+    runs_ = [runs.load(rel) for rel in rels]
+    ratios = [{m: ratio_over_baseline(d, d, m) for m in ("cfm_tuned", "oracle_cem")} for d in runs_]
     (a, b) = ratios
     return Row("online tuner, slow motors (τ_m 0.05–0.10 s): position RMSE over fixed Baseline gains",
                f"**{a['cfm_tuned']:.2f}×** (seed 0), {b['cfm_tuned']:.2f}× (seed 7); "
