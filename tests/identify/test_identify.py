@@ -100,7 +100,6 @@ def test_prepare_rejects_a_short_log():
         L.prepare(rec)
 
 
-@pytest.mark.xdist_group("identify")
 def test_posterior_covers_the_truth_hidden_directions_broad_and_the_proposal_only_proposes():
     """On an exact-model log: thrust-to-weight and the roll/pitch authorities inside narrow bands,
     mass as broad as the prior; and two decoded ensembles, one 25 % off in thrust-to-weight, give
@@ -128,7 +127,6 @@ def test_posterior_covers_the_truth_hidden_directions_broad_and_the_proposal_onl
     assert "khat" in posts[0]["decoded_is"]
 
 
-@pytest.mark.xdist_group("identify")
 def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     """jMAVSim's Iris (PX4's sample log, motors logged at 10 Hz): thrust-to-weight 2.04 inside a band
     within ±10 %; τ_m 5 ms inside; the rates are not used (10 Hz commands cannot explain them), so

@@ -16,7 +16,6 @@ from support.paths import ROOT
 os.environ.setdefault("JAX_DISABLE_MOST_OPTIMIZATIONS", "1")
 _XLA_OPTIMISATIONS_OFF = os.environ["JAX_DISABLE_MOST_OPTIMIZATIONS"] not in ("0", "false", "False")
 jax.config.update("jax_disable_most_optimizations", _XLA_OPTIMISATIONS_OFF)
-# ...and keep them across runs.
 
 
 @contextlib.contextmanager
@@ -30,7 +29,7 @@ def xla_optimised():
         jax.config.update("jax_disable_most_optimizations", _XLA_OPTIMISATIONS_OFF)
 
 
-# The suite's cache, also for the `mjxsysid` commands the tests run as subprocesses (the CLI's own
+# The compiled programs kept across runs: the suite's cache, also for the `mjxsysid` commands the tests run as subprocesses (the CLI's own
 # default is ~/.cache/mjxsysid/jax).
 os.environ.setdefault("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache"))
 jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])

@@ -8,8 +8,8 @@ it came from and the page that describes the protocol.
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import NamedTuple
-
 
 from mjxsysid.release.layout import DOCS, run_path
 from mjxsysid.release.pages.fair_rows import ratio_over_baseline
@@ -92,9 +92,7 @@ def _log_grounded(runs: RunFiles) -> Row:
 
 def _tune_slow(runs: RunFiles) -> Row:
     rels = [run_path("tuning", k, "results.json") for k in ("tune_slow", "tune_slow_seed7")]
-    runs_ = [runs.load(rel) for rel in rels]
-    ratios = [{m: ratio_over_baseline(d, d, m) for m in ("cfm_tuned", "oracle_cem")} for d in runs_]
-    (a, b) = ratios
+    a, b = ({m: ratio_over_baseline(d, d, m) for m in ("cfm_tuned", "oracle_cem")} for d in map(runs.load, rels))
     return Row("online tuner, slow motors (τ_m 0.05–0.10 s): position RMSE over fixed Baseline gains",
                f"**{a['cfm_tuned']:.2f}×** (seed 0), {b['cfm_tuned']:.2f}× (seed 7); "
                f"Oracle-CEM {a['oracle_cem']:.2f}× / {b['oracle_cem']:.2f}×",
@@ -152,7 +150,6 @@ def page(root, overlay=None) -> str:
 
 def readme(root, overlay=None) -> str:
     """README.md with its results table (between :data:`BEGIN` and :data:`END`) regenerated."""
-    from pathlib import Path
     text = (Path(root) / README).read_text()
     if BEGIN not in text or END not in text:
         raise ValueError(f"{README} has no generated results block ({BEGIN!r} … {END!r})")
