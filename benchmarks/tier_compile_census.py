@@ -19,17 +19,16 @@ import os
 import sys
 from pathlib import Path
 
-_EVENTS = {"/jax/core/compile/jaxpr_trace_duration": "trace",
-           "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
-           "/jax/core/compile/backend_compile_duration": "xla"}
+from mjxsysid.profiling import EVENTS, program_name
+
 _rows: dict = collections.defaultdict(float)
 _current = ["(collection)"]
 
 
 def _on_duration(event, duration, **kw):
-    kind = _EVENTS.get(event)
+    kind = EVENTS.get(event)
     if kind is not None:
-        _rows[(_current[0], str(kw.get("fun_name", "?")), kind)] += duration
+        _rows[(_current[0], program_name(kw), kind)] += duration
 
 
 def pytest_configure(config):

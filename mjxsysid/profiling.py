@@ -16,12 +16,20 @@ import contextlib
 import dataclasses
 import time
 
-_EVENTS = {
+EVENTS = {
     "/jax/core/compile/jaxpr_trace_duration": "trace",
     "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower",
     "/jax/core/compile/backend_compile_duration": "compile",
 }
+"""JAX's compile-duration events -> the step of a build they time."""
 _HIT = "/jax/compilation_cache/cache_hits"
+
+
+def program_name(event_kw: dict) -> str:
+    """The program a compile event belongs to. JAX names the trace by the function (``f``) and
+    the lowering and XLA compile by the jitted program (``jit(f)``): both count as ``f``."""
+    name = str(event_kw.get("fun_name", "?"))
+    return name[4:-1] if name.startswith("jit(") and name.endswith(")") else name
 
 
 @dataclasses.dataclass
@@ -81,10 +89,10 @@ def compile_profile():
     prof = Profile()
 
     def on_duration(event, duration, **kw):
-        kind = _EVENTS.get(event)
+        kind = EVENTS.get(event)
         if kind is None:
             return
-        name = str(kw.get("fun_name", "?"))
+        name = program_name(kw)
         p = prof.programs.setdefault(name, Program(name))
         setattr(p, kind, getattr(p, kind) + duration)
         p.builds += kind == "compile"

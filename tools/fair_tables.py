@@ -1,5 +1,6 @@
 """Regenerate (or check) the generated docs pages of this checkout from its run files:
-docs/fair_comparisons.md and docs/noise.md's noise tables (:mod:`mjxsysid.release.pages`).
+docs/fair_comparisons.md, docs/noise.md's noise tables, docs/results.md, README's results table and
+docs/runs/README.md (:func:`mjxsysid.release.pages.generate`).
 
     python tools/fair_tables.py            # rewrite the pages
     python tools/fair_tables.py --check    # exit 1 if a page differs from what the runs give

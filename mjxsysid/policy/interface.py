@@ -39,11 +39,11 @@ import numpy as np
 
 from mjxsysid.checkpoint import open_npz
 from mjxsysid.policy.adaptive.controller import PolicyController
+from mjxsysid.policy.adaptive.weights import PRETRAINED_DIR
 from mjxsysid.policy.xadap.controller import XAdapController
 from mjxsysid.policy.xadap.network import FIELDS, load_npz
 from mjxsysid.policy.xadap.onnx_import import load_xadap
 
-PRETRAINED_DIR = Path(__file__).resolve().parent.parent / "pretrained"
 POLICY_NAMES = ("mjxsysid", "xadap")
 XADAP_ENV = "MJXSYSID_XADAP_DIR"
 XADAP_FILES = ("encoder.onnx", "mlp.onnx", "mean.csv", "var.csv")

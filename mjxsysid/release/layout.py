@@ -73,8 +73,6 @@ DOCS_FILES = (("noise", "noise_sensitivity.png", f"{DOCS}/noise_sensitivity.png"
 SHIPPED = (("policy", "policy.npz"), ("decoders", "cfm.npz"), ("decoders", "regression.npz"),
            ("seq_decoder", "cfm_seq.npz"))
 """(stage, weights file) shipped into :data:`PRETRAINED` with a provenance JSON each."""
-PAGES = (f"{DOCS}/fair_comparisons.md", f"{DOCS}/noise.md", f"{DOCS}/results.md")
-"""The generated pages a release regenerates (paths in the shipped tree)."""
 
 
 def shrink_pngs(path: Path) -> None:

@@ -7,8 +7,7 @@ from mjxsysid import theta as P
 from mjxsysid.cli import main
 from mjxsysid.policy.adaptive.config import EnvConfig
 from mjxsysid.policy.adaptive.env import TrainEnv
-from mjxsysid.policy.adaptive.focus import load_weak, save_weak
-from mjxsysid.policy.adaptive.focus import replay_resample
+from mjxsysid.policy.adaptive.focus import load_weak, replay_resample, save_weak
 
 
 def _weak():

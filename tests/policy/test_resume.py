@@ -137,7 +137,6 @@ def test_policy_resume_gives_the_uninterrupted_weights(tmp_path):
     in the background computes what the jitted one does)."""
     from mjxsysid.checkpoint import load_tree
     from mjxsysid.policy.adaptive.weights import POLICY_MODULES
-    from mjxsysid.policy.adaptive.config import TrainConfig
     from mjxsysid.policy.adaptive.train import train
     from mjxsysid.policy.adaptive import networks as N
     cfg = TrainConfig(iterations=6, num_envs=32, unroll=8, epochs=1, minibatches=2, log_every=1,

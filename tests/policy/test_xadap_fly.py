@@ -18,9 +18,8 @@ from mjxsysid.policy.xadap.network import build_history_input, normalize_state, 
 from mjxsysid.theta import XAdapPrior, xadap_training_prior
 from mjxsysid.policy.xadap.controller import NN_TO_MJX, XAdapController, butterworth2, make_xadap_low_level
 
-from support.paths import ROOT, XADAP_DIR
+from support.paths import XADAP_DIR
 
-REPO = ROOT
 G = np.float32(P.GRAVITY)
 HOVER_IMU = jnp.array([0.0, 0.0, 0.0, 0.0, 0.0, G], jnp.float32)
 HOVER_CMD = Command(jnp.float32(G), jnp.zeros(3, jnp.float32))

@@ -24,9 +24,8 @@ from mjxsysid.policy.xadap.network import (
 )
 from mjxsysid.policy.xadap.onnx_import import load_xadap
 
-from support.paths import ROOT, XADAP_DIR, have as _have, require_xadap
+from support.paths import XADAP_DIR, have as _have, require_xadap
 
-REPO = ROOT
 N_SAMPLES = 64
 TOL = 1e-5
 

@@ -40,6 +40,12 @@ def test_results_rows_come_from_the_run_files(tmp_path):
     (tmp_path / rel).write_text(json.dumps(d))
     row = results.rows(ROOT, overlay=tmp_path)[0]
     assert "**50 %**" in row.ours and "**missed**" in row.target
+    rel = run_path("decoders", "seq_decoder_eval.json")          # a tiny release flies no paper vehicle
+    d = json.loads((ROOT / rel).read_text())
+    del d["sequence"]["paper_vehicle"]
+    (tmp_path / rel).parent.mkdir(parents=True)
+    (tmp_path / rel).write_text(json.dumps(d))
+    assert "flew no paper vehicle" in results.rows(ROOT, overlay=tmp_path)[2].ours
     shutil.copy(ROOT / "README.md", tmp_path / "README.md")
     (tmp_path / "README.md").write_text((tmp_path / "README.md").read_text().replace(results.BEGIN, ""))
     with pytest.raises(ValueError, match="README.md has no generated results block"):

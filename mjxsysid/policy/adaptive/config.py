@@ -44,7 +44,6 @@ class EnvConfig:
     focus_weight: float = 0.3           # with focus systems: the fraction of episodes flying one of them
 
 
-
 PARAM_MODULES = ("mu", "phi", "pi", "v", "aux")   # the networks' parameter groups (Networks.init)
 
 

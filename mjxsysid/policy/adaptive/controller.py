@@ -17,9 +17,9 @@ from flax import struct
 
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy.adaptive import networks as N
-from mjxsysid.policy.adaptive.weights import load_policy_params
+from mjxsysid.policy.adaptive.weights import PRETRAINED_DIR, load_policy_params
 
-PRETRAINED = Path(__file__).resolve().parents[2] / "pretrained" / "policy.npz"
+PRETRAINED = PRETRAINED_DIR / "policy.npz"
 
 
 class PolicyCarry(NamedTuple):

@@ -125,7 +125,6 @@ def identifiable_projection(normalizer: P.Normalizer, prior: P.SizeFactorPrior, 
     return project(jax.random.PRNGKey(seed))
 
 
-
 LOSS_WEIGHT_FIELDS = ("lambda1", "lambda2", "var_coef", "var_target", "rec_coef", "rec_ident_coef")
 
 

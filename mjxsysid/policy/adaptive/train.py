@@ -31,7 +31,6 @@ def _same_config(saved, cfg: TrainConfig) -> bool:
         return False
 
 
-
 def training_mesh(cfg: TrainConfig):
     """The data-parallel mesh for ``cfg``: the most devices (of those JAX sees) that divide
     ``num_envs / minibatches``, since each device shuffles its own environments' samples into every

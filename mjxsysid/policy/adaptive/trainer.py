@@ -88,7 +88,8 @@ class Trainer:
         # their dozens of eager ops compile in milliseconds there, in tenths of seconds each on a
         # GPU (seconds of every training start); the jitted functions take them as constants.
         with jax.default_device(_host_device()):
-            self.env = training_env(TrainEnv(cfg.env, focus_theta=None if cfg.focus is None else load_weak(cfg.focus)[0]))
+            self.env = TrainEnv(cfg.env, focus_theta=None if cfg.focus is None else load_weak(cfg.focus)[0])
+            self.rolled = training_env(self.env)   # the env as the rollout steps it (ẑ refresh, auto-reset)
             self.ident_proj = identifiable_projection(self.env.normalizer, self.env.prior,
                                                       yaw_authority=cfg.ident_yaw_authority)
         self.nets = self.env.nets
@@ -236,7 +237,7 @@ class Trainer:
         return st.replace(step=offs)
 
     def _rollout(self, params, env_state: EnvState, key, p, it):
-        cfg, env = self.cfg, self.env
+        cfg, env, rolled = self.cfg, self.env, self.rolled
 
         def one(st, k, refresh, fresh):
             s, z, z_theta, obs = env.policy_input(params, st)
@@ -245,7 +246,7 @@ class Trainer:
             logp = gaussian_logp(raw, mean, log_std)
             value = self.nets.value(params, s, st.theta_norm, z)
             expert = env.expert_raw(st)
-            new, tr = env.step(params, st, raw, obs, p, refresh, fresh)
+            new, tr = rolled.step(params, st, raw, obs, p, refresh, fresh)
             b = Batch(state=s, theta_norm=st.theta_norm, zhat=st.zhat, use_zhat=st.use_zhat, raw=raw,
                       logp=logp, value=value, reward=tr.reward, done=tr.done, expert=expert,
                       failed=tr.failed, rate_err=tr.rate_err, thrust_err=tr.thrust_err)

@@ -12,6 +12,9 @@ import numpy as np
 from mjxsysid.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.policy.adaptive import networks as N
 
+PRETRAINED_DIR = Path(__file__).resolve().parents[2] / "pretrained"
+"""The shipped weights: the policy's ``policy.npz`` and its decoders (the released XAdap policy's in
+``xadap/``)."""
 POLICY_MODULES = ("mu", "phi", "pi", "aux")
 """The parameter groups a policy file holds (the critic ``v`` stays with training)."""
 

@@ -102,32 +102,36 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
 @STAGES.add(needs=("policy_eval", "decoder_eval", "noise", "tune_nominal", "tune_slow", "tune_slow_more",
                    "tune_lemniscate", "studies", "fidelity"),
             outputs=("tree",), estimate_s=5,
-            what="lay out the shipped tree and regenerate docs/fair_comparisons.md, docs/noise.md's tables and docs/results.md")
+            what="lay out the shipped tree and regenerate the generated docs pages in it (pages.generate)")
 def tables(rel: Release, out: Path) -> StageResult:
     """Lay out the shipped tree in out/tree (:func:`build_tree`) and regenerate the generated
-    docs pages of ``rel.docs_root`` (a checkout) over it: docs/fair_comparisons.md (each run file
-    read from the tree where the release wrote one, else from the checkout), the noise tables
-    of docs/noise.md and docs/results.md. The pages quote runs a release does not make (earlier
-    protocols, measurements): without a checkout (``docs_root`` None, allowed for a tiny release
-    only, e.g. from an installed wheel) the tree is laid out and no page is regenerated."""
-    from mjxsysid.release.pages import fair, noise, results
+    pages of ``rel.docs_root`` (a checkout) over it (:func:`mjxsysid.release.pages.generate`: each
+    run file read from the tree where the release wrote one, else from the checkout), all but
+    docs/runs/README.md, which describes the checkout's docs/runs/ after the ship (``ship``
+    writes it). The pages quote runs a release does not make (earlier protocols, measurements):
+    without a checkout (``docs_root`` None, allowed for a tiny release only, e.g. from an
+    installed wheel) the tree is laid out and no page is regenerated."""
+    from mjxsysid.release.pages import generate, runs_index
     if rel.docs_root is None and rel.options.scale != "tiny":
         raise ValueError("stage tables regenerates the pages of a checkout: give its root (--docs-root ROOT)")
     tree = out / "tree"
     if tree.exists():
         shutil.rmtree(tree)
     build_tree(rel, tree)
-    calls = [call(build_tree, tree=tree)]
+    calls, pages = [call(build_tree, tree=tree)], []
     if rel.docs_root is None:
         rel.log("[release] tables: no --docs-root: the tree is laid out, the docs pages are not regenerated")
     else:
-        for page, path in zip((fair.page, noise.page, results.page), layout.PAGES, strict=True):
-            (tree / path).write_text(page(rel.docs_root, overlay=tree))
-            calls.append(call(page, root=rel.docs_root, overlay=tree))
+        for path, text in generate(rel.docs_root, overlay=tree).items():
+            if path != runs_index.PAGE:
+                (tree / path).parent.mkdir(parents=True, exist_ok=True)
+                (tree / path).write_text(text)
+                pages.append(path)
+        calls.append(call(generate, root=rel.docs_root, overlay=tree))
     files = sorted(str(p.relative_to(tree)) for p in tree.rglob("*") if p.is_file())
     return StageResult(calls=tuple(calls),
                        config={"tree": str(tree), "docs_root": None if rel.docs_root is None else str(rel.docs_root)},
-                       figures={"files": len(files), "pages": [] if rel.docs_root is None else list(layout.PAGES)})
+                       figures={"files": len(files), "pages": pages})
 
 
 @STAGES.add(outputs=("shipped.json",), estimate_s=5, after=("tables",),
@@ -160,6 +164,10 @@ def ship(rel: Release, out: Path) -> StageResult:
     if not left_out:     # the record as the ship began, beside the run files it made
         layout.copy(rel.out / RECORD, dest / layout.RELEASE_RUNS / RECORD)
         files.append(f"{layout.RELEASE_RUNS}/{RECORD}")
+    if (dest / layout.RUNS).is_dir():    # the index of docs/runs/ as the ship left it
+        from mjxsysid.release.pages import runs_index
+        (dest / runs_index.PAGE).write_text(runs_index.page(dest))
+        files.append(runs_index.PAGE)
     (out / "shipped.json").write_text(json.dumps({"to": str(dest), "files": files, "left_out": left_out},
                                                  indent=2) + "\n")
     if left_out:
