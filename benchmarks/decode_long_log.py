@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 
-def base_log(path: Path) -> tuple:
+def base_log() -> tuple:
     from mjxsysid import theta as P
     from mjxsysid.policy.interface import resolve_policy
     from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
@@ -75,7 +75,7 @@ def _tiled_logs(minutes):
     temporary folder (each log removed once the caller moves on)."""
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        base = base_log(tmp / "base.csv")
+        base = base_log()
         for mins in minutes:
             log = tiled_log(base, 60.0 * mins, tmp / f"log_{mins:g}.csv")
             yield mins, log, tmp

@@ -51,6 +51,24 @@ def run_path(name: str, tmp: Path, cache: Path) -> dict:
     return json.loads(js.read_text())
 
 
+def _measure(names: list, runs: list, tmp: Path) -> dict:
+    """Each path's runs in fresh processes, its own persistent cache in ``tmp`` -> {path: {run: profile}}."""
+    if any(n.startswith("decode") for n in names):
+        import decode_long_log as D
+        base = D.base_log()
+        D.tiled_log(base, 10.0, tmp / "log10.csv")
+        D.tiled_log(base, 600.0, tmp / "log600.csv")
+    rows = {}
+    for n in names:
+        cache = tmp / f"cache_{n}"
+        for run in runs:
+            res = run_path(n, tmp, cache)
+            rows.setdefault(n, {})[run] = res
+            print(f"{n} {run}: {res['wall_s']:.1f} s (compiling {res['compile_s']:.1f} s, {res['programs']} programs)",
+                  file=sys.stderr)
+    return rows
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--paths", default=",".join(PATHS), help=f"comma-separated, of {', '.join(PATHS)}")
@@ -62,20 +80,10 @@ def main(argv=None) -> int:
     if unknown:
         p.error(f"unknown paths {unknown}; choose from {list(PATHS)}")
     runs = a.runs.split(",")
-    tmp = Path(tempfile.mkdtemp(prefix="mjxsysid_first_contact_"))
-    if any(n.startswith("decode") for n in names):
-        import decode_long_log as D
-        base = D.base_log(tmp)
-        D.tiled_log(base, 10.0, tmp / "log10.csv")
-        D.tiled_log(base, 600.0, tmp / "log600.csv")
-    rows = {}
-    for n in names:
-        cache = tmp / f"cache_{n}"
-        for run in runs:
-            res = run_path(n, tmp, cache)
-            rows.setdefault(n, {})[run] = res
-            print(f"{n} {run}: {res['wall_s']:.1f} s (compiling {res['compile_s']:.1f} s, {res['programs']} programs)",
-                  file=sys.stderr)
+    if runs not in (["cold"], ["cold", "warm"]):
+        p.error("--runs: cold or cold,warm (a warm run needs the cache its cold run fills first)")
+    with tempfile.TemporaryDirectory(prefix="mjxsysid_first_contact_") as tmp:
+        rows = _measure(names, runs, Path(tmp))
     lines = ["| path | cold wall (compiling, programs) | warm wall (compiling) | target cold / warm |", "|---|---|---|---|"]
     for n, r in rows.items():
         c, w = r.get("cold"), r.get("warm")

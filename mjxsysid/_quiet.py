@@ -81,7 +81,6 @@ out.flush()
 
 def is_aot_loader_line(line: bytes) -> bool:
     """True for exactly the XLA:CPU loader's spurious feature-mismatch lines (see above)."""
-    import re
     return bool(re.match(_AOT_LINE, line))
 
 

@@ -73,7 +73,7 @@ class FlowNormalizer(Normalizer):
 
     @classmethod
     def from_dict(cls, d) -> FlowNormalizer:
-        norm = cls(jnp.asarray(d["shift"], jnp.float32), jnp.asarray(d["scale"], jnp.float32))
+        norm = super().from_dict(d)
         if d.get("flow_map") is not None:
             fm, fo = np.asarray(d["flow_map"], np.float64), np.asarray(d.get("flow_offset"), np.float64)
             n = norm.shift.shape[-1]

@@ -391,9 +391,8 @@ def _evaluate_single(out, pairs, *, n_cases, n_samples, seed, paper_zhat, log) -
     plot_rank_histograms(ranks, n_samples, out / "sbc_ranks.png", pvalues=C.sbc_uniformity(ranks, n_samples),
                          names=P.PARAM_NAMES)
     # Identifiable combinations, in log space.
-    ident = lambda th: np.log(np.abs(np.asarray(P.identifiable(th))) + 1e-12)
     s_phys = np.asarray(norm.denormalize(s_norm))
-    cov_id = C.coverage(ident(s_phys), ident(tv))
+    cov_id = C.coverage(_ident_log(s_phys), _ident_log(tv))
     rep["coverage_identifiable"] = {n: cov_id[:, j].tolist() for j, n in enumerate(P.IDENTIFIABLE_NAMES)}
     # Energy score (normalised space) against Regression and Random.
     st.start("energy score")

@@ -2,7 +2,7 @@
 round-2 policy and its uniform-widening control with other seeds (same focus systems, config
 and budget) and evaluate them like the loop does.
 
-    mjxsysid experiment probe-loop-seeds RUN --seeds 1 --out RUN/seeds     # RUN: a probe-loop --out
+    mjxsysid experiment probe-loop-seeds --inputs RUN --seed 1 --out RUN/seeds     # RUN: a probe-loop --out
 
 Writes OUT/seeds.json: per policy and seed, the evaluation of ``probe_loop.eval_sets``.
 """
@@ -21,8 +21,8 @@ POLICIES = ("probed2", "uniform")
 
 
 def run(out, *, quick=False, policy=None, seed=1, progress=True, inputs=None) -> dict:
-    """Retrain :data:`POLICIES` of the probe-loop run ``inputs`` (required: its focus_round2.npz,
-    probe/weak.npz and uniform_stress.npz) with training seed ``seed`` and evaluate them (full
+    """Retrain :data:`POLICIES` of the probe-loop run ``inputs`` (required: its focus_round2.npz
+    and uniform_stress.npz) with training seed ``seed`` and evaluate them (full
     size; ``quick`` is not supported: the loop's own quick run is the smoke test)."""
     if inputs is None:
         raise ValueError("probe-loop-seeds needs --inputs RUN (a probe-loop run folder)")
@@ -30,8 +30,7 @@ def run(out, *, quick=False, policy=None, seed=1, progress=True, inputs=None) ->
         raise ValueError("probe-loop-seeds has no quick size (it retrains full policies)")
     t0 = time.time()
     run_dir, out = Path(inputs), Path(out)
-    focus = {"probed2": run_dir / "focus_round2.npz", "probed": run_dir / "probe" / "weak.npz",
-             "uniform": run_dir / "uniform_stress.npz"}
+    focus = {"probed2": run_dir / "focus_round2.npz", "uniform": run_dir / "uniform_stress.npz"}
     cfg = dataclasses.replace(FULL, latent_vehicles=0)
     res_path = out / "seeds.json"
     res = json.loads(res_path.read_text()) if res_path.is_file() else {}

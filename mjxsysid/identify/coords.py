@@ -69,9 +69,8 @@ def visible_from_theta(theta):
     t = xp.asarray(theta, xp.float32)
     eta = t[..., P.ETA]
     eb = eta.mean(-1)
-    wm2 = t[..., P.OMEGA_MAX] ** 2
-    twr = 4.0 * t[..., P.KT] * wm2 / (t[..., P.MASS] * P.GRAVITY) * eb
-    auth = (t[..., P.ARM] * t[..., P.KT] * wm2)[..., None] / t[..., P.INERTIA] * eb[..., None]
+    twr = P.thrust_to_weight(t) * eb
+    auth = P.angular_authority(t) * eb[..., None]
     yaw = t[..., P.KTAU] / t[..., P.KT] / t[..., P.ARM] * auth[..., 2]
     rho = eta / eb[..., None]
     c = t[..., P.TAU_EXT] / t[..., P.INERTIA]

@@ -75,7 +75,7 @@ coefficient), so a flat prior would leave thrust-to-weight to the bias's range."
 
 def _solve_lower(chol, d):
     """z with chol z = d for a batch d (..., k) (SciPy on the host, jax.scipy under jit)."""
-    if isinstance(d, jax.Array) or isinstance(chol, jax.Array):
+    if xp_of(d, chol) is jnp:
         c = jnp.asarray(chol, jnp.float32)
         return jax.scipy.linalg.solve_triangular(c, jnp.reshape(d, (-1, c.shape[0])).T, lower=True).T.reshape(d.shape)
     from scipy.linalg import solve_triangular
@@ -225,8 +225,8 @@ serves the mode's few fits, the importance draws and any batch a caller passes."
 def log_target(y, data: LogData, log_delta=None, weights=None, prior: PhysicalPrior = PHYSICAL_PRIOR):
     """log prior + log likelihood of a batch y (N, 17) -> (N,), in jitted chunks of
     :data:`TARGET_CHUNK` (log δ (4,) default 1e-4; weights (4,) default 1)."""
-    ld = jnp.full(4, np.log(1e-4), jnp.float32) if log_delta is None else jnp.asarray(log_delta, jnp.float32)
-    w = jnp.ones(4, jnp.float32) if weights is None else jnp.asarray(weights, jnp.float32)
+    ld = np.full(4, np.log(1e-4), np.float32) if log_delta is None else jnp.asarray(log_delta, jnp.float32)
+    w = np.ones(4, np.float32) if weights is None else jnp.asarray(weights, jnp.float32)
     y = np.asarray(y, np.float32)
     n = len(y)
     pad = -n % TARGET_CHUNK

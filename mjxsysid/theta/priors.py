@@ -56,9 +56,6 @@ class SizeFactorPrior:
         """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static."""
         raise NotImplementedError
 
-    def replace(self, **kw) -> SizeFactorPrior:
-        return dataclasses.replace(self, **kw)
-
 
 @dataclasses.dataclass(frozen=True)
 class Prior(SizeFactorPrior):

@@ -28,13 +28,12 @@ from mjxsysid.release.pages.fair_rows import (
     tune_rows,
 )
 from mjxsysid.release.pages.runs import RunFiles
+from mjxsysid.release.runs import TUNE_RUNS
 
 PAGE = f"{DOCS}/fair_comparisons.md"
 """The page (relative to a checkout's root)."""
-ISSUE26_RUNS = ("tune_slow", "tune_slow_seed7", "tune_slow_true_rotor_state", "tune_slow_steady_rotor_state",
-                "tune_slow_heading_cost", "tune_slow_baseline_start", "tune_slow_seed7_baseline_start",
-                "tune_nominal", "tune_nominal_baseline_start", "tune_nominal_protect", "tune_lemniscate",
-                "tune_lemniscate_no_lead_in", "tune_lemniscate_no_lead_in_baseline_start")
+ISSUE26_RUNS = tuple(r.folder for runs in TUNE_RUNS.values() for r in runs)
+"""The tune-* runs of §7: every run of the release's tune stages."""
 
 
 def issue26_section(t: dict, lag: dict, lag1k: dict, heldout: dict) -> list[str]:

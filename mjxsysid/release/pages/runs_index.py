@@ -20,8 +20,10 @@ PAGE = f"{RUNS}/README.md"
 FOLDERS = {
     "release": "exactly what the last `mjxsysid release` shipped (its ship stage replaces the folder whole): "
                "the run files per kind and the release's record, `release.json`",
-    "measurements": "one folder per experiment or benchmark the docs quote: `mjxsysid experiment NAME` (its "
-                    "results.json records the seed and the exact call) or the script named",
+    "measurements": "one folder per experiment or benchmark the docs quote: `mjxsysid experiment NAME` (a run "
+                    "of it writes results.json with the seed and the exact call; the files committed here before "
+                    "the experiments existed keep their script's name and format, its command inside) or the "
+                    "script named",
     "candidates": "measured, not shipped (`<date>_<name>/`): JSON and figures, no weights",
     "archive": "superseded and trial runs, one line each in [archive/INDEX.md](archive/INDEX.md)",
 }

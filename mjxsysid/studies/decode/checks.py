@@ -39,7 +39,7 @@ def decoders_prior(*decoders) -> str | None:
     size-factor prior of :mod:`mjxsysid.theta` (what :func:`~mjxsysid.logs.checks.prior.prior_check` compares with)."""
     for d in decoders:
         name = (getattr(d, "meta", None) or {}).get("data", {}).get("pairs_meta", {}).get("prior")
-        if name in P.PRIORS and isinstance(P.PRIORS[name], P.SizeFactorPrior):
+        if name in P.PRIORS:
             return name
     return None
 
