@@ -43,7 +43,8 @@ def maxdiff(a, b):
 
 def run_two_devices(body: str) -> dict:
     """Run PRELUDE + body on 2 forced CPU devices; the body prints one JSON line last."""
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2",
+    # the suite's XLA flags (support.jax_setup) and two forced devices
+    env = dict(os.environ, XLA_FLAGS=os.environ.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2",
                JAX_PLATFORMS="cpu", PYTHONPATH=str(ROOT))   # the suite's cache: support.jax_setup exports MJXSYSID_JAX_CACHE
     env.pop("MJXSYSID_DEVICES", None)
     code = PRELUDE + textwrap.dedent(body)
