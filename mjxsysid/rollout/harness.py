@@ -169,6 +169,17 @@ def run_loop(sim: Quadrotor, theta, low, high: Cascade, ref, carry: LoopCarry, f
     return carry, Flight(*out)
 
 
+def start_flight(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance, key,
+                 steps: int) -> tuple[jax.Array, LoopCarry, jax.Array]:
+    """What :func:`fly` starts from: the flown θ (19,) (the disturbance's torque added to τ_ext),
+    the closed loop's carry at rest at the reference start, and the world forces (steps, 3) N."""
+    k_sim, k_dist, k_low = jax.random.split(key, 3)
+    theta = jnp.asarray(theta, jnp.float32)
+    theta = theta.at[P.TAU_EXT].add(disturbance.torque)
+    carry0 = start_loop(sim, theta, low, high, ref, (k_sim, k_low))
+    return theta, carry0, disturbance.forces(k_dist, steps, sim.config.dt)
+
+
 def fly(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance, key,
         steps: int) -> Flight:
     """Fly one vehicle θ (19,) for ``steps`` control steps from rest at the reference start.
@@ -177,20 +188,29 @@ def fly(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance
     :class:`Cascade`; ref: a reference pytree with ``at(t)``; key: PRNG key (IMU noise and
     disturbance realisation). The high-level controller sees the true state.
     """
-    dt = sim.config.dt
-    k_sim, k_dist, k_low = jax.random.split(key, 3)
-    theta = jnp.asarray(theta, jnp.float32)
-    theta = theta.at[P.TAU_EXT].add(disturbance.torque)
-    carry0 = start_loop(sim, theta, low, high, ref, (k_sim, k_low))
-    forces = disturbance.forces(k_dist, steps, dt)
+    theta, carry0, forces = start_flight(sim, theta, low, high, ref, disturbance, key, steps)
     return run_loop(sim, theta, low, high, ref, carry0, forces, 0, steps, payload=disturbance)[1]
 
 
 @functools.lru_cache(maxsize=64)
 def _fly_batch(sim, steps, low_axes_def, low_axes_leaves, reduce=None):
+    """The jitted batch of :func:`fly`: two vmaps, the start and the loop, so that the loop's
+    carry enters its ``lax.scan`` batched in every leaf (a vmap's outputs are). Under one vmap
+    of the whole flight, the leaves the start leaves unbatched (the high-level controller's zeros,
+    most of MJX's data) become batched inside the loop, and JAX traces and batches the loop's
+    body twice to find that fixed point: about a second more of tracing per flight program."""
     low_axes = jax.tree_util.tree_unflatten(low_axes_def, low_axes_leaves)
-    one = (lambda *a: fly(sim, *a, steps)) if reduce is None else (lambda *a: reduce(fly(sim, *a, steps)))
-    return jax.jit(jax.vmap(one, in_axes=(0, low_axes, 0, 0, 0, 0)))
+
+    def loop(theta, low, high, ref, disturbance, carry0, forces):
+        flight = run_loop(sim, theta, low, high, ref, carry0, forces, 0, steps, payload=disturbance)[1]
+        return flight if reduce is None else reduce(flight)
+
+    def batch(theta, low, high, ref, disturbance, keys):
+        th, carry0, forces = jax.vmap(lambda *a: start_flight(sim, *a, steps),
+                                      in_axes=(0, low_axes, 0, 0, 0, 0))(theta, low, high, ref, disturbance, keys)
+        return jax.vmap(loop, in_axes=(0, low_axes, 0, 0, 0, 0, 0))(th, low, high, ref, disturbance, carry0, forces)
+
+    return jax.jit(batch)
 
 
 def low_level_axes(low):
