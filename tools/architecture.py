@@ -6,7 +6,7 @@
 Nodes are the packages (and top-level modules) of ``mjxsysid``, in the layer order of
 pyproject.toml's import-linter contract, top first; an arrow A --> B means some module of A
 imports some module of B. Arrows implied by a longer path are left out (transitive
-reduction), and the layer-wide utilities (theta, checkpoint, progress, profiling, distributed, _quiet)
+reduction), and the layer-wide utilities (theta, checkpoint, progress, profiling, distributed, _quiet, xla_flags)
 are drawn as one node, so the picture stays readable; the table under it lists every direct
 import.
 """
