@@ -99,6 +99,7 @@ def _xla_flags() -> None:
     --xla_cpu_use_fusion_emitters=true`` keeps XLA's default). XLA reads it when JAX starts its
     backend: a process that already computed (a notebook calling ``main``) keeps its flags."""
     import os
+
     from mjxsysid.xla_flags import with_fast_cpu_compile
     os.environ["XLA_FLAGS"] = with_fast_cpu_compile(os.environ.get("XLA_FLAGS", ""))
 

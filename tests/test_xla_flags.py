@@ -1,0 +1,25 @@
+"""XLA:CPU's faster compiling: the flags added to XLA_FLAGS by the CLI and the test tier."""
+import os
+
+from mjxsysid.cli import _xla_flags
+from mjxsysid.xla_flags import FAST_CPU_COMPILE, with_fast_cpu_compile
+
+
+def test_fast_cpu_compile_adds_its_flags_and_keeps_the_users():
+    assert with_fast_cpu_compile("") == " ".join(FAST_CPU_COMPILE)
+    kept = "--xla_force_host_platform_device_count=2"
+    assert with_fast_cpu_compile(kept).split() == [kept, *FAST_CPU_COMPILE]
+    # a user who sets the flag (to any value) keeps it, once
+    mine = "--xla_cpu_use_fusion_emitters=true"
+    assert with_fast_cpu_compile(mine) == mine
+    assert with_fast_cpu_compile(with_fast_cpu_compile("")) == with_fast_cpu_compile("")
+
+
+def test_cli_sets_the_flags_in_its_environment(monkeypatch):
+    monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
+    _xla_flags()
+    assert os.environ["XLA_FLAGS"].split() == ["--xla_force_host_platform_device_count=1", *FAST_CPU_COMPILE]
+    # the tier's own environment carries them too (tests/support/jax_setup.py), for the subprocesses it starts
+    monkeypatch.undo()
+    assert set(FAST_CPU_COMPILE) <= set(os.environ.get("XLA_FLAGS", "").split()) or \
+        os.environ.get("JAX_DISABLE_MOST_OPTIMIZATIONS") in ("0", "false", "False")
