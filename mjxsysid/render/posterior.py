@@ -34,7 +34,7 @@ def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-l
     fig, ax = plt.subplots(2, 3, figsize=(14, 7.2))
     ax = ax.flat
     ax[0].plot(t, dec["zhat"], lw=1)
-    ax[0].set_title("policy latent ẑ (8 dims, read at 10 Hz)", fontsize=10)
+    ax[0].set_title(f"policy latent ẑ (8 dims, at the {len(t)} decode times)", fontsize=10)
     reg = np.asarray(P.identifiable(dec["regression"]))
     mark = dict(marker="o", ms=3) if identw is not None and len(tw) < len(t) else {}
     for j, n in enumerate(P.IDENTIFIABLE_NAMES):

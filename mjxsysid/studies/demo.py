@@ -4,7 +4,8 @@ Flies the paper's hardware vehicle on the 10 s 3-D lemniscate with the oracle (t
 with the true θ), then a handful of vehicles from the prior under the oracle and the
 non-adaptive nominal K_θ (the
 adaptation problem mjxsysid exists for), and writes plots, a video and a one-page summary.
-The paper vehicle's latents are decoded at 10 Hz by the single-latent CFM (instant) and, every
+The paper vehicle's latents are decoded at 30 times of the flight (``MAX_DECODES``, as ``decode``
+does) by the single-latent CFM (instant) and, every
 0.5 s, by the sequence decoder given every latent so far (flight-level; unavailable, and said so,
 where the policy ships no ``cfm_seq.npz``).
 """
@@ -32,7 +33,8 @@ from mjxsysid.studies.decode import MAX_DECODES, decode_latents
 
 FLIGHT_EVERY_S = 0.5
 """The demo samples the flight-level posterior every this many seconds of the flight (its first
-and last decode times included: 21 times of a 10 s flight, one batch), the instant one at 10 Hz."""
+and last decode times included: 21 times of a 10 s flight, one batch), the instant one at
+``MAX_DECODES`` (30) times."""
 
 
 def flight_level_info(dec: dict, seq, ref) -> dict:
@@ -51,9 +53,10 @@ def flight_level_info(dec: dict, seq, ref) -> dict:
                     f"decoded every {FLIGHT_EVERY_S:g} s."}
 
 
-def decoded_caption(info: dict) -> str:
-    """The line above ``decoded_over_time.png``: what its bands are."""
-    head = "paper vehicle, 10 s lemniscate: instant p(θ | ẑ(t)) at 10 Hz (shipped CFM)"
+def decoded_caption(info: dict, n_decodes: int = MAX_DECODES) -> str:
+    """The line above ``decoded_over_time.png``: what its bands are (the instant posterior at
+    ``n_decodes`` times)."""
+    head = f"paper vehicle, 10 s lemniscate: instant p(θ | ẑ(t)) at {n_decodes} times (shipped CFM)"
     if not info["available"]:
         return head + "; flight-level posterior unavailable (no cfm_seq.npz for this policy)"
     return (head + f"; flight-level p(θ | ẑ(0.2 s … t)) every {info['every_s']:g} s "
@@ -140,7 +143,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     post_flight = summarize_posterior(dec["samples_window"][-1], theta[0]) if seq is not None else None
     plot_marginals(dec["samples"][-1], theta[0], out / "marginals.png", point=dec["regression"][-1],
                    title="paper vehicle: decoded p(θ | ẑ) at t = 10 s (black: true, orange: regression)")
-    plot_decoded_over_time(dec, theta[0], out / "decoded_over_time.png", caption=decoded_caption(flight_info))
+    plot_decoded_over_time(dec, theta[0], out / "decoded_over_time.png", caption=decoded_caption(flight_info, len(dec["times"])))
     np.savez_compressed(out / "decoded.npz", **dec, theta_true=theta[0])
     if video:
         stage("video", "[4/4] flying 4 decoded models and rendering them as ghosts (offscreen)")
@@ -179,7 +182,7 @@ motor history and flies as well as the oracle. That latent is what mjxsysid deco
 
 ## What the latent says about the paper vehicle
 
-The shipped CFM decoder turns the policy's latent ẑ (read at 10 Hz) into a distribution of
+The shipped CFM decoder turns the policy's latent ẑ (read at 10 Hz, decoded at 30 of those times) into a distribution of
 vehicles: *instant*, p(θ | ẑ(t)) from the last latent alone, and *flight-level*, p(θ | ẑ(0.2 s … t))
 from every latent flown so far (the sequence decoder `cfm_seq.npz`, the sharpest of the shipped
 decoders). At the end of the flight (200 decoded models each):
