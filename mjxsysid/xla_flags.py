@@ -16,3 +16,10 @@ def with_fast_cpu_compile(flags: str = "") -> str:
     have = {f.split("=", 1)[0] for f in flags.split()}
     extra = [f for f in FAST_CPU_COMPILE if f.split("=", 1)[0] not in have]
     return " ".join(flags.split() + extra)
+
+
+def use_fast_cpu_compile() -> None:
+    """Add :data:`FAST_CPU_COMPILE` to this process's ``XLA_FLAGS`` (and so to the subprocesses it
+    starts); takes effect only if JAX has not started its CPU backend yet."""
+    import os
+    os.environ["XLA_FLAGS"] = with_fast_cpu_compile(os.environ.get("XLA_FLAGS", ""))

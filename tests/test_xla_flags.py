@@ -1,8 +1,11 @@
 """XLA:CPU's faster compiling: the flags added to XLA_FLAGS by the CLI and the test tier."""
 import os
 
-from mjxsysid.cli import _xla_flags
-from mjxsysid.xla_flags import FAST_CPU_COMPILE, with_fast_cpu_compile
+from mjxsysid.xla_flags import (
+    FAST_CPU_COMPILE,
+    use_fast_cpu_compile,
+    with_fast_cpu_compile,
+)
 
 
 def test_fast_cpu_compile_adds_its_flags_and_keeps_the_users():
@@ -15,9 +18,9 @@ def test_fast_cpu_compile_adds_its_flags_and_keeps_the_users():
     assert with_fast_cpu_compile(with_fast_cpu_compile("")) == with_fast_cpu_compile("")
 
 
-def test_cli_sets_the_flags_in_its_environment(monkeypatch):
+def test_the_flags_go_into_the_environment(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
-    _xla_flags()
+    use_fast_cpu_compile()          # what the CLI's main does first
     assert os.environ["XLA_FLAGS"].split() == ["--xla_force_host_platform_device_count=1", *FAST_CPU_COMPILE]
     # the tier's own environment carries them too (tests/support/jax_setup.py), for the subprocesses it starts
     monkeypatch.undo()

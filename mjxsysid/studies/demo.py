@@ -53,7 +53,7 @@ def flight_level_info(dec: dict, seq, ref) -> dict:
                     f"decoded every {FLIGHT_EVERY_S:g} s."}
 
 
-def decoded_caption(info: dict, n_decodes: int = MAX_DECODES) -> str:
+def decoded_caption(info: dict, n_decodes: int) -> str:
     """The line above ``decoded_over_time.png``: what its bands are (the instant posterior at
     ``n_decodes`` times)."""
     head = f"paper vehicle, 10 s lemniscate: instant p(θ | ẑ(t)) at {n_decodes} times (shipped CFM)"
@@ -182,7 +182,7 @@ motor history and flies as well as the oracle. That latent is what mjxsysid deco
 
 ## What the latent says about the paper vehicle
 
-The shipped CFM decoder turns the policy's latent ẑ (read at 10 Hz, decoded at 30 of those times) into a distribution of
+The shipped CFM decoder turns the policy's latent ẑ (read at 10 Hz, decoded at {len(dec['times'])} of those times) into a distribution of
 vehicles: *instant*, p(θ | ẑ(t)) from the last latent alone, and *flight-level*, p(θ | ẑ(0.2 s … t))
 from every latent flown so far (the sequence decoder `cfm_seq.npz`, the sharpest of the shipped
 decoders). At the end of the flight (200 decoded models each):

@@ -255,7 +255,7 @@ def test_demo_without_sequence_decoder_says_flight_level_unavailable():
     from mjxsysid.studies.decode import every_times
     from mjxsysid.studies.demo import decoded_caption, flight_level_info
     info = flight_level_info({}, None, resolve_policy("mjxsysid"))
-    assert not info["available"] and "unavailable" in info["note"] and "unavailable" in decoded_caption(info)
+    assert not info["available"] and "unavailable" in info["note"] and "unavailable" in decoded_caption(info, 30)
     t = 0.2 + 0.1 * np.arange(99)
     np.testing.assert_allclose(every_times(t, 0.5), np.r_[0.2, np.arange(1, 21) * 0.5], atol=1e-9)
     np.testing.assert_allclose(every_times(np.array([0.2, 10.0]), 0.5), [0.2, 10.0])

@@ -21,8 +21,8 @@ if _XLA_OPTIMISATIONS_OFF:
     # than the default MLIR fusion emitters (benchmarks/xla_cpu_flags.py) for the same results.
     # Read when JAX starts its CPU backend, so set here, before any test computes; inherited by
     # the subprocesses the tests start.
-    from mjxsysid.xla_flags import with_fast_cpu_compile
-    os.environ["XLA_FLAGS"] = with_fast_cpu_compile(os.environ.get("XLA_FLAGS", ""))
+    from mjxsysid.xla_flags import use_fast_cpu_compile
+    use_fast_cpu_compile()
 
 
 @contextlib.contextmanager
