@@ -9,6 +9,9 @@ and the log alone), and reports per log-identifiable quantity whether the truth 
 
     python benchmarks/log_grounded.py --vehicles 24 --levels clean,x1,x5_white,x5_vibration,x20 \
         --out docs/runs/measurements/log-grounded/calibration.json
+    python benchmarks/log_grounded.py --prior weak_motor --vehicles 12 \
+        --out docs/runs/measurements/log-grounded/families/weak_motor.json    # a held-out family
+    python benchmarks/log_grounded.py --summarise docs/runs/measurements/log-grounded/families
 """
 from __future__ import annotations
 
@@ -82,19 +85,63 @@ def figure(res: dict, path) -> None:
     plt.close(fig)
 
 
+def summarise(folder: Path) -> str:
+    """The runs of a folder (one JSON per prior or held-out family) as one markdown table of coverage per
+    quantity, family and noise level, and ``coverage.png`` beside them (a heat map of the same)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    runs = [json.loads(p.read_text()) for p in sorted(folder.glob("*.json"))]
+    if not runs:
+        raise SystemExit(f"{folder}: no run JSON files (python benchmarks/log_grounded.py --prior NAME --out {folder}/NAME.json)")
+    names = list(LOG_NAMES)
+    short = [n.replace("_total", "").replace("relative_effectiveness", "ρ").replace("authority", "auth")
+             .replace("external_acc", "τ_ext/J") for n in names]
+    rows, labels = [], []
+    lines = ["| prior | level | flights | " + " | ".join(short) + " | mean |", "|---" * (len(names) + 4) + "|"]
+    for r in runs:
+        for lv in r["levels"]:
+            cov = [lv["coverage_90"][n] for n in names]
+            rows.append(cov)
+            labels.append(f"{r['prior']} {lv['level']}")
+            lines.append(f"| {r['prior']} | {lv['level']} | {lv['flown']} | " + " | ".join(f"{c:.2f}" for c in cov)
+                         + f" | {np.mean(cov):.2f} |")
+    fig, ax = plt.subplots(figsize=(12, 0.28 * len(rows) + 1.6))
+    im = ax.imshow(np.array(rows), vmin=0, vmax=1, cmap="RdYlGn", aspect="auto")
+    ax.set_xticks(np.arange(len(names)), short, rotation=35, ha="right", fontsize=8)
+    ax.set_yticks(np.arange(len(rows)), labels, fontsize=7)
+    fig.colorbar(im, ax=ax, label="truth inside the 90 % band", fraction=0.03)
+    ax.set_title("log-grounded posterior, truth inside the 90 % band (0.85-0.95 is calibrated)", fontsize=10)
+    fig.tight_layout()
+    fig.savefig(folder / "coverage.png", dpi=110)
+    plt.close(fig)
+    table = "\n".join(lines) + "\n"
+    (folder / "summary.md").write_text(table)
+    return table
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--figure-only", default=None, help="draw the figure of an earlier run's JSON and exit")
+    ap.add_argument("--summarise", default=None, metavar="DIR",
+                    help="one table (DIR/summary.md) and heat map (DIR/coverage.png) of the runs in DIR, and exit")
     ap.add_argument("--vehicles", type=int, default=24)
     ap.add_argument("--levels", default="clean,x1,x5_white,x5_vibration,x20")
-    ap.add_argument("--prior", default="wide_actuators")
+    ap.add_argument("--prior", default="wide_actuators",
+                    help="a prior or a held-out family (mjxsysid.theta.priors.HELDOUT_FAMILIES: out of the decoders' prior)")
     ap.add_argument("--seed", type=int, default=5)
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
+    if a.summarise:
+        print(summarise(Path(a.summarise)), end="")
+        return
     if a.figure_only:
         figure(json.loads(Path(a.figure_only).read_text()), Path(a.figure_only).with_suffix(".png"))
         return
-    th = np.asarray(P.get_prior(a.prior).sample(jax.random.PRNGKey(a.seed), a.vehicles))
+    prior = P.get_prior(a.prior)
+    # a held-out family (out of the decoders' prior): its fixed, validated and flyable evaluation vehicles
+    th = (prior.vehicles(a.vehicles) if a.prior in P.HELDOUT_FAMILIES
+          else np.asarray(prior.sample(jax.random.PRNGKey(a.seed), a.vehicles)))
     res = {"command": "python benchmarks/log_grounded.py " + " ".join(f"--{k} {v}" for k, v in vars(a).items()
                                                                         if v is not None),
            "prior": a.prior, "vehicles": a.vehicles, "levels": []}
