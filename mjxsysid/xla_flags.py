@@ -9,17 +9,32 @@ FAST_CPU_COMPILE = ("--xla_cpu_use_fusion_emitters=false",)
 """XLA:CPU's older elemental IR emitters instead of its MLIR fusion emitters: about 40 % less
 compile CPU for this project's programs at the same results (benchmarks/xla_cpu_flags.py)."""
 
+ONE_EIGEN_THREAD = ("--xla_cpu_multi_thread_eigen=false",)
+"""XLA:CPU's operations on one thread: for several processes sharing the cores (the test tier's
+xdist workers), whose per-process pools of one thread per core only contend with each other."""
 
-def with_fast_cpu_compile(flags: str = "") -> str:
-    """``flags`` (an ``XLA_FLAGS`` string) with :data:`FAST_CPU_COMPILE` added; a flag the string
+
+def with_xla_flags(flags: str, add: tuple[str, ...]) -> str:
+    """``flags`` (an ``XLA_FLAGS`` string) with the flags of ``add`` appended; a flag the string
     already sets (to any value) is left as it is."""
     have = {f.split("=", 1)[0] for f in flags.split()}
-    extra = [f for f in FAST_CPU_COMPILE if f.split("=", 1)[0] not in have]
+    extra = [f for f in add if f.split("=", 1)[0] not in have]
     return " ".join(flags.split() + extra)
 
 
-def use_fast_cpu_compile() -> None:
-    """Add :data:`FAST_CPU_COMPILE` to this process's ``XLA_FLAGS`` (and so to the subprocesses it
-    starts); takes effect only if JAX has not started its CPU backend yet."""
+def with_fast_cpu_compile(flags: str = "") -> str:
+    """``flags`` with :data:`FAST_CPU_COMPILE` added (:func:`with_xla_flags`)."""
+    return with_xla_flags(flags, FAST_CPU_COMPILE)
+
+
+def use_xla_flags(add: tuple[str, ...] = FAST_CPU_COMPILE) -> None:
+    """Add ``add`` to this process's ``XLA_FLAGS`` (and so to the subprocesses it starts), keeping
+    any value already set for the same flag; takes effect only if JAX has not started its CPU
+    backend yet."""
     import os
-    os.environ["XLA_FLAGS"] = with_fast_cpu_compile(os.environ.get("XLA_FLAGS", ""))
+    os.environ["XLA_FLAGS"] = with_xla_flags(os.environ.get("XLA_FLAGS", ""), add)
+
+
+def use_fast_cpu_compile() -> None:
+    """:func:`use_xla_flags` of :data:`FAST_CPU_COMPILE` (what every CLI command does first)."""
+    use_xla_flags(FAST_CPU_COMPILE)

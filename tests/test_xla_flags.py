@@ -1,9 +1,12 @@
-"""XLA:CPU's faster compiling: the flags added to XLA_FLAGS by the CLI and the test tier."""
+"""XLA:CPU's flags: the faster compiling added to XLA_FLAGS by the CLI and the test tier, and the
+tier's one Eigen thread per worker."""
 import os
 
 from mjxsysid.xla_flags import (
     FAST_CPU_COMPILE,
+    ONE_EIGEN_THREAD,
     use_fast_cpu_compile,
+    use_xla_flags,
     with_fast_cpu_compile,
 )
 
@@ -22,7 +25,10 @@ def test_the_flags_go_into_the_environment(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "--xla_force_host_platform_device_count=1")
     use_fast_cpu_compile()          # what the CLI's main does first
     assert os.environ["XLA_FLAGS"].split() == ["--xla_force_host_platform_device_count=1", *FAST_CPU_COMPILE]
-    # the tier's own environment carries them too (tests/support/jax_setup.py), for the subprocesses it starts
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=true")
+    use_xla_flags(FAST_CPU_COMPILE + ONE_EIGEN_THREAD)   # what the tier does: the user's own value stays
+    assert os.environ["XLA_FLAGS"].split() == ["--xla_cpu_multi_thread_eigen=true", *FAST_CPU_COMPILE]
+    # the tier's own environment carries both (tests/support/jax_setup.py), for the subprocesses it starts
     monkeypatch.undo()
-    assert set(FAST_CPU_COMPILE) <= set(os.environ.get("XLA_FLAGS", "").split()) or \
+    assert set(FAST_CPU_COMPILE + ONE_EIGEN_THREAD) <= set(os.environ.get("XLA_FLAGS", "").split()) or \
         os.environ.get("JAX_DISABLE_MOST_OPTIMIZATIONS") in ("0", "false", "False")

@@ -4,7 +4,7 @@ Flies the paper's hardware vehicle on the 10 s 3-D lemniscate with the oracle (t
 with the true θ), then a handful of vehicles from the prior under the oracle and the
 non-adaptive nominal K_θ (the
 adaptation problem mjxsysid exists for), and writes plots, a video and a one-page summary.
-The paper vehicle's latents are decoded at 30 times of the flight (``MAX_DECODES``, as ``decode``
+The paper vehicle's latents are decoded at ``MAX_DECODES`` times of the flight (as ``decode``
 does) by the single-latent CFM (instant) and, every
 0.5 s, by the sequence decoder given every latent so far (flight-level; unavailable, and said so,
 where the policy ships no ``cfm_seq.npz``).
@@ -34,7 +34,7 @@ from mjxsysid.studies.decode import MAX_DECODES, decode_latents
 FLIGHT_EVERY_S = 0.5
 """The demo samples the flight-level posterior every this many seconds of the flight (its first
 and last decode times included: 21 times of a 10 s flight, one batch), the instant one at
-``MAX_DECODES`` (30) times."""
+``MAX_DECODES`` times."""
 
 
 def flight_level_info(dec: dict, seq, ref) -> dict:
@@ -132,7 +132,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
           "flight with the shipped CFM"
           + (f" and, every {FLIGHT_EVERY_S:g} s, with the flight-level sequence decoder" if seq is not None else
              f" (flight-level posterior unavailable: no cfm_seq.npz in {ref.decoders_dir})"))
-    # the 10 Hz decode times of the 10 s flight thinned to `decode`'s MAX_DECODES (30 of 101, evenly
+    # the 10 Hz decode times of the 10 s flight thinned to `decode`'s MAX_DECODES (of 101, evenly
     # spaced, the last included: 2 x 101 x 200 ODE solves were 60 % of the demo's time on a CPU); the
     # flight-level posterior still reads every 10 Hz latent
     dec = decode_latents(one.latent, one.time, rate=10.0, samples=200, seed=seed, decoder=cfm,

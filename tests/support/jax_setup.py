@@ -21,13 +21,11 @@ if _XLA_OPTIMISATIONS_OFF:
     # than the default MLIR fusion emitters (benchmarks/xla_cpu_flags.py) for the same results.
     # Read when JAX starts its CPU backend, so set here, before any test computes; inherited by
     # the subprocesses the tests start.
-    from mjxsysid.xla_flags import use_fast_cpu_compile
-    use_fast_cpu_compile()
-    # Two xdist workers share two cores: each runs XLA's operations on one thread (Eigen's pool of
-    # one thread per core in each worker only contends with the other worker). Two pairs of fresh-clone
-    # tiers, in both orders: 6:45 -> 6:08 and 6:16 -> 6:06 (user CPU 730 -> 684, 697 -> 690 s).
-    if "--xla_cpu_multi_thread_eigen" not in os.environ["XLA_FLAGS"]:   # a value of the user's own stays
-        os.environ["XLA_FLAGS"] += " --xla_cpu_multi_thread_eigen=false"
+    # And two xdist workers share two cores: each runs XLA's operations on one thread. Two pairs of
+    # fresh-clone tiers, in both orders: 6:45 -> 6:08 and 6:16 -> 6:06 (user CPU 730 -> 684, 697 -> 690 s).
+    # A value the user set for either flag stays.
+    from mjxsysid.xla_flags import FAST_CPU_COMPILE, ONE_EIGEN_THREAD, use_xla_flags
+    use_xla_flags(FAST_CPU_COMPILE + ONE_EIGEN_THREAD)
 
 
 @contextlib.contextmanager
