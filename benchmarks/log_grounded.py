@@ -12,11 +12,22 @@ and the log alone), and reports per log-identifiable quantity whether the truth 
     python benchmarks/log_grounded.py --prior weak_motor --vehicles 12 \
         --out docs/runs/measurements/log-grounded/families/weak_motor.json    # a held-out family
     python benchmarks/log_grounded.py --summarise docs/runs/measurements/log-grounded/families
+
+Many vehicles in parallel processes (one GPU or several): ``--shard i/k`` flies and identifies
+every k-th vehicle of the same draw, from the i-th on (vehicle indices, posterior seeds and
+truths are those of the unsharded run; the flights' noise draws depend on the batch, so the
+numbers are those of another draw of the same noise); ``--merge OUT SHARD.json ...`` joins the
+shards into one run::
+
+    for i in 0 1 2 3 4 5 6 7; do python benchmarks/log_grounded.py --vehicles 200 --shard $i/8 \
+        --out /tmp/cal/$i.json & done; wait
+    python benchmarks/log_grounded.py --merge calibration-200.json /tmp/cal/*.json
 """
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -31,7 +42,10 @@ from mjxsysid.sim import Quadrotor, SimConfig
 from mjxsysid.studies.noise import LEVELS
 
 
-def run_level(th, level: str, seed: int) -> dict:
+def run_level(th, level: str, seed: int, index=None) -> dict:
+    """Fly ``th`` (n, 19) at noise ``level`` and identify each flight; ``index`` (n,): the
+    vehicles' indices in the whole draw (default 0..n-1; the posterior's seed is the index)."""
+    index = np.arange(len(th)) if index is None else np.asarray(index)
     sim = Quadrotor(SimConfig(**LEVELS[level]))
     fl, m, _ = fly_vehicles(th, controller="oracle", reference="lemniscate", period=10.0, sim=sim, seed=seed)
     rows = []
@@ -40,15 +54,22 @@ def run_level(th, level: str, seed: int) -> dict:
             continue
         rec = {"imu": seen_imu(np.asarray(fl.frame.imu[i])), "motor": np.asarray(fl.frame.motor_cmd[i])}
         t0 = time.perf_counter()
-        post = log_grounded_posterior(rec, None, seed=i)
+        post = log_grounded_posterior(rec, None, seed=int(index[i]))
         sec = time.perf_counter() - t0
         q, tq = log_quantities(post["theta"]), log_quantities(th[i])
         lo, med, hi = np.percentile(q, [5, 50, 95], 0)
         pos = np.all(q > 0, 0) & (tq > 0)
         width = np.where(pos, np.log(np.maximum(hi, 1e-30) / np.maximum(lo, 1e-30)), hi - lo)
-        rows.append({"vehicle": i, "seconds": sec, "method": post["method"],
+        rows.append({"vehicle": int(index[i]), "seconds": sec, "method": post["method"],
                      "inside": ((lo <= tq) & (tq <= hi)).tolist(), "width": width.tolist(),
                      "rel_error_median": np.abs(med / tq - 1).tolist()})
+    return level_summary(level, rows)
+
+
+def level_summary(level: str, rows: list) -> dict:
+    """One noise level's coverage, median widths, errors and seconds from its per-flight rows."""
+    if not rows:
+        raise SystemExit(f"level {level}: no flight to identify (every vehicle failed)")
     inside = np.array([r["inside"] for r in rows])
     return {"level": level, "sim": LEVELS[level], "flown": len(rows),
             "coverage_90": dict(zip(LOG_NAMES, inside.mean(0).round(3).tolist())),
@@ -120,6 +141,48 @@ def summarise(folder: Path) -> str:
     return table
 
 
+def compact_json(res: dict) -> str:
+    """A run as compact JSON: floats to 4 significant digits, "inside" as 0/1 (docs/runs stays small)."""
+    def rnd(x, key=None):
+        if isinstance(x, bool):
+            return int(x) if key == "inside" else x
+        if isinstance(x, float):
+            return float(f"{x:.4g}")
+        if isinstance(x, list):
+            return [rnd(v, key) for v in x]
+        if isinstance(x, dict):
+            return {k: rnd(v, k) for k, v in x.items()}
+        return x
+    return json.dumps(rnd(res), separators=(",", ":")) + "\n"
+
+
+def merge(out: Path, shards: list[Path]) -> dict:
+    """Join ``--shard`` runs of one draw into one run (rows ordered by vehicle index)."""
+    runs = [json.loads(p.read_text()) for p in shards]
+    keys = {(r["prior"], r["vehicles"], r.get("seed")) for r in runs}
+    if len(keys) != 1:
+        raise SystemExit(f"--merge: the shards are of different draws (prior, vehicles, seed): {sorted(keys)}")
+    got = sorted(r.get("shard", "0/1") for r in runs)
+    k = int(got[0].split("/")[1])
+    if got != sorted(f"{i}/{k}" for i in range(k)):
+        raise SystemExit(f"--merge: shards {got} are not all of 0/{k} .. {k - 1}/{k}")
+    done = [[lv["level"] for lv in r["levels"]] for r in runs]
+    levels = [lv for j, lv in enumerate(done[0]) if all(len(d) > j and d[j] == lv for d in done)]
+    if not levels:
+        raise SystemExit("--merge: no noise level finished in every shard")
+    if any(len(d) > len(levels) for d in done):
+        print(f"--merge: only {levels} finished in every shard; the other levels are left out", file=sys.stderr)
+    res = {"command": runs[0]["command"].replace(f"--shard {runs[0]['shard']}", f"--shard i/{k}") + f" (shards merged: {k})",
+           "prior": runs[0]["prior"], "vehicles": runs[0]["vehicles"], "seed": runs[0].get("seed"), "levels": []}
+    for j, name in enumerate(levels):
+        rows = sorted((row for r in runs for row in r["levels"][j]["rows"]), key=lambda row: row["vehicle"])
+        res["levels"].append(level_summary(name, rows))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(compact_json(res))
+    figure(res, out.with_suffix(".png"))
+    return res
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--figure-only", default=None, help="draw the figure of an earlier run's JSON and exit")
@@ -130,8 +193,18 @@ def main():
     ap.add_argument("--prior", default="wide_actuators",
                     help="a prior or a held-out family (mjxsysid.theta.priors.HELDOUT_FAMILIES: out of the decoders' prior)")
     ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--shard", default=None, metavar="I/K", help="identify every K-th vehicle from the I-th (parallel runs; join with --merge)")
+    ap.add_argument("--merge", nargs="+", default=None, metavar=("OUT", "SHARD"),
+                    help="join the JSON files of --shard runs into OUT and exit")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
+    if a.merge:
+        if len(a.merge) < 2:
+            raise SystemExit("--merge OUT SHARD.json [SHARD.json ...]")
+        res = merge(Path(a.merge[0]), [Path(p) for p in a.merge[1:]])
+        for lv in res["levels"]:
+            print(json.dumps({k: v for k, v in lv.items() if k != "rows"}))
+        return
     if a.summarise:
         print(summarise(Path(a.summarise)), end="")
         return
@@ -142,16 +215,28 @@ def main():
     # a held-out family (out of the decoders' prior): its fixed, validated and flyable evaluation vehicles
     th = (prior.vehicles(a.vehicles) if a.prior in P.HELDOUT_FAMILIES
           else np.asarray(prior.sample(jax.random.PRNGKey(a.seed), a.vehicles)))
+    index, flight_seed = np.arange(len(th)), a.seed
+    if a.shard:
+        try:
+            i, k = (int(x) for x in a.shard.split("/"))
+            if not 0 <= i < k:
+                raise ValueError
+        except ValueError:
+            raise SystemExit(f"--shard {a.shard!r}: expected I/K with 0 <= I < K, e.g. 0/8") from None
+        index = index[i::k]
+        th = th[index]
+        flight_seed = a.seed + 1000 * i            # the flights' noise: another draw per shard
     res = {"command": "python benchmarks/log_grounded.py " + " ".join(f"--{k} {v}" for k, v in vars(a).items()
                                                                         if v is not None),
-           "prior": a.prior, "vehicles": a.vehicles, "levels": []}
+           "prior": a.prior, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard,
+           "levels": []}
     for lv in a.levels.split(","):
-        r = run_level(th, lv, a.seed)
+        r = run_level(th, lv, flight_seed, index)
         res["levels"].append(r)
         print(json.dumps({k: v for k, v in r.items() if k != "rows"}), flush=True)
         if a.out:
             Path(a.out).parent.mkdir(parents=True, exist_ok=True)
-            Path(a.out).write_text(json.dumps(res, indent=1) + "\n")
+            Path(a.out).write_text(compact_json(res))
             figure(res, Path(a.out).with_suffix(".png"))
 
 

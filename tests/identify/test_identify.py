@@ -143,3 +143,15 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     assert lo[1] <= 0.005 <= hi[1]
     gap = information_gap(post["theta"], post["theta"])
     assert not gap["authority_total[0]"]["seen_by_log"] and gap["thrust_to_weight_total"]["seen_by_log"]
+
+
+def test_posterior_runs_at_full_matmul_precision(monkeypatch):
+    """The posterior's programs are traced with float32 matmuls at full precision whatever the
+    caller's default (a GPU's TF32 narrowed and shifted the bands: docs/identify.md)."""
+    import mjxsysid.identify.inference as I
+    seen = []
+    monkeypatch.setattr(I, "_log_grounded_posterior",
+                        lambda *a, **k: seen.append(jax.config.jax_default_matmul_precision) or {})
+    with jax.default_matmul_precision("tensorfloat32"):
+        I.log_grounded_posterior({}, None, seed=3)
+    assert seen == ["highest"] and jax.config.jax_default_matmul_precision is None
