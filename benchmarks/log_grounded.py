@@ -156,27 +156,45 @@ def compact_json(res: dict) -> str:
     return json.dumps(rnd(res), separators=(",", ":")) + "\n"
 
 
+ROW_KEYS = ("vehicle", "inside", "width")
+"""What a merged run keeps per flight (the errors, seconds and methods are summarised per level)."""
+
+
 def merge(out: Path, shards: list[Path]) -> dict:
-    """Join ``--shard`` runs of one draw into one run (rows ordered by vehicle index)."""
+    """Join ``--shard`` runs of one draw into one run: per noise level, the rows of every shard 0..K-1
+    (from one run or several, e.g. the levels split over two runs), ordered by vehicle index; a level
+    some shard lacks is left out, and said so. Rows keep :data:`ROW_KEYS`."""
     runs = [json.loads(p.read_text()) for p in shards]
-    keys = {(r["prior"], r["vehicles"], r.get("seed")) for r in runs}
-    if len(keys) != 1:
-        raise SystemExit(f"--merge: the shards are of different draws (prior, vehicles, seed): {sorted(keys)}")
-    got = sorted(r.get("shard", "0/1") for r in runs)
-    k = int(got[0].split("/")[1])
-    if got != sorted(f"{i}/{k}" for i in range(k)):
-        raise SystemExit(f"--merge: shards {got} are not all of 0/{k} .. {k - 1}/{k}")
-    done = [[lv["level"] for lv in r["levels"]] for r in runs]
-    levels = [lv for j, lv in enumerate(done[0]) if all(len(d) > j and d[j] == lv for d in done)]
+    draws = {(r["prior"], r["vehicles"], r.get("seed")) for r in runs}
+    if len(draws) != 1:
+        raise SystemExit(f"--merge: the shards are of different draws (prior, vehicles, seed): {sorted(draws)}")
+    ks = {int((r.get("shard") or "0/1").split("/")[1]) for r in runs}
+    if len(ks) != 1:
+        raise SystemExit(f"--merge: shards of different counts K: {sorted(ks)}")
+    k = ks.pop()
+    by_level: dict[str, dict[str, list]] = {}
+    for p, r in zip(shards, runs):
+        for lv in r["levels"]:
+            got = by_level.setdefault(lv["level"], {})
+            shard = r.get("shard") or "0/1"
+            if shard in got:
+                raise SystemExit(f"--merge: {p}: level {lv['level']} of shard {shard} given twice")
+            got[shard] = lv["rows"]
+    want = {f"{i}/{k}" for i in range(k)}
+    levels = sorted((lv for lv, got in by_level.items() if set(got) == want), key=list(LEVELS).index)
     if not levels:
-        raise SystemExit("--merge: no noise level finished in every shard")
-    if any(len(d) > len(levels) for d in done):
-        print(f"--merge: only {levels} finished in every shard; the other levels are left out", file=sys.stderr)
-    res = {"command": runs[0]["command"].replace(f"--shard {runs[0]['shard']}", f"--shard i/{k}") + f" (shards merged: {k})",
-           "prior": runs[0]["prior"], "vehicles": runs[0]["vehicles"], "seed": runs[0].get("seed"), "levels": []}
-    for j, name in enumerate(levels):
-        rows = sorted((row for r in runs for row in r["levels"][j]["rows"]), key=lambda row: row["vehicle"])
-        res["levels"].append(level_summary(name, rows))
+        raise SystemExit(f"--merge: no noise level has all of shards 0/{k} .. {k - 1}/{k}")
+    if len(levels) < len(by_level):
+        print(f"--merge: only {levels} have every shard; {sorted(set(by_level) - set(levels))} are left out",
+              file=sys.stderr)
+    res = {"command": runs[0]["command"].replace(f"--shard {runs[0].get('shard')}", f"--shard i/{k}")
+           + f" (shards merged: {k})", "prior": runs[0]["prior"], "vehicles": runs[0]["vehicles"],
+           "seed": runs[0].get("seed"), "rows_kept": "per flight: " + ", ".join(ROW_KEYS), "levels": []}
+    for name in levels:
+        rows = sorted((row for got in by_level[name].values() for row in got), key=lambda row: row["vehicle"])
+        lv = level_summary(name, rows)
+        lv["rows"] = [{key: row[key] for key in ROW_KEYS} for row in rows]
+        res["levels"].append(lv)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(compact_json(res))
     figure(res, out.with_suffix(".png"))

@@ -73,6 +73,18 @@ ACC_BIAS_SD = 0.3
 coefficient), so a flat prior would leave thrust-to-weight to the bias's range."""
 
 
+def full_precision(f):
+    """``f`` with every float32 matmul it traces at full precision, on every backend. A GPU's
+    default (TF32 on an H100) narrowed and shifted the posterior's bands: on 25 logs at × 1 noise
+    the roll authority's coverage was 1.00 on a CPU and 0.84 on an H100 (docs/identify.md). CPUs
+    compute full float32 anyway. The public entry points of this module carry it."""
+    @functools.wraps(f)
+    def run(*args, **kwargs):
+        with jax.default_matmul_precision("highest"):
+            return f(*args, **kwargs)
+    return run
+
+
 def _solve_lower(chol, d):
     """z with chol z = d for a batch d (..., k) (SciPy on the host, jax.scipy under jit)."""
     if xp_of(d, chol) is jnp:
@@ -222,6 +234,7 @@ TARGET_CHUNK = 4096
 serves the mode's few fits, the importance draws and any batch a caller passes."""
 
 
+@full_precision
 def log_target(y, data: LogData, log_delta=None, weights=None, prior: PhysicalPrior = PHYSICAL_PRIOR):
     """log prior + log likelihood of a batch y (N, 17) -> (N,), in jitted chunks of
     :data:`TARGET_CHUNK` (log δ (4,) default 1e-4; weights (4,) default 1)."""
@@ -288,6 +301,7 @@ def _discrepancy(y, data):
     return np.log(np.sqrt(np.maximum(ms, 1e-12))).astype(np.float32)
 
 
+@full_precision
 def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3):
     """The mode from ``starts`` (K, 21) -> (x* (21,), log δ* (4,), weights (4,), y* (17,), the
     Laplace Student-t at y*). δ and σ are fixed while v and the bias are fitted (Levenberg–Marquardt
@@ -407,7 +421,8 @@ def _reliable(diag) -> bool:
     return diag["ess_fraction"] >= MIN_ESS_FRACTION and diag["khat"] <= MAX_KHAT
 
 
-def _log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
+@full_precision
+def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                            samples: int = 1000, draws: int = 4096, particles: int = 2048, seed: int = 0,
                            n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
                            force_smc: bool = False) -> dict:
@@ -480,12 +495,3 @@ def _log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalP
     h = prior.sample_h(r_h, samples)
     out.update(v=v, nuisance=xs[:, N_V:], theta=np.asarray(theta_from(v, h), np.float32))
     return out
-
-
-@functools.wraps(_log_grounded_posterior)
-def log_grounded_posterior(*args, **kwargs) -> dict:
-    # Every float32 matmul of the fit, the targets and the SMC at full precision on every backend:
-    # a GPU's default (TF32 on an H100) narrowed and shifted the bands (on 25 logs at × 1 noise the
-    # roll authority's coverage 1.00 on CPU, 0.84 on an H100). CPUs compute full float32 anyway.
-    with jax.default_matmul_precision("highest"):
-        return _log_grounded_posterior(*args, **kwargs)

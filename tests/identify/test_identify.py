@@ -145,13 +145,15 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     assert not gap["authority_total[0]"]["seen_by_log"] and gap["thrust_to_weight_total"]["seen_by_log"]
 
 
-def test_posterior_runs_at_full_matmul_precision(monkeypatch):
+
+def test_posterior_runs_at_full_matmul_precision():
     """The posterior's programs are traced with float32 matmuls at full precision whatever the
-    caller's default (a GPU's TF32 narrowed and shifted the bands: docs/identify.md)."""
+    caller's default (a GPU's TF32 narrowed and shifted the bands: docs/identify.md): the module's
+    public entry points all carry ``full_precision``."""
     import mjxsysid.identify.inference as I
-    seen = []
-    monkeypatch.setattr(I, "_log_grounded_posterior",
-                        lambda *a, **k: seen.append(jax.config.jax_default_matmul_precision) or {})
     with jax.default_matmul_precision("tensorfloat32"):
-        I.log_grounded_posterior({}, None, seed=3)
-    assert seen == ["highest"] and jax.config.jax_default_matmul_precision is None
+        assert I.full_precision(lambda: jax.config.jax_default_matmul_precision)() == "highest"
+        assert jax.config.jax_default_matmul_precision == "tensorfloat32"       # restored after the call
+    code = I.full_precision(lambda: None).__code__
+    for f in (I.log_grounded_posterior, I.find_mode, I.log_target):
+        assert f.__code__ is code and f.__wrapped__.__module__ == I.__name__, f.__name__
