@@ -56,8 +56,8 @@ def test_gain_presets_and_validation():
 
 # Prior vehicles flown once per module on the 10 s lemniscate by the oracle and the nominal K_θ
 # (one compiled rollout shared by the tests below); the paper vehicle rides along at index 0.
-# The default tier flies 24 prior vehicles, `-m slow` the original 100.
-@pytest.fixture(scope="module", params=[24, pytest.param(100, marks=pytest.mark.slow)], ids=lambda n: f"prior{n}")
+# The default tier flies 12 prior vehicles, `-m slow` the original 100.
+@pytest.fixture(scope="module", params=[12, pytest.param(100, marks=pytest.mark.slow)], ids=lambda n: f"prior{n}")
 def prior_lemniscate(request):
     theta = np.concatenate([P.PAPER_HARDWARE[None],
                             np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(42), request.param))])
@@ -230,8 +230,8 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
         decode_latents = D.decode_latents
         monkeypatch.setattr(D, "decode_latents", lambda *a, **k: decode_latents(*a, **dict(k, rate=decode_rate)))
     out = tmp_path / "demo"
-    # 24 prior vehicles: the oracle and nominal flights of the prior_lemniscate fixture (one compile)
-    assert main(["demo", "--out", str(out), "--no-video", "--vehicles", "24"]) == 0
+    # 12 prior vehicles: the oracle and nominal flights of the prior_lemniscate fixture (one compile)
+    assert main(["demo", "--out", str(out), "--no-video", "--vehicles", "12"]) == 0
     s = json.loads((out / "summary.json").read_text())
     assert s["oracle"]["paper_vehicle"]["pos_rmse_m"] < 0.05
     assert s["oracle"]["prior_vehicles"]["success_rate"] == 1.0

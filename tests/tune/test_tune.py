@@ -1,5 +1,6 @@
 """The online predictive tuner (mjxsysid.tune): CEM, cost terms, predictive rollouts, the tuned
 flight, and the `tune` / `experiment` command line's input checks."""
+import functools
 import json
 
 import jax
@@ -204,6 +205,19 @@ def _paper_vehicle_at_rest(paper_policy):
     return sim, theta, low, low0, lem, refs, carry, jax.tree.map(lambda a: a[0], carry)
 
 
+# The two tests below share one compiled tuner update (one config: the protected tuner with the true
+# model, K = 1) and one compiled predicted cost of gains.
+FAST_LEMNISCATE_TUNER = TunerConfig(models=1, horizon=0.5, protect=1.0, cem=C.CEMConfig(candidates=24, iterations=3))
+
+
+@functools.partial(jax.jit, static_argnames=("sim", "steps"))
+def _predicted_cost(g, *, sim, theta, low0, lem, one, steps):
+    """The paper vehicle's predicted cost () of gains ``g`` (8,) over ``steps`` from ``one`` (true model)."""
+    from mjxsysid.sim.quadrotor import hover_rotor_speed
+    fl = predict(sim, theta, low0, g, jnp.float32(12.0), lem, one, hover_rotor_speed(theta), 0, steps)
+    return rollout_cost(fl, FAST_LEMNISCATE_TUNER.weights)
+
+
 def test_tuner_finds_known_good_gains(paper_policy):
     """From rest at the start of a fast lemniscate (4 s period), the oracle tuner started at the
     naive gains must reach a predicted cost as good as the hand-tuned baseline's (known good)
@@ -211,13 +225,10 @@ def test_tuner_finds_known_good_gains(paper_policy):
     from mjxsysid.sim.quadrotor import hover_rotor_speed
     sim, theta, low, low0, lem, refs, carry, one = _paper_vehicle_at_rest(paper_policy)
     speed = hover_rotor_speed(jnp.asarray(theta[0]))
-    cfg = TunerConfig(models=1, horizon=0.5, cem=C.CEMConfig(candidates=24, iterations=3))
+    cfg = FAST_LEMNISCATE_TUNER
     hor = cfg.steps(sim.config.dt)[1]
-
-    @jax.jit
-    def cost_of(g):
-        fl = predict(sim, jnp.asarray(theta[0]), low0, g, jnp.float32(12.0), lem, one, speed, 0, hor)
-        return rollout_cost(fl, cfg.weights)
+    cost_of = functools.partial(_predicted_cost, sim=sim, theta=jnp.asarray(theta[0]), low0=low0, lem=lem, one=one,
+                                steps=hor)
 
     c_naive, c_base = float(cost_of(jnp.asarray(PRESETS["naive"]))), float(cost_of(jnp.asarray(PRESETS["baseline"])))
     # TunerConfig.unroll (the experiments' unroll 5) flies the same rollout
@@ -392,14 +403,13 @@ def test_a_protected_tuner_never_applies_gains_its_models_predict_worse(paper_po
     """protect = 1 with the true model (K = 1): the tuner switches only to gains the model predicts
     better than the incumbent, so the applied gains' predicted cost never exceeds the incumbent's
     (here the naive gains, which the fast lemniscate punishes: it does switch)."""
-    from mjxsysid.sim.quadrotor import hover_rotor_speed
     sim, theta, low, low0, lem, refs, carry, one = _paper_vehicle_at_rest(paper_policy)
-    cfg = TunerConfig(models=1, horizon=0.5, protect=1.0, cem=C.CEMConfig(candidates=24, iterations=3))
+    cfg = FAST_LEMNISCATE_TUNER
     tuner = OnlineTuner(sim, "oracle_cem", cfg)
     hist = R.empty_history(cfg.window(sim.config.dt), 1)
     incumbent = jnp.asarray(PRESETS["naive"])[None]
-    cost_of = jax.jit(lambda g: rollout_cost(predict(sim, jnp.asarray(theta[0]), low0, g, jnp.float32(12.0), lem, one,
-                                                     hover_rotor_speed(jnp.asarray(theta[0])), 0, 250), cfg.weights))
+    cost_of = functools.partial(_predicted_cost, sim=sim, theta=jnp.asarray(theta[0]), low0=low0, lem=lem, one=one,
+                                steps=cfg.steps(sim.config.dt)[1])
     state = tuner.init(1)
     switched = []
     for u in range(3):
