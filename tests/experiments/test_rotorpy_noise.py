@@ -43,5 +43,32 @@ def test_quick_flight_decodes_the_clean_log(tmp_path):
     pytest.importorskip("rotorpy")
     res = get_experiment("rotorpy-noise")(tmp_path, quick=True, progress=False)["numbers"]
     assert (tmp_path / "results.md").is_file()
-    clean = res["levels"]["clean"]
+    clean = res["vehicles"]["worn_motor"]["levels"]["clean"]
     assert clean["rmse_m"] < 0.10 and clean["inside"] >= 20 and not clean["lost"]
+    assert clean["posterior"] == "log-grounded" and 0 <= clean["inside_decoder_only"] <= 24
+
+
+def test_both_vehicles_are_valid_and_unknown_names_are_refused(tmp_path):
+    """The experiment's second vehicle is a draw of the policy's own prior; a level or vehicle it
+    does not know is an error naming the choices (before RotorPy is needed)."""
+    assert set(T.VEHICLES) == {"worn_motor", "prior_seed1"}
+    th = T.VEHICLES["prior_seed1"]()
+    assert th.shape == (19,) and np.isfinite(th).all()
+    np.testing.assert_array_equal(th, T.prior_vehicle(1))
+    assert not np.allclose(th, P.PAPER_HARDWARE)
+    with pytest.raises(ValueError, match="unknown level.*x7.*x5_vibration"):
+        T.run(tmp_path, levels="clean,x7")
+    with pytest.raises(ValueError, match="unknown level.*heavy.*prior_seed1"):
+        T.run(tmp_path, vehicles="heavy")
+
+
+def test_external_torque_is_added_to_rotorpys_body_moment():
+    """RotorPy has no external torque: the experiment adds θ's τ_ext (body frame, as the simulator's
+    xfrc_applied = R τ_ext) to the moment RotorPy's wrench returns, and leaves the force alone."""
+    class Base:
+        def compute_body_wrench(self, w, rotor_speeds, airspeed):
+            return np.array([0.0, 0.0, 9.0]), np.array([0.1, -0.2, 0.3])
+
+    force, moment = T.with_external_torque(Base, [0.02, 0.0, -0.01])().compute_body_wrench(None, None, None)
+    np.testing.assert_allclose(force, [0.0, 0.0, 9.0])
+    np.testing.assert_allclose(moment, [0.12, -0.2, 0.29])

@@ -111,7 +111,7 @@ def test_posterior_covers_the_truth_hidden_directions_broad_and_the_proposal_onl
     near = np.repeat(theta[None], 64, 0) * rng.uniform(0.9, 1.1, (64, 19)).astype(np.float32)
     off = near.copy()
     off[:, P.KT] *= 1.25                       # thrust-to-weight 25 % high, authorities with it
-    posts = [log_grounded_posterior(rec, dec, samples=600, particles=1024, seed=1) for dec in (near, off)]
+    posts = [log_grounded_posterior(rec, dec, samples=600, particles=512, seed=1) for dec in (near, off)]
     q = [C.log_quantities(p["theta"]) for p in posts]
     true = C.log_quantities(theta)
     lo, hi = np.percentile(q[0], [1, 99], 0)
@@ -135,7 +135,7 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     from mjxsysid.identify.gap import information_gap
     from mjxsysid.logs.ulog import read_ulog
     rec = read_ulog(DATA / "sample_px4_events.ulg")
-    post = log_grounded_posterior(rec, None, samples=600, particles=1024, seed=0)
+    post = log_grounded_posterior(rec, None, samples=600, particles=512, seed=0)
     assert list(post["channels_used"]) == [0, 0, 0, 1]
     q = C.log_quantities(post["theta"])
     lo, hi = np.percentile(q, [5, 95], 0)
