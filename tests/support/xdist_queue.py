@@ -13,12 +13,13 @@ XDIST_GROUPS = {
     "policy-training": ("test_policy", "test_sequence"),
 }
 _GROUP_OF = {f: g for g, files in XDIST_GROUPS.items() for f in files}
-# Queue order, longest first (seconds of the default tier, `pytest --durations=0`, 2026-11-26), so
-# that the short files come last and fill in; files not listed after them.
+# Queue order, longest first (seconds of the default tier, `pytest --durations=0`, 2026-11-27), so
+# that the short files come last and fill in; files not listed after them. (test_identify, 27 s, was
+# not listed and ran last: one worker went on 23 s after the other had finished.)
 _QUEUE = ("policy-training", "policy-flights", "test_control", "test_sim", "test_tune", "test_experiments_robustness",
-          "test_cfm", "test_distributed", "test_resume", "test_logcheck", "test_references", "test_render",
-          "test_export", "test_train_options", "test_docs_generated", "test_focus", "test_heldout", "test_inputs",
-          "test_sensor_randomization", "test_theta", "test_probe_loop")
+          "test_cfm", "test_identify", "test_distributed", "test_resume", "test_logcheck", "test_render",
+          "test_docs_generated", "test_references", "test_export", "test_focus", "test_train_options", "test_inputs",
+          "test_heldout", "test_theta", "test_probe_loop", "test_architecture", "test_sensor_randomization")
 
 
 def pytest_configure(config):
