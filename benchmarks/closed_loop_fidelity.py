@@ -10,6 +10,7 @@ envelope ≥ 90 % of the time, the decoded envelope no wider than the ±20 % one
 
     python benchmarks/closed_loop_fidelity.py --out docs/runs/archive/previous_protocol/closed_loop_fidelity.json  # GPU: ~1 min
     python benchmarks/closed_loop_fidelity.py --vehicles 4 --models 16                    # CPU: a few min
+    python benchmarks/closed_loop_fidelity.py --posterior log_grounded ...   # the log-grounded posterior's draws
 """
 import argparse
 import json
@@ -26,12 +27,15 @@ def main():
     ap.add_argument("--duration", type=float, default=4.0)
     ap.add_argument("--identification", choices=("held_out", "same"), default="held_out",
                     help="decode a separate identification flight (default) or the test flight itself")
+    ap.add_argument("--posterior", choices=("decoded", "log_grounded", "log_grounded_weighed"), default="decoded",
+                    help="fly the decoded models (default), draws of the log-grounded posterior of the "
+                         "identification flight's IMU and motor commands, or those draws with the true mass")
     ap.add_argument("--out", type=Path, default=None, help="write the result as JSON here")
     args = ap.parse_args()
     if args.vehicles < 1:
         ap.error("--vehicles must be >= 1")
     res = fidelity_benchmark(vehicles=args.vehicles, models=args.models, window=args.window,
-                             duration=args.duration, identification=args.identification,
+                             duration=args.duration, identification=args.identification, posterior=args.posterior,
                              log=lambda m: print(m, flush=True))
     print(json.dumps({k: res[k] for k in ("mean", "median", "width_ratio_decoded_over_pm20", "targets", "wall_s")}))
     if args.out:

@@ -286,11 +286,11 @@ def _dist_version(name):
 
 
 def table(res) -> str:
-    lines = [f"RotorPy {res['rotorpy']} (aerodynamics on), {res['seconds']:g} s of the 10 s lemniscate flown by the "
+    lines = [(f"RotorPy {res['rotorpy']} (aerodynamics on), {res['seconds']:g} s of the 10 s lemniscate flown by the "
              f"shipped policy, decoded as `decode --log … --truth` ({res['samples']} samples, seed {res['seed']}): "
              f"the log-grounded posterior (decode's default) and the decoders alone (flight-level, `--decoder-only`); "
              f"weights sha256 {', '.join(f'{k} {v}' for k, v in res['weights_sha256'].items())}. "
-             f"`{res['command']}`, {res['wall_s']:.0f} s.", "",
+             f"`{res['command']}`, {res['wall_s']:.0f} s."), "",
              "| vehicle | IMU | tracking RMSE | log-grounded: truth inside (of 24) | outside | decoders alone: inside | log warnings |",
              "|---|---|---|---|---|---|---|"]
     for vn, v in res["vehicles"].items():

@@ -104,6 +104,17 @@ def theta_from(v, h):
                            xp.exp(v[..., 4])[..., None], tau_ext], -1)
 
 
+def with_mass(theta, mass_kg) -> np.ndarray:
+    """θ (..., 19) with its mass set to ``mass_kg`` and every visible coordinate kept (thrust-to-weight,
+    the authorities, τ_m, ρ, τ_ext / J: the thrust coefficient and inertia scale with it). Draws of the
+    log-grounded posterior, whose hidden coordinates are independent of the visible ones, become draws
+    of the posterior given a weighed vehicle."""
+    v, h = visible_from_theta(np.asarray(theta, np.float32)), hidden_from_theta(np.asarray(theta, np.float32))
+    h = np.array(h)
+    h[..., 0] = np.log(np.float32(mass_kg))
+    return np.asarray(theta_from(v, h))
+
+
 def log_quantities(theta) -> np.ndarray:
     """θ (..., 19) -> the :data:`LOG_NAMES` quantities (..., 13) in physical units."""
     v = np.asarray(visible_from_theta(theta), np.float64)

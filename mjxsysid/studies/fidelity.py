@@ -103,11 +103,19 @@ def check_decoder_window(decoder, window: str, what: str = "window") -> None:
 
 
 IDENTIFICATIONS = ("held_out", "same")
+POSTERIORS = ("decoded", "log_grounded", "log_grounded_weighed")
+
+
+def identification_record(flight, i: int) -> dict:
+    """Vehicle ``i``'s flight log as :func:`mjxsysid.identify.log_grounded_posterior` reads one: the
+    IMU the policy read (the simulator's last sample, as a logger records it) and the motor commands."""
+    from mjxsysid.rollout.flight import seen_imu
+    return {"imu": seen_imu(np.asarray(flight.frame.imu[i])), "motor": np.asarray(flight.frame.motor_cmd[i])}
 
 
 def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decoder=None,
                          window: str = "flight", rate: float = 10.0, identification: str = "held_out",
-                         policy="mjxsysid", **flight_kw) -> dict:
+                         policy="mjxsysid", posterior: str = "decoded", **flight_kw) -> dict:
     """For each true vehicle (n, 19): decoded-model and ±20 % envelopes of the position error.
 
     ``identification="held_out"`` (default) decodes the latents of a separate, undisturbed
@@ -117,7 +125,12 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     identification flight read at ``rate`` Hz with the sequence decoder (``cfm_seq.npz``, the
     flight-level posterior, default), ``"instant"`` the last ẑ with the single-latent CFM (``cfm.npz``).
     ``decoder`` overrides the shipped one of that kind (it must be one trained on ``policy``'s
-    latents; ``policy``: the flying policy, default the shipped one). The n × n_models decoded and the
+    latents; ``policy``: the flying policy, default the shipped one). ``posterior="log_grounded"``
+    flies, in place of the decoded models, as many draws of the log-grounded posterior of the
+    identification flight's IMU and motor commands (:mod:`mjxsysid.identify`, the decoded models its
+    proposal): its hidden directions (mass, arm length, drag, …) are as broad as its physical prior,
+    because an IMU log does not see them; ``"log_grounded_weighed"`` the same draws with the true mass
+    (:func:`mjxsysid.identify.coords.with_mass`: a vehicle put on a scale). The n × n_models decoded and the
     n × n_models perturbed vehicles fly in one batch each, all under the same disturbance
     realisation. Returns per-vehicle and mean ``inside_*`` (fraction of time the true error lies
     in the 5–95 % envelope) and ``width_*_m`` (mean envelope width)."""
@@ -125,6 +138,8 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
         raise ValueError(f"n_models must be >= 2 for an envelope; got {n_models}")
     if identification not in IDENTIFICATIONS:
         raise ValueError(f"identification must be one of {IDENTIFICATIONS}; got {identification!r}")
+    if posterior not in POSTERIORS:
+        raise ValueError(f"posterior must be one of {POSTERIORS}; got {posterior!r}")
     if decoder is None:
         if window == "flight":
             decoder = SequenceDecoder.load(PRETRAINED_DIR / "cfm_seq.npz")
@@ -148,7 +163,13 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     dec, pert = [], []
     for i, th in enumerate(theta_true):
         k = jax.random.fold_in(key, i)
-        d = decoder.sample_theta(zs[i] if window == "flight" else latent[i, -1], k, n_models)
+        d = np.asarray(decoder.sample_theta(zs[i] if window == "flight" else latent[i, -1], k, n_models))
+        if posterior != "decoded":
+            from mjxsysid.identify import log_grounded_posterior
+            from mjxsysid.identify.coords import with_mass
+            d = log_grounded_posterior(identification_record(id_fl, i), d, samples=n_models, seed=seed + i)["theta"]
+            if posterior == "log_grounded_weighed":
+                d = with_mass(d, th[P.MASS])
         dec.append(P.project_valid(np.asarray(d))[0])
         p = th * np.asarray(jax.random.uniform(jax.random.fold_in(key, 1000 + i), (n_models, P.N_PARAMS),
                                                minval=0.8, maxval=1.2))
@@ -165,16 +186,19 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     return {"per_vehicle": out, "mean": {k: float(np.mean([o[k] for o in out])) for k in keys},
             "median": {k: float(np.median([o[k] for o in out])) for k in keys},
             "n_models": n_models, "window": window, "rate_hz": rate, "identification": identification,
+            "posterior": posterior,
             **{k: (list(v) if isinstance(v, tuple) else v) for k, v in flight_kw.items() if k != "policy"}}
 
 
 def fidelity_benchmark(*, vehicles: int = 20, models: int = 100, window: str = "flight", duration: float = 4.0,
-                       identification: str = "held_out", policy="mjxsysid", decoder=None, log=None) -> dict:
+                       identification: str = "held_out", policy="mjxsysid", decoder=None, posterior: str = "decoded",
+                       log=None) -> dict:
     """The closed-loop fidelity benchmark (``benchmarks/closed_loop_fidelity.py``): the paper
     vehicle and ``vehicles - 1`` default-prior draws (key 7) hover ``duration`` s with a constant
     [1, 1, 0] N world force from 0.5 s (a prior vehicle's scaled by m / m_paper: the same
     acceleration), each through :func:`closed_loop_fidelity` with ``models`` decoded and perturbed
-    models. Returns the protocol, per-vehicle results, their means and medians, the decoded over
+    models (``posterior``: the decoded models, or draws of the log-grounded posterior of the
+    identification flight: :func:`closed_loop_fidelity`). Returns the protocol, per-vehicle results, their means and medians, the decoded over
     ±20 % width ratio and the issue's targets (≥ 90 % inside, ratio ≤ 1). ``log`` is told each
     vehicle's result."""
     if vehicles < 1:
@@ -186,7 +210,8 @@ def fidelity_benchmark(*, vehicles: int = 20, models: int = 100, window: str = "
     for i, t in enumerate(th):
         scale = float(t[P.MASS] / P.PAPER_HARDWARE[P.MASS])
         r = closed_loop_fidelity(t, n_models=models, window=window, reference="hover", identification=identification,
-                                 duration=duration, force_step=(scale, scale, 0.0), policy=policy, decoder=decoder)
+                                 duration=duration, force_step=(scale, scale, 0.0), policy=policy, decoder=decoder,
+                                 posterior=posterior)
         per.append({"vehicle": "paper" if i == 0 else f"prior_{i}", "force_scale": scale, **r["per_vehicle"][0]})
         if log is not None:
             log(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in per[-1].items()}))
@@ -194,6 +219,7 @@ def fidelity_benchmark(*, vehicles: int = 20, models: int = 100, window: str = "
     ratio = [p["width_decoded_m"] / max(p["width_pm20_m"], 1e-9) for p in per]
     return {
         "protocol": {"vehicles": vehicles, "models": models, "window": window, "identification": identification,
+                     "posterior": posterior,
                      "duration_s": duration, "reference": "hover", "force_step_N": "[1, 1, 0] × m / m_paper",
                      "prior_seed": 7},
         "device": str(jax.devices()[0]), "jax": jax.__version__, "wall_s": time.time() - t0,

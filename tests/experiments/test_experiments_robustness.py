@@ -250,6 +250,8 @@ def test_flight_window_needs_the_sequence_decoder():
         closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="3s")
     with pytest.raises(ValueError, match="identification must be one of"):
         closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="instant", identification="test")
+    with pytest.raises(ValueError, match="posterior must be one of .*log_grounded"):
+        closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="instant", posterior="mcmc")
 
 
 @pytest.mark.slow

@@ -146,6 +146,18 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
 
 
 
+def test_with_mass_keeps_what_the_log_sees():
+    """A weighed vehicle: every draw's mass set, its visible coordinates (what the log sees) unchanged,
+    the thrust coefficient and inertia scaled with the mass."""
+    from mjxsysid.identify.coords import visible_from_theta, with_mass
+    th = np.stack([P.paper_hardware(), P.paper_hardware() * np.float32(1.1)])
+    w = with_mass(th, 2.0)
+    np.testing.assert_allclose(w[:, P.MASS], 2.0)
+    np.testing.assert_allclose(visible_from_theta(w), visible_from_theta(th), atol=1e-5)
+    np.testing.assert_allclose(w[:, P.KT] / th[:, P.KT], 2.0 / th[:, P.MASS], rtol=1e-5)
+    np.testing.assert_allclose(w[:, P.ARM], th[:, P.ARM], rtol=1e-6)
+
+
 def test_posterior_runs_at_full_matmul_precision():
     """The posterior's programs are traced with float32 matmuls at full precision whatever the
     caller's default (a GPU's TF32 narrowed and shifted the bands: docs/identify.md): the module's

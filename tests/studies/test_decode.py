@@ -136,6 +136,12 @@ def test_closed_loop_fidelity_runs():
     m = r["mean"]
     assert 0.0 <= m["inside_decoded"] <= 1.0 and m["width_decoded_m"] >= 0.0
     assert m["width_pm20_m"] >= 0.0
+    # the log-grounded posterior's draws: their mass as broad as the prior (an external force acts
+    # through it), so the envelope is wider than the decoded one; weighed, narrower than that
+    kw = {"n_models": 8, "reference": "hover", "duration": 1.0, "force_step": (1.0, 1.0, 0.0)}
+    lg, lw = (closed_loop_fidelity(P.PAPER_HARDWARE, posterior=p, **kw)["mean"]
+              for p in ("log_grounded", "log_grounded_weighed"))
+    assert lg["width_decoded_m"] > lw["width_decoded_m"] and lg["inside_decoded"] >= 0.5
 
 
 def test_read_log_fast_path_equals_the_careful_parser_and_memory_limit(paper_flight, tmp_path, monkeypatch):
