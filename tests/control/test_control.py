@@ -218,6 +218,7 @@ def test_cli_argument_errors(capsys, argv, match):
     assert match in capsys.readouterr().err
 
 
+@pytest.mark.usefixtures("xla_optimised_test")
 @pytest.mark.parametrize("decode_rate", [pytest.param(None, marks=pytest.mark.slow, id="10Hz"),
                                          pytest.param(1 / 9.8, id="first_and_last")])
 def test_demo_runs(tmp_path, monkeypatch, decode_rate):

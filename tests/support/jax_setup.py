@@ -28,14 +28,34 @@ if _XLA_OPTIMISATIONS_OFF:
     use_xla_flags(FAST_CPU_COMPILE + ONE_EIGEN_THREAD)
 
 
+_BACKEND_LEVEL = [None]   # LLVM optimisation level forced on every compile while set (xla_optimised)
+
+
+def _with_backend_level(get_compile_options):
+    def wrapped(*args, **kwargs):
+        opts = get_compile_options(*args, **kwargs)
+        if _BACKEND_LEVEL[0] is not None:
+            opts.executable_build_options.debug_options.xla_backend_optimization_level = _BACKEND_LEVEL[0]
+        return opts
+    return wrapped
+
+
+from jax._src import compiler as _jax_compiler  # noqa: E402  (JAX's private compile options: tests only)
+
+_jax_compiler.get_compile_options = _with_backend_level(_jax_compiler.get_compile_options)
+
+
 @contextlib.contextmanager
 def xla_optimised():
     """Compile with XLA's optimisations inside (for the few tests whose time is spent running a
-    long training loop rather than compiling it: unoptimised, they would run 2-3x slower)."""
+    long training loop rather than compiling it: unoptimised, they would run 2-3x slower), LLVM at
+    level 1: nearly as fast to run as XLA's default level and faster to compile (BENCHMARKS.md)."""
     jax.config.update("jax_disable_most_optimizations", False)
+    _BACKEND_LEVEL[0] = 1
     try:
         yield
     finally:
+        _BACKEND_LEVEL[0] = None
         jax.config.update("jax_disable_most_optimizations", _XLA_OPTIMISATIONS_OFF)
 
 
