@@ -40,7 +40,7 @@ def _with_backend_level(get_compile_options):
     return wrapped
 
 
-from jax._src import compiler as _jax_compiler  # noqa: E402  (JAX's private compile options: tests only)
+from jax._src import compiler as _jax_compiler  # JAX's private compile options: tests only
 
 _jax_compiler.get_compile_options = _with_backend_level(_jax_compiler.get_compile_options)
 
