@@ -118,6 +118,9 @@ def test_cli_quiet_flag_on_every_command():
         assert any("--quiet" in a.option_strings for a in sp._actions), name
 
 
+# The group's first flights, decodes and log-grounded posterior (run again by test_decode.py and the
+# notebooks in this worker): compiled at LLVM level 1, which compiles about as fast and runs them 2-4x faster.
+@pytest.mark.usefixtures("xla_optimised_test")
 def test_fly_and_decode_api_match_the_cli(tmp_path, capsys):
     import mjxsysid
     from mjxsysid import theta as P
