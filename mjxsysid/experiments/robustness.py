@@ -51,7 +51,11 @@ def force_tag(f) -> str:
 
 
 VARIANTS = {"single_latent": "the paper's single-latent CFM p(θ | ẑ) on the identification flight's last "
-                             "latent, not the flight-level decoder (window 'instant')"}
+                             "latent, not the flight-level decoder (window 'instant')",
+            "log_grounded": "draws of the log-grounded posterior of the identification flight's IMU and motor "
+                            "commands (the flight-level decoded models its proposal) in place of the decoded models; "
+                            "their mass, which no IMU log sees, as broad as its physical prior",
+            "log_grounded_weighed": "the log_grounded variant's draws with the true mass (a vehicle put on a scale)"}
 """Protocol variants (``mjxsysid experiment robustness --variant V``): the headline uses the
 flight-level decoder, chosen after the paper's single-latent CFM missed the paper vehicle's
 truth; the variant reports the paper's decoder beside it."""
@@ -73,6 +77,8 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     cfg = cfg or (QUICK if quick else FULL)
     if variant == "single_latent":
         cfg = dataclasses.replace(cfg, window="instant")
+    elif variant in ("log_grounded", "log_grounded_weighed"):
+        cfg = dataclasses.replace(cfg, posterior=variant)
     decoder = load_sequence_decoder(decoders, ref, echo=log) if cfg.window == "flight" else None
     if decoder is None:    # window 'instant', or no sequence decoder shipped (then said so)
         decoder, _ = load_decoders(decoders, ref, warn=log)

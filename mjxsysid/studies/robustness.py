@@ -40,7 +40,8 @@ from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import broadcast
 from mjxsysid.rollout.harness import Disturbance, Flight, failure_mask, fly_batch
 from mjxsysid.sim import Quadrotor
-from mjxsysid.studies.fidelity import WINDOWS, check_decoder_window, energy_distance, envelope, envelope_stats
+from mjxsysid.studies.fidelity import (POSTERIORS, WINDOWS, check_decoder_window, energy_distance, envelope,
+                                       envelope_stats)
 
 RECORD_EVERY = 5
 """Error traces keep every 5th control step (100 Hz at the default 500 Hz)."""
@@ -62,6 +63,9 @@ class RobustnessConfig:
     sample_steps: Euler steps of the CFM sampler. chunk: rollouts per compiled batch.
     window: 'flight' (every ẑ of the identification flight at ``id_rate`` Hz, decoded by the
     sequence decoder: the flight-level posterior) or 'instant' (ẑ at its end, single-latent CFM).
+    posterior: 'decoded' (the decoded models), 'log_grounded' (draws of the log-grounded posterior of
+    the identification flight's IMU and motor commands, the decoded models its proposal:
+    :mod:`mjxsysid.identify`) or 'log_grounded_weighed' (those draws with the true mass).
     """
     duration: float = 4.0
     onset: float = 0.5
@@ -80,6 +84,7 @@ class RobustnessConfig:
     chunk: int = 16384
     window: str = "flight"
     id_rate: float = 10.0
+    posterior: str = "decoded"
 
     def __post_init__(self):
         for f in ("n_decoded", "n_perturbed", "mc_rollouts", "mc_models", "chunk", "sample_steps"):
@@ -91,6 +96,8 @@ class RobustnessConfig:
             raise ValueError(f"RobustnessConfig.perturbation must be in (0, 1), got {self.perturbation}")
         if self.window not in WINDOWS:
             raise ValueError(f"RobustnessConfig.window must be one of {WINDOWS}, got {self.window!r}")
+        if self.posterior not in POSTERIORS:
+            raise ValueError(f"RobustnessConfig.posterior must be one of {POSTERIORS}, got {self.posterior!r}")
         if not self.id_rate > 0:
             raise ValueError(f"RobustnessConfig.id_rate must be > 0 Hz, got {self.id_rate}")
         if self.id_reference not in ("lemniscate", "hover"):
@@ -125,6 +132,11 @@ def id_traces(flight: Flight) -> tuple[ErrorTrace, jax.Array]:
     """Reduction of an identification flight -> (:func:`error_traces`, its latent ẑ after every
     step (T, 8)), for flight-level decoding."""
     return error_traces(flight), flight.latent
+
+
+def id_log_traces(flight: Flight) -> tuple[ErrorTrace, jax.Array, jax.Array, jax.Array]:
+    """:func:`id_traces` and the flight's log for the log-grounded posterior: IMU (T, 6), motor commands (T, 4)."""
+    return error_traces(flight), flight.latent, flight.frame.imu, flight.frame.motor_cmd
 
 
 def record_times(steps: int, dt: float) -> np.ndarray:
@@ -232,10 +244,18 @@ def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *,
     id_keys = np.asarray(jax.random.split(k_id, v_n))
     log(f"identification flights ({v_n} vehicles, {cfg.id_reference}, {cfg.duration:g} s)")
     id_dist = dist_rows(np.zeros((v_n, 3)), np.zeros((v_n, 3)), cfg.onset, v_n)
+    logs = None
+    if cfg.posterior != "decoded":   # every ẑ and the IMU and motor log: their own compile, V rollouts
+        idt, traj, imu, motor = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, sim=sim,
+                                           reduce=id_log_traces)
+        logs = (imu, motor)
     if cfg.window == "flight":    # keep every ẑ: their own compile, V rollouts
-        idt, traj = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, sim=sim, reduce=id_traces)
+        if logs is None:
+            idt, traj = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, sim=sim, reduce=id_traces)
         idx = decode_indices((np.arange(steps) + 1) * dt, cfg.id_rate)[-decoder.max_len:]
         cond = traj[:, idx]                                         # (V, K, 8): ẑ at id_rate Hz
+    elif logs is not None:
+        cond = idt.latent
     else:                         # the last ẑ only: shares the test rollouts' compile
         idt = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, pad_to=batch, sim=sim)
         cond = idt.latent                                           # (V, 8)
@@ -246,7 +266,18 @@ def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *,
     n_p = cfg.n_perturbed + n_mc
     log(f"decoding {n_s} models per vehicle" + (f" (flight-level, {cond.shape[1]} latents)" if cond.ndim == 3 else ""))
     dec = P.project_valid(np.asarray(decoder.sample_theta(cond, k_dec, n_s, steps=cfg.sample_steps)))[0]
-    dec = dec.reshape(v_n, n_s, P.N_PARAMS)
+    dec = np.array(dec).reshape(v_n, n_s, P.N_PARAMS)
+    if logs is not None:
+        from mjxsysid.identify import log_grounded_posterior
+        from mjxsysid.identify.coords import with_mass
+        from mjxsysid.rollout.flight import seen_imu
+        log(f"log-grounded posterior of each identification flight ({n_s} draws, the decoded models its proposal)")
+        for v in range(v_n):
+            th = log_grounded_posterior({"imu": seen_imu(logs[0][v]), "motor": logs[1][v]}, dec[v], samples=n_s,
+                                        seed=v)["theta"]
+            if cfg.posterior == "log_grounded_weighed":
+                th = with_mass(th, theta_true[v, P.MASS])
+            dec[v] = P.project_valid(np.asarray(th))[0]
     pert = perturbed(theta_true, k_pert, n_p, cfg.perturbation)
 
     # 3. the rollout table
