@@ -14,6 +14,25 @@ ONE_EIGEN_THREAD = ("--xla_cpu_multi_thread_eigen=false",)
 xdist workers), whose per-process pools of one thread per core only contend with each other."""
 
 
+REMOVED_IN_JAXLIB = {"--xla_cpu_use_fusion_emitters": (0, 11)}
+"""Flags XLA no longer knows from a jaxlib version on (XLA exits on an unknown flag: jaxlib 0.11.2
+stopped every CLI command on the GPU machine with "Unknown flag in XLA_FLAGS")."""
+
+
+def _jaxlib_version() -> tuple[int, ...]:
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        return tuple(int(x) for x in version("jaxlib").split(".")[:2] if x.isdigit())
+    except PackageNotFoundError:
+        return (0,)
+
+
+def known_flags(add: tuple[str, ...], jaxlib: tuple[int, ...] | None = None) -> tuple[str, ...]:
+    """The flags of ``add`` that the installed jaxlib (or ``jaxlib``, a version tuple) still knows."""
+    v = _jaxlib_version() if jaxlib is None else tuple(jaxlib)
+    return tuple(f for f in add if v < REMOVED_IN_JAXLIB.get(f.split("=", 1)[0], (10**6,)))
+
+
 def with_xla_flags(flags: str, add: tuple[str, ...]) -> str:
     """``flags`` (an ``XLA_FLAGS`` string) with the flags of ``add`` appended; a flag the string
     already sets (to any value) is left as it is."""
@@ -32,7 +51,7 @@ def use_xla_flags(add: tuple[str, ...] = FAST_CPU_COMPILE) -> None:
     any value already set for the same flag; takes effect only if JAX has not started its CPU
     backend yet."""
     import os
-    os.environ["XLA_FLAGS"] = with_xla_flags(os.environ.get("XLA_FLAGS", ""), add)
+    os.environ["XLA_FLAGS"] = with_xla_flags(os.environ.get("XLA_FLAGS", ""), known_flags(add))
 
 
 def use_fast_cpu_compile() -> None:
