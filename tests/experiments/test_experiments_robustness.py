@@ -252,6 +252,25 @@ def test_flight_window_needs_the_sequence_decoder():
         closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="instant", identification="test")
     with pytest.raises(ValueError, match="posterior must be one of .*log_grounded"):
         closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="instant", posterior="mcmc")
+    with pytest.raises(ValueError, match="RobustnessConfig.posterior must be one of"):
+        RobustnessConfig(posterior="mcmc")
+
+
+@pytest.mark.slow
+def test_robustness_with_the_log_grounded_posterior_weighed(tmp_path):
+    """The weighed log-grounded variant runs end to end (its draws carry the true mass) and its step
+    envelope is narrower than the mass-blind log-grounded one's (the force acts through the mass)."""
+    from mjxsysid.studies.robustness import RobustnessConfig
+    from mjxsysid.experiments import robustness
+    widths = {}
+    for variant in ("log_grounded", "log_grounded_weighed"):
+        cfg = RobustnessConfig(duration=1.0, onset=0.3, n_decoded=8, n_perturbed=8, mc_rollouts=3, mc_models=2,
+                               sigmas=(1.0,), chunk=64)
+        res = robustness.run(tmp_path / variant, quick=True, cfg=cfg, n_prior=0, progress=False, variant=variant)
+        step = res["numbers"]["paper_vehicle"]["step"]["[1, 1, 0] N"]["lateral"]
+        widths[variant] = step["width_decoded_m"]
+        assert res["config"]["posterior"] == variant and 0.0 <= step["inside_decoded"] <= 1.0
+    assert widths["log_grounded_weighed"] < widths["log_grounded"], widths
 
 
 @pytest.mark.slow
