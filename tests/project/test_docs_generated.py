@@ -11,8 +11,10 @@ def test_fair_comparisons_page_matches_the_runs():
     are what mjxsysid.release.pages
     builds from the run files in docs/runs/ (`tools/fair_tables.py --check`: a hand edit, or a
     re-run without regenerating, fails here)."""
+    # this checkout's package first (an editable install of another checkout would otherwise build the pages)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, (str(ROOT), os.environ.get("PYTHONPATH")))))
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "fair_tables.py"), "--check"],
-                       capture_output=True, text=True, cwd=ROOT)
+                       capture_output=True, text=True, cwd=ROOT, env=env)
     assert r.returncode == 0, r.stdout + r.stderr
     text = (ROOT / "docs" / "fair_comparisons.md").read_text()
     for heading in ("## 1. Nominal+CEM", "## 2. Action replay", "## 3. Regression", "## 5. Closed-loop",
