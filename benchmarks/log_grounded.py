@@ -37,7 +37,7 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.identify.coords import LOG_NAMES, log_quantities
 from mjxsysid.identify.inference import log_grounded_posterior
-from mjxsysid.rollout.flight import fly_vehicles, seen_imu
+from mjxsysid.rollout.flight import flight_log, fly_vehicles
 from mjxsysid.sim import Quadrotor, SimConfig
 from mjxsysid.studies.noise import LEVELS
 
@@ -52,7 +52,7 @@ def run_level(th, level: str, seed: int, index=None) -> dict:
     for i in range(len(th)):
         if bool(np.asarray(m["failed"])[i]):
             continue
-        rec = {"imu": seen_imu(np.asarray(fl.frame.imu[i])), "motor": np.asarray(fl.frame.motor_cmd[i])}
+        rec = flight_log(fl.frame, i)
         t0 = time.perf_counter()
         post = log_grounded_posterior(rec, None, seed=int(index[i]))
         sec = time.perf_counter() - t0

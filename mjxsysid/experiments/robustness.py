@@ -27,6 +27,7 @@ from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.experiments.common import markdown_table, mean_std, write_results
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.render.plots import plot_error_envelopes, plot_final_histograms
+from mjxsysid.studies.fidelity import POSTERIORS
 from mjxsysid.studies.robustness import AXES, RobustnessConfig, mc_stats, robustness_study, step_stats
 
 FULL = RobustnessConfig()
@@ -77,7 +78,7 @@ def run(out, *, quick: bool = False, policy=None, seed: int = 0, progress: bool 
     cfg = cfg or (QUICK if quick else FULL)
     if variant == "single_latent":
         cfg = dataclasses.replace(cfg, window="instant")
-    elif variant in ("log_grounded", "log_grounded_weighed"):
+    elif variant in POSTERIORS:
         cfg = dataclasses.replace(cfg, posterior=variant)
     decoder = load_sequence_decoder(decoders, ref, echo=log) if cfg.window == "flight" else None
     if decoder is None:    # window 'instant', or no sequence decoder shipped (then said so)

@@ -43,6 +43,7 @@ from mjxsysid.experiments.common import write_results
 from mjxsysid.logs.csvlog import LOG_DT, write_log
 from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.interface import PRETRAINED_DIR, file_sha256
+from mjxsysid.sim.quadrotor import aliased_hz, vibration_step
 from mjxsysid.studies.decode import run_decode
 from mjxsysid.studies.noise import LEVELS as NOISE_LEVELS
 
@@ -113,6 +114,14 @@ def with_external_torque(multirotor_cls, torque):
 
 
 @jax.jit
+def _vibration(prev, noise, rotor_speeds):
+    """One 2 ms step of the simulator's rotor vibration (unit std, (2, 6) last two outputs), centred
+    on the mean rotor speed aliased into the IMU's band, as :class:`mjxsysid.sim.Quadrotor` draws it."""
+    f = aliased_hz(jnp.mean(rotor_speeds) / (2 * jnp.pi), LOG_DT)
+    return vibration_step(prev, noise, f, VIBRATION_BANDWIDTH_HZ, LOG_DT)
+
+
+@jax.jit
 def _control(ctrl, high, ref, hc, lc, pos, vel, quat, omega, imu, i):
     """One 2 ms step of the cascade and the policy (as mjxsysid.rollout.harness.run_loop does)."""
     r = ref.at(i.astype(jnp.float32) * LOG_DT)
@@ -128,7 +137,6 @@ def fly(theta, seconds: float, noise: dict, white, bias, ctrl, vib_white=None) -
     (:func:`mjxsysid.sim.quadrotor.vibration_step`, centred on RotorPy's mean rotor speed aliased into
     the IMU's band, driven by ``vib_white`` (T, 6) standard normals) at the level's stds.
     Returns the log's arrays (row k: what the policy saw and did at step k) and the position error."""
-    from mjxsysid.sim.quadrotor import aliased_hz, vibration_step
     Multirotor, Imu = import_rotorpy()
     steps = int(round(seconds / LOG_DT))
     ref = Lemniscate.make(period=10.0)
@@ -151,8 +159,7 @@ def fly(theta, seconds: float, noise: dict, white, bias, ctrl, vib_white=None) -
     for i in range(steps):
         imu = true + sb * bias + sd * white[i]
         if sv.any():
-            f = aliased_hz(float(np.mean(state["rotor_speeds"])) / (2 * np.pi), LOG_DT)
-            vib = np.asarray(vibration_step(vib, vib_white[i], f, VIBRATION_BANDWIDTH_HZ, LOG_DT))
+            vib = np.asarray(_vibration(vib, np.float32(vib_white[i]), np.float32(state["rotor_speeds"])))
             imu = imu + sv * vib[1]
         x, v, q, w = state["x"], state["v"], state["q"], state["w"]
         hc, lc, a_cmd, w_cmd, u, ref_pos = _control(

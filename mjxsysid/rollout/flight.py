@@ -141,6 +141,17 @@ def seen_imu(imu) -> np.ndarray:
     return np.concatenate([imu0, imu[..., :-1, :]], -2)
 
 
+def flight_log(frame, index: int | None = None) -> dict:
+    """A flight's IMU and motor log as :func:`mjxsysid.logs.csvlog.read_log` gives a log's (what the
+    log-grounded posterior reads), from its ``frame`` (a Flight's, or any Frame): 'imu' (T, 6) the
+    readings the controller acted on (:func:`seen_imu`), 'motor' (T, 4) the motor commands; of
+    vehicle ``index`` of a batched flight."""
+    imu, motor = frame.imu, frame.motor_cmd
+    if index is not None:
+        imu, motor = imu[index], motor[index]
+    return {"imu": seen_imu(imu), "motor": np.asarray(motor)}
+
+
 def one_flight(flight: Flight, index: int = 0) -> Flight:
     return jax.tree.map(lambda a: np.asarray(a[index]), flight)
 

@@ -22,7 +22,7 @@ from mjxsysid.cfm.sequence import SequenceDecoder
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.dataset.collect import decode_indices
 from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
-from mjxsysid.rollout.flight import broadcast, make_low_level, make_reference
+from mjxsysid.rollout.flight import broadcast, flight_log, make_low_level, make_reference
 from mjxsysid.rollout.harness import Disturbance, fly_batch
 from mjxsysid.sim import Quadrotor
 
@@ -106,11 +106,17 @@ IDENTIFICATIONS = ("held_out", "same")
 POSTERIORS = ("decoded", "log_grounded", "log_grounded_weighed")
 
 
-def identification_record(flight, i: int) -> dict:
-    """Vehicle ``i``'s flight log as :func:`mjxsysid.identify.log_grounded_posterior` reads one: the
-    IMU the policy read (the simulator's last sample, as a logger records it) and the motor commands."""
-    from mjxsysid.rollout.flight import seen_imu
-    return {"imu": seen_imu(np.asarray(flight.frame.imu[i])), "motor": np.asarray(flight.frame.motor_cmd[i])}
+def posterior_draws(posterior: str, decoded, log: dict, *, mass_kg: float, seed: int) -> np.ndarray:
+    """The models an envelope flies (S, 19), by :data:`POSTERIORS`: the ``decoded`` ones (S, 19) as
+    they are, or as many draws of the log-grounded posterior of the identification flight's ``log``
+    (:func:`mjxsysid.rollout.flight.flight_log`), the decoded models its proposal, and for
+    'log_grounded_weighed' with the true mass ``mass_kg`` (:func:`mjxsysid.identify.coords.with_mass`)."""
+    if posterior == "decoded":
+        return np.asarray(decoded)
+    from mjxsysid.identify import log_grounded_posterior
+    from mjxsysid.identify.coords import with_mass
+    th = log_grounded_posterior(log, np.asarray(decoded), samples=len(decoded), seed=seed)["theta"]
+    return with_mass(th, mass_kg) if posterior == "log_grounded_weighed" else th
 
 
 def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decoder=None,
@@ -163,14 +169,10 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
     dec, pert = [], []
     for i, th in enumerate(theta_true):
         k = jax.random.fold_in(key, i)
-        d = np.asarray(decoder.sample_theta(zs[i] if window == "flight" else latent[i, -1], k, n_models))
-        if posterior != "decoded":
-            from mjxsysid.identify import log_grounded_posterior
-            from mjxsysid.identify.coords import with_mass
-            d = log_grounded_posterior(identification_record(id_fl, i), d, samples=n_models, seed=seed + i)["theta"]
-            if posterior == "log_grounded_weighed":
-                d = with_mass(d, th[P.MASS])
-        dec.append(P.project_valid(np.asarray(d))[0])
+        d = decoder.sample_theta(zs[i] if window == "flight" else latent[i, -1], k, n_models)
+        d = posterior_draws(posterior, d, flight_log(id_fl.frame, i) if posterior != "decoded" else None,
+                            mass_kg=float(th[P.MASS]), seed=seed + i)
+        dec.append(P.project_valid(d)[0])
         p = th * np.asarray(jax.random.uniform(jax.random.fold_in(key, 1000 + i), (n_models, P.N_PARAMS),
                                                minval=0.8, maxval=1.2))
         pert.append(P.project_valid(p)[0])

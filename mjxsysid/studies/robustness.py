@@ -37,11 +37,12 @@ from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.dataset.collect import decode_indices
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.rollout.flight import broadcast
+from mjxsysid.rollout.flight import broadcast, flight_log
 from mjxsysid.rollout.harness import Disturbance, Flight, failure_mask, fly_batch
 from mjxsysid.sim import Quadrotor
+from mjxsysid.sim.quadrotor import Frame
 from mjxsysid.studies.fidelity import (POSTERIORS, WINDOWS, check_decoder_window, energy_distance, envelope,
-                                       envelope_stats)
+                                       envelope_stats, posterior_draws)
 
 RECORD_EVERY = 5
 """Error traces keep every 5th control step (100 Hz at the default 500 Hz)."""
@@ -134,9 +135,10 @@ def id_traces(flight: Flight) -> tuple[ErrorTrace, jax.Array]:
     return error_traces(flight), flight.latent
 
 
-def id_log_traces(flight: Flight) -> tuple[ErrorTrace, jax.Array, jax.Array, jax.Array]:
-    """:func:`id_traces` and the flight's log for the log-grounded posterior: IMU (T, 6), motor commands (T, 4)."""
-    return error_traces(flight), flight.latent, flight.frame.imu, flight.frame.motor_cmd
+def id_log_traces(flight: Flight) -> tuple[ErrorTrace, jax.Array, Frame]:
+    """:func:`id_traces` and the flight's frame (T, ...), whose log the log-grounded posterior reads
+    (:func:`mjxsysid.rollout.flight.flight_log`)."""
+    return error_traces(flight), flight.latent, flight.frame
 
 
 def record_times(steps: int, dt: float) -> np.ndarray:
@@ -244,18 +246,12 @@ def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *,
     id_keys = np.asarray(jax.random.split(k_id, v_n))
     log(f"identification flights ({v_n} vehicles, {cfg.id_reference}, {cfg.duration:g} s)")
     id_dist = dist_rows(np.zeros((v_n, 3)), np.zeros((v_n, 3)), cfg.onset, v_n)
-    logs = None
-    if cfg.posterior != "decoded":   # every ẑ and the IMU and motor log: their own compile, V rollouts
-        idt, traj, imu, motor = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, sim=sim,
-                                           reduce=id_log_traces)
-        logs = (imu, motor)
-    if cfg.window == "flight":    # keep every ẑ: their own compile, V rollouts
-        if logs is None:
-            idt, traj = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, sim=sim, reduce=id_traces)
+    grounded = cfg.posterior != "decoded"      # the log-grounded posterior reads the flights' logs
+    if cfg.window == "flight" or grounded:   # every ẑ (and the frames): their own compile, V rollouts
+        idt, traj, *frame = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, sim=sim,
+                                       reduce=id_log_traces if grounded else id_traces)
         idx = decode_indices((np.arange(steps) + 1) * dt, cfg.id_rate)[-decoder.max_len:]
-        cond = traj[:, idx]                                         # (V, K, 8): ẑ at id_rate Hz
-    elif logs is not None:
-        cond = idt.latent
+        cond = traj[:, idx] if cfg.window == "flight" else idt.latent   # (V, K, 8): ẑ at id_rate Hz, or (V, 8)
     else:                         # the last ẑ only: shares the test rollouts' compile
         idt = fly_traces(policy, theta_true, id_ref, id_dist, id_keys, steps, pad_to=batch, sim=sim)
         cond = idt.latent                                           # (V, 8)
@@ -266,18 +262,12 @@ def robustness_study(theta_true, decoder, policy, cfg: RobustnessConfig, key, *,
     n_p = cfg.n_perturbed + n_mc
     log(f"decoding {n_s} models per vehicle" + (f" (flight-level, {cond.shape[1]} latents)" if cond.ndim == 3 else ""))
     dec = P.project_valid(np.asarray(decoder.sample_theta(cond, k_dec, n_s, steps=cfg.sample_steps)))[0]
-    dec = np.array(dec).reshape(v_n, n_s, P.N_PARAMS)
-    if logs is not None:
-        from mjxsysid.identify import log_grounded_posterior
-        from mjxsysid.identify.coords import with_mass
-        from mjxsysid.rollout.flight import seen_imu
+    dec = dec.reshape(v_n, n_s, P.N_PARAMS)
+    if grounded:
         log(f"log-grounded posterior of each identification flight ({n_s} draws, the decoded models its proposal)")
-        for v in range(v_n):
-            th = log_grounded_posterior({"imu": seen_imu(logs[0][v]), "motor": logs[1][v]}, dec[v], samples=n_s,
-                                        seed=v)["theta"]
-            if cfg.posterior == "log_grounded_weighed":
-                th = with_mass(th, theta_true[v, P.MASS])
-            dec[v] = P.project_valid(np.asarray(th))[0]
+        dec = np.stack([P.project_valid(posterior_draws(cfg.posterior, dec[v], flight_log(frame[0], v),
+                                                        mass_kg=float(theta_true[v, P.MASS]), seed=v))[0]
+                        for v in range(v_n)])
     pert = perturbed(theta_true, k_pert, n_p, cfg.perturbation)
 
     # 3. the rollout table

@@ -145,7 +145,6 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     assert not gap["authority_total[0]"]["seen_by_log"] and gap["thrust_to_weight_total"]["seen_by_log"]
 
 
-
 def test_with_mass_keeps_what_the_log_sees():
     """A weighed vehicle: every draw's mass set, its visible coordinates (what the log sees) unchanged,
     the thrust coefficient and inertia scaled with the mass."""

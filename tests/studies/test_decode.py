@@ -32,6 +32,11 @@ def _log_from_flight(f):
 def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
     path = write_log(tmp_path / "flight.csv", *_log_from_flight(paper_flight))
     rec = read_log(path)
+    # a flight's log in memory (what the studies hand the log-grounded posterior) is the log on disk
+    from mjxsysid.rollout.flight import flight_log
+    mem = flight_log(paper_flight.frame)
+    for k in ("imu", "motor"):
+        np.testing.assert_allclose(mem[k], rec[k], rtol=1e-6, atol=1e-6)
     from mjxsysid.policy.adaptive.controller import PolicyController
     z = PolicyController.load().replay(rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
     np.testing.assert_allclose(z, paper_flight.latent, atol=2e-4)

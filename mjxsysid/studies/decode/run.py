@@ -15,7 +15,7 @@ from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.progress import stages
 from mjxsysid.render.posterior import plot_decoded_over_time, plot_information_gap, plot_marginals
 from mjxsysid.render.video import render_rollout
-from mjxsysid.rollout.flight import fly_vehicles, make_reference, one_flight, seen_imu
+from mjxsysid.rollout.flight import flight_log, fly_vehicles, make_reference, one_flight
 from mjxsysid.studies.decode.checks import checks_summary, decoders_prior, flight_checks, log_latents
 from mjxsysid.studies.decode.posterior import decode_posterior, ground_in_log
 from mjxsysid.studies.decode.windows import check_window, parse_window
@@ -147,7 +147,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
                                     period=period, duration=duration, seed=seed)
         one = one_flight(flight)
         zhat_t, times, truth = one.latent, one.time, np.asarray(theta, np.float32)
-        rec = {"imu": seen_imu(one.frame.imu), "motor": one.frame.motor_cmd}
+        rec = flight_log(one.frame)
     flight_checks(rec, decoders_prior(seq, cfm), checks)
     for f in checks["findings"]:
         warn(f)
