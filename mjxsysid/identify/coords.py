@@ -87,10 +87,12 @@ def hidden_from_theta(theta):
                            xp.log(t[..., P.DRAG])], -1)
 
 
-def theta_from(v, h):
-    """v (..., 12), h (..., 7) -> θ (..., 19): the inverse of the two maps above."""
+def theta_from(v, h, dtype=None):
+    """v (..., 12), h (..., 7) -> θ (..., 19): the inverse of the two maps above. ``dtype``: float32
+    by default (float64 for a NumPy caller that differentiates it by finite differences)."""
     xp = xp_of(v, h)
-    v, h = xp.asarray(v, xp.float32), xp.asarray(h, xp.float32)
+    dtype = xp.float32 if dtype is None else dtype
+    v, h = xp.asarray(v, dtype), xp.asarray(h, dtype)
     m, arm, wmax, eb = xp.exp(h[..., 0]), xp.exp(h[..., 1]), xp.exp(h[..., 2]), h[..., 3]
     rho = xp.concatenate([v[..., 1:4], _rho4(v)[..., None]], -1)
     twr = xp.exp(v[..., 0]) / eb
