@@ -344,7 +344,14 @@ class Quadrotor:
 
     def step(self, theta, state: SimState, motor_cmd, force_world=None) -> SimState:
         """Advance one control step (dt). θ (19,); motor_cmd (4,) normalised rotor-speed commands
-        Ω_cmd/Ω_max (clipped to [0, 1]); force_world (3,) N disturbance held over the step."""
+        Ω_cmd/Ω_max (clipped to [0, 1]); force_world (3,) N disturbance held over the step.
+
+        A jitted function of its own: every program that flies this simulator (flights, training,
+        tuning, each under vmap and scan) reuses one trace of MJX's step per signature instead of
+        tracing it again (tracing MJX's Python is a large share of a first flight's compile)."""
+        return _step_jit(self, theta, state, motor_cmd, force_world)
+
+    def _step(self, theta, state: SimState, motor_cmd, force_world=None) -> SimState:
         theta = jnp.asarray(theta, jnp.float32)
         c = self.config
         h = c.physics_dt
@@ -403,3 +410,6 @@ class Quadrotor:
                      rotor_speed=state.rotor_speed, imu=state.imu,
                      motor_cmd=jnp.clip(motor_cmd, 0.0, 1.0), force=force_world,
                      diverged=state.diverged)
+
+
+_step_jit = jax.jit(Quadrotor._step, static_argnums=0)
