@@ -66,7 +66,7 @@ def test_exact_model_recovers_every_visible_coordinate_and_covers_it(vehicle):
     off[[0, 4, 5, 6, 7, 8]] += np.log(1.25)                  # the log coordinates 25 % high
     off[9:12] *= 0.5
     start = np.asarray(theta_from(off, np.asarray(hidden_from_theta(vehicle), np.float64), np.float64))
-    r = MS.identify(imu, motor, qpos, qvel, start_theta=start, max_chunks=8)
+    r = MS.identify(imu, motor, qpos, qvel, start_theta=start, max_chunks=8, max_iters=12)
     q, truth = r.quantities(), log_quantities(vehicle)
     rel = np.abs(q["estimate"][:10] / truth[:10] - 1)
     assert rel.max() < 0.05 and np.median(rel) < 0.01, dict(zip(LOG_NAMES, rel.round(4)))
