@@ -103,7 +103,11 @@ VARIANTS = {"heading_cost": "the tuner's cost with a heading term (weight HEADIN
             "protect": "the tuner switches gains only when 75 % of its K models predict the new ones better",
             "apply_best": "the tuner applies the best candidate of its last CEM iteration, not the mean",
             "cem_3_iterations": "3 CEM iterations per update instead of 2",
-            "horizon_1s": "a 1 s predictive horizon instead of 0.5 s"}
+            "horizon_1s": "a 1 s predictive horizon instead of 0.5 s",
+            "log_grounded": "the tuner given a log: Log+CEM added, its K models drawn from each vehicle's "
+                            "log-grounded posterior (mjxsysid.identify) of a 10 s identification flight (the "
+                            "lag-aware oracle on a lemniscate, its IMU and motor commands), with the vehicle's "
+                            "mass weighed (an IMU log cannot see it); the other methods as in the default protocol"}
 """Protocol variants of the tune-* experiments (``mjxsysid experiment NAME --variant V[,V2]``):
 choices made after seeing a result, or knobs measured, reported beside the default protocol."""
 
@@ -134,6 +138,38 @@ def _variant(name: str, variant: str | None, cfg: TunerConfig) -> TunerConfig:
     return cfg
 
 
+LOG_ENSEMBLE = 64
+"""Draws of each vehicle's log-grounded posterior that Log+CEM takes its K models from."""
+LOG_PARTICLES = 512
+"""The SMC particles of those posteriors (the default 2048 is 4× the time; 64 draws need fewer)."""
+
+
+def log_ensembles(theta, seed: int, *, draws: int = LOG_ENSEMBLE, particles: int | None = None,
+                  progress: bool = True) -> np.ndarray:
+    """The tuner given a log (variant ``log_grounded``): for each vehicle θ (B, 19) a 10 s
+    identification flight (the lag-aware oracle, 10 s lemniscate, clean IMU, its own seed), the
+    log-grounded posterior of its IMU and motor commands (no decoded proposal: the stated prior and
+    the log), ``draws`` of it with the true mass (a vehicle put on a scale: the log cannot see the
+    mass) -> (B, draws, 19). A failed identification flight is an error (no log, no models).
+    ``particles``: the posterior's SMC particles (default its own)."""
+    from mjxsysid.identify import log_grounded_posterior
+    from mjxsysid.identify.coords import with_mass
+    from mjxsysid.progress import progress as bar
+    from mjxsysid.rollout.flight import flight_log, fly_vehicles
+    theta = np.asarray(theta, np.float32)
+    fl, m, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", period=10.0, seed=seed + 1)
+    failed = np.asarray(m["failed"])
+    if failed.any():
+        raise RuntimeError(f"identification flights failed for vehicles {np.flatnonzero(failed).tolist()}: no log")
+    out = np.empty((len(theta), draws, theta.shape[1]), np.float32)
+    kw = {} if particles is None else {"particles": particles}
+    it = bar(range(len(theta)), desc="log-grounded posteriors", enabled=progress)
+    for i in it:
+        post = log_grounded_posterior(flight_log(fl.frame, i), None, samples=draws, seed=seed + i, **kw)
+        out[i] = with_mass(post["theta"], float(theta[i, P.MASS]))
+    return out
+
+
 def _variant_note(variant: str | None) -> str:
     return "; ".join(f"{v}: {VARIANTS[v]}" for v in variant.split(",")) if variant else ""
 
@@ -154,9 +190,14 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
     refs = random_minsnaps(n, seed, duration)
     sim = Quadrotor()
     steps = int(round(duration / sim.config.dt))
+    ensemble = None
+    if "log_grounded" in (variant or "").split(","):
+        methods = tuple(methods) + (() if "log_cem" in methods else ("log_cem",))
+        _log(f"{name}: identification flights and log-grounded posteriors of {n} vehicles")
+        ensemble = log_ensembles(theta, seed, particles=LOG_PARTICLES, progress=progress)
     _log(f"{name}: {n} {prior}-prior vehicles × {duration:g} s min-snap, methods {methods}")
     res = compare_methods(theta, refs, steps=steps, methods=methods, cfg=cfg, policy=policy, sim=sim,
-                          decoder=decoder, seed=seed, log=_log, progress=progress)
+                          decoder=decoder, seed=seed, log=_log, progress=progress, ensemble=ensemble)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     plot_gains(res, out / "gains.png", labels=METHOD_LABELS, tuned=CEM_METHODS, title=f"{name}: gains over time (mean, 5–95 % over vehicles)")
@@ -169,7 +210,8 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
     head.update({f"{RESULT_KEYS[m]}_success": res[m]["summary"]["success_rate"] for m in methods})
     numbers["headline"] = head
     pairs = {"cfm_over_baseline": ("cfm", "baseline"), "cfm_over_naive": ("cfm", "naive"),
-             "cfm_over_nominal_cem": ("cfm", "nominal_cem")}
+             "cfm_over_nominal_cem": ("cfm", "nominal_cem"), "log_cem_over_baseline": ("log_cem", "baseline"),
+             "log_cem_over_cfm": ("log_cem", "cfm")}
     numbers["ratios"] = {f"{n}{suffix}": _ratio(res, a, b, k, common if same else None)
                          for n, (a, b) in pairs.items()
                          for k, suffix0 in (("pos_rmse_m", ""), ("max_pos_err_m", "_max"), ("heading_rmse_deg", "_heading"))

@@ -21,7 +21,7 @@ from mjxsysid.sim import Quadrotor, SimConfig
 from mjxsysid.tune.tuner import CEM_METHODS, METHOD_LABELS, METHODS, TunerConfig, fly_tuned
 
 RESULT_KEYS = {"naive": "naive", "baseline": "baseline", "cfm": "cfm_tuned", "nominal_cem": "nominal_cem",
-               "oracle_cem": "oracle_cem"}
+               "oracle_cem": "oracle_cem", "log_cem": "log_cem"}
 """method -> key in metrics.json / results.json."""
 PER_VEHICLE = ("pos_rmse_m", "max_pos_err_m", "heading_rmse_deg", "saturation_frac", "failed")
 
@@ -34,19 +34,25 @@ def check_methods(methods) -> tuple[str, ...]:
     return methods
 
 
-def compare_methods(theta, refs, *, steps: int, methods=METHODS, cfg: TunerConfig = TunerConfig(),
+def compare_methods(theta, refs, *, steps: int, methods=None, cfg: TunerConfig = TunerConfig(),
                     policy="mjxsysid", decoder=None, sim: Quadrotor | None = None,
                     disturbance: Disturbance | None = None, seed: int = 0, log=None,
-                    progress: bool = True) -> dict:
+                    progress: bool = True, ensemble=None) -> dict:
     """Fly θ (B, 19) on the batched references ``refs`` for ``steps`` control steps under each
-    method. ``policy``: a name/path/:class:`~mjxsysid.policy.interface.PolicyRef` of the frozen
-    low-level policy; ``decoder``: its CFM (default: the policy's shipped one; needed for 'cfm').
+    method (default: every method, 'log_cem' only with an ``ensemble``). ``policy``: a
+    name/path/:class:`~mjxsysid.policy.interface.PolicyRef` of the frozen low-level policy;
+    ``decoder``: its CFM (default: the policy's shipped one; needed for 'cfm'); ``ensemble``
+    (B, M, 19): each vehicle's models for 'log_cem' (the tuner given a log).
 
     Returns {method: {'metrics': per-vehicle dict of lists, 'summary': harness.summarize
     (success rate and mean/std/median over successful flights), 'tuned': TunedFlight,
     'wall_s': float}}.
     """
+    if methods is None:
+        methods = tuple(m for m in METHODS if m != "log_cem" or ensemble is not None)
     methods = check_methods(methods)
+    if "log_cem" in methods and ensemble is None:
+        raise ValueError("method 'log_cem' needs an ensemble (B, M, 19): each vehicle's models from its log")
     theta = P.validate_theta(P.as_batch(theta))
     b = theta.shape[0]
     sim = sim or Quadrotor(SimConfig())
@@ -66,7 +72,8 @@ def compare_methods(theta, refs, *, steps: int, methods=METHODS, cfg: TunerConfi
         t0 = time.time()
         bar = _bar(progress, m, -(-steps // cfg.steps(sim.config.dt)[0]))
         tf = fly_tuned(sim, theta, low, refs, dist, m, key, steps, cfg=cfg, decoder=decoder,
-                       progress=(lambda d, n: bar.update(1)) if bar else None)
+                       progress=(lambda d, n: bar.update(1)) if bar else None,
+                       ensemble=ensemble if m == "log_cem" else None)
         if bar:
             bar.close()
         mm = batch_metrics(tf.flight)

@@ -6,7 +6,9 @@ Every ``1/rate`` s of a flight the tuner
    from the vehicle's own nominal system with independent ±20 % perturbations (``nominal_cem``,
    the paper's ablation: the vehicle's θ with its motor time constant at the nominal value,
    :func:`nominal_theta`) or K copies of the true θ (``oracle_cem``, an upper reference), all
-   projected to valid θ;
+   projected to valid θ; or (``log_cem``) from a fixed per-vehicle ensemble given with the flight — the
+   draws of the log-grounded posterior of an earlier identification flight (:mod:`mjxsysid.identify`):
+   the tuner given a log;
 2. runs K × N predictive rollouts from the current state, each model flown by the *frozen*
    policy (its current history and latent carried over) under one of N candidate gain vectors
    of the cascade, over a horizon H of the upcoming reference, without disturbances, in the
@@ -47,11 +49,11 @@ from mjxsysid.sim.rigid import RigidSim, from_sim_state
 from mjxsysid.tune.cem import CEMConfig, CEMState, cem_init, cem_minimize, cem_warm, mean_gains
 from mjxsysid.tune.rotor_state import ROTOR_STATES, CommandHistory, empty_history, push_history, start_rotor_speed
 
-METHODS = ("naive", "baseline", "cfm", "nominal_cem", "oracle_cem")
-"""Fixed presets and the three CEM variants (model sources)."""
-CEM_METHODS = ("cfm", "nominal_cem", "oracle_cem")
+METHODS = ("naive", "baseline", "cfm", "nominal_cem", "oracle_cem", "log_cem")
+"""Fixed presets and the four CEM variants (model sources)."""
+CEM_METHODS = ("cfm", "nominal_cem", "oracle_cem", "log_cem")
 METHOD_LABELS = {"naive": "Naive", "baseline": "Baseline", "cfm": "CFM-tuned",
-                 "nominal_cem": "Nominal+CEM", "oracle_cem": "Oracle-CEM"}
+                 "nominal_cem": "Nominal+CEM", "oracle_cem": "Oracle-CEM", "log_cem": "Log+CEM"}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -185,42 +187,51 @@ class DecoderArgs(NamedTuple):
 
 def _model_sources(dec_cfg, cfg: TunerConfig) -> tuple[tuple[str, ...], list]:
     """The model sources compiled into an update (those without a decoder when there is none):
-    (method names, branch functions ``f(key, theta_true (19,), zhat (8,) | None, dec) -> (K, 19)``)."""
+    (method names, branch functions ``f(key, theta_true (19,), ensemble (M, 19), zhat (8,) | None, dec) ->
+    (K, 19)``)."""
     k = cfg.models
 
-    def oracle(key, theta_true, zhat, dec):
+    def oracle(key, theta_true, ensemble, zhat, dec):
         return jnp.broadcast_to(theta_true, (k, P.N_PARAMS))
 
-    def nominal(key, theta_true, zhat, dec):
+    def nominal(key, theta_true, ensemble, zhat, dec):
         u = jax.random.uniform(key, (k, P.N_PARAMS), minval=1 - cfg.perturbation, maxval=1 + cfg.perturbation)
         return nominal_theta(theta_true) * u
 
-    def cfm(key, theta_true, zhat, dec):
+    def log(key, theta_true, ensemble, zhat, dec):   # K of the ensemble's M draws, with replacement
+        return ensemble[jax.random.randint(key, (k,), 0, ensemble.shape[0])]
+
+    def cfm(key, theta_true, ensemble, zhat, dec):
         theta0 = jax.random.normal(key, (1, k, dec_cfg.theta_dim), jnp.float32)   # as cfm.sample draws it
         v = _sample(dec.params, dec_cfg, theta0, zhat[None], k, cfg.decoder_steps, "euler")[0]
         return dec.normalizer.denormalize(dec.normalizer.from_flow(v))
 
     if dec_cfg is None:
-        return ("oracle_cem", "nominal_cem"), [oracle, nominal]
-    return ("oracle_cem", "nominal_cem", "cfm"), [oracle, nominal, cfm]
+        return ("oracle_cem", "nominal_cem", "log_cem"), [oracle, nominal, log]
+    return ("oracle_cem", "nominal_cem", "log_cem", "cfm"), [oracle, nominal, log, cfm]
 
 
-def draw_models(method: str, key, theta_true, zhat, dec: DecoderArgs | None, dec_cfg, cfg: TunerConfig):
-    """K models (K, 19) for one update (see the module doc), projected to valid θ."""
+def draw_models(method: str, key, theta_true, zhat, dec: DecoderArgs | None, dec_cfg, cfg: TunerConfig,
+                ensemble=None):
+    """K models (K, 19) for one update (see the module doc), projected to valid θ. ``ensemble``
+    (M, 19): the draws ``log_cem`` takes its models from (default: θ itself, M = 1)."""
     names, fns = _model_sources(dec_cfg, cfg)
     if method not in names:
         raise ValueError(f"no models for method {method!r} here; available: {names}"
                          + ("" if dec_cfg is not None else " (method 'cfm' needs a decoder)"))
-    return P.project_valid_jax(fns[names.index(method)](key, theta_true, zhat, dec))
+    if ensemble is None:
+        ensemble = jnp.zeros((1, P.N_PARAMS), jnp.float32) if theta_true is None else jnp.asarray(theta_true)[None]
+    return P.project_valid_jax(fns[names.index(method)](key, theta_true, ensemble, zhat, dec))
 
 
 def tuner_update(sim: Quadrotor, low, method, cfg: TunerConfig, dec: DecoderArgs | None, dec_cfg,
-                 theta_true, ref, carry: LoopCarry, hist: CommandHistory, incumbent, max_rate, start,
+                 theta_true, ensemble, ref, carry: LoopCarry, hist: CommandHistory, incumbent, max_rate, start,
                  state: CEMState, key):
     """One tuner update for one vehicle. ``method``: a CEM method name, or its index in the
     model sources of :func:`_model_sources` as an (unbatched) traced int — then one compiled
     update serves every method (``lax.switch`` runs only the chosen source). ``hist``: the
-    motor commands sent (:class:`CommandHistory`); ``incumbent`` (8,): the gains in use.
+    motor commands sent (:class:`CommandHistory`); ``incumbent`` (8,): the gains in use;
+    ``ensemble`` (M, 19): the draws of ``log_cem``.
     Returns (new CEM state, gains to apply (8,), info): info = {'cost': ensemble-mean cost of
     every candidate of the last iteration (N,), 'models_twr': the K models' thrust-to-weight
     (K,), 'switched': () bool, whether the applied gains are the new ones (always, unless
@@ -229,10 +240,10 @@ def tuner_update(sim: Quadrotor, low, method, cfg: TunerConfig, dec: DecoderArgs
     k_models, k_cem = jax.random.split(key)
     zhat = low.latent(carry.low) if hasattr(low, "latent") else None
     if isinstance(method, str):
-        thetas = draw_models(method, k_models, theta_true, zhat, dec, dec_cfg, cfg)
+        thetas = draw_models(method, k_models, theta_true, zhat, dec, dec_cfg, cfg, ensemble)
     else:
         _, fns = _model_sources(dec_cfg, cfg)
-        thetas = P.project_valid_jax(jax.lax.switch(method, fns, k_models, theta_true, zhat, dec))
+        thetas = P.project_valid_jax(jax.lax.switch(method, fns, k_models, theta_true, ensemble, zhat, dec))
     speeds = jax.vmap(lambda th: start_rotor_speed(cfg.rotor_state, th, hist, carry, sim.config))(thetas)  # (K, 4)
 
     def cost_one(theta, speed, g):
@@ -289,11 +300,11 @@ def _start(sim: Quadrotor, low_axes_def, low_axes_leaves):
 def _update(sim: Quadrotor, cfg: TunerConfig, dec_cfg, low_axes_def, low_axes_leaves):
     low_axes = jax.tree_util.tree_unflatten(low_axes_def, low_axes_leaves)
 
-    def one(method, low, dec, theta_true, ref, carry, hist, incumbent, max_rate, start, state, key):
-        return tuner_update(sim, low, method, cfg, dec, dec_cfg, theta_true, ref, carry, hist, incumbent,
+    def one(method, low, dec, theta_true, ensemble, ref, carry, hist, incumbent, max_rate, start, state, key):
+        return tuner_update(sim, low, method, cfg, dec, dec_cfg, theta_true, ensemble, ref, carry, hist, incumbent,
                             max_rate, start, state, key)
 
-    return jax.jit(jax.vmap(one, in_axes=(None, low_axes, None, 0, 0, 0, 0, 0, None, None, 0, 0)))
+    return jax.jit(jax.vmap(one, in_axes=(None, low_axes, None, 0, 0, 0, 0, 0, 0, None, None, 0, 0)))
 
 
 def _axes(low):
@@ -305,8 +316,8 @@ class OnlineTuner:
     """Jitted, batched tuner updates for one method and config.
 
     ``update(low, theta_true (B, 19), ref (batched), carry (batched), hist (batched
-    :class:`CommandHistory`), incumbent (B, 8), start, state (batched CEMState), key)`` ->
-    (state, gains (B, 8), info). The decoder (a
+    :class:`CommandHistory`), incumbent (B, 8), start, state (batched CEMState), key, ensemble=None
+    (B, M, 19))`` -> (state, gains (B, 8), info). The decoder (a
     :class:`~mjxsysid.cfm.sample.Decoder` of kind 'cfm') is needed for ``method='cfm'``; with
     one, every method shares one compiled update (the method is a runtime switch).
     """
@@ -331,10 +342,13 @@ class OnlineTuner:
         s = cem_init(gain_vector(self.cfg.initial), self.cfg.cem)
         return jax.tree.map(lambda a: jnp.broadcast_to(a, (n,) + a.shape), s)
 
-    def update(self, low, theta_true, ref, carry, hist: CommandHistory, incumbent, start, state, key):
+    def update(self, low, theta_true, ref, carry, hist: CommandHistory, incumbent, start, state, key,
+               ensemble=None):
         fn = _update(self.sim, self.cfg, self.dec_cfg, *_axes(low))
+        theta_true = jnp.asarray(theta_true, jnp.float32)
         n = theta_true.shape[0]
-        return fn(self.index, low, self.dec, jnp.asarray(theta_true, jnp.float32), ref, carry, hist,
+        ensemble = theta_true[:, None] if ensemble is None else jnp.asarray(ensemble, jnp.float32)
+        return fn(self.index, low, self.dec, theta_true, ensemble, ref, carry, hist,
                   jnp.asarray(incumbent, jnp.float32), self.max_rate, jnp.int32(start), state,
                   jax.random.split(key, n))
 
@@ -350,14 +364,15 @@ def segments(steps: int, seg: int) -> list[tuple[int, int]]:
 
 def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method: str, key, steps: int, *,
               cfg: TunerConfig = TunerConfig(), decoder=None, max_rate: float = 12.0,
-              progress=None) -> TunedFlight:
+              progress=None, ensemble=None) -> TunedFlight:
     """Fly a batch θ (B, 19) with ``low`` (batched, e.g. ``PolicyRef.batched(B)``) on the
     batched reference ``ref`` under ``disturbance`` (batched) for ``steps`` control steps, the
     gains set by ``method``: a preset ('naive', 'baseline': fixed) or a CEM method updated
     every ``1/cfg.rate`` s after ``cfg.warmup``. The key splits like :func:`~mjxsysid.studies.
     harness.fly` (per vehicle: simulator, disturbance, controller), so every method sees the
     same noise and disturbance realisation for the same key. ``progress``: optional callable
-    ``progress(done, total)`` after each segment."""
+    ``progress(done, total)`` after each segment. ``ensemble`` (B, M, 19): each vehicle's models for
+    ``log_cem`` (e.g. draws of the log-grounded posterior of an identification flight); required by it."""
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose from {METHODS}")
     theta = jnp.asarray(P.validate_theta(P.as_batch(theta)), jnp.float32)
@@ -366,6 +381,15 @@ def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method:
     seg, horizon = cfg.steps(dt)
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps}")
+    if method == "log_cem":
+        if ensemble is None:
+            raise ValueError("method 'log_cem' needs an ensemble (B, M, 19) of each vehicle's models")
+        ensemble = jnp.asarray(P.validate_theta(np.asarray(ensemble, np.float32).reshape(-1, P.N_PARAMS)),
+                               jnp.float32).reshape(np.shape(ensemble))
+        if ensemble.ndim != 3 or ensemble.shape[0] != b:
+            raise ValueError(f"ensemble must be (B={b}, M, {P.N_PARAMS}), got {tuple(ensemble.shape)}")
+    else:
+        ensemble = None
     if method in CEM_METHODS and horizon > steps:
         raise ValueError(f"tuner horizon {cfg.horizon} s is longer than the flight ({steps * dt:g} s)")
     keys = jax.vmap(lambda k: jnp.stack(jax.random.split(k, 3)))(jax.random.split(key, b))  # (B, 3, 2)
@@ -390,7 +414,7 @@ def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method:
             state = cem_warm(state, cfg.cem) if updated else state
             updated = True
             state, gains, info = tuner.update(low, theta, ref, carry, hist, gains, i0, state,
-                                              jax.random.fold_in(k_tune, u))
+                                              jax.random.fold_in(k_tune, u), ensemble)
             # candidate 0 of the last iteration is the mean entering it
             cost = np.asarray(info["cost"][:, 0])
         fn = _advance(sim, n, *_axes(low))

@@ -418,3 +418,31 @@ def test_a_protected_tuner_never_applies_gains_its_models_predict_worse(paper_po
         switched.append(bool(info["switched"][0]))
         incumbent = gains
     assert switched[0], "naive gains on a fast lemniscate: the model must find better ones"
+
+
+def test_log_models_come_from_the_ensemble_given_with_the_flight(paper_policy):
+    """The tuner given a log (``log_cem``) draws its K models from each vehicle's ensemble: with the
+    true θ as the ensemble it applies Oracle-CEM's gains (the same compiled update of the tests above:
+    the method is a runtime switch), with another vehicle's θ that vehicle's models; a flight without
+    an ensemble is an error naming it."""
+    sim, theta, low, low0, lem, refs, carry, one = _paper_vehicle_at_rest(paper_policy)
+    cfg = FAST_LEMNISCATE_TUNER
+    hist = R.empty_history(cfg.window(sim.config.dt), 1)
+    naive = jnp.asarray(PRESETS["naive"])[None]
+    other = np.array(theta)
+    other[:, P.KT] *= 1.3                                     # a stronger vehicle: thrust-to-weight 1.3×
+    out = []
+    for method, ens in (("oracle_cem", None), ("log_cem", theta[:, None]), ("log_cem", other[:, None])):
+        tuner = OnlineTuner(sim, method, cfg)
+        _, gains, info = tuner.update(low, theta, refs, carry, hist, naive, 0, tuner.init(1), jax.random.PRNGKey(0),
+                                      ens)
+        out.append((np.asarray(gains), np.asarray(info["models_twr"])))
+    np.testing.assert_array_equal(out[1][0], out[0][0])
+    np.testing.assert_allclose(out[2][1][:, 0], np.asarray(P.thrust_to_weight(other)), rtol=1e-5)
+    assert out[2][1][0, 0] == pytest.approx(1.3 * out[0][1][0, 0], rel=1e-5)
+    with pytest.raises(ValueError, match="'log_cem' needs an ensemble"):
+        fly_tuned(sim, theta, low, refs, broadcast(Disturbance.make(), 1), "log_cem", jax.random.PRNGKey(0), 100,
+                  cfg=cfg)
+    with pytest.raises(ValueError, match=r"ensemble must be \(B=1, M, 19\)"):
+        fly_tuned(sim, theta, low, refs, broadcast(Disturbance.make(), 1), "log_cem", jax.random.PRNGKey(0), 100,
+                  cfg=cfg, ensemble=np.repeat(theta, 3, 0))
