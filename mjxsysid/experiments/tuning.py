@@ -107,7 +107,9 @@ VARIANTS = {"heading_cost": "the tuner's cost with a heading term (weight HEADIN
             "log_grounded": "the tuner given a log: Log+CEM added, its K models drawn from each vehicle's "
                             "log-grounded posterior (mjxsysid.identify) of a 10 s identification flight (the "
                             "lag-aware oracle on a lemniscate, its IMU and motor commands), with the vehicle's "
-                            "mass weighed (an IMU log cannot see it); the other methods as in the default protocol"}
+                            "mass weighed (an IMU log cannot see it); the other methods as in the default protocol",
+            "log_grounded_known_drag": "log_grounded with the ensemble's drag set to each vehicle's true drag too "
+                                       "(a diagnostic: an IMU log cannot see the drag)"}
 """Protocol variants of the tune-* experiments (``mjxsysid experiment NAME --variant V[,V2]``):
 choices made after seeing a result, or knobs measured, reported beside the default protocol."""
 
@@ -145,13 +147,14 @@ LOG_PARTICLES = 512
 
 
 def log_ensembles(theta, seed: int, *, draws: int = LOG_ENSEMBLE, particles: int | None = None,
-                  progress: bool = True) -> np.ndarray:
+                  progress: bool = True, known_drag: bool = False) -> np.ndarray:
     """The tuner given a log (variant ``log_grounded``): for each vehicle θ (B, 19) a 10 s
     identification flight (the lag-aware oracle, 10 s lemniscate, clean IMU, its own seed), the
     log-grounded posterior of its IMU and motor commands (no decoded proposal: the stated prior and
     the log), ``draws`` of it with the true mass (a vehicle put on a scale: the log cannot see the
     mass) -> (B, draws, 19). A failed identification flight is an error (no log, no models).
-    ``particles``: the posterior's SMC particles (default its own)."""
+    ``particles``: the posterior's SMC particles (default its own). ``known_drag``: the draws' drag
+    set to the true one as well (a diagnostic)."""
     from mjxsysid.identify import log_grounded_posterior
     from mjxsysid.identify.coords import with_mass
     from mjxsysid.progress import progress as bar
@@ -167,6 +170,8 @@ def log_ensembles(theta, seed: int, *, draws: int = LOG_ENSEMBLE, particles: int
     for i in it:
         post = log_grounded_posterior(flight_log(fl.frame, i), None, samples=draws, seed=seed + i, **kw)
         out[i] = with_mass(post["theta"], float(theta[i, P.MASS]))
+        if known_drag:
+            out[i][:, P.DRAG] = theta[i, P.DRAG]
     return out
 
 
@@ -191,10 +196,12 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
     sim = Quadrotor()
     steps = int(round(duration / sim.config.dt))
     ensemble = None
-    if "log_grounded" in (variant or "").split(","):
+    variants = (variant or "").split(",")
+    if "log_grounded" in variants or "log_grounded_known_drag" in variants:
         methods = tuple(methods) + (() if "log_cem" in methods else ("log_cem",))
         _log(f"{name}: identification flights and log-grounded posteriors of {n} vehicles")
-        ensemble = log_ensembles(theta, seed, particles=LOG_PARTICLES, progress=progress)
+        ensemble = log_ensembles(theta, seed, particles=LOG_PARTICLES, progress=progress,
+                                 known_drag="log_grounded_known_drag" in variants)
     _log(f"{name}: {n} {prior}-prior vehicles × {duration:g} s min-snap, methods {methods}")
     res = compare_methods(theta, refs, steps=steps, methods=methods, cfg=cfg, policy=policy, sim=sim,
                           decoder=decoder, seed=seed, log=_log, progress=progress, ensemble=ensemble)
