@@ -4,8 +4,10 @@ dropped, real import errors are not), progress bars obey --quiet, and ``mjxsysid
 import dataclasses
 import json
 import os
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -183,5 +185,13 @@ def test_cli_compilation_cache(monkeypatch, tmp_path):
         monkeypatch.setenv("MJXSYSID_JAX_CACHE", str(tmp_path / "c"))
         _compilation_cache()
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "c")
+        # the default: a folder per CPU (a home folder shared by two machines must not mix their programs)
+        jax.config.update("jax_compilation_cache_dir", None)
+        monkeypatch.delenv("MJXSYSID_JAX_CACHE")
+        monkeypatch.setenv("HOME", str(tmp_path / "home"))
+        _compilation_cache()
+        where = Path(jax.config.jax_compilation_cache_dir)
+        assert where.parent == tmp_path / "home" / ".cache" / "mjxsysid" / "jax"
+        assert re.fullmatch(r"cpu-[0-9a-f]{10}", where.name), where
     finally:
         jax.config.update("jax_compilation_cache_dir", suite)

@@ -76,14 +76,35 @@ def _start_processes(args) -> None:
         args.out = Path(tempfile.mkdtemp(prefix=f"mjxsysid_p{jax.process_index()}_"))
 
 
+def _cpu_fingerprint() -> str:
+    """'cpu-' and 10 hex digits of the CPU's model name and feature flags (Linux: /proc/cpuinfo;
+    elsewhere the platform's processor string)."""
+    import hashlib
+    import platform
+    text = platform.machine() + platform.processor()
+    try:
+        with open("/proc/cpuinfo") as f:
+            lines = [ln for ln in f if ln.startswith(("model name", "flags", "Features", "CPU part"))]
+        text += "".join(sorted(set(lines)))
+    except OSError:
+        pass
+    return "cpu-" + hashlib.sha256(text.encode()).hexdigest()[:10]
+
+
 def _compilation_cache() -> None:
     """JAX's persistent compilation cache for the command's programs: a command run again (another
     seed of the same config, an evaluation of another policy) loads what it compiled instead of
     compiling it again (a policy training's cold start on a GPU spends ~25 s compiling, BENCHMARKS.md).
-    ``MJXSYSID_JAX_CACHE``: the folder (default ~/.cache/mjxsysid/jax; ``0``: off). A cache the process
-    already set (the tests' conftest) is kept."""
+    ``MJXSYSID_JAX_CACHE``: the folder (default ~/.cache/mjxsysid/jax/<this CPU's fingerprint>; ``0``:
+    off). A cache the process already set (the tests' conftest) is kept.
+
+    The default folder is per CPU model and instruction set: JAX's cache key does not hold the host's
+    CPU features, so a home folder shared by two machines (a cluster's, a VM moved to another host)
+    loaded CPU programs built for the other one — XLA then logs "Target machine feature ... is not
+    supported on the host machine ... could lead to execution errors such as SIGILL"."""
     import os
-    where = os.environ.get("MJXSYSID_JAX_CACHE", str(Path.home() / ".cache" / "mjxsysid" / "jax"))
+    where = os.environ.get("MJXSYSID_JAX_CACHE",
+                           str(Path.home() / ".cache" / "mjxsysid" / "jax" / _cpu_fingerprint()))
     if where == "0":
         return
     import jax
