@@ -33,12 +33,12 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from _bench import level_flights, merge_paths, shard
 
 from mjxsysid import theta as P
 from mjxsysid.identify.coords import LOG_NAMES, log_quantities
 from mjxsysid.identify.inference import log_grounded_posterior
-from mjxsysid.rollout.flight import flight_log, fly_vehicles
-from mjxsysid.sim import Quadrotor, SimConfig
+from mjxsysid.rollout.flight import flight_log
 from mjxsysid.studies.noise import LEVELS
 
 
@@ -46,13 +46,10 @@ def run_level(th, level: str, seed: int, index=None) -> dict:
     """Fly ``th`` (n, 19) at noise ``level`` and identify each flight; ``index`` (n,): the
     vehicles' indices in the whole draw (default 0..n-1; the posterior's seed is the index)."""
     index = np.arange(len(th)) if index is None else np.asarray(index)
-    sim = Quadrotor(SimConfig(**LEVELS[level]))
-    fl, m, _ = fly_vehicles(th, controller="oracle", reference="lemniscate", period=10.0, sim=sim, seed=seed)
+    frame, flown = level_flights(th, level, seed)
     rows = []
-    for i in range(len(th)):
-        if bool(np.asarray(m["failed"])[i]):
-            continue
-        rec = flight_log(fl.frame, i)
+    for i in flown:
+        rec = flight_log(frame, i)
         t0 = time.perf_counter()
         post = log_grounded_posterior(rec, None, seed=int(index[i]))
         sec = time.perf_counter() - t0
@@ -217,9 +214,7 @@ def main():
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
     if a.merge:
-        if len(a.merge) < 2:
-            raise SystemExit("--merge OUT SHARD.json [SHARD.json ...]")
-        res = merge(Path(a.merge[0]), [Path(p) for p in a.merge[1:]])
+        res = merge(*merge_paths(a.merge))
         for lv in res["levels"]:
             print(json.dumps({k: v for k, v in lv.items() if k != "rows"}))
         return
@@ -233,17 +228,7 @@ def main():
     # a held-out family (out of the decoders' prior): its fixed, validated and flyable evaluation vehicles
     th = (prior.vehicles(a.vehicles) if a.prior in P.HELDOUT_FAMILIES
           else np.asarray(prior.sample(jax.random.PRNGKey(a.seed), a.vehicles)))
-    index, flight_seed = np.arange(len(th)), a.seed
-    if a.shard:
-        try:
-            i, k = (int(x) for x in a.shard.split("/"))
-            if not 0 <= i < k:
-                raise ValueError
-        except ValueError:
-            raise SystemExit(f"--shard {a.shard!r}: expected I/K with 0 <= I < K, e.g. 0/8") from None
-        index = index[i::k]
-        th = th[index]
-        flight_seed = a.seed + 1000 * i            # the flights' noise: another draw per shard
+    th, index, flight_seed = shard(th, a.shard, a.seed)   # the flights' noise: another draw per shard
     res = {"command": "python benchmarks/log_grounded.py " + " ".join(f"--{k} {v}" for k, v in vars(a).items()
                                                                         if v is not None),
            "prior": a.prior, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard,

@@ -32,6 +32,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+from _bench import level_flights, merge_paths, shard
 
 from mjxsysid import theta as P
 from mjxsysid.identify import mujoco_sysid as MS
@@ -43,8 +44,7 @@ from mjxsysid.identify.coords import (
     visible_from_theta,
 )
 from mjxsysid.identify.inference import log_grounded_posterior
-from mjxsysid.rollout.flight import flight_log, fly_vehicles
-from mjxsysid.sim import Quadrotor, SimConfig
+from mjxsysid.rollout.flight import flight_log
 from mjxsysid.studies.noise import LEVELS
 
 RHO4 = LOG_NAMES.index("relative_effectiveness[3]")
@@ -104,14 +104,11 @@ def identify_both(rec, qpos, qvel, truth, seed: int) -> dict:
 
 
 def run_level(th, level: str, seed: int, index) -> dict:
-    sim = Quadrotor(SimConfig(**LEVELS[level]))
-    fl, m, _ = fly_vehicles(th, controller="oracle", reference="lemniscate", period=10.0, sim=sim, seed=seed)
+    frame, flown = level_flights(th, level, seed)
     rows = []
-    for i in range(len(th)):
-        if bool(np.asarray(m["failed"])[i]):
-            continue
-        qpos, qvel = seen_states(fl.frame, i)
-        row = identify_both(flight_log(fl.frame, i), qpos, qvel, th[i], int(index[i]))
+    for i in flown:
+        qpos, qvel = seen_states(frame, i)
+        row = identify_both(flight_log(frame, i), qpos, qvel, th[i], int(index[i]))
         row["vehicle"] = int(index[i])
         rows.append(row)
         print(f"{level} vehicle {index[i]}: inside log-grounded {sum(row['inside_lg'])}/13, "
@@ -222,26 +219,14 @@ def main():
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
     if a.merge:
-        if len(a.merge) < 2:
-            raise SystemExit("--merge OUT SHARD.json [SHARD.json ...]")
-        res = merge(Path(a.merge[0]), [Path(p) for p in a.merge[1:]])
+        res = merge(*merge_paths(a.merge))
         print(table(res))
         return
     unknown = [lv for lv in a.levels.split(",") if lv not in LEVELS]
     if unknown:
         raise SystemExit(f"--levels: unknown {unknown}; choose from {sorted(LEVELS)}")
     th = np.asarray(P.get_prior(a.prior).sample(jax.random.PRNGKey(a.seed), a.vehicles))
-    index, flight_seed = np.arange(len(th)), a.seed
-    if a.shard:
-        try:
-            i, k = (int(x) for x in a.shard.split("/"))
-            if not 0 <= i < k:
-                raise ValueError
-        except ValueError:
-            raise SystemExit(f"--shard {a.shard!r}: expected I/K with 0 <= I < K, e.g. 0/8") from None
-        index = index[i::k]
-        th = th[index]
-        flight_seed = a.seed + 1000 * i
+    th, index, flight_seed = shard(th, a.shard, a.seed)   # the flights' noise: another draw per shard
     res = {"command": "python benchmarks/sysid_side_by_side.py " + " ".join(
         f"--{k} {v}" for k, v in vars(a).items() if v is not None and k != "merge"),
            "prior": a.prior, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard, "levels": []}
