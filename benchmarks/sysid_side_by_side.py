@@ -20,7 +20,7 @@ widths, the estimates' errors, and where the two bands do not overlap, which one
     for i in 0 1 2 3 4 5 6 7; do python benchmarks/sysid_side_by_side.py --shard $i/8 --out /tmp/s/$i.json & done; wait
     python benchmarks/sysid_side_by_side.py --merge side_by_side.json /tmp/s/*.json
 
-Needs ``mujoco[sysid]`` (``pip install "mujoco[sysid]==3.17.0"``).
+Needs ``pip install "mjxsysid[sysid]"`` (mujoco.sysid's dependencies).
 """
 from __future__ import annotations
 

@@ -22,8 +22,8 @@ Gauss–Newton run from the first's optimum (the first, without it, converges fr
 
 Intervals: :func:`mujoco.sysid.calculate_intervals` at the optimum (s² from the residuals, (JᵀJ)⁻¹
 by eigen-decomposition, Student-t quantile), mapped to the :data:`.coords.LOG_NAMES` quantities by
-the delta method (the log-scaled coordinates: exp of the interval's ends). Needs the ``sysid``
-extra of mujoco (``pip install "mujoco[sysid]==3.17.0"``); imported lazily.
+the delta method (the log-scaled coordinates: exp of the interval's ends). Needs the toolbox's
+dependencies (``pip install "mjxsysid[sysid]"``: tabulate, colorama, pyyaml); imported lazily.
 """
 from __future__ import annotations
 
@@ -73,8 +73,8 @@ def _require_sysid():
             trajectory,
         )
     except ImportError as e:                                  # pragma: no cover - depends on the install
-        raise ImportError(f'mujoco.sysid needs the sysid extra of mujoco ({e}): '
-                          'pip install "mujoco[sysid]==3.17.0" (or mjxsysid[sysid])') from e
+        raise ImportError(f'mujoco.sysid needs its dependencies ({e}): pip install "mjxsysid[sysid]" '
+                          '(tabulate, colorama, pyyaml; mujoco[sysid] adds its HTML report\'s plotly)') from e
     return types.SimpleNamespace(
         optimize=optimize.optimize, calculate_intervals=optimize.calculate_intervals, Parameter=parameter.Parameter,
         ParameterDict=parameter.ParameterDict, model_residual=residual.model_residual,
