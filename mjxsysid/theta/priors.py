@@ -11,6 +11,7 @@ prior. [get_prior][mjxsysid.theta.priors.get_prior] finds any of them by name.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -77,7 +78,7 @@ class Prior(SizeFactorPrior):
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
         """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static."""
-        return _sample_prior(self, key, n)
+        return _draw(self, key, n)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,7 +111,7 @@ class XAdapPrior(SizeFactorPrior):
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
         """Draw n vehicles. key: PRNG key -> θ (n, 19) float32."""
-        return _sample_xadap(self, key, n)
+        return _draw(self, key, n)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -137,7 +138,7 @@ class HeldOutFamily(Prior):
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
         """Draw n vehicles. key: PRNG key -> θ (n, 19) float32."""
-        return _sample_heldout(self, key, n)
+        return _draw(self, key, n)
 
     def vehicles(self, n: int) -> np.ndarray:
         """The family's n evaluation vehicles, the same on every call (seeded by ``seed``):
@@ -153,6 +154,18 @@ class HeldOutFamily(Prior):
 # ----------------------------------------------------------------------------------------
 # Sampling
 # ----------------------------------------------------------------------------------------
+
+@functools.partial(jax.jit, static_argnums=(0, 2))
+def _sampled(p: SizeFactorPrior, key, n: int):
+    sampler = {XAdapPrior: _sample_xadap, HeldOutFamily: _sample_heldout}.get(type(p), _sample_prior)
+    return sampler(p, key, n)
+
+
+def _draw(p: SizeFactorPrior, key, n) -> jax.Array:
+    """θ (n, 19) of prior p: one compiled program per prior and n (called eagerly, the sampler's
+    fifty-odd operations were each compiled on their own for every n)."""
+    return _sampled(p, key, int(n))
+
 
 def _uniforms(p: SizeFactorPrior, n: int):
     """Samplers u(key, lo, hi, shape) ~ U[lo, hi] and noise(key, shape) ~ U[1 ± p.noise]."""
