@@ -38,20 +38,23 @@ from _bench import level_flights, merge_paths, shard
 from mjxsysid import theta as P
 from mjxsysid.identify.coords import LOG_NAMES, log_quantities
 from mjxsysid.identify.inference import log_grounded_posterior
+from mjxsysid.identify.likelihood import RATES
 from mjxsysid.rollout.flight import flight_log
 from mjxsysid.studies.noise import LEVELS
 
 
-def run_level(th, level: str, seed: int, index=None) -> dict:
+
+def run_level(th, level: str, seed: int, index=None, rates: str = RATES) -> dict:
     """Fly ``th`` (n, 19) at noise ``level`` and identify each flight; ``index`` (n,): the
-    vehicles' indices in the whole draw (default 0..n-1; the posterior's seed is the index)."""
+    vehicles' indices in the whole draw (default 0..n-1; the posterior's seed is the index); ``rates``:
+    the posterior's rate term."""
     index = np.arange(len(th)) if index is None else np.asarray(index)
     frame, flown = level_flights(th, level, seed)
     rows = []
     for i in flown:
         rec = flight_log(frame, i)
         t0 = time.perf_counter()
-        post = log_grounded_posterior(rec, None, seed=int(index[i]))
+        post = log_grounded_posterior(rec, None, seed=int(index[i]), rates=rates)
         sec = time.perf_counter() - t0
         q, tq = log_quantities(post["theta"]), log_quantities(th[i])
         lo, med, hi = np.percentile(q, [5, 50, 95], 0)
@@ -212,6 +215,8 @@ def main():
     ap.add_argument("--merge", nargs="+", default=None, metavar=("OUT", "SHARD"),
                     help="join the JSON files of --shard runs into OUT and exit")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--rates", default=RATES, choices=("innovations", "windows"),
+                    help="the posterior's rate term (default: the library's)")
     a = ap.parse_args()
     if a.merge:
         res = merge(*merge_paths(a.merge))
@@ -231,10 +236,10 @@ def main():
     th, index, flight_seed = shard(th, a.shard, a.seed)   # the flights' noise: another draw per shard
     res = {"command": "python benchmarks/log_grounded.py " + " ".join(f"--{k} {v}" for k, v in vars(a).items()
                                                                         if v is not None),
-           "prior": a.prior, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard,
+           "prior": a.prior, "rates": a.rates, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard,
            "levels": []}
     for lv in a.levels.split(","):
-        r = run_level(th, lv, flight_seed, index)
+        r = run_level(th, lv, flight_seed, index, a.rates)
         res["levels"].append(r)
         print(json.dumps({k: v for k, v in r.items() if k != "rows"}), flush=True)
         if a.out:

@@ -44,10 +44,12 @@ from mjxsysid.identify.coords import (
     visible_from_theta,
 )
 from mjxsysid.identify.inference import log_grounded_posterior
+from mjxsysid.identify.likelihood import RATES
 from mjxsysid.rollout.flight import flight_log
 from mjxsysid.studies.noise import LEVELS
 
 RHO4 = LOG_NAMES.index("relative_effectiveness[3]")
+
 
 
 def seen_states(frame, i: int) -> tuple[np.ndarray, np.ndarray]:
@@ -66,11 +68,11 @@ def _width(lo, hi):
         return np.where(pos, np.log(np.maximum(hi, 1e-30) / np.maximum(lo, 1e-30)), hi - lo)
 
 
-def identify_both(rec, qpos, qvel, truth, seed: int) -> dict:
+def identify_both(rec, qpos, qvel, truth, seed: int, rates: str = RATES) -> dict:
     """One log through both methods -> a row of per-quantity results."""
     tq = log_quantities(truth)
     t0 = time.perf_counter()
-    post = log_grounded_posterior(rec, None, seed=seed)
+    post = log_grounded_posterior(rec, None, seed=seed, rates=rates)
     lg_sec = time.perf_counter() - t0
     q = log_quantities(post["theta"])
     lo, med, hi = np.percentile(q, [5, 50, 95], 0)
@@ -103,12 +105,12 @@ def identify_both(rec, qpos, qvel, truth, seed: int) -> dict:
             "method": post["method"]}
 
 
-def run_level(th, level: str, seed: int, index) -> dict:
+def run_level(th, level: str, seed: int, index, rates: str = RATES) -> dict:
     frame, flown = level_flights(th, level, seed)
     rows = []
     for i in flown:
         qpos, qvel = seen_states(frame, i)
-        row = identify_both(flight_log(frame, i), qpos, qvel, th[i], int(index[i]))
+        row = identify_both(flight_log(frame, i), qpos, qvel, th[i], int(index[i]), rates)
         row["vehicle"] = int(index[i])
         rows.append(row)
         print(f"{level} vehicle {index[i]}: inside log-grounded {sum(row['inside_lg'])}/13, "
@@ -217,6 +219,8 @@ def main():
     ap.add_argument("--shard", default=None, metavar="I/K")
     ap.add_argument("--merge", nargs="+", default=None, metavar=("OUT", "SHARD"))
     ap.add_argument("--out", default=None)
+    ap.add_argument("--rates", default=RATES, choices=("innovations", "windows"),
+                    help="the posterior's rate term (default: the library's)")
     a = ap.parse_args()
     if a.merge:
         res = merge(*merge_paths(a.merge))
@@ -229,9 +233,9 @@ def main():
     th, index, flight_seed = shard(th, a.shard, a.seed)   # the flights' noise: another draw per shard
     res = {"command": "python benchmarks/sysid_side_by_side.py " + " ".join(
         f"--{k} {v}" for k, v in vars(a).items() if v is not None and k != "merge"),
-           "prior": a.prior, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard, "levels": []}
+           "prior": a.prior, "rates": a.rates, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard, "levels": []}
     for lv in a.levels.split(","):
-        res["levels"].append(run_level(th, lv, flight_seed, index))
+        res["levels"].append(run_level(th, lv, flight_seed, index, a.rates))
         if a.out:
             write(res, Path(a.out))
     print(table(res))

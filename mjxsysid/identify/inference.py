@@ -47,11 +47,14 @@ from mjxsysid.identify.coords import (
 from mjxsysid.identify.likelihood import (
     N_NUIS,
     NU,
+    RATES,
     LogData,
+    best_log_delta,
     linear_start,
     log_likelihood,
     noise_estimate,
     prepare,
+    rate_rows,
     residual_weights,
     residuals,
     residuals_jit,
@@ -286,7 +289,7 @@ def _fit_ls_many(z0, data, ld, ls, max_steps=200):
 def _ls_jacobian(z, args, w):
     """Jacobian of the standardised residuals, each channel's × √w (the tempering), at z (13,)."""
     data = args[0]
-    nw = data.dgyro.shape[0]
+    nw = rate_rows(data)
     sw = jnp.concatenate([jnp.repeat(jnp.sqrt(w[None, :3]), nw, 0).ravel(), jnp.full(data.acc.shape[0], jnp.sqrt(w[3])),
                           jnp.ones(1)])
     return jax.jacfwd(lambda q: _ls_residuals(q, args) * sw)(z)
@@ -296,9 +299,19 @@ def _discrepancy(y, data):
     """δ per channel (4,) at y (17,): what the residuals' mean square leaves beyond the scale they
     have without a discrepancy (noise, resolution, the windows' floor; at least 1e-6)."""
     rg, sg, ra, sa = (np.asarray(a, np.float64) for a in residuals_jit(full_x(y, np.full(4, -30.0)), data))
-    wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
-    ms = np.array([np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)] + [np.mean(ra[bv] ** 2) - sa ** 2])
+    bv = np.asarray(data.bmask) > 0
+    ms_acc = np.mean(ra[bv] ** 2) - sa ** 2
+    if data.rates == "innovations":     # the process noise that makes the innovations most likely
+        out = np.log(np.sqrt(np.maximum(np.array([1e-12] * 3 + [ms_acc]), 1e-12)))
+        out[:3] = best_log_delta(full_x(y, out), data, _DELTA_GRID)
+        return out.astype(np.float32)
+    wv = np.asarray(data.wmask) > 0
+    ms = np.array([np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)] + [ms_acc])
     return np.log(np.sqrt(np.maximum(ms, 1e-12))).astype(np.float32)
+
+
+_DELTA_GRID = np.linspace(NUIS_BOUNDS[2], NUIS_BOUNDS[3], 64)
+"""log δ the innovations' process noise is chosen from at the mode (:func:`_discrepancy`)."""
 
 
 @full_precision
@@ -425,7 +438,7 @@ def _reliable(diag) -> bool:
 def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                            samples: int = 1000, draws: int = 4096, particles: int = 2048, seed: int = 0,
                            n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
-                           force_smc: bool = False) -> dict:
+                           force_smc: bool = False, rates: str = RATES) -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
     samples of this log, or None — as the proposal (module doc).
@@ -435,7 +448,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     'laplace_is' or 'smc'), ``decoded_is`` / ``laplace_is`` ({ess, ess_fraction, khat}),
     ``weights`` (4,) the channels' correlation discounts, ``mode`` (21,), ``channels_used`` (4,),
     and for SMC ``smc_stages``, ``smc_acceptance``, ``smc_tempering`` (1 when it reached the target)."""
-    data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data)
+    data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data, rates=rates)
     # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
     r_is, r_n, r_mix, r_h, r_res, r_st, r_lp = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7))
     k_smc = np.array([0, seed & 0xFFFFFFFF], np.uint32)

@@ -168,3 +168,59 @@ def test_posterior_runs_at_full_matmul_precision():
     code = I.full_precision(lambda: None).__code__
     for f in (I.log_grounded_posterior, I.find_mode, I.log_target):
         assert f.__code__ is code and f.__wrapped__.__module__ == I.__name__, f.__name__
+
+
+def closed_loop_log(theta, seconds=10.0, gyro_noise=0.2, kp=0.15, seed=1):
+    """θ (19,) flown by a rate P controller on the *measured* (noisy) rates: commands react to the
+    gyro's noise, the feedback that biases an equation error -> imu, motor."""
+    rng = np.random.default_rng(seed)
+    t = np.asarray(theta, np.float64)
+    eta, tau, wmax = t[P.ETA], t[P.TAU_M], t[P.OMEGA_MAX]
+    kt, m, arm, J = t[P.KT], t[P.MASS], t[P.ARM], t[P.INERTIA]
+    d = P.ROTOR_DIRECTIONS.astype(np.float64)
+    n = int(seconds / DT)
+    hover = np.sqrt(m * P.GRAVITY / (4 * kt * eta)) / wmax
+    w, s, meas = np.zeros(3), hover.copy(), np.zeros(3)
+    imu, mot = np.zeros((n, 6)), np.zeros((n, 4))
+    imu[0, 5] = P.GRAVITY
+    a = np.exp(-DT / tau)
+    for k in range(n):
+        tt = k * DT
+        ref = 2.0 * np.array([np.sin(3 * tt), np.sin(2.3 * tt + 1), 0.5 * np.sin(1.7 * tt + 2)])
+        cmd = kp * (ref - meas) * np.array([1.0, 1.0, 2.0])
+        u = np.clip(hover * (1 + 0.05 * np.sin(2 * tt) + d[:, 1] * cmd[0] - d[:, 0] * cmd[1] + P.YAW_SIGNS * cmd[2]), 0, 1)
+        mot[k] = u
+        d0 = s - u
+        ms = u * u + 2 * u * d0 * tau / DT * (1 - a) + d0 * d0 * tau / (2 * DT) * (1 - a * a)
+        s = u + d0 * a
+        T = eta * kt * wmax**2 * ms
+        tq = np.array([arm * d[:, 1] @ T, -arm * d[:, 0] @ T, t[P.KTAU] / kt * P.YAW_SIGNS @ T]) + t[P.TAU_EXT]
+        w = w + DT * (tq - np.cross(w, J * w)) / J
+        if k + 1 < n:
+            meas = w + gyro_noise * rng.standard_normal(3)
+            imu[k + 1] = np.concatenate([meas, [0.0, 0.0, (eta * kt * wmax**2 * s * s).sum() / m]])
+    return {"imu": imu, "motor": mot}
+
+
+def test_innovations_unbiased_in_closed_loop_where_windows_are_not():
+    """A controller that reacts to the gyro's noise: the windowed equation error's least squares puts
+    τ_m 20 %+ slow (the noise of each window's start correlates with the commands that follow), the
+    Kalman innovations' (each prediction from the past only) within 5 %, and their likelihood peaks at
+    the true τ_m and authority."""
+    theta = P.paper_hardware().copy()
+    rec = closed_loop_log(theta)
+    v = np.asarray(C.visible_from_theta(theta))
+    windows = L.linear_start(L.prepare(rec, rates="windows"))
+    assert np.exp(windows[4] - v[4]) > 1.2, np.exp(windows[4] - v[4])
+    data = L.prepare(rec, rates="innovations")
+    x0 = L.linear_start(data)
+    assert abs(np.exp(x0[4] - v[4]) - 1) < 0.1, np.exp(x0[4] - v[4])      # the τ grid's spacing: 9 %
+    np.testing.assert_allclose(x0[5:7], v[5:7], atol=0.05)
+    # the likelihood along τ_m (2 % steps) and the roll authority peaks at the truth
+    steps = np.linspace(-0.3, 0.3, 31)
+    y = np.concatenate([v, x0[12:16], [0.0]])[None].repeat(2 * len(steps), 0)
+    y[:len(steps), 4] += steps
+    y[len(steps):, 5] += steps / 3
+    lt = np.asarray(log_target(y.astype(np.float32), data, log_delta=x0[16:20]))
+    assert abs(steps[np.argmax(lt[:len(steps)])]) <= 0.04, steps[np.argmax(lt[:len(steps)])]
+    assert abs(steps[np.argmax(lt[len(steps):])] / 3) <= 0.01, steps[np.argmax(lt[len(steps):])] / 3
