@@ -99,7 +99,7 @@ def figure(res: dict, path) -> None:
                       for n in names], rotation=35, ha="right", fontsize=8)
     ax.set_ylim(0, 1.02)
     ax.set_ylabel("truth inside the 90 % band")
-    ax.set_title(f"log-grounded posterior on MJX flights ({res['prior']} prior, oracle, 10 s lemniscate)", fontsize=10)
+    ax.set_title(f"log-grounded posterior on MJX flights ({res['prior']} prior, oracle, 10 s lemniscate; rates: {res.get('rates', 'windows')})", fontsize=10)
     ax.legend(fontsize=7, ncol=3, loc="lower left")
     fig.tight_layout()
     fig.savefig(path, dpi=110)
