@@ -7,6 +7,16 @@ from support.paths import XADAP_DIR, require_xadap
 pytest_plugins = ("support.jax_setup", "support.xdist_queue", "support.worker_exit")
 
 
+@pytest.fixture(scope="session", autouse=True)
+def posterior_at_test_resolution():
+    """The log-grounded posterior's in-process runs (decode, the demo, the notebooks) on 1024
+    importance draws and 512 SMC particles instead of 4096 and 2048: the tier checks what they
+    compute, not their resolution (tests/identify runs its coverage checks on 512 particles too)."""
+    import mjxsysid.identify.inference as inference
+    inference.DRAWS, inference.PARTICLES = 1024, 512
+    yield
+
+
 @pytest.fixture
 def xla_optimised_test():
     """:func:`support.jax_setup.xla_optimised` for a whole test (``@pytest.mark.usefixtures("xla_optimised_test")``)."""

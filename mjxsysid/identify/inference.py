@@ -65,6 +65,11 @@ PROPOSAL_WIDEN = 1.5
 MIN_ESS_FRACTION = 0.05
 MAX_KHAT = 0.7
 """Importance sampling is trusted when ESS ≥ 5 % of the draws and k̂ ≤ 0.7 (PSIS's threshold)."""
+DRAWS = 4096
+"""Importance draws per proposal (``draws`` of :func:`log_grounded_posterior` when not given)."""
+PARTICLES = 2048
+"""SMC particles (``particles`` of :func:`log_grounded_posterior` when not given). The test tier
+lowers both for its in-process decodes (tests/conftest.py): it checks behaviour, not resolution."""
 PRIOR_SHARE = 0.3
 """Share of the prior in the SMC's starting mixture (the rest: the decoded and Laplace proposals)."""
 NUIS_BOUNDS = (np.log(1e-6), np.log(5.0), np.log(1e-6), np.log(5.0), -3.0, 3.0)
@@ -436,7 +441,7 @@ def _reliable(diag) -> bool:
 
 @full_precision
 def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
-                           samples: int = 1000, draws: int = 4096, particles: int = 2048, seed: int = 0,
+                           samples: int = 1000, draws: int | None = None, particles: int | None = None, seed: int = 0,
                            n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
                            force_smc: bool = False, rates: str = RATES) -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
@@ -448,6 +453,8 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     'laplace_is' or 'smc'), ``decoded_is`` / ``laplace_is`` ({ess, ess_fraction, khat}),
     ``weights`` (4,) the channels' correlation discounts, ``mode`` (21,), ``channels_used`` (4,),
     and for SMC ``smc_stages``, ``smc_acceptance``, ``smc_tempering`` (1 when it reached the target)."""
+    draws = DRAWS if draws is None else int(draws)
+    particles = PARTICLES if particles is None else int(particles)
     data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data, rates=rates)
     # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
     r_is, r_n, r_mix, r_h, r_res, r_st, r_lp = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7))
