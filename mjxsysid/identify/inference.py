@@ -452,7 +452,9 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
                            force_smc: bool = False, rates: str = RATES) -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
-    samples of this log, or None — as the proposal (module doc).
+    samples of this log, or None — as the proposal (module doc). ``draws`` / ``particles`` default to
+    :data:`DRAWS` / :data:`PARTICLES`; ``rates``: the likelihood's rate term (:data:`~.likelihood.RATES`,
+    "windows" or "innovations").
 
     -> dict: ``theta`` (samples, 19) (hidden coordinates drawn from the prior), ``v`` (samples, 12),
     ``nuisance`` (samples, 9: log σ (4), log δ (4, fixed), bias), ``method`` ('decoded_is',

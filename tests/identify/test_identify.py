@@ -16,8 +16,10 @@ from support.paths import DATA
 DT = 0.002
 
 
-def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0):
-    """Fly θ (19,) open loop around hover with a rate damper and chirp excitation -> imu, motor."""
+def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, closed_loop=False):
+    """Fly θ (19,) open loop around hover with a rate damper and chirp excitation -> imu, motor.
+    ``closed_loop``: instead, a rate P controller on the *measured* (noisy) rates tracking a slow
+    sinusoid: the commands react to the gyro's noise, the feedback that biases an equation error."""
     rng = np.random.default_rng(seed)
     t = np.asarray(theta, np.float64)
     eta, tau, wmax = t[P.ETA], t[P.TAU_M], t[P.OMEGA_MAX]
@@ -26,15 +28,19 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0):
     d = P.ROTOR_DIRECTIONS.astype(np.float64)
     n = int(seconds / DT)
     hover = np.sqrt(m * P.GRAVITY / (4 * kt * eta)) / wmax
-    w = np.zeros(3)
+    w, meas = np.zeros(3), np.zeros(3)
     s = hover.copy()
     imu, mot = np.zeros((n, 6)), np.zeros((n, 4))
     imu[0, 5] = P.GRAVITY
     a = np.exp(-DT / tau)
     for k in range(n):
         tt = k * DT
-        exc = 0.08 * np.array([np.sin(7 * tt), np.sin(5 * tt + 1), np.sin(3 * tt + 2)]) + 0.03 * rng.standard_normal(3)
-        cmd = -0.02 * w + exc                                       # roll, pitch, yaw effort
+        if closed_loop:
+            ref = 2.0 * np.array([np.sin(3 * tt), np.sin(2.3 * tt + 1), 0.5 * np.sin(1.7 * tt + 2)])
+            cmd = 0.15 * (ref - meas) * np.array([1.0, 1.0, 2.0])
+        else:
+            exc = 0.08 * np.array([np.sin(7 * tt), np.sin(5 * tt + 1), np.sin(3 * tt + 2)]) + 0.03 * rng.standard_normal(3)
+            cmd = -0.02 * w + exc                                   # roll, pitch, yaw effort
         u = np.clip(hover * (1 + 0.05 * np.sin(2 * tt) + d[:, 1] * cmd[0] - d[:, 0] * cmd[1]
                              + P.YAW_SIGNS * cmd[2]), 0, 1)
         mot[k] = u
@@ -46,7 +52,8 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0):
         w = w + DT * (tq - np.cross(w, J * w)) / J
         if k + 1 < n:
             sf = (eta * kt * wmax**2 * s * s).sum() / m
-            imu[k + 1] = np.concatenate([w + gyro_noise * rng.standard_normal(3),
+            meas = w + gyro_noise * rng.standard_normal(3)
+            imu[k + 1] = np.concatenate([meas,
                                          [acc_noise * rng.standard_normal(), acc_noise * rng.standard_normal(),
                                           sf + acc_noise * rng.standard_normal()]])
     return {"imu": imu, "motor": mot}
@@ -170,45 +177,13 @@ def test_posterior_runs_at_full_matmul_precision():
         assert f.__code__ is code and f.__wrapped__.__module__ == I.__name__, f.__name__
 
 
-def closed_loop_log(theta, seconds=10.0, gyro_noise=0.2, kp=0.15, seed=1):
-    """θ (19,) flown by a rate P controller on the *measured* (noisy) rates: commands react to the
-    gyro's noise, the feedback that biases an equation error -> imu, motor."""
-    rng = np.random.default_rng(seed)
-    t = np.asarray(theta, np.float64)
-    eta, tau, wmax = t[P.ETA], t[P.TAU_M], t[P.OMEGA_MAX]
-    kt, m, arm, J = t[P.KT], t[P.MASS], t[P.ARM], t[P.INERTIA]
-    d = P.ROTOR_DIRECTIONS.astype(np.float64)
-    n = int(seconds / DT)
-    hover = np.sqrt(m * P.GRAVITY / (4 * kt * eta)) / wmax
-    w, s, meas = np.zeros(3), hover.copy(), np.zeros(3)
-    imu, mot = np.zeros((n, 6)), np.zeros((n, 4))
-    imu[0, 5] = P.GRAVITY
-    a = np.exp(-DT / tau)
-    for k in range(n):
-        tt = k * DT
-        ref = 2.0 * np.array([np.sin(3 * tt), np.sin(2.3 * tt + 1), 0.5 * np.sin(1.7 * tt + 2)])
-        cmd = kp * (ref - meas) * np.array([1.0, 1.0, 2.0])
-        u = np.clip(hover * (1 + 0.05 * np.sin(2 * tt) + d[:, 1] * cmd[0] - d[:, 0] * cmd[1] + P.YAW_SIGNS * cmd[2]), 0, 1)
-        mot[k] = u
-        d0 = s - u
-        ms = u * u + 2 * u * d0 * tau / DT * (1 - a) + d0 * d0 * tau / (2 * DT) * (1 - a * a)
-        s = u + d0 * a
-        T = eta * kt * wmax**2 * ms
-        tq = np.array([arm * d[:, 1] @ T, -arm * d[:, 0] @ T, t[P.KTAU] / kt * P.YAW_SIGNS @ T]) + t[P.TAU_EXT]
-        w = w + DT * (tq - np.cross(w, J * w)) / J
-        if k + 1 < n:
-            meas = w + gyro_noise * rng.standard_normal(3)
-            imu[k + 1] = np.concatenate([meas, [0.0, 0.0, (eta * kt * wmax**2 * s * s).sum() / m]])
-    return {"imu": imu, "motor": mot}
-
-
 def test_innovations_unbiased_in_closed_loop_where_windows_are_not():
     """A controller that reacts to the gyro's noise: the windowed equation error's least squares puts
     τ_m 20 %+ slow (the noise of each window's start correlates with the commands that follow), the
     Kalman innovations' (each prediction from the past only) within 5 %, and their likelihood peaks at
     the true τ_m and authority."""
     theta = P.paper_hardware().copy()
-    rec = closed_loop_log(theta)
+    rec = synthetic_log(theta, seconds=10.0, gyro_noise=0.2, seed=1, closed_loop=True)
     v = np.asarray(C.visible_from_theta(theta))
     windows = L.linear_start(L.prepare(rec, rates="windows"))
     assert np.exp(windows[4] - v[4]) > 1.2, np.exp(windows[4] - v[4])
