@@ -12,7 +12,7 @@ def posterior_at_test_resolution():
     """The log-grounded posterior's in-process runs (decode, the demo, the notebooks) on 1024
     importance draws and 512 SMC particles instead of 4096 and 2048: the tier checks what they
     compute, not their resolution (tests/identify runs its coverage checks on 512 particles too)."""
-    import mjxsysid.identify.inference as inference
+    from mjxsysid.identify import inference
     inference.DRAWS, inference.PARTICLES = 1024, 512
     yield
 

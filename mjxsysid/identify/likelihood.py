@@ -499,7 +499,7 @@ def innovation_series(x, data: LogData) -> np.ndarray:
     x = np.asarray(x, np.float64)
     v = x[:N_V]
     y, q, f = _innovation_series(rows["imu"], rows["motor"], rows["start"], rows["n"], float(np.exp(v[4])))
-    s, logit = (np.asarray(a, np.float64) for a in innovation_variance(x[N_V:N_V + 3], x[N_V + 4:N_V + 7]))
+    logit = np.asarray(innovation_variance(x[N_V:N_V + 3], x[N_V + 4:N_V + 7])[1], np.float64)
     coef = np.asarray(_rate_coefficients(jnp.asarray(v, jnp.float32)), np.float64)
     gains = _gains(np.clip(logit, KF_LOGIT_GRID[0], KF_LOGIT_GRID[-1]))
     n = len(y)
