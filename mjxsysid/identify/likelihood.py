@@ -480,41 +480,14 @@ def residual_weights(x, data: LogData) -> np.ndarray:
     counted once per window."""
     rg, _, ra, _ = residuals_jit(jnp.asarray(x, jnp.float32), data)
     wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
+    rates = innovation_series(x, data) if data.rates == "innovations" else [np.asarray(rg)[wv, k] for k in range(3)]
     out = []
-    if data.rates == "innovations":
-        out = [batch_means_weight(e) for e in innovation_series(x, data)]
-        rates = []
-    else:
-        rates = [np.asarray(rg)[wv, k] for k in range(3)]
-    for r in rates + [np.asarray(ra)[bv]]:
+    for r in list(rates) + [np.asarray(ra)[bv]]:
         r = r - r.mean()
         den = float(r @ r)
         phi = float(r[1:] @ r[:-1]) / den if den > 0 and len(r) > 3 else 0.0
         out.append(1.0 if phi <= 0 else max((1 - phi) / (1 + phi), 0.02))
     return np.asarray(out, np.float32)
-
-
-INNOVATION_BLOCKS = (10, 50, 250)
-"""Samples per block (20 ms, 0.1 s, 0.5 s) of the innovations' batch means (:func:`batch_means_weight`)."""
-
-
-def batch_means_weight(e) -> float:
-    """The weight (≤ 1, at least 0.02) that counts a series of innovations e (n,) as the independent
-    evidence it is worth: for each block length B of :data:`INNOVATION_BLOCKS` with at least 8
-    blocks, Σ e² over Σ (block sums)² — the white variance over the long-run one (batch means);
-    the smallest. White innovations give 1; a model error or a vibration that the filter leaves
-    correlated over tens of milliseconds to seconds gives less, and the posterior widens with it
-    (the lag-1 correlation alone misses slow correlation)."""
-    e = np.asarray(e, np.float64)
-    e = e - e.mean()
-    w = 1.0
-    for b in INNOVATION_BLOCKS:
-        nb = len(e) // b
-        if nb < 8:
-            continue
-        sums = e[:nb * b].reshape(nb, b).sum(1)
-        w = min(w, float(e[:nb * b] @ e[:nb * b]) / max(float(sums @ sums), 1e-300))
-    return max(w, 0.02)
 
 
 def innovation_series(x, data: LogData) -> np.ndarray:

@@ -199,19 +199,3 @@ def test_innovations_unbiased_in_closed_loop_where_windows_are_not():
     lt = np.asarray(log_target(y.astype(np.float32), data, log_delta=x0[16:20]))
     assert abs(steps[np.argmax(lt[:len(steps)])]) <= 0.04, steps[np.argmax(lt[:len(steps)])]
     assert abs(steps[np.argmax(lt[len(steps):])] / 3) <= 0.01, steps[np.argmax(lt[len(steps):])] / 3
-
-
-def test_batch_means_weight_counts_correlated_innovations_less():
-    """White innovations count fully; an AR(1) with φ = 0.8 counts about (1 − φ)/(1 + φ) = 0.11; a slow
-    error riding on white noise (what a model discrepancy that follows the manoeuvre leaves) counts less
-    than its lag-1 correlation alone would say."""
-    rng = np.random.default_rng(0)
-    white = rng.standard_normal(20_000)
-    assert L.batch_means_weight(white) > 0.85
-    ar = np.zeros(20_000)
-    for k in range(1, len(ar)):
-        ar[k] = 0.8 * ar[k - 1] + white[k]
-    assert 0.07 < L.batch_means_weight(ar) < 0.16
-    slow = white + 0.5 * np.sin(np.arange(20_000) * 2 * np.pi / 2000)
-    phi = float(slow[1:] @ slow[:-1]) / float(slow @ slow)
-    assert L.batch_means_weight(slow) < 0.5 * (1 - phi) / (1 + phi)
