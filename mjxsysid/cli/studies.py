@@ -36,6 +36,10 @@ def add_decode(sub) -> None:
     dc.add_argument("--decoders", type=Path, default=None,
                     help="folder with cfm.npz and regression.npz, and cfm_seq.npz for --window flight|SECONDS "
                          "(default: the policy's shipped decoders)")
+    dc.add_argument("--rates", choices=("windows", "innovations"), default=None,
+                    help="with --log: the log-grounded likelihood's rate term (default windows; innovations: "
+                         "unbiased in closed loop under white IMU noise, wrong under a rotor vibration; "
+                         "docs/identify.md, 'The rate term, two ways')")
     dc.add_argument("--decoder-only", action="store_true",
                     help="with --log: report the decoders' posterior alone (default: the log-grounded posterior — "
                          "the log's IMU given its motor commands, the decoded samples as proposal — with the "
@@ -60,6 +64,8 @@ def cmd_decode(args) -> int:
     window = parse_window(args.window)
     if args.segment is not None and args.log is None:
         raise ValueError("--segment needs --log")
+    if args.rates is not None and (args.log is None or args.decoder_only):
+        raise ValueError("--rates needs --log and the log-grounded posterior (not --decoder-only)")
     theta = None if args.log else (P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware())
     existed = Path(args.out).exists()
     try:
@@ -67,7 +73,7 @@ def cmd_decode(args) -> int:
                              duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
                              decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
                              echo=lambda m: echo(m, file=sys.stderr), segment=args.segment,
-                             decoder_only=args.decoder_only)
+                             decoder_only=args.decoder_only, rates=args.rates)
     except BaseException:
         if not existed and Path(args.out).is_dir():   # no half-written output folder of this run left behind
             import shutil

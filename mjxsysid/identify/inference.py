@@ -494,7 +494,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     st = np.concatenate([x_lin[None], np.concatenate([sv, np.broadcast_to(x_lin[N_V:], (len(sv), N_NUIS))], 1)])
     mode, ld, w, _, lap = find_mode(data, st.astype(np.float32), prior)
     out = {"proposal": "decoded" if qv is not None else "prior", "mode": mode, "weights": w,
-           "channels_used": np.asarray(data.use)}
+           "channels_used": np.asarray(data.use), "rates": data.rates}
     chosen = None
     # 1. the decoded ensemble as the proposal
     if qv is not None:

@@ -63,6 +63,7 @@ def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
     assert "_log_grounded" not in s
     # the posterior of record is the log-grounded one; the decoders' stays beside it
     assert st["_posterior"] == "log-grounded" and set(P.PARAM_NAMES) <= set(st["_decoder_only"])
+    assert st["_log_grounded"]["rates"] == "windows"            # the default rate term, said
     assert st["thrust_to_weight_total"]["inside"], st["thrust_to_weight_total"]
     gap = st["_log_grounded"]["gap"]["thrust_to_weight_total"]
     assert gap["seen_by_log"] and gap["log_inside"]
@@ -117,6 +118,16 @@ def test_decode_cli_errors(tmp_path, capsys):
     assert "either --vehicle or --log" in capsys.readouterr().err
     assert main(["decode", "--truth", "v.json", "--out", str(tmp_path)]) == 2
     assert "--truth needs --log" in capsys.readouterr().err
+    assert main(["decode", "--rates", "innovations", "--out", str(tmp_path)]) == 2
+    assert "--rates needs --log" in capsys.readouterr().err
+    assert main(["decode", "--log", "l.csv", "--rates", "innovations", "--decoder-only", "--out", str(tmp_path)]) == 2
+    assert "not --decoder-only" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["decode", "--log", "l.csv", "--rates", "kalman", "--out", str(tmp_path)])
+    assert "invalid choice" in capsys.readouterr().err
+    import mjxsysid
+    with pytest.raises(ValueError, match="rates must be"):
+        mjxsysid.decode("l.csv", rates="kalman")
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
     assert main(["decode", "--log", "l.csv", "--truth", str(bad), "--out", str(tmp_path)]) == 2

@@ -101,7 +101,7 @@ def decode_posterior(zhat_t, times, truth=None, *, decoder, regression, rate: fl
     return dict(dec, theta_true=truth, summary=summary)
 
 
-def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int = 0) -> dict:
+def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int = 0, rates: str | None = None) -> dict:
     """Make the log-grounded posterior (:mod:`mjxsysid.identify`) of a log's arrays ``rec`` the
     posterior of record, the decoded samples (the window's at the end of the flight, else the
     instant ones) as its proposal. In place: ``dec["samples_log_grounded"]`` (S, 19); ``summary``'s
@@ -109,13 +109,14 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     quantities of :data:`~mjxsysid.identify.coords.LOG_NAMES`) become the log-grounded posterior's,
     the decoder-only entries move under ``_decoder_only``, and ``_log_grounded`` holds the method,
     its diagnostics (ESS, Pareto k̂, SMC stages), the IMU noise, discrepancy and bias it estimated,
-    and the information gap. Returns ``summary``."""
+    and the information gap. ``rates``: the likelihood's rate term (default
+    :data:`~mjxsysid.identify.likelihood.RATES`). Returns ``summary``."""
     from mjxsysid.identify.gap import information_gap, log_summary
     from mjxsysid.identify.inference import log_grounded_posterior
     from mjxsysid.identify.likelihood import CHANNELS, LogTooShort
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     try:
-        post = log_grounded_posterior(rec, final, seed=seed)
+        post = log_grounded_posterior(rec, final, seed=seed, **({} if rates is None else {"rates": rates}))
     except LogTooShort as e:       # a log too short for the likelihood's windows: the decoders alone, said so
         summary["_log_grounded"] = {"skipped": str(e)}
         summary["_posterior"] = "decoder-only"
@@ -133,6 +134,7 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     diag["acc_z_bias"] = float(np.median(post["nuisance"][:, 8]))
     diag["residual_weights"] = {c: float(x) for c, x in zip(CHANNELS, post["weights"])}
     diag["channels_used"] = [c for c, u in zip(CHANNELS, post["channels_used"]) if u > 0]
+    diag["rates"] = post["rates"]
     diag["gap"] = information_gap(final, post["theta"], truth)
     summary["_log_grounded"] = json.loads(json.dumps(diag, default=float))
     summary["_posterior"] = "log-grounded"

@@ -65,7 +65,8 @@ def write_summary_md(summary: dict, path) -> Path:
         lines += ["", "## Decoder-only posterior (what the policy's latent knows)", ""] + _posterior_table(d)
         isd = g.get("decoded_is") or {}
         lines += ["", "## The information gap: decoder-only against log-grounded", "",
-                  f"Method: {g['method']}; the decoded ensemble as importance proposal: ESS {isd.get('ess', float('nan')):.3g} "
+                  f"Method: {g['method']} (rate term: {g.get('rates', 'windows')}); the decoded ensemble as importance "
+                  f"proposal: ESS {isd.get('ess', float('nan')):.3g} "
 
                   f"of {isd.get('draws', '?')}, Pareto k̂ {isd.get('khat', float('nan')):.3g} (reliable: ESS ≥ 5 %, k̂ ≤ 0.7). Channels "
                   f"used: {', '.join(g.get('channels_used', []))}. A width ratio above 1: the log pins the quantity "
@@ -79,7 +80,7 @@ def write_summary_md(summary: dict, path) -> Path:
 def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
                samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print,
                policy="mjxsysid", decoders=None, window="flight", truth=None, warn=warn, segment=None,
-               decoder_only=False) -> dict:
+               decoder_only=False, rates=None) -> dict:
     """Fly θ (or replay ``log``) with a frozen latent policy (``policy``, ``weights``: see
     :func:`~mjxsysid.policy.interface.resolve_policy`; default the shipped one), decode at
     ``rate`` Hz with that policy's decoders (or those in ``decoders``), write out/decoded.npz,
@@ -169,7 +170,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     if log is not None and not decoder_only:
         st.start("log-grounded posterior")
-        ground_in_log(dec, summary, rec, truth, seed=seed)
+        ground_in_log(dec, summary, rec, truth, seed=seed, rates=rates)
     np.savez_compressed(out / "decoded.npz", **dec)
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     write_summary_md(summary, out / "summary.md")
