@@ -165,10 +165,9 @@ def log_ensembles(theta, seed: int, *, draws: int = LOG_ENSEMBLE, particles: int
     if failed.any():
         raise RuntimeError(f"identification flights failed for vehicles {np.flatnonzero(failed).tolist()}: no log")
     out = np.empty((len(theta), draws, theta.shape[1]), np.float32)
-    kw = {} if particles is None else {"particles": particles}
     it = bar(range(len(theta)), desc="log-grounded posteriors", enabled=progress)
     for i in it:
-        post = log_grounded_posterior(flight_log(fl.frame, i), None, samples=draws, seed=seed + i, **kw)
+        post = log_grounded_posterior(flight_log(fl.frame, i), None, samples=draws, seed=seed + i, particles=particles)
         out[i] = with_mass(post["theta"], float(theta[i, P.MASS]))
         if known_drag:
             out[i][:, P.DRAG] = theta[i, P.DRAG]

@@ -459,12 +459,12 @@ def _reliable(diag) -> bool:
 def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                            samples: int = 1000, draws: int | None = None, particles: int | None = None, seed: int = 0,
                            n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
-                           force_smc: bool = False, rates: str = RATES) -> dict:
+                           force_smc: bool = False, rates: str | None = None) -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
     samples of this log, or None — as the proposal (module doc). ``draws`` / ``particles`` default to
-    :data:`DRAWS` / :data:`PARTICLES`; ``rates``: the likelihood's rate term (:data:`~.likelihood.RATES`,
-    "windows" or "innovations").
+    :data:`DRAWS` / :data:`PARTICLES`; ``rates``: the likelihood's rate term, "windows" or "innovations"
+    (default :data:`~.likelihood.RATES`; a :class:`LogData` carries its own).
 
     -> dict: ``theta`` (samples, 19) (hidden coordinates drawn from the prior), ``v`` (samples, 12),
     ``nuisance`` (samples, 9: log σ (4), log δ (4, fixed), bias), ``method`` ('decoded_is',
@@ -473,7 +473,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     and for SMC ``smc_stages``, ``smc_acceptance``, ``smc_tempering`` (1 when it reached the target)."""
     draws = DRAWS if draws is None else int(draws)
     particles = PARTICLES if particles is None else int(particles)
-    data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data, rates=rates)
+    data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data, rates=RATES if rates is None else rates)
     # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
     r_is, r_n, r_mix, r_h, r_res, r_st, r_lp = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7))
     k_smc = np.array([0, seed & 0xFFFFFFFF], np.uint32)

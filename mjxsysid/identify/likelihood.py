@@ -199,13 +199,15 @@ def _gain_filter(x, gain):
     return lfilter([0.0, 1.0], [1.0, -(1.0 - gain)], x, axis=0)
 
 
-def _innovation_series(imu, u, start: int, n: int, tau: float):
-    """The rows the innovations read: gyro y (n, 3), the step's gyroscopic products × dt (n, 3) and
-    the step's ∫ s_i² dt (n, 4) under τ_m = ``tau``."""
-    g = imu[:, :3]
-    prod = np.stack([g[:, 1] * g[:, 2], g[:, 2] * g[:, 0], g[:, 0] * g[:, 1]], -1)
-    rows = slice(start, start + n)
-    return g[rows], prod[rows] * DT, _lagged(u, tau, rows)[0] * DT
+def _gyro_rows(imu, start: int, n: int):
+    """The rows the innovations read: gyro y (n, 3) and each step's gyroscopic products × dt (n, 3)."""
+    g = imu[start:start + n, :3]
+    return g, np.stack([g[:, 1] * g[:, 2], g[:, 2] * g[:, 0], g[:, 0] * g[:, 1]], -1) * DT
+
+
+def _step_lag(u, tau: float, start: int, n: int):
+    """Each step's ∫ s_i² dt (n, 4) of the rows the innovations read, under τ_m = ``tau``."""
+    return _lagged(u, tau, slice(start, start + n))[0] * DT
 
 
 def _axis_columns(a: int):
@@ -224,7 +226,7 @@ def _innovation_factors(imu, u, start: int, n: int) -> np.ndarray:
     as its upper Cholesky factor R (7, 7), so that Σ e² = ‖R β‖² for β = [c (6), −1]. Float64
     Gram matrices, a float32 factor: the sums of squares are formed without cancellation."""
     gains = _gains()
-    y, q, _ = _innovation_series(imu, u, start, n, float(TAU_GRID[0]))
+    y, q = _gyro_rows(imu, start, n)
     kcols = []
     for K in gains:
         psi = (1.0 - K) ** np.arange(n)
@@ -232,7 +234,7 @@ def _innovation_factors(imu, u, start: int, n: int) -> np.ndarray:
                                      _gain_filter(np.full((n, 1), DT), K), y - K * _gain_filter(y, K)], 1))
     out = np.zeros((len(TAU_GRID), len(gains), 3, 7, 7))
     for gi, tau in enumerate(TAU_GRID):
-        f = _lagged(u, tau, slice(start, start + n))[0] * DT
+        f = _step_lag(u, tau, start, n)
         for h, K in enumerate(gains):
             X = kcols[h]
             X[:, 1:5] = _gain_filter(f, K)
@@ -366,30 +368,30 @@ def _student_t(r, scale, mask):
     return jnp.sum(mask * (c - jnp.log(scale) - (NU + 1) / 2 * jnp.log1p(z * z / NU)))
 
 
-def predict(v, data: LogData):
-    """The windows' predicted rate changes (W, 3) and the blocks' mean acc_z without bias (Wa,) under the
-    visible coordinates v (12,) (:mod:`.coords`)."""
-    rho = jnp.concatenate([v[1:4], (4.0 - v[1] - v[2] - v[3])[None]])
-    fg = _interp(v[4], data.log_tau, data.fg)               # (W, 4)
-    fa = _interp(v[4], data.log_tau, data.fa)
-    auth = jnp.exp(jnp.concatenate([v[5:7], v[8:9]]))       # roll, pitch authority; yaw authority
-    torque = (fg * rho) @ jnp.asarray(_BASIS).T             # (W, 3)
-    a = jnp.exp(v[5:8])
-    inv = 1.0 / a                                            # ∝ J
-    gyro_coef = jnp.stack([(inv[1] - inv[2]) / inv[0], (inv[2] - inv[0]) / inv[1], (inv[0] - inv[1]) / inv[2]])
-    dgyro = auth * torque + gyro_coef * data.gyq + v[9:12] * data.span
-    acc = P.GRAVITY / 4.0 * jnp.exp(v[0]) * (fa @ rho)
-    return dgyro, acc
+def _rho(v):
+    """The four motor effectivenesses ρ (4,) of v (12,): three coordinates, the fourth makes Σρ = 4."""
+    return jnp.concatenate([v[1:4], (4.0 - v[1] - v[2] - v[3])[None]])
 
 
 def _rate_coefficients(v):
     """The rate model's coefficients per axis (3, 6) under v (12,): authority × the basis × ρ_i per
-    rotor (4), the gyroscopic coefficient, the rate bias c — the innovations' β without its −1."""
-    rho = jnp.concatenate([v[1:4], (4.0 - v[1] - v[2] - v[3])[None]])
-    auth = jnp.exp(jnp.concatenate([v[5:7], v[8:9]]))
-    inv = 1.0 / jnp.exp(v[5:8])
+    rotor (4), the gyroscopic coefficient (from the inertia ratios), the rate bias c — what multiplies
+    each step's ∫ s_i² dt, gyroscopic product and dt (the innovations' β without its −1)."""
+    auth = jnp.exp(jnp.concatenate([v[5:7], v[8:9]]))        # roll, pitch authority; yaw authority
+    inv = 1.0 / jnp.exp(v[5:8])                               # ∝ J
     gyro_coef = jnp.stack([(inv[1] - inv[2]) / inv[0], (inv[2] - inv[0]) / inv[1], (inv[0] - inv[1]) / inv[2]])
-    return jnp.concatenate([auth[:, None] * jnp.asarray(_BASIS) * rho[None], gyro_coef[:, None], v[9:12, None]], 1)
+    return jnp.concatenate([auth[:, None] * jnp.asarray(_BASIS) * _rho(v)[None], gyro_coef[:, None], v[9:12, None]], 1)
+
+
+def predict(v, data: LogData):
+    """The windows' predicted rate changes (W, 3) and the blocks' mean acc_z without bias (Wa,) under the
+    visible coordinates v (12,) (:mod:`.coords`)."""
+    fg = _interp(v[4], data.log_tau, data.fg)               # (W, 4)
+    fa = _interp(v[4], data.log_tau, data.fa)
+    c = _rate_coefficients(v)
+    dgyro = fg @ c[:, :4].T + c[:, 4] * data.gyq + c[:, 5] * data.span
+    acc = P.GRAVITY / 4.0 * jnp.exp(v[0]) * (fa @ _rho(v))
+    return dgyro, acc
 
 
 def innovation_variance(log_sigma, log_delta):
@@ -425,6 +427,12 @@ def innovations(x, data: LogData):
     return jnp.einsum("aij,aj->ia", r, beta), s
 
 
+def _innovation_loglik(z, s, n):
+    """Per axis (3,), the Gaussian log density of n innovations of variance S (3,) whose sum of squares
+    is ‖z[:, a]‖² (z (7, 3), :func:`innovations`): −½ n log(2π S) − Σ e² / (2 S)."""
+    return -0.5 * n * jnp.log(2 * jnp.pi * s) - 0.5 * jnp.sum(z * z, 0) / s
+
+
 def rate_rows(data: LogData) -> int:
     """How many rate residuals per axis :func:`residuals` returns."""
     return 7 if data.rates == "innovations" else data.dgyro.shape[0]
@@ -458,10 +466,8 @@ def log_likelihood(x, data: LogData, weights=None):
     rg, sg, ra, sa = residuals(x, data)
     w = data.use if weights is None else data.use * weights
     sig2 = jnp.exp(2 * x[N_V:N_V + 4])
-    if data.rates == "innovations":      # Gaussian innovations: −½ n log(2π S) − Σ e² / (2 S) per axis
-        s = sg[0] ** 2
-        rate = -0.5 * data.kf_n * jnp.log(2 * jnp.pi * s) - 0.5 * jnp.sum(rg * rg, 0) / s
-        res = jnp.sum(w[:3] * rate) + w[3] * _student_t(ra, sa, data.bmask)
+    if data.rates == "innovations":
+        res = jnp.sum(w[:3] * _innovation_loglik(rg, sg[0] ** 2, data.kf_n)) + w[3] * _student_t(ra, sa, data.bmask)
     else:
         wm = data.wmask
         res = (w[0] * _student_t(rg[:, 0], sg[:, 0], wm) + w[1] * _student_t(rg[:, 1], sg[:, 1], wm)
@@ -498,7 +504,8 @@ def innovation_series(x, data: LogData) -> np.ndarray:
         raise ValueError("this LogData has no log rows (made by prepare() in this process?): cannot form its innovations")
     x = np.asarray(x, np.float64)
     v = x[:N_V]
-    y, q, f = _innovation_series(rows["imu"], rows["motor"], rows["start"], rows["n"], float(np.exp(v[4])))
+    y, q = _gyro_rows(rows["imu"], rows["start"], rows["n"])
+    f = _step_lag(rows["motor"], float(np.exp(v[4])), rows["start"], rows["n"])
     logit = np.asarray(innovation_variance(x[N_V:N_V + 3], x[N_V + 4:N_V + 7])[1], np.float64)
     coef = np.asarray(_rate_coefficients(jnp.asarray(v, jnp.float32)), np.float64)
     gains = _gains(np.clip(logit, KF_LOGIT_GRID[0], KF_LOGIT_GRID[-1]))
@@ -524,10 +531,7 @@ def best_log_delta(x, data: LogData, grid: np.ndarray) -> np.ndarray:
 
 @jax.jit
 def _rate_loglik_jit(xs, data):
-    def one(x):
-        z, s = innovations(x, data)
-        return -0.5 * data.kf_n * jnp.log(2 * jnp.pi * s) - 0.5 * jnp.sum(z * z, 0) / s
-    return jax.vmap(one)(xs)
+    return jax.vmap(lambda x: _innovation_loglik(*innovations(x, data), data.kf_n))(xs)
 
 
 def noise_estimate(data: LogData) -> np.ndarray:

@@ -54,7 +54,13 @@ class SizeFactorPrior:
     noise: float = 0.2
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
-        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static."""
+        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static. One
+        compiled program per prior and n (called eagerly, the sampler's fifty-odd operations were
+        each compiled on their own for every n)."""
+        return _sampled(self, key, int(n))
+
+    def _draw(self, key, n: int) -> jax.Array:
+        """The sampler itself (traced by :meth:`sample`)."""
         raise NotImplementedError
 
 
@@ -76,9 +82,8 @@ class Prior(SizeFactorPrior):
     drag_z: float = 0.85
     drag_noise: tuple[float, float] = (0.4, 1.6)
 
-    def sample(self, key: jax.Array, n: int) -> jax.Array:
-        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static."""
-        return _draw(self, key, n)
+    def _draw(self, key, n: int) -> jax.Array:
+        return _sample_prior(self, key, n)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -109,9 +114,8 @@ class XAdapPrior(SizeFactorPrior):
     twr_max_eff: float = 8.0
     noise: float = 0.1
 
-    def sample(self, key: jax.Array, n: int) -> jax.Array:
-        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32."""
-        return _draw(self, key, n)
+    def _draw(self, key, n: int) -> jax.Array:
+        return _sample_xadap(self, key, n)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,9 +140,8 @@ class HeldOutFamily(Prior):
     payload_torque_xy: float | None = None
     yaw_torque_z: float | None = None
 
-    def sample(self, key: jax.Array, n: int) -> jax.Array:
-        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32."""
-        return _draw(self, key, n)
+    def _draw(self, key, n: int) -> jax.Array:
+        return _sample_heldout(self, key, n)
 
     def vehicles(self, n: int) -> np.ndarray:
         """The family's n evaluation vehicles, the same on every call (seeded by ``seed``):
@@ -157,14 +160,7 @@ class HeldOutFamily(Prior):
 
 @functools.partial(jax.jit, static_argnums=(0, 2))
 def _sampled(p: SizeFactorPrior, key, n: int):
-    sampler = {XAdapPrior: _sample_xadap, HeldOutFamily: _sample_heldout}.get(type(p), _sample_prior)
-    return sampler(p, key, n)
-
-
-def _draw(p: SizeFactorPrior, key, n) -> jax.Array:
-    """θ (n, 19) of prior p: one compiled program per prior and n (called eagerly, the sampler's
-    fifty-odd operations were each compiled on their own for every n)."""
-    return _sampled(p, key, int(n))
+    return p._draw(key, n)
 
 
 def _uniforms(p: SizeFactorPrior, n: int):

@@ -116,7 +116,7 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     from mjxsysid.identify.likelihood import CHANNELS, LogTooShort
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     try:
-        post = log_grounded_posterior(rec, final, seed=seed, **({} if rates is None else {"rates": rates}))
+        post = log_grounded_posterior(rec, final, seed=seed, rates=rates)
     except LogTooShort as e:       # a log too short for the likelihood's windows: the decoders alone, said so
         summary["_log_grounded"] = {"skipped": str(e)}
         summary["_posterior"] = "decoder-only"
