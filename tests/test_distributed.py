@@ -55,22 +55,28 @@ def run_two_devices(body: str) -> dict:
     return r
 
 
-def test_fly_batch_two_devices_equals_one_and_drops_padding():
+@pytest.mark.parametrize("sim", ["RigidSim", pytest.param("Quadrotor", marks=pytest.mark.slow)])
+def test_fly_batch_two_devices_equals_one_and_drops_padding(sim):
     """K_θ under the cascade (the slow tier flies the shipped policy, whose weights are
-    replicated, through the same fly_batch: collect and evaluation tests below)."""
-    r = run_two_devices("""
+    replicated, through the same fly_batch: collect and evaluation tests below). The default tier
+    flies the rigid-body twin (the same fly_batch, sharding and padding; its program compiles in
+    about 2 s against the MJX simulator's 5, twice: one device, then two); `-m slow` the MJX one."""
+    r = run_two_devices(f"""
         from mjxsysid import theta as P
         from mjxsysid.rollout.flight import fly_vehicles
+        from mjxsysid.sim.quadrotor import Quadrotor, SimConfig
+        from mjxsysid.sim.rigid import RigidSim
+        sim = {sim}(SimConfig())
         theta = np.asarray(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(0), 5))   # odd: one padded row
         with D.limit_devices(1):
-            f1, m1, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.2, seed=3)
-        f2, m2, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.2, seed=3)
+            f1, m1, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.2, seed=3, sim=sim)
+        f2, m2, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", duration=0.2, seed=3, sim=sim)
         mesh = D.batch_mesh()
-        print(json.dumps({"mesh": mesh.size, "padded": D.padded_size(5, mesh),
+        print(json.dumps({{"mesh": mesh.size, "padded": D.padded_size(5, mesh),
                           "shapes": [list(np.shape(x)[:2]) for x in jax.tree.leaves(f2)],
                           "sharded_over": len(f2.frame.pos.sharding.device_set),
                           "diff": maxdiff(f1, f2), "metric_diff": maxdiff(m1, m2),
-                          "moved": float(np.abs(np.asarray(f2.frame.pos[:, -1] - f2.frame.pos[:, 0])).max())}))
+                          "moved": float(np.abs(np.asarray(f2.frame.pos[:, -1] - f2.frame.pos[:, 0])).max())}}))
     """)
     assert r["mesh"] == 2 and r["padded"] == 6
     assert all(s == [5, 100] for s in r["shapes"])          # padding dropped from every leaf

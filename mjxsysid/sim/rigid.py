@@ -9,8 +9,10 @@ IMU noise or bias (predictions are deterministic) and no contacts; the IMU laten
 simulator's (a buffer of the true readings, carried over from the simulator's state). The tuner flies K × N
 short rollouts per update with it; ``tests/sim/test_sim.py`` checks it against the MJX simulator.
 
-``RigidSim`` implements what :func:`~mjxsysid.rollout.harness.run_loop` needs of a simulator:
-``config.dt``, ``step(θ, state, motor_cmd, force_world)`` and ``frame(state, motor_cmd, force)``.
+``RigidSim`` implements what :func:`~mjxsysid.rollout.harness.fly_batch` needs of a simulator:
+``config.dt``, ``init(θ, key, ...)``, ``step(θ, state, motor_cmd, force_world)`` and
+``frame(state, motor_cmd, force)``, so it flies wherever the simulator does (``fly_vehicles(...,
+sim=RigidSim())``: a noiseless flight that compiles in a fraction of the MJX program's time).
 """
 from __future__ import annotations
 
@@ -19,7 +21,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjxsysid import theta as P
-from mjxsysid.sim.quadrotor import Frame, SimConfig, mean_square_speed, quat_to_mat
+from mjxsysid.sim.quadrotor import Frame, SimConfig, hover_rotor_speed, mean_square_speed, quat_to_mat
 
 
 @struct.dataclass
@@ -76,6 +78,19 @@ class RigidSim:
 
     def __eq__(self, other):
         return isinstance(other, RigidSim) and other.config == self.config
+
+    def init(self, theta, key=None, *, pos=(0.0, 0.0, 1.0), quat=(1.0, 0.0, 0.0, 0.0),
+             vel=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), rotor_speed=None) -> RigidState:
+        """Initial state of one vehicle, as :meth:`Quadrotor.init <mjxsysid.sim.quadrotor.Quadrotor.init>`
+        makes it without IMU bias (``key`` is accepted and unused: the twin draws no noise)."""
+        theta = jnp.asarray(theta, jnp.float32)
+        quat = jnp.asarray(quat, jnp.float32)
+        omega = jnp.asarray(omega, jnp.float32)
+        speed = hover_rotor_speed(theta) if rotor_speed is None else jnp.asarray(rotor_speed, jnp.float32)
+        true0 = jnp.concatenate([omega, jnp.array([0.0, 0.0, P.GRAVITY], jnp.float32)])
+        return RigidState(jnp.asarray(pos, jnp.float32), quat / jnp.linalg.norm(quat), jnp.asarray(vel, jnp.float32),
+                          omega, speed, true0, jnp.tile(true0, (self.config.imu_latency + 1, 1)),
+                          jnp.array(False), jnp.array(0, jnp.int32))
 
     def step(self, theta, state: RigidState, motor_cmd, force_world=None) -> RigidState:
         """One control step; θ (19,), motor_cmd (4,) normalised, force_world (3,) N."""

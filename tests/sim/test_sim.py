@@ -284,6 +284,11 @@ def test_rigid_twin_matches_the_mjx_simulator(sim):
 
     a = jax.jit(lambda st: run(sim, st))(s)
     b = jax.jit(lambda st: run(twin, st))(from_sim_state(s))
+    # The twin's own start (fly_vehicles(..., sim=RigidSim())) is the simulator's, less the IMU bias.
+    t0 = twin.init(th, vel=(0.5, -0.2, 0.1), omega=(1.0, -2.0, 0.5), quat=(2.0, 0.0, 0.0, 0.0))
+    for name in ("pos", "quat", "vel", "omega", "rotor_speed", "imu_buffer", "step"):
+        np.testing.assert_allclose(np.asarray(getattr(t0, name)), np.asarray(getattr(from_sim_state(s), name)),
+                                   rtol=1e-6, err_msg=name)
     for name, x, y, tol in zip(("pos", "quat", "omega", "imu"), a, b, (2e-6, 2e-6, 2e-5, 5e-5)):
         assert float(jnp.abs(x - y).max()) < tol * max(1.0, float(jnp.abs(x).max())), name
 
