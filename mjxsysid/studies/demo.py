@@ -37,6 +37,12 @@ and last decode times included: 21 times of a 10 s flight, one batch), the insta
 ``MAX_DECODES`` times."""
 
 
+VIDEO_FPS = 15
+"""Frames per second of the demo's video: 150 frames of the 10 s flight. Offscreen rendering on a
+CPU (Mesa) costs about 0.13 s a frame with the ghosts, trail and reference: at 25 fps the video was
+a third of the demo's warm time (BENCHMARKS.md, issue 41)."""
+
+
 def flight_level_info(dec: dict, seq, ref) -> dict:
     """What the summary says about the flight-level posterior: its decoder, times and number of
     latents, or that it is unavailable (no ``cfm_seq.npz`` beside the policy's decoders)."""
@@ -151,7 +157,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
         gfl, _, _ = fly_vehicles(gth, controller="policy", reference="lemniscate", period=10.0,
                                  policy=ref)
         ghosts = [(gth[i], np.asarray(gfl.frame.pos[i]), np.asarray(gfl.frame.quat[i])) for i in range(len(gth))]
-        render_rollout(theta[0], one.frame, out / "demo.mp4", reference=one.ref_pos, fps=25,
+        render_rollout(theta[0], one.frame, out / "demo.mp4", reference=one.ref_pos, fps=VIDEO_FPS,
                        width=480, height=360, ghosts=ghosts)
     else:
         stage("video", "[4/4] video skipped (--no-video)")
