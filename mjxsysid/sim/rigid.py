@@ -21,7 +21,13 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjxsysid import theta as P
-from mjxsysid.sim.quadrotor import Frame, SimConfig, hover_rotor_speed, mean_square_speed, quat_to_mat
+from mjxsysid.sim.quadrotor import (
+    Frame,
+    SimConfig,
+    hover_rotor_speed,
+    mean_square_speed,
+    quat_to_mat,
+)
 
 
 @struct.dataclass
