@@ -54,23 +54,10 @@ class SizeFactorPrior:
     noise: float = 0.2
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
-        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static.
-
-        One compiled program per prior and size bucket (:func:`_bucket`: n rounded up to a power
-        of two, at least 16), its first n rows returned: JAX's counter-based random bits
-        (``jax_threefry_partitionable``) make row i the same whatever the batch, so the draws are
-        those of a program of exactly n rows (equal bit for bit; at n = 1 within a float32
-        rounding, where XLA compiles the one-row arithmetic differently)."""
-        n = int(n)
-        if n < 1:
-            raise ValueError(f"n (vehicles to draw) must be a positive integer, got {n}")
-        m = _bucket(n)
-        out = _sampled(self, key, m)
-        if m == n:
-            return out
-        if isinstance(out, jax.core.Tracer):          # inside a caller's jit: a traced slice
-            return out[:n]
-        return jax.device_put(np.asarray(out)[:n])    # eagerly: no slice program compiled per n
+        """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static. One
+        compiled program per prior and n (called eagerly, the sampler's fifty-odd operations were
+        each compiled on their own for every n)."""
+        return _sampled(self, key, int(n))
 
     def _draw(self, key, n: int) -> jax.Array:
         """The sampler itself (traced by :meth:`sample`)."""
@@ -170,12 +157,6 @@ class HeldOutFamily(Prior):
 # ----------------------------------------------------------------------------------------
 # Sampling
 # ----------------------------------------------------------------------------------------
-
-def _bucket(n: int) -> int:
-    """The batch a prior's sampler is compiled for when n vehicles are asked for: the next power
-    of two, at least 16 (programs shared across n; the extra rows cost nothing measurable)."""
-    return max(16, 1 << (int(n) - 1).bit_length())
-
 
 @functools.partial(jax.jit, static_argnums=(0, 2))
 def _sampled(p: SizeFactorPrior, key, n: int):

@@ -182,25 +182,3 @@ def test_widened_prior_is_the_prior_at_zero_and_wider_and_valid_beyond():
     assert (b.min(0) < a.min(0)).sum() >= 4 and (b.max(0) > a.max(0)).sum() >= 4   # wider both ways
     with pytest.raises(ValueError, match="amount must be"):
         P.widened_prior(P.DEFAULT_PRIOR, -0.1)
-
-
-def test_sampling_in_size_buckets_draws_what_n_rows_draw():
-    """`sample(key, n)` runs the sampler compiled for a power-of-two bucket and keeps its first n
-    rows: the vehicles are those of a program of exactly n rows (bit for bit from n = 2; n = 1
-    within float32 rounding), for a training prior, the XAdap prior and a held-out family; inside
-    a caller's jit too. n < 1 is an error naming n."""
-    from mjxsysid.theta.priors import _bucket, _sampled
-    assert [_bucket(n) for n in (1, 16, 17, 100, 129)] == [16, 16, 32, 128, 256]
-    key = jax.random.PRNGKey(5)
-    for prior in (P.DEFAULT_PRIOR, P.get_prior("xadap"), P.get_prior("weak_motor")):
-        for n in (1, 3, 17, 40):
-            got, exact = np.asarray(prior.sample(key, n)), np.asarray(_sampled(prior, key, n))
-            assert got.shape == (n, 19)
-            if n == 1:
-                np.testing.assert_allclose(got, exact, rtol=1e-6)
-            else:
-                np.testing.assert_array_equal(got, exact)
-    traced = jax.jit(lambda k: P.DEFAULT_PRIOR.sample(k, 3))(key)
-    np.testing.assert_array_equal(np.asarray(traced), np.asarray(_sampled(P.DEFAULT_PRIOR, key, 3)))
-    with pytest.raises(ValueError, match="n \\(vehicles to draw\\)"):
-        P.DEFAULT_PRIOR.sample(key, 0)
