@@ -64,5 +64,7 @@ def collected_pairs(tmp_path_factory):
     if not PRETRAINED.exists():
         pytest.skip("no shipped policy weights")
     out = tmp_path_factory.mktemp("collect")
-    assert main(["collect", "--out", str(out), "--train", "6", "--test", "2", "--batch", "8"]) == 0
+    # 4 s flights (the default 10 s: 5000 policy steps of 8 vehicles, unoptimised, were half this
+    # fixture; at 2 s the random manoeuvres, sized to the flight, are too fast for some vehicles)
+    assert main(["collect", "--out", str(out), "--train", "6", "--test", "2", "--batch", "8", "--seconds", "4"]) == 0
     return out

@@ -253,20 +253,20 @@ def test_decode_cli_windows(tmp_path, capsys):
 
 
 def test_collect_latent_trajectories(collected_pairs, tmp_path):
-    """collect records ẑ at 10 Hz over a 10 s flight of random manoeuvres (the collect run of
-    tests/policy/test_policy.py::test_collect_pairs_tiny: conftest.collected_pairs)."""
+    """collect records ẑ at 10 Hz over the flight of random manoeuvres, 4 s here (the collect run
+    of tests/policy/test_policy.py::test_collect_pairs_tiny: conftest.collected_pairs)."""
     from mjxsysid.cli import main
     from mjxsysid.dataset.collect import MANOEUVRES, load_pairs
     arrays, meta = load_pairs(collected_pairs)
     times = arrays["traj_times"]
-    assert times.shape == (99,)
-    np.testing.assert_allclose(times, 0.2 + 0.1 * np.arange(99), atol=1e-5)   # 10 Hz from 0.2 s to 10 s
-    assert arrays["zhat_traj_train"].shape == (6, 99, 8) and arrays["zhat_traj_test"].shape == (2, 99, 8)
+    assert times.shape == (39,)
+    np.testing.assert_allclose(times, 0.2 + 0.1 * np.arange(39), atol=1e-5)   # 10 Hz from 0.2 s to 4 s
+    assert arrays["zhat_traj_train"].shape == (6, 39, 8) and arrays["zhat_traj_test"].shape == (2, 39, 8)
     np.testing.assert_array_equal(arrays["zhat_train"], arrays["zhat_traj_train"][:, -1])
     assert np.isfinite(arrays["zhat_traj_train"]).all()
     assert np.abs(np.diff(arrays["zhat_traj_train"], axis=1)).max() > 0        # the latent moves in flight
     assert set(arrays["manoeuvre_train"].tolist()) <= set(range(len(MANOEUVRES)))
-    assert len(meta["weights_sha256"]) == 64 and meta["seconds"] == 10.0 and meta["traj_rate_hz"] == 10.0
+    assert len(meta["weights_sha256"]) == 64 and meta["seconds"] == 4.0 and meta["traj_rate_hz"] == 10.0
     assert meta["manoeuvres"] == list(MANOEUVRES)
     with pytest.raises(ValueError, match="seconds must be >= 0.2"):
         from mjxsysid.dataset.collect import collect
