@@ -435,14 +435,33 @@ def _smc(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, share, ta
         return (c[0].sampler_state.tempering_param < 1.0) & (c[1] < max_stages)
 
     def body(c):
-        s, i, k, acc = c
+        s, i, k, acc, log_scale, acc_min = c
         k, sub = jax.random.split(k)
+        s = s._replace(parameter_override={"chol": s.parameter_override["chol"] * jnp.exp(log_scale)})
         s, info = smc.step(sub, s)
-        return s, i + 1, k, acc + jnp.mean(info.update_info.is_accepted)
+        a = jnp.mean(info.update_info.is_accepted)
+        return s, i + 1, k, acc + a, log_scale + rw_scale_update(a), jnp.minimum(acc_min, a)
 
-    state, n, _, acc = jax.lax.while_loop(cond, body, (smc.init(y0), 0, key, 0.0))
+    state, n, _, acc, _, acc_min = jax.lax.while_loop(
+        cond, body, (smc.init(y0), 0, key, 0.0, jnp.float32(0.0), jnp.float32(1.0)))
     st = state.sampler_state
-    return st.particles, st.weights, st.tempering_param, n, acc / jnp.maximum(n, 1)
+    return st.particles, st.weights, st.tempering_param, n, acc / jnp.maximum(n, 1), acc_min
+
+
+RW_TARGET_ACCEPTANCE = 0.25
+"""The SMC's random-walk moves aim at this acceptance rate (about the optimum for a Gaussian
+target, 0.234). Scaled by the particles' covariance alone (2.38/√d · chol Σ), they were accepted
+0–0.6 % of the time once the likelihood entered (a 10 s log: 15 stages, from the sixth on): 24
+moves then left most particles where resampling had copied them, and the posterior was the
+spread of a few ancestors — the bands too narrow."""
+
+
+def rw_scale_update(acceptance):
+    """The change of the random walk's log scale after a stage with this acceptance rate:
+    ½ log((a + 0.005) / target), within log 0.2 … log 2 (a stage at 0.5 % shrinks the steps
+    five-fold; one at 90 % doubles them)."""
+    r = 0.5 * jnp.log((acceptance + 0.005) / RW_TARGET_ACCEPTANCE)
+    return jnp.clip(r, jnp.log(0.2), jnp.log(2.0))
 
 
 def _is(x, logq, data, ld, w, prior):
@@ -470,7 +489,8 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     ``nuisance`` (samples, 9: log σ (4), log δ (4, fixed), bias), ``method`` ('decoded_is',
     'laplace_is' or 'smc'), ``decoded_is`` / ``laplace_is`` ({ess, ess_fraction, khat}),
     ``weights`` (4,) the channels' correlation discounts, ``mode`` (21,), ``channels_used`` (4,),
-    and for SMC ``smc_stages``, ``smc_acceptance``, ``smc_tempering`` (1 when it reached the target)."""
+    and for SMC ``smc_stages``, ``smc_acceptance`` (the moves' acceptance rate, mean over the stages),
+    ``smc_acceptance_min`` (the lowest stage's), ``smc_tempering`` (1 when it reached the target)."""
     draws = DRAWS if draws is None else int(draws)
     particles = PARTICLES if particles is None else int(particles)
     data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data, rates=RATES if rates is None else rates)
@@ -522,12 +542,13 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
         if rest - n_lap:
             parts.append(np.concatenate([qv.sample(r_is, rest - n_lap), qn.sample(r_n, rest - n_lap)], 1))
         y0 = jnp.asarray(np.concatenate(parts), jnp.float32)
-        pts, wts, lam, n, acc = _smc(k_smc, y0, data, jnp.asarray(ld), jnp.asarray(w), qv, qn, lap, prior,
-                                     n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
+        pts, wts, lam, n, acc, acc_min = _smc(k_smc, y0, data, jnp.asarray(ld), jnp.asarray(w), qv, qn, lap,
+                                              prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
         wts = np.asarray(wts, np.float64)
         idx = r_res.choice(particles, samples, p=wts / wts.sum())
         ys = np.asarray(pts)[idx]
-        out.update(method="smc", smc_stages=int(n), smc_acceptance=float(acc), smc_tempering=float(lam))
+        out.update(method="smc", smc_stages=int(n), smc_acceptance=float(acc), smc_acceptance_min=float(acc_min),
+                   smc_tempering=float(lam))
     xs = np.asarray(full_x(ys, ld))
     v = xs[:, :N_V]
     h = prior.sample_h(r_h, samples)
