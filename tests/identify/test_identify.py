@@ -150,6 +150,16 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     assert lo[1] <= 0.005 <= hi[1]
     gap = information_gap(post["theta"], post["theta"])
     assert not gap["authority_total[0]"]["seen_by_log"] and gap["thrust_to_weight_total"]["seen_by_log"]
+    # the SMC's random-walk moves are accepted (their scale adapts stage by stage; scaled by the
+    # particles' covariance alone, 0-0.6 % were once the likelihood entered)
+    assert post["method"] == "smc" and post["smc_acceptance"] > 0.1, post["smc_acceptance"]
+
+
+def test_random_walk_scale_moves_toward_its_target_acceptance():
+    from mjxsysid.identify.inference import RW_TARGET_ACCEPTANCE, rw_scale_update
+    r = {a: float(rw_scale_update(a)) for a in (0.0, 0.005, 0.1, RW_TARGET_ACCEPTANCE - 0.005, 0.6, 1.0)}
+    assert r[0.0] == r[0.005] == pytest.approx(np.log(0.2))          # stuck: steps five times shorter
+    assert r[0.1] < 0 and abs(r[RW_TARGET_ACCEPTANCE - 0.005]) < 1e-6 and 0 < r[0.6] < r[1.0] <= np.log(2.0) + 1e-6
 
 
 def test_with_mass_keeps_what_the_log_sees():
