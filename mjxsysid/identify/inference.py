@@ -303,7 +303,7 @@ def _fit_ls_many(z0, data, ld, ls, max_steps=200):
     against 388 s)."""
     if jax.default_backend() != "cpu":
         return _fit_ls_batched(jnp.asarray(z0), data, ld, ls, max_steps=max_steps)
-    return jnp.stack([_fit_ls(z, data, ld, ls, max_steps=max_steps) for z in jnp.asarray(z0)])
+    return jnp.stack([_fit_ls(z, data, ld, ls, max_steps=max_steps) for z in np.asarray(z0, np.float32)])
 
 
 @jax.jit

@@ -169,6 +169,13 @@ def quat_to_mat(q: jax.Array) -> jax.Array:
     ], -2)
 
 
+def initial_imu(omega, latency: int) -> tuple[jax.Array, jax.Array]:
+    """A vehicle's first true IMU reading (6,) — the given body rates (3,) and the hover specific
+    force, +g along body z — and the latency buffer (latency + 1, 6) filled with it."""
+    true0 = jnp.concatenate([jnp.asarray(omega, jnp.float32), jnp.array([0.0, 0.0, P.GRAVITY], jnp.float32)])
+    return true0, jnp.tile(true0, (latency + 1, 1))
+
+
 def hover_rotor_speed(theta) -> jax.Array:
     """Rotor speeds that hold the vehicle at rest, η_i k_t Ω_i² = m g / 4. θ (..., 19) -> (..., 4)."""
     theta = jnp.asarray(theta)
@@ -333,10 +340,7 @@ class Quadrotor:
                 level = jnp.where(jax.random.uniform(k_clean) < c.imu_clean_fraction, 0.0, level)
         scale = jnp.array([c.gyro_bias] * 3 + [c.accel_bias] * 3, jnp.float32)
         bias = level[1] * scale * jax.random.normal(k_bias, (6,))
-        # Initial reading: the given rates and the hover specific force, +g along body z.
-        f0 = jnp.array([0.0, 0.0, P.GRAVITY], jnp.float32)
-        true0 = jnp.concatenate([jnp.asarray(omega, jnp.float32), f0])
-        buf = jnp.tile(true0, (c.imu_latency + 1, 1))
+        true0, buf = initial_imu(omega, c.imu_latency)
         return SimState(data=data, rotor_speed=speed, imu=true0 + bias, imu_buffer=buf,
                         imu_bias=bias, imu_vibration=jnp.zeros((2, 6), jnp.float32), imu_level=level,
                         key=k_noise, diverged=jnp.array(False),

@@ -25,6 +25,7 @@ from mjxsysid.sim.quadrotor import (
     Frame,
     SimConfig,
     hover_rotor_speed,
+    initial_imu,
     mean_square_speed,
     quat_to_mat,
 )
@@ -93,10 +94,9 @@ class RigidSim:
         quat = jnp.asarray(quat, jnp.float32)
         omega = jnp.asarray(omega, jnp.float32)
         speed = hover_rotor_speed(theta) if rotor_speed is None else jnp.asarray(rotor_speed, jnp.float32)
-        true0 = jnp.concatenate([omega, jnp.array([0.0, 0.0, P.GRAVITY], jnp.float32)])
+        true0, buf = initial_imu(omega, self.config.imu_latency)
         return RigidState(jnp.asarray(pos, jnp.float32), quat / jnp.linalg.norm(quat), jnp.asarray(vel, jnp.float32),
-                          omega, speed, true0, jnp.tile(true0, (self.config.imu_latency + 1, 1)),
-                          jnp.array(False), jnp.array(0, jnp.int32))
+                          omega, speed, true0, buf, jnp.array(False), jnp.array(0, jnp.int32))
 
     def step(self, theta, state: RigidState, motor_cmd, force_world=None) -> RigidState:
         """One control step; θ (19,), motor_cmd (4,) normalised, force_world (3,) N."""
