@@ -18,6 +18,8 @@ def add_demo(sub) -> None:
     d.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
     d.add_argument("--no-video", action="store_true", help="skip the offscreen video")
     d.add_argument("--vehicles", type=int, default=16, help="prior vehicles in the comparison (default 16)")
+    d.add_argument("--decoder-only", action="store_true",
+                   help="skip the log-grounded posterior of the paper vehicle's flight (the decoders alone)")
     add_policy(d)
 
     d.set_defaults(handler=cmd_demo)
@@ -27,7 +29,8 @@ def cmd_demo(args) -> int:
     if not args.no_video:
         prepare_render()
     from mjxsysid.studies.demo import run_demo
-    run_demo(args.out, video=not args.no_video, n_vehicles=args.vehicles, policy=policy_ref(args))
+    run_demo(args.out, video=not args.no_video, n_vehicles=args.vehicles, policy=policy_ref(args),
+             decoder_only=args.decoder_only)
     return 0
 
 

@@ -4,10 +4,12 @@ Flies the paper's hardware vehicle on the 10 s 3-D lemniscate with the oracle (t
 with the true θ), then a handful of vehicles from the prior under the oracle and the
 non-adaptive nominal K_θ (the
 adaptation problem mjxsysid exists for), and writes plots, a video and a one-page summary.
-The paper vehicle's latents are decoded at ``MAX_DECODES`` times of the flight (as ``decode``
-does) by the single-latent CFM (instant) and, every
-0.5 s, by the sequence decoder given every latent so far (flight-level; unavailable, and said so,
-where the policy ships no ``cfm_seq.npz``).
+The paper vehicle's latents are decoded at ``DEMO_DECODES`` times of the flight by the
+single-latent CFM (instant) and, every ``FLIGHT_EVERY_S`` s, by the sequence decoder given every
+latent so far (flight-level; unavailable, and said so, where the policy ships no ``cfm_seq.npz``).
+The same flight's IMU and motor commands are then read as a log: the log-grounded posterior
+(:func:`mjxsysid.studies.decode.ground_in_log`, the decoded samples its proposal) and the
+information gap between the two (``--decoder-only`` skips it).
 """
 from __future__ import annotations
 
@@ -21,20 +23,25 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.cfm.posterior import summarize_posterior
+from mjxsysid.identify.gap import gap_markdown
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.progress import echo, stages
 from mjxsysid.render.plots import plot_trajectory
-from mjxsysid.render.posterior import plot_decoded_over_time, plot_marginals
+from mjxsysid.render.posterior import plot_decoded_over_time, plot_information_gap, plot_marginals
 from mjxsysid.render.video import render_rollout
-from mjxsysid.rollout.flight import fly_vehicles, one_flight, save_flight
+from mjxsysid.rollout.flight import flight_log, fly_vehicles, one_flight, save_flight
 from mjxsysid.rollout.harness import metrics_to_host
-from mjxsysid.studies.decode import MAX_DECODES, decode_latents
+from mjxsysid.studies.decode import decode_latents, ground_in_log
 
 
-FLIGHT_EVERY_S = 0.5
+FLIGHT_EVERY_S = 1.0
 """The demo samples the flight-level posterior every this many seconds of the flight (its first
-and last decode times included: 21 times of a 10 s flight, one batch), the instant one at
-``MAX_DECODES`` times."""
+and last decode times included: 11 times of a 10 s flight, one batch)."""
+
+DEMO_DECODES = 11
+"""The instant posterior's decode times in the demo (evenly spaced over the 10 Hz latents, the last
+included): about one a second. ``decode`` takes up to ``MAX_DECODES`` (30); the demo's figure
+needs fewer, and each time is 200 samples of a 2.5 M-parameter flow (BENCHMARKS.md, issue 41)."""
 
 
 VIDEO_FPS = 15
@@ -70,11 +77,43 @@ def decoded_caption(info: dict, n_decodes: int) -> str:
             f"{info['times_s'][-1]:g} s; trained on 1–{info['max_trained_latents']})")
 
 
+def grounded_md(grounded: dict | None) -> str:
+    """summary.md's section on the log-grounded posterior of the paper vehicle's flight ('' without one)."""
+    if grounded is None:
+        return ""
+    lg = grounded["_log_grounded"]
+    gap = lg["gap"]
+    n_log = sum(v["log_inside"] for v in gap.values())
+    n_dec = sum(v["decoder_inside"] for v in gap.values())
+    seen = [v["width_ratio"] for v in gap.values() if v["seen_by_log"]]
+    how = lg["method"] + (f", {lg['smc_stages']} SMC stages" if "smc_stages" in lg else "")
+    # how far the log's median is from the truth, relative, over the seen positive quantities
+    rel = {k: abs(v["log_median"] / v["true"] - 1) for k, v in gap.items() if v["seen_by_log"] and v["true"] > 0}
+    worst = max(rel, key=rel.get) if rel else None
+    miss = "" if n_log == len(gap) or worst is None else (
+        f" Where a log-grounded band misses, it is narrower than the likelihood's model is faithful to the "
+        f"simulator: the log's medians are {100 * min(rel.values()):.1f}–{100 * rel[worst]:.1f} % from the truth "
+        f"(the most: {worst}), the bands narrower still on a noise-free log like this one — a known miss on "
+        "clean logs and in the yaw channel (docs/identify.md); under IMU noise the bands widen.")
+    return f"""## What the flight itself shows: the log-grounded posterior
+
+The same flight read as a log — its IMU given its motor commands, through the simulator's rotor lag
+and rigid-body model under a broad physical prior, the decoded models its proposal ({how};
+`mjxsysid decode --log` does this for any log). Per log-identifiable quantity, the decoders' band
+(what the policy's latent knows, flight-level) against the log's (what the flight shows): the truth
+inside {n_log} of {len(gap)} log-grounded bands and {n_dec} of {len(gap)} decoded ones; where the log
+sees a quantity, the decoded band is a median {float(np.median(seen)) if seen else float('nan'):.1f}× as wide
+(`information_gap.png`). Quantities the log does not see stay as broad as the prior.{miss}
+
+""" + "\n".join(gap_markdown(gap)) + "\n"
+
+
 def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int = 0,
-             policy="mjxsysid") -> dict:
+             policy="mjxsysid", decoder_only: bool = False) -> dict:
     """The quick start. ``policy``: the latent policy flown and decoded (a name, path or
     :class:`~mjxsysid.policy.interface.PolicyRef`; default the shipped one); its shipped
-    decoders decode it and the comparison vehicles come from its own prior."""
+    decoders decode it and the comparison vehicles come from its own prior. ``decoder_only``:
+    skip the log-grounded posterior of the paper vehicle's flight (as ``decode --decoder-only``)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -88,7 +127,9 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     t0 = time.time()
     if n_vehicles < 1:
         raise ValueError(f"--vehicles must be >= 1, got {n_vehicles}")
-    st = stages(["flying", "plotting", "decoding", "video"], desc="demo")
+    st = stages(["flying", "plotting", "decoding"] + ([] if decoder_only else ["log-grounded posterior"]) + ["video"],
+                desc="demo")
+    n_st = 4 if decoder_only else 5
 
     def stage(label, msg):
         st.start(label)
@@ -96,7 +137,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
 
     theta = np.concatenate([P.PAPER_HARDWARE[None],
                             np.asarray(P.get_prior(ref.prior).sample(jax.random.PRNGKey(seed), n_vehicles))])
-    stage("flying", f"[1/4] flying the paper vehicle and {n_vehicles} prior vehicles on the 10 s lemniscate "
+    stage("flying", f"[1/{n_st}] flying the paper vehicle and {n_vehicles} prior vehicles on the 10 s lemniscate "
           f"(policy {ref.label}, oracle and nominal K_θ; each first run compiles, ~20 s on CPU)")
     res = {}
     for ctrl in ("policy", "oracle", "nominal"):
@@ -109,7 +150,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     plot_trajectory(one.frame, out / "tracking.png", reference=one.ref_pos,
                     title=f"paper vehicle, policy {ref.label}, 10 s lemniscate")
 
-    stage("plotting", "[2/4] plotting the policy / oracle / nominal comparison")
+    stage("plotting", f"[2/{n_st}] plotting the policy / oracle / nominal comparison")
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.8))
     twr = np.asarray(P.thrust_to_weight(theta))
     labels = {"policy": "adaptive policy (ẑ)", "oracle": "oracle (lag-aware K_θ)", "nominal": "nominal K_θ"}
@@ -134,33 +175,41 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     fig.savefig(out / "oracle_vs_nominal.png", dpi=120)
     plt.close(fig)
 
-    stage("decoding", f"[3/4] decoding the policy's latent of the paper vehicle at {MAX_DECODES} times of its "
+    stage("decoding", f"[3/{n_st}] decoding the policy's latent of the paper vehicle at {DEMO_DECODES} times of its "
           "flight with the shipped CFM"
           + (f" and, every {FLIGHT_EVERY_S:g} s, with the flight-level sequence decoder" if seq is not None else
              f" (flight-level posterior unavailable: no cfm_seq.npz in {ref.decoders_dir})"))
-    # the 10 Hz decode times of the 10 s flight thinned to `decode`'s MAX_DECODES (of 101, evenly
-    # spaced, the last included: 2 x 101 x 200 ODE solves were 60 % of the demo's time on a CPU); the
-    # flight-level posterior still reads every 10 Hz latent
+    # the 10 Hz decode times of the 10 s flight thinned to DEMO_DECODES (of 99, evenly spaced, the
+    # last included); the flight-level posterior still reads every 10 Hz latent
     dec = decode_latents(one.latent, one.time, rate=10.0, samples=200, seed=seed, decoder=cfm,
                          regression=reg, window="flight" if seq is not None else "instant", seq_decoder=seq,
-                         window_every=FLIGHT_EVERY_S)
+                         window_every=FLIGHT_EVERY_S, max_decodes=DEMO_DECODES)
     post = summarize_posterior(dec["samples"][-1], theta[0])
     flight_info = flight_level_info(dec, seq, ref)
     post_flight = summarize_posterior(dec["samples_window"][-1], theta[0]) if seq is not None else None
     plot_marginals(dec["samples"][-1], theta[0], out / "marginals.png", point=dec["regression"][-1],
                    title="paper vehicle: decoded p(θ | ẑ) at t = 10 s (black: true, orange: regression)")
     plot_decoded_over_time(dec, theta[0], out / "decoded_over_time.png", caption=decoded_caption(flight_info, len(dec["times"])))
+    grounded = None
+    if not decoder_only:
+        stage("log-grounded posterior", f"[4/{n_st}] the log-grounded posterior: the paper vehicle's flight read as a log "
+              "(its IMU given its motor commands, the decoded models the proposal)")
+        grounded = ground_in_log(dec, {}, flight_log(one.frame), theta[0], seed=seed)
+        plot_information_gap(grounded["_log_grounded"]["gap"], out / "information_gap.png",
+                             title="paper vehicle: what the policy's latent knows vs what its flight shows")
     np.savez_compressed(out / "decoded.npz", **dec, theta_true=theta[0])
     if video:
-        stage("video", "[4/4] flying 4 decoded models and rendering them as ghosts (offscreen)")
+        stage("video", f"[{n_st}/{n_st}] flying 4 decoded models and rendering them as ghosts (offscreen)")
         gth, _ = P.project_valid(dec["samples"][-1][:4])
-        gfl, _, _ = fly_vehicles(gth, controller="policy", reference="lemniscate", period=10.0,
-                                 policy=ref)
+        # flown in a batch of the first flights' size (the comparison vehicles fill it): the policy's
+        # flight program is then the one already compiled (a 4-vehicle batch was one more compile)
+        gfl, _, _ = fly_vehicles(np.concatenate([gth, theta[len(gth):]]) if len(theta) > len(gth) else gth,
+                                 controller="policy", reference="lemniscate", period=10.0, policy=ref)
         ghosts = [(gth[i], np.asarray(gfl.frame.pos[i]), np.asarray(gfl.frame.quat[i])) for i in range(len(gth))]
         render_rollout(theta[0], one.frame, out / "demo.mp4", reference=one.ref_pos, fps=VIDEO_FPS,
                        width=480, height=360, ghosts=ghosts)
     else:
-        stage("video", "[4/4] video skipped (--no-video)")
+        stage("video", f"[{n_st}/{n_st}] video skipped (--no-video)")
 
     summary = {c: {"paper_vehicle": {k: v for k, v in metrics_to_host(
         {k: v[0] for k, v in res[c][1].items()}).items()},
@@ -204,7 +253,8 @@ flight reveal ratios better than scale: see `decoded_over_time.png` for the iden
 combinations (thrust-to-weight, angular authority, κ) over time, the instant and flight-level
 bands against the truth and the regression baseline.
 
-Files: `marginals.png`, `decoded_over_time.png`, `decoded.npz`, `tracking.png` (paper vehicle, policy), `oracle_vs_nominal.png`, `flight.npz`, `summary.json`{', `demo.mp4`' if video else ''}.
+{{grounded}}
+Files: `marginals.png`, `decoded_over_time.png`, {'`information_gap.png`, ' if grounded else ''}`decoded.npz`, `tracking.png` (paper vehicle, policy), `oracle_vs_nominal.png`, `flight.npz`, `summary.json`{', `demo.mp4`' if video else ''}.
 Wall time {time.time() - t0:.0f} s.
 """
     names = ["mass", "arm_length", "thrust_coeff", "inertia[0]", "inertia[2]", "max_rotor_speed",
@@ -217,11 +267,14 @@ Wall time {time.time() - t0:.0f} s.
     n_in_flight = (f" and {sum(post_flight[n]['inside'] for n in P.PARAM_NAMES)} of 19 (flight-level)"
                    if post_flight is not None else "")
     md = (md.replace("{rows}", rows).replace("{n_in}", str(n_in)).replace("{n_in_flight}", n_in_flight)
-          .replace("{flight_note}", flight_info["note"]))
+          .replace("{flight_note}", flight_info["note"]).replace("{grounded}", grounded_md(grounded)))
     st.close()
     summary["paper_vehicle_posterior"] = post
     summary["paper_vehicle_posterior_flight"] = post_flight
     summary["flight_level"] = flight_info
+    if grounded is not None:
+        summary["paper_vehicle_posterior_log_grounded"] = {k: v for k, v in grounded.items() if not k.startswith("_")}
+        summary["log_grounded"] = grounded["_log_grounded"]
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     (out / "summary.md").write_text(md)
     print(md)

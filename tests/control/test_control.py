@@ -243,10 +243,19 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
     fl = s["paper_vehicle_posterior_flight"]["thrust_to_weight"]
     assert np.isfinite([fl["q05"], fl["q95"]]).all() and fl["q05"] < fl["q95"] and "inside" in fl
     assert "flight-level: mean" in (out / "summary.md").read_text()
+    # the same flight read as a log: the log-grounded posterior beside the decoders' (issue 38 §2)
+    gap = s["log_grounded"]["gap"]
+    assert s["log_grounded"]["method"] in ("decoded_is", "laplace_is", "smc")
+    seen = [v for v in gap.values() if v["seen_by_log"]]
+    assert len(seen) >= 8 and np.median([v["width_ratio"] for v in seen]) > 5   # the log is far sharper
+    tw = gap["thrust_to_weight_total"]
+    assert abs(tw["log_median"] / tw["true"] - 1) < 0.05 and tw["decoder_holds_log_median"]
+    assert set(s["paper_vehicle_posterior_log_grounded"]) >= set(P.PARAM_NAMES)
+    assert "the log-grounded posterior" in (out / "summary.md").read_text()
     for f in ("tracking.png", "oracle_vs_nominal.png", "summary.md", "flight.npz", "marginals.png",
-              "decoded_over_time.png"):
+              "decoded_over_time.png", "information_gap.png"):
         assert (out / f).exists(), f
-    assert "samples_window" in np.load(out / "decoded.npz")
+    assert {"samples_window", "samples_log_grounded"} <= set(np.load(out / "decoded.npz"))
 
 
 def test_demo_without_sequence_decoder_says_flight_level_unavailable():
