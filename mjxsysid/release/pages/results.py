@@ -79,7 +79,7 @@ def _paper_vehicle(runs: RunFiles) -> Row:
 
 
 def _log_grounded(runs: RunFiles) -> Row:
-    rel = run_path("log_grounded", "calibration.json")
+    rel = run_path("log_grounded", "smc-adaptive", "calibration200.json")
     d = runs.load(rel)
     lv = {x["level"]: x["coverage_90"] for x in d["levels"]}
     roll_pitch = [lv[k][q] for k in ("x1", "x5_white", "x5_vibration") for q in ("authority_total[0]", "authority_total[1]")]
@@ -106,7 +106,7 @@ def _tune_slow(runs: RunFiles) -> Row:
 
 def _fidelity(runs: RunFiles) -> Row:
     rel = run_path("studies", "closed_loop_fidelity.json")
-    lg = {k: run_path("log_grounded", "fidelity", f"{k}.json") for k in ("log_grounded", "log_grounded_weighed")}
+    lg = {k: run_path("log_grounded", "smc-adaptive", "fidelity", f"{k}.json") for k in ("log_grounded", "log_grounded_weighed")}
     d = runs.load(rel)
     inside, ratio = d["mean"]["inside_decoded"], d["width_ratio_decoded_over_pm20"]["median"]
     g, w = (runs.load(r) for r in lg.values())
