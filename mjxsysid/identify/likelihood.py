@@ -82,10 +82,11 @@ linearly between their samples for the thrust, and the rate windows are not used
 its command within tens of ms, so 20 ms rate changes cannot be explained by commands 100 ms apart
 (τ_m and the authorities then stay as broad as the prior, and the posterior says so)."""
 MAX_WINDOWS = 256
-"""Rate windows used at most (evenly spaced over a longer log: 25.6 s of 100 ms windows). The
-posterior's cost grows with them (a 60 s log's 590 windows made `decode --log` 72–92 s slower on 2
-cores; 256 keep it near a 10 s log's); a longer log's extra windows would only narrow bands that
-the discrepancy and correlation terms, not the count, already set."""
+"""Rate windows used at most (evenly spaced over a longer log: 25.6 s of 100 ms windows), and
+accelerometer blocks (128 s of 0.5 s blocks). The posterior's cost grows with them (a 60 s log's 590
+windows made `decode --log` 72–92 s slower on 2 cores; a 10-minute log's 1,198 blocks, padded to
+2,048, made its SMC 4× slower than a 10 s log's); a longer log's extra windows would only narrow
+bands that the discrepancy and correlation terms, not the count, already set."""
 SKIP_S = (0.2, 1.0)
 """s: the start of the log not used — a tenth of it, within these bounds. The rotor speeds are
 reconstructed from the commands starting at the first command; a log that starts with rotors at
@@ -304,7 +305,10 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     if n_blk < 2:                       # a short log: blocks of what there is
         B = max((T - 1 - start) // 2, W)
         n_blk = (T - 1 - start) // B
-    bsteps = start + B * np.arange(n_blk)[:, None] + np.arange(B)[None]
+    b0 = start + B * np.arange(n_blk)
+    if n_blk > max_windows:             # as the windows: evenly spaced over a longer log
+        b0 = b0[np.linspace(0, n_blk - 1, max_windows).astype(int)]
+    bsteps = b0[:, None] + np.arange(B)[None]
     fg, fa = _lag_features(u, TAU_GRID, steps, tri, bsteps)   # (G, n, 4), (G, nb, 4)
     g = imu[:, :3]
     half = np.arange(W)

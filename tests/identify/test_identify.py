@@ -101,6 +101,20 @@ def test_linear_start_near_the_truth():
     np.testing.assert_allclose(x0[5:7], v[5:7], atol=0.1)
 
 
+def test_a_long_log_reads_at_most_max_windows_windows_and_blocks_spread_over_it():
+    """A 10-minute log's 1,198 accelerometer blocks would be padded to 2,048 and every SMC move
+    would read them all (its SMC was 4× a 10 s log's): both terms keep MAX_WINDOWS, evenly spaced."""
+    T = 80_000                                        # 160 s: 319 blocks of 0.5 s, 796 windows
+    rng = np.random.default_rng(0)
+    imu = np.zeros((T, 6))
+    imu[:, 5] = 9.81 + np.linspace(0.0, 1.0, T) + 0.01 * rng.normal(size=T)   # acc_z drifts over the log
+    imu[:, :3] = 0.01 * rng.normal(size=(T, 3))
+    data = L.prepare({"imu": imu, "motor": np.full((T, 4), 0.5)})
+    assert int(np.asarray(data.wmask).sum()) == L.MAX_WINDOWS == int(np.asarray(data.bmask).sum())
+    acc = np.asarray(data.acc)[np.asarray(data.bmask) > 0]
+    assert acc[0] < 9.85 and acc[-1] > 10.75          # the blocks span the log, not its first 128 s
+
+
 def test_prepare_rejects_a_short_log():
     rec = {"imu": np.zeros((40, 6)), "motor": np.zeros((40, 4))}
     with pytest.raises(ValueError, match="windows"):
