@@ -38,7 +38,7 @@ from _bench import level_flights, merge_paths, shard
 from mjxsysid import theta as P
 from mjxsysid.identify.coords import LOG_NAMES, log_quantities
 from mjxsysid.identify.inference import log_grounded_posterior
-from mjxsysid.identify.likelihood import RATES
+from mjxsysid.identify.logdata import RATES
 from mjxsysid.rollout.flight import flight_log
 from mjxsysid.studies.noise import LEVELS
 

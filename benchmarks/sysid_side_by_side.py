@@ -44,7 +44,7 @@ from mjxsysid.identify.coords import (
     visible_from_theta,
 )
 from mjxsysid.identify.inference import log_grounded_posterior
-from mjxsysid.identify.likelihood import RATES
+from mjxsysid.identify.logdata import RATES
 from mjxsysid.rollout.flight import flight_log
 from mjxsysid.studies.noise import LEVELS
 

@@ -15,7 +15,7 @@ log, so θ = θ(v, h) with h drawn from the prior.
    then the correlation discounts w, and a Gauss–Newton precision of the tempered Student-t
    residuals there (the Laplace proposal, a Student-t).
 1. **Importance sampling from the decoders.** The decoded samples θ (S, 19) mapped to v are
-   fitted by a Gaussian (widened by :data:`PROPOSAL_WIDEN`), the nuisances' proposal centred on
+   fitted by a Gaussian (widened by :data:`~.proposals.PROPOSAL_WIDEN`), the nuisances' proposal centred on
    the log's own noise estimate; N draws are weighted by target / proposal. Reported: the
    effective sample size and Pareto k̂ of the weights' upper tail (Vehtari et al., PSIS; the
    generalised-Pareto fit is scipy's). The decoded density is the proposal only, never a factor
@@ -28,9 +28,7 @@ log, so θ = θ(v, h) with h drawn from the prior.
 """
 from __future__ import annotations
 
-import dataclasses
 import functools
-import math
 
 import jax
 import jax.numpy as jnp
@@ -47,21 +45,17 @@ from mjxsysid.identify.coords import (
 from mjxsysid.identify.likelihood import (
     N_NUIS,
     NU,
-    RATES,
-    LogData,
     best_log_delta,
     linear_start,
     log_likelihood,
-    noise_estimate,
-    prepare,
     rate_rows,
     residual_weights,
     residuals,
     residuals_jit,
 )
+from mjxsysid.identify.logdata import RATES, LogData, prepare
+from mjxsysid.identify.proposals import StudentT, decoded_proposal, ess, nuisance_proposal, pareto_khat
 
-PROPOSAL_WIDEN = 1.5
-"""The decoded ensemble's Gaussian fit in v is widened by this factor (a defensive proposal)."""
 MIN_ESS_FRACTION = 0.05
 MAX_KHAT = 0.7
 """Importance sampling is trusted when ESS ≥ 5 % of the draws and k̂ ≤ 0.7 (PSIS's threshold)."""
@@ -91,105 +85,6 @@ def full_precision(f):
         with jax.default_matmul_precision("highest"):
             return f(*args, **kwargs)
     return run
-
-
-def _solve_lower(chol, d):
-    """z with chol z = d for a batch d (..., k) (SciPy on the host, jax.scipy under jit)."""
-    if xp_of(d, chol) is jnp:
-        c = jnp.asarray(chol, jnp.float32)
-        return jax.scipy.linalg.solve_triangular(c, jnp.reshape(d, (-1, c.shape[0])).T, lower=True).T.reshape(d.shape)
-    from scipy.linalg import solve_triangular
-    d = np.asarray(d, np.float64)
-    return solve_triangular(np.asarray(chol, np.float64), d.reshape(-1, d.shape[-1]).T, lower=True).T.reshape(d.shape)
-
-
-@functools.partial(jax.tree_util.register_dataclass, data_fields=["mean", "chol"], meta_fields=[])
-@dataclasses.dataclass(frozen=True)
-class Gaussian:
-    """A multivariate normal (mean (d,), chol (d, d) lower). Draws on the host (NumPy: compile
-    nothing); ``log_prob`` on the host or inside jit (:func:`~.coords.xp_of`)."""
-    mean: np.ndarray
-    chol: np.ndarray
-
-    def sample(self, rng, n):
-        z = np.random.default_rng(rng).standard_normal((n, len(self.mean)))
-        return (np.asarray(self.mean) + z @ np.asarray(self.chol).T).astype(np.float32)
-
-    def log_prob(self, x):
-        xp = xp_of(x, self.mean)
-        z = _solve_lower(self.chol, x - self.mean)
-        logdet = xp.sum(xp.log(xp.diag(self.chol)))
-        return -0.5 * xp.sum(z * z, -1) - logdet - 0.5 * len(self.mean) * np.log(2 * np.pi)
-
-
-@functools.partial(jax.tree_util.register_dataclass, data_fields=["mean", "chol"], meta_fields=["df"])
-@dataclasses.dataclass(frozen=True)
-class StudentT:
-    """A multivariate Student-t (location (d,), chol (d, d) of the scale, ``df``)."""
-    mean: np.ndarray
-    chol: np.ndarray
-    df: float = 5.0
-
-    def sample(self, rng, n):
-        rng = np.random.default_rng(rng)
-        z = rng.standard_normal((n, len(self.mean)))
-        g = rng.gamma(self.df / 2, size=(n, 1)) / (self.df / 2)
-        return (np.asarray(self.mean) + (z / np.sqrt(g)) @ np.asarray(self.chol).T).astype(np.float32)
-
-    def log_prob(self, x):
-        xp = xp_of(x, self.mean)
-        d = len(self.mean)
-        z = _solve_lower(self.chol, x - self.mean)
-        logdet = xp.sum(xp.log(xp.diag(self.chol)))
-        c = math.lgamma((self.df + d) / 2) - math.lgamma(self.df / 2) - d / 2 * math.log(self.df * math.pi)
-        return c - logdet - (self.df + d) / 2 * xp.log1p(xp.sum(z * z, -1) / self.df)
-
-
-def decoded_proposal(decoded_theta, prior: PhysicalPrior = PHYSICAL_PRIOR, widen: float = PROPOSAL_WIDEN):
-    """A Gaussian in v fitted to the decoded samples θ (S, 19) inside the prior (None if fewer than
-    N_V + 2 of them are)."""
-    th = np.asarray(decoded_theta, np.float64)
-    th = th[np.all(np.isfinite(th), -1)]
-    v = np.asarray(visible_from_theta(th), np.float64)
-    v = v[np.all(np.isfinite(v), -1) & np.asarray(prior.v_valid(v))]
-    if len(v) < N_V + 2:
-        return None
-    cov = np.cov(v.T) + np.diag(1e-4 + 1e-2 * np.var(v, 0))   # shrunk: S may be small
-    return Gaussian(v.mean(0), np.linalg.cholesky(cov) * widen)
-
-
-def nuisance_proposal(data: LogData) -> Gaussian:
-    """log σ (4) near the second differences' estimate, the bias (1) near 0."""
-    sig = np.maximum(noise_estimate(data), 1e-6)
-    mean = np.concatenate([np.log(sig), [0.0]]).astype(np.float32)
-    return Gaussian(mean, np.diag(np.array([0.2] * 4 + [ACC_BIAS_SD], np.float32)))
-
-
-def pareto_khat(log_w) -> float:
-    """Pareto k̂ of importance weights (log_w (N,)): the shape of a generalised Pareto fitted (scipy,
-    location fixed at the threshold) to the largest min(N/5, 3√N) weights (PSIS, Vehtari et al. 2024)."""
-    from scipy.stats import genpareto
-    lw = np.asarray(log_w, np.float64)
-    lw = lw[np.isfinite(lw)]
-    if len(lw) < 20:
-        return float("inf")
-    m = int(min(len(lw) / 5, 3 * np.sqrt(len(lw))))
-    w = np.exp(lw - lw.max())
-    tail = np.sort(w)[-m - 1:]
-    exc = tail[1:] - tail[0]
-    if np.all(exc <= 0):
-        return 0.0
-    c, _, _ = genpareto.fit(exc, floc=0.0)
-    return float(c)
-
-
-def ess(log_w) -> float:
-    lw = np.asarray(log_w, np.float64)
-    lw = np.where(np.isfinite(lw), lw, -np.inf)
-    if not np.isfinite(lw).any():
-        return 0.0
-    w = np.exp(lw - lw.max())
-    return float(w.sum() ** 2 / (w * w).sum())
 
 
 N_Y = N_V + 5
@@ -483,7 +378,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
     samples of this log, or None — as the proposal (module doc). ``draws`` / ``particles`` default to
     :data:`DRAWS` / :data:`PARTICLES`; ``rates``: the likelihood's rate term, "windows" or "innovations"
-    (default :data:`~.likelihood.RATES`; a :class:`LogData` carries its own).
+    (default :data:`~.logdata.RATES`; a :class:`LogData` carries its own).
 
     -> dict: ``theta`` (samples, 19) (hidden coordinates drawn from the prior), ``v`` (samples, 12),
     ``nuisance`` (samples, 9: log σ (4), log δ (4, fixed), bias), ``method`` ('decoded_is',
@@ -498,7 +393,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     r_is, r_n, r_mix, r_h, r_res, r_st, r_lp = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7))
     k_smc = np.array([0, seed & 0xFFFFFFFF], np.uint32)
     qv = None if decoded_theta is None else decoded_proposal(decoded_theta, prior)
-    qn = nuisance_proposal(data)
+    qn = nuisance_proposal(data, ACC_BIAS_SD)
     # 0. the mode from ``starts`` starting points (always as many: one compiled fit): a linear
     # start, the decoded samples, prior draws
     x_lin = linear_start(data)

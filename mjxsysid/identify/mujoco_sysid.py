@@ -15,7 +15,7 @@ A long open-loop rollout of a closed-loop flight diverges, so the log is cut int
 position as an estimator would give them (here the flight's own), the body rates as the gyro's
 mean over five samples, the rotor filters as the candidate's τ_m makes them of the commands before
 the chunk (``custom_rollout``). The residuals are gyro x/y/z and accelerometer z, each divided by
-the channel's white-noise level from the log's second differences (:func:`.likelihood.noise_statistics`)
+the channel's white-noise level from the log's second differences (:func:`.logdata.noise_statistics`)
 with a floor; the first steps of each chunk are dropped, and the gyro residuals' mean per chunk and axis
 (an error in the start's rates, to first order) is profiled out (``modify_residual``) in a second
 Gauss–Newton run from the first's optimum (the first, without it, converges from further away).
@@ -195,7 +195,7 @@ def identify(imu, motor, qpos, qvel, *, dt: float = 0.002, start_theta=None, pri
     from mujoco import minimize
     sysid = _require_sysid()
 
-    from mjxsysid.identify.likelihood import noise_statistics
+    from mjxsysid.identify.logdata import noise_statistics
     imu, motor = np.asarray(imu, np.float64), np.asarray(motor, np.float64)
     qpos, qvel = np.asarray(qpos, np.float64), np.asarray(qvel, np.float64)
     n = len(imu)

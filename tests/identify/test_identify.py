@@ -10,6 +10,7 @@ import pytest
 from mjxsysid import theta as P
 from mjxsysid.identify import coords as C
 from mjxsysid.identify import likelihood as L
+from mjxsysid.identify import logdata as LD
 from mjxsysid.identify.inference import log_grounded_posterior, log_target
 from support.paths import DATA
 
@@ -79,7 +80,7 @@ def test_likelihood_peaks_at_the_truth_and_estimates_the_noise():
     theta = P.paper_hardware().copy()
     theta[P.ETA] = [1.1, 0.9, 1.0, 1.0]
     rec = synthetic_log(theta, seconds=4.0, gyro_noise=0.02, acc_noise=0.3)
-    data = L.prepare(rec)
+    data = LD.prepare(rec)
     sig = L.noise_estimate(data)
     np.testing.assert_allclose(sig, [0.02, 0.02, 0.02, 0.3], rtol=0.15)
     v = np.asarray(C.visible_from_theta(theta))
@@ -94,7 +95,7 @@ def test_likelihood_peaks_at_the_truth_and_estimates_the_noise():
 
 def test_linear_start_near_the_truth():
     theta = P.paper_hardware()
-    data = L.prepare(synthetic_log(theta, seconds=4.0, gyro_noise=0.01, acc_noise=0.1))
+    data = LD.prepare(synthetic_log(theta, seconds=4.0, gyro_noise=0.01, acc_noise=0.1))
     x0 = L.linear_start(data)
     v = np.asarray(C.visible_from_theta(theta))
     assert abs(x0[0] - v[0]) < 0.05 and abs(x0[4] - v[4]) < 0.3
@@ -109,8 +110,8 @@ def test_a_long_log_reads_at_most_max_windows_windows_and_blocks_spread_over_it(
     imu = np.zeros((T, 6))
     imu[:, 5] = 9.81 + np.linspace(0.0, 1.0, T) + 0.01 * rng.normal(size=T)   # acc_z drifts over the log
     imu[:, :3] = 0.01 * rng.normal(size=(T, 3))
-    data = L.prepare({"imu": imu, "motor": np.full((T, 4), 0.5)})
-    assert int(np.asarray(data.wmask).sum()) == L.MAX_WINDOWS == int(np.asarray(data.bmask).sum())
+    data = LD.prepare({"imu": imu, "motor": np.full((T, 4), 0.5)})
+    assert int(np.asarray(data.wmask).sum()) == LD.MAX_WINDOWS == int(np.asarray(data.bmask).sum())
     acc = np.asarray(data.acc)[np.asarray(data.bmask) > 0]
     assert acc[0] < 9.85 and acc[-1] > 10.75          # the blocks span the log, not its first 128 s
 
@@ -118,7 +119,7 @@ def test_a_long_log_reads_at_most_max_windows_windows_and_blocks_spread_over_it(
 def test_prepare_rejects_a_short_log():
     rec = {"imu": np.zeros((40, 6)), "motor": np.zeros((40, 4))}
     with pytest.raises(ValueError, match="windows"):
-        L.prepare(rec)
+        LD.prepare(rec)
 
 
 def test_posterior_covers_the_truth_hidden_directions_broad_and_the_proposal_only_proposes():
@@ -209,9 +210,9 @@ def test_innovations_unbiased_in_closed_loop_where_windows_are_not():
     theta = P.paper_hardware().copy()
     rec = synthetic_log(theta, seconds=10.0, gyro_noise=0.2, seed=1, closed_loop=True)
     v = np.asarray(C.visible_from_theta(theta))
-    windows = L.linear_start(L.prepare(rec, rates="windows"))
+    windows = L.linear_start(LD.prepare(rec, rates="windows"))
     assert np.exp(windows[4] - v[4]) > 1.2, np.exp(windows[4] - v[4])
-    data = L.prepare(rec, rates="innovations")
+    data = LD.prepare(rec, rates="innovations")
     x0 = L.linear_start(data)
     assert abs(np.exp(x0[4] - v[4]) - 1) < 0.1, np.exp(x0[4] - v[4])      # the τ grid's spacing: 9 %
     np.testing.assert_allclose(x0[5:7], v[5:7], atol=0.05)

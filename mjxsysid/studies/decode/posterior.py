@@ -110,10 +110,11 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     the decoder-only entries move under ``_decoder_only``, and ``_log_grounded`` holds the method,
     its diagnostics (ESS, Pareto k̂, SMC stages), the IMU noise, discrepancy and bias it estimated,
     and the information gap. ``rates``: the likelihood's rate term (default
-    :data:`~mjxsysid.identify.likelihood.RATES`). Returns ``summary``."""
+    :data:`~mjxsysid.identify.logdata.RATES`). Returns ``summary``."""
     from mjxsysid.identify.gap import information_gap, log_summary
     from mjxsysid.identify.inference import log_grounded_posterior
-    from mjxsysid.identify.likelihood import CHANNELS, LogTooShort
+    from mjxsysid.identify.likelihood import CHANNELS
+    from mjxsysid.identify.logdata import LogTooShort
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     try:
         post = log_grounded_posterior(rec, final, seed=seed, rates=rates)

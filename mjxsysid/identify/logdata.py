@@ -1,0 +1,302 @@
+"""A flight log reduced to what the log-grounded likelihood reads (:mod:`.likelihood`, whose doc
+describes the model): the equation error's windows and accelerometer blocks cut from the log, the
+rotor lag's features computed once per log on a grid of τ_m (:data:`TAU_GRID`), the IMU noise's
+evidence (second differences) and, for the innovations' rate term, the gain-filtered regressors'
+Gram factors — all in NumPy (float64) on the host, handed to the compiled likelihood as one
+:class:`LogData` pytree whose window and block counts are padded to a power of two (:func:`bucket`:
+one compiled program serves every log of a bucket).
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from scipy.signal import lfilter
+
+DT = 0.002
+"""s: the log's row spacing (500 Hz)."""
+WINDOW_STEPS = 25
+"""Control steps per half window (50 ms; a window is 100 ms). The equation error does not drift
+with the window's length (the commands drive it all along; only the small gyroscopic term uses
+measured rates), so the length trades the feedback bias (a controller reacts to the gyro noise:
+its share falls with the samples averaged) against the rotor lag's visibility (shorter windows
+see τ_m better). Measured at 5× white noise, 4 MJX flights, the log-target gap between the fitted
+mode and the truth: 17–21 nats at 10 steps, 2–9 at 25, 2–11 at 50."""
+ACC_BLOCK_STEPS = 250
+"""Control steps (0.5 s) over which the accelerometer residual is averaged: the specific force's
+largest unmodelled term, drag (−D_z v_z / m, the velocity not in an IMU log), varies over the
+manoeuvre's seconds, not the 20 ms windows; residuals of 20 ms would be strongly correlated and
+the thrust-to-weight overconfident."""
+REL_DISCREPANCY = 0.003
+"""The rate windows' model floor, relative to each window's measured rate change: thrust and
+torque coefficients that vary a little with the rotor's inflow, a motor's nonlinearity, float32
+sums — errors that grow with the signal. Without it a clean simulated log's authorities came out
+0.07 % wide and missed a truth 0.1 % away (40 MJX flights: 90 % coverage 0.40–0.68)."""
+MIN_MOTOR_RATE_HZ = 100.0
+"""Hz: motor commands logged more sparsely than this (PX4's default 10 Hz) are interpolated
+linearly between their samples for the thrust, and the rate windows are not used: a rotor follows
+its command within tens of ms, so 20 ms rate changes cannot be explained by commands 100 ms apart
+(τ_m and the authorities then stay as broad as the prior, and the posterior says so)."""
+MAX_WINDOWS = 256
+"""Rate windows used at most (evenly spaced over a longer log: 25.6 s of 100 ms windows), and
+accelerometer blocks (128 s of 0.5 s blocks). The posterior's cost grows with them (a 60 s log's 590
+windows made `decode --log` 72–92 s slower on 2 cores; a 10-minute log's 1,198 blocks, padded to
+2,048, made its SMC 4× slower than a 10 s log's); a longer log's extra windows would only narrow
+bands that the discrepancy and correlation terms, not the count, already set."""
+SKIP_S = (0.2, 1.0)
+"""s: the start of the log not used — a tenth of it, within these bounds. The rotor speeds are
+reconstructed from the commands starting at the first command; a log that starts with rotors at
+another speed (a take-off, a simulator's hover start) is wrong there for about 5 τ_m, and those
+windows would dominate the residuals (seen: a 10 s MJX flight's rate residuals were 10× larger
+with 0.2 s skipped than with 1 s)."""
+TAU_GRID = np.exp(np.linspace(np.log(0.0015), np.log(0.35), 64))
+"""s: the motor time constants the window features are computed at (log-spaced)."""
+RATES = "windows"
+"""The rate term by default: "windows" (the windowed equation error) or "innovations" (a steady-state
+Kalman filter's one-step prediction errors of the gyro, module doc). Measured on 96 MJX flights of the
+oracle (docs/identify.md, "The rate term"): the innovations remove the windows' closed-loop bias under
+white IMU noise (τ_m's median error at × 20: 57 % -> 4 %) but read a rotor vibration as rate signal
+(at × 5 vibration τ_m 95 % off, the authorities 140 %); until their noise model holds a vibration,
+the windows stay the default."""
+KF_LOGIT_GRID = np.linspace(np.log(1e-4 / (1 - 1e-4)), np.log(0.995 / 0.005), 20)
+"""logit of the Kalman gains the innovations' statistics are computed at (K from 1e-4, an almost
+open-loop prediction, to 0.995, nearly the next sample's difference); a candidate's K is
+interpolated between them."""
+MAX_RATE_S = 30.0
+"""s: the contiguous stretch of the log (after :data:`SKIP_S`) whose gyro innovations enter: the
+filter needs consecutive samples; a longer log's rates only narrow bands that the process noise
+already sets, and its accelerometer blocks still cover all of it."""
+
+
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class LogData:
+    """A log reduced to what the likelihood reads (arrays; W windows, G grid points).
+
+    log_tau (G,); fg (G, W, 4) ∫ s_i² dt over each window per rotor; fa (G, Wa, 4) mean
+    end-of-step s_i² over each accelerometer block (:data:`ACC_BLOCK_STEPS`); dgyro (W, 3) measured rate change; gyq (W, 3) ∫ of the
+    gyroscopic products (ω_y ω_z, ω_z ω_x, ω_x ω_y) over each window; acc (Wa,) mean measured
+    acc_z per block; span () s per window; kvar (4,) the noise-variance factor per channel; n2 (4,),
+    s2 (4,) count and sum of squares of the channels' second differences (trimmed); use (4,) 1 for
+    a channel the likelihood reads, 0 for one it cannot (the rates when the motors were logged
+    below :data:`MIN_MOTOR_RATE_HZ`); wmask (W,), bmask (Wa,) 1 for a window / block of the log, 0
+    for the padding that rounds their counts up to :func:`bucket` (one compiled program serves
+    every log of a bucket); gfloor (W, 3) each window's relative model floor
+    (:data:`REL_DISCREPANCY` × its measured rate change). The innovations' sufficient statistics
+    (:func:`_innovation_factors`): kf_r (G, H, 3, 7, 7) per τ_m, per Kalman gain of
+    :data:`KF_LOGIT_GRID` (kf_logit (H,)) and per axis, the upper Cholesky factor of the gain-filtered
+    regressors' Gram matrix with the start offset profiled out; kf_n () the innovations counted.
+    ``rates`` (static): which rate term :func:`log_likelihood` reads, "innovations" or "windows"."""
+    log_tau: jax.Array
+    fg: jax.Array
+    fa: jax.Array
+    dgyro: jax.Array
+    gyq: jax.Array
+    acc: jax.Array
+    span: jax.Array
+    kvar: jax.Array
+    n2: jax.Array
+    s2: jax.Array
+    use: jax.Array
+    wmask: jax.Array
+    bmask: jax.Array
+    gfloor: jax.Array
+    kf_r: jax.Array
+    kf_logit: jax.Array
+    kf_n: jax.Array
+    rates: str = dataclasses.field(default=RATES, metadata={"static": True})
+
+
+def _lagged(u, tau, rows=None):
+    """Motor commands u (T, 4) through the lag of time constant ``tau``, s_0 = u_0 -> the exact mean
+    of s² over each step (the rows ``rows``, default all) and s at each step's end (T, 4)."""
+    a = np.exp(-DT / tau)
+    # s_{k+1} = a s_k + (1 − a) u_k, s_0 = u_0
+    s_end = lfilter([1 - a], [1, -a], u, axis=0, zi=(a * u[0])[None])[0]
+    rows = slice(None) if rows is None else rows
+    d = np.concatenate([u[:1], s_end[:-1]], 0)[rows] - u[rows]      # start of each step − command
+    us = u[rows]
+    r1 = tau / DT * (1 - a)
+    r2 = tau / (2 * DT) * (1 - a * a)
+    return us * us + 2 * us * d * r1 + d * d * r2, s_end
+
+
+def _lag_features(u, taus, steps, tri, bsteps):
+    """Motor commands u (T, 4) through the lag for every τ in ``taus`` (G,), starting at s = u[0],
+    reduced at once to what the likelihood reads -> the windows' triangle-weighted sums of the mean
+    s² over each step (G, n, 4) (``steps`` (n, S), weights ``tri`` (S,)) and the blocks' mean s² at
+    the steps' ends (G, nb, 4) (``bsteps`` (nb, B)). One τ at a time: memory stays O(T), not
+    O(G T) (a one-hour log has 1.8 M steps)."""
+    fg, fa = [], []
+    for tau in taus:
+        ms, s_end = _lagged(u, tau, steps)
+        fg.append(np.einsum("nsr,s->nr", ms, tri) * DT)
+        fa.append((s_end[bsteps] ** 2).mean(1))
+    return np.stack(fg), np.stack(fa)
+
+
+def _gains(logit=KF_LOGIT_GRID):
+    return 1.0 / (1.0 + np.exp(-np.asarray(logit, np.float64)))
+
+
+def _gain_filter(x, gain):
+    """(H x)_0 = 0, (H x)_{k+1} = (1 − K) (H x)_k + x_k along axis 0: the steady-state Kalman
+    predictor's memory of the inputs it has seen."""
+    return lfilter([0.0, 1.0], [1.0, -(1.0 - gain)], x, axis=0)
+
+
+def _gyro_rows(imu, start: int, n: int):
+    """The rows the innovations read: gyro y (n, 3) and each step's gyroscopic products × dt (n, 3)."""
+    g = imu[start:start + n, :3]
+    return g, np.stack([g[:, 1] * g[:, 2], g[:, 2] * g[:, 0], g[:, 0] * g[:, 1]], -1) * DT
+
+
+def _step_lag(u, tau: float, start: int, n: int):
+    """Each step's ∫ s_i² dt (n, 4) of the rows the innovations read, under τ_m = ``tau``."""
+    return _lagged(u, tau, slice(start, start + n))[0] * DT
+
+
+def _axis_columns(a: int):
+    """Columns of :func:`_innovation_factors`' 12 for axis a: ψ, H f_1..4, H q_a, H 1, ỹ_a."""
+    return [0, 1, 2, 3, 4, 5 + a, 8, 9 + a]
+
+
+def _innovation_factors(imu, u, start: int, n: int) -> np.ndarray:
+    """The innovations' sufficient statistics (G, H, 3, 7, 7), float64.
+
+    With x̂ the predicted rate, the steady-state filter x̂_{k+1} = x̂_k + K (y_k − x̂_k) + α_k makes
+    the innovations e_k = y_k − x̂_k linear in the model's coefficients: e = ỹ − Σ_j c_j H φ_j − x̂_0 ψ,
+    ỹ = y − K H y, ψ_k = (1 − K)^k, φ the per-step regressors (∫ s_i² dt per rotor, the gyroscopic
+    product, dt for the rate bias). Per τ_m of :data:`TAU_GRID`, gain of :data:`KF_LOGIT_GRID` and
+    axis: the Gram matrix of [ψ, H φ (6), ỹ], the start x̂_0 profiled out (its Schur complement),
+    as its upper Cholesky factor R (7, 7), so that Σ e² = ‖R β‖² for β = [c (6), −1]. Float64
+    Gram matrices, a float32 factor: the sums of squares are formed without cancellation."""
+    gains = _gains()
+    y, q = _gyro_rows(imu, start, n)
+    kcols = []
+    for K in gains:
+        psi = (1.0 - K) ** np.arange(n)
+        kcols.append(np.concatenate([psi[:, None], np.zeros((n, 4)), _gain_filter(q, K),
+                                     _gain_filter(np.full((n, 1), DT), K), y - K * _gain_filter(y, K)], 1))
+    out = np.zeros((len(TAU_GRID), len(gains), 3, 7, 7))
+    for gi, tau in enumerate(TAU_GRID):
+        f = _step_lag(u, tau, start, n)
+        for h, K in enumerate(gains):
+            X = kcols[h]
+            X[:, 1:5] = _gain_filter(f, K)
+            G = X.T @ X
+            for a in range(3):
+                c = _axis_columns(a)
+                Ga = G[np.ix_(c, c)]
+                out[gi, h, a] = Ga[1:, 1:] - np.outer(Ga[1:, 0], Ga[0, 1:]) / max(Ga[0, 0], 1e-300)
+    jitter = 1e-12 * np.einsum("...ii->...", out)[..., None, None] * np.eye(7) + 1e-300 * np.eye(7)
+    return np.swapaxes(np.linalg.cholesky(out + jitter), -1, -2)
+
+
+def noise_statistics(rec: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Second differences of gyro x/y/z and acc z per native sample (the native samples if the log
+    says it was resampled: ``rec["native"]["imu"]``), trimmed at 6 robust spreads -> count (4,),
+    sum of squares (4,) (variance 6 σ² per sample for white noise), and the native sample spacing
+    relative to 2 ms (≥ 1)."""
+    native = (rec.get("native") or {}).get("imu")
+    if native is not None:
+        t_nat, imu = np.asarray(native[0], np.float64), np.asarray(native[1], np.float64)
+        ratio = max(float(np.median(np.diff(t_nat))) / DT, 1.0) if len(t_nat) > 2 else 1.0
+    else:
+        imu, ratio = np.asarray(rec["imu"], np.float64), 1.0
+    x = imu[:, [0, 1, 2, 5]]
+    d = np.diff(x, n=2, axis=0)[::3]          # every third: independent for white noise
+    mad = 1.4826 * np.median(np.abs(d - np.median(d, 0)), 0) + 1e-12
+    keep = np.abs(d) <= 6 * mad
+    return keep.sum(0).astype(np.float64), np.where(keep, d * d, 0.0).sum(0), np.asarray(ratio)
+
+
+class LogTooShort(ValueError):
+    """A log with fewer rate windows than the likelihood needs (:func:`prepare`)."""
+
+
+def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = MAX_WINDOWS,
+            rates: str = RATES) -> LogData:
+    """A log's arrays (``imu`` (T, 6) the reading each row's motor command was given, ``motor``
+    (T, 4) normalised rotor-speed commands, optional ``native``) -> :class:`LogData`. ``rates``:
+    the rate term (:data:`RATES`)."""
+    if rates not in ("innovations", "windows"):
+        raise ValueError(f"rates must be 'innovations' or 'windows', got {rates!r}")
+    imu = np.asarray(rec["imu"], np.float64)
+    u = np.clip(np.asarray(rec["motor"], np.float64), 0.0, 1.0)
+    T = len(u)
+    motor_rate = motor_rate_hz(rec)
+    use = np.ones(4)
+    if motor_rate < MIN_MOTOR_RATE_HZ:
+        t_nat, u_nat = (np.asarray(a, np.float64) for a in rec["native"]["motor"])
+        u = np.clip(np.stack([np.interp(rec["t"], t_nat, u_nat[:, i]) for i in range(4)], -1), 0.0, 1.0)
+        use[:3] = 0.0
+    W = int(window_steps)
+    start = int(round(float(np.clip(0.1 * T * DT, *SKIP_S)) / DT))
+    n_win = (T - 1 - start) // (2 * W)
+    if n_win < 5:
+        raise LogTooShort(f"flight log: {T} rows ({T * DT:.2f} s) leave {max(n_win, 0)} windows of {2 * W} steps for the "
+                         f"log-grounded posterior; need at least 5 ({(10 * W * DT + SKIP_S[0]):.1f} s of flight); "
+                         f"decode it with --decoder-only")
+    k0 = start + 2 * W * np.arange(n_win)
+    if n_win > max_windows:
+        k0 = k0[np.linspace(0, n_win - 1, max_windows).astype(int)]
+    # the difference of the mean rates over the window's second and first halves is the steps'
+    # rate changes weighted by a triangle (1/W … 1 … 1/W): see the module doc
+    steps = k0[:, None] + np.arange(2 * W - 1)[None]       # (n, 2W − 1)
+    tri = np.concatenate([np.arange(1, W + 1), np.arange(W - 1, 0, -1)]) / W
+    B = int(ACC_BLOCK_STEPS)
+    n_blk = (T - 1 - start) // B
+    if n_blk < 2:                       # a short log: blocks of what there is
+        B = max((T - 1 - start) // 2, W)
+        n_blk = (T - 1 - start) // B
+    b0 = start + B * np.arange(n_blk)
+    if n_blk > max_windows:             # as the windows: evenly spaced over a longer log
+        b0 = b0[np.linspace(0, n_blk - 1, max_windows).astype(int)]
+    bsteps = b0[:, None] + np.arange(B)[None]
+    fg, fa = _lag_features(u, TAU_GRID, steps, tri, bsteps)   # (G, n, 4), (G, nb, 4)
+    g = imu[:, :3]
+    half = np.arange(W)
+    dgyro = g[k0[:, None] + W + half].mean(1) - g[k0[:, None] + half].mean(1)
+    prod = np.stack([g[:, 1] * g[:, 2], g[:, 2] * g[:, 0], g[:, 0] * g[:, 1]], -1)
+    gyq = np.einsum("nsa,s->na", prod[steps], tri) * DT
+    acc = imu[bsteps + 1, 5].mean(1)
+    n2, s2, ratio = noise_statistics(rec)
+    kvar = np.array([2.0 * ratio / W] * 3 + [ratio / B])
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    nw, nb = bucket(len(k0)), bucket(len(acc))
+    n_kf = int(min(T - 1 - start, round(MAX_RATE_S / DT)))
+    kf = _innovation_factors(imu, u, start, n_kf) if rates == "innovations" else np.zeros((1, 1, 3, 7, 7))
+    data = LogData(f32(np.log(TAU_GRID)), f32(_pad(fg, nw, 1)), f32(_pad(fa, nb, 1)), f32(_pad(dgyro, nw)),
+                   f32(_pad(gyq, nw)), f32(_pad(acc, nb)), f32(W * DT), f32(kvar), f32(n2), f32(s2), f32(use),
+                   f32(_pad(np.ones(len(k0)), nw)), f32(_pad(np.ones(len(acc)), nb)),
+                   f32(_pad(REL_DISCREPANCY * np.abs(dgyro), nw)), f32(kf),
+                   f32(KF_LOGIT_GRID if rates == "innovations" else KF_LOGIT_GRID[:1]), f32(n_kf), rates)
+    # the log's rows, for host-side diagnostics of the innovations (residual_weights): not a
+    # pytree field, so never passed into a compiled program
+    object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf})
+    return data
+
+
+def bucket(n: int) -> int:
+    """The padded count of ``n`` windows or blocks: the next power of two, at least 16."""
+    return max(16, 1 << int(np.ceil(np.log2(max(n, 1)))))
+
+
+def _pad(a, n: int, axis: int = 0):
+    width = [(0, 0)] * a.ndim
+    width[axis] = (0, n - a.shape[axis])
+    return np.pad(a, width)
+
+
+def motor_rate_hz(rec: dict) -> float:
+    """The rate (Hz) the motor commands were logged at: their native samples' if the log says it
+    was resampled (``rec["native"]["motor"]``), else 500."""
+    nat = (rec.get("native") or {}).get("motor")
+    if nat is None or len(nat[0]) < 3:
+        return 1.0 / DT
+    return float(1.0 / max(np.median(np.diff(np.asarray(nat[0], np.float64))), 1e-9))
