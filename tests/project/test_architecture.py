@@ -24,3 +24,17 @@ def test_architecture_diagram_is_generated_from_the_code():
     r = subprocess.run([sys.executable, str(ROOT / "tools" / "architecture.py"), "--check"],
                        capture_output=True, text=True, cwd=ROOT)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_no_module_over_500_lines():
+    """Issue 40's bound: a module past 500 lines holds more than one room (split it by what each part is)."""
+    long = {str(p.relative_to(ROOT)): n for p in (ROOT / "mjxsysid").rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 500}
+    assert long == {}
+
+
+def test_docs_runs_stays_under_10_mb():
+    """Issue 40's bound on docs/runs/ (run files the docs quote; superseded ones leave the tree, history
+    keeps them): the clone stays light."""
+    size = sum(p.stat().st_size for p in (ROOT / "docs" / "runs").rglob("*") if p.is_file())
+    assert size < 10e6, f"docs/runs/ holds {size / 1e6:.1f} MB"

@@ -25,6 +25,8 @@ def broken_links(page: Path) -> list[str]:
     for m in RUNS_PATH.finditer(text):
         if text[m.end():m.end() + 1] in ("*", "{", "<") or m.group(0).endswith(".npz"):
             continue     # a pattern (`seed*`, `{a,b}`, `<kind>`), or weights docs/runs never holds (their _meta.json stays)
+        if re.search(r"git show [0-9a-f]{7,40}:$", text[max(0, m.start() - 60):m.start()]):
+            continue     # a file of an earlier commit (superseded runs leave the tree; history keeps them)
         if not (ROOT / m.group(0)).exists():
             bad.append(m.group(0))
     return bad
