@@ -195,6 +195,10 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
         stage("log-grounded posterior", f"[4/{n_st}] the log-grounded posterior: the paper vehicle's flight read as a log "
               "(its IMU given its motor commands, the decoded models the proposal)")
         grounded = ground_in_log(dec, {}, flight_log(one.frame), theta[0], seed=seed)
+        if "skipped" in grounded["_log_grounded"]:      # a flight too short for the likelihood's windows
+            echo(f"log-grounded posterior skipped: {grounded['_log_grounded']['skipped']}")
+            grounded = None
+    if grounded is not None:
         plot_information_gap(grounded["_log_grounded"]["gap"], out / "information_gap.png",
                              title="paper vehicle: what the policy's latent knows vs what its flight shows")
     np.savez_compressed(out / "decoded.npz", **dec, theta_true=theta[0])

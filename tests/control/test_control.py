@@ -258,6 +258,24 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
     assert {"samples_window", "samples_log_grounded"} <= set(np.load(out / "decoded.npz"))
 
 
+def test_demo_grounded_section_counts_and_names_the_miss():
+    """summary.md's log-grounded section (pure: no flight): the counts, the width ratio over the
+    quantities the log sees, and a miss named with its quantity; nothing without a posterior."""
+    from mjxsysid.studies.demo import grounded_md
+    row = dict(unit="-", decoder_q05=1.0, decoder_q95=3.0, log_q05=1.9, log_q95=2.1, decoder_holds_log_median=True)
+    gap = {"thrust_to_weight_total": dict(row, log_median=2.0, true=2.01, log_inside=True, decoder_inside=True,
+                                          width_ratio=10.0, seen_by_log=True),
+           "motor_time_constant": dict(row, log_median=0.03, true=0.036, log_inside=False, decoder_inside=True,
+                                       width_ratio=30.0, seen_by_log=True),
+           "external_acc[0]": dict(row, log_median=0.0, true=0.0, log_inside=True, decoder_inside=True,
+                                   width_ratio=1.0, seen_by_log=False)}
+    md = grounded_md({"_log_grounded": {"method": "smc", "smc_stages": 12, "gap": gap}})
+    assert "inside 2 of 3 log-grounded bands and 3 of 3 decoded" in md
+    assert "a median 20.0× as wide" in md and "smc, 12 SMC stages" in md
+    assert "0.5–16.7 % from the truth (the most: motor_time_constant)" in md
+    assert grounded_md(None) == ""
+
+
 def test_demo_without_sequence_decoder_says_flight_level_unavailable():
     """A policy without cfm_seq.npz: the demo's summary and figure say the flight-level posterior
     is unavailable (the demo itself runs instant-only; test_demo_runs covers the shipped one)."""
