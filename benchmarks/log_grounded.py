@@ -215,6 +215,9 @@ def main():
     ap.add_argument("--merge", nargs="+", default=None, metavar=("OUT", "SHARD"),
                     help="join the JSON files of --shard runs into OUT and exit")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--drag", type=float, default=None, metavar="KG_PER_S",
+                    help="a diagnostic: fly every vehicle with this body drag on each axis (the likelihood has no drag "
+                         "term; e.g. 1e-6 to take it out of the flights)")
     ap.add_argument("--rates", default=RATES, choices=("innovations", "windows"),
                     help="the posterior's rate term (default: the library's)")
     a = ap.parse_args()
@@ -233,10 +236,15 @@ def main():
     # a held-out family (out of the decoders' prior): its fixed, validated and flyable evaluation vehicles
     th = (prior.vehicles(a.vehicles) if a.prior in P.HELDOUT_FAMILIES
           else np.asarray(prior.sample(jax.random.PRNGKey(a.seed), a.vehicles)))
+    if a.drag is not None:
+        if not a.drag > 0:
+            raise SystemExit(f"--drag must be > 0 kg/s, got {a.drag}")
+        th = np.array(th, np.float32)
+        th[:, P.DRAG] = a.drag
     th, index, flight_seed = shard(th, a.shard, a.seed)   # the flights' noise: another draw per shard
     res = {"command": "python benchmarks/log_grounded.py " + " ".join(f"--{k} {v}" for k, v in vars(a).items()
                                                                         if v is not None),
-           "prior": a.prior, "rates": a.rates, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard,
+           "prior": a.prior, "rates": a.rates, "drag": a.drag, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard,
            "levels": []}
     for lv in a.levels.split(","):
         r = run_level(th, lv, flight_seed, index, a.rates)
