@@ -54,7 +54,7 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.identify.coords import N_V
-from mjxsysid.identify.logdata import DT, KF_LOGIT_GRID, LogData, _gain_filter, _gains, _gyro_rows, _step_lag
+from mjxsysid.identify.logdata import DT, KF_LOGIT_GRID, LogData, gain_filter, gyro_rows, kf_gains, step_lag
 
 NU = 4.0
 """Degrees of freedom of the Student-t residuals (the windows' rate term and the accelerometer)."""
@@ -224,17 +224,17 @@ def innovation_series(x, data: LogData) -> np.ndarray:
         raise ValueError("this LogData has no log rows (made by prepare() in this process?): cannot form its innovations")
     x = np.asarray(x, np.float64)
     v = x[:N_V]
-    y, q = _gyro_rows(rows["imu"], rows["start"], rows["n"])
-    f = _step_lag(rows["motor"], float(np.exp(v[4])), rows["start"], rows["n"])
+    y, q = gyro_rows(rows["imu"], rows["start"], rows["n"])
+    f = step_lag(rows["motor"], float(np.exp(v[4])), rows["start"], rows["n"])
     logit = np.asarray(innovation_variance(x[N_V:N_V + 3], x[N_V + 4:N_V + 7])[1], np.float64)
     coef = np.asarray(_rate_coefficients(jnp.asarray(v, jnp.float32)), np.float64)
-    gains = _gains(np.clip(logit, KF_LOGIT_GRID[0], KF_LOGIT_GRID[-1]))
+    gains = kf_gains(np.clip(logit, KF_LOGIT_GRID[0], KF_LOGIT_GRID[-1]))
     n = len(y)
     out = []
     for a in range(3):
         K = gains[a]
-        X = np.concatenate([_gain_filter(f, K), _gain_filter(q[:, a:a + 1], K), _gain_filter(np.full((n, 1), DT), K)], 1)
-        e = y[:, a] - K * _gain_filter(y[:, a], K) - X @ coef[a]
+        X = np.concatenate([gain_filter(f, K), gain_filter(q[:, a:a + 1], K), gain_filter(np.full((n, 1), DT), K)], 1)
+        e = y[:, a] - K * gain_filter(y[:, a], K) - X @ coef[a]
         psi = (1.0 - K) ** np.arange(n)
         out.append(e - psi * (psi @ e) / (psi @ psi))
     return np.stack(out)
@@ -273,7 +273,7 @@ def _innovation_start(data: LogData):
     cg = c[g, h[g], ax]                                             # (3, 6)
     n = max(float(data.kf_n), 1.0)
     S = sse[g, h[g], ax] / n
-    K = _gains()[h[g]]
+    K = kf_gains()[h[g]]
     return g, cg[:, :4] / _BASIS, cg[:, 5], list(K * np.sqrt(S))
 
 

@@ -139,23 +139,24 @@ def _lag_features(u, taus, steps, tri, bsteps):
     return np.stack(fg), np.stack(fa)
 
 
-def _gains(logit=KF_LOGIT_GRID):
+def kf_gains(logit=KF_LOGIT_GRID):
+    """The Kalman gains K (H,) of logits (default :data:`KF_LOGIT_GRID`)."""
     return 1.0 / (1.0 + np.exp(-np.asarray(logit, np.float64)))
 
 
-def _gain_filter(x, gain):
+def gain_filter(x, gain):
     """(H x)_0 = 0, (H x)_{k+1} = (1 − K) (H x)_k + x_k along axis 0: the steady-state Kalman
     predictor's memory of the inputs it has seen."""
     return lfilter([0.0, 1.0], [1.0, -(1.0 - gain)], x, axis=0)
 
 
-def _gyro_rows(imu, start: int, n: int):
+def gyro_rows(imu, start: int, n: int):
     """The rows the innovations read: gyro y (n, 3) and each step's gyroscopic products × dt (n, 3)."""
     g = imu[start:start + n, :3]
     return g, np.stack([g[:, 1] * g[:, 2], g[:, 2] * g[:, 0], g[:, 0] * g[:, 1]], -1) * DT
 
 
-def _step_lag(u, tau: float, start: int, n: int):
+def step_lag(u, tau: float, start: int, n: int):
     """Each step's ∫ s_i² dt (n, 4) of the rows the innovations read, under τ_m = ``tau``."""
     return _lagged(u, tau, slice(start, start + n))[0] * DT
 
@@ -175,19 +176,19 @@ def _innovation_factors(imu, u, start: int, n: int) -> np.ndarray:
     axis: the Gram matrix of [ψ, H φ (6), ỹ], the start x̂_0 profiled out (its Schur complement),
     as its upper Cholesky factor R (7, 7), so that Σ e² = ‖R β‖² for β = [c (6), −1]. Float64
     Gram matrices, a float32 factor: the sums of squares are formed without cancellation."""
-    gains = _gains()
-    y, q = _gyro_rows(imu, start, n)
+    gains = kf_gains()
+    y, q = gyro_rows(imu, start, n)
     kcols = []
     for K in gains:
         psi = (1.0 - K) ** np.arange(n)
-        kcols.append(np.concatenate([psi[:, None], np.zeros((n, 4)), _gain_filter(q, K),
-                                     _gain_filter(np.full((n, 1), DT), K), y - K * _gain_filter(y, K)], 1))
+        kcols.append(np.concatenate([psi[:, None], np.zeros((n, 4)), gain_filter(q, K),
+                                     gain_filter(np.full((n, 1), DT), K), y - K * gain_filter(y, K)], 1))
     out = np.zeros((len(TAU_GRID), len(gains), 3, 7, 7))
     for gi, tau in enumerate(TAU_GRID):
-        f = _step_lag(u, tau, start, n)
+        f = step_lag(u, tau, start, n)
         for h, K in enumerate(gains):
             X = kcols[h]
-            X[:, 1:5] = _gain_filter(f, K)
+            X[:, 1:5] = gain_filter(f, K)
             G = X.T @ X
             for a in range(3):
                 c = _axis_columns(a)

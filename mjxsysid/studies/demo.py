@@ -127,9 +127,9 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
     t0 = time.time()
     if n_vehicles < 1:
         raise ValueError(f"--vehicles must be >= 1, got {n_vehicles}")
-    st = stages(["flying", "plotting", "decoding"] + ([] if decoder_only else ["log-grounded posterior"]) + ["video"],
-                desc="demo")
-    n_st = 4 if decoder_only else 5
+    stage_names = ["flying", "plotting", "decoding"] + ([] if decoder_only else ["log-grounded posterior"]) + ["video"]
+    st = stages(stage_names, desc="demo")
+    n_st = len(stage_names)
 
     def stage(label, msg):
         st.start(label)

@@ -105,7 +105,7 @@ def test_linear_start_near_the_truth():
 def test_a_long_log_reads_at_most_max_windows_windows_and_blocks_spread_over_it():
     """A 10-minute log's 1,198 accelerometer blocks would be padded to 2,048 and every SMC move
     would read them all (its SMC was 4× a 10 s log's): both terms keep MAX_WINDOWS, evenly spaced."""
-    T = 80_000                                        # 160 s: 319 blocks of 0.5 s, 796 windows
+    T = 80_000                                        # 160 s: 317 blocks of 0.5 s, 1,589 windows
     rng = np.random.default_rng(0)
     imu = np.zeros((T, 6))
     imu[:, 5] = 9.81 + np.linspace(0.0, 1.0, T) + 0.01 * rng.normal(size=T)   # acc_z drifts over the log
