@@ -106,12 +106,14 @@ def read_log(path) -> dict:
 
 
 def read_any_log(path, segment=None) -> dict:
-    """A flight log by its suffix: ``.ulg`` a PX4 ULog (:func:`~mjxsysid.logs.ulog.read_ulog`, cut
-    at its armed, airborne segment or ``segment`` 't0:t1'), anything else the CSV of
-    :func:`read_log` (``segment``: rows with t0 ≤ t ≤ t1, t in the log's own clock)."""
-    if Path(path).suffix.lower() == ".ulg":
-        from mjxsysid.logs.ulog import read_ulog
-        return read_ulog(path, segment)
+    """A flight log of any known format, detected by its content (:mod:`mjxsysid.logs.formats`): a PX4
+    ULog, a Crazyflie uSD log, a Betaflight blackbox, an ArduPilot DataFlash log or a ROS bag is
+    read by its reader (cut at its airborne segment, or ``segment`` 't0:t1'), anything else as the
+    CSV of :func:`read_log` (``segment``: rows with t0 ≤ t ≤ t1, t in the log's own clock)."""
+    from mjxsysid.logs.formats import detect, reader
+    fmt = detect(path)
+    if fmt != "CSV":
+        return reader(fmt)(path, segment)
     rec = read_log(path)
     if segment is None:
         return rec

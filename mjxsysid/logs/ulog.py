@@ -429,3 +429,14 @@ def _hover_thrust(ulog, params, start, t0, t1):
         return val, f"MPC_THR_HOVER = {val:.4g} (no valid hover_thrust_estimate)"
     raise ValueError("no hover thrust: neither a valid hover_thrust_estimate nor MPC_THR_HOVER in the log "
                      "(a_cmd cannot be brought to m/s²)")
+
+
+ULOG_MAGIC = b"ULog\x01\x12\x35"
+
+
+def sniff(head: bytes) -> bool:
+    """Is ``head`` (a file's first bytes) a ULog's header? (:mod:`mjxsysid.logs.formats`)"""
+    return head[:7] == ULOG_MAGIC
+
+
+read = read_ulog
