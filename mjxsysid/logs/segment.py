@@ -1,0 +1,63 @@
+"""The airborne part of a log, found from its motor commands: ground time, spin-up and landing cut.
+
+Every reader calls :func:`airborne_segment` when the user gives no ``--segment``; the cut is said
+(``why``) in ``rec["source"]["segment"]``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+GAP_S = 0.2
+"""s: dips of the motor commands shorter than this (a flip, a motor cut) do not end a segment."""
+
+TRIM_S = 0.5
+"""s: cut at each end of a segment that starts or ends on the ground (take-off and touch-down)."""
+
+MIN_SPREAD = 0.1
+"""Ω_cmd/Ω_max: a log whose mean motor command spans less than this never sat idle on the ground."""
+
+
+def _runs(mask):
+    """Start and stop indices [i0, i1) of each run of True in ``mask`` (N,)."""
+    d = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+def airborne_segment(t, motor, min_s: float = 1.0):
+    """The longest stretch of ``t`` (N,) s during which the mean motor command ``motor`` (N, 4)
+    (Ω_cmd/Ω_max in [0, 1]) is above halfway between its idle level (2nd percentile) and its flight
+    level (median of the upper half) -> (t0, t1, why). Dips shorter than :data:`GAP_S` are bridged;
+    :data:`TRIM_S` is cut at an end that touches idle. A log that never idles is kept whole. ValueError
+    when no stretch of ``min_s`` seconds is found, naming the levels and the next step."""
+    t = np.asarray(t, np.float64)
+    m = np.mean(np.asarray(motor, np.float64), axis=-1)
+    if len(t) < 2:
+        raise ValueError("the log has fewer than two motor samples: no airborne segment can be found")
+    lo = float(np.percentile(m, 2))
+    hi = float(np.median(m[m >= np.median(m)]))
+    if hi - lo < MIN_SPREAD:
+        return float(t[0]), float(t[-1]), (f"motors spun for the whole log (mean command {lo:.2f}–{hi:.2f}): "
+                                           f"kept whole, {t[-1] - t[0]:.1f} s")
+    thr = lo + 0.5 * (hi - lo)
+    up = m > thr
+    starts, stops = _runs(~up)
+    for a, b in zip(starts, stops):                       # bridge short dips inside the flight
+        if 0 < a and b < len(m) and t[b] - t[a - 1] < GAP_S:
+            up[a:b] = True
+    starts, stops = _runs(up)
+    if len(starts) == 0:
+        raise ValueError(f"no airborne segment: the mean motor command never exceeds {thr:.2f} (idle {lo:.2f}); "
+                         f"give the flight's part with --segment t0:t1")
+    spans = [(t[b - 1] - t[a], a, b) for a, b in zip(starts, stops)]
+    spans.sort(reverse=True)
+    _, a, b = spans[0]
+    t0 = t[a] + (TRIM_S if a > 0 else 0.0)
+    t1 = t[b - 1] - (TRIM_S if b < len(t) else 0.0)
+    if t1 - t0 < min_s:
+        raise ValueError(f"no airborne segment of {min_s:g} s: the longest stretch with motors above {thr:.2f} "
+                         f"(idle {lo:.2f}, flight {hi:.2f}) is {t1 - t0:.2f} s; give the flight's part with --segment t0:t1")
+    others = [f"{t[x]:.1f}–{t[y - 1]:.1f} s" for _, x, y in spans[1:] if t[y - 1] - t[x] >= min_s]
+    why = (f"airborne from the motor commands (mean above {thr:.2f}: idle {lo:.2f}, flight {hi:.2f}), the longest "
+           f"stretch, {TRIM_S:g} s cut at a take-off or touch-down end: {t0:.2f}–{t1:.2f} s"
+           + (f"; other airborne stretches not used: {', '.join(others)} (--segment picks one)" if others else ""))
+    return float(t0), float(t1), why
