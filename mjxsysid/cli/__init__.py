@@ -40,6 +40,7 @@ COMMANDS = (
     decoders.add_evaluate_decoder,
     studies.add_decode,
     studies.add_check_log,
+    studies.add_calibrate_posterior,
     studies.add_replay,
     tune.add_tune,
     probe.add_probe,

@@ -34,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid.identify.calibrate import SHIPPED, calibrate, load, log_features
 from mjxsysid.identify.coords import (
     N_V,
     PHYSICAL_PRIOR,
@@ -373,7 +374,7 @@ def _reliable(diag) -> bool:
 def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                            samples: int = 1000, draws: int | None = None, particles: int | None = None, seed: int = 0,
                            n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
-                           force_smc: bool = False, rates: str | None = None) -> dict:
+                           force_smc: bool = False, rates: str | None = None, calibration="shipped") -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
     samples of this log, or None — as the proposal (module doc). ``draws`` / ``particles`` default to
@@ -385,7 +386,13 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     'laplace_is' or 'smc'), ``decoded_is`` / ``laplace_is`` ({ess, ess_fraction, khat}),
     ``weights`` (4,) the channels' correlation discounts, ``mode`` (21,), ``channels_used`` (4,),
     and for SMC ``smc_stages``, ``smc_acceptance`` (the moves' acceptance rate, mean over the stages),
-    ``smc_acceptance_min`` (the lowest stage's), ``smc_tempering`` (1 when it reached the target)."""
+    ``smc_acceptance_min`` (the lowest stage's), ``smc_tempering`` (1 when it reached the target).
+
+    ``calibration``: "shipped" (default: the table fitted on simulated logs,
+    :mod:`.calibrate`), a table (dict) or a path to one, or None for the raw posterior. The draws
+    ``v`` / ``theta`` are the calibrated ones; ``v_raw`` the raw ones; ``features`` what the log
+    shows; ``calibration`` the report (scale factor and bin per coordinate, the model check,
+    ``seen`` (12,) and ``why`` (12,) per visible coordinate, ``table`` the file it came from)."""
     draws = DRAWS if draws is None else int(draws)
     particles = PARTICLES if particles is None else int(particles)
     data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data, rates=RATES if rates is None else rates)
@@ -445,7 +452,21 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
         out.update(method="smc", smc_stages=int(n), smc_acceptance=float(acc), smc_acceptance_min=float(acc_min),
                    smc_tempering=float(lam))
     xs = np.asarray(full_x(ys, ld))
-    v = xs[:, :N_V]
+    v_raw = xs[:, :N_V]
+    out["features"] = log_features(data, mode)
+    v, out["calibration"] = _calibrated(v_raw, out["features"], w, calibration, prior, seed)
     h = prior.sample_h(r_h, samples)
-    out.update(v=v, nuisance=xs[:, N_V:], theta=np.asarray(theta_from(v, h), np.float32))
+    out.update(v=v, v_raw=v_raw, nuisance=xs[:, N_V:], theta=np.asarray(theta_from(v, h), np.float32))
     return out
+
+
+def _calibrated(v_raw, features, weights, calibration, prior, seed):
+    """The raw draws through the calibration table (``calibration``: "shipped", a dict, a path or
+    None) -> (draws (S, 12), report)."""
+    if calibration is None:
+        return v_raw, {"applied": False, "why": "calibration=None: the raw posterior"}
+    table = load() if calibration == "shipped" else calibration if isinstance(calibration, dict) else load(calibration)
+    v, rep = calibrate(v_raw, features, weights, table, prior, rng=seed)
+    rep.update(applied=True, table=str(SHIPPED) if calibration == "shipped" else
+               (str(calibration) if not isinstance(calibration, dict) else "a table given in Python"))
+    return v, rep

@@ -53,14 +53,15 @@ LEVELS = {
     "x5_white": level(white=5),
     "x5_bias": level(bias=5),
     "x5_vibration": level(vibration=5),
+    "x10": level(10, 10),
     "x20": level(20, 20),
 }
 """name -> SimConfig IMU settings of each level."""
 LABELS = {"clean": "clean", "x0.5_white": "× 0.5 white (the policy's training)", "x1_white": "× 1 white only",
-          "x1": "× 1 (white + bias)", "x2": "× 2 (white + bias)",
+          "x1": "× 1 (white + bias)", "x2": "× 2 (white + bias)", "x10": "× 10 (white + bias)",
           "x5_white": "× 5 white only", "x5_bias": "× 5 bias only",
           "x5_vibration": "× 5 rotor vibration only", "x20": "× 20 (white + bias)"}
-DEFAULT_LEVELS = tuple(k for k in LEVELS if k not in ("x0.5_white", "x1_white"))
+DEFAULT_LEVELS = tuple(k for k in LEVELS if k not in ("x0.5_white", "x1_white", "x10"))
 """The levels of docs/runs/release/noise/noise_sensitivity.json (the two low ones have their own run)."""
 
 
