@@ -44,9 +44,10 @@ BINS = 3
 FEATURE_NAMES = ("rates_nsr", "acc_nsr")
 """log10 of the residual scale over the signal: the gyro channels (mean over x, y, z), the accelerometer z."""
 
-COORD_FEATURE = np.array([1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
-"""Which feature groups each visible coordinate (:data:`~.coords.V_NAMES`): the thrust-to-weight by the
-accelerometer, the rest by the rate channels."""
+COORD_FEATURE = np.array([0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+"""Which feature groups each visible coordinate (:data:`~.coords.V_NAMES`): every one by the rate channels'
+(the accelerometer's feature separates the noise levels less: chosen on a split of the calibration set,
+docs/identify.md)."""
 
 RATE_COORDS = np.array([False, True, True, True, True, True, True, True, True, True, True, True])
 """The coordinates the rate windows inform (not seen when the motors were logged too slowly)."""
