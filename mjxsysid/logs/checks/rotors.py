@@ -8,7 +8,7 @@ import numpy as np
 
 from mjxsysid.logs.checks.findings import Finding
 from mjxsysid.logs.checks.noise import estimate_imu_noise
-from mjxsysid.logs.checks.rates import MIN_ORDER_RATE_HZ, column_rates
+from mjxsysid.logs.checks.rates import MIN_ORDER_RATE_HZ, column_rates, reaches
 from mjxsysid.logs.checks.signals import (DT, LAGS, SMOOTH_STEPS, fit_line, fit_rows, lagged, order_name, smooth,
                                           torque_basis)
 
@@ -103,7 +103,7 @@ def estimate_thrust_lag(rec) -> dict:
 def check_motors(rec) -> list[Finding]:
     cols = "motor_1, motor_2, motor_3, motor_4"
     rate = column_rates(rec)["motor"][0]
-    if rate < MIN_ORDER_RATE_HZ:
+    if not reaches(rate, MIN_ORDER_RATE_HZ):
         return [Finding("warning", cols, f"cannot tell the rotor order at this motor rate ({rate:.3g} Hz): the rotors "
                         f"follow their commands within a few tens of ms, commands {1e3 / rate:.3g} ms apart do not "
                         f"show which rotor turned the vehicle; the order is taken as given (for a ULog: from its "
