@@ -88,12 +88,12 @@ class FlightResult:
 
     def save(self, out, index: int = 0) -> Path:
         """Write ``out/flight.npz`` (vehicle ``index``) and ``out/metrics.json`` as ``mjxsysid fly``."""
-        import json
+        from mjxsysid import jsonout
 
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         save_flight(self.flight, self.theta, out / "flight.npz", index)
-        (out / "metrics.json").write_text(json.dumps(self.metrics, indent=2) + "\n")
+        (out / "metrics.json").write_text(jsonout.dumps(self.metrics, indent=2) + "\n")
         return out
 
 
