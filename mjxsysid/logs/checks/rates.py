@@ -59,10 +59,12 @@ def _fits(v, step) -> bool:
 
 
 def value_quantum(x):
-    """The rounding step of each value of ``x`` (N, k), from the number format the values show:
-    a fixed count of decimals d (every value a multiple of 10⁻ᵈ) or of significant digits s (every
-    value round to s digits: step 10^(⌊log10|x|⌋ − s + 1)), the fewest digits that fit each channel
-    (read on :data:`SAMPLE_VALUES` values); float64's own precision if neither fits. -> (N, k) steps."""
+    """The rounding step of each value of ``x`` (N, k), from the number format the values show: the
+    fewest decimals d that every value of a channel fits (step 10⁻ᵈ) and the fewest significant
+    digits s (step 10^(⌊log10|x|⌋ − s + 1)), read on :data:`SAMPLE_VALUES` values; each value's step
+    is the larger of the two (a format fits both where it can: 9.81 and 10.05 written with 7
+    significant digits have 6 decimals and steps 1e-6 and 1e-5), at least float64's precision.
+    -> (N, k) steps."""
     x = np.asarray(x, np.float64).reshape(len(x), -1)
     rows = np.unique(np.linspace(0, len(x) - 1, min(SAMPLE_VALUES, len(x))).astype(int))
     mag = np.floor(np.log10(np.maximum(np.abs(x), 1e-300)))
@@ -73,13 +75,12 @@ def value_quantum(x):
         if v.size == 0:
             continue
         vmag = np.floor(np.log10(np.abs(v)))
-        for digits in range(1, 17):
-            if _fits(v, 10.0 ** -digits):
-                q[:, c] = np.maximum(q[:, c], 10.0 ** -digits)
-                break
-            if _fits(v, 10.0 ** (vmag - digits + 1)):
-                q[:, c] = np.maximum(q[:, c], 10.0 ** (mag[:, c] - digits + 1))
-                break
+        d = next((d for d in range(17) if _fits(v, 10.0 ** -d)), None)
+        s = next((s for s in range(1, 18) if _fits(v, 10.0 ** (vmag - s + 1))), None)
+        if d is not None:
+            q[:, c] = np.maximum(q[:, c], 10.0 ** -d)
+        if s is not None:
+            q[:, c] = np.maximum(q[:, c], 10.0 ** (mag[:, c] - s + 1))
     return q
 
 
