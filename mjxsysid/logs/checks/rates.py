@@ -136,7 +136,7 @@ def measure_column(t, x):
     (:func:`detect_resampled`), else every row ("native", the rate from the rows' own steps)."""
     x = np.asarray(x, np.float64)
     found = detect_resampled(t, x)
-    if found is None:
+    if found is None or not is_resampled(found[1]):     # (a straight stretch of a native column)
         return sample_rate(t), "native", (np.asarray(t, np.float64), x)
     how, rate, knots = found
     return rate, f"{how} from about {rate:.3g} Hz (detected: the column values)", (np.asarray(t, np.float64)[knots],
