@@ -98,6 +98,7 @@ def cmd_fly(args) -> int:
         policy=args.policy)
     save_flight(flight, theta, out / "flight.npz")
     one = one_flight(flight)
+    from mjxsysid.logs.ulog_write import write_flight_logs
     write_flight_logs(one, out)
     info = {"vehicle": str(args.vehicle or "paper_hardware"), "controller": _ctrl_label(args),
             "reference": args.reference, "duration_s": duration, "gains": args.gains,
@@ -114,20 +115,6 @@ def cmd_fly(args) -> int:
     print(f"wrote {out}/flight.npz, flight.ulg, flight.csv, tracking.png, metrics.json"
           + (", flight.mp4" if args.video else "") + f" ({time.time() - t0:.1f} s)", file=sys.stderr)
     return 0
-
-
-def write_flight_logs(one, out: Path) -> tuple[Path, Path]:
-    """A flown flight (one vehicle's ``Flight``, host arrays) written as logs: ``out/flight.ulg`` (PX4
-    ULog: PX4 Flight Review and PlotJuggler open it) and ``out/flight.csv`` (the CSV contract), each
-    row the IMU the controller acted on, its commands and motor commands, t from 0 in 2 ms steps."""
-    import numpy as np
-
-    from mjxsysid.logs.csvlog import LOG_DT, write_log
-    from mjxsysid.logs.ulog_write import write_ulog
-    from mjxsysid.rollout.flight import seen_imu
-    t = np.asarray(one.time, np.float64) - LOG_DT
-    arrays = (t, seen_imu(one.frame.imu), one.a_cmd, one.omega_cmd, one.frame.motor_cmd)
-    return write_ulog(out / "flight.ulg", *arrays), write_log(out / "flight.csv", *arrays)
 
 
 def _ctrl_label(args) -> str:

@@ -137,3 +137,17 @@ def write_ulog(path, t, imu, a_cmd, omega_cmd, motor, *, rates: dict | None = No
     body = b"".join(rows[i].tobytes() for i in order)
     Path(path).write_bytes(head + b"".join(defs) + b"".join(subs) + body)
     return Path(path)
+
+
+def write_flight_logs(one, out) -> tuple[Path, Path]:
+    """A flown flight (one vehicle's :class:`~mjxsysid.rollout.harness.Flight`, host arrays) written
+    as logs: ``out/flight.ulg`` (this PX4 ULog: Flight Review and PlotJuggler open it) and
+    ``out/flight.csv`` (the CSV contract), each row the IMU the controller acted on, its commands and
+    motor commands, t from 0 in 2 ms steps. -> the two paths."""
+    from mjxsysid.logs.csvlog import LOG_DT, write_log
+    from mjxsysid.rollout.flight import seen_imu
+    out = Path(out)
+    t = np.asarray(one.time, np.float64) - LOG_DT
+    arrays = (t, np.asarray(seen_imu(one.frame.imu)), np.asarray(one.a_cmd), np.asarray(one.omega_cmd),
+              np.asarray(one.frame.motor_cmd))
+    return write_ulog(out / "flight.ulg", *arrays), write_log(out / "flight.csv", *arrays)

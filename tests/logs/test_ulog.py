@@ -16,12 +16,11 @@ from mjxsysid.logs import checks as L
 from mjxsysid.logs import ulog as U
 from mjxsysid.logs.csvlog import read_any_log, read_log, write_log
 from mjxsysid.logs.ulog_write import write_ulog
-from support.paths import ROOT
+from support.paths import PX4_SAMPLE, SHARED_DATA
 from support.synthetic_log import synthetic_flight
 
-SHARED = ROOT.parent / "shared" / "data"
-SAMPLE = SHARED / "ulog" / "sample_px4_events.ulg"
-BENCH = SHARED / "logs" / "px4" / "real_bench_disarmed.ulg"
+SAMPLE = PX4_SAMPLE
+BENCH = SHARED_DATA / "logs" / "px4" / "real_bench_disarmed.ulg"
 needs_sample = pytest.mark.skipif(not SAMPLE.is_file(), reason=f"PX4's sample log not found at {SAMPLE}")
 PX4_DEFAULT_RATES = {"imu": 250, "motor": 10, "setpoint": 50}
 TWR = 2.04
