@@ -87,13 +87,16 @@ class FlightResult:
         return one_flight(self.flight, index)
 
     def save(self, out, index: int = 0) -> Path:
-        """Write ``out/flight.npz`` (vehicle ``index``) and ``out/metrics.json`` as ``mjxsysid fly``."""
-        import json
+        """Write ``out/flight.npz`` (vehicle ``index``), ``out/flight.ulg`` and ``out/flight.csv`` (the
+        flight as logs) and ``out/metrics.json`` as ``mjxsysid fly``."""
+        from mjxsysid import jsonout
+        from mjxsysid.logs.ulog_write import write_flight_logs
 
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         save_flight(self.flight, self.theta, out / "flight.npz", index)
-        (out / "metrics.json").write_text(json.dumps(self.metrics, indent=2) + "\n")
+        write_flight_logs(one_flight(self.flight, index), out)
+        (out / "metrics.json").write_text(jsonout.dumps(self.metrics, indent=2) + "\n")
         return out
 
 

@@ -17,6 +17,8 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from mjxsysid import jsonout
+
 _META = "__meta_json__"
 
 
@@ -28,7 +30,7 @@ def save_tree(path, tree, meta: dict | None = None) -> Path:
     arrays = {jax.tree_util.keystr(k): np.asarray(v) for k, v in leaves}
     if _META in arrays:
         raise ValueError(f"reserved key {_META} in tree")
-    arrays[_META] = np.frombuffer(json.dumps(meta or {}).encode(), np.uint8)
+    arrays[_META] = np.frombuffer(jsonout.dumps(meta or {}).encode(), np.uint8)
     tmp = path.with_name(path.name + ".tmp.npz")
     np.savez(tmp, **arrays)
     os.replace(tmp, path)

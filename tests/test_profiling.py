@@ -6,7 +6,6 @@ import jax.numpy as jnp
 import pytest
 
 from mjxsysid.profiling import compile_profile
-from support.paths import DATA
 
 
 def test_compile_profile_names_each_program_and_counts_its_builds():
@@ -35,7 +34,10 @@ def test_compile_profile_names_each_program_and_counts_its_builds():
 def test_profile_command_runs_the_command_and_writes_json(tmp_path, capsys):
     from mjxsysid.cli import main
     pytest.importorskip("pyulog")
-    log = DATA / "sample_px4_events.ulg"
+    from mjxsysid.logs.ulog_write import write_ulog
+    from support.synthetic_log import synthetic_flight
+    r = synthetic_flight(seconds=3.0)
+    log = write_ulog(tmp_path / "flight.ulg", r["t"], r["imu"], r["a_cmd"], r["omega_cmd"], r["motor"])
     rc = main(["profile", "--json", str(tmp_path / "p.json"), "--", "check-log", str(log), "--json"])
     got = json.loads((tmp_path / "p.json").read_text())
     assert got["command"][0] == "check-log" and got["exit"] == rc and got["wall_s"] > 0

@@ -17,6 +17,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm import calibration as C
 from mjxsysid.cfm.flow_coords import decoder_normalizer
@@ -364,7 +365,7 @@ def evaluate_decoders(out, pairs, *, n_cases: int = 1000, n_samples: int = 200, 
         seq = SequenceDecoder.load(out / "cfm_seq.npz")
         rep["sequence"] = evaluate_sequence(seq, pairs, cfm=cfm, n_cases=n_cases, n_samples=n_samples,
                                             seed=seed, paper_traj=paper_traj, log=log)
-    (out / "decoder_eval.json").write_text(json.dumps(rep, indent=2) + "\n")
+    (out / "decoder_eval.json").write_text(jsonout.dumps(rep, indent=2) + "\n")
     return rep
 
 

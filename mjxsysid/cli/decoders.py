@@ -5,10 +5,10 @@ they run when they run: `mjxsysid --help` stays instant (no JAX or MuJoCo import
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
+from mjxsysid import jsonout
 from mjxsysid.cli._common import PRIOR_CHOICES, add_policy, echo, policy_ref, positive
 
 
@@ -115,7 +115,7 @@ def cmd_train_cfm(args) -> int:
     seq_cfg = {"epochs": args.seq_epochs} if args.seq_epochs is not None else None
     res = train_decoders(args.pairs, args.out, cfg, kinds=kinds, seq_cfg=seq_cfg, log=echo,
                          resume=not args.no_resume)
-    print(json.dumps({k: {kk: v[kk] for kk in ("wall_s", "final_train_loss", "final_val_loss", "steps_per_s")}
+    print(jsonout.dumps({k: {kk: v[kk] for kk in ("wall_s", "final_train_loss", "final_val_loss", "steps_per_s")}
                       for k, v in res.items()}))
     return 0
 
@@ -168,7 +168,7 @@ def cmd_evaluate_decoder(args) -> int:
                              "energy_ratio_flight_vs_single": sq["energy_ratio_flight_vs_single"],
                              "targets": sq["targets"],
                              "paper_vehicle": sq.get("paper_vehicle", {}).get("targets")}
-    print(json.dumps(brief))
+    print(jsonout.dumps(brief))
     figs = ", sbc_ranks.png" + (", paper_vehicle_posterior.png" if paper_zhat is not None else "") if "energy_score" in rep else ""
     print(f"wrote {args.decoders}/decoder_eval.json{figs}", file=sys.stderr)
     return 0

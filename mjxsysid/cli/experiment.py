@@ -5,10 +5,10 @@ they run when they run: `mjxsysid --help` stays instant (no JAX or MuJoCo import
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
+from mjxsysid import jsonout
 from mjxsysid.cli._common import add_policy, policy_ref
 
 
@@ -75,6 +75,6 @@ def cmd_experiment(args) -> int:
     if args.seed is not None:
         kw["seed"] = args.seed
     res = run(args.out, quick=args.quick, policy=policy_ref(args), **kw)
-    print(json.dumps(res["numbers"].get("headline", {})))
+    print(jsonout.dumps(res["numbers"].get("headline", {})))
     print(f"wrote {args.out}/results.json, results.md and figures ({res['wall_s']:.0f} s)", file=sys.stderr)
     return 0

@@ -5,11 +5,11 @@ they run when they run: `mjxsysid --help` stays instant (no JAX or MuJoCo import
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
 
+from mjxsysid import jsonout
 from mjxsysid.cli._common import PRIOR_CHOICES, add_policy, nonneg, policy_ref, positive, prepare_render, triple
 
 
@@ -97,20 +97,22 @@ def cmd_fly(args) -> int:
         force_step_time=args.force_step_time, force_sigma=args.force_sigma, seed=args.seed,
         policy=args.policy)
     save_flight(flight, theta, out / "flight.npz")
+    one = one_flight(flight)
+    from mjxsysid.logs.ulog_write import write_flight_logs
+    write_flight_logs(one, out)
     info = {"vehicle": str(args.vehicle or "paper_hardware"), "controller": _ctrl_label(args),
             "reference": args.reference, "duration_s": duration, "gains": args.gains,
             "seed": args.seed}
     d = write_metrics(m, out / "metrics.json", extra=info)
-    one = one_flight(flight)
     plot_trajectory(one.frame, out / "tracking.png", reference=one.ref_pos,
                     title=f"{_ctrl_label(args)}, {args.reference}, {Path(info['vehicle']).stem}")
     if args.video:
         from mjxsysid.render.video import render_rollout
         render_rollout(theta, one.frame, out / "flight.mp4", reference=one.ref_pos)
-    print(json.dumps({k: d[k] for k in ("pos_rmse_m", "max_pos_err_m", "heading_rmse_deg",
+    print(jsonout.dumps({k: d[k] for k in ("pos_rmse_m", "max_pos_err_m", "heading_rmse_deg",
                                          "lateral_rmse_m", "vertical_rmse_m", "saturation_frac",
                                          "failed")}))
-    print(f"wrote {out}/flight.npz, tracking.png, metrics.json"
+    print(f"wrote {out}/flight.npz, flight.ulg, flight.csv, tracking.png, metrics.json"
           + (", flight.mp4" if args.video else "") + f" ({time.time() - t0:.1f} s)", file=sys.stderr)
     return 0
 
@@ -146,7 +148,7 @@ def _fly_prior(args) -> int:
     one = one_flight(flight)
     plot_trajectory(one.frame, out / "tracking.png", reference=one.ref_pos,
                     title=f"{_ctrl_label(args)}, {args.reference}, first of {args.vehicles} {args.prior}-prior vehicles")
-    print(json.dumps({k: d[k] for k in ("n", "success_rate", "pos_rmse_m", "heading_rmse_deg",
+    print(jsonout.dumps({k: d[k] for k in ("n", "success_rate", "pos_rmse_m", "heading_rmse_deg",
                                          "saturation_frac")}))
     print(f"wrote {out}/metrics.json (summary + per-vehicle), flight.npz and tracking.png (first vehicle)",
           file=sys.stderr)

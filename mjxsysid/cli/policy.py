@@ -5,10 +5,10 @@ they run when they run: `mjxsysid --help` stays instant (no JAX or MuJoCo import
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
+from mjxsysid import jsonout
 from mjxsysid.cli._common import add_policy, echo, policy_ref, positive
 
 
@@ -52,7 +52,7 @@ def cmd_train_policy(args) -> int:
     echo(f"training: {cfg.num_envs} envs × {cfg.unroll} steps × {cfg.iterations} iterations "
           f"= {cfg.num_envs * cfg.unroll * cfg.iterations / 1e6:.1f} M env steps -> {args.out}")
     res = train(cfg, args.out, resume=not args.no_resume, log=echo)
-    print(json.dumps({"wall_s": res["wall_s"], **{k: res["stats"][k] for k in
+    print(jsonout.dumps({"wall_s": res["wall_s"], **{k: res["stats"][k] for k in
                       ("reward", "rate_err", "thrust_err", "latent_err_rel", "latent_min_std")}}))
     print(f"wrote {args.out}/policy.npz", file=sys.stderr)
     return 0
@@ -97,14 +97,14 @@ def cmd_evaluate_policy(args) -> int:
         ctrl = PolicyController.load(args.weights)
         res = fast_eval(ctrl.params, n_probe=2 * args.vehicles, n_lem=args.vehicles, seed=args.seed,
                         phi_every=ctrl.phi_every, log=echo)
-        (args.out / "eval.json").write_text(json.dumps(res, indent=2) + "\n")
-        print(json.dumps(res["summary"]))
+        (args.out / "eval.json").write_text(jsonout.dumps(res, indent=2) + "\n")
+        print(jsonout.dumps(res["summary"]))
         print(f"wrote {args.out}/eval.json", file=sys.stderr)
         return 0
     res = evaluate_policy(args.weights, n=args.vehicles, seed=args.seed, log=echo)
-    (args.out / "eval.json").write_text(json.dumps(res, indent=2) + "\n")
+    (args.out / "eval.json").write_text(jsonout.dumps(res, indent=2) + "\n")
     lem = res["lemniscate"]
-    print(json.dumps({"success_policy": lem["policy"]["success_rate"],
+    print(jsonout.dumps({"success_policy": lem["policy"]["success_rate"],
                       "pos_rmse_policy": lem["policy"]["pos_rmse_m"]["mean"],
                       "pos_rmse_oracle": lem["oracle"]["pos_rmse_m"]["mean"],
                       "rmse_ratio": lem.get("rmse_ratio_policy_over_oracle"),
@@ -123,7 +123,7 @@ def _held_out(args) -> int:
     sets = SETS if args.sets is None else tuple(s.strip() for s in args.sets.split(",") if s.strip())
     res = run(args.out, parse_policies(args.weights), sets=sets, vehicles=vehicles, period=args.period,
               seed=args.seed)
-    print(json.dumps({k: v["all"] for k, v in res["numbers"]["targets"].items()}))
+    print(jsonout.dumps({k: v["all"] for k, v in res["numbers"]["targets"].items()}))
     print(f"wrote {args.out}/results.json and results.md ({res['wall_s']:.0f} s)", file=sys.stderr)
     return 0
 
@@ -160,7 +160,7 @@ def cmd_export(args) -> int:
     cfg = ExportConfig(flight_seconds=args.seconds, latency_calls=args.calls)
     d = run_export(ref, args.out, cfg, log=lambda m: print(m, file=sys.stderr, flush=True))
     par, lat = d["parity"], d["latency"]["batch_1"]
-    print(json.dumps({"max_abs_diff": par["max_abs_diff"], "parity_ok": par["ok"],
+    print(jsonout.dumps({"max_abs_diff": par["max_abs_diff"], "parity_ok": par["ok"],
                       "latency_us_batch1": lat["step_us"]["median_us"],
                       "latency_us_batch1_refresh": lat["refresh_step_us"]["median_us"],
                       "latency_us_batch1_mean": lat["mean_per_step_us"]}))

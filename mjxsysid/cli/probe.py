@@ -5,9 +5,9 @@ runs when it runs: `mjxsysid --help` stays instant.
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
+from mjxsysid import jsonout
 from mjxsysid.cli._common import add_policy, echo, policy_ref, positive
 
 REFERENCES = ("lemniscate", "minsnap", "force_step")  # = mjxsysid.probe.closed_loop.REFERENCES
@@ -45,7 +45,7 @@ def cmd_probe(args) -> int:
                               ("samples", args.samples), ("anchors", args.anchors), ("seed", args.seed)) if v is not None}
     cfg = dataclasses.replace(base, search=search, **over)
     res = run_probe(args.out, cfg, policy=policy_ref(args), decoders=args.decoders, echo=echo)
-    print(json.dumps({"anchor_badness_mean": res["anchor_badness_mean"], "weak_badness": res["weak_badness"][:4],
+    print(jsonout.dumps({"anchor_badness_mean": res["anchor_badness_mean"], "weak_badness": res["weak_badness"][:4],
                       "weak_systems": res["weak_systems"]}))
     echo(f"wrote {args.out}/weak.npz, results.json, results.md, weak_vs_prior.png")
     return 0

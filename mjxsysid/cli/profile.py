@@ -2,9 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
+
+from mjxsysid import jsonout
 
 
 def add_profile(sub) -> None:
@@ -34,5 +35,5 @@ def cmd_profile(args) -> int:
     print(prof.table(args.top), file=sys.stderr)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps({"command": cmd, "exit": rc, **prof.summary(args.top)}, indent=1))
+        args.json.write_text(jsonout.dumps({"command": cmd, "exit": rc, **prof.summary(args.top)}, indent=1))
     return rc

@@ -5,10 +5,10 @@ they run when they run: `mjxsysid --help` stays instant (no JAX or MuJoCo import
 """
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 
+from mjxsysid import jsonout
 from mjxsysid.cli._common import FLIGHT_NAMES, add_policy, echo, policy_ref, positive, prepare_render
 
 
@@ -55,6 +55,7 @@ def cmd_decode(args) -> int:
         prepare_render()
     from mjxsysid import theta as P
     from mjxsysid.studies.decode import run_decode
+    from mjxsysid.studies.decode.run import printed_summary
     if args.log is not None and args.vehicle is not None:
         raise ValueError("give either --vehicle or --log, not both (the known vehicle of a log: --truth)")
     if args.truth is not None and args.log is None:
@@ -79,7 +80,7 @@ def cmd_decode(args) -> int:
             import shutil
             shutil.rmtree(args.out, ignore_errors=True)
         raise
-    print(json.dumps({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES}))
+    print(jsonout.dumps(printed_summary(summary)))
     print(f"wrote {args.out}/decoded.npz, summary.json, marginals.png, decoded_over_time.png"
           + (", marginals_decoder_only.png, information_gap.png" if "_log_grounded" in summary else "")
           + (", decoded.mp4" if args.video else ""), file=sys.stderr)
@@ -114,9 +115,9 @@ def cmd_check_log(args) -> int:
     src = rec.get("source")
     if args.json:
         tau = L.motor_time_constant(est) if est else (None, None)
-        print(json.dumps({"findings": [f.as_dict() for f in found], "estimates": est,
+        print(jsonout.dumps({"findings": [f.as_dict() for f in found], "estimates": est,
                           "notes": [tau[1]] if est and tau[0] is None else [], "source": src,
-                          "resampled": rec.get("resampled")}, indent=2, default=float))
+                          "resampled": rec.get("resampled")}, indent=2))
     else:
         t = rec["t"]
         print(f"{args.log}: {len(t)} rows, {t[-1] - t[0] + 0.002:.2f} s"
@@ -167,7 +168,7 @@ def cmd_replay(args) -> int:
     res = run_replay(args.out, policy=policy_ref(args), decoders=args.decoders, vehicles=args.vehicles,
                      flights=flights, rate=args.rate, samples=args.samples, cutoff_hz=args.cutoff,
                      seed=args.seed, log=lambda m: echo(m, file=sys.stderr))
-    print(json.dumps({n: e["paper_vehicle"] for n, e in res["flights"].items()}))
+    print(jsonout.dumps({n: e["paper_vehicle"] for n, e in res["flights"].items()}))
     print(f"wrote {args.out}/replay.json, replay.md, replay_summary.png, replay_<flight>.png", file=sys.stderr)
     return 0
 

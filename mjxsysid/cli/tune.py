@@ -5,11 +5,11 @@ they run when they run: `mjxsysid --help` stays instant (no JAX or MuJoCo import
 """
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
 
+from mjxsysid import jsonout
 from mjxsysid.cli._common import add_policy, echo, policy_ref, positive, prepare_render
 
 
@@ -78,7 +78,7 @@ def cmd_tune(args) -> int:
     info = {"vehicle": str(args.vehicle or "paper_hardware"), "reference": args.reference,
             "period_s": args.period, "duration_s": duration, "policy": policy.label, "seed": args.seed,
             "tuner": dataclasses.asdict(cfg), "wall_s": round(time.time() - t0, 1)}
-    (args.out / "metrics.json").write_text(json.dumps({**d, "config": info}, indent=2) + "\n")
+    (args.out / "metrics.json").write_text(jsonout.dumps({**d, "config": info}, indent=2) + "\n")
     name = Path(info["vehicle"]).stem
     plot_gains(res, args.out / "gains.png", labels=METHOD_LABELS, tuned=CEM_METHODS, title=f"gains over time, {name}, {args.reference}")
     plot_tracking(res, args.out / "tracking.png", labels=METHOD_LABELS, title=f"tracking, {name}, {args.reference}")
@@ -86,7 +86,7 @@ def cmd_tune(args) -> int:
     if args.video:
         _tune_video(res, theta, args.out)
         wrote += ", tuned_vs_untuned.mp4"
-    print(json.dumps({k: {m: v[m] for m in ("pos_rmse_m", "max_pos_err_m", "heading_rmse_deg", "failed")}
+    print(jsonout.dumps({k: {m: v[m] for m in ("pos_rmse_m", "max_pos_err_m", "heading_rmse_deg", "failed")}
                       for k, v in d.items()}))
     print(f"wrote {args.out}/{wrote}", file=sys.stderr)
     return 0

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import distributed
 from mjxsysid import theta as P
 from mjxsysid.checkpoint import open_npz
@@ -231,7 +232,7 @@ def collect(out, *, policy="mjxsysid", weights=None, n_train: int = 20_000,
     path = out / "pairs.npz"
     np.savez_compressed(path, theta_train=theta[:n_train], zhat_train=z[:n_train], failed_train=f[:n_train],
                         theta_test=theta[n_train:], zhat_test=z[n_train:], failed_test=f[n_train:],
-                        **extra, meta_json=np.frombuffer(json.dumps(meta).encode(), np.uint8))
+                        **extra, meta_json=np.frombuffer(jsonout.dumps(meta).encode(), np.uint8))
     return path
 
 

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import contextvars
-import json
 import platform
 import subprocess
 import time
@@ -10,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid.policy.interface import file_sha256
 
 CALL: contextvars.ContextVar[dict | None] = contextvars.ContextVar("experiment_call", default=None)
@@ -112,7 +112,7 @@ def write_results(out, name: str, *, config: dict, seeds: dict, numbers: dict, t
         prov["decoders"] = {"dir": str(d), "cfm_sha256": file_sha256(d / "cfm.npz")
                             if (d / "cfm.npz").is_file() else None}
     res = {**prov, "numbers": numbers}
-    (out / "results.json").write_text(json.dumps(to_jsonable(res), indent=2) + "\n")
+    (out / "results.json").write_text(jsonout.dumps(to_jsonable(res), indent=2) + "\n")
     head = (f"# {name}\n\n{'quick (small CPU) run' if config.get('quick') else 'full run'}, "
             f"{prov['device']['device_kind']} ({prov['device']['platform']}), {prov['date']}, "
             f"{prov['wall_s']:.0f} s, commit {str(prov['commit'])[:10]}\n\n")

@@ -9,7 +9,6 @@ cancelled external torque).
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -17,6 +16,7 @@ from types import SimpleNamespace
 import jax
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.low_level import KTheta, KThetaLag
@@ -68,7 +68,7 @@ def run(out, *, quick=False, policy=None, seed=0, progress=True) -> dict:
         row["common_n"] = int(ok.sum())
         found[prior] = row
         if progress:
-            print(prior, json.dumps(row), flush=True)
+            print(prior, jsonout.dumps(row), flush=True)
     numbers = {**found, "headline": {f"{p}_k_theta_success": found[p]["k_theta"]["success"]
                                      for p in a.priors.split(",")}}
     return write_results(Path(out), "lag-oracle", config={"quick": quick, **vars(a)}, seeds={"seed": seed},

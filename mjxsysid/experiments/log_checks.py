@@ -10,7 +10,6 @@ rotor vibration; multiples of the hardware-like levels): its error and how often
 """
 from __future__ import annotations
 
-import json
 import time
 from collections import Counter
 from types import SimpleNamespace
@@ -18,6 +17,7 @@ from types import SimpleNamespace
 import jax
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.experiments.common import leaf_table, write_results
 from mjxsysid.logs import checks as L
@@ -133,7 +133,7 @@ def run(out, *, quick=False, policy=None, seed=12345, progress=True) -> dict:
         if progress:
             print(name, res["imu_noise"][name], flush=True)
     if progress:
-        print(json.dumps({k: v for k, v in res.items() if k not in ("correct_log_findings",)}, indent=1))
+        print(jsonout.dumps({k: v for k, v in res.items() if k not in ("correct_log_findings",)}, indent=1))
     numbers = {**res, "headline": {"correct_logs_with_a_finding": res["correct_logs_with_a_finding"],
                                    "out_of_prior_false_alarm_rate": res["out_of_prior_false_alarm_rate"]}}
     return write_results(out, "log-checks", config={"quick": quick, **vars(a)}, seeds={"seed": seed},

@@ -44,6 +44,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.pipeline import WITHIN_5_POINTS, evaluate_decoders, train_decoders
 from mjxsysid.cfm.train import CFMConfig
@@ -228,7 +229,7 @@ class _Stages:
             t = time.time()
             rec = {"result": to_jsonable(fn()), "wall_s": None}
             rec["wall_s"] = time.time() - t
-            path.write_text(json.dumps(rec, indent=1) + "\n")
+            path.write_text(jsonout.dumps(rec, indent=1) + "\n")
         self.wall[name] = rec["wall_s"]
         return rec["result"]
 
@@ -246,7 +247,7 @@ def _check_config(out: Path, cfg_dict: dict, resume: bool):
         if {**{k: v for k, v in defaults.items() if k not in saved}, **saved} != cfg_dict:
             raise ValueError(f"{out} holds a probe-loop run with another config or policy; use a new --out")
     else:
-        path.write_text(json.dumps(cfg_dict, indent=1) + "\n")
+        path.write_text(jsonout.dumps(cfg_dict, indent=1) + "\n")
 
 
 def _pname(r: int) -> str:

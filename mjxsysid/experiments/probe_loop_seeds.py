@@ -11,6 +11,7 @@ import json
 import time
 from pathlib import Path
 
+from mjxsysid import jsonout
 from mjxsysid.experiments.common import leaf_table, to_jsonable, write_results
 from mjxsysid.experiments.probe_loop import FULL, eval_sets, train_config
 from mjxsysid.policy.adaptive.train import train
@@ -42,7 +43,7 @@ def run(out, *, quick=False, policy=None, seed=1, progress=True, inputs=None) ->
         ev = eval_sets(resolve_policy(out / key / "policy.npz"), cfg, 0)
         res[key] = to_jsonable(ev)
         out.mkdir(parents=True, exist_ok=True)
-        res_path.write_text(json.dumps(res, indent=1) + "\n")
+        res_path.write_text(jsonout.dumps(res, indent=1) + "\n")
         if progress:
             print(key, {s: (ev[s]["success_policy"], ev[s]["rmse_ratio"]) for s in ("default", "stress")}, flush=True)
     return write_results(out, "probe-loop-seeds", config={"inputs": str(run_dir), "policies": list(POLICIES)},

@@ -23,6 +23,7 @@ import re
 import time
 from pathlib import Path
 
+from mjxsysid import jsonout
 from mjxsysid.experiments.common import write_results
 
 
@@ -228,7 +229,7 @@ def run(out, *, quick=False, policy=None, seed=0, progress=True, inputs=None) ->
         if any((d / f).is_file() for f in ("policy.npz", "policy_meta.json")) and (d / "eval_fast" / "eval.json").is_file():
             rows.append(run_row(d))
     out.mkdir(parents=True, exist_ok=True)
-    (out / "speed.json").write_text(json.dumps(rows, indent=2) + "\n")
+    (out / "speed.json").write_text(jsonout.dumps(rows, indent=2) + "\n")
     (out / "speed.md").write_text(summary(rows) + "\n" + table(rows))
     figure(rows, out / "speed.png")
     if progress:

@@ -8,13 +8,13 @@ lowered for slow motors (K_ω = min(K_ω, c / τ_m)). 10 s lemniscate, seeded dr
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.low_level import DEFAULT_RATE_GAINS, KTheta
@@ -69,7 +69,7 @@ def run(out, *, quick=False, policy=None, seed=17, progress=True) -> dict:
         res["oracle_lost_rate_gains_lowered"]["stress_wide, rotors >= 1.5x"][f"K_w = min(K_w, {c}/tau_m)"] = \
             oracle_lost(theta, c)
     if progress:
-        print(json.dumps(res["oracle_lost_rate_gains_lowered"], indent=1))
+        print(jsonout.dumps(res["oracle_lost_rate_gains_lowered"], indent=1))
     numbers = {**res, "headline": {"stress_oracle_lost": res["oracle_lost"][next(k for k in variants if
                                                                                  k.startswith("stress ("))]}}
     return write_results(Path(out), "stress-prior-oracle", config={"quick": quick, "vehicles": vehicles},

@@ -109,25 +109,47 @@ def read_any_log(path, segment=None) -> dict:
     """A flight log of any known format, detected by its content (:mod:`mjxsysid.logs.formats`): a PX4
     ULog, a Crazyflie uSD log, a Betaflight blackbox, an ArduPilot DataFlash log or a ROS bag is
     read by its reader (cut at its airborne segment, or ``segment`` 't0:t1'), anything else as the
-    CSV of :func:`read_log` (``segment``: rows with t0 ≤ t ≤ t1, t in the log's own clock)."""
+    CSV of :func:`read_log`, cut at its airborne segment (:func:`~mjxsysid.logs.segment.airborne_segment`
+    on the motor commands: ground time, spin-up and landing) or at ``segment`` (rows with
+    t0 ≤ t ≤ t1, t in the log's own clock), with ``native``, ``resampled`` and ``source`` as a
+    reader's (every column group's rate measured from its samples: :func:`~mjxsysid.logs.checks.rates.measure_columns`)."""
     from mjxsysid.logs.formats import detect, reader
     fmt = detect(path)
     if fmt != "CSV":
         return reader(fmt)(path, segment)
-    rec = read_log(path)
-    if segment is None:
-        return rec
+    return cut_csv(read_log(path), path, segment)
+
+
+def cut_csv(rec: dict, path, segment=None) -> dict:
+    """The arrays of :func:`read_log` cut at ``segment`` ('t0:t1' in the t column) or, when None, at
+    the airborne segment, measured (native rates of every column group) and said (``source``)."""
+    from mjxsysid.logs.checks.rates import measure_columns
+    from mjxsysid.logs.segment import airborne_segment
     from mjxsysid.logs.ulog import parse_segment
-    t0, t1 = parse_segment(segment)
-    keep = np.ones(len(rec["t"]), bool)
-    if t0 is not None:
-        keep &= rec["t"] >= t0
-    if t1 is not None:
-        keep &= rec["t"] <= t1
+    t = rec["t"]
+    seg = parse_segment(segment)
+    if seg is None:
+        try:
+            t0, t1, why = airborne_segment(t, rec["motor"])
+        except ValueError as e:
+            raise ValueError(f"{path}: {e}") from None
+    else:
+        t0 = float(t[0]) if seg[0] is None else seg[0]
+        t1 = float(t[-1]) if seg[1] is None else seg[1]
+        why = "--segment (seconds in the log's t column)"
+    keep = (t >= t0 - 1e-9) & (t <= t1 + 1e-9)
     if keep.sum() < N.HISTORY:
-        raise ValueError(f"{path}: --segment {segment}: {int(keep.sum())} rows in it (the log runs "
-                         f"{rec['t'][0]:.6g}–{rec['t'][-1]:.6g} s); need at least {N.HISTORY}")
-    return {k: v[keep] for k, v in rec.items()}
+        raise ValueError(f"{path}: segment {t0:.6g}–{t1:.6g} s: {int(keep.sum())} rows in it (the log runs "
+                         f"{t[0]:.6g}–{t[-1]:.6g} s); need at least {N.HISTORY}: give a longer --segment T0:T1")
+    rec = {k: v[keep] for k, v in rec.items()}
+    native, resampled, rates = measure_columns(rec)
+    rec["native"], rec["resampled"] = native, resampled
+    rec["source"] = {"format": "CSV", "path": str(path), "rates_hz": rates,
+                     "segment": {"t0": float(rec["t"][0]), "t1": float(rec["t"][-1]), "why": why,
+                                 "clock": "the log's t column (s)"},
+                     "conversions": ["none: the CSV is the log contract (SI units, body frame FLU, Ω_cmd/Ω_max in "
+                                     "mjxsysid's rotor order; docs/decoding.md)"]}
+    return rec
 
 
 def time_step_problem(median_dt: float) -> str:

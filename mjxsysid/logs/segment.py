@@ -16,6 +16,11 @@ TRIM_S = 0.5
 MIN_SPREAD = 0.1
 """Ω_cmd/Ω_max: a log whose mean motor command spans less than this never sat idle on the ground."""
 
+IDLE_LEVEL = 0.35
+"""Ω_cmd/Ω_max: the highest low level (2nd percentile of the mean command) that is a rotor stopped or
+idling on the ground (PX4's idle, 10 % throttle, is √0.1 ≈ 0.32 of Ω_max); a log whose low level is
+above it never idled: its dips are manoeuvres in the air."""
+
 
 def _runs(mask):
     """Start and stop indices [i0, i1) of each run of True in ``mask`` (N,)."""
@@ -27,7 +32,8 @@ def airborne_segment(t, motor, min_s: float = 1.0):
     """The longest stretch of ``t`` (N,) s during which the mean motor command ``motor`` (N, 4)
     (Ω_cmd/Ω_max in [0, 1]) is above halfway between its idle level (2nd percentile) and its flight
     level (median of the upper half) -> (t0, t1, why). Dips shorter than :data:`GAP_S` are bridged;
-    :data:`TRIM_S` is cut at an end that touches idle. A log that never idles is kept whole. ValueError
+    :data:`TRIM_S` is cut at an end that touches idle. A log that never idles (levels closer than
+    :data:`MIN_SPREAD`, or the low level above :data:`IDLE_LEVEL`) is kept whole. ValueError
     when no stretch of ``min_s`` seconds is found, naming the levels and the next step."""
     t = np.asarray(t, np.float64)
     m = np.mean(np.asarray(motor, np.float64), axis=-1)
@@ -35,7 +41,7 @@ def airborne_segment(t, motor, min_s: float = 1.0):
         raise ValueError("the log has fewer than two motor samples: no airborne segment can be found")
     lo = float(np.percentile(m, 2))
     hi = float(np.median(m[m >= np.median(m)]))
-    if hi - lo < MIN_SPREAD:
+    if hi - lo < MIN_SPREAD or lo > IDLE_LEVEL:
         return float(t[0]), float(t[-1]), (f"motors spun for the whole log (mean command {lo:.2f}–{hi:.2f}): "
                                            f"kept whole, {t[-1] - t[0]:.1f} s")
     thr = lo + 0.5 * (hi - lo)

@@ -165,8 +165,8 @@ def drop_interleaved_rows(x):
     return keep, None
 
 
-def _segment(ulog, params, t_imu, start_us, segment):
-    """(t0, t1, why) in seconds since the log's start."""
+def _segment(ulog, params, t_imu, start_us, segment, path=""):
+    """(t0, t1, why) in seconds since the log's start; ValueError for a log never armed (naming ``path``)."""
     seg = parse_segment(segment)
     lo, hi = float(t_imu[0]), float(t_imu[-1])
     if seg is not None:
@@ -193,6 +193,17 @@ def _segment(ulog, params, t_imu, start_us, segment):
         # PX4's takeoff state machine: 5 = flight (after the spool-up and the ramp-up on the ground)
         mask &= hold(_seconds(tk["timestamp"], start_us), tk["takeoff_state"], t_imu) == 5
         why.append("in flight (takeoff_status: takeoff_state 5, past the ramp-up)")
+    if armed is None or "armed" not in armed:
+        st = _topic(ulog, "vehicle_status")
+        if st is not None and "arming_state" in st:
+            # PX4's arming states (old and new): 0 init, 1 standby, 2 armed
+            mask &= hold(_seconds(st["timestamp"], start_us), st["arming_state"], t_imu) == 2
+            why.insert(0, "armed (vehicle_status.arming_state)")
+    if why and why[0].startswith("armed") and not mask.any():
+        raise ValueError(f"{path}: never armed ({why[0].split(' (')[1][:-1]} never armed over the log's "
+                         f"{hi - lo:.1f} s): a bench or disarmed log, the rotors never carried the vehicle, there is "
+                         f"no flight to identify. Next step: log a flight (armed and airborne) and read that log; "
+                         f"to check this one anyway, give --segment T0:T1")
     if not mask.any():
         return lo, hi, ("the whole log: never " + " and ".join(w.split(" (")[0] for w in why)
                         + " (a bench or disarmed log?)")
@@ -273,7 +284,7 @@ def read_ulog(path, segment=None) -> dict:
     conv.append("body frame: PX4's FRD (x forward, y right, z down) to FLU (x forward, y left, z up): "
                 "gyro, accelerometer and rate setpoint y and z negated")
 
-    t0, t1, why = _segment(ulog, params, t_g, start, segment)
+    t0, t1, why = _segment(ulog, params, t_g, start, segment, path)
     n = int(np.floor((t1 - t0) / DT + 1e-9)) + 1
     if n < MIN_ROWS:
         raise ValueError(f"{path}: the segment {t0:.3f}–{t1:.3f} s is shorter than {MIN_ROWS * DT:g} s")
@@ -345,8 +356,13 @@ def read_ulog(path, segment=None) -> dict:
     elif "thrust_body[2]" in rs:
         t_T, thr = t_w, -np.asarray(rs["thrust_body[2]"], np.float64)
         topics["a_cmd"] = "vehicle_rates_setpoint (thrust_body[2])"
+    elif "thrust" in rs:      # PX4 ≤ 1.9: the collective thrust as a positive scalar
+        t_T, thr = t_w, np.asarray(rs["thrust"], np.float64)
+        topics["a_cmd"] = "vehicle_rates_setpoint (thrust, PX4 ≤ 1.9)"
     else:
-        raise ValueError(f"{path}: no thrust setpoint (vehicle_thrust_setpoint or vehicle_rates_setpoint.thrust_body)")
+        raise ValueError(f"{path}: no thrust setpoint (vehicle_thrust_setpoint, or vehicle_rates_setpoint.thrust_body "
+                         f"or .thrust): a_cmd cannot be built; log vehicle_thrust_setpoint (PX4: SDLOG_PROFILE "
+                         f"default topics) or convert the log to the CSV contract (docs/decoding.md)")
     thr = np.nan_to_num(thr, nan=0.0)
     hover, said_h = _hover_thrust(ulog, params, start, t0, t1)
     a_cmd = thr * g / hover

@@ -26,6 +26,7 @@ from typing import Callable
 import jax
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.dataset.collect import latents_in_flight
@@ -176,7 +177,7 @@ def run_probe(out, cfg: ProbeConfig = ProbeConfig(), *, policy="mjxsysid", weigh
               "weak_badness": res["score"].tolist(), "history": res["history"], "weak_systems": int(len(weak_theta)),
               "weak_decoded": int(len(flyable)), "weak_policy_failures": lost,
               "quantities": summary, "device": str(jax.devices()[0]), "wall_s": time.time() - t0}
-    (out / "results.json").write_text(json.dumps(result, indent=1) + "\n")
+    (out / "results.json").write_text(jsonout.dumps(result, indent=1) + "\n")
     (out / "results.md").write_text(_markdown(result))
     return result
 

@@ -14,6 +14,8 @@ import json
 import os
 from pathlib import Path
 
+from mjxsysid import jsonout
+
 RECORD = "release.json"
 
 
@@ -86,7 +88,7 @@ class Record:
         self.data.update(header)
         self.data.setdefault("created", now())
         tmp = self.out / f"{RECORD}.{os.getpid()}.tmp"
-        tmp.write_text(json.dumps(self.data, indent=2, ensure_ascii=False) + "\n")
+        tmp.write_text(jsonout.dumps(self.data, indent=2, ensure_ascii=False) + "\n")
         os.replace(tmp, self.out / RECORD)
 
     def save(self, header: dict) -> None:

@@ -156,6 +156,28 @@ def plot_rank_histograms(ranks, n_samples: int, path, *, pvalues, names: Sequenc
     return path
 
 
+def _log_ticks(lo: float, hi: float, ticks: int = 4) -> list[float]:
+    """At most ``ticks`` round values (1, 2, 5 × 10ᵏ, thinned evenly; decades first) in [lo, hi]."""
+    k0, k1 = int(np.floor(np.log10(lo))), int(np.ceil(np.log10(hi)))
+    cand = [m * 10.0 ** k for k in range(k0, k1 + 1) for m in (1, 2, 5) if lo <= m * 10.0 ** k <= hi]
+    if len(cand) <= ticks:
+        return cand
+    step = int(np.ceil(len(cand) / ticks))
+    decades = [c for c in cand if np.isclose(np.log10(c), round(np.log10(c)))]
+    return decades if 2 <= len(decades) <= ticks else cand[::step]
+
+
+def _log_x(ax, ticks: int = 4) -> None:
+    """Log-scale x with at most ``ticks`` labelled ticks as plain numbers and unlabelled minor
+    ticks: what keeps a narrow panel's labels apart (call after plotting)."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullFormatter
+    ax.set_xscale("log")
+    lo, hi = ax.get_xlim()
+    ax.xaxis.set_major_locator(FixedLocator(_log_ticks(lo, hi, ticks)))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+
+
 def plot_information_gap(gap: dict, path, title: str = "what the policy's latent knows vs what the log shows"):
     """One panel per log-identifiable quantity (``gap`` of
     :func:`mjxsysid.identify.gap.information_gap`): the decoder-only 5–95 % band (blue) against the
@@ -164,6 +186,7 @@ def plot_information_gap(gap: dict, path, title: str = "what the policy's latent
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
     names = list(gap)
     cols = 5
     rows = int(np.ceil(len(names) / cols))
@@ -177,7 +200,9 @@ def plot_information_gap(gap: dict, path, title: str = "what the policy's latent
             ax.axvline(g["true"], color="k", lw=1.5)
         vals = [g["decoder_q05"], g["decoder_q95"], g["log_q05"], g["log_q95"]] + ([g["true"]] if "true" in g else [])
         if min(vals) > 0 and max(vals) / min(vals) > 3:
-            ax.set_xscale("log")
+            _log_x(ax)
+        else:
+            ax.xaxis.set_major_locator(MaxNLocator(4))
         ax.set_yticks([0, 1], ["log", "decoder"], fontsize=8)
         ax.set_ylim(-0.7, 1.7)
         ax.set_title(f"{n} [{g['unit']}]\nwidth ratio {g['width_ratio']:.2g}", fontsize=9)

@@ -4,13 +4,13 @@ Used by ``mjxsysid fly`` and ``mjxsysid demo``; the same functions serve noteboo
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.low_level import KTheta, KThetaLag
@@ -170,7 +170,7 @@ def write_metrics(m: dict, path, index: int | None = 0, extra: dict | None = Non
     d = metrics_dict(m, index)
     if extra:
         d.update(extra)
-    Path(path).write_text(json.dumps(d, indent=2) + "\n")
+    Path(path).write_text(jsonout.dumps(d, indent=2) + "\n")
     return d
 
 

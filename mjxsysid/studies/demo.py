@@ -13,13 +13,13 @@ information gap between the two (``--decoder-only`` skips it).
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.cfm.posterior import summarize_posterior
@@ -221,7 +221,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
                            "pos_rmse_m_median": float(np.nanmedian(
                                np.where(res[c][1]["failed"][1:], np.nan, res[c][1]["pos_rmse_m"][1:])))}}
         for c in res}
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "summary.json").write_text(jsonout.dumps(summary, indent=2) + "\n")
     pp, po, pn = summary["policy"], summary["oracle"], summary["nominal"]
     md = f"""# mjxsysid demo
 
@@ -279,7 +279,7 @@ Wall time {time.time() - t0:.0f} s.
     if grounded is not None:
         summary["paper_vehicle_posterior_log_grounded"] = {k: v for k, v in grounded.items() if not k.startswith("_")}
         summary["log_grounded"] = grounded["_log_grounded"]
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    (out / "summary.json").write_text(jsonout.dumps(summary, indent=2) + "\n")
     (out / "summary.md").write_text(md)
     print(md)
     print(f"outputs in {out.resolve()}")

@@ -10,12 +10,12 @@ envelope's mean width against the one from ±20 % uniform perturbations of θ*.
 """
 from __future__ import annotations
 
-import json
 import time
 
 import jax
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.sample import Decoder
 from mjxsysid.cfm.sequence import SequenceDecoder
@@ -216,7 +216,7 @@ def fidelity_benchmark(*, vehicles: int = 20, models: int = 100, window: str = "
                                  posterior=posterior)
         per.append({"vehicle": "paper" if i == 0 else f"prior_{i}", "force_scale": scale, **r["per_vehicle"][0]})
         if log is not None:
-            log(json.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in per[-1].items()}))
+            log(jsonout.dumps({k: (round(v, 3) if isinstance(v, float) else v) for k, v in per[-1].items()}))
     keys = ("inside_decoded", "width_decoded_m", "inside_pm20", "width_pm20_m")
     ratio = [p["width_decoded_m"] / max(p["width_pm20_m"], 1e-9) for p in per]
     return {

@@ -27,7 +27,6 @@ Flights (:data:`FLIGHTS`): 3-D lemniscates of 5, 10 and 15 s periods (one period
 """
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -35,6 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.cfm.sample import random_baseline
@@ -225,7 +225,7 @@ def run_replay(out, *, policy="mjxsysid", weights=None, decoders=None, vehicles:
             for m in METHODS) if paper else f"  {name}: the paper vehicle crashed")
     bar.close()
     res["wall_s"] = time.time() - t0
-    (out / "replay.json").write_text(json.dumps(res, indent=2) + "\n")
+    (out / "replay.json").write_text(jsonout.dumps(res, indent=2) + "\n")
     (out / "replay.md").write_text(replay_table(res))
     plot_summary(res, out / "replay_summary.png", labels=LABELS, methods=METHODS)
     return res

@@ -9,6 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid.theta.derived import flyability
 from mjxsysid.theta.layout import (ETA, GRAVITY, INERTIA, KT, MASS, N_PARAMS, NONNEGATIVE_MASK, OMEGA_MAX,
                                    PAPER_HARDWARE, PARAM_NAMES, POSITIVE_MASK, TAU_EXT, VEHICLE_KEYS)
@@ -191,7 +192,7 @@ def save_vehicle(theta, path) -> Path:
     """Write θ (19,) as a vehicle JSON file."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(theta_to_dict(theta), indent=2) + "\n")
+    path.write_text(jsonout.dumps(theta_to_dict(theta), indent=2) + "\n")
     return path
 
 

@@ -12,7 +12,7 @@ from mjxsysid.identify import coords as C
 from mjxsysid.identify import likelihood as L
 from mjxsysid.identify import logdata as LD
 from mjxsysid.identify.inference import log_grounded_posterior, log_target
-from support.paths import DATA
+from support.paths import PX4_SAMPLE, require_shared
 
 DT = 0.002
 
@@ -156,7 +156,7 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     pytest.importorskip("pyulog")
     from mjxsysid.identify.gap import information_gap
     from mjxsysid.logs.ulog import read_ulog
-    rec = read_ulog(DATA / "sample_px4_events.ulg")
+    rec = read_ulog(require_shared(PX4_SAMPLE))
     post = log_grounded_posterior(rec, None, samples=600, particles=512, seed=0)
     assert list(post["channels_used"]) == [0, 0, 0, 1]
     q = C.log_quantities(post["theta"])

@@ -1,7 +1,9 @@
-"""PX4 ULog logs (mjxsysid.logs.ulog, `mjxsysid check-log`, issue 39): the shipped PX4 sample
-(tests/data/sample_px4_events.ulg: jMAVSim's Iris, thrust-to-weight 2.04, thrust linear in the
-command, IMU 250 Hz, motors 10 Hz) read with no hand conversion, the conversions' pieces, and the
-checks that must not read resampled columns as if they were 500 Hz. numpy only: no JAX compile."""
+"""PX4 ULog logs (mjxsysid.logs.ulog, `mjxsysid check-log`, issues 39 and 55): ULogs the project
+writes itself (mjxsysid.logs.ulog_write, a numpy flight of known thrust-to-weight, rotor order and
+rates) read back through every conversion; where ../shared is present, PX4's sample
+(../shared/data/ulog/sample_px4_events.ulg: jMAVSim's Iris, thrust-to-weight 2.04, IMU 250 Hz,
+motors 10 Hz) and an old never-armed log; the conversions' pieces, and the checks that must not
+read resampled columns as if they were 500 Hz. numpy only: no JAX compile."""
 import sys
 
 import numpy as np
@@ -13,23 +15,64 @@ from mjxsysid.cli import main
 from mjxsysid.logs import checks as L
 from mjxsysid.logs import ulog as U
 from mjxsysid.logs.csvlog import read_any_log, read_log, write_log
-from support.paths import DATA
+from mjxsysid.logs.ulog_write import write_ulog
+from support.paths import PX4_SAMPLE, SHARED_DATA
+from support.synthetic_log import synthetic_flight
 
-SAMPLE = DATA / "sample_px4_events.ulg"
+SAMPLE = PX4_SAMPLE
+BENCH = SHARED_DATA / "logs" / "px4" / "real_bench_disarmed.ulg"
+needs_sample = pytest.mark.skipif(not SAMPLE.is_file(), reason=f"PX4's sample log not found at {SAMPLE}")
+PX4_DEFAULT_RATES = {"imu": 250, "motor": 10, "setpoint": 50}
+TWR = 2.04
 
 
 @pytest.fixture(scope="module")
-def sample():
-    return U.read_ulog(SAMPLE)
+def flight():
+    """A numpy flight: 3 s on the ground, 10 s airborne, 2 s on the ground."""
+    return synthetic_flight(seconds=10.0, ground_s=(3.0, 2.0), twr=TWR, tau=0.03)
 
 
-def test_sample_reads_as_the_log_contract(sample):
+def _write(path, r, **kw):
+    on = r["motor"].max(1) > 0
+    return write_ulog(path, r["t"], r["imu"], r["a_cmd"], r["omega_cmd"], r["motor"], armed=on, landed=~on, **kw)
+
+
+@pytest.fixture(scope="module")
+def written(flight, tmp_path_factory):
+    """The flight as a PX4 ULog at PX4's default logging rates (IMU 250 Hz, motors 10 Hz, setpoints 50 Hz)."""
+    return _write(tmp_path_factory.mktemp("ulog") / "flight.ulg", flight, rates=PX4_DEFAULT_RATES)
+
+
+@pytest.fixture(scope="module")
+def sample(written):
+    return U.read_ulog(written)
+
+
+def test_written_ulog_reads_back_every_conversion(flight, tmp_path):
+    """Every topic at 500 Hz: read_ulog undoes the writer's FRD frame, PX4 motor order, Ω² thrust
+    and a_cmd · hover / g exactly (to float32), and cuts the armed, airborne segment; detected by
+    content under a wrong suffix."""
+    path = _write(tmp_path / "flight.txt", flight)
+    r = read_any_log(path)
+    assert r["source"]["format"] == "PX4 ULog"
+    seg = r["source"]["segment"]
+    assert seg["t0"] == pytest.approx(3.0, abs=0.003) and seg["t1"] == pytest.approx(12.998, abs=0.003)
+    keep = (flight["t"] >= r["t"][0] - 1e-9) & (flight["t"] <= r["t"][-1] + 1e-9)
+    assert keep.sum() == len(r["t"])
+    for k, tol in (("imu", 1e-5), ("motor", 1e-6), ("a_cmd", 1e-5), ("omega_cmd", 1e-6)):
+        np.testing.assert_allclose(r[k], flight[k][keep], atol=tol, rtol=1e-6, err_msg=k)
+    assert r["source"]["rates_hz"]["imu"] == pytest.approx(500) and r["resampled"]["motor"] == "native (500 Hz)"
+    assert L.estimate_vehicle(r)["thrust_to_weight"] == pytest.approx(TWR, rel=0.02)
+    assert L.rotor_order_fit(r)["best"] == (0, 1, 2, 3) and L.check_log(r) == []
+
+
+def test_written_at_px4_rates_reads_as_the_log_contract(sample):
     r = sample
     n = len(r["t"])
     assert r["imu"].shape == (n, 6) and r["motor"].shape == (n, 4) and r["omega_cmd"].shape == (n, 3)
     assert r["a_cmd"].shape == (n,) and np.allclose(np.diff(r["t"]), 0.002)
     seg = r["source"]["segment"]
-    assert 18.9 < seg["t0"] < 19.0 and 27.3 < seg["t1"] < 27.5 and "airborne" in seg["why"]   # ~8.5 s in flight
+    assert 2.99 < seg["t0"] < 3.01 and 12.9 < seg["t1"] < 13.0 and "airborne" in seg["why"]
     assert r["source"]["rates_hz"]["imu"] == pytest.approx(250, rel=0.02)
     assert r["source"]["rates_hz"]["motor"] == pytest.approx(10, rel=0.02)
     assert r["resampled"] == {"imu": "interpolated (linear) from 250 Hz", "motor": "held (zero-order) from 10 Hz",
@@ -44,9 +87,21 @@ def test_sample_reads_as_the_log_contract(sample):
     assert r["a_cmd"].mean() == pytest.approx(r["imu"][:, 5].mean(), rel=0.05)
 
 
-def test_sample_thrust_to_weight_is_jmavsims(sample):
+@needs_sample
+def test_px4_sample_reads_as_the_log_contract():
+    r = U.read_ulog(SAMPLE)
+    seg = r["source"]["segment"]
+    assert 18.9 < seg["t0"] < 19.0 and 27.3 < seg["t1"] < 27.5 and "airborne" in seg["why"]   # ~8.5 s in flight
+    assert r["resampled"] == {"imu": "interpolated (linear) from 250 Hz", "motor": "held (zero-order) from 10 Hz",
+                              "omega_cmd": "held (zero-order) from 50 Hz", "a_cmd": "held (zero-order) from 50 Hz"}
+    assert 9.0 < r["imu"][:, 5].mean() < 10.5
+
+
+@needs_sample
+def test_sample_thrust_to_weight_is_jmavsims():
     """jMAVSim's Iris: 4 × 4 N, 0.8 kg: thrust-to-weight 2.04, with √control; about twice that
     with the throttle read as the rotor-speed command (what the issue found by hand: 4.23)."""
+    sample = U.read_ulog(SAMPLE)
     assert L.estimate_vehicle(sample)["thrust_to_weight"] == pytest.approx(2.04, rel=0.06)
     wrong = {k: sample[k] for k in ("t", "imu", "a_cmd", "omega_cmd")}
     wrong["motor"] = sample["motor"] ** 2
@@ -63,16 +118,17 @@ def test_sample_checks_say_what_the_rates_allow(sample):
     assert tau is None and "10 Hz" in why
 
 
-def test_segment_and_read_any_log(sample, tmp_path):
-    r = U.read_ulog(SAMPLE, "20:24")
-    assert r["t"][0] == pytest.approx(20.0, abs=0.005) and r["t"][-1] == pytest.approx(24.0, abs=0.005)
+def test_segment_and_read_any_log(sample, written, tmp_path):
+    r = U.read_ulog(written, "5:9")
+    assert r["t"][0] == pytest.approx(5.0, abs=0.005) and r["t"][-1] == pytest.approx(9.0, abs=0.005)
     assert "--segment" in r["source"]["segment"]["why"]
-    assert read_any_log(SAMPLE, (20.0, 24.0))["t"].shape == r["t"].shape
+    assert read_any_log(written, (5.0, 9.0))["t"].shape == r["t"].shape
     with pytest.raises(ValueError, match="end must come after"):
-        U.read_ulog(SAMPLE, "24:20")
+        U.read_ulog(written, "9:5")
     path = write_log(tmp_path / "x.csv", sample["t"], sample["imu"], sample["a_cmd"], sample["omega_cmd"], sample["motor"])
-    part = read_any_log(path, "20:22")
-    assert part["t"][0] >= 20 and part["t"][-1] <= 22 and len(part["t"]) == pytest.approx(1000, abs=2)
+    part = read_any_log(path, "5:7")
+    assert part["t"][0] >= 5 and part["t"][-1] <= 7 and len(part["t"]) == pytest.approx(1000, abs=2)
+    assert part["source"]["segment"]["why"].startswith("--segment")
 
 
 def test_resampled_csv_is_detected_and_checks_read_its_knots(sample, tmp_path):
@@ -138,15 +194,15 @@ def test_pyulog_missing_names_the_extra(monkeypatch):
         U.read_ulog(SAMPLE)
 
 
-def test_check_log_cli_on_the_sample(capsys):
-    assert main(["check-log", str(SAMPLE)]) == 1           # a warning: motors at 10 Hz
+def test_check_log_cli_on_the_written_log(written, capsys):
+    assert main(["check-log", str(written)]) == 1           # a warning: motors at 10 Hz
     out = capsys.readouterr().out
-    assert "thrust-to-weight 2.1" in out and "motor: held (zero-order) from 10 Hz" in out
+    assert "thrust-to-weight 2.0" in out and "motor: held (zero-order) from 10 Hz" in out
     assert "warning  motor_1, motor_2, motor_3, motor_4  cannot tell the rotor order" in out
     assert "motor time constant not estimable" in out
 
 
-def test_check_log_cli_errors_on_a_disarmed_log(sample, tmp_path, capsys):
+def test_check_log_cli_errors_on_a_disarmed_log(sample, written, tmp_path, capsys):
     """A bench log: every motor at zero, the vehicle at rest (the issue's 'thrust-to-weight 3.9e12')."""
     rest = np.zeros_like(sample["imu"])
     rest[:, 5] = 9.81
@@ -155,7 +211,31 @@ def test_check_log_cli_errors_on_a_disarmed_log(sample, tmp_path, capsys):
     assert main(["check-log", str(path)]) == 2
     out = capsys.readouterr().out
     assert "error" in out and "stopped or idling" in out
-    assert main(["check-log", str(SAMPLE), "--segment", "0:14"]) == 2   # the sample before arming
+    assert main(["check-log", str(written), "--segment", "0:2.9"]) == 2   # the log before arming
+    out = capsys.readouterr().out
+    assert "stopped or idling" in out and "multiply by g" not in out
+
+
+def test_never_armed_ulog_is_refused_as_such(flight, tmp_path):
+    """A ULog that never arms: refused for that, with the next step (not 'no thrust setpoint')."""
+    r = flight
+    path = write_ulog(tmp_path / "bench.ulg", r["t"], r["imu"], r["a_cmd"], r["omega_cmd"], 0 * r["motor"],
+                      armed=np.zeros(len(r["t"]), bool), hover_thrust=0.5)
+    with pytest.raises(ValueError, match=r"never armed .*Next step: log a flight"):
+        read_any_log(path)
+
+
+@pytest.mark.skipif(not BENCH.is_file(), reason=f"old-format PX4 log not found at {BENCH}")
+def test_old_never_armed_px4_log(capsys):
+    """PX4 ≤ 1.9 (vehicle_rates_setpoint.thrust, vehicle_status.arming_state): never armed, said so;
+    a part of it given by hand is refused for its idle motors, with no CSV author's a_cmd advice."""
+    with pytest.raises(ValueError, match="never armed") as e:
+        read_any_log(BENCH)
+    assert "thrust setpoint" not in str(e.value) and "--segment" in str(e.value)
+    assert main(["check-log", str(BENCH), "--segment", "10:20"]) == 2
+    out = capsys.readouterr().out
+    assert "stopped or idling" in out and "multiply by g" not in out
+    assert "vehicle_rates_setpoint (thrust, PX4" in read_any_log(BENCH, "10:20")["source"]["topics"]["a_cmd"]
 
 
 def test_decode_help_points_to_the_contract_docs():

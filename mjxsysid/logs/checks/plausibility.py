@@ -33,6 +33,7 @@ def check_log(rec: dict, *, policy=None, zhat=None, imu_limit: dict | None = Non
     out += check_gyro(rec)
     if not any(f.level == "error" for f in out):   # the thrust checks need a sane accelerometer
         out += check_thrust(rec)
+    if not any(f.level == "error" for f in out):   # a_cmd against the thrust that carried the vehicle
         out += check_a_cmd(rec)
     if not any(f.level == "error" for f in out):   # the dynamics checks need sane units and thrust
         out += check_resampled(rec)
@@ -154,6 +155,16 @@ def check_a_cmd(rec) -> list[Finding]:
     if acc_z < 0.5 * P.GRAVITY:
         return []
     lo, hi = float(a.min()), float(a.max())
+    fmt = (rec.get("source") or {}).get("format", "CSV")
+    if fmt != "CSV":     # the reader built a_cmd: the advice is about its conversion, not the file's column
+        built = next((c for c in rec["source"].get("conversions", []) if c.startswith("a_cmd")), "")
+        ratio = float(a.mean()) / acc_z
+        if A_CMD_RATIO[0] < ratio < A_CMD_RATIO[1]:
+            return []
+        return [Finding("warning", "a_cmd", f"a_cmd averages {a.mean():.3g} m/s², the specific force along z "
+                        f"{acc_z:.3g} m/s² (ratio {ratio:.2g}); the {fmt} reader built a_cmd ({built or 'no setpoint'}): "
+                        f"the hover thrust or setpoint it used does not match this part of the log. Check the "
+                        f"segment (--segment T0:T1 on the flight) and the conversion (docs/decoding.md; a PX4 ULog: docs/px4.md)")]
     if lo >= -1e-6 and hi <= 1.0 + 1e-6:
         return [Finding("error", "a_cmd", f"a_cmd lies in [0, 1] (mean {a.mean():.3g}) while the specific force along "
                         f"z averages {acc_z:.3g} m/s²: it looks like a normalised thrust setpoint (PX4's "

@@ -7,7 +7,7 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.logs.checks.findings import Finding
 from mjxsysid.logs.checks.noise import estimate_imu_noise
-from mjxsysid.logs.checks.rates import MIN_ORDER_RATE_HZ, column_rates
+from mjxsysid.logs.checks.rates import MIN_ORDER_RATE_HZ, column_rates, reaches
 from mjxsysid.logs.checks.rotors import estimate_thrust_lag, rotor_order_fit
 from mjxsysid.logs.checks.signals import DT, fit_rows, lagged
 
@@ -35,8 +35,8 @@ def estimate_vehicle(rec: dict, fit: dict | None = None) -> dict:
     ms = u2[skip:].mean(0)
     twr = 4.0 * float(acc_z[skip:].mean()) / (P.GRAVITY * max(float(ms.sum()), 1e-12))
     eta = (1.0 / np.maximum(ms, 1e-12)) / np.mean(1.0 / np.maximum(ms, 1e-12))
-    lag = estimate_thrust_lag(rec) if motor_rate >= MIN_ORDER_RATE_HZ else {"tau": float("nan"), "r2": 0.0}
-    torque_r2 = fit["given_r2"] if motor_rate >= MIN_ORDER_RATE_HZ else 0.0
+    lag = estimate_thrust_lag(rec) if reaches(motor_rate, MIN_ORDER_RATE_HZ) else {"tau": float("nan"), "r2": 0.0}
+    torque_r2 = fit["given_r2"] if reaches(motor_rate, MIN_ORDER_RATE_HZ) else 0.0
     return {"thrust_to_weight": twr, "motor_time_constant": float(fit["tau"]), "torque_fit_r2": torque_r2,
             "motor_time_constant_thrust": lag["tau"], "thrust_fit_r2": lag["r2"], "motor_rate_hz": float(motor_rate),
             "min_motor_effectiveness": float(eta.min()), **estimate_imu_noise(full)}
@@ -55,7 +55,7 @@ def motor_time_constant(est: dict):
     if est.get("thrust_fit_r2", 0.0) > TAU_FIT_R2 and np.isfinite(est.get("motor_time_constant_thrust", np.nan)):
         return float(est["motor_time_constant_thrust"]), "thrust"
     rate = est.get("motor_rate_hz", 1.0 / DT)
-    if rate < MIN_ORDER_RATE_HZ:
+    if not reaches(rate, MIN_ORDER_RATE_HZ):
         return None, (f"the motor time constant is not estimable from this log: motor commands at {rate:.3g} Hz "
                       f"(≥ {MIN_ORDER_RATE_HZ:g} Hz needed)")
     return None, (f"the motor time constant is not estimable from this log: neither the angular acceleration "

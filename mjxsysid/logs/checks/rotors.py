@@ -1,5 +1,5 @@
 """What the motor columns drive: the rotor order (Euler's equation, every one of the 24 orders
-fitted), the thrust model (rotor-speed commands or throttles) and the lag of thrust behind them."""
+fitted, each under its own lag, the autopilots' orders named), the thrust model (rotor-speed commands or throttles) and the lag of thrust behind them."""
 from __future__ import annotations
 
 import itertools
@@ -8,49 +8,72 @@ import numpy as np
 
 from mjxsysid.logs.checks.findings import Finding
 from mjxsysid.logs.checks.noise import estimate_imu_noise
-from mjxsysid.logs.checks.rates import MIN_ORDER_RATE_HZ, column_rates
-from mjxsysid.logs.checks.signals import (DT, LAGS, SMOOTH_STEPS, fit_line, fit_rows, lagged, order_name, smooth,
-                                          torque_basis)
+from mjxsysid.logs.checks.rates import MIN_ORDER_RATE_HZ, column_rates, reaches
+from mjxsysid.logs.checks.signals import (DT, KNOWN_ORDERS, LAGS, SMOOTH_STEPS, fit_line, fit_rows, lagged,
+                                          order_name, smooth, torque_basis)
 
 EXCITED_ALPHA = 1.0
 """rad/s²: the spread of the (smoothed) angular acceleration below which a flight is too still
 to tell the rotor order (a hover in still air)."""
 
 
+KNOWN_MARGIN = 0.02
+"""Mean R² by which an order of :data:`KNOWN_ORDERS` may trail the best of the 24 and still be
+named as the fit (an autopilot's order before an arbitrary permutation)."""
+
+
+def _order_scores(uf, alpha, basis):
+    """Every rotor order's fit of the angular acceleration ``alpha`` (N, 3) on the torque of the
+    lagged commands ``uf`` (N, 4) (squared, smoothed) -> {order: (score, gains (3,), R² (3,))}; score
+    the mean R² over roll, pitch, yaw with an axis of negative gain counted −1. From the
+    cross-moments: 24 orders cost one pass over the rows."""
+    uc, ac = uf - uf.mean(0), alpha - alpha.mean(0)
+    C, D, syy = uc.T @ uc, uc.T @ ac, (ac * ac).sum(0)
+    out = {}
+    for order in itertools.permutations(range(4)):
+        b = basis[:, list(order)]                               # column j is rotor order[j]
+        sxx = np.einsum("ki,ij,kj->k", b, C, b)
+        sxy = np.einsum("ki,ik->k", b, D)
+        ok = (sxx > 0) & (syy > 0)
+        k = np.where(ok, sxy / np.where(ok, sxx, 1.0), 0.0)
+        r2 = np.where(ok, sxy * sxy / np.where(ok, sxx * syy, 1.0), 0.0)
+        out[order] = (float(np.mean(np.where(k > 0, r2, -1.0))), k, r2)
+    return out
+
+
 def rotor_order_fit(rec: dict) -> dict:
     """Fit the angular acceleration (gyro, differentiated and smoothed) to the torque the motor
-    commands imply for each of the 24 rotor orders. -> dict: ``scores`` {order: mean R² over
-    roll, pitch, yaw (an axis with a negative gain counts −1)}, ``gains`` {order: (3,)},
-    ``best`` order, ``given`` score of the log's own order (0, 1, 2, 3), ``tau`` the lag used,
-    ``excited`` whether the flight moved the vehicle enough to tell (rate changes above noise).
-    A long log is fitted on :func:`fit_rows` of it."""
+    commands imply for each of the 24 rotor orders, each under its own best lag of :data:`LAGS`
+    (the rotor time constant: a lag fitted under a wrong order would spoil the right one's fit).
+    -> dict: ``scores`` {order: mean R² over roll, pitch, yaw (an axis with a negative gain counts
+    −1)}, ``gains`` {order: (3,)}, ``taus`` {order: lag s}, ``best`` order (an autopilot's order of
+    :data:`KNOWN_ORDERS` where it fits within :data:`KNOWN_MARGIN` of the best), ``given`` score of
+    the log's own order (0, 1, 2, 3), ``tau`` its lag and ``given_r2`` its mean R², ``excited``
+    whether the flight moved the vehicle enough to tell (rate changes above noise). A long log
+    is fitted on :func:`fit_rows` of it."""
     rec = fit_rows(rec)
     u2 = np.asarray(rec["motor"], np.float64) ** 2
     gyro = np.asarray(rec["imu"], np.float64)[:, :3]
     alpha = smooth(np.diff(gyro, axis=0) / DT)                           # (T−n, 3)
     basis = torque_basis()
-    best_tau, best_s, cache = None, -np.inf, {}
-    for tau in LAGS:  # the lag from the log's own order (the rotor time constant); every order then uses it
+    scores, gains, taus, r2s = {}, {}, {}, {}
+    for tau in LAGS:
         uf = smooth(lagged(u2, tau)[:-1])  # row t: the rotors over step t, which alpha[t] spans
-        s = np.mean([fit_line(uf @ basis[k], alpha[:, k])[1] for k in range(3)])
-        cache[tau] = uf
-        if s > best_s:
-            best_tau, best_s = tau, s
-    uf = cache[best_tau]
-    scores, gains = {}, {}
-    for order in itertools.permutations(range(4)):
-        b = basis[:, list(order)]          # column j is rotor order[j]
-        ks, r2 = zip(*(fit_line(uf @ b[k], alpha[:, k]) for k in range(3)))
-        scores[order] = float(np.mean([r if k > 0 else -1.0 for k, r in zip(ks, r2)]))
-        gains[order] = np.asarray(ks)
+        for order, (s, k, r2) in _order_scores(uf, alpha, basis).items():
+            if order not in scores or s > scores[order]:
+                scores[order], gains[order], taus[order], r2s[order] = s, k, tau, float(np.mean(r2))
     best = max(scores, key=scores.get)
+    known = max(KNOWN_ORDERS.values(), key=lambda o: scores[o])
+    if scores[known] >= scores[best] - KNOWN_MARGIN:
+        best = known
     # Excited: the angular acceleration varies well above what the gyro's noise makes of it
     # (a moving average of n differences of white noise σ has std σ √2 / (n dt)).
     sigma = estimate_imu_noise({"imu": np.asarray(rec["imu"])})["gyro_noise"]
     floor = sigma * np.sqrt(2.0) / (SMOOTH_STEPS * DT)
     excited = bool(np.std(alpha) > max(3.0 * floor, EXCITED_ALPHA))
-    return {"scores": scores, "gains": gains, "best": best, "given": scores[(0, 1, 2, 3)], "tau": best_tau,
-            "excited": excited, "given_r2": float(best_s)}
+    given = (0, 1, 2, 3)
+    return {"scores": scores, "gains": gains, "taus": taus, "best": best, "given": scores[given],
+            "tau": taus[given], "excited": excited, "given_r2": r2s[given]}
 
 
 THRUST_MODEL_RATIO = 0.3
@@ -103,7 +126,7 @@ def estimate_thrust_lag(rec) -> dict:
 def check_motors(rec) -> list[Finding]:
     cols = "motor_1, motor_2, motor_3, motor_4"
     rate = column_rates(rec)["motor"][0]
-    if rate < MIN_ORDER_RATE_HZ:
+    if not reaches(rate, MIN_ORDER_RATE_HZ):
         return [Finding("warning", cols, f"cannot tell the rotor order at this motor rate ({rate:.3g} Hz): the rotors "
                         f"follow their commands within a few tens of ms, commands {1e3 / rate:.3g} ms apart do not "
                         f"show which rotor turned the vehicle; the order is taken as given (for a ULog: from its "

@@ -18,12 +18,13 @@ LAGS = (0.003, 0.005, 0.0075, 0.01, 0.0125, 0.015, 0.02, 0.03, 0.04, 0.06, 0.08,
 
 KNOWN_ORDERS = {
     "mjxsysid (front-right, front-left, back-left, back-right)": (0, 1, 2, 3),
+    "Crazyflie (M1 front-right, M2 back-right, M3 back-left, M4 front-left)": (0, 3, 2, 1),
+    "Betaflight quad-X (M1 back-right, M2 front-right, M3 back-left, M4 front-left)": (3, 0, 2, 1),
+    "PX4/ArduPilot quad-X (M1 front-right, M2 back-left, M3 front-left, M4 back-right)": (0, 2, 1, 3),
     "RotorPy (front-left, front-right, back-right, back-left)": (1, 0, 3, 2),
-    "PX4 quad-X (front-right, back-left, front-left, back-right)": (0, 2, 1, 3),
-    "Betaflight quad-X (back-right, front-right, back-left, front-left)": (3, 0, 2, 1),
 }
-"""Rotor orders of common tools: the mjxsysid rotor (0 front-right, 1 front-left, 2 back-left,
-3 back-right) in each of the log's columns motor_1..motor_4."""
+"""Rotor orders of the autopilots and tools logs come from: the mjxsysid rotor (0 front-right,
+1 front-left, 2 back-left, 3 back-right) in each of the log's columns motor_1..motor_4."""
 
 
 def smooth(x, n: int = SMOOTH_STEPS):

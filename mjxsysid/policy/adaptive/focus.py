@@ -12,13 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 
 
 def save_weak(path, theta, zhat=None, meta: dict | None = None) -> Path:
     """Write weak systems θ (n, 19) (validated) [and the latents (n, 8)] to ``path``."""
     theta = _check_theta(np.asarray(theta, np.float32), str(path))
-    arrays = {"theta": theta, "meta_json": np.asarray(json.dumps(meta or {}))}
+    arrays = {"theta": theta, "meta_json": np.asarray(jsonout.dumps(meta or {}))}
     if zhat is not None:
         zhat = np.asarray(zhat, np.float32)
         if zhat.shape != (len(theta), zhat.shape[-1]) or zhat.ndim != 2:

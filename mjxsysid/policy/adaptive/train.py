@@ -11,6 +11,7 @@ from pathlib import Path
 
 import jax
 
+from mjxsysid import jsonout
 from mjxsysid import distributed
 from mjxsysid.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.policy.adaptive.config import TrainConfig
@@ -120,7 +121,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
             t_log, it_log = now, it
             rec = dict(iteration=it, env_steps=it * steps_per_it, steps_per_s=sps,
                        wall_s=wall_prev + now - t_start, **stats)
-            logf.write(json.dumps(rec) + "\n")
+            logf.write(jsonout.dumps(rec) + "\n")
             logf.flush()
             log(f"it {it:5d}/{cfg.iterations} | {sps / 1e6:6.2f} M steps/s | reward {stats['reward']:+.3f} "
                 f"| rate err {stats['rate_err']:.3f} rad/s | thrust err {stats['thrust_err']:.2f} | "

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 import datetime
-import json
 import platform
 import time
 from pathlib import Path
@@ -17,6 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy.adaptive import networks as N
@@ -315,7 +315,7 @@ def run_export(ref, out, cfg: ExportConfig = ExportConfig(), log=print, rec: Rec
                            "what": "a recorded flight's inputs (imu, command, reset, refresh per step) and "
                                    "the JAX controller's outputs (motor, latent_next): run the batch-1 file "
                                    "from reset, feeding history_next/latent_next back, and compare"}
-    paths["json"].write_text(json.dumps(desc, indent=2, ensure_ascii=False) + "\n")
+    paths["json"].write_text(jsonout.dumps(desc, indent=2, ensure_ascii=False) + "\n")
     log(f"wrote {paths['json']}, {paths['testvectors']}")
     return desc
 

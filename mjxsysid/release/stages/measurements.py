@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from mjxsysid import jsonout
 from mjxsysid.release.provenance import call
 from mjxsysid.release.runs import STUDY_RUNS, TUNE_RUNS, ExperimentRun
 from mjxsysid.release.stages.registry import STAGES, StageResult
@@ -30,7 +31,7 @@ def noise(rel: Release, out: Path) -> StageResult:
     for name, levels in runs.items():
         c = call(noise_sensitivity, policy=rel.policy_path, decoders=dec, seed=4242, levels=levels, **sz)
         res = noise_sensitivity(policy=rel.policy_path, decoders=dec, seed=4242, levels=levels, log=rel.log, **sz)
-        (out / name).write_text(json.dumps({**c, **res}, indent=1) + "\n")
+        (out / name).write_text(jsonout.dumps({**c, **res}, indent=1) + "\n")
         calls.append(c)
         figures[name] = {lv: {"flight_level_identifiable_within_5": v["flight_level"]["identifiable_90_within_5_points"],
                               "flight_level_params_within_5": v["flight_level"]["coverage_90_within_5_points"]}
@@ -110,7 +111,7 @@ def fidelity(rel: Release, out: Path) -> StageResult:
         kw = {"vehicles": sz.vehicles, "models": sz.models, "duration": sz.duration, "identification": ident,
                   "policy": rel.policy_path}
         res = fidelity_benchmark(decoder=dec, log=rel.log, **kw)
-        (out / name).write_text(json.dumps(res, indent=2) + "\n")
+        (out / name).write_text(jsonout.dumps(res, indent=2) + "\n")
         calls.append(call(fidelity_benchmark, decoder=path, **kw))
         figures[name] = {"mean_inside_decoded": res["mean"]["inside_decoded"],
                          "median_width_ratio": res["width_ratio_decoded_over_pm20"]["median"]}

@@ -77,15 +77,14 @@ def _previous_policy() -> Path | None:
 def policy_eval(rel: Release, out: Path) -> StageResult:
     """``evaluate-policy`` at the release size (eval.json) and ``evaluate-policy --held-out`` of
     the release's policy against the shipped (previous) one (heldout/results.*)."""
-    import json
-
+    from mjxsysid import jsonout
     from mjxsysid.experiments.heldout import SETS
     from mjxsysid.experiments.heldout import run as heldout_run
     from mjxsysid.policy.adaptive.evaluate import evaluate_policy
     from mjxsysid.policy.interface import file_sha256
     sz = rel.sizes
     ev = evaluate_policy(rel.policy_path, n=sz.eval_vehicles, seed=0, log=rel.log)
-    (out / "eval.json").write_text(json.dumps(ev, indent=2) + "\n")
+    (out / "eval.json").write_text(jsonout.dumps(ev, indent=2) + "\n")
     policies = {"release": str(rel.policy_path)}
     prev = _previous_policy()
     if prev is not None and file_sha256(prev) != file_sha256(rel.policy_path):

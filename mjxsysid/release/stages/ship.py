@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from mjxsysid import jsonout
 from mjxsysid.release import layout
 from mjxsysid.release.provenance import call, decoder_provenance, policy_provenance
 from mjxsysid.release.record import RECORD
@@ -74,7 +75,7 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
                     evaluation_calls=rel.entry("policy_eval").get("calls", []))
         prov.update(_adopted_training(rel))
         prov["release"] = release_info("policy")
-        (pre / "policy.json").write_text(json.dumps(prov, indent=2, ensure_ascii=False) + "\n")
+        (pre / "policy.json").write_text(jsonout.dumps(prov, indent=2, ensure_ascii=False) + "\n")
     evals = {"single": rel.stage_dir("decoder_eval") / "single" / "decoder_eval.json",
              "flight": rel.stage_dir("decoder_eval") / "flight" / "decoder_eval.json"}
     for stage, f in layout.SHIPPED[1:]:
@@ -88,7 +89,7 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
         prov.update(calls=rel.entry(stage).get("calls", []),
                     evaluation_calls=rel.entry("decoder_eval").get("calls", []))
         prov["release"] = release_info(stage)
-        (pre / f"{kind}.json").write_text(json.dumps(prov, indent=2, ensure_ascii=False) + "\n")
+        (pre / f"{kind}.json").write_text(jsonout.dumps(prov, indent=2, ensure_ascii=False) + "\n")
     for stage, src, dst in layout.DOCS_RUNS:
         if have(stage, src):
             layout.copy(rel.stage_dir(stage) / src, tree / dst)
@@ -168,7 +169,7 @@ def ship(rel: Release, out: Path) -> StageResult:
         from mjxsysid.release.pages import runs_index
         (dest / runs_index.PAGE).write_text(runs_index.page(dest))
         files.append(runs_index.PAGE)
-    (out / "shipped.json").write_text(json.dumps({"to": str(dest), "files": files, "left_out": left_out},
+    (out / "shipped.json").write_text(jsonout.dumps({"to": str(dest), "files": files, "left_out": left_out},
                                                  indent=2) + "\n")
     if left_out:
         rel.log(f"[release] ship: left out (stages not done): {', '.join(left_out)}")

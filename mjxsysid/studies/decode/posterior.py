@@ -2,12 +2,11 @@
 a window), its summary, and for a log the log-grounded posterior of record (:mod:`mjxsysid.identify`)."""
 from __future__ import annotations
 
-import json
-
 import jax
 import numpy as np
 
 from mjxsysid import theta as P
+from mjxsysid.jsonout import plain
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.dataset.collect import decode_indices
@@ -137,7 +136,7 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     diag["channels_used"] = [c for c, u in zip(CHANNELS, post["channels_used"]) if u > 0]
     diag["rates"] = post["rates"]
     diag["gap"] = information_gap(final, post["theta"], truth)
-    summary["_log_grounded"] = json.loads(json.dumps(diag, default=float))
+    summary["_log_grounded"] = plain(diag)
     summary["_posterior"] = "log-grounded"
     dec["samples_log_grounded"] = post["theta"]
     return summary

@@ -2,11 +2,11 @@
 log, and write decoded.npz, summary.json, summary.md and the figures."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from mjxsysid import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.logs.checks import imu_noise_limit, warn
@@ -32,6 +32,23 @@ def _posterior_table(summary: dict) -> list[str]:
             inside = ("yes" if v["inside"] else "no") if "inside" in v else ""
             rows.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} | {true} | {inside} |")
     return rows
+
+
+def printed_summary(summary: dict) -> dict:
+    """What ``mjxsysid decode`` prints (one JSON line): for a log-grounded posterior the quantities
+    the log pins first (those of :data:`~mjxsysid.identify.coords.LOG_NAMES` the information gap
+    says the log sees, in that order), then the policy's identifiable combinations
+    (:data:`~mjxsysid.theta.IDENTIFIABLE_NAMES`, whose widths the training prior sets where the log
+    cannot see them), and ``not_seen_by_log``; else the identifiable combinations alone."""
+    from mjxsysid.identify.coords import LOG_NAMES
+    gap = (summary.get("_log_grounded") or {}).get("gap")
+    out = {}
+    if gap:
+        out.update({k: summary[k] for k in LOG_NAMES if k in summary and gap.get(k, {}).get("seen_by_log")})
+    out.update({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES})
+    if gap:
+        out["not_seen_by_log"] = [k for k in LOG_NAMES if k in gap and not gap[k].get("seen_by_log")]
+    return out
 
 
 def write_summary_md(summary: dict, path) -> Path:
@@ -172,7 +189,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
         st.start("log-grounded posterior")
         ground_in_log(dec, summary, rec, truth, seed=seed, rates=rates)
     np.savez_compressed(out / "decoded.npz", **dec)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    jsonout.write_json(out / "summary.json", summary)
     write_summary_md(summary, out / "summary.md")
     st.start("plots")
     t_true = truth if truth is not None else np.full(19, np.nan)

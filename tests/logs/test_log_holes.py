@@ -1,0 +1,145 @@
+"""The holes real logs found in reading and reporting a log (issue 55): ground time cut, rotor
+orders of the autopilots, interpolation detected whatever the number format, native rates counted
+in samples, valid JSON, decode's printed quantities. Logs the project writes itself (numpy
+flights, tests/support/synthetic_log.py): no JAX compile."""
+import json
+
+import numpy as np
+import pytest
+
+from mjxsysid.cli import main
+from mjxsysid.jsonout import dumps
+from mjxsysid.logs import checks as L
+from mjxsysid.logs.checks.rotors import check_motors
+from mjxsysid.logs.csvlog import LOG_COLUMNS, read_any_log, read_log, write_log
+from mjxsysid.logs.ulog import hold, interp_linear
+from support.synthetic_log import synthetic_flight
+
+TWR = 2.42
+
+
+def _refuse(const):
+    raise ValueError(f"not JSON: {const}")
+
+
+def _csv(path, r, fmt=None):
+    if fmt is None:
+        return write_log(path, r["t"], r["imu"], r["a_cmd"], r["omega_cmd"], r["motor"])
+    arr = np.column_stack([r["t"], r["imu"], r["a_cmd"], r["omega_cmd"], r["motor"]])
+    np.savetxt(path, arr, delimiter=",", header=",".join(LOG_COLUMNS), comments="", fmt=fmt)
+    return path
+
+
+def test_ground_time_is_cut_and_said(tmp_path):
+    """3 s before take-off and 2 s after landing with the rotors stopped: cut at the airborne
+    segment (take-off and touch-down trimmed), said in source; the log-only thrust-to-weight is the
+    vehicle's (read whole: about 3.4)."""
+    r = synthetic_flight(seconds=10.0, ground_s=(3.0, 2.0), twr=TWR)
+    rec = read_any_log(_csv(tmp_path / "ground.csv", r))
+    seg = rec["source"]["segment"]
+    assert seg["t0"] == pytest.approx(3.5, abs=0.01) and seg["t1"] == pytest.approx(12.5, abs=0.01)
+    assert "airborne from the motor commands" in seg["why"] and rec["source"]["format"] == "CSV"
+    assert rec["t"][0] >= 3.5 - 1e-9 and rec["t"][-1] <= 12.5 + 1e-9
+    assert rec["source"]["rates_hz"] == {"imu": 500.0, "motor": 500.0, "a_cmd": 500.0, "omega_cmd": 500.0}
+    assert set(rec["native"]) == {"imu", "motor", "a_cmd", "omega_cmd"} and rec["source"]["conversions"]
+    assert L.estimate_vehicle(rec)["thrust_to_weight"] == pytest.approx(TWR, rel=0.02)
+    assert L.estimate_vehicle(read_log(tmp_path / "ground.csv"))["thrust_to_weight"] > 1.2 * TWR
+    whole = read_any_log(_csv(tmp_path / "air.csv", synthetic_flight(seconds=4.0)))
+    assert len(whole["t"]) == 2000 and "kept whole" in whole["source"]["segment"]["why"]
+
+
+@pytest.mark.parametrize("name,order", [("Crazyflie", (0, 3, 2, 1)), ("Betaflight", (3, 0, 2, 1)),
+                                        ("PX4/ArduPilot", (0, 2, 1, 3))])
+def test_autopilot_rotor_orders_are_named(name, order):
+    """Motor columns in an autopilot's order: that order named, fitted under its own lag (the
+    rotors' 60 ms), the reordering given."""
+    r = synthetic_flight(seconds=8.0, tau=0.06, gyro_noise=0.01)
+    rec = {k: r[k] for k in ("t", "imu", "a_cmd", "omega_cmd")}
+    rec["motor"] = r["motor"][:, list(order)]
+    fit = L.rotor_order_fit(rec)
+    assert fit["best"] == order and fit["scores"][order] > 0.9 and fit["taus"][order] == pytest.approx(0.06)
+    (f,) = check_motors(rec)
+    assert f.level in ("error", "warning") and f"look like {name}" in f.message and "reorder" in f.message
+
+
+def test_interpolated_imu_with_6_decimals_is_detected(tmp_path):
+    """IMU interpolated from 100 Hz and motors held from exactly 100 Hz, written with 6 decimals:
+    both detected, the rates 100 Hz (samples, not value changes), the noise read at the knots, and
+    τ_m estimable in check-log as in decode's likelihood."""
+    from mjxsysid.identify.logdata import MIN_MOTOR_RATE_HZ, motor_rate_hz
+    r = synthetic_flight(seconds=10.0, gyro_noise=0.01, acc_noise=0.1)
+    k = np.arange(0, len(r["t"]), 5)
+    r = dict(r, imu=interp_linear(r["t"][k], r["imu"][k], r["t"]), motor=hold(r["t"][k], r["motor"][k], r["t"]))
+    rec = read_any_log(_csv(tmp_path / "six.csv", r, fmt="%.6f"))
+    assert rec["resampled"]["imu"].startswith("interpolated (linear) from about 100 Hz")
+    assert rec["resampled"]["motor"].startswith("held (zero-order) from about 100 Hz")
+    assert rec["source"]["rates_hz"]["imu"] == 100.0 and rec["source"]["rates_hz"]["motor"] == 100.0
+    est = L.estimate_vehicle(rec)
+    assert est["gyro_noise"] == pytest.approx(0.01, rel=0.3) and est["imu_rate_hz"] == pytest.approx(100)
+    assert L.motor_time_constant(est)[0] is not None
+    assert motor_rate_hz(rec) == pytest.approx(100) and motor_rate_hz(rec) >= MIN_MOTOR_RATE_HZ * (1 - 1e-9)
+    found = " | ".join(str(f) for f in L.check_log(rec))
+    assert "imu columns look interpolated" in found and "motor columns look held" in found
+
+
+def test_value_quantum_reads_the_number_format():
+    x = np.array([[9.812345, 0.012345], [10.05123, 0.5]])
+    from mjxsysid.logs.checks.rates import value_quantum
+    q = value_quantum(x)
+    assert q[0, 0] == pytest.approx(1e-6) and q[1, 0] == pytest.approx(1e-5) and q[0, 1] == pytest.approx(1e-6)
+
+
+def test_json_outputs_are_valid_json(tmp_path, capsys):
+    """check-log --json of a log whose motors are logged at 10 Hz (the thrust lag not estimable:
+    NaN inside) parses with a parser that refuses NaN; null where the number is missing."""
+    r = synthetic_flight(seconds=6.0)
+    k = np.arange(0, len(r["t"]), 50)
+    r = dict(r, motor=hold(r["t"][k], r["motor"][k], r["t"]))
+    main(["check-log", str(_csv(tmp_path / "slow.csv", r)), "--json"])
+    got = json.loads(capsys.readouterr().out, parse_constant=_refuse)
+    assert got["estimates"]["motor_time_constant_thrust"] is None
+    assert json.loads(dumps({"a": float("nan"), "b": np.float32(np.inf), "c": np.arange(2)}),
+                      parse_constant=_refuse) == {"a": None, "b": None, "c": [0, 1]}
+
+
+def test_decode_prints_what_the_log_pins_first():
+    from mjxsysid.studies.decode.run import printed_summary
+    band = {"mean": 1.0, "q05": 0.9, "q95": 1.1}
+    summary = {"thrust_to_weight": band, "torque_ratio": band, "thrust_to_weight_total": band,
+               "motor_time_constant": band, "authority_total[0]": band,
+               "_log_grounded": {"gap": {"thrust_to_weight_total": {"seen_by_log": True},
+                                         "motor_time_constant": {"seen_by_log": True},
+                                         "authority_total[0]": {"seen_by_log": False}}}}
+    out = printed_summary(summary)
+    assert list(out)[:2] == ["thrust_to_weight_total", "motor_time_constant"]
+    assert "authority_total[0]" not in out and out["not_seen_by_log"] == ["authority_total[0]"]
+    assert list(printed_summary({"thrust_to_weight": band, "x": 1})) == ["thrust_to_weight"]
+
+
+def test_information_gap_tick_labels_do_not_overlap(tmp_path):
+    """information_gap.png's log-scale panels (authorities spanning 50–4000 rad/s²): no two tick
+    labels of a panel overlap."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from mjxsysid.render.posterior import plot_information_gap
+    band = {"unit": "rad/s^2", "width_ratio": 2.0}
+    gap = {f"q{i}": dict(band, decoder_q05=lo, decoder_q95=hi, log_q05=2 * lo, log_q95=hi / 2, log_median=3 * lo)
+           for i, (lo, hi) in enumerate([(50, 4000), (5, 400), (0.005, 0.12), (2, 200), (10, 45), (0.3, 1.6)])}
+    shown = {}
+    orig = plt.close
+    plt.close = lambda fig=None: shown.setdefault("fig", fig)
+    try:
+        plot_information_gap(gap, tmp_path / "gap.png")
+    finally:
+        plt.close = orig
+    fig = shown["fig"]
+    r = fig.canvas.get_renderer()
+    for ax in fig.axes[:len(gap)]:
+        lo, hi = sorted(ax.get_xlim())
+        ticks = [t for t in ax.xaxis.get_major_ticks() + ax.xaxis.get_minor_ticks()
+                 if t.label1.get_visible() and t.label1.get_text() and lo <= t.get_loc() <= hi]
+        boxes = sorted(((t.label1.get_window_extent(r), t.label1.get_text()) for t in ticks), key=lambda b: b[0].x0)
+        assert all(a.x1 <= b.x0 for (a, _), (b, _) in zip(boxes, boxes[1:])), [t for _, t in boxes]
+    plt.close(fig)
