@@ -397,8 +397,9 @@ def read_crazyflie(path, segment=None) -> dict:
     motor_native = np.sqrt(np.clip(raw / PWM_FULL, 0.0, 1.0))[:, CF_ORDER]
     used["motor"] = f"{ev_m} ({', '.join(m_names)})"
     rates["motor"] = _rate(t_m)
-    conv.append(f"motor commands: {m_what} are the motors' duty × {PWM_FULL:g}, the throttle; thrust ∝ throttle "
-                f"(roughly, for the Crazyflie's brushed motors) and thrust ∝ Ω², so Ω_cmd/Ω_max = √(pwm/{PWM_FULL:g})")
+    conv.append(f"motor commands: {m_what} (0–{PWM_FULL:g}) over {PWM_FULL:g} are the motors' duty, the "
+                f"throttle; thrust ∝ throttle (roughly, for the Crazyflie's brushed motors) and thrust ∝ Ω², so "
+                f"Ω_cmd/Ω_max = √(pwm/{PWM_FULL:g})")
     conv.append("rotor order: Crazyflie M1 front-right (CCW), M2 back-right (CW), M3 back-left (CCW), M4 front-left "
                 "(CW) reordered to mjxsysid's front-right, front-left, back-left, back-right (M1, M4, M3, M2); the "
                 "spin directions are mjxsysid's")
