@@ -212,7 +212,8 @@ def read_blackbox(path, segment=None, log_index=None) -> dict:
     omega_cmd (T, 3), motor (T, 4), and with Indiflight's fields rotor_speed (T, 4) rad/s and
     velocity_body (T, 3) m/s) on a 2 ms grid over the airborne segment (or ``segment`` 't0:t1').
 
-    ``log_index`` (1-based) picks one of several logs in the file; the largest by default. Frames
+    ``log_index`` (1-based) picks one of several logs in the file; the largest (in bytes, the longest
+    at one logging rate) by default. Frames
     before the longest run of monotonic time (garbage at a log's start) are dropped. ValueError: not
     a readable blackbox log, a field missing, not four motors, a segment too short; ImportError
     without orangebox (``pip install -e ".[blackbox]"``)."""
@@ -301,14 +302,14 @@ def read_blackbox(path, segment=None, log_index=None) -> dict:
     j0 = max(int(np.searchsorted(t, t0, side="right")) - 1, 0)
     j1 = min(int(np.searchsorted(t, t1, side="left")) + 1, len(t))
     native = {k: (t[j0:j1], v[j0:j1]) for k, v in native_all.items()}
-    how = "native" if abs(rate * DT - 1) <= 0.05 else None
+    on_grid = abs(rate * DT - 1) <= 0.05                  # within 5 % of 500 Hz: read as the grid's own samples
     rate_txt = f"{rate:.0f} Hz"
     rec = {"t": grid}
     resampled = {}
     for k, (tn, xn) in native.items():
         linear = k in ("imu", "rotor_speed", "velocity_body") or k in missing   # filled from the IMU: as the IMU
         rec[k] = (interp_linear if linear else hold)(tn, xn, grid)
-        resampled[k] = (f"native ({rate_txt})" if how else
+        resampled[k] = (f"native ({rate_txt})" if on_grid else
                         f"{'interpolated (linear)' if linear else 'held (zero-order)'} from {rate_txt}")
     rec["native"] = native
     rec["resampled"] = resampled
