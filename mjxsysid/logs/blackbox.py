@@ -258,8 +258,12 @@ def read_blackbox(path, segment=None, log_index=None) -> dict:
     conv.append(f"motor commands: throttle = (motor − {lo:g}) / ({hi:g} − {lo:g}) ({src}: DShot idle with the "
                 f"digital idle offset, and full), clipped to [0, 1]; thrust ∝ throttle and ∝ Ω², so "
                 f"Ω_cmd/Ω_max = √throttle")
+    if int(headers.get("yaw_motors_reversed", 0) or 0):
+        raise ValueError(f"{path}: yaw_motors_reversed = 1 (props out): the rotors spin opposite to mjxsysid's "
+                         f"quad-X (Betaflight's default props in); this layout is not supported")
     conv.append("rotor order: Betaflight M1 rear-right, M2 front-right, M3 rear-left, M4 front-left to mjxsysid's "
-                "front-right (M2), front-left (M4), back-left (M3), back-right (M1)")
+                "front-right (M2), front-left (M4), back-left (M3), back-right (M1); props in (Betaflight's default, "
+                "no yaw_motors_reversed) spin as mjxsysid's rotors")
 
     native_all = {"imu": np.concatenate([gyro, acc], -1), "motor": rotor}
     missing = []

@@ -184,6 +184,10 @@ def test_bad_input_and_missing_dependency(tmp_path, monkeypatch, written):
     noacc.write_bytes(write_blackbox(f, HEADERS))
     with pytest.raises(ValueError, match=r"no accSmooth\[0\]"):
         B.read(noacc)
+    props_out = tmp_path / "props_out.bbl"
+    props_out.write_bytes(write_blackbox(flight_fields(indiflight=False), {**HEADERS, "yaw_motors_reversed": "1"}))
+    with pytest.raises(ValueError, match="props out"):
+        B.read(props_out)
     monkeypatch.setitem(sys.modules, "orangebox", None)
     with pytest.raises(ImportError, match=r'pip install -e "\.\[blackbox\]"'):
         B.read(written[0])
