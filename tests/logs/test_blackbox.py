@@ -1,0 +1,241 @@
+"""Betaflight blackbox logs (mjxsysid.logs.blackbox): a log written here (headers, I frames, known
+gyro/acc/motors/setpoints) read back with every conversion checked, and the real samples of
+shared/data/logs/formats/blackbox (Indiflight 504 Hz, Betaflight 3.1.5 1980 Hz), skipped without them.
+numpy and orangebox only: no JAX compile."""
+import shutil
+import sys
+
+import numpy as np
+import pytest
+
+pytest.importorskip("orangebox")
+
+from mjxsysid.logs import blackbox as B
+from mjxsysid.logs.csvlog import read_any_log
+from mjxsysid.logs.formats import detect
+from support.paths import ROOT
+
+SAMPLES = ROOT.parent / "shared" / "data" / "logs" / "formats" / "blackbox"
+INDIFLIGHT = SAMPLES / "indiflight_iros2024_LOG00281.BFL"
+BETAFLIGHT = SAMPLES / "betaflight315_cs110_example_smooth_tune.BBL"
+
+RATE = 1000                                   # Hz of the written log
+MOTOR_FLIGHT = (1000, 700, 800, 900)          # M1 rear-right, M2 front-right, M3 rear-left, M4 front-left
+IDLE = 158
+
+
+def _uvb(v: int) -> bytes:
+    out = bytearray()
+    while True:
+        b = v & 0x7F
+        v >>= 7
+        if v:
+            out.append(b | 0x80)
+        else:
+            out.append(b)
+            return bytes(out)
+
+
+def _svb(v: int) -> bytes:
+    return _uvb(-2 * v - 1 if v < 0 else 2 * v)
+
+
+def write_blackbox(fields: dict, headers: dict) -> bytes:
+    """One blackbox log: ``fields`` {name: (N,) ints} as I frames only (predictor none, signed VB
+    except loopIteration and time), ``headers`` {name: text}, the end-of-log event."""
+    names = ["loopIteration", "time"] + [k for k in fields if k not in ("loopIteration", "time")]
+    n = len(fields["time"])
+    fields = {"loopIteration": np.arange(n), **fields}
+    unsigned = ("loopIteration", "time")
+    head = [f"H Product:{B.MAGIC[10:].decode()}", "H Data version:2", "H I interval:1", "H P interval:1/1",
+            "H Firmware type:Cleanflight", f"H Field I name:{','.join(names)}",
+            f"H Field I signed:{','.join('0' if k in unsigned else '1' for k in names)}",
+            f"H Field I predictor:{','.join('0' for _ in names)}",
+            f"H Field I encoding:{','.join('1' if k in unsigned else '0' for k in names)}",
+            f"H Field P predictor:{','.join('0' for _ in names)}",
+            f"H Field P encoding:{','.join('1' if k in unsigned else '0' for k in names)}"]
+    head += [f"H {k}:{v}" for k, v in headers.items()]
+    body = bytearray("\n".join(head).encode() + b"\n")
+    for i in range(n):
+        body += b"I" + b"".join(_uvb(int(fields[k][i])) if k in unsigned else _svb(int(fields[k][i])) for k in names)
+    body += b"E\xffEnd of log\x00"
+    return bytes(body)
+
+
+def flight_fields(indiflight: bool = True, seconds=(1.0, 3.0, 1.0)) -> dict:
+    """Idle on the ground, flight, idle; two garbage frames first (time far ahead)."""
+    n0, n1, n2 = (int(s * RATE) for s in seconds)
+    n = n0 + n1 + n2
+    t = 1_000_000 + np.arange(n) * (1_000_000 // RATE)
+    t = np.concatenate([[50_000_000, 50_000_500], t])
+    n += 2
+    fly = np.zeros(n, bool)
+    fly[2 + n0:2 + n0 + n1] = True
+    col = lambda v: np.full(n, v)                                   # noqa: E731
+    f = {"time": t}
+    f.update({f"gyroADC[{i}]": col(v) for i, v in enumerate((100, -200, 300))})     # deg/s × 10
+    f.update({f"accSmooth[{i}]": col(v) for i, v in enumerate((205, -410, 2048))})
+    f.update({f"motor[{i}]": np.where(fly, v, IDLE) for i, v in enumerate(MOTOR_FLIGHT)})
+    if indiflight:
+        f.update({f"gyroSp[{i}]": col(v) for i, v in enumerate((50, 60, 70))})          # FRD, deg/s × 10
+        f.update({f"spfSp[{i}]": col(v) for i, v in enumerate((0, 0, -981))})          # cm/s², FRD
+        f.update({f"omega[{i}]": col(v) for i, v in enumerate((1000, 2000, 3000, 4000))})
+        f.update({f"vel[{i}]": col(v) for i, v in enumerate((0, 100, 50))})            # cm/s NED: east, down
+        c = int(round(np.cos(np.pi / 4) * B.QUAT_SCALE))
+        f.update({f"quat[{i}]": col(v) for i, v in enumerate((c, 0, 0, c))})           # yaw 90°: nose east
+    return f
+
+
+HEADERS = {"Firmware revision": "Indiflight 5.0.0 (test)", "gyro_scale": "0x3f800000", "motorOutput": f"{IDLE},2047",
+           "acc_1G": "2048", "blackbox_high_resolution": "1"}
+
+
+@pytest.fixture(scope="module")
+def written(tmp_path_factory):
+    path = tmp_path_factory.mktemp("bb") / "LOG00001.BFL"
+    path.write_bytes(write_blackbox(flight_fields(), HEADERS))
+    return path, B.read(path)
+
+
+def test_written_log_units_frame_order_rate_and_segment(written):
+    path, r = written
+    n = len(r["t"])
+    assert np.allclose(np.diff(r["t"]), 0.002) and r["imu"].shape == (n, 6) and r["motor"].shape == (n, 4)
+    # gyro deg/s × 10 -> rad/s, already FLU; acc / acc_1G × g, already FLU
+    np.testing.assert_allclose(r["imu"][:, :3], np.deg2rad([10.0, -20.0, 30.0]) * np.ones((n, 1)), rtol=1e-9)
+    np.testing.assert_allclose(r["imu"][:, 3:], np.array([205, -410, 2048]) / 2048 * 9.81 * np.ones((n, 1)), rtol=1e-9)
+    # motors: √((m − idle) / (2047 − idle)), mjxsysid order FR (M2), FL (M4), BL (M3), BR (M1)
+    m1, m2, m3, m4 = MOTOR_FLIGHT
+    want = np.sqrt((np.array([m2, m4, m3, m1]) - IDLE) / (2047 - IDLE))
+    np.testing.assert_allclose(r["motor"][n // 2], want, rtol=1e-9)
+    # Indiflight setpoints FRD -> FLU, spfSp cm/s² z down -> a_cmd m/s² up
+    np.testing.assert_allclose(r["omega_cmd"][0], np.deg2rad([5.0, -6.0, -7.0]), rtol=1e-9)
+    np.testing.assert_allclose(r["a_cmd"], 9.81, rtol=1e-9)
+    np.testing.assert_allclose(r["rotor_speed"][0], [2000, 4000, 3000, 1000])
+    # 1 m/s east, 0.5 m/s down, nose east: 1 m/s forward, 0.5 m/s along −z (FLU)
+    np.testing.assert_allclose(r["velocity_body"][0], [1.0, 0.0, -0.5], atol=1e-3)
+    src = r["source"]
+    assert src["rates_hz"]["imu"] == pytest.approx(RATE) and src["missing"] == []
+    assert r["resampled"]["imu"] == "interpolated (linear) from 1000 Hz"
+    assert r["resampled"]["motor"] == "held (zero-order) from 1000 Hz"
+    # the garbage frames dropped, t from the first valid frame; airborne 1–4 s, 0.5 s trimmed at each end
+    assert "2 of 5002 dropped" in " ".join(src["conversions"])
+    seg = src["segment"]
+    assert seg["t0"] == pytest.approx(1.5, abs=0.01) and seg["t1"] == pytest.approx(3.5, abs=0.01)
+    assert "airborne" in seg["why"]
+    tn, xn = r["native"]["imu"]
+    assert len(tn) == pytest.approx(2 * RATE, abs=3) and np.median(np.diff(tn)) == pytest.approx(1e-3)
+
+
+def test_segment_argument_and_read_any_log_by_content(written, tmp_path):
+    path, _ = written
+    r = B.read(path, "0.5:2")
+    assert r["t"][0] == pytest.approx(0.5) and r["t"][-1] == pytest.approx(2.0)
+    assert "--segment" in r["source"]["segment"]["why"]
+    assert r["motor"][0].max() == 0 and r["motor"][-1].min() > 0.3        # idle on the ground, then flying
+    other = tmp_path / "flight.csv"
+    shutil.copy(path, other)
+    assert detect(other) == "Betaflight blackbox"
+    assert read_any_log(other)["source"]["format"] == "Betaflight blackbox"
+    with pytest.raises(ValueError, match="end must come after"):
+        B.read(path, "2:1")
+
+
+def test_log_without_setpoints_fills_them_and_says_so(tmp_path):
+    path = tmp_path / "bf.bbl"
+    path.write_bytes(write_blackbox(flight_fields(indiflight=False),
+                                    {**HEADERS, "blackbox_high_resolution": "0", "Firmware revision": "Betaflight"}))
+    r = B.read(path)
+    assert r["source"]["missing"] == ["omega_cmd", "a_cmd"] and "rotor_speed" not in r
+    np.testing.assert_allclose(r["omega_cmd"], r["imu"][:, :3])
+    np.testing.assert_allclose(r["a_cmd"], r["imu"][:, 5])
+    np.testing.assert_allclose(r["imu"][0, :3], np.deg2rad([100.0, -200.0, 300.0]), rtol=1e-9)   # no / 10
+    conv = " ".join(r["source"]["conversions"])
+    assert "filled with the measured gyro" in conv and "filled with the measured specific force" in conv
+
+
+def test_several_logs_largest_by_default_or_log_index(tmp_path):
+    short = write_blackbox(flight_fields(seconds=(0.5, 2.5, 0.5)), HEADERS)
+    long = write_blackbox(flight_fields(seconds=(0.5, 3.5, 0.5)), HEADERS)
+    path = tmp_path / "two.bbl"
+    path.write_bytes(short + long)
+    r = B.read(path)
+    assert r["source"]["log_index"] == 2 and "log 2 of 2 (the largest" in r["source"]["conversions"][0]
+    one = B.read(path, log_index=1)
+    assert one["source"]["segment"]["t1"] < r["source"]["segment"]["t1"]
+    with pytest.raises(ValueError, match="numbered 1..2"):
+        B.read(path, log_index=3)
+
+
+def test_bad_input_and_missing_dependency(tmp_path, monkeypatch, written):
+    assert not B.sniff(b"ULog\x01\x12\x35") and B.sniff(written[0].read_bytes()[:4096])
+    junk = tmp_path / "junk.bbl"
+    junk.write_bytes(b"not a blackbox log at all\n")
+    with pytest.raises(ValueError, match="not a blackbox log"):
+        B.read(junk)
+    hexa = tmp_path / "hexa.bbl"
+    f = flight_fields(indiflight=False)
+    f["motor[4]"] = f["motor[0]"]
+    hexa.write_bytes(write_blackbox(f, HEADERS))
+    with pytest.raises(ValueError, match="more than four motors"):
+        B.read(hexa)
+    noacc = tmp_path / "noacc.bbl"
+    f = {k: v for k, v in flight_fields(indiflight=False).items() if not k.startswith("accSmooth")}
+    noacc.write_bytes(write_blackbox(f, HEADERS))
+    with pytest.raises(ValueError, match=r"no accSmooth\[0\]"):
+        B.read(noacc)
+    props_out = tmp_path / "props_out.bbl"
+    props_out.write_bytes(write_blackbox(flight_fields(indiflight=False), {**HEADERS, "yaw_motors_reversed": "1"}))
+    with pytest.raises(ValueError, match="props out"):
+        B.read(props_out)
+    monkeypatch.setitem(sys.modules, "orangebox", None)
+    with pytest.raises(ImportError, match=r'pip install -e "\.\[blackbox\]"'):
+        B.read(written[0])
+
+
+def test_dshot_command_and_frames():
+    np.testing.assert_allclose(B.rotor_command(np.array([[158, 2047, 1102.5, 0]]), 158, 2047),
+                               [[1.0, 0.0, np.sqrt(0.5), 0.0]])                         # FR=M2, FL=M4, BL=M3, BR=M1
+    assert B.hex_float(1065353216) == 1.0 and B.hex_float("0x40000000") == 2.0
+    assert B.clean_run(np.array([900, 10, 20, 30, 5, 6])) == (1, 4)
+    q = np.array([[np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)]])
+    np.testing.assert_allclose(B.world_to_body(q, np.array([[0.0, 1.0, 0.0]])), [[1.0, 0.0, 0.0]], atol=1e-12)
+
+
+@pytest.fixture(scope="module")
+def indiflight():
+    if not INDIFLIGHT.is_file():
+        pytest.skip(f"blackbox samples not found at {SAMPLES}")
+    return B.read(INDIFLIGHT)
+
+
+@pytest.fixture(scope="module")
+def betaflight():
+    if not BETAFLIGHT.is_file():
+        pytest.skip(f"blackbox samples not found at {SAMPLES}")
+    return B.read(BETAFLIGHT)
+
+
+def test_indiflight_sample(indiflight):
+    r, src = indiflight, indiflight["source"]
+    assert src["rates_hz"]["imu"] == pytest.approx(504.3, abs=0.5) and src["missing"] == []
+    seg = src["segment"]
+    assert 0.5 < seg["t0"] and seg["t1"] < 43 and seg["t1"] - seg["t0"] > 15      # airborne 0.9–42.8 s
+    assert np.median(r["imu"][:, 5]) == pytest.approx(9.9, abs=0.4)
+    assert 1000 < np.median(r["rotor_speed"]) < 3000 and r["rotor_speed"].max() < 4200
+    for i in range(3):                                                              # setpoints in the gyro's frame
+        assert np.corrcoef(r["omega_cmd"][:, i], r["imu"][:, i])[0, 1] > 0.5
+    assert np.corrcoef(r["a_cmd"], r["imu"][:, 5])[0, 1] > 0.5
+    for i in range(2):                                                              # rotor drag opposes body velocity
+        assert np.corrcoef(r["velocity_body"][:, i], r["imu"][:, 3 + i])[0, 1] < -0.1
+
+
+def test_betaflight_sample(betaflight):
+    r, src = betaflight, betaflight["source"]
+    assert src["rates_hz"]["imu"] == pytest.approx(1980, rel=0.01)
+    assert "7 of 76336 dropped" in " ".join(src["conversions"])
+    assert src["missing"] == ["omega_cmd", "a_cmd"]
+    seg = src["segment"]
+    assert seg["t0"] == pytest.approx(0, abs=0.5) and 36 < seg["t1"] < 39
+    assert np.median(r["imu"][:, 5]) == pytest.approx(9.9, abs=0.4)
+    assert 0.3 < r["motor"].mean() < 0.7 and r["motor"].max() <= 1
