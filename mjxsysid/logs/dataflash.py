@@ -21,7 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from mjxsysid import theta as P
-from mjxsysid.logs.record import HELD, LINEAR, assemble, body_velocity_from_world, pick_segment, rate_hz, sorted_unique
+from mjxsysid.logs.record import (HELD, LINEAR, assemble, body_velocity_from_world, native_rates, pick_segment,
+                                    sorted_unique)
 from mjxsysid.logs.ulog import throttle_to_rotor_speed
 
 MAGIC = b"\xa3\x95\x80"
@@ -135,7 +136,8 @@ def motor_channels(params: dict, version) -> tuple[list[int], str]:
         if extra:
             raise ValueError(f"SERVOn_FUNCTION drives motors {extra} beyond 4: mjxsysid models a quad-X only")
         ch = [chans[k] for k in (1, 2, 3, 4)]
-        return ch, f"motor outputs: RCOU C{ch[0]}, C{ch[1]}, C{ch[2]}, C{ch[3]} drive motors 1..4 (SERVOn_FUNCTION 33..36)"
+        return ch, (f"motor outputs: RCOU C{ch[0]}, C{ch[1]}, C{ch[2]}, C{ch[3]} drive motors 1..4 "
+                    f"(SERVOn_FUNCTION 33..36)")
     v = "" if version is None else f" (the log is of {version[0]}.{version[1]})"
     return [1, 2, 3, 4], (f"motor outputs: no SERVOn_FUNCTION parameters{v}: ArduCopter's fixed mapping before 3.5, "
                           f"RCOU C1..C4 drive motors 1..4")
@@ -149,7 +151,8 @@ def pwm_range(params: dict) -> tuple[float, float, str]:
         return lo, hi, f"PWM range {lo:g}–{hi:g} µs (MOT_PWM_MIN/MAX)"
     if "RC3_MIN" in params and "RC3_MAX" in params and float(params["RC3_MAX"]) > float(params["RC3_MIN"]) > 0:
         lo, hi = float(params["RC3_MIN"]), float(params["RC3_MAX"])
-        return lo, hi, f"PWM range {lo:g}–{hi:g} µs (RC3_MIN/MAX: MOT_PWM_MIN/MAX are 0 or absent, as ArduCopter does)"
+        return lo, hi, (f"PWM range {lo:g}–{hi:g} µs (RC3_MIN/MAX: MOT_PWM_MIN/MAX are 0 or absent, as "
+                        f"ArduCopter does)")
     return 1000.0, 2000.0, "PWM range 1000–2000 µs (no MOT_PWM_MIN/MAX or RC3_MIN/MAX in the log: assumed)"
 
 
@@ -222,7 +225,7 @@ def read_dataflash(path, segment=None) -> dict:
         if need not in msgs:
             raise ValueError(f"{path}: no {need} messages; log them (LOG_BITMASK: IMU and RCOUT) to read this log")
     g = P.GRAVITY
-    rates, missing, types = {}, [], {}
+    missing, types = [], {}
 
     # ---- IMU, FRD -> FLU
     imu = _instance(msgs["IMU"], "I")
@@ -245,11 +248,11 @@ def read_dataflash(path, segment=None) -> dict:
     rotor = throttle_to_rotor_speed(u, e)[:, [list(AP_QUADX_ORDER).index(j) for j in range(4)]]
     types["motor"] = f"RCOU ({', '.join(cols)})"
     conv += [said_chans, said_pwm,
-             f"motor commands: throttle u = (pwm − {lo:g}) / ({hi:g} − {lo:g}) clipped to [0, 1]; ArduPilot's thrust "
-             f"curve thrust ∝ (1 − e) u + e u² with MOT_THST_EXPO e = {e:g}"
+             f"motor commands: throttle u = (pwm − {lo:g}) / ({hi:g} − {lo:g}) clipped to [0, 1]; ArduPilot's "
+             f"thrust curve thrust ∝ (1 − e) u + e u² with MOT_THST_EXPO e = {e:g}"
              + ("" if "MOT_THST_EXPO" in params else " (absent: ArduCopter's default)")
-             + " and thrust ∝ Ω²: Ω_cmd/Ω_max = √((1 − e) u + e u²) (MOT_SPIN_MIN/MAX not applied: the curve "
-               "taken over the whole PWM range)",
+             + " and thrust ∝ Ω²: Ω_cmd/Ω_max = √((1 − e) u + e u²) (MOT_SPIN_MIN/MAX not applied: the "
+               "curve taken over the whole PWM range)",
              "rotor order: ArduCopter quad-X motors 1..4 are front-right, back-left, front-left, back-right; "
              "reordered to mjxsysid's"]
 
@@ -298,14 +301,14 @@ def read_dataflash(path, segment=None) -> dict:
         conv.append(said_v)
     else:
         missing.append("velocity_body")
-    for k, (t, _, _) in channels.items():
-        rates[k] = rate_hz(t)
+    rates, gaps = native_rates(channels)
 
     rec = assemble(channels, t0, t1)
     rec["source"] = {
         "format": "ArduPilot DataFlash", "path": str(path), "firmware": text, "messages": types,
-        "rates_hz": {k: round(v, 2) for k, v in rates.items()},
-        "segment": {"t0": float(t0), "t1": float(t1), "why": why, "clock": "seconds since the autopilot's boot (TimeUS)"},
+        "rates_hz": rates, "max_gap_s": gaps,
+        "segment": {"t0": float(t0), "t1": float(t1), "why": why,
+                    "clock": "seconds since the autopilot's boot (TimeUS)"},
         "conversions": conv, "missing": missing,
         "parameters": {k: float(params[k]) for k in ("MOT_THST_EXPO", "MOT_THST_HOVER", "MOT_PWM_MIN", "MOT_PWM_MAX",
                                                      "MOT_SPIN_MIN", "MOT_SPIN_MAX", "RC3_MIN", "RC3_MAX", "FRAME",

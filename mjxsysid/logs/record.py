@@ -21,6 +21,14 @@ def rate_hz(t) -> float:
     return float(1.0 / np.median(d)) if d.size else float("nan")
 
 
+def native_rates(channels: dict) -> tuple[dict, dict]:
+    """({name: native rate Hz (median step)}, {name: longest step s}) of ``channels`` {name: (t (N,), ...)}:
+    a bursty stream (mavros) has a median rate well above its mean; the longest gap says so."""
+    rates = {k: round(rate_hz(c[0]), 2) for k, c in channels.items()}
+    gaps = {k: round(float(np.max(np.diff(c[0]))), 4) if len(c[0]) > 1 else float("nan") for k, c in channels.items()}
+    return rates, gaps
+
+
 def rate_text(hz: float) -> str:
     return f"{hz:.0f} Hz" if hz >= 2 else f"{hz:.2g} Hz"
 

@@ -27,7 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid.logs.record import HELD, LINEAR, assemble, body_velocity_from_world, pick_segment, rate_hz, sorted_unique
+from mjxsysid.logs.record import (HELD, LINEAR, assemble, body_velocity_from_world, native_rates, pick_segment,
+                                    sorted_unique)
 from mjxsysid.logs.ulog import PX4_QUADX_ORDER, throttle_to_rotor_speed
 
 ROS1_MAGIC = b"#ROSBAG V2.0"
@@ -46,7 +47,8 @@ def _import_rosbags():
         from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
     except ImportError:
-        raise ImportError('reading ROS bags needs rosbags: pip install -e ".[rosbag]" (or pip install rosbags)') from None
+        raise ImportError('reading ROS bags needs rosbags: pip install -e ".[rosbag]" '
+                          "(or pip install rosbags)") from None
     return AnyReader, get_typestore(Stores.ROS2_HUMBLE)
 
 
@@ -149,11 +151,12 @@ def read_rosbag(path, segment=None) -> dict:
             raise
         except Exception as e:  # rosbags raises its own errors on a damaged or unindexed bag
             raise ValueError(f"{path}: not a readable ROS bag ({type(e).__name__}: {e}); "
-                             f"check it with `rosbag info` or `ros2 bag info` (reindex it if it was cut short)") from None
+                             f"check it with `rosbag info` or `ros2 bag info` (reindex it if it was cut short)"
+                             ) from None
 
 
 def _read(reader, path, segment) -> dict:
-    topics, conv, missing, rates = {}, [], [], {}
+    topics, conv, missing = {}, [], []
     imu_topic, said = _richest(reader, IMU)
     if imu_topic is None:
         raise ValueError(f"{path}: no sensor_msgs/Imu topic; mjxsysid needs the IMU (mavros: /mavros/imu/data)")
@@ -219,8 +222,8 @@ def _read(reader, path, segment) -> dict:
                     "gyro (not a setpoint)")
     channels["a_cmd"] = (t_imu, x_imu[:, 5], LINEAR)
     missing.append("a_cmd")
-    conv.append("a_cmd: the bag has no collective thrust setpoint in m/s² (a normalised thrust cannot be scaled without "
-                "the hover thrust): filled with the measured specific force along body z (not a setpoint)")
+    conv.append("a_cmd: the bag has no collective thrust setpoint in m/s² (a normalised thrust cannot be scaled "
+                "without the hover thrust): filled with the measured specific force along body z (not a setpoint)")
 
     if tw_topic:
         vel = _velocity(data[tw_topic][2], times(tw_topic), t_imu, quat, tw_topic)
@@ -234,13 +237,12 @@ def _read(reader, path, segment) -> dict:
                     "velocity_local) with an orientation to rotate it: not given")
     if clock:
         conv.append(f"time: {', '.join(clock)} has no header stamps: the bag's receive time used for it")
-    for k, (t, _, _) in channels.items():
-        rates[k] = rate_hz(t)
+    rates, gaps = native_rates(channels)
 
     rec = assemble(channels, t0, t1)
     rec["source"] = {
         "format": "ROS bag", "path": str(path), "topics": topics,
-        "rates_hz": {k: round(v, 2) for k, v in rates.items()},
+        "rates_hz": rates, "max_gap_s": gaps,
         "segment": {"t0": float(t0), "t1": float(t1), "why": why,
                     "clock": "seconds since the bag's start (header.stamp − the bag's first receive time)"},
         "bag_start_s": t_ref, "conversions": conv, "missing": missing}
@@ -256,16 +258,17 @@ def _velocity(msgs, t_v, t_imu, quat, topic):
     t_v, v = sorted_unique(t_v, v)
     if _is_body_frame(frame):
         flip = np.array([1.0, -1.0, -1.0]) if frame.endswith("_frd") else np.ones(3)
-        return t_v, v * flip, f"velocity_body: {topic} twist.linear in the body frame ({frame!r}){', FRD to FLU' if frame.endswith('_frd') else ', FLU'}"
+        how = "FRD to FLU" if frame.endswith("_frd") else "FLU"
+        return t_v, v * flip, f"velocity_body: {topic} twist.linear in the body frame ({frame!r}), {how}"
     if not np.all(np.isfinite(quat)) or np.any(np.linalg.norm(quat, axis=-1) < 0.5):
         return None
     if frame.endswith("_ned"):
         v = v[:, [1, 0, 2]] * np.array([1.0, 1.0, -1.0])
     i = np.clip(np.searchsorted(t_imu, t_v), 0, len(t_imu) - 1)
     v_body = body_velocity_from_world(v, quat_to_matrix(quat[i]))
-    return t_v, v_body, (f"velocity_body: {topic} twist.linear in the world ({frame!r}, "
-                         f"{'NED to ENU, ' if frame.endswith('_ned') else 'ENU, '}) rotated into the body FLU with the "
-                         f"IMU orientation (ENU <- FLU) nearest in time")
+    world = "NED, taken to ENU" if frame.endswith("_ned") else "ENU"
+    return t_v, v_body, (f"velocity_body: {topic} twist.linear in the world ({frame!r}, {world}) rotated into the "
+                         f"body FLU with the IMU orientation (ENU <- FLU) nearest in time")
 
 
 read = read_rosbag

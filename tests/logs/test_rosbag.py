@@ -57,7 +57,8 @@ def _messages(ts):
         t = BASE + 0.005 * i
         imu = T["sensor_msgs/msg/Imu"](header=header(t, "base_link"), orientation=yaw90, orientation_covariance=cov,
                                        angular_velocity=Vec(x=0.1, y=-0.2, z=0.3), angular_velocity_covariance=cov,
-                                       linear_acceleration=Vec(x=0.5, y=0.6, z=9.81), linear_acceleration_covariance=cov)
+                                       linear_acceleration=Vec(x=0.5, y=0.6, z=9.81),
+                                       linear_acceleration_covariance=cov)
         out.append(("/uav/imu/data", "sensor_msgs/msg/Imu", t + IMU_LAG, imu))
         if i % 2 == 0:                                                      # 100 Hz motors
             flying = 2.0 <= t - BASE <= 8.5
@@ -121,7 +122,8 @@ def check_conversions(r):
     s = r["source"]
     assert s["missing"] == ["a_cmd"] and "/uav/imu/data (2000 messages; not used: /uav/imu/data_raw (500))" \
         == s["topics"]["imu"]
-    assert s["rates_hz"]["imu"] == pytest.approx(200, rel=1e-3) and s["rates_hz"]["motor"] == pytest.approx(100, rel=1e-3)
+    assert s["rates_hz"]["imu"] == pytest.approx(200, rel=1e-3)
+    assert s["rates_hz"]["motor"] == pytest.approx(100, rel=1e-3)
     assert r["resampled"]["imu"] == "interpolated (linear) from 200 Hz"
     # header stamps, not receive times: the motors rise 2 s after the first stamp, the bag starts IMU_LAG after it
     assert s["segment"]["t0"] == pytest.approx(2.0 + 0.5 - IMU_LAG, abs=0.011)
@@ -181,6 +183,7 @@ def test_real_mavros_sample():
     r = R.read_rosbag(SAMPLE)
     s = r["source"]
     assert s["rates_hz"]["imu"] == pytest.approx(126, abs=2) and s["rates_hz"]["motor"] == pytest.approx(127, abs=2)
+    assert 0.05 < s["max_gap_s"]["imu"] < 0.1                          # bursty: 89 Hz mean, gaps to 71 ms
     assert s["topics"]["imu"].startswith("/mavros/imu/data") and s["topics"]["motor"].startswith("/mavros/rc/out")
     assert 7 < s["segment"]["t0"] < 13 and 31 < s["segment"]["t1"] < 35
     assert r["imu"][:, 5].mean() == pytest.approx(9.8, abs=0.3)
