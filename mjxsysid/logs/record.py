@@ -1,0 +1,99 @@
+"""The log contract's last steps, shared by the readers of non-PX4 formats (DataFlash, ROS bags).
+
+A reader converts its channels to SI units, body frame FLU and mjxsysid's rotor order on their own
+timestamps, picks the segment (:func:`pick_segment`) and hands the native samples to
+:func:`assemble`, which brings them to the 2 ms grid and says how (``rec["resampled"]``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from mjxsysid.logs.segment import airborne_segment
+from mjxsysid.logs.ulog import DT, MIN_ROWS, hold, interp_linear, parse_segment
+
+LINEAR, HELD = "interpolated (linear)", "held (zero-order)"
+
+
+def rate_hz(t) -> float:
+    """Native rate of samples at times ``t`` (N,) s: 1 / the median positive step (NaN under two samples)."""
+    d = np.diff(np.asarray(t, np.float64))
+    d = d[d > 0]
+    return float(1.0 / np.median(d)) if d.size else float("nan")
+
+
+def native_rates(channels: dict) -> tuple[dict, dict]:
+    """({name: native rate Hz (median step)}, {name: longest step s}) of ``channels`` {name: (t (N,), ...)}:
+    a bursty stream (mavros) has a median rate well above its mean; the longest gap says so."""
+    rates = {k: round(rate_hz(c[0]), 2) for k, c in channels.items()}
+    gaps = {k: round(float(np.max(np.diff(c[0]))), 4) if len(c[0]) > 1 else float("nan") for k, c in channels.items()}
+    return rates, gaps
+
+
+def rate_text(hz: float) -> str:
+    return f"{hz:.0f} Hz" if hz >= 2 else f"{hz:.2g} Hz"
+
+
+def sorted_unique(t, x):
+    """Samples (t (N,), x (N, ...)) in time order, a repeated time stamp kept once (its first sample)."""
+    t = np.asarray(t, np.float64)
+    o = np.argsort(t, kind="stable")
+    t, x = t[o], np.asarray(x, np.float64)[o]
+    keep = np.concatenate([[True], np.diff(t) > 0])
+    return t[keep], x[keep]
+
+
+def pick_segment(path, segment, t_motor, motor, span, within=None, within_why=""):
+    """(t0, t1, why): ``segment`` ('t0:t1' or a pair, in the reader's clock) clamped to ``span``
+    (lo, hi) s, else :func:`~mjxsysid.logs.segment.airborne_segment` on the native motor commands
+    ``motor`` (N, 4) at ``t_motor`` (N,) s, restricted to ``within`` (a0, a1) s when given (an armed
+    stretch, said by ``within_why``). ValueError naming ``path`` when under :data:`MIN_ROWS` steps."""
+    lo, hi = span
+    seg = parse_segment(segment)
+    if seg is not None:
+        t0 = lo if seg[0] is None else max(lo, seg[0])
+        t1 = hi if seg[1] is None else min(hi, seg[1])
+        if not t1 - t0 >= MIN_ROWS * DT:
+            raise ValueError(f"{path}: --segment {segment}: {max(t1 - t0, 0):.3g} s of data in it (the log runs "
+                             f"{lo:.2f}–{hi:.2f} s); give at least {MIN_ROWS * DT:g} s inside that span")
+        return t0, t1, "--segment"
+    t_motor = np.asarray(t_motor, np.float64)
+    keep = np.ones(len(t_motor), bool) if within is None else (t_motor >= within[0]) & (t_motor <= within[1])
+    try:
+        t0, t1, why = airborne_segment(t_motor[keep], np.asarray(motor)[keep])
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
+    t0, t1 = max(t0, lo), min(t1, hi)
+    if not t1 - t0 >= MIN_ROWS * DT:
+        raise ValueError(f"{path}: the airborne segment {t0:.2f}–{t1:.2f} s is shorter than {MIN_ROWS * DT:g} s; "
+                         f"give the flight's part with --segment t0:t1")
+    return t0, t1, (within_why + "; " if within_why else "") + why
+
+
+def cut(t, x, t0, t1):
+    """The native samples (t (N,), x (N, ...)) inside [t0, t1] with one more on each side (for the resampling)."""
+    i0 = max(int(np.searchsorted(t, t0, side="right")) - 1, 0)
+    i1 = min(int(np.searchsorted(t, t1, side="left")) + 1, len(t))
+    return t[i0:i1], np.asarray(x, np.float64)[i0:i1]
+
+
+def assemble(channels: dict, t0: float, t1: float) -> dict:
+    """The contract's arrays on the 2 ms grid t0..t1 from ``channels`` {name: (t (N,) s, values (N, ...),
+    LINEAR or HELD)} -> {"t", name: (T, ...), "native": {name: (t, values) in the segment},
+    "resampled": {name: "native (N Hz)" or "<how> from N Hz"}}."""
+    n = int(np.floor((t1 - t0) / DT + 1e-9)) + 1
+    grid = t0 + DT * np.arange(n)
+    rec, native, resampled = {"t": grid}, {}, {}
+    for name, (t, x, how) in channels.items():
+        tn, xn = cut(t, x, t0, t1)
+        native[name] = (tn, xn)
+        rec[name] = (interp_linear if how == LINEAR else hold)(tn, xn, grid)
+        r = rate_hz(t)
+        resampled[name] = f"{how} from {rate_text(r)}" if abs(r * DT - 1) > 0.05 else f"native ({rate_text(r)})"
+    rec["native"], rec["resampled"] = native, resampled
+    return rec
+
+
+def body_velocity_from_world(v_world, R_world_body):
+    """Velocity in the body frame (N, 3): Rᵀ v for world velocities ``v_world`` (N, 3) and the rotations
+    ``R_world_body`` (N, 3, 3) taking body vectors to world vectors (same frames' handedness)."""
+    return np.einsum("nji,nj->ni", R_world_body, v_world)
