@@ -101,12 +101,14 @@ def row(post: dict, theta_true, level: str, vehicle: int, seconds: float) -> dic
 
 
 def read_rows(paths) -> list[dict]:
-    """Rows of ``collect`` files (folders are searched for *.json)."""
+    """Rows of ``collect`` files, plain or gzipped (folders are searched for *.json and *.json.gz)."""
+    import gzip
     rows = []
     for p in paths:
         p = Path(p)
-        for f in (sorted(p.glob("*.json")) if p.is_dir() else [p]):
-            rows += json.loads(f.read_text())["rows"]
+        for f in (sorted([*p.glob("*.json"), *p.glob("*.json.gz")]) if p.is_dir() else [p]):
+            text = gzip.decompress(f.read_bytes()).decode() if f.suffix == ".gz" else f.read_text()
+            rows += json.loads(text)["rows"]
     if not rows:
         raise ValueError(f"no calibration rows in {[str(p) for p in paths]}")
     return rows
@@ -139,19 +141,18 @@ def fit_file(paths, out: Path, note: str = "") -> dict:
 def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """A row's 90 % band (2, 12) after the ``table`` (None: raw) and a (12,) mask of the coordinates
     the model check and the rate logging let through."""
-    from mjxsysid.identify.calibrate import model_check
+    from mjxsysid.identify.calibrate import model_check, side_factors
     q = np.asarray(row["bands"], np.float64)
     if table is None:
         return q[[0, 2]], np.ones(len(V_NAMES), bool)
     check = model_check(row["features"], row["weights"], table)
     ok = np.where(RATE_COORDS, check["rates_ok"], check["acc_ok"])
-    half = np.maximum((q[2] - q[0]) / 2, 1e-12)
     lo, hi = q[0].copy(), q[2].copy()
     for j, c in enumerate(table["coords"]):
         b = int(np.searchsorted(c["edges"], row["features"][c["feature"]]))
-        k = (c["scale"][b] * half[j] + c["floor"][b]) / half[j]
-        lo[j] = q[1, j] - k * (q[1, j] - q[0, j])
-        hi[j] = q[1, j] + k * (q[2, j] - q[1, j])
+        k_lo, k_hi = side_factors(q[:, j], c, b)
+        lo[j] = q[1, j] - k_lo * (q[1, j] - q[0, j])
+        hi[j] = q[1, j] + k_hi * (q[2, j] - q[1, j])
     return np.stack([lo, hi]), ok
 
 

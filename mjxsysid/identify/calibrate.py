@@ -6,15 +6,17 @@ truth less often than 90 %. The calibration sets each visible coordinate's band 
 estimator actually makes on simulated logs (Mondrian split conformal prediction, after Vovk et al.,
 with the posterior's own half-width as the scale):
 
-- the score of a log i in coordinate j is its median's error e = |v_true − v_med| against the raw
-  band's half-width w = (q95 − q05) / 2 (v: the log-space coordinates of :mod:`.coords`);
+- the score of a log i in coordinate j is how far the truth lies beyond its median on each side,
+  against the raw band's extent on that side w (v_med − q05 below, q95 − v_med above; v: the
+  log-space coordinates of :mod:`.coords`): each side is calibrated to 95 %, so a median biased to
+  one side moves the band, not only widens it;
 - logs are grouped by what they show: the residual scale relative to the signal of the channels
   that inform j (:func:`log_features`), in :data:`BINS` quantile bins of the calibration set;
 - in each coordinate and group, the calibrated half-width is a·w + b: for each floor b of a grid the
-  scale a is the split-conformal quantile of max(e − b, 0) / w at level ⌈(n + 1) 0.9⌉ / n, and the
+  scale a is the split-conformal quantile of max(e − b, 0) / w at level ⌈(n + 1) 0.95⌉ / n, and the
   pair with the narrowest median band is kept (the floor b absorbs a bias the width does not see);
-- the samples are stretched about their median by (a·w + b) / w, so the draws, the bands and θ
-  stay one object.
+- the samples are stretched about their median by (a·w + b) / w on each side, so the draws, the
+  bands and θ stay one object.
 
 A log the calibration set does not cover fails the **model check** (:func:`model_check`): a residual
 scale beyond the set's range, or residuals correlated beyond it (physics the simulator lacks: rotor
@@ -93,8 +95,10 @@ def conformal_quantile(scores, level: float = LEVEL) -> float:
 
 
 def fit_scale_floor(err, half, level: float = LEVEL) -> tuple[float, float]:
-    """Errors |v_true − v_med| (n,) and raw half-widths (n,) of one group -> (a, b): the calibrated
-    half-width a·w + b with the narrowest median over the floors of :data:`B_GRID_QUANTILES`."""
+    """Errors beyond the median on one side (n,) (0 where the truth is on the other side) and the raw
+    band's extent on that side (n,) of one group -> (a, b): the calibrated extent a·w + b that holds
+    the truth with probability ``level`` (split conformal), the narrowest median over the floors of
+    :data:`B_GRID_QUANTILES`."""
     err, half = np.asarray(err, np.float64), np.maximum(np.asarray(half, np.float64), 1e-12)
     best = None
     for b in np.quantile(err, B_GRID_QUANTILES):
@@ -118,8 +122,9 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
     feats = np.array([[r["features"][f] for f in FEATURE_NAMES] for r in rows], np.float64)
     used = np.array([r["features"]["rates_used"] for r in rows], bool)
     weights = np.array([r.get("weights", [1.0] * 4) for r in rows], np.float64)
-    err = np.abs(truth - bands[:, 1])
-    half = (bands[:, 2] - bands[:, 0]) / 2
+    below = bands[:, 1] - bands[:, 0]
+    above = bands[:, 2] - bands[:, 1]
+    side_level = 1 - (1 - level) / 2
     table = []
     for j in range(N_V):
         keep = used if RATE_COORDS[j] else np.ones(len(rows), bool)
@@ -129,9 +134,12 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
                              f"{min_group * bins} ({bins} bins of {min_group})")
         edges = np.quantile(x, np.linspace(0, 1, bins + 1)[1:-1])
         k = np.searchsorted(edges, x)
-        ab = [fit_scale_floor(err[keep, j][k == i], half[keep, j][k == i], level) for i in range(bins)]
+        d = truth[keep, j] - bands[keep, 1, j]          # > 0: the truth above the median
+        lo = [fit_scale_floor(np.maximum(-d[k == i], 0), below[keep, j][k == i], side_level) for i in range(bins)]
+        hi = [fit_scale_floor(np.maximum(d[k == i], 0), above[keep, j][k == i], side_level) for i in range(bins)]
         table.append({"name": V_NAMES[j], "feature": FEATURE_NAMES[COORD_FEATURE[j]], "edges": edges.tolist(),
-                      "scale": [a for a, _ in ab], "floor": [b for _, b in ab],
+                      "scale_below": [a for a, _ in lo], "floor_below": [b for _, b in lo],
+                      "scale_above": [a for a, _ in hi], "floor_above": [b for _, b in hi],
                       "logs": [int((k == i).sum()) for i in range(bins)]})
     rng = {f: [float(np.min(feats[:, i])), float(np.max(feats[:, i]))] for i, f in enumerate(FEATURE_NAMES)}
     return {"level": level, "coords": table, "feature_range": rng,
@@ -183,15 +191,22 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
     return {"rates_ok": ok["rates_nsr"], "acc_ok": ok["acc_nsr"], "reasons": reasons}
 
 
+def side_factors(q, coord: dict, b: int) -> tuple[float, float]:
+    """A coordinate's raw 5/50/95 % quantiles q (3,) and its table entry in bin ``b`` -> the stretch
+    below and above the median, (a·w + b_floor) / w on each side."""
+    below, above = max(q[1] - q[0], 1e-12), max(q[2] - q[1], 1e-12)
+    return ((coord["scale_below"][b] * below + coord["floor_below"][b]) / below,
+            (coord["scale_above"][b] * above + coord["floor_above"][b]) / above)
+
+
 def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PHYSICAL_PRIOR, rng=0) -> tuple:
     """Raw posterior draws v (S, 12) of one log -> (calibrated draws (S, 12), report). Each
     coordinate is stretched about its median by (a·w + b) / w (the table's scale and floor for
     the log's feature bin); a coordinate whose channels fail :func:`model_check` is drawn from the
     prior instead. Draws outside the prior's support are replaced by resampled valid ones.
-    report: {factor (12,), bin (12,), check, seen (12,) bool, why (12,) str}."""
+    report: {factor (12,) the band's width over the raw one, bin (12,), check, seen (12,) bool, why (12,) str}."""
     v = np.asarray(v, np.float64)
     q = raw_bands(v)
-    half = np.maximum((q[2] - q[0]) / 2, 1e-12)
     check = model_check(features, weights, table)
     lo, hi = prior.v_bounds()
     pw = hi - lo
@@ -206,10 +221,11 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             factor[j] = np.nan
             why[j] = "model check failed: " + "; ".join(check["reasons"])
             continue
-        b = int(np.searchsorted(c["edges"], features[c["feature"]]))
-        bins[j] = b
-        factor[j] = (c["scale"][b] * half[j] + c["floor"][b]) / half[j]
-        out[:, j] = q[1, j] + factor[j] * (v[:, j] - q[1, j])
+        bins[j] = b = int(np.searchsorted(c["edges"], features[c["feature"]]))
+        k_lo, k_hi = side_factors(q[:, j], c, b)
+        factor[j] = (k_lo * (q[1, j] - q[0, j]) + k_hi * (q[2, j] - q[1, j])) / max(q[2, j] - q[0, j], 1e-12)
+        d = v[:, j] - q[1, j]
+        out[:, j] = q[1, j] + np.where(d < 0, k_lo, k_hi) * d
     out = np.clip(out, lo, hi)
     valid = np.asarray(prior.v_valid(out.astype(np.float32)))
     if not valid.all():

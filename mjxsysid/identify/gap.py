@@ -40,12 +40,30 @@ def log_summary(samples, truth=None) -> dict:
     return out
 
 
-def information_gap(decoded_theta, grounded_theta, truth=None, prior: PhysicalPrior = PHYSICAL_PRIOR) -> dict:
+V_OF_LOG_NAME = (0, 4, 5, 6, 7, 8, 1, 2, 3, (1, 2, 3), 9, 10, 11)
+"""The visible coordinate(s) (:data:`~.coords.V_NAMES`) each LOG_NAMES quantity is made of (ρ_4 = 4 − ρ_1..3)."""
+
+
+def seen_by_name(report: dict) -> dict:
+    """A calibration report (:func:`~.calibrate.calibrate`: ``seen`` (12,), ``why`` (12,)) -> {LOG_NAMES
+    quantity: (seen, why)}; a quantity made of several coordinates is seen when all of them are."""
+    out = {}
+    for name, j in zip(LOG_NAMES, V_OF_LOG_NAME):
+        js = j if isinstance(j, tuple) else (j,)
+        bad = [k for k in js if not report["seen"][k]]
+        out[name] = (not bad, report["why"][bad[0] if bad else js[0]])
+    return out
+
+
+def information_gap(decoded_theta, grounded_theta, truth=None, prior: PhysicalPrior = PHYSICAL_PRIOR,
+                    seen: dict | None = None) -> dict:
     """Decoded samples θ (S, 19) and log-grounded samples θ (S', 19) (and the truth (19,)) ->
     {quantity: {decoder_q05, decoder_q95, log_q05, log_median, log_q95, width_ratio (decoder
     width / log width; log-scale for positive quantities), decoder_holds_log_median[, true,
     log_inside, decoder_inside], prior_fraction (the log band's width over the prior's range),
-    seen_by_log (prior_fraction < :data:`UNSEEN_FRACTION`)}}."""
+    seen_by_log, seen_why}}: ``seen`` {quantity: (bool, why)} from the calibration
+    (:func:`seen_by_name`: a calibrated band narrower than half the prior's range and a model check
+    passed), else prior_fraction < :data:`UNSEEN_FRACTION`."""
     qd, qg = log_quantities(decoded_theta), log_quantities(grounded_theta)
     dlo, _, dhi = _band(qd)
     glo, gmed, ghi = _band(qg)
@@ -61,7 +79,11 @@ def information_gap(decoded_theta, grounded_theta, truth=None, prior: PhysicalPr
              "width_ratio": float(wd / wg) if wg > 0 else float("inf"),
              "decoder_holds_log_median": bool(dlo[j] <= gmed[j] <= dhi[j]),
              "prior_fraction": float(wg / pw[j])}
-        d["seen_by_log"] = d["prior_fraction"] < UNSEEN_FRACTION
+        if seen is not None and name in seen:
+            d["seen_by_log"], d["seen_why"] = bool(seen[name][0]), seen[name][1]
+        else:
+            d["seen_by_log"] = d["prior_fraction"] < UNSEEN_FRACTION
+            d["seen_why"] = f"the band is {d['prior_fraction']:.2g} of the prior's range"
         if tq is not None:
             d.update(true=float(tq[j]), log_inside=bool(glo[j] <= tq[j] <= ghi[j]),
                      decoder_inside=bool(dlo[j] <= tq[j] <= dhi[j]))

@@ -110,8 +110,9 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     its diagnostics (ESS, Pareto k̂, SMC stages), the IMU noise, discrepancy and bias it estimated,
     and the information gap. ``rates``: the likelihood's rate term (default
     :data:`~mjxsysid.identify.logdata.RATES`). Returns ``summary``."""
-    from mjxsysid.identify.gap import information_gap, log_summary
+    from mjxsysid.identify.gap import information_gap, log_summary, seen_by_name
     from mjxsysid.identify.inference import log_grounded_posterior
+    from mjxsysid.identify.coords import V_NAMES
     from mjxsysid.identify.likelihood import CHANNELS
     from mjxsysid.identify.logdata import LogTooShort
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
@@ -135,7 +136,12 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     diag["residual_weights"] = {c: float(x) for c, x in zip(CHANNELS, post["weights"])}
     diag["channels_used"] = [c for c, u in zip(CHANNELS, post["channels_used"]) if u > 0]
     diag["rates"] = post["rates"]
-    diag["gap"] = information_gap(final, post["theta"], truth)
+    cal = post["calibration"]
+    seen = seen_by_name(cal) if cal.get("applied") else None
+    diag["calibration"] = ({"applied": True, "table": cal["table"], "features": post["features"],
+                            "model_check": cal["check"], "width_factor": dict(zip(V_NAMES, cal["factor"].tolist()))}
+                           if cal.get("applied") else {"applied": False, "why": cal["why"]})
+    diag["gap"] = information_gap(final, post["theta"], truth, seen=seen)
     summary["_log_grounded"] = plain(diag)
     summary["_posterior"] = "log-grounded"
     dec["samples_log_grounded"] = post["theta"]
