@@ -6,7 +6,7 @@
 Nodes are the packages (and top-level modules) of ``mjxsysid``, in the layer order of
 pyproject.toml's import-linter contract, top first; an arrow A --> B means some module of A
 imports some module of B. Arrows implied by a longer path are left out (transitive
-reduction), and the layer-wide utilities (theta, checkpoint, progress, profiling, distributed, _quiet, xla_flags)
+reduction), and the layer-wide utilities (theta, checkpoint, progress, profiling, distributed, _quiet, xla_flags, jsonout)
 are drawn as one node, so the picture stays readable; the table under it lists every direct
 import.
 """
@@ -79,7 +79,9 @@ def reduce(graph: dict[str, set[str]]) -> dict[str, set[str]]:
 
 def render() -> str:
     lay = layers()
-    bottom = set(lay[-1])
+    cut = next(i for i, layer in enumerate(lay) if "sim" in layer) + 1   # the layers under sim: the utilities
+    bottom = {n for layer in lay[cut:] for n in layer}
+    lay = lay[:cut] + [sorted(bottom)]
     graph = import_graph(bottom)
     order = [n for layer in lay[:-1] for n in layer] + [BASE]
     ident = {n: n.replace(" & ", "_").replace(" ", "_") for n in order}

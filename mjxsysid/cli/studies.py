@@ -194,6 +194,7 @@ def add_calibrate_posterior(sub) -> None:
                     help="--collect: start no new flight after S seconds (rows so far are kept)")
     cp.add_argument("--table", type=Path, default=None,
                     help="--evaluate: the table (default the shipped one)")
+    cp.add_argument("--note", default="", help="--fit: where and how the rows were collected (the provenance)")
     cp.add_argument("--out", type=Path, default=None,
                     help="--fit: the table's path (default the shipped one); --evaluate: a folder")
     cp.set_defaults(handler=cmd_calibrate_posterior)
@@ -208,7 +209,7 @@ def cmd_calibrate_posterior(args) -> int:
         echo(f"{len(res['rows'])} rows -> {args.collect}")
     elif args.fit:
         out = args.out or SHIPPED
-        table = pc.fit_file(args.fit, out)
+        table = pc.fit_file(args.fit, out, note=args.note)
         echo(f"calibration of {table['logs']} logs -> {out}")
     else:
         if args.out is None:

@@ -128,7 +128,7 @@ def fit_file(paths, out: Path, note: str = "") -> dict:
     t0 = time.perf_counter()
     table = fit(rows)
     levels = sorted({r["level"] for r in rows})
-    table["provenance"] = {"command": "mjxsysid experiment posterior-calibration --fit " + " ".join(map(str, paths)),
+    table["provenance"] = {"command": "mjxsysid calibrate-posterior --fit " + " ".join(map(str, paths)),
                            "rows": len(rows), "levels": levels, "commit": _commit(),
                            "fitted_on": platform.node() or "unknown", "fit_seconds": round(time.perf_counter() - t0, 3),
                            "date": time.strftime("%Y-%m-%d"), "note": note}
@@ -159,7 +159,8 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
 def evaluate(rows: list[dict], table: dict | None) -> dict:
     """Coverage, widths and clustering per level of ``rows`` under ``table`` (None: the raw posterior)."""
     out = {}
-    for lv in sorted({r["level"] for r in rows}, key=lambda x: [r["level"] for r in rows].index(x)):
+    order = ("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20")
+    for lv in sorted({r["level"] for r in rows}, key=lambda x: (order.index(x) if x in order else len(order), x)):
         rs = [r for r in rows if r["level"] == lv]
         band, ok = zip(*(calibrated_bands(r, table) for r in rs))
         band, ok = np.array(band), np.array(ok)
@@ -246,9 +247,10 @@ def table_markdown(res: dict) -> list[str]:
 
 
 def report(paths, table_path: Path, out: Path) -> dict:
-    """Evaluate the table at ``table_path`` on the rows of ``paths`` (held out) against the raw
-    posterior; write ``out``/evaluation.json, evaluation.md, coverage_width.png, ranks.png."""
-    from mjxsysid.identify.calibrate import load
+    """Evaluate the table at ``table_path`` (default the shipped one) on the rows of ``paths`` (held out)
+    against the raw posterior; write ``out``/evaluation.json, evaluation.md, coverage_width.png,
+    ranks.png, and the mean coverage per level into the table's provenance (``held_out``)."""
+    from mjxsysid.identify.calibrate import SHIPPED, load
     rows = read_rows(paths)
     table = load(table_path)
     out = Path(out)
@@ -260,6 +262,11 @@ def report(paths, table_path: Path, out: Path) -> dict:
     (out / "evaluation.md").write_text("\n".join(md) + "\n")
     coverage_width_figure(raw, cal, out / "coverage_width.png")
     rank_histograms(rows, table, out / "ranks.png")
+    path = Path(table_path) if table_path is not None else SHIPPED
+    held = table.setdefault("provenance", {}).setdefault("held_out", {})
+    held[str(out)] = {"rows": len(rows), "mean_coverage": {lv: round(float(np.nanmean(list(r["coverage"].values()))), 3)
+                                                           for lv, r in cal.items()}}
+    path.write_text(json.dumps(table, indent=1) + "\n")
     return res
 
 

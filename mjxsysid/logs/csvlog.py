@@ -18,12 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid.policy.adaptive import networks as N
 
 LOG_COLUMNS = ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "a_cmd", "omega_cmd_x",
                "omega_cmd_y", "omega_cmd_z", "motor_1", "motor_2", "motor_3", "motor_4")
 
 LOG_DT = 0.002  # s: the policies run at 500 Hz; a log's rows must be 500 Hz steps
+
+MIN_ROWS = 100
+"""Rows a log needs at least: the policy's 0.2 s history at 500 Hz (the policy's ``HISTORY``; the
+logs room imports nothing from the policy, a test checks the two agree)."""
 
 
 def read_log(path) -> dict:
@@ -65,8 +68,8 @@ def read_log(path) -> dict:
     if missing:
         raise ValueError(f"{path}: missing column(s) {missing}; expected {list(LOG_COLUMNS)}")
     rows = lines[1:]
-    if len(rows) < N.HISTORY:
-        raise ValueError(f"{path}: {len(rows)} rows; need at least {N.HISTORY} (0.2 s at 500 Hz)")
+    if len(rows) < MIN_ROWS:
+        raise ValueError(f"{path}: {len(rows)} rows; need at least {MIN_ROWS} (0.2 s at 500 Hz)")
     idx = [header.index(c) for c in LOG_COLUMNS]
     data = np.empty((len(rows), len(LOG_COLUMNS)), np.float64)
     for r, (ln, row) in enumerate(rows):
@@ -138,9 +141,9 @@ def cut_csv(rec: dict, path, segment=None) -> dict:
         t1 = float(t[-1]) if seg[1] is None else seg[1]
         why = "--segment (seconds in the log's t column)"
     keep = (t >= t0 - 1e-9) & (t <= t1 + 1e-9)
-    if keep.sum() < N.HISTORY:
+    if keep.sum() < MIN_ROWS:
         raise ValueError(f"{path}: segment {t0:.6g}–{t1:.6g} s: {int(keep.sum())} rows in it (the log runs "
-                         f"{t[0]:.6g}–{t[-1]:.6g} s); need at least {N.HISTORY}: give a longer --segment T0:T1")
+                         f"{t[0]:.6g}–{t[-1]:.6g} s); need at least {MIN_ROWS}: give a longer --segment T0:T1")
     rec = {k: v[keep] for k, v in rec.items()}
     native, resampled, rates = measure_columns(rec)
     rec["native"], rec["resampled"] = native, resampled
@@ -231,7 +234,7 @@ def _read_log_fast(path: Path) -> dict | None:
             data = np.loadtxt(f, delimiter=",", dtype=np.float64, ndmin=2)
     except (ValueError, UnicodeDecodeError, OSError):
         return None
-    if data.shape[1] != len(header) or data.shape[0] < N.HISTORY or not np.isfinite(data).all():
+    if data.shape[1] != len(header) or data.shape[0] < MIN_ROWS or not np.isfinite(data).all():
         return None
     col = {c: data[:, header.index(c)] for c in LOG_COLUMNS}
     dt = np.diff(col["t"])

@@ -17,9 +17,13 @@ MIN_SPREAD = 0.1
 """Ω_cmd/Ω_max: a log whose mean motor command spans less than this never sat idle on the ground."""
 
 IDLE_LEVEL = 0.35
-"""Ω_cmd/Ω_max: the highest low level (2nd percentile of the mean command) that is a rotor stopped or
-idling on the ground (PX4's idle, 10 % throttle, is √0.1 ≈ 0.32 of Ω_max); a log whose low level is
-above it never idled: its dips are manoeuvres in the air."""
+"""Ω_cmd/Ω_max: the highest low level (2nd percentile of the mean command) that is surely a rotor
+stopped or idling on the ground (PX4's idle, 10 % throttle, is √0.1 ≈ 0.32 of Ω_max). Above it, a
+dip inside the log shorter than :data:`AIR_DIP_S` is a manoeuvre in the air, not a landing."""
+
+AIR_DIP_S = 2.0
+"""s: the longest dip inside a log whose low level is above :data:`IDLE_LEVEL` that is bridged as a
+manoeuvre in the air (ground time at either end is still cut)."""
 
 
 def _runs(mask):
@@ -33,7 +37,8 @@ def airborne_segment(t, motor, min_s: float = 1.0):
     (Ω_cmd/Ω_max in [0, 1]) is above halfway between its idle level (2nd percentile) and its flight
     level (median of the upper half) -> (t0, t1, why). Dips shorter than :data:`GAP_S` are bridged;
     :data:`TRIM_S` is cut at an end that touches idle. A log that never idles (levels closer than
-    :data:`MIN_SPREAD`, or the low level above :data:`IDLE_LEVEL`) is kept whole. ValueError
+    :data:`MIN_SPREAD`) is kept whole; when the low level is above :data:`IDLE_LEVEL`, dips inside the
+    log, or at its ends, shorter than :data:`AIR_DIP_S` are bridged too (manoeuvres, not landings). ValueError
     when no stretch of ``min_s`` seconds is found, naming the levels and the next step."""
     t = np.asarray(t, np.float64)
     m = np.mean(np.asarray(motor, np.float64), axis=-1)
@@ -41,19 +46,26 @@ def airborne_segment(t, motor, min_s: float = 1.0):
         raise ValueError("the log has fewer than two motor samples: no airborne segment can be found")
     lo = float(np.percentile(m, 2))
     hi = float(np.median(m[m >= np.median(m)]))
-    if hi - lo < MIN_SPREAD or lo > IDLE_LEVEL:
+    if hi - lo < MIN_SPREAD:
         return float(t[0]), float(t[-1]), (f"motors spun for the whole log (mean command {lo:.2f}–{hi:.2f}): "
                                            f"kept whole, {t[-1] - t[0]:.1f} s")
     thr = lo + 0.5 * (hi - lo)
     up = m > thr
     starts, stops = _runs(~up)
+    longest = AIR_DIP_S if lo > IDLE_LEVEL else GAP_S
     for a, b in zip(starts, stops):                       # bridge short dips inside the flight
-        if 0 < a and b < len(m) and t[b] - t[a - 1] < GAP_S:
+        inside = 0 < a and b < len(m)
+        span = t[min(b, len(m) - 1)] - t[max(a - 1, 0)]
+        if (inside and span < longest) or (not inside and lo > IDLE_LEVEL and span < AIR_DIP_S):
             up[a:b] = True
     starts, stops = _runs(up)
     if len(starts) == 0:
         raise ValueError(f"no airborne segment: the mean motor command never exceeds {thr:.2f} (idle {lo:.2f}); "
                          f"give the flight's part with --segment t0:t1")
+    if up.all():
+        return float(t[0]), float(t[-1]), (f"motors above idle for the whole log (mean command {lo:.2f}–{hi:.2f}, "
+                                           f"dips shorter than {AIR_DIP_S:g} s read as manoeuvres): kept whole, "
+                                           f"{t[-1] - t[0]:.1f} s")
     spans = [(t[b - 1] - t[a], a, b) for a, b in zip(starts, stops)]
     spans.sort(reverse=True)
     _, a, b = spans[0]

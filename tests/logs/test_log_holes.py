@@ -143,3 +143,10 @@ def test_information_gap_tick_labels_do_not_overlap(tmp_path):
         boxes = sorted(((t.label1.get_window_extent(r), t.label1.get_text()) for t in ticks), key=lambda b: b[0].x0)
         assert all(a.x1 <= b.x0 for (a, _), (b, _) in zip(boxes, boxes[1:])), [t for _, t in boxes]
     plt.close(fig)
+
+
+def test_the_logs_minimum_rows_are_the_policys_history():
+    from mjxsysid.logs.csvlog import MIN_ROWS
+    from mjxsysid.logs.ulog import MIN_ROWS as ULOG_MIN_ROWS
+    from mjxsysid.policy.adaptive.networks import HISTORY
+    assert MIN_ROWS == ULOG_MIN_ROWS == HISTORY
