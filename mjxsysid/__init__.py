@@ -7,6 +7,7 @@ MuJoCo and prints nothing)::
     import mjxsysid
     res = mjxsysid.fly(mjxsysid.paper_vehicle(), controller="policy")   # FlightResult
     post = mjxsysid.decode(res)                     # or mjxsysid.decode("flight.csv")
+    post = mjxsysid.identify("flight.ulg")          # the log alone: a LogPosterior
 
 See :mod:`mjxsysid.api` and the README's "Python API" section.
 """
@@ -14,10 +15,13 @@ __version__ = "0.1.0"
 
 _API = ("Finding", "FlightResult", "LogError", "check_log", "decode", "fly", "load_vehicle", "paper_vehicle", "prior_vehicles",
         "read_ulog", "save_vehicle", "to_theta")
-__all__ = list(_API) + ["__version__"]
+__all__ = list(_API) + ["identify", "__version__"]
 
 
 def __getattr__(name):
+    if name == "identify":                 # the room, callable: mjxsysid.identify(log) -> LogPosterior
+        import importlib
+        return importlib.import_module("mjxsysid.identify")
     if name in _API:
         from mjxsysid import api
         return getattr(api, name)

@@ -15,9 +15,10 @@ from mjxsysid.cli._common import FLIGHT_NAMES, add_policy, echo, policy_ref, pos
 def add_decode(sub) -> None:
     dc = sub.add_parser("decode", help="fly a vehicle (or replay a log) with the policy and decode its latent")
     dc.add_argument("--vehicle", type=Path, default=None, help="vehicle JSON (default: the paper vehicle)")
-    dc.add_argument("--log", type=Path, default=None,
-                    help="decode a recorded flight instead: a CSV (the contract: docs/decoding.md) or a PX4 ULog "
-                         ".ulg (docs/px4.md)")
+    dc.add_argument("--log", type=Path, nargs="+", default=None,
+                    help="decode a recorded flight instead: a CSV (the contract: docs/decoding.md), a PX4 ULog, a "
+                         "Crazyflie uSD log, a Betaflight blackbox, an ArduPilot DataFlash log or a ROS bag (docs/logs.md); "
+                         "several files or a folder: each into OUT/NAME and one table, OUT/fleet.md")
     dc.add_argument("--segment", default=None, metavar="T0:T1",
                     help="with --log: decode only this part, in seconds (a ULog: since its start; default its armed, "
                          "airborne segment; a CSV: its t column)")
@@ -67,6 +68,12 @@ def cmd_decode(args) -> int:
         raise ValueError("--segment needs --log")
     if args.rates is not None and (args.log is None or args.decoder_only):
         raise ValueError("--rates needs --log and the log-grounded posterior (not --decoder-only)")
+    if args.log is not None:
+        from mjxsysid.studies.decode.fleet import expand_logs
+        logs = expand_logs(args.log)
+        if len(logs) > 1:
+            return _decode_fleet(args, logs, truth, window)
+        args.log = logs[0]
     theta = None if args.log else (P.load_vehicle(args.vehicle) if args.vehicle else P.paper_hardware())
     existed = Path(args.out).exists()
     try:
@@ -85,6 +92,33 @@ def cmd_decode(args) -> int:
           + (", marginals_decoder_only.png, information_gap.png" if "_log_grounded" in summary else "")
           + (", decoded.mp4" if args.video else ""), file=sys.stderr)
     return 0
+
+
+def _decode_fleet(args, logs, truth, window) -> int:
+    """``decode --log`` of several logs: each into OUT/NAME (a refused log: its reason in the table)."""
+    from mjxsysid.logs.checks.findings import LogError
+    from mjxsysid.progress import progress
+    from mjxsysid.studies.decode import run_decode
+    from mjxsysid.studies.decode.fleet import fleet_markdown, fleet_row
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for log in progress(logs, desc="logs"):
+        try:
+            summary = run_decode(out / log.stem, theta=None, log=log, reference=args.reference, period=args.period,
+                                 duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
+                                 decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
+                                 echo=lambda m: echo(m, file=sys.stderr), segment=args.segment,
+                                 decoder_only=args.decoder_only, rates=args.rates)
+            rows.append(fleet_row(log.name, summary))
+        except (ValueError, LogError, ImportError, OSError) as e:
+            rows.append(fleet_row(log.name, None, str(e).splitlines()[0]))
+    (out / "fleet.json").write_text(jsonout.dumps(rows, indent=1) + "\n")
+    table = fleet_markdown(rows)
+    (out / "fleet.md").write_text("# Fleet\n\n" + table)
+    print(table)
+    print(f"wrote {out}/fleet.md, fleet.json and a folder per log", file=sys.stderr)
+    return 0 if any("error" not in r for r in rows) else 2
 
 
 def add_check_log(sub) -> None:
@@ -189,6 +223,9 @@ def add_calibrate_posterior(sub) -> None:
     cp.add_argument("--levels", default="clean,x1,x5_white,x5_vibration,x20",
                     help="--collect: IMU noise levels, comma-separated (mjxsysid.studies.noise.LEVELS)")
     cp.add_argument("--seed", type=int, default=5, help="--collect: the vehicles' and flights' seed")
+    cp.add_argument("--flights", default="lemniscate:10",
+                    help="--collect: the flights, comma-separated: lemniscate:PERIOD, minsnap:SECONDS, hover:SECONDS "
+                         "(default lemniscate:10)")
     cp.add_argument("--shard", default=None, metavar="I/K", help="--collect: every K-th vehicle from the I-th")
     cp.add_argument("--time-budget", type=positive, default=None, metavar="S",
                     help="--collect: start no new flight after S seconds (rows so far are kept)")
@@ -205,7 +242,8 @@ def cmd_calibrate_posterior(args) -> int:
     from mjxsysid.identify.calibrate import SHIPPED
     if args.collect:
         res = pc.collect(prior=args.prior, vehicles=args.vehicles, levels=tuple(args.levels.split(",")),
-                         seed=args.seed, shard=args.shard, out=args.collect, time_budget_s=args.time_budget)
+                         seed=args.seed, shard=args.shard, out=args.collect, time_budget_s=args.time_budget,
+                         references=tuple(args.flights.split(",")))
         echo(f"{len(res['rows'])} rows -> {args.collect}")
     elif args.fit:
         out = args.out or SHIPPED

@@ -4,7 +4,8 @@
   levels (:data:`mjxsysid.studies.noise.LEVELS`), run the *raw* log-grounded posterior on each
   flight's IMU and motor commands (no decoded proposal), and keep one row per log: the truth and
   raw 5/50/95 % bands in the visible coordinates v, the features, the residual discounts. Sharded
-  (``shard`` 'i/k': every k-th vehicle from the i-th) so that processes share a GPU.
+  (``shard`` 'i/k': every k-th vehicle from the i-th) so that processes share a GPU; several flights
+  (a lemniscate, a slower one, min-snap, hover: excitation from strong to none).
 - ``fit``: rows -> the calibration table (:func:`~mjxsysid.identify.calibrate.fit`) with provenance.
 - ``evaluate``: a table applied to rows it never saw -> coverage and median width per coordinate
   and level, the oracle width (the 90 % quantile of the median's error), the share of logs holding
@@ -45,10 +46,29 @@ def _shard(n: int, spec: str | None) -> np.ndarray:
     return np.arange(i, n, k)
 
 
+REFERENCES = ("lemniscate:10",)
+REFERENCES_ALL = ("lemniscate:10", "lemniscate:20", "minsnap:10", "hover:8")
+"""The flights of a calibration: 'lemniscate:PERIOD', 'minsnap:SECONDS' or 'hover:SECONDS' (the oracle
+flies each; a slower lemniscate and hover excite the rates less)."""
+
+
+def parse_reference(spec: str) -> dict:
+    """'lemniscate:10' -> fly_vehicles' reference, period and duration."""
+    name, _, arg = spec.partition(":")
+    x = float(arg) if arg else 10.0
+    if name == "lemniscate":
+        return {"reference": "lemniscate", "period": x}
+    if name in ("minsnap", "hover"):
+        return {"reference": name, "duration": x}
+    raise ValueError(f"unknown calibration flight {spec!r}: 'lemniscate:PERIOD', 'minsnap:SECONDS' or 'hover:SECONDS'")
+
+
 def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_LEVELS, seed: int = 5,
-            shard: str | None = None, out: Path, time_budget_s: float | None = None) -> dict:
-    """Fly and identify; write ``out`` (JSON: rows). Rows are written after each level (a stopped run
-    keeps what it finished); ``time_budget_s``: stop starting new flights after this long."""
+            shard: str | None = None, out: Path, time_budget_s: float | None = None,
+            references=REFERENCES) -> dict:
+    """Fly and identify; write ``out`` (JSON: rows), after every log (a stopped run keeps what it
+    finished); ``time_budget_s``: start no new flight after this long; ``references``: the flights
+    (:func:`parse_reference`), each at every level."""
     from mjxsysid.identify.inference import log_grounded_posterior
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
@@ -65,16 +85,17 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     th = th_all[index]
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels), "rows": []}
+    res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
+           "references": list(references), "rows": []}
     t_start = time.perf_counter()
-    for lv in levels:
+    for ref, lv in ((r, lv) for r in references for lv in levels):
         if lv not in LEVELS:
             raise ValueError(f"unknown noise level {lv!r}; known: {sorted(LEVELS)}")
         if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
             break
         s = seed + 1000 * (0 if shard is None else int(shard.split("/")[0])) + 97 * list(LEVELS).index(lv)
-        fl, m, _ = fly_vehicles(th, controller="oracle", reference="lemniscate", period=10.0,
-                                sim=Quadrotor(SimConfig(**LEVELS[lv])), seed=s)
+        fl, m, _ = fly_vehicles(th, controller="oracle", sim=Quadrotor(SimConfig(**LEVELS[lv])), seed=s,
+                                **parse_reference(ref))
         flown = np.flatnonzero(~np.asarray(m["failed"], bool))
         for i in progress(flown, desc=f"calibration {lv}"):
             if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
@@ -86,7 +107,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
                 continue
             t0 = time.perf_counter()
             post = log_grounded_posterior(data, None, seed=int(index[i]), calibration=None)
-            res["rows"].append(row(post, th[i], lv, int(index[i]), time.perf_counter() - t0))
+            res["rows"].append(row(post, th[i], lv, int(index[i]), time.perf_counter() - t0) | {"flight": ref})
             out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
         out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     return res
@@ -141,27 +162,29 @@ def fit_file(paths, out: Path, note: str = "") -> dict:
 def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """A row's 90 % band (2, 12) after the ``table`` (None: raw) and a (12,) mask of the coordinates
     the model check and the rate logging let through."""
-    from mjxsysid.identify.calibrate import model_check, side_factors
+    from mjxsysid.identify.calibrate import coord_ok, group_of, model_check, side_factors
     q = np.asarray(row["bands"], np.float64)
     if table is None:
         return q[[0, 2]], np.ones(len(V_NAMES), bool)
     check = model_check(row["features"], row["weights"], table)
-    ok = np.where(RATE_COORDS, check["rates_ok"], check["acc_ok"])
+    ok = np.array([coord_ok(check, j) for j in range(len(V_NAMES))])
     lo, hi = q[0].copy(), q[2].copy()
     for j, c in enumerate(table["coords"]):
-        b = int(np.searchsorted(c["edges"], row["features"][c["feature"]]))
+        b = group_of(c, row["features"][c["feature"]], q[2, j] - q[0, j])
         k_lo, k_hi = side_factors(q[:, j], c, b)
         lo[j] = q[1, j] - k_lo * (q[1, j] - q[0, j])
         hi[j] = q[1, j] + k_hi * (q[2, j] - q[1, j])
     return np.stack([lo, hi]), ok
 
 
-def evaluate(rows: list[dict], table: dict | None) -> dict:
-    """Coverage, widths and clustering per level of ``rows`` under ``table`` (None: the raw posterior)."""
+def evaluate(rows: list[dict], table: dict | None, by: str = "level") -> dict:
+    """Coverage, widths and clustering per ``by`` ('level' or 'flight') of ``rows`` under ``table``
+    (None: the raw posterior)."""
     out = {}
-    order = ("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20")
-    for lv in sorted({r["level"] for r in rows}, key=lambda x: (order.index(x) if x in order else len(order), x)):
-        rs = [r for r in rows if r["level"] == lv]
+    order = ("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20") + REFERENCES_ALL
+    key = lambda r: r.get(by, "lemniscate:10")        # noqa: E731  (rows of one flight name none)
+    for lv in sorted({key(r) for r in rows}, key=lambda x: (order.index(x) if x in order else len(order), x)):
+        rs = [r for r in rows if key(r) == lv]
         band, ok = zip(*(calibrated_bands(r, table) for r in rs))
         band, ok = np.array(band), np.array(ok)
         tv = np.array([r["truth_v"] for r in rs])
@@ -238,7 +261,7 @@ def coverage_width_figure(before: dict, after: dict, path: Path) -> None:
 
 def table_markdown(res: dict) -> list[str]:
     """Coverage per coordinate × level as markdown lines ('–': not seen on any log of the level)."""
-    lines = ["| level | logs | " + " | ".join(SHORT) + " | under half | T/W width |", "|---" * (len(SHORT) + 4) + "|"]
+    lines = ["| group | logs | " + " | ".join(SHORT) + " | under half | T/W width |", "|---" * (len(SHORT) + 4) + "|"]
     for lv, r in res.items():
         cov = [r["coverage"][n] for n in V_NAMES]
         lines.append(f"| {lv} | {r['logs']} | " + " | ".join("–" if not np.isfinite(c) else f"{c:.2f}" for c in cov)
@@ -256,9 +279,11 @@ def report(paths, table_path: Path, out: Path) -> dict:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     raw, cal = evaluate(rows, None), evaluate(rows, table)
-    res = {"rows": len(rows), "table": str(table_path), "raw": raw, "calibrated": cal}
+    flights = evaluate(rows, table, by="flight")
+    res = {"rows": len(rows), "table": str(table_path), "raw": raw, "calibrated": cal, "calibrated_by_flight": flights}
     (out / "evaluation.json").write_text(json.dumps(res, indent=1) + "\n")
-    md = ["## Calibrated", ""] + table_markdown(cal) + ["", "## Raw", ""] + table_markdown(raw)
+    md = (["## Calibrated", ""] + table_markdown(cal) + ["", "## Calibrated, by flight", ""] + table_markdown(flights)
+          + ["", "## Raw", ""] + table_markdown(raw))
     (out / "evaluation.md").write_text("\n".join(md) + "\n")
     coverage_width_figure(raw, cal, out / "coverage_width.png")
     rank_histograms(rows, table, out / "ranks.png")

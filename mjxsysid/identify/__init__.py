@@ -1,11 +1,28 @@
 """What the flight shows: the log-grounded posterior of a vehicle (DESIGN §11).
 
-:mod:`.coords` (θ in the coordinates an IMU log sees, the stated physical prior),
-:mod:`.likelihood` (the IMU given the motor commands, windowed equation error),
-:mod:`.inference` (the decoded ensemble as proposal, BFGS + Laplace importance sampling, tempered
-SMC), :mod:`.gap` (the information gap between the decoders and the log).
+The room is callable: ``mjxsysid.identify(log)`` is :func:`.logposterior.identify` (a
+:class:`~.logposterior.LogPosterior`). :mod:`.coords` (θ in the coordinates an IMU log sees, the
+stated physical prior), :mod:`.likelihood` (the IMU given the motor commands, windowed equation
+error), :mod:`.inference` (the decoded ensemble as proposal, Laplace importance sampling, tempered
+SMC), :mod:`.calibrate` (the bands calibrated by simulation, the model check), :mod:`.gap` (the
+information gap between the decoders and the log).
 """
+import sys
+import types
+
 from mjxsysid.identify.coords import LOG_NAMES, PHYSICAL_PRIOR, PhysicalPrior, log_quantities
 from mjxsysid.identify.inference import log_grounded_posterior
+from mjxsysid.identify.logposterior import LogPosterior, identify
 
-__all__ = ["LOG_NAMES", "PHYSICAL_PRIOR", "PhysicalPrior", "log_quantities", "log_grounded_posterior"]
+__all__ = ["LOG_NAMES", "PHYSICAL_PRIOR", "PhysicalPrior", "LogPosterior", "identify", "log_quantities",
+           "log_grounded_posterior"]
+
+
+class _CallableRoom(types.ModuleType):
+    """``mjxsysid.identify(log, ...)`` calls :func:`identify`; the room's modules stay importable."""
+
+    def __call__(self, log, decoded_theta=None, **kw):
+        return identify(log, decoded_theta, **kw)
+
+
+sys.modules[__name__].__class__ = _CallableRoom

@@ -11,7 +11,8 @@ with the posterior's own half-width as the scale):
   log-space coordinates of :mod:`.coords`): each side is calibrated to 95 %, so a median biased to
   one side moves the band, not only widens it;
 - logs are grouped by what they show: the residual scale relative to the signal of the channels
-  that inform j (:func:`log_features`), in :data:`BINS` quantile bins of the calibration set;
+  that inform j (:func:`log_features`), in :data:`BINS` quantile bins of the calibration set, each
+  split at its median raw band width (:func:`group_of`);
 - in each coordinate and group, the calibrated half-width is a·w + b: for each floor b of a grid the
   scale a is the split-conformal quantile of max(e − b, 0) / w at level ⌈(n + 1) 0.95⌉ / n, and the
   pair with the narrowest median band is kept (the floor b absorbs a bias the width does not see);
@@ -40,16 +41,17 @@ from mjxsysid.identify.coords import N_V, PHYSICAL_PRIOR, V_NAMES, PhysicalPrior
 LEVEL = 0.90
 """The band's nominal coverage."""
 
-BINS = 3
+BINS = 4
 """Quantile bins of each coordinate's feature (Mondrian groups)."""
 
-FEATURE_NAMES = ("rates_nsr", "acc_nsr")
-"""log10 of the residual scale over the signal: the gyro channels (mean over x, y, z), the accelerometer z."""
+FEATURE_NAMES = ("rates_nsr", "acc_nsr", "rates_nsr_x", "rates_nsr_y", "rates_nsr_z")
+"""log10 of the residual scale over the signal: the gyro channels (mean over x, y, z), the accelerometer z,
+each gyro axis (how much the flight excited it against what the model leaves unexplained)."""
 
-COORD_FEATURE = np.array([1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0])
+COORD_FEATURE = np.array([1, 0, 0, 0, 0, 2, 3, 4, 4, 2, 3, 4])
 """Which feature groups each visible coordinate (:data:`~.coords.V_NAMES`): the thrust-to-weight by the
-accelerometer's (it does not depend on the rate windows, which a slowly logged motor leaves out), the
-rest by the rate channels'."""
+accelerometer's (it does not depend on the rate windows, which a slowly logged motor leaves out), ρ and
+τ_m by the rate channels' mean, each authority and τ_ext/J by its own axis (the yaw authority by z)."""
 
 RATE_COORDS = np.array([False, True, True, True, True, True, True, True, True, True, True, True])
 """The coordinates the rate windows inform (not seen when the motors were logged too slowly)."""
@@ -65,9 +67,9 @@ B_GRID_QUANTILES = np.linspace(0.0, 0.95, 20)
 
 def log_features(data, mode) -> dict:
     """What a log shows, from its reduction ``data`` (:class:`~.logdata.LogData`) and the posterior's
-    ``mode`` (21,: v (12), log σ (4), log δ (4), bias) -> {rates_nsr, acc_nsr: log10 of the channels'
-    residual scale √(k σ² + δ²) over their signal (the rate windows' spread of measured rate changes;
-    the accelerometer blocks' mean), rates_used (bool), windows (int)}."""
+    ``mode`` (21,: v (12), log σ (4), log δ (4), bias) -> {rates_nsr (the mean of the axes'), acc_nsr,
+    rates_nsr_x/y/z: log10 of the channels' residual scale √(k σ² + δ²) over their signal (the rate
+    windows' RMS measured rate change; the accelerometer blocks' mean), rates_used (bool), windows (int)}."""
     mode = np.asarray(mode, np.float64)
     sig, dl = np.exp(mode[N_V:N_V + 4]), np.exp(mode[N_V + 4:N_V + 8])
     scale = np.sqrt(np.asarray(data.kvar, np.float64) * sig ** 2 + dl ** 2)
@@ -76,8 +78,9 @@ def log_features(data, mode) -> dict:
     dg = np.asarray(data.dgyro, np.float64)[wm]
     gsig = np.maximum(np.sqrt(np.mean(dg ** 2, 0)), 1e-9)
     asig = max(abs(float(np.mean(np.asarray(data.acc, np.float64)[bm]))), 1e-9)
-    return {"rates_nsr": float(np.mean(np.log10(scale[:3] / gsig))),
-            "acc_nsr": float(np.log10(scale[3] / asig)),
+    axes = np.log10(scale[:3] / gsig)
+    return {"rates_nsr": float(np.mean(axes)), "acc_nsr": float(np.log10(scale[3] / asig)),
+            "rates_nsr_x": float(axes[0]), "rates_nsr_y": float(axes[1]), "rates_nsr_z": float(axes[2]),
             "rates_used": bool(np.asarray(data.use)[0] > 0), "windows": int(wm.sum())}
 
 
@@ -135,17 +138,22 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
                              f"{min_group * bins} ({bins} bins of {min_group})")
         edges = np.quantile(x, np.linspace(0, 1, bins + 1)[1:-1])
         k = np.searchsorted(edges, x)
+        width = bands[keep, 2, j] - bands[keep, 0, j]
+        split = [float(np.median(width[k == i])) if (k == i).any() else 0.0 for i in range(bins)]
+        entry = {"edges": edges.tolist(), "width_split": split}
+        grp = np.array([group_of(entry, xi, wi) for xi, wi in zip(x, width)])
         d = truth[keep, j] - bands[keep, 1, j]          # > 0: the truth above the median
-        groups = [k == i if (k == i).sum() >= min_group else np.ones_like(k, bool) for i in range(bins)]
+        groups = [grp == i if (grp == i).sum() >= min_group else k == i // 2 for i in range(2 * bins)]
         lo = [fit_scale_floor(np.maximum(-d[g], 0), below[keep, j][g], side_level) for g in groups]
         hi = [fit_scale_floor(np.maximum(d[g], 0), above[keep, j][g], side_level) for g in groups]
-        table.append({"name": V_NAMES[j], "feature": FEATURE_NAMES[COORD_FEATURE[j]], "edges": edges.tolist(),
+        table.append({"name": V_NAMES[j], "feature": FEATURE_NAMES[COORD_FEATURE[j]], **entry,
                       "scale_below": [a for a, _ in lo], "floor_below": [b for _, b in lo],
                       "scale_above": [a for a, _ in hi], "floor_above": [b for _, b in hi],
-                      "logs": [int((k == i).sum()) for i in range(bins)]})
+                      "logs": [int((grp == i).sum()) for i in range(2 * bins)]})
     rng = {f: [float(np.min(feats[:, i])), float(np.max(feats[:, i]))] for i, f in enumerate(FEATURE_NAMES)}
     return {"level": level, "coords": table, "feature_range": rng,
-            "min_weight": np.quantile(weights[used], 0.005, axis=0).tolist(), "logs": len(rows)}
+            "min_weight": [float(np.quantile(weights[used][:, :3], 0.005))] * 3
+                          + [float(np.quantile(weights[:, 3], 0.005))], "logs": len(rows)}
 
 
 def load(path=None) -> dict:
@@ -163,36 +171,51 @@ def load(path=None) -> dict:
 
 def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> dict:
     """A log's ``features`` (:func:`log_features`) and residual correlation discounts ``weights``
-    (4,) against what the calibration ``table`` covers -> {rates_ok, acc_ok, reasons [str]}: a
-    residual scale more than ``margin`` decades above the calibration set's (a log that fits better
-    than any simulated one takes the calibration of its nearest bin), residuals more
-    correlated than 99.5 % of its logs (a discount below its 0.5 % quantile), rates the motor
-    logging cannot support."""
+    (4,) against what the calibration ``table`` covers -> {ok {feature: bool}, rates_ok, acc_ok,
+    reasons [str]}: a residual scale over the signal more than ``margin`` decades above the
+    calibration set's (an axis the flight hardly excited, or a model that does not fit; a log that fits
+    better than any simulated one takes the calibration of its nearest bin), residuals more correlated
+    than 99.5 % of its logs' (the rate axes pooled), rates the motor logging cannot support."""
     reasons = []
-    ok = {"rates_nsr": True, "acc_nsr": True}
+    ok = {f: True for f in FEATURE_NAMES}
     for f in FEATURE_NAMES:
+        if f not in table["feature_range"] or f not in features:
+            continue
         lo, hi = table["feature_range"][f]
         x = features[f]
         if not np.isfinite(x) or x > hi + margin:
             ok[f] = False
-            reasons.append(f"{f} = {x:.2f} (log10 residual scale / signal) above the calibration set's "
-                           f"{lo:.2f}…{hi:.2f} by more than {margin} decades: the model does not fit this log as well "
-                           f"as any simulated one")
+            reasons.append(f"{f} = {x:.2f} (log10 residual scale / signal) above the calibration set's {lo:.2f}…{hi:.2f} "
+                           f"by more than {margin} decades: too little excitation, or a model that does not fit")
     w = np.asarray(weights, np.float64)
     wmin = np.asarray(table["min_weight"], np.float64)
+    rates = [f for f in FEATURE_NAMES if f.startswith("rates")]
     if np.any(w[:3] < wmin[:3]):
-        ok["rates_nsr"] = False
-        reasons.append("the rate residuals are more correlated than any simulated log's (discount "
-                       f"{np.round(w[:3], 3).tolist()} below {np.round(wmin[:3], 3).tolist()}): physics the model lacks")
+        ok.update({f: False for f in rates})
+        reasons.append("the rate residuals are more correlated than 99.5 % of the simulated logs' (discount "
+                       f"{np.round(w[:3], 3).tolist()} below {wmin[0]:.3f}): physics the model lacks")
     if w[3] < wmin[3]:
         ok["acc_nsr"] = False
-        reasons.append(f"the accelerometer residuals are more correlated than any simulated log's "
+        reasons.append(f"the accelerometer residuals are more correlated than 99.5 % of the simulated logs' "
                        f"(discount {w[3]:.3f} below {wmin[3]:.3f}): physics the model lacks")
     if not features["rates_used"]:
-        ok["rates_nsr"] = False
+        ok.update({f: False for f in rates})
         reasons.append("the motors were logged too slowly for the rate windows: τ_m, the authorities, ρ and "
                        "τ_ext/J cannot be seen")
-    return {"rates_ok": ok["rates_nsr"], "acc_ok": ok["acc_nsr"], "reasons": reasons}
+    return {"ok": ok, "rates_ok": all(ok[f] for f in rates), "acc_ok": ok["acc_nsr"], "reasons": reasons}
+
+
+def coord_ok(check: dict, j: int) -> bool:
+    """Does visible coordinate j pass the :func:`model_check` (the feature that groups it)?"""
+    return bool(check["ok"][FEATURE_NAMES[COORD_FEATURE[j]]])
+
+
+def group_of(coord: dict, x: float, width: float) -> int:
+    """A log's group in a coordinate's table entry: its feature ``x``'s bin i, then whether its raw
+    90 % band (``width``, log units) is wider than that bin's median -> 2 i or 2 i + 1. A narrow raw
+    band of a log that shows little (a clean hover) is calibrated apart from a noisy, well-excited one."""
+    i = int(np.searchsorted(coord["edges"], x))
+    return 2 * i + int(width > coord["width_split"][i])
 
 
 def side_factors(q, coord: dict, b: int) -> tuple[float, float]:
@@ -219,13 +242,12 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
     gen = np.random.default_rng(rng)
     prior_v = prior.sample_v(gen, len(v)).astype(np.float64)
     for j, c in enumerate(table["coords"]):
-        ok = check["rates_ok"] if RATE_COORDS[j] else check["acc_ok"]
-        if not ok:
+        if not coord_ok(check, j):
             out[:, j] = prior_v[:, j]
             factor[j] = np.nan
             why[j] = "model check failed: " + "; ".join(check["reasons"])
             continue
-        bins[j] = b = int(np.searchsorted(c["edges"], features[c["feature"]]))
+        bins[j] = b = group_of(c, features[c["feature"]], q[2, j] - q[0, j])
         k_lo, k_hi = side_factors(q[:, j], c, b)
         factor[j] = (k_lo * (q[1, j] - q[0, j]) + k_hi * (q[2, j] - q[1, j])) / max(q[2, j] - q[0, j], 1e-12)
         d = v[:, j] - q[1, j]

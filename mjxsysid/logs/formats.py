@@ -39,8 +39,14 @@ def _module(name: str):
 
 def detect(path) -> str:
     """The format of the file at ``path`` by its content (not its name): a name of
-    :data:`FORMATS`, or "CSV" (the project's CSV contract, :mod:`mjxsysid.logs.csvlog`)."""
+    :data:`FORMATS`, or "CSV" (the project's CSV contract, :mod:`mjxsysid.logs.csvlog`); a folder
+    holding metadata.yaml is a ROS 2 bag."""
     path = Path(path)
+    if path.is_dir() and (path / "metadata.yaml").is_file():
+        return "ROS bag"                                   # a ROS 2 bag is a folder
+    if path.is_dir():
+        raise ValueError(f"{path}: a folder, not a log (a ROS 2 bag folder holds metadata.yaml); give a log file, "
+                         f"or several to `decode --log`")
     if not path.is_file():
         raise FileNotFoundError(f"flight log not found: {path}")
     with open(path, "rb") as f:

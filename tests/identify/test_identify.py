@@ -224,3 +224,28 @@ def test_innovations_unbiased_in_closed_loop_where_windows_are_not():
     lt = np.asarray(log_target(y.astype(np.float32), data, log_delta=x0[16:20]))
     assert abs(steps[np.argmax(lt[:len(steps)])]) <= 0.04, steps[np.argmax(lt[:len(steps)])]
     assert abs(steps[np.argmax(lt[len(steps):])] / 3) <= 0.01, steps[np.argmax(lt[len(steps):])] / 3
+
+
+def test_the_identify_room_is_callable_and_gives_a_posterior_object():
+    """mjxsysid.identify(log) -> LogPosterior: calibrated draws, a summary that leads with what the
+    log saw (thrust-to-weight inside), the hidden mass not in it, diagnostics and the calibration said."""
+    import mjxsysid
+    from mjxsysid.identify import LogPosterior
+    theta = P.paper_hardware().copy()
+    rec = synthetic_log(theta, seconds=4.0, gyro_noise=0.05, acc_noise=0.5, seed=3)
+    post = mjxsysid.identify(rec, samples=600, particles=512, seed=1)
+    assert isinstance(post, LogPosterior) and post.calibration["applied"]
+    s = post.summary()
+    first = next(iter(s))
+    assert s[first]["seen"] and s["thrust_to_weight_total"]["seen"]
+    tw = C.log_quantities(theta)[0]
+    assert s["thrust_to_weight_total"]["q05"] <= tw <= s["thrust_to_weight_total"]["q95"]
+    assert post.sample(50).shape == (50, P.N_PARAMS) and post.sample().shape == (600, P.N_PARAMS)
+    assert post.diagnostics["method"] in ("decoded_is", "laplace_is", "smc") and "features" in post.diagnostics
+    assert "thrust_to_weight_total" in repr(post)
+    gap = post.gap(post.theta)
+    assert gap["thrust_to_weight_total"]["seen_by_log"] == s["thrust_to_weight_total"]["seen"]
+    with pytest.raises(ValueError, match="n must be"):
+        post.sample(0)
+    with pytest.raises(TypeError, match="flight-log path"):
+        mjxsysid.identify(3.0)

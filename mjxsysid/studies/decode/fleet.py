@@ -1,0 +1,71 @@
+"""Several logs at once: ``decode --log A B FOLDER`` decodes each into its own folder and writes one
+table of vehicles (fleet.md, fleet.json): per log, each quantity the log saw as its median and 90 %
+band, '–' where the log did not see it, and the one-line reason of a log that was refused."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from mjxsysid.identify.coords import LOG_NAMES, LOG_UNITS
+
+SHORT = {"thrust_to_weight_total": "T/W", "motor_time_constant": "τ_m (ms)", "authority_total[0]": "A_x",
+         "authority_total[1]": "A_y", "authority_total[2]": "A_z", "yaw_authority_total": "yaw"}
+"""The fleet table's columns (the quantities a user compares across vehicles first)."""
+
+
+def expand_logs(paths) -> list[Path]:
+    """Paths given to ``--log`` -> the logs they name: a folder's files (sorted; hidden files and the
+    project's own outputs skipped), except a ROS 2 bag folder (metadata.yaml), which is one log."""
+    out = []
+    for p in map(Path, paths):
+        if p.is_dir() and not (p / "metadata.yaml").is_file():
+            files = sorted(f for f in p.iterdir() if f.is_file() and not f.name.startswith(".")
+                           and f.suffix.lower() not in (".md", ".json", ".png", ".npz", ".mp4", ".txt"))
+            if not files:
+                raise ValueError(f"--log {p}: a folder with no log files in it")
+            out += files
+        elif not p.exists():
+            raise FileNotFoundError(f"flight log not found: {p}")
+        else:
+            out.append(p)
+    names = [p.stem for p in out]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"--log: several logs named {dup}; each is written to OUT/NAME: rename or decode them apart")
+    return out
+
+
+def fleet_row(name: str, summary: dict | None, error: str | None = None) -> dict:
+    """One log's row: {log, quantities {name: {median, q05, q95, seen}}, error}."""
+    if error is not None:
+        return {"log": name, "error": error}
+    gap = (summary or {}).get("_log_grounded", {}).get("gap", {})
+    return {"log": name, "quantities": {q: {"median": g["log_median"], "q05": g["log_q05"], "q95": g["log_q95"],
+                                            "seen": g["seen_by_log"], "why": g.get("seen_why", "")}
+                                        for q, g in gap.items()},
+            "posterior": (summary or {}).get("_posterior")}
+
+
+def _cell(q: str, v: dict | None) -> str:
+    if not v or not v["seen"]:
+        return "–"
+    k = 1e3 if q == "motor_time_constant" else 1.0
+    return f"{k * v['median']:.3g} ({k * v['q05']:.3g}–{k * v['q95']:.3g})"
+
+
+def fleet_markdown(rows: list[dict]) -> str:
+    """The fleet table: a row per log, the :data:`SHORT` quantities as median (90 % band)."""
+    units = dict(zip(LOG_NAMES, LOG_UNITS))
+    head = "| log | " + " | ".join(SHORT.values()) + " | not seen |"
+    lines = [head, "|---" * (len(SHORT) + 2) + "|"]
+    for r in rows:
+        if "error" in r:
+            lines.append(f"| {r['log']} | " + " | ".join("" for _ in SHORT) + f" | refused: {r['error']} |")
+            continue
+        qs = r["quantities"]
+        unseen = [q for q in LOG_NAMES if q in qs and not qs[q]["seen"]]
+        lines.append(f"| {r['log']} | " + " | ".join(_cell(q, qs.get(q)) for q in SHORT) + f" | {len(unseen)} of "
+                     f"{len(qs)} |" if qs else f"| {r['log']} | " + " | ".join("" for _ in SHORT)
+                     + f" | {r.get('posterior') or 'decoder-only'} |")
+    lines += ["", "Median (5–95 %) of the log-grounded posterior, calibrated; '–': not seen by this log "
+              f"(its summary.json says why). Units: T/W {units['thrust_to_weight_total']}, authorities rad/s²."]
+    return "\n".join(lines) + "\n"

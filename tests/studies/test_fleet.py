@@ -1,0 +1,36 @@
+"""Several logs at once (studies/decode/fleet.py): the logs a folder names, the fleet table."""
+from __future__ import annotations
+
+import pytest
+
+from mjxsysid.studies.decode.fleet import expand_logs, fleet_markdown, fleet_row
+
+
+def test_a_folder_names_its_logs_and_a_ros2_bag_folder_is_one(tmp_path):
+    (tmp_path / "a.csv").write_text("x")
+    (tmp_path / "b.ulg").write_text("x")
+    (tmp_path / "fleet.md").write_text("x")               # the project's own outputs are not logs
+    (tmp_path / ".hidden").write_text("x")
+    bag = tmp_path / "bag"
+    bag.mkdir()
+    (bag / "metadata.yaml").write_text("x")
+    assert [p.name for p in expand_logs([tmp_path])] == ["a.csv", "b.ulg"]
+    assert expand_logs([bag]) == [bag]
+    with pytest.raises(FileNotFoundError, match="not found"):
+        expand_logs([tmp_path / "none.csv"])
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "a.bin").write_text("x")
+    with pytest.raises(ValueError, match="several logs named"):
+        expand_logs([tmp_path, tmp_path / "sub"])
+
+
+def test_the_fleet_table_shows_what_each_log_saw_and_why_one_was_refused():
+    seen = {"log_median": 2.0, "log_q05": 1.9, "log_q95": 2.1, "seen_by_log": True, "seen_why": "ok"}
+    unseen = {"log_median": 0.02, "log_q05": 0.003, "log_q95": 0.2, "seen_by_log": False, "seen_why": "slow motors"}
+    summary = {"_posterior": "log-grounded",
+               "_log_grounded": {"gap": {"thrust_to_weight_total": seen, "motor_time_constant": unseen}}}
+    rows = [fleet_row("a.ulg", summary), fleet_row("b.bin", None, "never armed: log a flight")]
+    md = fleet_markdown(rows)
+    line_a = next(ln for ln in md.splitlines() if ln.startswith("| a.ulg"))
+    assert "2 (1.9–2.1)" in line_a and "| – |" in line_a and "1 of 2" in line_a
+    assert "refused: never armed" in md
