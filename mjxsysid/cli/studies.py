@@ -231,6 +231,8 @@ def add_calibrate_posterior(sub) -> None:
                     help="--collect: start no new flight after S seconds (rows so far are kept)")
     cp.add_argument("--table", type=Path, default=None,
                     help="--evaluate: the table (default the shipped one)")
+    cp.add_argument("--record", action="store_true",
+                    help="--evaluate: write the mean coverage per level into the table's provenance")
     cp.add_argument("--note", default="", help="--fit: where and how the rows were collected (the provenance)")
     cp.add_argument("--out", type=Path, default=None,
                     help="--fit: the table's path (default the shipped one); --evaluate: a folder")
@@ -252,7 +254,7 @@ def cmd_calibrate_posterior(args) -> int:
     else:
         if args.out is None:
             raise ValueError("--evaluate needs --out FOLDER")
-        res = pc.report(args.evaluate, args.table, args.out)
+        res = pc.report(args.evaluate, args.table, args.out, record=args.record)
         echo((args.out / "evaluation.md").read_text())
         echo(f"{res['rows']} held-out rows -> {args.out}")
     return 0

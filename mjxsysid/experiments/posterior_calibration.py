@@ -269,10 +269,10 @@ def table_markdown(res: dict) -> list[str]:
     return lines
 
 
-def report(paths, table_path: Path, out: Path) -> dict:
+def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     """Evaluate the table at ``table_path`` (default the shipped one) on the rows of ``paths`` (held out)
     against the raw posterior; write ``out``/evaluation.json, evaluation.md, coverage_width.png,
-    ranks.png, and the mean coverage per level into the table's provenance (``held_out``)."""
+    ranks.png; ``record``: also the mean coverage per level into the table's provenance (``held_out``)."""
     from mjxsysid.identify.calibrate import SHIPPED, load
     rows = read_rows(paths)
     table = load(table_path)
@@ -287,6 +287,8 @@ def report(paths, table_path: Path, out: Path) -> dict:
     (out / "evaluation.md").write_text("\n".join(md) + "\n")
     coverage_width_figure(raw, cal, out / "coverage_width.png")
     rank_histograms(rows, table, out / "ranks.png")
+    if not record:
+        return res
     path = Path(table_path) if table_path is not None else SHIPPED
     held = table.setdefault("provenance", {}).setdefault("held_out", {})
     held[str(out)] = {"rows": len(rows), "mean_coverage": {lv: round(float(np.nanmean(list(r["coverage"].values()))), 3)
