@@ -219,6 +219,8 @@ def add_calibrate_posterior(sub) -> None:
     mode.add_argument("--evaluate", type=Path, nargs="+", metavar="ROWS",
                       help="evaluate --table on these held-out rows (written to the folder --out)")
     cp.add_argument("--prior", default="wide_actuators", help="--collect: a prior or a held-out family")
+    cp.add_argument("--controller", choices=("oracle", "policy"), default="oracle",
+                    help="--collect: who flies the vehicles (default the lag-aware oracle; policy: the shipped one)")
     cp.add_argument("--vehicles", type=int, default=64, help="--collect: vehicles drawn (default 64)")
     cp.add_argument("--levels", default="clean,x1,x5_white,x5_vibration,x20",
                     help="--collect: IMU noise levels, comma-separated (mjxsysid.studies.noise.LEVELS)")
@@ -245,7 +247,7 @@ def cmd_calibrate_posterior(args) -> int:
     if args.collect:
         res = pc.collect(prior=args.prior, vehicles=args.vehicles, levels=tuple(args.levels.split(",")),
                          seed=args.seed, shard=args.shard, out=args.collect, time_budget_s=args.time_budget,
-                         references=tuple(args.flights.split(",")))
+                         references=tuple(args.flights.split(",")), controller=args.controller)
         echo(f"{len(res['rows'])} rows -> {args.collect}")
     elif args.fit:
         out = args.out or SHIPPED

@@ -65,10 +65,11 @@ def parse_reference(spec: str) -> dict:
 
 def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_LEVELS, seed: int = 5,
             shard: str | None = None, out: Path, time_budget_s: float | None = None,
-            references=REFERENCES) -> dict:
+            references=REFERENCES, controller: str = "oracle") -> dict:
     """Fly and identify; write ``out`` (JSON: rows), after every log (a stopped run keeps what it
     finished); ``time_budget_s``: start no new flight after this long; ``references``: the flights
-    (:func:`parse_reference`), each at every level."""
+    (:func:`parse_reference`), each at every level; ``controller``: who flies ('oracle', the lag-aware
+    oracle, or 'policy', the shipped adaptive policy: another closed loop's reaction to the noise)."""
     from mjxsysid.identify.inference import log_grounded_posterior
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
@@ -79,6 +80,10 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     from mjxsysid import theta as P
 
     pr = P.get_prior(prior)
+    pol = None
+    if controller == "policy":
+        from mjxsysid.policy.interface import resolve_policy
+        pol = resolve_policy("mjxsysid")
     th_all = (pr.vehicles(vehicles) if prior in P.HELDOUT_FAMILIES
               else np.asarray(pr.sample(jax.random.PRNGKey(seed), vehicles)))
     index = _shard(vehicles, shard)
@@ -86,7 +91,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
-           "references": list(references), "rows": []}
+           "references": list(references), "controller": controller, "rows": []}
     t_start = time.perf_counter()
     for ref, lv in ((r, lv) for r in references for lv in levels):
         if lv not in LEVELS:
@@ -94,7 +99,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
         if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
             break
         s = seed + 1000 * (0 if shard is None else int(shard.split("/")[0])) + 97 * list(LEVELS).index(lv)
-        fl, m, _ = fly_vehicles(th, controller="oracle", sim=Quadrotor(SimConfig(**LEVELS[lv])), seed=s,
+        fl, m, _ = fly_vehicles(th, controller=controller, sim=Quadrotor(SimConfig(**LEVELS[lv])), seed=s, policy=pol,
                                 **parse_reference(ref))
         flown = np.flatnonzero(~np.asarray(m["failed"], bool))
         for i in progress(flown, desc=f"calibration {lv}"):
@@ -107,7 +112,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
                 continue
             t0 = time.perf_counter()
             post = log_grounded_posterior(data, None, seed=int(index[i]), calibration=None)
-            res["rows"].append(row(post, th[i], lv, int(index[i]), time.perf_counter() - t0) | {"flight": ref})
+            res["rows"].append(row(post, th[i], lv, int(index[i]), time.perf_counter() - t0) | {"flight": ref if controller == "oracle" else f"{ref} ({controller})"})
             out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
         out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     return res
@@ -117,7 +122,7 @@ def row(post: dict, theta_true, level: str, vehicle: int, seconds: float) -> dic
     """One calibration row of a raw posterior ``post`` and the true θ (19,)."""
     tv = np.asarray(visible_from_theta(np.asarray(theta_true, np.float32)[None]), np.float64)[0]
     return {"level": level, "vehicle": vehicle, "seconds": round(seconds, 3), "method": post["method"],
-            "truth_v": np.round(tv, 6).tolist(), "bands": np.round(raw_bands(post["v_raw"]), 6).tolist(),
+            "truth_v": np.round(tv, 4).tolist(), "bands": np.round(raw_bands(post["v_raw"]), 4).tolist(),
             "features": post["features"], "weights": np.round(np.asarray(post["weights"], np.float64), 5).tolist()}
 
 

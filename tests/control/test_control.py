@@ -270,9 +270,10 @@ def test_demo_grounded_section_counts_and_names_the_miss():
            "external_acc[0]": dict(row, log_median=0.0, true=0.0, log_inside=True, decoder_inside=True,
                                    width_ratio=1.0, seen_by_log=False)}
     md = grounded_md({"_log_grounded": {"method": "smc", "smc_stages": 12, "gap": gap}})
-    assert "inside 2 of 3 log-grounded bands and 3 of 3 decoded" in md
-    assert "a median 20.0× as wide" in md and "smc, 12 SMC stages" in md
-    assert "0.5–16.7 % from the truth (the most: motor_time_constant)" in md
+    assert "saw\n2 of 3 quantities and holds the truth inside 1 of those 2 bands" in md
+    assert "hold it inside 3 of 3" in md and "not calibrated" in md
+    assert "a median\n20.0× as wide" in md and "smc, 12 SMC stages" in md
+    assert "Seen and missed: motor_time_constant" in md
     assert grounded_md(None) == ""
 
 
