@@ -16,8 +16,8 @@ def add_decode(sub) -> None:
     dc = sub.add_parser("decode", help="fly a vehicle (or replay a log) with the policy and decode its latent")
     dc.add_argument("--vehicle", type=Path, default=None, help="vehicle JSON (default: the paper vehicle)")
     dc.add_argument("--log", type=Path, nargs="+", default=None,
-                    help="decode a recorded flight instead: a CSV (the contract: docs/decoding.md), a PX4 ULog, a "
-                         "Crazyflie uSD log, a Betaflight blackbox, an ArduPilot DataFlash log or a ROS bag (docs/logs.md); "
+                    help="decode a recorded flight instead: a CSV (the contract: docs/decoding.md), a PX4 ULog "
+                         "(docs/px4.md), a Crazyflie uSD log, a Betaflight blackbox, an ArduPilot DataFlash log or a ROS bag (docs/logs.md); "
                          "several files or a folder: each into OUT/NAME and one table, OUT/fleet.md")
     dc.add_argument("--segment", default=None, metavar="T0:T1",
                     help="with --log: decode only this part, in seconds (a ULog: since its start; default its armed, "

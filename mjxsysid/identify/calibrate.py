@@ -57,6 +57,10 @@ RATE_COORDS = np.array([False, True, True, True, True, True, True, True, True, T
 """The coordinates the rate windows inform (not seen when the motors were logged too slowly)."""
 
 UNSEEN_FRACTION = 0.5
+
+BOUND_FRACTION = 0.01
+"""A narrow band within this share of the prior's range from one of its bounds is not seen: the log asks
+for a vehicle the physical prior excludes (the model does not fit it)."""
 """A calibrated 90 % band wider than this share of the prior's range: the log did not see the coordinate."""
 
 SHIPPED = Path(__file__).resolve().parents[1] / "pretrained" / "posterior_calibration.json"
@@ -259,9 +263,15 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             out[~valid] = out[gen.choice(np.flatnonzero(valid), int((~valid).sum()))]
         else:
             out = prior_v
-    width = np.percentile(out, 95, 0) - np.percentile(out, 5, 0)
+    q05, q95 = np.percentile(out, 5, 0), np.percentile(out, 95, 0)
+    width = q95 - q05
+    at_bound = (q05 - lo < BOUND_FRACTION * pw) | (hi - q95 < BOUND_FRACTION * pw)
     for j in range(N_V):
         if why[j]:
+            continue
+        if at_bound[j] and width[j] < UNSEEN_FRACTION * pw[j]:
+            why[j] = ("the band lies against the prior's bound: the log asks for a vehicle beyond the physical "
+                      "prior, a sign the model does not fit this log (motor model, units, rotor order)")
             continue
         seen[j] = width[j] < UNSEEN_FRACTION * pw[j]
         why[j] = (f"calibrated band {width[j] / pw[j]:.2g} of the prior's range, model check passed" if seen[j]

@@ -406,11 +406,11 @@ def _motor_channels(params) -> list[int]:
 
 def pwm_limits(params, pwm, chans=(0, 1, 2, 3)):
     """Zero and full throttle in µs of the motor outputs ``pwm`` (N, 4): PWM_MAIN_MIN/MAX (or the
-    per-channel PWM_MAIN_MINn/MAXn, default 1000/2000); where the outputs idle below the minimum the
+    per-channel PWM_MAIN_MINn/MAXn where set, −1 meaning unset; default 1000/2000); where the outputs idle below the minimum the
     parameters give (a disarmed value), zero throttle is taken at that idle value -> (lo, hi, sentence)."""
     def par(name, default):
         per = [params.get(f"{name}{c + 1}") for c in chans]
-        if all(p is not None for p in per):
+        if all(p is not None and p >= 0 for p in per):     # −1: unset, the global value applies
             return float(np.median(per)), f"{name}1..4"
         if name in params:
             return float(params[name]), name
@@ -424,7 +424,8 @@ def pwm_limits(params, pwm, chans=(0, 1, 2, 3)):
                  f"{idle:g} µs (the ESC's calibrated zero, PX4's disarmed value)")
         lo = idle
     if not hi > lo:
-        raise ValueError(f"PWM limits {lo:g}–{hi:g} µs: the maximum is not above the minimum")
+        raise ValueError(f"PWM limits {lo:g}–{hi:g} µs: the maximum is not above the minimum; check the log's "
+                         f"PWM_MAIN_MIN/MAX parameters, or convert the outputs to the CSV contract (docs/decoding.md)")
     return lo, hi, said
 
 

@@ -244,3 +244,11 @@ def test_decode_help_points_to_the_contract_docs():
     sub = next(a for a in p._actions if a.__class__.__name__ == "_SubParsersAction")
     text = " ".join(sub.choices["decode"].format_help().split())
     assert "docs/decoding.md" in text and "docs/px4.md" in text and "README" not in text
+
+
+def test_pwm_limits_per_channel_minus_one_means_unset():
+    """PX4's PWM_MAIN_MINn = −1 leaves the global PWM_MAIN_MIN in force (the F450 log's parameters)."""
+    params = {"PWM_MAIN_MIN": 1230, "PWM_MAIN_MAX": 1950, **{f"PWM_MAIN_MIN{i}": -1 for i in range(1, 9)},
+              **{f"PWM_MAIN_MAX{i}": -1 for i in range(1, 9)}}
+    lo, hi, said = U.pwm_limits(params, np.full((10, 4), 1500.0))
+    assert (lo, hi) == (1230.0, 1950.0) and "PWM_MAIN_MIN" in said
