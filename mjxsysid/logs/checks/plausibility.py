@@ -9,7 +9,7 @@ from mjxsysid.logs.checks.findings import Finding
 from mjxsysid.logs.checks.noise import check_imu_noise
 from mjxsysid.logs.checks.rates import check_resampled
 from mjxsysid.logs.checks.replay import check_replay
-from mjxsysid.logs.checks.rotors import check_motors, check_thrust_model
+from mjxsysid.logs.checks.rotors import check_motors, check_rotor_speed, check_thrust_model
 from mjxsysid.logs.checks.signals import DT, fit_line, smooth
 
 GYRO_FULL_SCALE = np.deg2rad(2000.0)
@@ -39,6 +39,7 @@ def check_log(rec: dict, *, policy=None, zhat=None, imu_limit: dict | None = Non
         out += check_resampled(rec)
         out += check_motors(rec)
         out += check_thrust_model(rec)
+        out += check_rotor_speed(rec)
         out += check_imu_noise(rec, imu_limit)
         if policy is not None and zhat is not None and hasattr(policy, "replay_actions"):
             out += check_replay(rec, policy, zhat)

@@ -111,6 +111,7 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     and the information gap. ``rates``: the likelihood's rate term (default
     :data:`~mjxsysid.identify.logdata.RATES`). Returns ``summary``."""
     from mjxsysid.identify.gap import information_gap, log_summary, seen_by_name
+    from mjxsysid.logs.checks.rotors import rotor_speed_lag
     from mjxsysid.identify.inference import log_grounded_posterior
     from mjxsysid.identify.coords import V_NAMES
     from mjxsysid.identify.likelihood import CHANNELS
@@ -142,6 +143,9 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
                             "model_check": cal["check"], "width_factor": dict(zip(V_NAMES, cal["factor"].tolist()))}
                            if cal.get("applied") else {"applied": False, "why": cal["why"]})
     diag["gap"] = information_gap(final, post["theta"], truth, seen=seen)
+    speed = rotor_speed_lag(rec)
+    if speed is not None:       # measured rotor speeds: τ_m from command to speed, beside the posterior's
+        diag["rotor_speed"] = speed
     summary["_log_grounded"] = plain(diag)
     summary["_posterior"] = "log-grounded"
     dec["samples_log_grounded"] = post["theta"]
