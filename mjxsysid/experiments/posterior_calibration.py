@@ -24,7 +24,6 @@ import numpy as np
 from mjxsysid.identify.calibrate import (
     COORD_FEATURE,
     FEATURE_NAMES,
-    RATE_COORDS,
     fit,
     log_features,
     raw_bands,

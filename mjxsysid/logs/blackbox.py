@@ -28,7 +28,7 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.logs.segment import airborne_segment
-from mjxsysid.logs.ulog import DT, MIN_ROWS, hold, interp_linear, parse_segment
+from mjxsysid.logs.ulog import DT, MIN_ROWS, hold, interp_linear, user_segment, world_to_body
 
 MAGIC = b"H Product:Blackbox flight data recorder by Nicholas Sherlock"
 """The first header line of every log in a blackbox file."""
@@ -136,18 +136,6 @@ def rotor_command(motor, lo: float, hi: float):
     return np.sqrt(u)[:, list(BF_TO_MJX)]
 
 
-def world_to_body(q, v):
-    """``v`` (N, 3) in the world frame expressed in the body frame of the unit quaternions ``q``
-    (N, 4) (w, x, y, z; Hamilton, body to world): Rᵀ v."""
-    q = np.asarray(q, np.float64)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q.T
-    R = np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-                  np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-                  np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
-    return np.einsum("nji,nj->ni", R, np.asarray(v, np.float64))
-
-
 def _import_orangebox():
     try:
         from orangebox import Parser
@@ -186,15 +174,9 @@ def _columns(frames, names, stem, n, path, scale=1.0):
 
 def _segment(t, rotor, segment, path):
     """(t0, t1, why) in seconds since the log's first kept frame."""
-    seg = parse_segment(segment)
-    lo, hi = float(t[0]), float(t[-1])
-    if seg is not None:
-        t0 = lo if seg[0] is None else max(lo, seg[0])
-        t1 = hi if seg[1] is None else min(hi, seg[1])
-        if not t1 - t0 >= MIN_ROWS * DT:
-            raise ValueError(f"{path}: --segment {segment}: {max(t1 - t0, 0):.3g} s of data in it (the log runs "
-                             f"{lo:.2f}–{hi:.2f} s); need at least {MIN_ROWS * DT:g} s")
-        return t0, t1, "--segment (seconds since the log's start)"
+    given = user_segment(path, segment, float(t[0]), float(t[-1]))
+    if given is not None:
+        return given
     try:
         return airborne_segment(t, rotor)
     except ValueError as e:

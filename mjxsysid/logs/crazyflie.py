@@ -33,7 +33,9 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.logs.segment import _runs, airborne_segment
-from mjxsysid.logs.ulog import DT, MIN_ROWS, _rate, _rate_text, hold, interp_linear, parse_segment
+from mjxsysid.logs.record import rate_hz, rate_text
+from mjxsysid.logs.ulog import (DT, cut, hold, interp_linear, segment_grid, user_segment,
+                               world_to_body)
 
 MAGIC = 0xBC
 STAMP = {1: ("<u4", 1e-3, "u32 ms"), 2: ("<u8", 1e-6, "u64 µs")}
@@ -256,15 +258,9 @@ def _require(path, events, what, names, step):
 
 def body_velocity(v_world, q_xyzw):
     """The world-frame velocity ``v_world`` (N, 3) in the body frame, with the attitude quaternions
-    ``q_xyzw`` (N, 4) (x, y, z, w; body to world, as the Crazyflie's estimator logs them) ->
-    (N, 3): Rᵀ v."""
+    ``q_xyzw`` (N, 4) (x, y, z, w; body to world, as the Crazyflie's estimator logs them) -> (N, 3)."""
     q = np.asarray(q_xyzw, np.float64)
-    q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    x, y, z, w = q.T
-    r = np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-                  np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-                  np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
-    return np.einsum("nji,nj->ni", r, np.asarray(v_world, np.float64))
+    return world_to_body(q[:, [3, 0, 1, 2]], v_world)
 
 
 def rotor_speed_fit(u, omega) -> dict:
@@ -343,18 +339,13 @@ def _velocity_body(events):
 
 def _segment(path, segment, t_imu, t_m, motor, acc_g):
     """(t0, t1, why) on the Crazyflie's clock."""
-    seg = parse_segment(segment)
-    lo, hi = float(t_imu[0]), float(t_imu[-1])
-    if seg is None:
-        t_s, signal, said = flight_signal(t_m, motor, acc_g)
-        t0, t1, why = airborne_segment(t_s, signal)
-        return t0, t1, why + said
-    t0 = lo if seg[0] is None else max(lo, seg[0])
-    t1 = hi if seg[1] is None else min(hi, seg[1])
-    if not t1 - t0 >= MIN_ROWS * DT:
-        raise ValueError(f"{path}: --segment {segment}: {max(t1 - t0, 0):.3g} s of IMU data in it (the log runs "
-                         f"{lo:.2f}–{hi:.2f} s on the Crazyflie's clock); need at least {MIN_ROWS * DT:g} s")
-    return t0, t1, "--segment (seconds on the Crazyflie's clock since boot, as logged)"
+    given = user_segment(path, segment, float(t_imu[0]), float(t_imu[-1]),
+                         "seconds on the Crazyflie's clock since boot, as logged")
+    if given is not None:
+        return given
+    t_s, signal, said = flight_signal(t_m, motor, acc_g)
+    t0, t1, why = airborne_segment(t_s, signal)
+    return t0, t1, why + said
 
 
 def read_crazyflie(path, segment=None) -> dict:
@@ -385,7 +376,7 @@ def read_crazyflie(path, segment=None) -> dict:
         conv.append(f"accelerometer ({ev_a}) interpolated (linear) onto the gyro's samples ({ev_g})")
     imu_native = np.concatenate([gyro, acc], -1)
     used["imu"] = f"{ev_g} (gyro.x/y/z)" + (f" + {ev_a} (acc.x/y/z)" if ev_a != ev_g else " (acc.x/y/z)")
-    rates["imu"] = _rate(t_g)
+    rates["imu"] = rate_hz(t_g)
     conv.append(f"timestamps: format version {version}, {STAMP[version][2]} on the Crazyflie's clock since boot, "
                 f"read as seconds on that clock (t, segment)")
     conv.append("body frame: the Crazyflie's is FLU (x forward, y left, z up) already; gyro deg/s × π/180 -> rad/s, "
@@ -396,7 +387,7 @@ def read_crazyflie(path, segment=None) -> dict:
     raw = np.stack([events[ev_m][n] for n in m_names], -1).astype(np.float64)
     motor_native = np.sqrt(np.clip(raw / PWM_FULL, 0.0, 1.0))[:, CF_ORDER]
     used["motor"] = f"{ev_m} ({', '.join(m_names)})"
-    rates["motor"] = _rate(t_m)
+    rates["motor"] = rate_hz(t_m)
     conv.append(f"motor commands: {m_what} (0–{PWM_FULL:g}) over {PWM_FULL:g} are the motors' duty, the "
                 f"throttle; thrust ∝ throttle (roughly, for the Crazyflie's brushed motors) and thrust ∝ Ω², so "
                 f"Ω_cmd/Ω_max = √(pwm/{PWM_FULL:g})")
@@ -406,17 +397,9 @@ def read_crazyflie(path, segment=None) -> dict:
 
     acc_m = acc if ev_a == ev_m and ev_a == ev_g else interp_linear(t_g, acc, t_m)
     t0, t1, why = _segment(path, segment, t_g, t_m, motor_native, acc_m / g)
-    n = int(np.floor((t1 - t0) / DT + 1e-9)) + 1
-    if n < MIN_ROWS:
-        raise ValueError(f"{path}: the segment {t0:.3f}–{t1:.3f} s is shorter than {MIN_ROWS * DT:g} s")
-    grid = t0 + DT * np.arange(n)
+    grid = segment_grid(path, t0, t1)
 
-    def cut(t, x):
-        i0 = max(int(np.searchsorted(t, t0, side="right")) - 1, 0)
-        i1 = min(int(np.searchsorted(t, t1, side="left")) + 1, len(t))
-        return t[i0:i1], np.asarray(x, np.float64)[i0:i1]
-
-    native = {"imu": cut(t_g, imu_native), "motor": cut(t_m, motor_native)}
+    native = {"imu": cut(t_g, imu_native, t0, t1), "motor": cut(t_m, motor_native, t0, t1)}
     rec = {"t": grid, "imu": interp_linear(*native["imu"], grid), "motor": hold(*native["motor"], grid)}
     how = {"imu": "interpolated (linear)", "motor": "held (zero-order)"}
 
@@ -435,7 +418,7 @@ def read_crazyflie(path, segment=None) -> dict:
     else:
         t_r = events[ev_r]["t"]
         omega = np.stack([events[ev_r][n] for n in rpm_names], -1).astype(np.float64)[:, CF_ORDER] * (2 * np.pi / 60)
-        nat_r = cut(t_r, omega)
+        nat_r = cut(t_r, omega, t0, t1)
         cmd = hold(*native["motor"], nat_r[0])
         stuck = np.mean((nat_r[1] == 0) & (cmd > MIN_CMD_FOR_RPM), axis=0)
         if np.any(stuck > RPM_STUCK_FRACTION):
@@ -447,7 +430,7 @@ def read_crazyflie(path, segment=None) -> dict:
             rec["rotor_speed"] = interp_linear(*nat_r, grid)
             how["rotor_speed"] = "interpolated (linear)"
             used["rotor_speed"] = f"{ev_r} ({', '.join(rpm_names)})"
-            rates["rotor_speed"] = _rate(t_r)
+            rates["rotor_speed"] = rate_hz(t_r)
             conv.append("rotor speed: the RPM deck's rpm.m1..m4 × 2π/60 -> rad/s, in mjxsysid's rotor order")
             fit = rotor_speed_fit(cmd, nat_r[1])
             extra["rotor_speed_fit"] = fit
@@ -460,16 +443,16 @@ def read_crazyflie(path, segment=None) -> dict:
     if ev_v is None:
         missing.append("velocity_body")
     else:
-        native["velocity_body"] = cut(t_v, v_body)
+        native["velocity_body"] = cut(t_v, v_body, t0, t1)
         rec["velocity_body"] = interp_linear(*native["velocity_body"], grid)
         how["velocity_body"] = "interpolated (linear)"
         used["velocity_body"] = f"{ev_v} (stateEstimate.vx/vy/vz, qx/qy/qz/qw)"
-        rates["velocity_body"] = _rate(t_v)
+        rates["velocity_body"] = rate_hz(t_v)
     if said:
         conv.append(said)
 
-    resampled = {k: (f"{how[k]} from {_rate_text(rates[k])}" if abs(rates[k] * DT - 1) > 0.05
-                     else f"native ({_rate_text(rates[k])})") for k in how}
+    resampled = {k: (f"{how[k]} from {rate_text(rates[k])}" if abs(rates[k] * DT - 1) > 0.05
+                     else f"native ({rate_text(rates[k])})") for k in how}
     resampled["a_cmd"] = "not logged: the measured specific force along z"
     resampled["omega_cmd"] = "not logged: the measured gyro"
     rec["native"] = native

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from mjxsysid.logs.segment import airborne_segment
-from mjxsysid.logs.ulog import DT, MIN_ROWS, hold, interp_linear, parse_segment
+from mjxsysid.logs.ulog import DT, MIN_ROWS, cut, hold, interp_linear, user_segment
 
 LINEAR, HELD = "interpolated (linear)", "held (zero-order)"
 
@@ -47,15 +47,10 @@ def pick_segment(path, segment, t_motor, motor, span, within=None, within_why=""
     (lo, hi) s, else :func:`~mjxsysid.logs.segment.airborne_segment` on the native motor commands
     ``motor`` (N, 4) at ``t_motor`` (N,) s, restricted to ``within`` (a0, a1) s when given (an armed
     stretch, said by ``within_why``). ValueError naming ``path`` when under :data:`MIN_ROWS` steps."""
+    given = user_segment(path, segment, *span, clock="the reader's clock")
+    if given is not None:
+        return given
     lo, hi = span
-    seg = parse_segment(segment)
-    if seg is not None:
-        t0 = lo if seg[0] is None else max(lo, seg[0])
-        t1 = hi if seg[1] is None else min(hi, seg[1])
-        if not t1 - t0 >= MIN_ROWS * DT:
-            raise ValueError(f"{path}: --segment {segment}: {max(t1 - t0, 0):.3g} s of data in it (the log runs "
-                             f"{lo:.2f}–{hi:.2f} s); give at least {MIN_ROWS * DT:g} s inside that span")
-        return t0, t1, "--segment"
     t_motor = np.asarray(t_motor, np.float64)
     keep = np.ones(len(t_motor), bool) if within is None else (t_motor >= within[0]) & (t_motor <= within[1])
     try:
@@ -67,13 +62,6 @@ def pick_segment(path, segment, t_motor, motor, span, within=None, within_why=""
         raise ValueError(f"{path}: the airborne segment {t0:.2f}–{t1:.2f} s is shorter than {MIN_ROWS * DT:g} s; "
                          f"give the flight's part with --segment t0:t1")
     return t0, t1, (within_why + "; " if within_why else "") + why
-
-
-def cut(t, x, t0, t1):
-    """The native samples (t (N,), x (N, ...)) inside [t0, t1] with one more on each side (for the resampling)."""
-    i0 = max(int(np.searchsorted(t, t0, side="right")) - 1, 0)
-    i1 = min(int(np.searchsorted(t, t1, side="left")) + 1, len(t))
-    return t[i0:i1], np.asarray(x, np.float64)[i0:i1]
 
 
 def assemble(channels: dict, t0: float, t1: float) -> dict:

@@ -85,6 +85,47 @@ def hold(t_native, x, grid):
     return np.asarray(x, np.float64)[idx]
 
 
+def user_segment(path, segment, lo: float, hi: float, clock: str = "seconds since the log's start"):
+    """A ``--segment`` 't0:t1' (or a pair) clamped to the log's span lo..hi s -> (t0, t1, why), or None
+    when no segment is given; ValueError naming ``path`` when it holds under :data:`MIN_ROWS` steps."""
+    seg = parse_segment(segment)
+    if seg is None:
+        return None
+    t0 = lo if seg[0] is None else max(lo, seg[0])
+    t1 = hi if seg[1] is None else min(hi, seg[1])
+    if not t1 - t0 >= MIN_ROWS * DT:
+        raise ValueError(f"{path}: --segment {segment}: {max(t1 - t0, 0):.3g} s of data in it (the log runs "
+                         f"{lo:.2f}–{hi:.2f} s, {clock}); need at least {MIN_ROWS * DT:g} s")
+    return t0, t1, f"--segment ({clock})"
+
+
+def cut(t, x, t0: float, t1: float):
+    """The native samples (t (N,), x (N, ...)) inside [t0, t1] with one more on each side (for the resampling)."""
+    i0 = max(int(np.searchsorted(t, t0, side="right")) - 1, 0)
+    i1 = min(int(np.searchsorted(t, t1, side="left")) + 1, len(t))
+    return t[i0:i1], np.asarray(x, np.float64)[i0:i1]
+
+
+def segment_grid(path, t0: float, t1: float):
+    """The 2 ms grid (T,) over a segment t0..t1 s; ValueError naming ``path`` when under :data:`MIN_ROWS` steps."""
+    n = int(np.floor((t1 - t0) / DT + 1e-9)) + 1
+    if n < MIN_ROWS:
+        raise ValueError(f"{path}: the segment {t0:.3f}–{t1:.3f} s is shorter than {MIN_ROWS * DT:g} s")
+    return t0 + DT * np.arange(n)
+
+
+def world_to_body(q_wxyz, v):
+    """World-frame vectors ``v`` (N, 3) in the body frame of the unit quaternions ``q_wxyz`` (N, 4)
+    (w, x, y, z; Hamilton, body to world): Rᵀ v."""
+    q = np.asarray(q_wxyz, np.float64)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    R = np.stack([np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+                  np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+                  np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], -2)
+    return np.einsum("nji,nj->ni", R, np.asarray(v, np.float64))
+
+
 def rotor_order_from_params(params: dict):
     """The mjxsysid rotor each PX4 motor 0..3 drives, from the control allocation's rotor geometry
     (CA_ROTORi_PX/PY, FRD) -> (order (4,), sentence); PX4's default quad-X order when the log has
@@ -167,15 +208,10 @@ def drop_interleaved_rows(x):
 
 def _segment(ulog, params, t_imu, start_us, segment, path=""):
     """(t0, t1, why) in seconds since the log's start; ValueError for a log never armed (naming ``path``)."""
-    seg = parse_segment(segment)
     lo, hi = float(t_imu[0]), float(t_imu[-1])
-    if seg is not None:
-        t0 = lo if seg[0] is None else max(lo, seg[0])
-        t1 = hi if seg[1] is None else min(hi, seg[1])
-        if not t1 - t0 >= MIN_ROWS * DT:
-            raise ValueError(f"--segment {segment}: {max(t1 - t0, 0):.3g} s of IMU data in it (the log runs "
-                             f"{lo:.2f}–{hi:.2f} s since its start); need at least {MIN_ROWS * DT:g} s")
-        return t0, t1, "--segment (seconds since the log's start)"
+    given = user_segment(path, segment, lo, hi)
+    if given is not None:
+        return given
     mask = np.ones(len(t_imu), bool)
     why = []
     armed = _topic(ulog, "actuator_armed")
@@ -285,16 +321,7 @@ def read_ulog(path, segment=None) -> dict:
                 "gyro, accelerometer and rate setpoint y and z negated")
 
     t0, t1, why = _segment(ulog, params, t_g, start, segment, path)
-    n = int(np.floor((t1 - t0) / DT + 1e-9)) + 1
-    if n < MIN_ROWS:
-        raise ValueError(f"{path}: the segment {t0:.3f}–{t1:.3f} s is shorter than {MIN_ROWS * DT:g} s")
-    grid = t0 + DT * np.arange(n)
-
-    def cut(t, x):
-        # native samples in the segment, with one on each side for the resampling
-        i0 = max(int(np.searchsorted(t, t0, side="right")) - 1, 0)
-        i1 = min(int(np.searchsorted(t, t1, side="left")) + 1, len(t))
-        return t[i0:i1], np.asarray(x, np.float64)[i0:i1]
+    grid = segment_grid(path, t0, t1)
 
     # ---- motors
     order, said = rotor_order_from_params(params)
@@ -370,8 +397,8 @@ def read_ulog(path, segment=None) -> dict:
     conv.append(f"a_cmd: PX4's normalised collective thrust setpoint (−xyz[2], FRD z down) × g / hover thrust "
                 f"({said_h}): m/s², g at hover")
 
-    native = {"imu": cut(t_g, imu_native), "motor": cut(t_m, rotor),
-              "omega_cmd": cut(t_w, w_cmd), "a_cmd": cut(t_T, a_cmd)}
+    native = {"imu": cut(t_g, imu_native, t0, t1), "motor": cut(t_m, rotor, t0, t1),
+              "omega_cmd": cut(t_w, w_cmd, t0, t1), "a_cmd": cut(t_T, a_cmd, t0, t1)}
     rec = {"t": grid, "imu": interp_linear(*native["imu"], grid),
            "a_cmd": hold(*native["a_cmd"], grid), "omega_cmd": hold(*native["omega_cmd"], grid),
            "motor": hold(*native["motor"], grid)}

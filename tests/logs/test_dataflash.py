@@ -122,7 +122,7 @@ def test_synthetic_log_conversions(synthetic):
 def test_segment_detection_and_read_any_log(synthetic, tmp_path):
     r = D.read_dataflash(synthetic, "2:8")
     assert r["t"][0] == pytest.approx(2.0) and r["t"][-1] == pytest.approx(8.0)
-    assert r["source"]["segment"]["why"] == "--segment"
+    assert r["source"]["segment"]["why"].startswith("--segment")
     with pytest.raises(ValueError, match="end must come after"):
         D.read_dataflash(synthetic, "8:2")
     renamed = tmp_path / "flight.csv"
