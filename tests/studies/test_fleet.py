@@ -34,3 +34,12 @@ def test_the_fleet_table_shows_what_each_log_saw_and_why_one_was_refused():
     line_a = next(ln for ln in md.splitlines() if ln.startswith("| a.ulg"))
     assert "2 (1.9–2.1)" in line_a and "| – |" in line_a and "1 of 2" in line_a
     assert "refused: never armed" in md
+
+
+def test_the_truth_headline_counts_only_what_the_log_saw():
+    from mjxsysid.studies.decode.run import truth_headline
+    gap = {"thrust_to_weight_total": {"seen_by_log": True, "log_inside": True},
+           "motor_time_constant": {"seen_by_log": True, "log_inside": False},
+           "authority_total[0]": {"seen_by_log": False, "log_inside": True}}
+    line = truth_headline({"_log_grounded": {"gap": gap}}, "flight")
+    assert "1/2 quantities the log saw" in line and "1 not seen" in line

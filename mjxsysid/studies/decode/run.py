@@ -213,6 +213,19 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
                        width=480, height=360)
     st.close()
     if truth is not None:
-        n_in = sum(v["inside"] for k, v in summary.items() if k in P.PARAM_NAMES)
-        echo(f"true θ inside the decoded ({label}) 5–95 % interval for {n_in}/{P.N_PARAMS} parameters")
+        echo(truth_headline(summary, label))
     return summary
+
+
+def truth_headline(summary: dict, label: str) -> str:
+    """The line ``decode --truth`` ends with: with a log-grounded posterior, the truths inside its 90 % bands
+    of the quantities the log saw only (the unseen ones are as broad as the prior: counting them would
+    flatter it); else the true θ inside the decoded intervals."""
+    gap = summary.get("_log_grounded", {}).get("gap")
+    if gap:
+        seen = [k for k, v in gap.items() if v.get("seen_by_log")]
+        n_in = sum(bool(gap[k].get("log_inside")) for k in seen)
+        return (f"truth inside the log-grounded 90 % band for {n_in}/{len(seen)} quantities the log saw "
+                f"({len(gap) - len(seen)} not seen: as broad as the prior)")
+    n_in = sum(v["inside"] for k, v in summary.items() if k in P.PARAM_NAMES)
+    return f"true θ inside the decoded ({label}) 5–95 % interval for {n_in}/{P.N_PARAMS} parameters"
