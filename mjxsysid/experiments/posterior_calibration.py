@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import platform
-import subprocess
 import time
 from pathlib import Path
 
@@ -28,6 +27,7 @@ from mjxsysid.identify.calibrate import (
     log_features,
     raw_bands,
 )
+from mjxsysid.experiments.common import git_commit
 from mjxsysid.identify.coords import V_NAMES, visible_from_theta
 from mjxsysid.progress import progress
 
@@ -139,14 +139,6 @@ def read_rows(paths) -> list[dict]:
     return rows
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                              cwd=Path(__file__).parent, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def fit_file(paths, out: Path, note: str = "") -> dict:
     """Fit the table on the rows of ``paths`` and write it to ``out`` with its provenance."""
     rows = read_rows(paths)
@@ -154,7 +146,7 @@ def fit_file(paths, out: Path, note: str = "") -> dict:
     table = fit(rows)
     levels = sorted({r["level"] for r in rows})
     table["provenance"] = {"command": "mjxsysid calibrate-posterior --fit " + " ".join(map(str, paths)),
-                           "rows": len(rows), "levels": levels, "commit": _commit(),
+                           "rows": len(rows), "levels": levels, "commit": git_commit() or "unknown",
                            "fitted_on": platform.node() or "unknown", "fit_seconds": round(time.perf_counter() - t0, 3),
                            "date": time.strftime("%Y-%m-%d"), "note": note}
     out = Path(out)

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from mjxsysid.identify.coords import N_V, PHYSICAL_PRIOR, V_NAMES, PhysicalPrior
+from mjxsysid.identify.gap import UNSEEN_FRACTION
 
 LEVEL = 0.90
 """The band's nominal coverage."""
@@ -56,12 +57,9 @@ accelerometer's (it does not depend on the rate windows, which a slowly logged m
 RATE_COORDS = np.array([False, True, True, True, True, True, True, True, True, True, True, True])
 """The coordinates the rate windows inform (not seen when the motors were logged too slowly)."""
 
-UNSEEN_FRACTION = 0.5
-
 BOUND_FRACTION = 0.01
 """A narrow band within this share of the prior's range from one of its bounds is not seen: the log asks
 for a vehicle the physical prior excludes (the model does not fit it)."""
-"""A calibrated 90 % band wider than this share of the prior's range: the log did not see the coordinate."""
 
 SHIPPED = Path(__file__).resolve().parents[1] / "pretrained" / "posterior_calibration.json"
 
@@ -170,43 +168,47 @@ def load(path=None) -> dict:
     table = json.loads(path.read_text())
     if len(table.get("coords", [])) != N_V:
         raise ValueError(f"{path}: a calibration of {len(table.get('coords', []))} coordinates; expected {N_V}")
+    want = [FEATURE_NAMES[i] for i in COORD_FEATURE]
+    got = [c.get("feature") for c in table["coords"]]
+    if got != want:
+        raise ValueError(f"{path}: fitted with the features {got}, this code groups by {want}: refit it "
+                         f"(`mjxsysid calibrate-posterior --fit ROWS...`)")
     return table
 
 
 def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> dict:
     """A log's ``features`` (:func:`log_features`) and residual correlation discounts ``weights``
-    (4,) against what the calibration ``table`` covers -> {ok {feature: bool}, rates_ok, acc_ok,
-    reasons [str]}: a residual scale over the signal more than ``margin`` decades above the
+    (4,) against what the calibration ``table`` covers -> {ok {feature: bool}, why {feature: [str]},
+    rates_ok, acc_ok, reasons [str] (all of them, once each)}: a residual scale over the signal more than ``margin`` decades above the
     calibration set's (an axis the flight hardly excited, or a model that does not fit; a log that fits
     better than any simulated one takes the calibration of its nearest bin), residuals more correlated
     than 99.5 % of its logs' (the rate axes pooled), rates the motor logging cannot support."""
-    reasons = []
-    ok = {f: True for f in FEATURE_NAMES}
+    why = {f: [] for f in FEATURE_NAMES}
     for f in FEATURE_NAMES:
         if f not in table["feature_range"] or f not in features:
             continue
         lo, hi = table["feature_range"][f]
         x = features[f]
         if not np.isfinite(x) or x > hi + margin:
-            ok[f] = False
-            reasons.append(f"{f} = {x:.2f} (log10 residual scale / signal) above the calibration set's {lo:.2f}…{hi:.2f} "
-                           f"by more than {margin} decades: too little excitation, or a model that does not fit")
+            why[f].append(f"{f} = {x:.2f} (log10 residual scale / signal) above the calibration set's {lo:.2f}…{hi:.2f} "
+                          f"by more than {margin} decades: too little excitation, or a model that does not fit")
     w = np.asarray(weights, np.float64)
     wmin = np.asarray(table["min_weight"], np.float64)
     rates = [f for f in FEATURE_NAMES if f.startswith("rates")]
     if np.any(w[:3] < wmin[:3]):
-        ok.update({f: False for f in rates})
-        reasons.append("the rate residuals are more correlated than 99.5 % of the simulated logs' (discount "
-                       f"{np.round(w[:3], 3).tolist()} below {wmin[0]:.3f}): physics the model lacks")
+        for f in rates:
+            why[f].append("the rate residuals are more correlated than 99.5 % of the simulated logs' (discount "
+                          f"{np.round(w[:3], 3).tolist()} below {wmin[0]:.3f}): physics the model lacks")
     if w[3] < wmin[3]:
-        ok["acc_nsr"] = False
-        reasons.append(f"the accelerometer residuals are more correlated than 99.5 % of the simulated logs' "
-                       f"(discount {w[3]:.3f} below {wmin[3]:.3f}): physics the model lacks")
+        why["acc_nsr"].append(f"the accelerometer residuals are more correlated than 99.5 % of the simulated logs' "
+                              f"(discount {w[3]:.3f} below {wmin[3]:.3f}): physics the model lacks")
     if not features["rates_used"]:
-        ok.update({f: False for f in rates})
-        reasons.append("the motors were logged too slowly for the rate windows: τ_m, the authorities, ρ and "
-                       "τ_ext/J cannot be seen")
-    return {"ok": ok, "rates_ok": all(ok[f] for f in rates), "acc_ok": ok["acc_nsr"], "reasons": reasons}
+        for f in rates:
+            why[f].append("the motors were logged too slowly for the rate windows: τ_m, the authorities, ρ and "
+                          "τ_ext/J cannot be seen")
+    ok = {f: not why[f] for f in FEATURE_NAMES}
+    reasons = list(dict.fromkeys(r for f in FEATURE_NAMES for r in why[f]))
+    return {"ok": ok, "why": why, "rates_ok": all(ok[f] for f in rates), "acc_ok": ok["acc_nsr"], "reasons": reasons}
 
 
 def coord_ok(check: dict, j: int) -> bool:
@@ -249,7 +251,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
         if not coord_ok(check, j):
             out[:, j] = prior_v[:, j]
             factor[j] = np.nan
-            why[j] = "model check failed: " + "; ".join(check["reasons"])
+            why[j] = "model check failed: " + "; ".join(check["why"][c["feature"]])
             continue
         bins[j] = b = group_of(c, features[c["feature"]], q[2, j] - q[0, j])
         k_lo, k_hi = side_factors(q[:, j], c, b)

@@ -19,6 +19,7 @@ import numpy as np
 
 from mjxsysid.identify.coords import LOG_NAMES, LOG_UNITS, PHYSICAL_PRIOR, PhysicalPrior, log_quantities
 from mjxsysid.identify.gap import information_gap, seen_by_name
+from mjxsysid.identify.inference import log_grounded_posterior
 
 DIAGNOSTIC_KEYS = ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
                    "smc_acceptance_min", "smc_tempering", "features", "weights", "channels_used", "rates", "mode")
@@ -37,7 +38,6 @@ class LogPosterior:
     def fit(cls, rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR, **kw) -> "LogPosterior":
         """The posterior of a log's arrays (a reader's dict) or a LogData; ``decoded_theta`` (S, 19)
         the decoders' samples as the proposal, or None; ``kw``: those of log_grounded_posterior."""
-        from mjxsysid.identify.inference import log_grounded_posterior
         res = log_grounded_posterior(rec_or_data, decoded_theta, prior=prior, **kw)
         src = rec_or_data.get("source") if isinstance(rec_or_data, dict) else None
         return cls(res, src, prior)

@@ -133,6 +133,11 @@ def test_fit_refuses_too_few_logs_and_load_names_the_command(tmp_path):
     bad.write_text(json.dumps({"coords": [{}]}))
     with pytest.raises(ValueError, match="coordinates"):
         C.load(bad)
+    stale = C.load()
+    stale["coords"][5]["feature"] = "rates_nsr"
+    bad.write_text(json.dumps(stale))
+    with pytest.raises(ValueError, match="refit"):
+        C.load(bad)
 
 
 def test_a_narrow_band_against_the_prior_bound_is_not_seen():

@@ -29,11 +29,12 @@ def test_the_fleet_table_shows_what_each_log_saw_and_why_one_was_refused():
     unseen = {"log_median": 0.02, "log_q05": 0.003, "log_q95": 0.2, "seen_by_log": False, "seen_why": "slow motors"}
     summary = {"_posterior": "log-grounded",
                "_log_grounded": {"gap": {"thrust_to_weight_total": seen, "motor_time_constant": unseen}}}
-    rows = [fleet_row("a.ulg", summary), fleet_row("b.bin", None, "never armed: log a flight")]
+    rows = [fleet_row("a.ulg", summary), fleet_row("b.bin", None, "never armed: log a flight"),
+            fleet_row("c.csv", {"_posterior": "decoder-only"})]
     md = fleet_markdown(rows)
     line_a = next(ln for ln in md.splitlines() if ln.startswith("| a.ulg"))
     assert "2 (1.9–2.1)" in line_a and "| – |" in line_a and "1 of 2" in line_a
-    assert "refused: never armed" in md
+    assert "refused: never armed" in md and "| c.csv |" in md and "decoder-only |" in md
 
 
 def test_the_truth_headline_counts_only_what_the_log_saw():

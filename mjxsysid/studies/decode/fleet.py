@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mjxsysid.identify.coords import LOG_NAMES, LOG_UNITS
 
 SHORT = {"thrust_to_weight_total": "T/W", "motor_time_constant": "τ_m (ms)", "authority_total[0]": "A_x",
          "authority_total[1]": "A_y", "authority_total[2]": "A_z", "yaw_authority_total": "yaw"}
@@ -53,19 +52,20 @@ def _cell(q: str, v: dict | None) -> str:
 
 
 def fleet_markdown(rows: list[dict]) -> str:
-    """The fleet table: a row per log, the :data:`SHORT` quantities as median (90 % band)."""
-    units = dict(zip(LOG_NAMES, LOG_UNITS))
-    head = "| log | " + " | ".join(SHORT.values()) + " | not seen |"
-    lines = [head, "|---" * (len(SHORT) + 2) + "|"]
+    """The fleet table: a row per log, the :data:`SHORT` quantities as median (90 % band); a refused log
+    gives its reason, a log decoded by the decoders alone says so."""
+    blank = " | ".join("" for _ in SHORT)
+    lines = ["| log | " + " | ".join(SHORT.values()) + " | not seen |", "|---" * (len(SHORT) + 2) + "|"]
     for r in rows:
+        qs = r.get("quantities")
         if "error" in r:
-            lines.append(f"| {r['log']} | " + " | ".join("" for _ in SHORT) + f" | refused: {r['error']} |")
-            continue
-        qs = r["quantities"]
-        unseen = [q for q in LOG_NAMES if q in qs and not qs[q]["seen"]]
-        lines.append(f"| {r['log']} | " + " | ".join(_cell(q, qs.get(q)) for q in SHORT) + f" | {len(unseen)} of "
-                     f"{len(qs)} |" if qs else f"| {r['log']} | " + " | ".join("" for _ in SHORT)
-                     + f" | {r.get('posterior') or 'decoder-only'} |")
+            lines.append(f"| {r['log']} | {blank} | refused: {r['error']} |")
+        elif not qs:
+            lines.append(f"| {r['log']} | {blank} | {r.get('posterior') or 'decoder-only'} |")
+        else:
+            unseen = sum(not v["seen"] for v in qs.values())
+            cells = " | ".join(_cell(q, qs.get(q)) for q in SHORT)
+            lines.append(f"| {r['log']} | {cells} | {unseen} of {len(qs)} |")
     lines += ["", "Median (5–95 %) of the log-grounded posterior, calibrated; '–': not seen by this log "
-              f"(its summary.json says why). Units: T/W {units['thrust_to_weight_total']}, authorities rad/s²."]
+              "(its summary.json says why). τ_m in ms, the authorities in rad/s²."]
     return "\n".join(lines) + "\n"
