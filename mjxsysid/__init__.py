@@ -18,6 +18,11 @@ _API = ("Finding", "FlightResult", "LogError", "check_log", "decode", "fly", "lo
 __all__ = list(_API) + ["identify", "__version__"]
 
 
+from mjxsysid.runtime.moved import install as _install_moved, moved_attribute as _moved_attribute
+
+_install_moved()   # old import paths of moved modules still import, with a FutureWarning
+
+
 def __getattr__(name):
     if name == "identify":                 # the room, callable: mjxsysid.identify(log) -> LogPosterior
         import importlib
@@ -25,6 +30,9 @@ def __getattr__(name):
     if name in _API:
         from mjxsysid import api
         return getattr(api, name)
+    old = _moved_attribute(name)
+    if old is not None:
+        return old
     raise AttributeError(f"module 'mjxsysid' has no attribute {name!r}")
 
 

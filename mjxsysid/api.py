@@ -9,7 +9,7 @@
     mjxsysid.check_log("my_flight.csv")           # its physical plausibility checks alone
 
 Thin wrappers over :func:`mjxsysid.rollout.flight.fly_vehicles`,
-:func:`mjxsysid.studies.decode.decode_posterior` and the vehicle-file readers of
+:func:`mjxsysid.decoding.decode_posterior` and the vehicle-file readers of
 :mod:`mjxsysid.theta`: the same checks, the same numbers as the command line.
 """
 from __future__ import annotations
@@ -29,7 +29,7 @@ from mjxsysid.logs.ulog import read_ulog
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import CONTROLLERS, fly_vehicles, metrics_dict, one_flight, save_flight, seen_imu
 from mjxsysid.rollout.harness import metrics_to_host
-from mjxsysid.studies.decode import (check_window, checks_summary, decode_posterior, decoders_prior, flight_checks,
+from mjxsysid.decoding import (check_window, checks_summary, decode_posterior, decoders_prior, flight_checks,
                                      ground_in_log, log_latents, parse_window)
 
 __all__ = ["Finding", "FlightResult", "LogError", "check_log", "decode", "fly", "load_vehicle", "paper_vehicle", "prior_vehicles",
@@ -89,7 +89,7 @@ class FlightResult:
     def save(self, out, index: int = 0) -> Path:
         """Write ``out/flight.npz`` (vehicle ``index``), ``out/flight.ulg`` and ``out/flight.csv`` (the
         flight as logs) and ``out/metrics.json`` as ``mjxsysid fly``."""
-        from mjxsysid import jsonout
+        from mjxsysid.runtime import jsonout
         from mjxsysid.logs.ulog_write import write_flight_logs
 
         out = Path(out)
@@ -152,7 +152,7 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
 
     A log (CSV or PX4 ULog ``.ulg``; ``segment`` "t0:t1" as ``--segment``) is grounded in its own
     physics unless ``decoder_only``: the summary's top-level entries are then the log-grounded
-    posterior's (:func:`mjxsysid.studies.decode.ground_in_log`: the log's IMU given its motor
+    posterior's (:func:`mjxsysid.decoding.ground_in_log`: the log's IMU given its motor
     commands under a physical prior, the decoded samples as its proposal), the decoders' under
     ``summary["_decoder_only"]``, the information gap under ``summary["_log_grounded"]["gap"]``,
     and ``samples_log_grounded`` (S, 19) is returned too; ``rates`` its likelihood's rate term

@@ -4,10 +4,8 @@ dropped, real import errors are not), progress bars obey --quiet, and ``mjxsysid
 import dataclasses
 import json
 import os
-import re
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -43,7 +41,7 @@ def test_cli_error_is_one_line_with_nothing_else(tmp_path):
 
 
 def test_only_the_probe_lines_are_dropped_and_import_errors_surface(tmp_path, capsys, monkeypatch):
-    from mjxsysid._quiet import is_probe_line, quiet_import
+    from mjxsysid.runtime.quiet import is_probe_line, quiet_import
     assert is_probe_line("Failed to import warp: No module named 'warp'")
     assert is_probe_line("Failed to import mujoco_warp: No module named 'warp'")
     assert not is_probe_line("Failed to import warp: libcuda.so: cannot open shared object file")
@@ -66,10 +64,10 @@ AOT_LINE = ("E1126 14:46:36.199582   26128 cpu_aot_loader.cc:195] Loading XLA:CP
 
 
 def test_the_stderr_filter_drops_only_the_cache_loaders_lines_and_survives_a_crash():
-    from mjxsysid._quiet import is_aot_loader_line
+    from mjxsysid.runtime.quiet import is_aot_loader_line
     assert is_aot_loader_line(AOT_LINE.encode()) and is_aot_loader_line(AOT_LINE.replace("gather", "scatter").encode())
     assert not is_aot_loader_line(b"E1126 14:46:36.199582   26128 cpu_aot_loader.cc:195] Loading failed: bad file")
-    start = "import os, sys; from mjxsysid._quiet import filter_native_stderr; assert filter_native_stderr(); "
+    start = "import os, sys; from mjxsysid.runtime.quiet import filter_native_stderr; assert filter_native_stderr(); "
     # the C++ logger writes to fd 2 directly; a partial line (a progress bar's "\r" redraw) goes through
     r = subprocess.run([PY, "-c", start + f"os.write(2, {AOT_LINE + chr(10)!r}.encode()); os.write(2, b'bar 1/2\\r'); "
                         "print('python stderr', file=sys.stderr); os.write(2, b'E1126 other error\\nno newline')"],
@@ -83,7 +81,7 @@ def test_the_stderr_filter_drops_only_the_cache_loaders_lines_and_survives_a_cra
 
 
 def test_progress_bars_obey_quiet(capsys, monkeypatch):
-    from mjxsysid import progress as pg
+    from mjxsysid.runtime import progress as pg
     monkeypatch.setenv("MJXSYSID_PROGRESS", "1")
     for _ in pg.progress(range(3), desc="unit-bar"):
         pass
@@ -128,7 +126,7 @@ def test_fly_and_decode_api_match_the_cli(tmp_path, capsys):
     from mjxsysid import theta as P
     from mjxsysid.cli import main
 
-    # The 2 s lemniscate flight of tests/studies/test_decode.py and notebooks 01 / 04: one compile.
+    # The 2 s lemniscate flight of tests/decoding/test_decode.py and notebooks 01 / 04: one compile.
     res = mjxsysid.fly(mjxsysid.paper_vehicle(), controller="policy", reference="lemniscate", period=10.0,
                        duration=2.0)
     assert res.flight.latent.shape[:2] == (1, 1000) and not res.metrics["failed"]
@@ -164,34 +162,3 @@ def test_fly_and_decode_api_match_the_cli(tmp_path, capsys):
     assert from_log["samples_log_grounded"].shape[1] == 19
     with pytest.raises(ValueError, match="latent policy"):
         mjxsysid.decode(dataclasses.replace(res, controller="oracle"))
-
-
-def test_cli_compilation_cache(monkeypatch, tmp_path):
-    """The CLI turns on JAX's persistent compilation cache in MJXSYSID_JAX_CACHE (0: off) and keeps
-    one the process already set (the suite's, here)."""
-    import jax
-
-    from mjxsysid.cli import _compilation_cache
-    suite = jax.config.jax_compilation_cache_dir
-    assert suite
-    monkeypatch.setenv("MJXSYSID_JAX_CACHE", str(tmp_path / "c"))
-    _compilation_cache()
-    assert jax.config.jax_compilation_cache_dir == suite          # kept
-    try:
-        jax.config.update("jax_compilation_cache_dir", None)
-        monkeypatch.setenv("MJXSYSID_JAX_CACHE", "0")
-        _compilation_cache()
-        assert jax.config.jax_compilation_cache_dir is None      # off
-        monkeypatch.setenv("MJXSYSID_JAX_CACHE", str(tmp_path / "c"))
-        _compilation_cache()
-        assert jax.config.jax_compilation_cache_dir == str(tmp_path / "c")
-        # the default: a folder per CPU (a home folder shared by two machines must not mix their programs)
-        jax.config.update("jax_compilation_cache_dir", None)
-        monkeypatch.delenv("MJXSYSID_JAX_CACHE")
-        monkeypatch.setenv("HOME", str(tmp_path / "home"))
-        _compilation_cache()
-        where = Path(jax.config.jax_compilation_cache_dir)
-        assert where.parent == tmp_path / "home" / ".cache" / "mjxsysid" / "jax"
-        assert re.fullmatch(r"cpu-[0-9a-f]{10}", where.name), where
-    finally:
-        jax.config.update("jax_compilation_cache_dir", suite)

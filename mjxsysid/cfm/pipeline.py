@@ -17,7 +17,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm import calibration as C
 from mjxsysid.cfm.flow_coords import decoder_normalizer
@@ -25,9 +25,9 @@ from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.cfm.sample import Decoder, random_baseline
 from mjxsysid.cfm.sequence import SeqCFMConfig, SequenceDecoder, save_seq_decoder, train_seq_cfm
 from mjxsysid.cfm.train import CFMConfig, save_decoder, train_cfm, train_regression
-from mjxsysid.checkpoint import load_meta
+from mjxsysid.runtime.checkpoint import load_meta
 from mjxsysid.dataset.collect import MANOEUVRES, load_pairs
-from mjxsysid.progress import progress, stages, tee
+from mjxsysid.runtime.progress import progress, stages, tee
 from mjxsysid.render.posterior import plot_marginals, plot_rank_histograms
 
 WITHIN_5_POINTS = 0.05 + 1e-9

@@ -22,7 +22,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 
-from mjxsysid import distributed
+from mjxsysid.runtime import distributed
 from mjxsysid.cfm.flow_coords import FlowNormalizer
 from mjxsysid.cfm.train import CFMConfig, check_latents, load_decoder, make_network, save_decoder
 from mjxsysid.theta import INERTIA, PAPER_HARDWARE

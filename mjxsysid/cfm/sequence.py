@@ -39,7 +39,7 @@ import numpy as np
 from mjxsysid.cfm.networks import VelocityNet
 from mjxsysid.cfm.sample import METHODS, integrate
 from mjxsysid.cfm.train import FORMAT, CFMConfig, _normalizer_dict, _optimizer, fit_epochs, make_epoch
-from mjxsysid.checkpoint import load_meta, load_tree, save_tree
+from mjxsysid.runtime.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.cfm.flow_coords import FlowNormalizer
 
 KIND = "cfm_seq"

@@ -13,7 +13,7 @@ the last incomplete minibatch dropped) is a single jitted function; the host pri
 progress between epochs. Validation loss (if ``val`` is given) uses a fixed key, so its
 values are comparable across epochs.
 
-Weights are stored with :mod:`mjxsysid.checkpoint` (npz + JSON meta, no pickle); the
+Weights are stored with :mod:`mjxsysid.runtime.checkpoint` (npz + JSON meta, no pickle); the
 meta holds the kind, the config and the normaliser, so a saved decoder is self-contained.
 """
 from __future__ import annotations
@@ -32,8 +32,8 @@ import optax
 from mjxsysid.cfm.flow_coords import DECODER_COORDS, FlowNormalizer
 from mjxsysid.cfm.networks import RegressionNet, VelocityNet
 from mjxsysid.cfm.path import GaussianSmoothedLinearPath
-from mjxsysid.checkpoint import load_meta, load_tree, save_tree
-from mjxsysid.progress import progress
+from mjxsysid.runtime.checkpoint import load_meta, load_tree, save_tree
+from mjxsysid.runtime.progress import progress
 
 KINDS = ("cfm", "regression")
 FORMAT = "mjxsysid.cfm.decoder/1"

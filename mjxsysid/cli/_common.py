@@ -52,7 +52,7 @@ def policy_ref(args):
 
 
 def echo(msg, file=None):
-    from mjxsysid.progress import echo
+    from mjxsysid.runtime.progress import echo
     echo(msg, file=file)
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid.cli._common import PRIOR_CHOICES, add_policy, echo, policy_ref, positive
 
 

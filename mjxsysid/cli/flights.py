@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid.cli._common import PRIOR_CHOICES, add_policy, nonneg, policy_ref, positive, prepare_render, triple
 
 
@@ -28,7 +28,7 @@ def add_demo(sub) -> None:
 def cmd_demo(args) -> int:
     if not args.no_video:
         prepare_render()
-    from mjxsysid.studies.demo import run_demo
+    from mjxsysid.decoding.demo import run_demo
     run_demo(args.out, video=not args.no_video, n_vehicles=args.vehicles, policy=policy_ref(args),
              decoder_only=args.decoder_only)
     return 0

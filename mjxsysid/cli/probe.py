@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid.cli._common import add_policy, echo, policy_ref, positive
 
 REFERENCES = ("lemniscate", "minsnap", "force_step")  # = mjxsysid.probe.closed_loop.REFERENCES

@@ -5,7 +5,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 
 
 def add_profile(sub) -> None:
@@ -28,7 +28,7 @@ def cmd_profile(args) -> int:
     if cmd[0] == "profile":
         raise ValueError("profile: cannot profile itself")
     from mjxsysid.cli import main
-    from mjxsysid.profiling import compile_profile
+    from mjxsysid.runtime.profiling import compile_profile
     with compile_profile() as prof:
         rc = main(cmd)
     print(f"\nmjxsysid {' '.join(cmd)} -> exit {rc}", file=sys.stderr)

@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid.cli._common import add_policy, echo, policy_ref, positive, prepare_render
 
 

@@ -1,2 +1,3 @@
-"""Latent collection: flights of prior vehicles with a frozen policy → (θ, ẑ) pairs and latent
-trajectories, the training data of the decoders (:mod:`~mjxsysid.dataset.collect`)."""
+"""Latent collection: flights of prior vehicles with a frozen policy → (θ, ẑ) pairs and latent trajectories.
+
+The training data of the decoders (:mod:`~mjxsysid.dataset.collect`)."""

@@ -27,15 +27,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import jsonout
-from mjxsysid import distributed
+from mjxsysid.runtime import jsonout
+from mjxsysid.runtime import distributed
 from mjxsysid import theta as P
-from mjxsysid.checkpoint import open_npz
+from mjxsysid.runtime.checkpoint import open_npz
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import MinSnap, Switch, stack
 from mjxsysid.policy.adaptive import networks as N
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.progress import progress, tee
+from mjxsysid.runtime.progress import progress, tee
 from mjxsysid.rollout.flight import broadcast, random_lemniscates
 from mjxsysid.rollout.harness import Disturbance, failure_mask, fly_batch
 from mjxsysid.sim import Quadrotor, SimConfig

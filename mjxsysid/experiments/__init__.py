@@ -1,4 +1,4 @@
-"""Every measurement the docs quote, as a command (`mjxsysid experiment NAME [--quick] --out DIR`).
+"""Every measurement the docs quote, as a command: `mjxsysid experiment NAME [--quick] --out DIR`.
 
 Every experiment is a function ``run(out: Path, *, quick: bool, policy: PolicyRef, seed: int,
 progress: bool = True) -> dict`` in its own module; it computes its numbers and hands them to
@@ -20,9 +20,9 @@ EXPERIMENTS = {
     "tune-nominal": "mjxsysid.experiments.tuning:run_nominal",
     "tune-slow": "mjxsysid.experiments.tuning:run_slow",
     "tune-lemniscate": "mjxsysid.experiments.tuning:run_lemniscate",
-    "robustness": "mjxsysid.experiments.robustness:run",
+    "robustness": "mjxsysid.experiments.robustness_envelopes:run",
     "payload": "mjxsysid.experiments.payload:run",
-    "replay": "mjxsysid.experiments.replay:run",
+    "replay": "mjxsysid.experiments.action_replay:run",
     "probe-loop": "mjxsysid.experiments.probe_loop:run",
     "probe-loop-seeds": "mjxsysid.experiments.probe_loop_seeds:run",
     "lag-oracle": "mjxsysid.experiments.lag_oracle:run",

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid.policy.interface import file_sha256
 
 CALL: contextvars.ContextVar[dict | None] = contextvars.ContextVar("experiment_call", default=None)

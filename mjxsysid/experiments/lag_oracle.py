@@ -16,7 +16,7 @@ from types import SimpleNamespace
 import jax
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.low_level import KTheta, KThetaLag

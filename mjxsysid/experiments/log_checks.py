@@ -17,7 +17,7 @@ from types import SimpleNamespace
 import jax
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.experiments.common import leaf_table, write_results
 from mjxsysid.logs import checks as L

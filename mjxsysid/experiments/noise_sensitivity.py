@@ -5,7 +5,7 @@ on the IMU it reads, and its decoders (or ``--decoders``) decode the latents of 
     mjxsysid experiment noise-sensitivity --out docs/runs/measurements/noise-sensitivity
     mjxsysid experiment noise-sensitivity --variant low --out …     # clean, × 0.5 and × 1 white
 
-The measurement is :func:`mjxsysid.studies.noise.noise_sensitivity` (its module doc says what
+The measurement is :func:`mjxsysid.uses.imu_noise.noise_sensitivity` (its module doc says what
 it measures); this experiment runs it, writes results.json and results.md (its table) and draws
 noise_sensitivity.png. The `noise` stage of `mjxsysid release` runs the same measurement on a
 release's policy and decoders.
@@ -16,13 +16,13 @@ import time
 from pathlib import Path
 
 from mjxsysid.experiments.common import write_results
-from mjxsysid.studies.noise import DEFAULT_LEVELS, figure, noise_sensitivity, table
+from mjxsysid.uses.imu_noise import DEFAULT_LEVELS, figure, noise_sensitivity, table
 
 FULL = {"vehicles": 128, "seconds": 4.0, "samples": 100}
 """The docs' sizes (those of the release's noise stage)."""
 QUICK = {"vehicles": 10, "seconds": 1.0, "samples": 20}
 VARIANTS = {"low": ("clean", "x0.5_white", "x1_white")}
-"""Levels other than :data:`~mjxsysid.studies.noise.DEFAULT_LEVELS`, by variant name."""
+"""Levels other than :data:`~mjxsysid.uses.imu_noise.DEFAULT_LEVELS`, by variant name."""
 
 
 def run(out, *, quick=False, policy=None, seed=4242, progress=True, decoders=None, variant=None) -> dict:

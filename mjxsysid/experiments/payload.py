@@ -35,8 +35,8 @@ from mjxsysid.render.replay import plot_replay
 from mjxsysid.rollout.flight import broadcast, seen_imu
 from mjxsysid.rollout.harness import Disturbance, batch_metrics, fly_batch, payload_theta, payload_torque
 from mjxsysid.sim import Quadrotor
-from mjxsysid.studies.decode import decode_latents
-from mjxsysid.studies.replay import LABELS, action_metrics, replay_flight
+from mjxsysid.decoding import decode_latents
+from mjxsysid.uses.replay import LABELS, action_metrics, replay_flight
 
 PAPER_REPLAY = {"random": (0.156, 0.205), "regression": (0.064, 0.614), "cfm": (0.031, 0.812)}
 """The paper's payload row of the action-prediction table: (RMSE, PCC)."""

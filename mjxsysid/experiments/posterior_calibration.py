@@ -1,7 +1,7 @@
 """The log-grounded posterior calibrated by simulation: collect, fit, evaluate (:mod:`mjxsysid.identify.calibrate`).
 
 - ``collect``: fly vehicles of a prior with the lag-aware oracle (MJX, 10 s lemniscate) at IMU noise
-  levels (:data:`mjxsysid.studies.noise.LEVELS`), run the *raw* log-grounded posterior on each
+  levels (:data:`mjxsysid.uses.imu_noise.LEVELS`), run the *raw* log-grounded posterior on each
   flight's IMU and motor commands (no decoded proposal), and keep one row per log: the truth and
   raw 5/50/95 % bands in the visible coordinates v, the features, the residual discounts. Sharded
   (``shard`` 'i/k': every k-th vehicle from the i-th) so that processes share a GPU; several flights
@@ -29,7 +29,7 @@ from mjxsysid.identify.calibrate import (
 )
 from mjxsysid.experiments.common import git_commit
 from mjxsysid.identify.coords import V_NAMES, visible_from_theta
-from mjxsysid.progress import progress
+from mjxsysid.runtime.progress import progress
 
 TRAIN_LEVELS = ("clean", "x1", "x5_white", "x5_vibration", "x20")
 HELDOUT_LEVELS = ("x2", "x10")
@@ -73,7 +73,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
     from mjxsysid.sim import Quadrotor, SimConfig
-    from mjxsysid.studies.noise import LEVELS
+    from mjxsysid.uses.imu_noise import LEVELS
     import jax
 
     from mjxsysid import theta as P

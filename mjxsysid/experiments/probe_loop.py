@@ -44,7 +44,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.pipeline import WITHIN_5_POINTS, evaluate_decoders, train_decoders
 from mjxsysid.cfm.train import CFMConfig

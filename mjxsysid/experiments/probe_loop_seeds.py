@@ -11,7 +11,7 @@ import json
 import time
 from pathlib import Path
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid.experiments.common import leaf_table, to_jsonable, write_results
 from mjxsysid.experiments.probe_loop import FULL, eval_sets, train_config
 from mjxsysid.policy.adaptive.train import train

@@ -2,7 +2,7 @@
 a 10 s lemniscate, with white noise, a per-flight bias or rotor vibration added to the IMU the policy
 reads and the log records, at multiples of the project's hardware-like levels (gyro 0.01 rad/s and
 accelerometer 0.1 m/s² per 2 ms sample, biases 0.005 rad/s and 0.05 m/s², vibration as the
-simulator's: mjxsysid.studies.noise.LEVELS); each flight is written as a flight log and decoded as
+simulator's: mjxsysid.uses.imu_noise.LEVELS); each flight is written as a flight log and decoded as
 ``mjxsysid decode --log LOG --truth VEHICLE.json`` does (seed 0, 100 samples). Reported per vehicle
 and level: the tracking RMSE and how many of the 24 quantities (19 parameters and 5 identifiable
 combinations) have their truth inside the 5–95 % interval of the log-grounded posterior (decode's
@@ -44,8 +44,8 @@ from mjxsysid.logs.csvlog import LOG_DT, write_log
 from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.interface import PRETRAINED_DIR, file_sha256
 from mjxsysid.sim.quadrotor import aliased_hz, vibration_step
-from mjxsysid.studies.decode import run_decode
-from mjxsysid.studies.noise import LEVELS as NOISE_LEVELS
+from mjxsysid.decoding import run_decode
+from mjxsysid.uses.imu_noise import LEVELS as NOISE_LEVELS
 
 LEVELS = ("clean", "x1", "x5_bias", "x5_white", "x5_vibration", "x20")
 LABELS = {"clean": "clean", "x1": "× 1 (white + bias)", "x5_bias": "× 5 bias only",

@@ -23,13 +23,13 @@ import re
 import time
 from pathlib import Path
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid.experiments.common import write_results
 
 
 def run_row(d: Path) -> dict:
     if (d / "policy.npz").is_file():
-        from mjxsysid.checkpoint import load_meta
+        from mjxsysid.runtime.checkpoint import load_meta
         meta = load_meta(d / "policy.npz")
     else:   # runs kept in docs/runs without their weights: the metadata alone
         meta = json.loads((d / "policy_meta.json").read_text())

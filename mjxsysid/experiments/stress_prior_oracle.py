@@ -14,7 +14,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.low_level import DEFAULT_RATE_GAINS, KTheta

@@ -26,7 +26,7 @@ from mjxsysid.cfm.load import load_decoders
 from mjxsysid.control.references import Delayed, Lemniscate, stack
 from mjxsysid.experiments.common import fmt_ms, markdown_table, write_results
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.progress import echo
+from mjxsysid.runtime.progress import echo
 from mjxsysid.render.tuning import plot_gains, plot_tracking
 from mjxsysid.rollout.flight import minsnap_segments, random_minsnaps
 from mjxsysid.rollout.harness import metrics
@@ -157,7 +157,7 @@ def log_ensembles(theta, seed: int, *, draws: int = LOG_ENSEMBLE, particles: int
     set to the true one as well (a diagnostic)."""
     from mjxsysid.identify import log_grounded_posterior
     from mjxsysid.identify.coords import with_mass
-    from mjxsysid.progress import progress as bar
+    from mjxsysid.runtime.progress import progress as bar
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
     theta = np.asarray(theta, np.float32)
     fl, m, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", period=10.0, seed=seed + 1)

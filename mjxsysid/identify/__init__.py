@@ -1,4 +1,4 @@
-"""What the flight shows: the log-grounded posterior of a vehicle (DESIGN §11).
+"""What the flight shows: the log-grounded posterior of a vehicle, calibrated by simulation.
 
 The room is callable: ``mjxsysid.identify(log)`` is :func:`.logposterior.identify` (a
 :class:`~.logposterior.LogPosterior`). :mod:`.coords` (θ in the coordinates an IMU log sees, the

@@ -1,2 +1,5 @@
-"""Flight logs: reading them (:mod:`~mjxsysid.logs.csvlog` the CSV format, :mod:`~mjxsysid.logs.ulog` PX4
-ULog) and checking their physics before anything is decoded (:mod:`~mjxsysid.logs.checks`)."""
+"""Flight logs of every format, read into one contract, and the physics checks a log passes before it is decoded.
+
+:mod:`~mjxsysid.logs.formats` detects a format by content; readers: :mod:`~mjxsysid.logs.csvlog` (the CSV
+contract), :mod:`~mjxsysid.logs.ulog` (PX4), :mod:`~mjxsysid.logs.crazyflie`, :mod:`~mjxsysid.logs.blackbox`,
+:mod:`~mjxsysid.logs.dataflash` (ArduPilot), :mod:`~mjxsysid.logs.rosbag`; checks: :mod:`~mjxsysid.logs.checks`."""

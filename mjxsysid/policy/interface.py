@@ -37,7 +37,7 @@ from typing import Protocol, runtime_checkable
 import jax
 import numpy as np
 
-from mjxsysid.checkpoint import open_npz
+from mjxsysid.runtime.checkpoint import open_npz
 from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.adaptive.weights import PRETRAINED_DIR
 from mjxsysid.policy.xadap.controller import XAdapController

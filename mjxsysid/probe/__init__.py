@@ -1,4 +1,4 @@
-"""Probing: where is the policy weak? (issue 18, the paper's future work)
+"""Probing: a latent-space search for the systems the policy flies badly (the paper's closing proposal).
 
 :mod:`~mjxsysid.probe.search` a gradient-free search of latent space (perturbations and stretches
 of the latents of prior vehicles); :mod:`~mjxsysid.probe.closed_loop` its score — decode a latent

@@ -26,7 +26,7 @@ from typing import Callable
 import jax
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.dataset.collect import latents_in_flight

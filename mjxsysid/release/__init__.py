@@ -1,4 +1,6 @@
-"""A release in one command (``mjxsysid release --out DIR``): the policy, its decoders and their
+"""A release in resumable stages: policy → decoders → every quoted experiment → docs tables → shipped files.
+
+One command (``mjxsysid release --out DIR``): the policy, its decoders and their
 calibration, every experiment whose numbers the docs quote, the generated docs pages and the
 shipped files, as an ordered list of named, resumable stages.
 

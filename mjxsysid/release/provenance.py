@@ -58,7 +58,7 @@ def policy_provenance(weights, evaluation: dict, *, train_log=None, command: str
     """policy.json beside shipped policy weights: what, the command, config, seed, commit,
     device, wall time, env steps, mean training speed, normaliser, final training stats and the
     evaluation (``evaluate-policy``'s eval.json), read from the files given."""
-    from mjxsysid.checkpoint import load_meta
+    from mjxsysid.runtime.checkpoint import load_meta
     meta = load_meta(weights)
     sps = None
     if train_log is not None and Path(train_log).exists():

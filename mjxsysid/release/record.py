@@ -14,7 +14,7 @@ import json
 import os
 from pathlib import Path
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 
 RECORD = "release.json"
 

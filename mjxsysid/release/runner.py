@@ -10,8 +10,8 @@ import traceback
 from collections.abc import Callable
 from pathlib import Path
 
-from mjxsysid.progress import echo
-from mjxsysid.progress import stages as stage_bar
+from mjxsysid.runtime.progress import echo
+from mjxsysid.runtime.progress import stages as stage_bar
 from mjxsysid.release import plan as planner
 from mjxsysid.release.layout import link
 from mjxsysid.release.provenance import code_commit, device_name
@@ -204,7 +204,7 @@ class Release:
 
     def progress_on(self) -> bool:
         """Whether the experiments report progress (not ``--quiet``)."""
-        from mjxsysid.progress import quiet
+        from mjxsysid.runtime.progress import quiet
         return not quiet()
 
 

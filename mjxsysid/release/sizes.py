@@ -22,7 +22,7 @@ class PairSizes:
 
 @dataclasses.dataclass(frozen=True)
 class NoiseSizes:
-    """The noise stage's measurement (:func:`mjxsysid.studies.noise.noise_sensitivity`):
+    """The noise stage's measurement (:func:`mjxsysid.uses.imu_noise.noise_sensitivity`):
     held-out ``vehicles``, flights of ``seconds``, posterior ``samples`` per flight, and the IMU
     ``levels`` of each result file (file name → level names)."""
     vehicles: int
@@ -37,7 +37,7 @@ class NoiseSizes:
 
 @dataclasses.dataclass(frozen=True)
 class FidelitySizes:
-    """Closed-loop fidelity (:func:`mjxsysid.studies.fidelity.fidelity_benchmark`): test
+    """Closed-loop fidelity (:func:`mjxsysid.uses.fidelity.fidelity_benchmark`): test
     ``vehicles``, decoded ``models`` per vehicle, flights of ``duration`` s."""
     vehicles: int
     models: int

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
-from mjxsysid import distributed
+from mjxsysid.runtime import distributed
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.sim.quadrotor import Frame, Quadrotor, hover_rotor_speed, quat_to_mat
@@ -229,7 +229,7 @@ def fly_batch(sim: Quadrotor, theta, low, high, ref, disturbance, key, steps: in
     what it returns is kept, e.g. error traces of large ensembles; any hashable callable, e.g. a
     frozen dataclass, as the compiled function is cached on it); returns its batched result.
 
-    The batch is sharded over every device (:mod:`mjxsysid.distributed`: padded to a multiple
+    The batch is sharded over every device (:mod:`mjxsysid.runtime.distributed`: padded to a multiple
     of the device count, the padding dropped from the result); per-vehicle keys are drawn
     before padding, so the flights do not depend on the device count."""
     theta = jnp.asarray(theta, jnp.float32)

@@ -24,7 +24,7 @@ import numpy as np
 from flax import struct
 
 from mjxsysid import theta as P
-from mjxsysid._quiet import import_mjx
+from mjxsysid.runtime.quiet import import_mjx
 
 mjx = import_mjx()  # without MJX's "Failed to import warp" probe message
 

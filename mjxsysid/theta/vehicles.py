@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid.theta.derived import flyability
 from mjxsysid.theta.layout import (ETA, GRAVITY, INERTIA, KT, MASS, N_PARAMS, NONNEGATIVE_MASK, OMEGA_MAX,
                                    PAPER_HARDWARE, PARAM_NAMES, POSITIVE_MASK, TAU_EXT, VEHICLE_KEYS)

@@ -14,7 +14,7 @@ from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.control.high_level import GAIN_NAMES
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.progress import progress
+from mjxsysid.runtime.progress import progress
 from mjxsysid.rollout.flight import broadcast
 from mjxsysid.rollout.harness import Disturbance, batch_metrics, metrics_to_host, summarize
 from mjxsysid.sim import Quadrotor, SimConfig

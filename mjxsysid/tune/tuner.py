@@ -368,7 +368,7 @@ def fly_tuned(sim: Quadrotor, theta, low, ref, disturbance: Disturbance, method:
     """Fly a batch θ (B, 19) with ``low`` (batched, e.g. ``PolicyRef.batched(B)``) on the
     batched reference ``ref`` under ``disturbance`` (batched) for ``steps`` control steps, the
     gains set by ``method``: a preset ('naive', 'baseline': fixed) or a CEM method updated
-    every ``1/cfg.rate`` s after ``cfg.warmup``. The key splits like :func:`~mjxsysid.studies.
+    every ``1/cfg.rate`` s after ``cfg.warmup``. The key splits like :func:`~mjxsysid.uses.
     harness.fly` (per vehicle: simulator, disturbance, controller), so every method sees the
     same noise and disturbance realisation for the same key. ``progress``: optional callable
     ``progress(done, total)`` after each segment. ``ensemble`` (B, M, 19): each vehicle's models for

@@ -255,7 +255,7 @@ def test_train_save_load_roundtrip(tmp_path):
     assert reg.point(z[0]).shape == (19,)
 
     with pytest.raises(ValueError, match="not a decoder file"):
-        from mjxsysid.checkpoint import save_tree
+        from mjxsysid.runtime.checkpoint import save_tree
         load_decoder(save_tree(tmp_path / "other.npz", {"a": np.zeros(3)}, {"x": 1}))
     with pytest.raises(FileNotFoundError):
         load_decoder(tmp_path / "missing.npz")

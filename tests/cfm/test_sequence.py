@@ -110,7 +110,7 @@ def test_save_load_roundtrip_and_errors(tmp_path):
 
 
 def test_window_parsing_and_masks():
-    from mjxsysid.studies.decode import check_window, parse_window, window_masks
+    from mjxsysid.decoding import check_window, parse_window, window_masks
     assert parse_window("flight") == "flight" and parse_window("Instant") == "instant"
     assert parse_window("2.5") == 2.5
     for bad in ("0", "-1", "nan", "abc", "inf"):
@@ -126,7 +126,7 @@ def test_window_parsing_and_masks():
     sl = window_masks(lt, rt, 0.3)                   # (t − 0.3, t]: 3 latents once available
     assert sl.sum(1).tolist() == [1, 3, 3] and sl[2, -3:].all()
     # The index ranges used for long logs are the rows of the masks.
-    from mjxsysid.studies.decode import window_bounds
+    from mjxsysid.decoding import window_bounds
     for w, m in (("flight", fl), (0.3, sl), (0.3, window_masks(lt, np.array([0.15, 0.35]), 0.3))):
         rt_ = rt if m.shape[0] == 3 else np.array([0.15, 0.35])
         st, en = window_bounds(lt, rt_, w)
@@ -153,7 +153,7 @@ def _tiny_seq_decoders(tmp_path):
 
 
 def test_decode_latents_with_a_window(tmp_path):
-    from mjxsysid.studies.decode import decode_latents
+    from mjxsysid.decoding import decode_latents
     from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
     d = _tiny_seq_decoders(tmp_path)
     cfm, reg = load_decoders(d)
@@ -170,7 +170,7 @@ def test_decode_latents_with_a_window(tmp_path):
     assert dec1["n_window"][-1] == 5
     # Incremental (every prefix / window encoded in one pass) equals decoding each window by itself.
     from mjxsysid.dataset.collect import decode_indices
-    from mjxsysid.studies.decode import window_masks
+    from mjxsysid.decoding import window_masks
     lidx = decode_indices(times, 10.0)
     for w, got in (("flight", dec), (0.5, dec1)):
         mask = window_masks(times[lidx], got["times"], w)
@@ -228,7 +228,7 @@ def test_decode_cli_windows(tmp_path, capsys):
         assert last.startswith("mjxsysid decode: error: --window") and msg in last, last
     d = _tiny_seq_decoders(tmp_path)
     # A 2 s "log" of a vehicle at rest-ish hover (the policy's history is rebuilt from it): the
-    # length of the 2 s flight logs of tests/studies/test_decode.py (one compiled replay).
+    # length of the 2 s flight logs of tests/decoding/test_decode.py (one compiled replay).
     n = 1000
     t = 0.002 * np.arange(n)
     imu = np.zeros((n, 6))

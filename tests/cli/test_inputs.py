@@ -270,7 +270,7 @@ def small_tree():
 @SETTINGS
 @given(cut=st.floats(min_value=0.0, max_value=0.999), flip=st.integers(0, 10 ** 6))
 def test_truncated_or_corrupt_npz_is_a_named_error(tmp_path, small_tree, cut, flip):
-    from mjxsysid.checkpoint import load_tree, save_tree
+    from mjxsysid.runtime.checkpoint import load_tree, save_tree
     path = save_tree(tmp_path / "w.npz", small_tree, {"k": 1})
     raw = path.read_bytes()
     path.write_bytes(raw[: int(cut * len(raw))])
@@ -290,7 +290,7 @@ def test_truncated_or_corrupt_npz_is_a_named_error(tmp_path, small_tree, cut, fl
 
 
 def test_weights_with_wrong_keys_shapes_or_nan(tmp_path, small_tree):
-    from mjxsysid.checkpoint import load_tree, save_tree
+    from mjxsysid.runtime.checkpoint import load_tree, save_tree
     p = save_tree(tmp_path / "k.npz", {"a": small_tree["a"]})
     with pytest.raises(ValueError, match=r"k.npz: missing array \['b'\]\['c'\]"):
         load_tree(p, small_tree)

@@ -78,7 +78,7 @@ def test_oracle_tracks_lemniscate_on_paper_vehicle(prior_lemniscate):
 def test_oracle_hovers_all_prior_vehicles(prior_lemniscate):
     """10 s hover at (0, 0, 1) as size-0 lemniscates (the experiments' hover reference): the
     fixture's compiled flight."""
-    from mjxsysid.studies.robustness import hover_reference
+    from mjxsysid.uses.robustness import hover_reference
     theta = prior_lemniscate[0]
     _, m, _ = fly_vehicles(theta, controller="oracle", refs=hover_reference(len(theta)), duration=10.0)
     assert not np.any(np.asarray(m["failed"]))
@@ -227,7 +227,7 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
     the default tier decodes only ẑ at 0.2 s and at 10 s (the posterior the summary reports);
     `-m slow` runs the demo unchanged."""
     if decode_rate is not None:
-        import mjxsysid.studies.decode as D
+        import mjxsysid.decoding as D
         decode_latents = D.decode_latents
         monkeypatch.setattr(D, "decode_latents", lambda *a, **k: decode_latents(*a, **dict(k, rate=decode_rate)))
     out = tmp_path / "demo"
@@ -261,7 +261,7 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
 def test_demo_grounded_section_counts_and_names_the_miss():
     """summary.md's log-grounded section (pure: no flight): the counts, the width ratio over the
     quantities the log sees, and a miss named with its quantity; nothing without a posterior."""
-    from mjxsysid.studies.demo import grounded_md
+    from mjxsysid.decoding.demo import grounded_md
     row = dict(unit="-", decoder_q05=1.0, decoder_q95=3.0, log_q05=1.9, log_q95=2.1, decoder_holds_log_median=True)
     gap = {"thrust_to_weight_total": dict(row, log_median=2.0, true=2.01, log_inside=True, decoder_inside=True,
                                           width_ratio=10.0, seen_by_log=True),
@@ -281,8 +281,8 @@ def test_demo_without_sequence_decoder_says_flight_level_unavailable():
     """A policy without cfm_seq.npz: the demo's summary and figure say the flight-level posterior
     is unavailable (the demo itself runs instant-only; test_demo_runs covers the shipped one)."""
     from mjxsysid.policy.interface import resolve_policy
-    from mjxsysid.studies.decode import every_times
-    from mjxsysid.studies.demo import decoded_caption, flight_level_info
+    from mjxsysid.decoding import every_times
+    from mjxsysid.decoding.demo import decoded_caption, flight_level_info
     info = flight_level_info({}, None, resolve_policy("mjxsysid"))
     assert not info["available"] and "unavailable" in info["note"] and "unavailable" in decoded_caption(info, 30)
     t = 0.2 + 0.1 * np.arange(99)

@@ -21,7 +21,7 @@ class EnvironmentContractTest(test_utils.EnvironmentTestMixin, absltest.TestCase
 
 @pytest.fixture(scope="module")
 def mjx_flight():
-    # The 2 s lemniscate of the shipped policy that tests/studies/test_decode.py flies (same worker: one compile).
+    # The 2 s lemniscate of the shipped policy that tests/decoding/test_decode.py flies (same worker: one compile).
     fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=resolve_policy("mjxsysid"),
                             reference="lemniscate", duration=2.0)
     return one_flight(fl)

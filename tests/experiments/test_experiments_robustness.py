@@ -16,7 +16,7 @@ from mjxsysid import theta as P
                                              (40, 3, -2.0, 3.0)])
 def test_energy_distance_matches_scipy(n, m, shift, scale):
     stats = pytest.importorskip("scipy.stats")
-    from mjxsysid.studies.fidelity import energy_distance
+    from mjxsysid.uses.fidelity import energy_distance
     r = np.random.default_rng(n * 7 + m)
     u, v = r.normal(size=n), r.normal(shift, scale, size=m)
     assert energy_distance(u, v) == pytest.approx(stats.energy_distance(u, v), rel=1e-9, abs=1e-12)
@@ -24,7 +24,7 @@ def test_energy_distance_matches_scipy(n, m, shift, scale):
 
 
 def test_energy_distance_edge_cases():
-    from mjxsysid.studies.fidelity import energy_distance
+    from mjxsysid.uses.fidelity import energy_distance
     x = np.array([0.2, 0.5, 0.5, 3.0])
     assert energy_distance(x, x) == 0.0
     # two point masses a distance d apart: sqrt(2 d)
@@ -36,7 +36,7 @@ def test_energy_distance_edge_cases():
 
 
 def test_envelope_containment_constructed():
-    from mjxsysid.studies.fidelity import envelope_stats
+    from mjxsysid.uses.fidelity import envelope_stats
     t_n = 10
     ens = np.tile(np.arange(101.0)[:, None], (1, t_n))  # 5th / 95th percentiles: 5 and 95 at every t
     true = np.array([50.0] * 4 + [5.0] + [95.0] + [200.0] * 3 + [1.0])
@@ -48,7 +48,7 @@ def test_envelope_containment_constructed():
 
 
 def test_step_and_mc_stats_on_constructed_ensembles():
-    from mjxsysid.studies.robustness import mc_stats, step_stats
+    from mjxsysid.uses.robustness import mc_stats, step_stats
     times = np.arange(1, 21) * 0.1
     base = np.linspace(0, 1, 20)
     r = np.random.default_rng(0)
@@ -136,8 +136,8 @@ def _check_results(out: Path, name: str) -> dict:
 
 
 def test_robustness_tiny(tmp_path):
-    from mjxsysid.studies.robustness import RobustnessConfig
-    from mjxsysid.experiments import robustness
+    from mjxsysid.uses.robustness import RobustnessConfig
+    from mjxsysid.experiments import robustness_envelopes as robustness
     cfg = RobustnessConfig(duration=0.8, onset=0.3, n_decoded=4, n_perturbed=4, mc_rollouts=3, mc_models=2,
                            sigmas=(1.0, 5.0), chunk=64)
     robustness.run(tmp_path, quick=True, cfg=cfg, n_prior=1, progress=False)
@@ -194,7 +194,7 @@ def test_payload_response_stats():
 
 
 def test_replay_tiny(tmp_path):
-    from mjxsysid.experiments import replay
+    from mjxsysid.experiments import action_replay as replay
     cfg = replay.ReplayConfig(vehicles=0, flights=("hover",), samples=2)
     replay.run(tmp_path, quick=True, cfg=cfg, progress=False)
     res = _check_results(tmp_path, "replay")
@@ -217,7 +217,7 @@ def test_cli_unknown_experiment_exits_2(tmp_path, capsys):
 
 
 def test_config_validation():
-    from mjxsysid.studies.robustness import RobustnessConfig
+    from mjxsysid.uses.robustness import RobustnessConfig
     from mjxsysid.experiments.payload import PayloadConfig
     with pytest.raises(ValueError, match="mc_models"):
         RobustnessConfig(mc_models=0)
@@ -234,7 +234,7 @@ def test_config_validation():
 def test_flight_window_needs_the_sequence_decoder():
     """window='flight' with a single-latent decoder is a named error before any flight (robustness
     study and closed-loop fidelity)."""
-    from mjxsysid.studies.robustness import RobustnessConfig, robustness_study
+    from mjxsysid.uses.robustness import RobustnessConfig, robustness_study
     from mjxsysid.cfm.sample import Decoder
 
     class Single(Decoder):  # any single-latent decoder: never sampled
@@ -243,7 +243,7 @@ def test_flight_window_needs_the_sequence_decoder():
     with pytest.raises(TypeError, match="sequence decoder"):
         robustness_study(P.PAPER_HARDWARE[None], Single(), "mjxsysid", RobustnessConfig(window="flight"),
                          jax.random.PRNGKey(0), log=lambda m: None)
-    from mjxsysid.studies.fidelity import closed_loop_fidelity
+    from mjxsysid.uses.fidelity import closed_loop_fidelity
     with pytest.raises(TypeError, match="sequence decoder"):
         closed_loop_fidelity(P.PAPER_HARDWARE, decoder=Single(), window="flight")
     with pytest.raises(ValueError, match="window"):
@@ -260,8 +260,8 @@ def test_flight_window_needs_the_sequence_decoder():
 def test_robustness_with_the_log_grounded_posterior_weighed(tmp_path):
     """The weighed log-grounded variant runs end to end (its draws carry the true mass) and its step
     envelope is narrower than the mass-blind log-grounded one's (the force acts through the mass)."""
-    from mjxsysid.studies.robustness import RobustnessConfig
-    from mjxsysid.experiments import robustness
+    from mjxsysid.uses.robustness import RobustnessConfig
+    from mjxsysid.experiments import robustness_envelopes as robustness
     widths = {}
     for variant in ("log_grounded", "log_grounded_weighed"):
         cfg = RobustnessConfig(duration=1.0, onset=0.3, n_decoded=8, n_perturbed=8, mc_rollouts=3, mc_models=2,
@@ -278,7 +278,7 @@ def test_fidelity_identifies_on_a_held_out_flight():
     """Closed-loop fidelity decodes the latents of a separate, undisturbed identification flight
     by default (held out, as robustness does), and the test flight's own only when asked."""
     from mjxsysid.cfm.sequence import SequenceDecoder
-    from mjxsysid.studies.fidelity import closed_loop_fidelity
+    from mjxsysid.uses.fidelity import closed_loop_fidelity
 
     class Recorder(SequenceDecoder):  # a stand-in decoder: records what it is asked to decode
         max_len = 100

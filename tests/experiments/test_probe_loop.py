@@ -56,7 +56,7 @@ def test_probe_loop_accumulate_quick_end_to_end(tmp_path):
     rec = [json.loads((out / "stages" / f"replay_round{i}.json").read_text())["result"] for i in (1, 2)]
     assert len(rec[0]["badness"]) == n1 and len(rec[1]["badness"]) == n1 + n2   # the buffer accumulates
     assert len(load_weak(out / "replay_round2.npz")[0]) == 256
-    from mjxsysid.checkpoint import load_meta
+    from mjxsysid.runtime.checkpoint import load_meta
     assert load_meta(out / "probed2" / "policy.npz")["config"]["init_from"] == str(out / "probed" / "policy.npz")
     assert load_meta(out / "probed" / "policy.npz")["config"]["init_from"] == str(PRETRAINED)
     assert set(json.loads((out / "results.json").read_text())["numbers"]["replay"]) == {"1", "2"}

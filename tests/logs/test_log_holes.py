@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mjxsysid.cli import main
-from mjxsysid.jsonout import dumps
+from mjxsysid.runtime.jsonout import dumps
 from mjxsysid.logs import checks as L
 from mjxsysid.logs.checks.rotors import check_motors
 from mjxsysid.logs.csvlog import LOG_COLUMNS, read_any_log, read_log, write_log
@@ -103,7 +103,7 @@ def test_json_outputs_are_valid_json(tmp_path, capsys):
 
 
 def test_decode_prints_what_the_log_pins_first():
-    from mjxsysid.studies.decode.run import printed_summary
+    from mjxsysid.decoding.command import printed_summary
     band = {"mean": 1.0, "q05": 0.9, "q95": 1.1}
     summary = {"thrust_to_weight": band, "torque_ratio": band, "thrust_to_weight_total": band,
                "motor_time_constant": band, "authority_total[0]": band,

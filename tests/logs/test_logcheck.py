@@ -318,7 +318,7 @@ def test_tau_from_the_specific_force_when_the_torque_fit_fails(paper_log):
     """τ_m of 5 ms (below the prior's 20–100 ms) in a log whose torque fit fails (here the
     gyro flat): read from the lag of the specific force behind Σ ū² and flagged; with nothing to
     fit, summary's _checks says τ was not estimable."""
-    from mjxsysid.studies.decode import checks_summary
+    from mjxsysid.decoding import checks_summary
     rec, _ = paper_log
     u = np.asarray(rec["motor"], np.float64)
     s2 = (lagged(u, 0.005) ** 2).sum(1)

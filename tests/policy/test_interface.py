@@ -45,7 +45,7 @@ def test_cli_policy_errors(tmp_path, capsys):
     assert "unknown policy 'nope'" in capsys.readouterr().err
     assert main(["replay", "--flights", "lemniscate_5s,loop", "--out", str(tmp_path)]) == 2
     assert "--flights" in capsys.readouterr().err
-    from mjxsysid.studies.replay import FLIGHTS
+    from mjxsysid.uses.replay import FLIGHTS
     from mjxsysid.cli._common import FLIGHT_NAMES
     assert FLIGHT_NAMES == tuple(FLIGHTS)
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mjxsysid import theta as P
-from mjxsysid.checkpoint import load_tree, save_tree
+from mjxsysid.runtime.checkpoint import load_tree, save_tree
 from mjxsysid.policy.adaptive import networks as N
 from mjxsysid.policy.adaptive.config import EnvConfig, TrainConfig
 from mjxsysid.policy.adaptive.controller import (

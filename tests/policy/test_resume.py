@@ -135,7 +135,7 @@ def test_policy_resume_gives_the_uninterrupted_weights(tmp_path):
     """Slow (two compiles of a PPO iteration, ≈ 2–3 min on a 2-core CPU). The environments'
     state is in the checkpoint, so a resumed run continues bit for bit (and the iteration compiled
     in the background computes what the jitted one does)."""
-    from mjxsysid.checkpoint import load_tree
+    from mjxsysid.runtime.checkpoint import load_tree
     from mjxsysid.policy.adaptive.weights import POLICY_MODULES
     from mjxsysid.policy.adaptive.train import train
     from mjxsysid.policy.adaptive import networks as N

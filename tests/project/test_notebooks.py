@@ -1,7 +1,7 @@
 """Notebooks run end to end on fast settings.
 
 Default tier: the code cells run in this interpreter (support.notebooks.run_notebook), sharing the jit
-caches of the tests whose flights have the notebooks' shapes (tests/studies/test_decode.py,
+caches of the tests whose flights have the notebooks' shapes (tests/decoding/test_decode.py,
 test_api.py, conftest.xadap_paper_recording; notebook 02 runs in tests/tune/test_tune.py, beside
 the tuner's flights). Slow tier: the same notebooks and checks in a Jupyter kernel of their own,
 as a user runs them."""

@@ -24,7 +24,7 @@ if _XLA_OPTIMISATIONS_OFF:
     # And two xdist workers share two cores: each runs XLA's operations on one thread. Two pairs of
     # fresh-clone tiers, in both orders: 6:45 -> 6:08 and 6:16 -> 6:06 (user CPU 730 -> 684, 697 -> 690 s).
     # A value the user set for either flag stays.
-    from mjxsysid.xla_flags import FAST_CPU_COMPILE, ONE_EIGEN_THREAD, use_xla_flags
+    from mjxsysid.runtime.xla_flags import FAST_CPU_COMPILE, ONE_EIGEN_THREAD, use_xla_flags
     use_xla_flags(FAST_CPU_COMPILE + ONE_EIGEN_THREAD)
 
 

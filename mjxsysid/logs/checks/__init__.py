@@ -37,7 +37,7 @@ from mjxsysid.logs.checks.noise import IMU_NOISE_LIMIT, check_imu_noise, estimat
 from mjxsysid.logs.checks.plausibility import check_log
 from mjxsysid.logs.checks.prior import estimate_vehicle, motor_time_constant, prior_bounds, prior_check
 from mjxsysid.logs.checks.rates import check_resampled, column_rates, detect_resampled
-from mjxsysid.logs.checks.replay import check_replay
+from mjxsysid.logs.checks.policy_replay import check_replay
 from mjxsysid.logs.checks.rotors import estimate_thrust_lag, rotor_order_fit, thrust_model_fit
 from mjxsysid.logs.checks.signals import DT, KNOWN_ORDERS, fit_rows, order_name
 

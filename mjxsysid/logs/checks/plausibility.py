@@ -8,7 +8,7 @@ from mjxsysid import theta as P
 from mjxsysid.logs.checks.findings import Finding
 from mjxsysid.logs.checks.noise import check_imu_noise
 from mjxsysid.logs.checks.rates import check_resampled
-from mjxsysid.logs.checks.replay import check_replay
+from mjxsysid.logs.checks.policy_replay import check_replay
 from mjxsysid.logs.checks.rotors import check_motors, check_rotor_speed, check_thrust_model
 from mjxsysid.logs.checks.signals import DT, fit_line, smooth
 

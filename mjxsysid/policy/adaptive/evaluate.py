@@ -23,14 +23,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import distributed
+from mjxsysid.runtime import distributed
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.policy.adaptive.config import EnvConfig
 from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.adaptive.env import TrainEnv, training_env
-from mjxsysid.progress import stages
+from mjxsysid.runtime.progress import stages
 from mjxsysid.rollout.flight import broadcast, fly_vehicles, random_lemniscates
 from mjxsysid.rollout.harness import (
     Disturbance,
@@ -48,7 +48,7 @@ def env_rollout(env: TrainEnv, params, key, n: int, steps: int, expert: bool):
     """Roll the training environment with the deterministic policy on ẑ (expert=False) or with
     K_θ(true θ) (expert=True). Returns dict of (steps, n) errors/failures and, at the last step,
     θ (n, 19), z^θ (n, 8), ẑ (n, 8). The n environments are sharded over every device
-    (:mod:`mjxsysid.distributed`); the result does not depend on the device count."""
+    (:mod:`mjxsysid.runtime.distributed`); the result does not depend on the device count."""
     keys = jax.random.split(key, n)
     keys, params = distributed.shard_batch((keys, params), n, axes=(0, None))
     r = _env_rollout(env, params, keys, steps, expert)

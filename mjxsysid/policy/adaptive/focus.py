@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 
 

@@ -11,14 +11,14 @@ from pathlib import Path
 
 import jax
 
-from mjxsysid import jsonout
-from mjxsysid import distributed
-from mjxsysid.checkpoint import load_meta, load_tree, save_tree
+from mjxsysid.runtime import jsonout
+from mjxsysid.runtime import distributed
+from mjxsysid.runtime.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.policy.adaptive.config import TrainConfig
 from mjxsysid.policy.adaptive.losses import schedules
 from mjxsysid.policy.adaptive.trainer import Trainer
 from mjxsysid.policy.adaptive.weights import save_policy_params
-from mjxsysid.progress import progress
+from mjxsysid.runtime.progress import progress
 
 
 def _same_config(saved, cfg: TrainConfig) -> bool:
@@ -46,7 +46,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     environments' state, so an interrupted run resumed from it continues exactly as an
     uninterrupted one; resumed if present and ``resume``). Writes ``policy.npz`` (shipped
     format) and ``train_log.jsonl``. Returns the last stats and wall time. A progress bar
-    (:mod:`mjxsysid.progress`) advances per iteration with the key metrics. ``trainer``: a
+    (:mod:`mjxsysid.runtime.progress`) advances per iteration with the key metrics. ``trainer``: a
     prebuilt :class:`Trainer` for ``cfg`` (e.g. from :meth:`Trainer.reweighted`, to share its
     compile). ``background_compile`` (default on; the environment variable
     ``MJXSYSID_BACKGROUND_COMPILE=0`` turns it off, for timing the difference): the iteration

@@ -18,7 +18,7 @@ import optax
 from flax import struct
 from jax.sharding import NamedSharding, PartitionSpec
 
-from mjxsysid import distributed
+from mjxsysid.runtime import distributed
 from mjxsysid.policy.adaptive.config import TrainConfig
 from mjxsysid.policy.adaptive.env import EnvState, TrainEnv, training_env
 from mjxsysid.policy.adaptive.focus import load_weak
@@ -76,7 +76,7 @@ class Trainer:
     """Builds the jitted iteration for a config. ``init(key)``, ``iteration(ts, env_state)``;
     ``reweighted(cfg)``: the same compiled iteration under another config's loss weights.
 
-    ``mesh`` (a 1-D ``'batch'`` mesh, :func:`mjxsysid.distributed.batch_mesh`): data-parallel
+    ``mesh`` (a 1-D ``'batch'`` mesh, :func:`mjxsysid.runtime.distributed.batch_mesh`): data-parallel
     training. The environments (``num_envs``, which the mesh size must divide) are sharded over
     its devices, the training state is replicated, and every minibatch is sharded, so the
     compiler all-reduces the gradients; the update is that of one device up to float

@@ -1,5 +1,5 @@
 """The adaptive policy's weight files (``policy.npz``, the shipped format of
-:mod:`mjxsysid.checkpoint`): the deployable modules μ, φ, π and the auxiliary decoder, with the
+:mod:`mjxsysid.runtime.checkpoint`): the deployable modules μ, φ, π and the auxiliary decoder, with the
 training run's metadata (config, θ normaliser, final statistics) beside them.
 """
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid.checkpoint import load_meta, load_tree, save_tree
+from mjxsysid.runtime.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.policy.adaptive import networks as N
 
 PRETRAINED_DIR = Path(__file__).resolve().parents[2] / "pretrained"

@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.control.low_level import Command
 from mjxsysid.policy.adaptive import networks as N

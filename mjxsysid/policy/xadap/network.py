@@ -64,7 +64,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid.checkpoint import open_npz
+from mjxsysid.runtime.checkpoint import open_npz
 
 __all__ = [
     "XAdapWeights",

@@ -1,6 +1,6 @@
 """docs/noise.md's generated tables: each block between ``<!-- BEGIN noise table RUN ... -->``
 and ``<!-- END noise table -->`` is the table of the run file RUN
-([replace_tables][mjxsysid.studies.noise.replace_tables])."""
+([replace_tables][mjxsysid.uses.imu_noise.replace_tables])."""
 from __future__ import annotations
 
 import re
@@ -21,7 +21,7 @@ def marked_runs(text: str) -> list[str]:
 def page(root, overlay=None) -> str:
     """docs/noise.md of the checkout at ``root`` with its noise tables rewritten from the run
     files its markers name (read from ``overlay`` where it has them: a release's tree)."""
-    from mjxsysid.studies.noise import replace_tables
+    from mjxsysid.uses.imu_noise import replace_tables
     runs = RunFiles(root, overlay)
     text = (Path(root) / PAGE).read_text()
     return replace_tables(text, {r: runs.load(r) for r in marked_runs(text)})

@@ -4,21 +4,18 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from mjxsysid.release.layout import link
 from mjxsysid.release.provenance import call
 from mjxsysid.release.sizes import PairSizes
-from mjxsysid.release.stages.registry import STAGES, StageResult
-
-if TYPE_CHECKING:
-    from mjxsysid.release.runner import Release
+from mjxsysid.release.stages.registry import STAGES, ReleaseView, StageResult
 
 
-def imu_config(rel: Release):
+
+def imu_config(rel: ReleaseView):
     """The simulator of the pairs (a SimConfig): the policy's training IMU randomisation when its
     config has it (``env.randomize_imu``), else a clean IMU (the shipped decoders' pairs)."""
-    from mjxsysid.checkpoint import load_meta
+    from mjxsysid.runtime.checkpoint import load_meta
     from mjxsysid.sim import SimConfig
     env = (load_meta(rel.policy_path).get("config") or {}).get("env", {})
     if not env.get("randomize_imu"):
@@ -27,7 +24,7 @@ def imu_config(rel: Release):
     return SimConfig(**{k: env.get(k, getattr(SimConfig(), k)) for k in IMU_FIELDS})
 
 
-def _collect(rel: Release, out: Path, *, seconds: float | None, sizes: PairSizes) -> StageResult:
+def _collect(rel: ReleaseView, out: Path, *, seconds: float | None, sizes: PairSizes) -> StageResult:
     from mjxsysid.dataset.collect import collect, imu_settings, load_pairs
     from mjxsysid.policy.interface import file_sha256
     sim = imu_config(rel)
@@ -42,7 +39,7 @@ def _collect(rel: Release, out: Path, *, seconds: float | None, sizes: PairSizes
                                 "failed_test": int(arrays["failed_test"].sum()), "pairs_sha256": file_sha256(path)})
 
 
-def _train(rel: Release, pairs: Path, out: Path, kinds: tuple[str, ...], seq_cfg: dict | None = None) -> StageResult:
+def _train(rel: ReleaseView, pairs: Path, out: Path, kinds: tuple[str, ...], seq_cfg: dict | None = None) -> StageResult:
     from mjxsysid.cfm.pipeline import train_decoders
     from mjxsysid.cfm.train import CFMConfig
     cfg = dataclasses.replace(CFMConfig(), **rel.sizes.cfm)
@@ -55,34 +52,34 @@ def _train(rel: Release, pairs: Path, out: Path, kinds: tuple[str, ...], seq_cfg
 
 
 @STAGES.add(needs=("policy",), outputs=("pairs.npz",), estimate_s=20, what="collect --single-latent (θ, ẑ) pairs")
-def pairs(rel: Release, out: Path) -> StageResult:
+def pairs(rel: ReleaseView, out: Path) -> StageResult:
     """Single-latent (θ, ẑ) pairs, as the shipped cfm.json's (``collect --single-latent``)."""
     return _collect(rel, out, seconds=None, sizes=rel.sizes.pairs)
 
 
 @STAGES.add(needs=("pairs",), outputs=("cfm.npz", "regression.npz"), estimate_s=40,
             what="train-cfm --kinds cfm,regression")
-def decoders(rel: Release, out: Path) -> StageResult:
+def decoders(rel: ReleaseView, out: Path) -> StageResult:
     """CFM and Regression (``train-cfm --kinds cfm,regression``) on the single-latent pairs."""
     return _train(rel, rel.stage_dir("pairs") / "pairs.npz", out, ("cfm", "regression"))
 
 
 @STAGES.add(needs=("policy",), outputs=("pairs.npz",), estimate_s=30, what="collect 10 s latent trajectories")
-def seq_pairs(rel: Release, out: Path) -> StageResult:
+def seq_pairs(rel: ReleaseView, out: Path) -> StageResult:
     """Flights of random manoeuvres with ẑ at 10 Hz (``collect --seconds``)."""
     return _collect(rel, out, seconds=rel.sizes.seq_seconds, sizes=rel.sizes.seq_pairs)
 
 
 @STAGES.add(needs=("seq_pairs",), outputs=("cfm_seq.npz",), estimate_s=35,
             what="train-cfm --kinds cfm_seq (the flight-level decoder)")
-def seq_decoder(rel: Release, out: Path) -> StageResult:
+def seq_decoder(rel: ReleaseView, out: Path) -> StageResult:
     """The flight-level decoder (``train-cfm --kinds cfm_seq``) on the latent trajectories."""
     return _train(rel, rel.stage_dir("seq_pairs") / "pairs.npz", out, ("cfm_seq",), seq_cfg=dict(rel.sizes.seq_cfg))
 
 
 @STAGES.add(needs=("decoders", "seq_decoder"), outputs=("single/decoder_eval.json", "flight/decoder_eval.json"),
             estimate_s=55, what="evaluate-decoder: CFM + Regression, and the flight-level decoder")
-def decoder_eval(rel: Release, out: Path) -> StageResult:
+def decoder_eval(rel: ReleaseView, out: Path) -> StageResult:
     """``evaluate-decoder`` of CFM + Regression on the single-latent pairs (single/) and of the
     flight-level decoder, with the release's CFM as its single-latent reference, on the
     trajectories (flight/)."""

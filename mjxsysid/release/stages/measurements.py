@@ -4,25 +4,22 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid.release.provenance import call
 from mjxsysid.release.runs import STUDY_RUNS, TUNE_RUNS, ExperimentRun
-from mjxsysid.release.stages.registry import STAGES, StageResult
+from mjxsysid.release.stages.registry import STAGES, ReleaseView, StageResult
 
-if TYPE_CHECKING:
-    from mjxsysid.release.runner import Release
 
 _DECODED = ("decoders", "seq_decoder")
 
 
 @STAGES.add(needs=_DECODED, outputs=("noise_sensitivity.json", "noise_sensitivity_low.json"), estimate_s=85,
             what="decoding under IMU noise (mjxsysid experiment noise-sensitivity's measurement)")
-def noise(rel: Release, out: Path) -> StageResult:
-    """The noise measurement ([noise_sensitivity][mjxsysid.studies.noise.noise_sensitivity]) at
+def noise(rel: ReleaseView, out: Path) -> StageResult:
+    """The noise measurement ([noise_sensitivity][mjxsysid.uses.imu_noise.noise_sensitivity]) at
     each level set of the sizes (the docs' levels and the low ones), with the figure."""
-    from mjxsysid.studies.noise import DEFAULT_LEVELS, figure, noise_sensitivity
+    from mjxsysid.uses.imu_noise import DEFAULT_LEVELS, figure, noise_sensitivity
     sz = rel.sizes.noise.measurement()
     dec = rel.decoder_set()
     runs = {name: tuple(DEFAULT_LEVELS if levels is None else levels)
@@ -41,7 +38,7 @@ def noise(rel: Release, out: Path) -> StageResult:
                        figures=figures)
 
 
-def experiments(rel: Release, out: Path, runs: tuple[ExperimentRun, ...]) -> StageResult:
+def experiments(rel: ReleaseView, out: Path, runs: tuple[ExperimentRun, ...]) -> StageResult:
     """Run the experiments ``runs`` with the release's policy and decoders into out/<folder>/,
     each skipped when its results.json exists (a finished run of an interrupted stage)."""
     from mjxsysid.experiments import get_experiment
@@ -77,7 +74,7 @@ _TUNE_WHAT = {"tune_nominal": "experiment tune-nominal, --variant baseline_start
 
 
 def _tune_stage(key: str):
-    def run(rel: Release, out: Path) -> StageResult:
+    def run(rel: ReleaseView, out: Path) -> StageResult:
         return experiments(rel, out, TUNE_RUNS[key])
     run.__name__ = run.__qualname__ = key
     run.__doc__ = f"The {key.replace('_', '-')} runs of [TUNE_RUNS][mjxsysid.release.runs.TUNE_RUNS]."
@@ -91,18 +88,18 @@ for _key in TUNE_RUNS:
 
 @STAGES.add(needs=_DECODED, outputs=tuple(f"{r.folder}/results.json" for r in STUDY_RUNS), estimate_s=260,
             what="experiment robustness (and --variant single_latent), replay, payload")
-def studies(rel: Release, out: Path) -> StageResult:
+def studies(rel: ReleaseView, out: Path) -> StageResult:
     """robustness (flight-level decoder, and --variant single_latent), replay and payload."""
     return experiments(rel, out, STUDY_RUNS)
 
 
 @STAGES.add(needs=_DECODED, outputs=("closed_loop_fidelity.json", "closed_loop_fidelity_same_flight.json"),
             estimate_s=130, what="closed-loop fidelity, held-out and same-flight identification")
-def fidelity(rel: Release, out: Path) -> StageResult:
-    """Closed-loop fidelity ([fidelity_benchmark][mjxsysid.studies.fidelity.fidelity_benchmark]) on a
+def fidelity(rel: ReleaseView, out: Path) -> StageResult:
+    """Closed-loop fidelity ([fidelity_benchmark][mjxsysid.uses.fidelity.fidelity_benchmark]) on a
     held-out identification flight and on the test flight itself."""
     from mjxsysid.cfm.sequence import SequenceDecoder
-    from mjxsysid.studies.fidelity import fidelity_benchmark
+    from mjxsysid.uses.fidelity import fidelity_benchmark
     sz = rel.sizes.fidelity
     path = rel.decoder_set() / "cfm_seq.npz"
     dec = SequenceDecoder.load(path)

@@ -3,13 +3,10 @@ from __future__ import annotations
 
 import shutil
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from mjxsysid.release.provenance import call
-from mjxsysid.release.stages.registry import STAGES, StageResult
+from mjxsysid.release.stages.registry import STAGES, ReleaseView, StageResult
 
-if TYPE_CHECKING:
-    from mjxsysid.release.runner import Release
 
 DEFAULT_POLICY_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "policy_release.json"
 """The policy stage's TrainConfig overrides unless a release names its own: the default config
@@ -24,7 +21,7 @@ def config_path(path) -> Path:
     return DEFAULT_POLICY_CONFIG if path is None else Path(path)
 
 
-def train_config(rel: Release) -> dict:
+def train_config(rel: ReleaseView) -> dict:
     """The TrainConfig dict the policy stage trains with: the default config with the overrides
     of the release's policy config, and the sizes' ``train`` overrides on top (a tiny release:
     warm-started from the shipped policy unless the config names one)."""
@@ -39,9 +36,9 @@ def train_config(rel: Release) -> dict:
 
 @STAGES.add(outputs=("policy.npz",), estimate_s=130,
             what="train the policy (train-policy --config), or adopt --from-policy")
-def policy(rel: Release, out: Path) -> StageResult:
+def policy(rel: ReleaseView, out: Path) -> StageResult:
     """Train the policy (it checkpoints and resumes itself), or adopt ``options.from_policy``."""
-    from mjxsysid.checkpoint import load_meta
+    from mjxsysid.runtime.checkpoint import load_meta
     from mjxsysid.policy.interface import file_sha256
     if rel.options.from_policy:
         src = Path(rel.options.from_policy)
@@ -74,10 +71,10 @@ def _previous_policy() -> Path | None:
 
 @STAGES.add(needs=("policy",), outputs=("eval.json", "heldout/results.json"), estimate_s=115,
             what="evaluate-policy (1,000 vehicles) and --held-out against the shipped policy")
-def policy_eval(rel: Release, out: Path) -> StageResult:
+def policy_eval(rel: ReleaseView, out: Path) -> StageResult:
     """``evaluate-policy`` at the release size (eval.json) and ``evaluate-policy --held-out`` of
     the release's policy against the shipped (previous) one (heldout/results.*)."""
-    from mjxsysid import jsonout
+    from mjxsysid.runtime import jsonout
     from mjxsysid.experiments.heldout import SETS
     from mjxsysid.experiments.heldout import run as heldout_run
     from mjxsysid.policy.adaptive.evaluate import evaluate_policy

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable, Iterator, Mapping
-from typing import Any
+from pathlib import Path
+from typing import Any, Protocol
 
 
 @dataclasses.dataclass(frozen=True)
@@ -38,6 +39,35 @@ class Stage:
     estimate_s: float = 0.0
     what: str = ""
     after: tuple = ()
+
+
+class ReleaseView(Protocol):
+    """What a stage reads of the release that runs it
+    ([Release][mjxsysid.release.runner.Release] implements it; tests pass stubs)."""
+    out: Path
+    options: Any
+    sizes: Any
+    log: Callable[[str], None]
+    ship_to: Path | None
+    docs_root: Path | None
+    allow_partial: bool
+
+    @property
+    def policy_path(self) -> Path: ...
+
+    @property
+    def decoder_set(self) -> Any: ...
+
+    @property
+    def progress_on(self) -> bool: ...
+
+    def stage_dir(self, name: str) -> Path: ...
+
+    def entry(self, name: str) -> dict: ...
+
+    def status(self, name: str) -> str: ...
+
+    def done(self, name: str) -> bool: ...
 
 
 class Registry:

@@ -5,22 +5,19 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
-from typing import TYPE_CHECKING
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid.release import layout
 from mjxsysid.release.provenance import call, decoder_provenance, policy_provenance
 from mjxsysid.release.record import RECORD
 from mjxsysid.release.stages.policy import ADOPTED_PROVENANCE
-from mjxsysid.release.stages.registry import STAGES, StageResult
+from mjxsysid.release.stages.registry import STAGES, ReleaseView, StageResult
 
-if TYPE_CHECKING:
-    from mjxsysid.release.runner import Release
 
 _TRAINING_KEYS = ("command", "commit", "device", "jax", "wall_s", "env_steps", "mean_train_steps_per_s")
 
 
-def _adopted_training(rel: Release) -> dict:
+def _adopted_training(rel: ReleaseView) -> dict:
     """For a release that adopted a policy (``--from-policy``): how that policy was trained, from
     the provenance JSON the policy stage kept beside it (its command, commit, device, wall time,
     steps/s: the release did not train it), and where it came from. Empty for a release that
@@ -39,7 +36,7 @@ def _json(path: Path) -> dict:
     return json.loads(path.read_text()) if path.is_file() else {}
 
 
-def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
+def build_tree(rel: ReleaseView, tree: Path, *, partial: bool = False) -> list[str]:
     """Lay out what a release ships, as a tree rooted at ``tree`` (paths of
     [layout][mjxsysid.release.layout]): the weights, hard-linked, and their provenance JSON
     (each with the calls of the stage that made it and a ``release`` section: the release
@@ -104,7 +101,7 @@ def build_tree(rel: Release, tree: Path, *, partial: bool = False) -> list[str]:
                    "tune_lemniscate", "studies", "fidelity"),
             outputs=("tree",), estimate_s=5,
             what="lay out the shipped tree and regenerate the generated docs pages in it (pages.generate)")
-def tables(rel: Release, out: Path) -> StageResult:
+def tables(rel: ReleaseView, out: Path) -> StageResult:
     """Lay out the shipped tree in out/tree (:func:`build_tree`) and regenerate the generated
     pages of ``rel.docs_root`` (a checkout) over it (:func:`mjxsysid.release.pages.generate`: each
     run file read from the tree where the release wrote one, else from the checkout), all but
@@ -137,7 +134,7 @@ def tables(rel: Release, out: Path) -> StageResult:
 
 @STAGES.add(outputs=("shipped.json",), estimate_s=5, after=("tables",),
             what="copy weights + provenance into mjxsysid/pretrained/, run files into docs/runs/release/<kind>/, the pages")
-def ship(rel: Release, out: Path) -> StageResult:
+def ship(rel: ReleaseView, out: Path) -> StageResult:
     """Copy the tree of the tables stage (weights, provenance, docs run files, pages) into
     ``rel.ship_to``, replacing its docs/runs/release/ whole (with the record beside the run files).
     With ``allow_partial`` and the tables stage not done, a tree of whatever the

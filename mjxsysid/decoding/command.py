@@ -6,19 +6,19 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.logs.checks import imu_noise_limit, warn
 from mjxsysid.logs.csvlog import LOG_DT, read_any_log
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.progress import stages
+from mjxsysid.runtime.progress import stages
 from mjxsysid.render.posterior import plot_decoded_over_time, plot_information_gap, plot_marginals
 from mjxsysid.render.video import render_rollout
 from mjxsysid.rollout.flight import flight_log, fly_vehicles, make_reference, one_flight
-from mjxsysid.studies.decode.checks import checks_summary, decoders_prior, flight_checks, log_latents
-from mjxsysid.studies.decode.posterior import decode_posterior, ground_in_log
-from mjxsysid.studies.decode.windows import check_window, parse_window
+from mjxsysid.decoding.checking import checks_summary, decoders_prior, flight_checks, log_latents
+from mjxsysid.decoding.posteriors import decode_posterior, ground_in_log
+from mjxsysid.decoding.windows import check_window, parse_window
 
 OUT_OF_PRIOR_TITLE = "OUT OF THE DECODERS' PRIOR — bands not calibrated: "
 

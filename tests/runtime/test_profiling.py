@@ -1,11 +1,11 @@
-"""`mjxsysid.profiling` and `mjxsysid profile`: compile time per JAX program, from JAX's own events."""
+"""`mjxsysid.runtime.profiling` and `mjxsysid profile`: compile time per JAX program, from JAX's own events."""
 import json
 
 import jax
 import jax.numpy as jnp
 import pytest
 
-from mjxsysid.profiling import compile_profile
+from mjxsysid.runtime.profiling import compile_profile
 
 
 def test_compile_profile_names_each_program_and_counts_its_builds():

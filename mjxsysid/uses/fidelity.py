@@ -15,7 +15,7 @@ import time
 import jax
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.sample import Decoder
 from mjxsysid.cfm.sequence import SequenceDecoder

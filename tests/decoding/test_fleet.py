@@ -1,9 +1,9 @@
-"""Several logs at once (studies/decode/fleet.py): the logs a folder names, the fleet table."""
+"""Several logs at once (decoding/fleet.py): the logs a folder names, the fleet table."""
 from __future__ import annotations
 
 import pytest
 
-from mjxsysid.studies.decode.fleet import expand_logs, fleet_markdown, fleet_row
+from mjxsysid.decoding.fleet import expand_logs, fleet_markdown, fleet_row
 
 
 def test_a_folder_names_its_logs_and_a_ros2_bag_folder_is_one(tmp_path):
@@ -38,7 +38,7 @@ def test_the_fleet_table_shows_what_each_log_saw_and_why_one_was_refused():
 
 
 def test_the_truth_headline_counts_only_what_the_log_saw():
-    from mjxsysid.studies.decode.run import truth_headline
+    from mjxsysid.decoding.command import truth_headline
     gap = {"thrust_to_weight_total": {"seen_by_log": True, "log_inside": True},
            "motor_time_constant": {"seen_by_log": True, "log_inside": False},
            "authority_total[0]": {"seen_by_log": False, "log_inside": True}}

@@ -17,7 +17,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 
 _META = "__meta_json__"
 

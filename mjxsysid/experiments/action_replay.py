@@ -1,5 +1,5 @@
 """`mjxsysid experiment replay` (paper §VI, action-prediction table): the action replay of
-:func:`mjxsysid.studies.replay.run_replay` in the common experiment format, with the paper's
+:func:`mjxsysid.uses.replay.run_replay` in the common experiment format, with the paper's
 numbers beside ours. The payload row of the paper's table is `mjxsysid experiment payload`.
 
 Writes results.json, results.md and run_replay's own replay.json, replay.md,
@@ -16,7 +16,7 @@ import numpy as np
 
 from mjxsysid.experiments.common import markdown_table, write_results
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.studies.replay import run_replay
+from mjxsysid.uses.replay import run_replay
 
 PAPER = {  # paper Table (action prediction on hardware): flight -> method -> (RMSE, PCC)
     "lemniscate_5s": {"random": (0.141, 0.202), "regression": (0.059, 0.077), "cfm": (0.032, 0.723)},
@@ -29,7 +29,7 @@ LABELS = {"random": "Random", "regression": "Regression", "cfm": "CFM (1 sample)
 
 @dataclasses.dataclass(frozen=True)
 class ReplayConfig:
-    """Arguments of :func:`~mjxsysid.studies.replay.run_replay`: vehicles of the policy's prior
+    """Arguments of :func:`~mjxsysid.uses.replay.run_replay`: vehicles of the policy's prior
     beside the paper vehicle, flights, decode rate (Hz), CFM samples for the mean action, PCC
     low-pass cutoff (Hz)."""
     vehicles: int = 32

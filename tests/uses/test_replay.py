@@ -8,7 +8,7 @@ from support.paths import XADAP_DIR
 
 from mjxsysid import theta as P
 from mjxsysid.control.low_level import Command, KTheta
-from mjxsysid.studies.replay import METHODS, action_metrics, lowpass, pearson, replay_commands, replay_flight
+from mjxsysid.uses.replay import METHODS, action_metrics, lowpass, pearson, replay_commands, replay_flight
 
 
 def test_metrics_by_hand():

@@ -9,7 +9,7 @@ from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.cli import main
 from mjxsysid.logs.csvlog import LOG_COLUMNS, read_log, write_log
 from mjxsysid.policy.interface import PRETRAINED_DIR, resolve_policy
-from mjxsysid.studies.decode import decode_latents
+from mjxsysid.decoding import decode_latents
 
 pytestmark = pytest.mark.skipif(not (PRETRAINED_DIR / "cfm.npz").exists(), reason="no shipped decoder")
 
@@ -146,7 +146,7 @@ def test_decode_cli_errors(tmp_path, capsys):
 @pytest.mark.slow
 def test_closed_loop_fidelity_runs():
     """Slow (≈ 1 min of compiles on CPU): envelopes are computed and bounded."""
-    from mjxsysid.studies.fidelity import closed_loop_fidelity
+    from mjxsysid.uses.fidelity import closed_loop_fidelity
     r = closed_loop_fidelity(P.PAPER_HARDWARE, n_models=8, reference="hover", duration=1.0,
                              force_step=(1.0, 1.0, 0.0))
     m = r["mean"]

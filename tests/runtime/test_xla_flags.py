@@ -2,7 +2,7 @@
 tier's one Eigen thread per worker."""
 import os
 
-from mjxsysid.xla_flags import (
+from mjxsysid.runtime.xla_flags import (
     FAST_CPU_COMPILE,
     ONE_EIGEN_THREAD,
     use_fast_cpu_compile,
@@ -53,10 +53,10 @@ def test_the_tiers_optimised_compiles_run_llvm_at_level_1():
 def test_flags_a_newer_jaxlib_removed_are_not_added(monkeypatch):
     """XLA exits on a flag it does not know: the fusion-emitter flag is left out from jaxlib 0.11 on
     (the GPU machine's), kept before it."""
-    from mjxsysid.xla_flags import known_flags
+    from mjxsysid.runtime.xla_flags import known_flags
     assert known_flags(FAST_CPU_COMPILE + ONE_EIGEN_THREAD, (0, 10)) == FAST_CPU_COMPILE + ONE_EIGEN_THREAD
     assert known_flags(FAST_CPU_COMPILE + ONE_EIGEN_THREAD, (0, 11)) == ONE_EIGEN_THREAD
-    monkeypatch.setattr("mjxsysid.xla_flags._jaxlib_version", lambda: (0, 11))
+    monkeypatch.setattr("mjxsysid.runtime.xla_flags._jaxlib_version", lambda: (0, 11))
     monkeypatch.setenv("XLA_FLAGS", "")
     use_fast_cpu_compile()
     assert "fusion_emitters" not in os.environ["XLA_FLAGS"]

@@ -34,14 +34,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.cfm.sample import random_baseline
 from mjxsysid.control.low_level import Command, KTheta
 from mjxsysid.dataset.collect import decode_indices
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.progress import progress
+from mjxsysid.runtime.progress import progress
 from mjxsysid.render.replay import plot_replay, plot_summary
 from mjxsysid.rollout.flight import fly_vehicles, seen_imu
 

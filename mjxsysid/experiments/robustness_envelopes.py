@@ -1,8 +1,8 @@
 """`mjxsysid experiment robustness` (paper §V-B, DESIGN §7): decoded-model envelopes under force
 disturbances, on the paper vehicle and on vehicles of the policy's prior.
 
-The protocol is :func:`mjxsysid.studies.robustness.robustness_study` with
-:class:`~mjxsysid.studies.robustness.RobustnessConfig`: :data:`FULL` (one GPU: paper vehicle +
+The protocol is :func:`mjxsysid.uses.robustness.robustness_study` with
+:class:`~mjxsysid.uses.robustness.RobustnessConfig`: :data:`FULL` (one GPU: paper vehicle +
 20 prior vehicles, 100 decoded / 100 ±20 % models per step, 100 noise seeds × 20 models per σ)
 or :data:`QUICK` (CPU, minutes). The decoders are a parameter (``decoders=DIR``, default the
 policy's shipped ones), so the experiment can be re-run when better decoders exist.
@@ -27,8 +27,8 @@ from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.experiments.common import markdown_table, mean_std, write_results
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.render.plots import plot_error_envelopes, plot_final_histograms
-from mjxsysid.studies.fidelity import POSTERIORS
-from mjxsysid.studies.robustness import AXES, RobustnessConfig, mc_stats, robustness_study, step_stats
+from mjxsysid.uses.fidelity import POSTERIORS
+from mjxsysid.uses.robustness import AXES, RobustnessConfig, mc_stats, robustness_study, step_stats
 
 FULL = RobustnessConfig()
 QUICK = RobustnessConfig(duration=2.0, n_decoded=16, n_perturbed=16, mc_rollouts=8, mc_models=4, chunk=512)

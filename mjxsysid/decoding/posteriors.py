@@ -6,12 +6,12 @@ import jax
 import numpy as np
 
 from mjxsysid import theta as P
-from mjxsysid.jsonout import plain
+from mjxsysid.runtime.jsonout import plain
 from mjxsysid.cfm.load import load_decoders
 from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.dataset.collect import decode_indices
 from mjxsysid.policy.adaptive import networks as N
-from mjxsysid.studies.decode.windows import MAX_DECODES, every_times, parse_window, window_bounds
+from mjxsysid.decoding.windows import MAX_DECODES, every_times, parse_window, window_bounds
 
 
 def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, decoder=None,

@@ -5,7 +5,7 @@ integration over cases, the policy evaluation rollout, the training environment 
 the batch axis (vehicles, environments, cases) is padded to a multiple of the device count and
 placed with ``NamedSharding(mesh, P('batch'))``; arrays shared by the batch (network weights)
 are replicated. ``jax.jit`` then partitions the computation; nothing else changes. Results are
-those of one device up to float reassociation (stated per workload in tests/test_distributed.py).
+those of one device up to float reassociation (stated per workload in tests/runtime/test_distributed.py).
 
 On one device every function here is a no-op: no padding, no placement, the same arrays.
 

@@ -1,4 +1,4 @@
-"""docs/noise.md's table is what mjxsysid.studies.noise makes of its committed run, and the
+"""docs/noise.md's table is what mjxsysid.uses.imu_noise makes of its committed run, and the
 figure is drawn from it (the run itself takes minutes: `mjxsysid experiment noise-sensitivity`)."""
 import json
 
@@ -9,7 +9,7 @@ from support.paths import ROOT
 
 
 def test_docs_table_and_figure_come_from_the_run(tmp_path):
-    from mjxsysid.studies import noise as tool
+    from mjxsysid.uses import imu_noise as tool
     doc = (ROOT / "docs/noise.md").read_text()
     parts = doc.split("<!-- BEGIN noise table ")[1:]
     assert len(parts) == 2
@@ -17,7 +17,7 @@ def test_docs_table_and_figure_come_from_the_run(tmp_path):
         run, rest = part.split(" ", 1)
         res = json.loads((ROOT / run).read_text())
         body = rest.split("-->", 1)[1].split("<!-- END noise table -->")[0]
-        assert body.strip() == tool.table(res).strip(), f"regenerate: mjxsysid.studies.noise.replace_tables on {run}"
+        assert body.strip() == tool.table(res).strip(), f"regenerate: mjxsysid.uses.imu_noise.replace_tables on {run}"
         for name, lv in res["levels"].items():
             assert lv["sim"] == tool.LEVELS[name], name     # the levels the tool defines today
     assert tool.figure(res, tmp_path / "f.png").stat().st_size > 10_000
@@ -36,7 +36,7 @@ def test_figure_names_whose_decoders_and_edge_coverages_count_as_calibrated():
     """The figure's title names a candidate's decoders (not "shipped"); a coverage of exactly
     0.850 of 1,000 flights counts as within ±5 points (float round-off), 0.849 does not."""
     from mjxsysid.cfm.pipeline import WITHIN_5_POINTS
-    from mjxsysid.studies.noise import _whose
+    from mjxsysid.uses.imu_noise import _whose
     assert _whose({"decoders": "runs/release_clean/decoder_set"}) == "decoders of release_clean"
     assert _whose({"decoders": None}) == _whose({"decoders": "x/mjxsysid/pretrained"}) == "shipped decoders"
     assert abs(850 / 1000 - 0.9) <= WITHIN_5_POINTS and abs(950 / 1000 - 0.9) <= WITHIN_5_POINTS

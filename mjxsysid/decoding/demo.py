@@ -8,7 +8,7 @@ The paper vehicle's latents are decoded at ``DEMO_DECODES`` times of the flight 
 single-latent CFM (instant) and, every ``FLIGHT_EVERY_S`` s, by the sequence decoder given every
 latent so far (flight-level; unavailable, and said so, where the policy ships no ``cfm_seq.npz``).
 The same flight's IMU and motor commands are then read as a log: the log-grounded posterior
-(:func:`mjxsysid.studies.decode.ground_in_log`, the decoded samples its proposal) and the
+(:func:`mjxsysid.decoding.ground_in_log`, the decoded samples its proposal) and the
 information gap between the two (``--decoder-only`` skips it).
 """
 from __future__ import annotations
@@ -19,19 +19,19 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from mjxsysid import jsonout
+from mjxsysid.runtime import jsonout
 from mjxsysid import theta as P
 from mjxsysid.cfm.load import load_decoders, load_sequence_decoder
 from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.identify.gap import gap_markdown
 from mjxsysid.policy.interface import resolve_policy
-from mjxsysid.progress import echo, stages
+from mjxsysid.runtime.progress import echo, stages
 from mjxsysid.render.plots import plot_trajectory
 from mjxsysid.render.posterior import plot_decoded_over_time, plot_information_gap, plot_marginals
 from mjxsysid.render.video import render_rollout
 from mjxsysid.rollout.flight import flight_log, fly_vehicles, one_flight, save_flight
 from mjxsysid.rollout.harness import metrics_to_host
-from mjxsysid.studies.decode import decode_latents, ground_in_log
+from mjxsysid.decoding import decode_latents, ground_in_log
 
 
 FLIGHT_EVERY_S = 1.0

@@ -19,8 +19,8 @@ Hover is the :class:`~mjxsysid.control.references.Lemniscate` of size 0, so the 
 flight (a lemniscate, like the decoder's training flights) shares that compiled function too.
 
 The statistics (:func:`step_stats`, :func:`mc_stats`) use
-:func:`~mjxsysid.studies.fidelity.envelope_stats` and
-:func:`~mjxsysid.studies.fidelity.energy_distance`.
+:func:`~mjxsysid.uses.fidelity.envelope_stats` and
+:func:`~mjxsysid.uses.fidelity.energy_distance`.
 """
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ from mjxsysid.rollout.flight import broadcast, flight_log
 from mjxsysid.rollout.harness import Disturbance, Flight, failure_mask, fly_batch
 from mjxsysid.sim import Quadrotor
 from mjxsysid.sim.quadrotor import Frame
-from mjxsysid.studies.fidelity import (POSTERIORS, WINDOWS, check_decoder_window, energy_distance, envelope,
+from mjxsysid.uses.fidelity import (POSTERIORS, WINDOWS, check_decoder_window, energy_distance, envelope,
                                        envelope_stats, posterior_draws)
 
 RECORD_EVERY = 5

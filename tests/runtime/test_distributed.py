@@ -1,4 +1,4 @@
-"""Sharding the batch axis over several devices (mjxsysid.distributed) gives the one-device
+"""Sharding the batch axis over several devices (mjxsysid.runtime.distributed) gives the one-device
 results. Two CPU devices are forced with XLA_FLAGS, which must be set before JAX starts: each
 check runs in a subprocess that computes both results (``limit_devices(1)``: the one-device path,
 no sharding; then both devices) and prints them as JSON.
@@ -25,7 +25,7 @@ import json, os, sys
 import jax, numpy as np
 jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
-from mjxsysid import distributed as D
+from mjxsysid.runtime import distributed as D
 assert len(jax.devices()) == 2, jax.devices()
 def maxdiff(a, b):
     # largest |a - b| over leaves, relative to max(1, max |a|) of each leaf
@@ -257,7 +257,7 @@ def test_one_device_is_a_no_op():
     """In this process (one CPU device): nothing padded, placed or copied."""
     import jax
     import jax.numpy as jnp
-    from mjxsysid import distributed as D
+    from mjxsysid.runtime import distributed as D
     if len(jax.devices()) != 1:
         pytest.skip("this process has several devices")
     tree = {"a": jnp.arange(5.0), "w": jnp.ones(3)}
@@ -270,7 +270,7 @@ def test_one_device_is_a_no_op():
 def test_padding_and_unpad_helpers_on_a_fake_mesh():
     """Padding repeats the last row (valid inputs, never NaN) and unpad drops it."""
     import jax.numpy as jnp
-    from mjxsysid.distributed import _pad, unpad
+    from mjxsysid.runtime.distributed import _pad, unpad
     x = jnp.arange(10.0).reshape(5, 2)
     p = _pad(x, 8)
     assert p.shape == (8, 2) and np.array_equal(p[5:], np.repeat(x[-1:], 3, 0))
@@ -279,7 +279,7 @@ def test_padding_and_unpad_helpers_on_a_fake_mesh():
 
 
 def test_launcher_detection_and_bad_settings():
-    from mjxsysid.distributed import device_count, launcher_env
+    from mjxsysid.runtime.distributed import device_count, launcher_env
     assert launcher_env({}) is None
     assert launcher_env({"JAX_COORDINATOR_ADDRESS": "10.0.0.1:1234"}) == "jax"
     slurm = {"SLURM_JOB_ID": "7", "SLURM_STEP_NODELIST": "n[1-2]", "SLURM_PROCID": "0",
@@ -300,7 +300,7 @@ def test_launcher_detection_and_bad_settings():
 
 
 def test_maybe_initialize_names_a_missing_variable():
-    from mjxsysid.distributed import maybe_initialize
+    from mjxsysid.runtime.distributed import maybe_initialize
     assert maybe_initialize({}) is False                      # no launcher: a plain run
     with pytest.raises(ValueError, match="JAX_NUM_PROCESSES"):
         maybe_initialize({"JAX_COORDINATOR_ADDRESS": "127.0.0.1:1234", "JAX_PROCESS_ID": "0"})
@@ -314,7 +314,7 @@ def test_two_processes_equal_one(tmp_path):
     import socket
     code = textwrap.dedent("""
         import os, sys, numpy as np
-        from mjxsysid import distributed as D
+        from mjxsysid.runtime import distributed as D
         joined = D.maybe_initialize()
         import jax
         jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
@@ -356,7 +356,7 @@ def test_helpers_inside_jit():
     """The sharded boundaries may sit inside a caller's jit (e.g. CFM sampling): tracers pass."""
     import jax
     import jax.numpy as jnp
-    from mjxsysid import distributed as D
+    from mjxsysid.runtime import distributed as D
 
     @jax.jit
     def f(x):
