@@ -60,13 +60,13 @@ def shard(theta, spec: str | None, seed: int):
 
 def level_flights(theta, level: str, seed: int):
     """Fly θ (n, 19) with the lag-aware oracle on a 10 s lemniscate at the IMU noise ``level`` of
-    :data:`mjxsysid.studies.noise.LEVELS` -> (the flights' Frame (n, T, ...), the indices of those
+    :data:`mjxsysid.uses.imu_noise.LEVELS` -> (the flights' Frame (n, T, ...), the indices of those
     that did not fail)."""
     import numpy as np
 
     from mjxsysid.rollout.flight import fly_vehicles
     from mjxsysid.sim import Quadrotor, SimConfig
-    from mjxsysid.studies.noise import LEVELS
+    from mjxsysid.uses.imu_noise import LEVELS
     fl, m, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", period=10.0,
                             sim=Quadrotor(SimConfig(**LEVELS[level])), seed=seed)
     return fl.frame, np.flatnonzero(~np.asarray(m["failed"], bool))

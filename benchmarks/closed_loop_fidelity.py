@@ -16,7 +16,7 @@ import argparse
 import json
 from pathlib import Path
 
-from mjxsysid.studies.fidelity import fidelity_benchmark
+from mjxsysid.uses.fidelity import fidelity_benchmark
 
 
 def main():

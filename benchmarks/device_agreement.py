@@ -40,7 +40,7 @@ def rel_diff(a, b) -> float:
 
 
 def flight_positions(theta, seconds: float, devices):
-    from mjxsysid import distributed as D
+    from mjxsysid.runtime import distributed as D
     from mjxsysid.policy.interface import resolve_policy
     from mjxsysid.rollout.flight import fly_vehicles
     with D.limit_devices(devices):
@@ -50,7 +50,7 @@ def flight_positions(theta, seconds: float, devices):
 
 
 def update_params(envs: int, devices):
-    from mjxsysid import distributed as D
+    from mjxsysid.runtime import distributed as D
     from mjxsysid.policy.adaptive.config import TrainConfig
     from mjxsysid.policy.adaptive.losses import schedules
     from mjxsysid.policy.adaptive.train import training_mesh
@@ -80,7 +80,7 @@ def main():
     ap.add_argument("--envs", type=int, default=4096, help="environments of the update check")
     ap.add_argument("--out", type=Path, default=Path("docs/runs/measurements/benchmarks/device_agreement.json"))
     args = ap.parse_args()
-    from mjxsysid import distributed as D
+    from mjxsysid.runtime import distributed as D
     from mjxsysid import theta as P
     n = D.device_count()
     if n < 2:

@@ -1,7 +1,7 @@
 """The information gap over prior vehicles: where the shipped policy's latent is under-informed.
 
 Flies N vehicles of the decoders' prior with the shipped policy (MJX, 10 s lemniscate, IMU at the
-given noise level of :data:`mjxsysid.studies.noise.LEVELS`), decodes each flight's latents with
+given noise level of :data:`mjxsysid.uses.imu_noise.LEVELS`), decodes each flight's latents with
 the shipped flight-level decoder (the posterior ``decode`` reports at the end of the flight), runs
 the log-grounded posterior on the flight's IMU and motor commands with those samples as its
 proposal, and reports per log-identifiable quantity: the median width ratio (decoder-only band /
@@ -28,8 +28,8 @@ from mjxsysid.identify.inference import log_grounded_posterior
 from mjxsysid.policy.interface import resolve_policy
 from mjxsysid.rollout.flight import fly_vehicles, seen_imu
 from mjxsysid.sim import Quadrotor, SimConfig
-from mjxsysid.studies.decode import decode_posterior
-from mjxsysid.studies.noise import LEVELS
+from mjxsysid.decoding import decode_posterior
+from mjxsysid.uses.imu_noise import LEVELS
 
 
 def main():

@@ -1,7 +1,7 @@
 """The log-grounded posterior (mjxsysid.identify) on simulated flights: coverage, widths, time.
 
 Flies N vehicles of a prior with the lag-aware oracle (MJX simulator, 10 s lemniscate) at each IMU
-noise level of :data:`mjxsysid.studies.noise.LEVELS` asked for (clean, × 1 white + bias, × 5 white,
+noise level of :data:`mjxsysid.uses.imu_noise.LEVELS` asked for (clean, × 1 white + bias, × 5 white,
 × 5 rotor vibration, × 20 white + bias: the decoders' noise study's levels), runs the
 log-grounded posterior on each flight's IMU and motor commands (no decoded proposal: the prior
 and the log alone), and reports per log-identifiable quantity whether the truth is inside the
@@ -40,7 +40,7 @@ from mjxsysid.identify.coords import LOG_NAMES, log_quantities
 from mjxsysid.identify.inference import log_grounded_posterior
 from mjxsysid.identify.logdata import RATES
 from mjxsysid.rollout.flight import flight_log
-from mjxsysid.studies.noise import LEVELS
+from mjxsysid.uses.imu_noise import LEVELS
 
 
 

@@ -1,7 +1,7 @@
 """Scaling over the local devices: 1 device vs all of them, same process, same run.
 
 Two workloads, each timed on ``limit_devices(1)`` (the one-device path, no sharding) and on
-every device (:mod:`mjxsysid.distributed`), after a warm-up call that compiles:
+every device (:mod:`mjxsysid.runtime.distributed`), after a warm-up call that compiles:
 
 - ``collect``: ``latents_in_flight`` — the shipped policy flying ``--vehicles`` prior vehicles
   ``--steps`` control steps under excitation (what ``mjxsysid collect`` does per batch);
@@ -48,7 +48,7 @@ def best_of(fn, repeats: int) -> float:
 
 
 def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
-    from mjxsysid import distributed as D
+    from mjxsysid.runtime import distributed as D
     from mjxsysid import theta as P
     from mjxsysid.control.high_level import Cascade
     from mjxsysid.dataset.collect import (
@@ -81,7 +81,7 @@ def bench_collect(devices: int, args, vehicles: int | None = None) -> dict:
 
 
 def bench_train(devices: int, args, envs: int | None = None) -> dict:
-    from mjxsysid import distributed as D
+    from mjxsysid.runtime import distributed as D
     from mjxsysid.policy.adaptive.config import TrainConfig
     from mjxsysid.policy.adaptive.train import training_mesh
     from mjxsysid.policy.adaptive.trainer import Trainer
@@ -132,7 +132,7 @@ def main():
         if getattr(args, k) < 1:
             ap.error(f"--{k} must be >= 1")
 
-    from mjxsysid import distributed as D
+    from mjxsysid.runtime import distributed as D
     D.maybe_initialize()
     n_all = D.device_count()
     if n_all < 2:

@@ -46,7 +46,7 @@ from mjxsysid.identify.coords import (
 from mjxsysid.identify.inference import log_grounded_posterior
 from mjxsysid.identify.logdata import RATES
 from mjxsysid.rollout.flight import flight_log
-from mjxsysid.studies.noise import LEVELS
+from mjxsysid.uses.imu_noise import LEVELS
 
 RHO4 = LOG_NAMES.index("relative_effectiveness[3]")
 

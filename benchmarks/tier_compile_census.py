@@ -5,7 +5,7 @@
     python benchmarks/tier_compile_census.py /tmp/census          # the tables
 
 As a pytest plugin (``-p tier_compile_census``, loaded in every xdist worker) it listens to JAX's
-trace / lower / backend-compile duration events (:mod:`mjxsysid.profiling`'s events) and writes,
+trace / lower / backend-compile duration events (:mod:`mjxsysid.runtime.profiling`'s events) and writes,
 per worker, [test file, program, kind, seconds] rows to ``$MJXSYSID_CENSUS_DIR``. Programs
 compiled in subprocesses the tests start (CLI runs, notebook kernels) are not counted. Run as a
 script on that folder, it prints the totals per kind, per test file and per program (with the
@@ -19,7 +19,7 @@ import os
 import sys
 from pathlib import Path
 
-from mjxsysid.profiling import EVENTS, program_name
+from mjxsysid.runtime.profiling import EVENTS, program_name
 
 _rows: dict = collections.defaultdict(float)
 _current = ["(collection)"]

@@ -1,6 +1,6 @@
 """What XLA:CPU flags do to compile time, run time and results: one fresh process per flag set.
 
-    python benchmarks/xla_cpu_flags.py                 # the default flags against mjxsysid.xla_flags'
+    python benchmarks/xla_cpu_flags.py                 # the default flags against mjxsysid.runtime.xla_flags'
     python benchmarks/xla_cpu_flags.py --repeat 3 --optimised
 
 Each process, with an empty persistent cache, flies the oracle and the shipped policy on the paper
@@ -63,7 +63,7 @@ def run(flags: str, opt_off: bool) -> dict:
 
 
 def main() -> None:
-    from mjxsysid.xla_flags import with_fast_cpu_compile
+    from mjxsysid.runtime.xla_flags import with_fast_cpu_compile
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=2, help="processes per flag set (alternating)")
     ap.add_argument("--optimised", action="store_true", help="XLA's optimisations on (users' default)")
