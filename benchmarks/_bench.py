@@ -1,11 +1,16 @@
 """Helpers shared by the benchmark scripts (run as ``python benchmarks/NAME.py``: this folder is
-on ``sys.path``)."""
+on ``sys.path``). Sharding a draw and flying it at a noise level live in the package
+(:mod:`mjxsysid.experiments.log_grounded_coverage`), re-exported here."""
 from __future__ import annotations
 
 import json
 import sys
 import time
 from pathlib import Path
+
+from mjxsysid.experiments import log_grounded_coverage as _cov
+
+level_flights = _cov.level_flights
 
 
 def wall_times(fn, repeats: int) -> list[float]:
@@ -40,40 +45,16 @@ def config_overrides(pairs: list[str]) -> dict:
     return out
 
 
-def shard(theta, spec: str | None, seed: int):
-    """Every K-th vehicle from the I-th of ``theta`` (n, 19) for ``spec`` "I/K" (parallel runs of one draw,
-    joined afterwards; None: all) -> (θ of the shard, their indices in the draw, the flights' seed: another
-    noise draw per shard, ``seed + 1000 I``). A malformed spec exits with a message naming it."""
-    import numpy as np
-    index = np.arange(len(theta))
-    if spec is None:
-        return theta, index, seed
-    try:
-        i, k = (int(x) for x in spec.split("/"))
-        if not 0 <= i < k:
-            raise ValueError
-    except ValueError:
-        raise SystemExit(f"--shard {spec!r}: expected I/K with 0 <= I < K, e.g. 0/8") from None
-    index = index[i::k]
-    return theta[index], index, seed + 1000 * i
-
-
-def level_flights(theta, level: str, seed: int):
-    """Fly θ (n, 19) with the lag-aware oracle on a 10 s lemniscate at the IMU noise ``level`` of
-    :data:`mjxsysid.uses.imu_noise.LEVELS` -> (the flights' Frame (n, T, ...), the indices of those
-    that did not fail)."""
-    import numpy as np
-
-    from mjxsysid.rollout.flight import fly_vehicles
-    from mjxsysid.sim import Quadrotor, SimConfig
-    from mjxsysid.uses.imu_noise import LEVELS
-    fl, m, _ = fly_vehicles(theta, controller="oracle", reference="lemniscate", period=10.0,
-                            sim=Quadrotor(SimConfig(**LEVELS[level])), seed=seed)
-    return fl.frame, np.flatnonzero(~np.asarray(m["failed"], bool))
-
-
 def merge_paths(merge: list[str]):
     """``--merge OUT SHARD.json ...`` -> (OUT, [SHARD, ...]) as paths; fewer than two exit with the usage."""
     if len(merge) < 2:
         raise SystemExit("--merge OUT SHARD.json [SHARD.json ...]")
     return Path(merge[0]), [Path(p) for p in merge[1:]]
+
+
+def shard(theta, spec: str | None, seed: int):
+    """:func:`mjxsysid.experiments.log_grounded_coverage.shard`, a malformed ``--shard`` exiting with its message."""
+    try:
+        return _cov.shard(theta, spec, seed)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
