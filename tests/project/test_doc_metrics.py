@@ -1,12 +1,12 @@
-"""The pages a reader scans first stay scannable (tools/doc_metrics.py): README.md, docs/status.md and
-docs/identify.md keep a median sentence of at most 25 words, status bullets of at most 60 words,
+"""The pages a reader scans first stay scannable (tools/doc_metrics.py): README.md, docs/status.md,
+docs/identify.md and BENCHMARKS.md keep a median sentence of at most 25 words, status bullets of at most 60 words,
 the first table within 40 lines (status.md's bullets link to theirs) and no ``issue N``."""
 import importlib.util
 import sys
 
 from support.paths import ROOT
 
-PAGES = ("README.md", "docs/status.md", "docs/identify.md")
+PAGES = ("README.md", "docs/status.md", "docs/identify.md", "BENCHMARKS.md")
 
 
 def _tool():
@@ -26,6 +26,17 @@ def test_scanned_pages_meet_their_targets():
     status = tool.measure(ROOT / "docs" / "status.md")
     assert status.bullets and status.longest_bullet <= 60
     assert tool.main(["--check", "--root", str(ROOT)]) == 0
+
+
+def test_benchmarks_opens_with_its_summary_table():
+    """BENCHMARKS.md: at most 400 lines, a summary table (metric | value | target | met | command, at most
+    25 rows) before its first section."""
+    lines = (ROOT / "BENCHMARKS.md").read_text().splitlines()
+    assert len(lines) <= 400, len(lines)
+    first_section = next(i for i, ln in enumerate(lines) if ln.startswith("## "))
+    head = [ln for ln in lines[:first_section] if ln.startswith("|")]
+    assert head and head[0].replace(" ", "") == "|metric|value|target|met|command|", head[:1]
+    assert 1 <= len(head) - 2 <= 25
 
 
 def test_the_checker_catches_what_it_should(tmp_path):
