@@ -136,7 +136,7 @@ are left alone."""
 
 @struct.dataclass
 class KThetaLag:
-    """K_θ that also uses θ's motor lag (τ_m): the lag-aware oracle (issue 26).
+    """K_θ that also uses θ's motor lag (τ_m): the lag-aware oracle.
 
     K_θ asks for rotor speeds Ω_d (paper appendix) as if the motors followed at once; with a
     first-order lag τ_m ≫ 1/K_ω its rate loop goes unstable. This controller keeps the rotor

@@ -1,10 +1,10 @@
-"""Wall time against quality of policy-training configurations (issue 30): a table and a figure.
+"""Wall time against quality of policy-training configurations: a table and a figure.
 
     mjxsysid experiment speed-table --inputs docs/runs/measurements/speed-table --out docs/runs/measurements/speed-table
 
 Each run folder (as `tools/archive/gpu_speed.sh` leaves them) holds ``policy.npz`` (or its metadata alone as
 ``policy_meta.json``, as kept in docs/runs) (its metadata: the
-config, wall time and, since issue 30, the phase timings), ``train.txt`` (the command's wall time,
+config, wall time and, where recorded, the phase timings), ``train.txt`` (the command's wall time,
 ``command_wall_s``) and ``eval_fast/eval.json`` (``mjxsysid evaluate-policy --fast``). The
 reference evaluation (the shipped policy's, same command) is a row without a training.
 Runs whose names differ only in ``_seedN`` are seeds of one configuration: the summary table and

@@ -1,4 +1,4 @@
-"""Closed-loop fidelity of decoded models (issue 5, item 4).
+"""Closed-loop fidelity of decoded models: does a decoded model fly like the true vehicle?
 
 For a true vehicle θ*: fly a first, undisturbed identification flight (a 10 s-period lemniscate,
 held out from the test flight, as the robustness experiment identifies) and decode S models from

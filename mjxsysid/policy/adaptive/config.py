@@ -86,7 +86,7 @@ class TrainConfig:
     # environment per unroll (``unroll`` × fewer resets; the rollout's largest cost after the
     # simulator step, docs/runs/measurements/benchmarks/train_profile.json).
     reset_per_unroll: bool = False
-    # Options of issue 30 (off by default: the shipped policy's protocol). ``flat_optimizer``: Adam and
+    # Speed options of policy training (off by default: the shipped policy's protocol). ``flat_optimizer``: Adam and
     # the gradient clip on one concatenated parameter vector (optax.flatten; the same update up to float
     # reassociation; no measurable speed-up on an H200, docs/runs/measurements/benchmarks/train_profile_16k_4x8_flat_*.json).
     # ``lr_decay``: the learning rate falls linearly to ``lr_final`` × learning_rate over the run's
