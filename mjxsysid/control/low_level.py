@@ -1,7 +1,7 @@
 """Low-level controllers: (IMU, command) -> normalised motor speeds.
 
 The parametric controller K_θ (paper appendix) and the interface every low-level controller
-(K_θ now, neural policies later) implements, so that any low-level controller sits under any
+(K_θ here, the neural policies elsewhere) implements, so that any low-level controller sits under any
 high-level controller:
 
     carry = ctrl.init(key)                                   # per-episode memory

@@ -219,7 +219,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
         stage("video", f"[{n_st}/{n_st}] flying 4 decoded models and rendering them as ghosts (offscreen)")
         gth, _ = P.project_valid(dec["samples"][-1][:4])
         # flown in a batch of the first flights' size (the comparison vehicles fill it): the policy's
-        # flight program is then the one already compiled (a 4-vehicle batch was one more compile)
+        # flight program is then the one already compiled (a 4-vehicle batch would be one more compile)
         gfl, _, _ = fly_vehicles(np.concatenate([gth, theta[len(gth):]]) if len(theta) > len(gth) else gth,
                                  controller="policy", reference="lemniscate", period=10.0, policy=ref)
         ghosts = [(gth[i], np.asarray(gfl.frame.pos[i]), np.asarray(gfl.frame.quat[i])) for i in range(len(gth))]

@@ -235,9 +235,9 @@ class _Stages:
 
 
 def _check_config(out: Path, cfg_dict: dict, resume: bool):
-    """Refuse to resume a run of another config in ``out`` (LoopConfig keys added since the run
-    was written read as their defaults; the probe's seed, recorded as its default before
-    2026-11-26 although the probe always ran on the loop's seed, read as the loop's)."""
+    """Refuse to resume a run of another config in ``out`` (LoopConfig keys missing from its
+    loop_config.json read as their defaults; the saved probe's seed reads as the loop's seed,
+    the one the probe runs on, whatever the file records for it)."""
     path = out / "loop_config.json"
     if path.is_file() and resume:
         saved = json.loads(path.read_text())

@@ -45,7 +45,7 @@ def run_row(d: Path) -> dict:
             "env_steps": meta.get("env_steps"), "updates": cfg["iterations"] * cfg["epochs"] * cfg["minibatches"],
             "train_wall_s": meta.get("wall_s"), "command_wall_s": int(m.group(1)) / 1e3 if m else None,
             "timing": meta.get("timing"), "device": meta.get("device"),
-            # the card: recorded by train-policy since 2026-11-26, or in device.txt beside older runs
+            # the card: the policy's metadata (train-policy records it), else device.txt beside the run
             "device_kind": meta.get("device_kind") or ((d / "device.txt").read_text().strip()
                                                         if (d / "device.txt").is_file() else None),
             "success": sm["success_policy"], "rmse_ratio": sm["rmse_ratio"],
