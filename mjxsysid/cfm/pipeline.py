@@ -248,7 +248,7 @@ def prior_reference(t_norm, norm, prior: str, key, n_samples: int) -> dict:
 
 def evaluate_sequence(seq, pairs, *, cfm=None, n_cases: int = 1000, n_samples: int = 200, seed: int = 0,
                       at_s: float = 4.0, paper_traj=None, log=print) -> dict:
-    """Flight-level vs single-latent decoding on held-out flights (issue 11 targets).
+    """Flight-level vs single-latent decoding on held-out flights.
 
     For each held-out flight: the sequence decoder given all latents recorded up to ``at_s`` s
     (flight-level), given the one latent at ``at_s`` s (single latent, same model) and given the

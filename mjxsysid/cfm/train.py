@@ -379,8 +379,7 @@ def train_regression(theta_norm, z, cfg: CFMConfig = CFMConfig(), log: Callable 
     """Train the Regression baseline r(z) (MSE, same architecture and optimiser). Same I/O
     as :func:`train_cfm`. A point estimate over-fits where CFM does not (its validation loss
     is lowest well before the last epoch), so by default it stops early: the epoch with the
-    lowest loss on ``val`` is kept (``early_stopping=False``: the last epoch, as trained before
-    2026-11-25). Give ``val`` a validation split of the training data, not the held-out pairs it
+    lowest loss on ``val`` is kept (``early_stopping=False``: the last epoch). Give ``val`` a validation split of the training data, not the held-out pairs it
     is scored on."""
     _check_pairs(theta_norm, z, cfg, "train")
     if early_stopping and val is None:

@@ -1,4 +1,4 @@
-"""`mjxsysid probe`: where is the policy weak? (issue 18)
+"""`mjxsysid probe`: where is the policy weak?
 
 The parser (``add_probe``) stands beside its handler (``cmd_probe``); the handler imports what it
 runs when it runs: `mjxsysid --help` stays instant.

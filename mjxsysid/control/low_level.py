@@ -1,7 +1,7 @@
 """Low-level controllers: (IMU, command) -> normalised motor speeds.
 
 The parametric controller K_θ (paper appendix) and the interface every low-level controller
-(K_θ now, neural policies later) implements, so that any low-level controller sits under any
+(K_θ here, the neural policies elsewhere) implements, so that any low-level controller sits under any
 high-level controller:
 
     carry = ctrl.init(key)                                   # per-episode memory
@@ -136,7 +136,7 @@ are left alone."""
 
 @struct.dataclass
 class KThetaLag:
-    """K_θ that also uses θ's motor lag (τ_m): the lag-aware oracle (issue 26).
+    """K_θ that also uses θ's motor lag (τ_m): the lag-aware oracle.
 
     K_θ asks for rotor speeds Ω_d (paper appendix) as if the motors followed at once; with a
     first-order lag τ_m ≫ 1/K_ω its rate loop goes unstable. This controller keeps the rotor

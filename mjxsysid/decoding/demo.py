@@ -41,13 +41,13 @@ and last decode times included: 11 times of a 10 s flight, one batch)."""
 DEMO_DECODES = 11
 """The instant posterior's decode times in the demo (evenly spaced over the 10 Hz latents, the last
 included): about one a second. ``decode`` takes up to ``MAX_DECODES`` (30); the demo's figure
-needs fewer, and each time is 200 samples of a 2.5 M-parameter flow (BENCHMARKS.md, issue 41)."""
+needs fewer, and each time is 200 samples of a 2.5 M-parameter flow (BENCHMARKS.md)."""
 
 
 VIDEO_FPS = 15
 """Frames per second of the demo's video: 150 frames of the 10 s flight. Offscreen rendering on a
-CPU (Mesa) costs about 0.13 s a frame with the ghosts, trail and reference: at 25 fps the video was
-a third of the demo's warm time (BENCHMARKS.md, issue 41)."""
+CPU (Mesa) costs about 0.13 s a frame with the ghosts, trail and reference: at 25 fps the video would
+be a third of the demo's warm time (BENCHMARKS.md)."""
 
 
 def flight_level_info(dec: dict, seq, ref) -> dict:
@@ -219,7 +219,7 @@ def run_demo(out: Path, *, video: bool = True, n_vehicles: int = 16, seed: int =
         stage("video", f"[{n_st}/{n_st}] flying 4 decoded models and rendering them as ghosts (offscreen)")
         gth, _ = P.project_valid(dec["samples"][-1][:4])
         # flown in a batch of the first flights' size (the comparison vehicles fill it): the policy's
-        # flight program is then the one already compiled (a 4-vehicle batch was one more compile)
+        # flight program is then the one already compiled (a 4-vehicle batch would be one more compile)
         gfl, _, _ = fly_vehicles(np.concatenate([gth, theta[len(gth):]]) if len(theta) > len(gth) else gth,
                                  controller="policy", reference="lemniscate", period=10.0, policy=ref)
         ghosts = [(gth[i], np.asarray(gfl.frame.pos[i]), np.asarray(gfl.frame.quat[i])) for i in range(len(gth))]

@@ -59,8 +59,8 @@ def decode_latents(zhat_t, times, *, rate: float, samples: int, seed: int = 0, d
         starts, ends = window_bounds(times[lidx], wt, window)
         # Past the longest window the decoder was trained on (max_len latents) every latent still
         # enters the pooled features and the count feature saturates: calibrated on 60 s flights
-        # (docs/runs/measurements/long-flight-calibration/long_flight_calibration.json; a sliding window of trained length was the
-        # other candidate, measured too).
+        # (docs/runs/measurements/long-flight-calibration/long_flight_calibration.json; a sliding window of trained length is the
+        # other candidate, measured there too).
         out["beyond_trained_length"] = ends - starts + 1 > seq_decoder.max_len
         c = seq_decoder.encode_flight(np.asarray(zhat_t, np.float32)[lidx], ends,
                                       starts=None if window == "flight" else starts)

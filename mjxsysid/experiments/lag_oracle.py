@@ -1,4 +1,4 @@
-"""The lag-aware oracle (issue 26): K_θ (the paper's appendix controller, which ignores τ_m)
+"""The lag-aware oracle: K_θ (the paper's appendix controller, which ignores τ_m)
 against :class:`~mjxsysid.control.low_level.KThetaLag` (K_θ that pre-compensates θ's motor lag),
 both with each vehicle's true θ and the Baseline cascade, on the default, stress and stress_wide
 priors (and the slow-actuator prior), 10 s lemniscate, seeded draws; with the lag-aware oracle's

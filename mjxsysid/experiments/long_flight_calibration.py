@@ -1,5 +1,5 @@
-"""Calibration of flight-level decoding on flights longer than the decoder's training flights
-(issue 20 §4): is "a sliding window of trained length" calibrated on 60 s flights?
+"""Calibration of flight-level decoding on flights longer than the decoder's training flights:
+is "a sliding window of trained length" calibrated on 60 s flights?
 
     mjxsysid collect --seconds 60 --train 16 --test 1000 --out OUT/long     # latent trajectories, GPU
     mjxsysid experiment long-flight-calibration --inputs OUT/long --out docs/runs/measurements/long-flight-calibration

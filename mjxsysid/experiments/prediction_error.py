@@ -1,7 +1,7 @@
-"""How well the tuner's predictive rollouts reproduce the flight (issue 26): each vehicle flown by
+"""How well the tuner's predictive rollouts reproduce the flight: each vehicle flown by
 the shipped policy under the Baseline gains for 2 s of a random min-snap, then the next 0.5 s
 flown on and predicted with the true θ, the rotors started from each model's estimate (the
-tuner's default), from the steady state of the last command (the tuner before 2026-11-25) and
+tuner's default), from the steady state of the last command (the tuner's ``steady`` mode) and
 from the simulator's true rotor speeds (a diagnostic), on the default prior, the slow-actuator
 prior and the paper vehicle with the "hardware" IMU (noise, bias, one step of latency).
 

@@ -1,4 +1,4 @@
-"""`mjxsysid experiment probe-loop`: probe → retrain → evaluate → probe again (issue 18 §3).
+"""`mjxsysid experiment probe-loop`: probe → retrain → evaluate → probe again.
 
 1. Evaluate the given policy (default: the shipped one) against the oracle (K_θ with the true θ)
    on (a) the default prior, (b) the stress prior (``theta.STRESS_PRIOR``: thrust-to-weight
@@ -100,7 +100,7 @@ VARIANTS = ("accumulate", "widened")
 """``accumulate``: each round fine-tunes the current policy on a re-scored replay buffer;
 ``widened``: a second control, the default prior widened in every direction by as far as the
 probe reached (:func:`probe_reach`, :func:`mjxsysid.theta.widened_prior`), trained with the
-probed policy's whole budget (issue 28's fair control: it knows nothing of where the policy is weak)."""
+probed policy's whole budget (a fair control: it knows nothing of where the policy is weak)."""
 FULL = LoopConfig()
 QUICK = LoopConfig(vehicles=8, period=5.0, control_systems=64, probe=ProbeConfig.quick(),
                    train=(("iterations", 4), ("num_envs", 64), ("unroll", 16), ("epochs", 2), ("minibatches", 4),
@@ -235,9 +235,9 @@ class _Stages:
 
 
 def _check_config(out: Path, cfg_dict: dict, resume: bool):
-    """Refuse to resume a run of another config in ``out`` (LoopConfig keys added since the run
-    was written read as their defaults; the probe's seed, recorded as its default before
-    2026-11-26 although the probe always ran on the loop's seed, read as the loop's)."""
+    """Refuse to resume a run of another config in ``out`` (LoopConfig keys missing from its
+    loop_config.json read as their defaults; the saved probe's seed reads as the loop's seed,
+    the one the probe runs on, whatever the file records for it)."""
     path = out / "loop_config.json"
     if path.is_file() and resume:
         saved = json.loads(path.read_text())
@@ -472,6 +472,6 @@ def _notes(numbers, base, cfg) -> str:
            "round r: the decoded weak systems of rounds 1..r that the oracle flies; control: uniform stress-prior "
            "draws; every one trained from scratch")
     return (f"Every retrained policy: the shipped config, {base.iterations} iterations × {base.num_envs} envs, "
-            f"{cfg.focus_weight:.0%} of episodes on its systems ({how}). Targets (issue 18, for "
+            f"{cfg.focus_weight:.0%} of episodes on its systems ({how}). Targets (for "
             f"{numbers['final_policy']}): "
             + ", ".join(f"{k} {'met' if v else 'missed'}" for k, v in numbers["targets"].items()) + ".")

@@ -1,4 +1,4 @@
-"""Training-seed spread of the probe loop's comparison (issue 18): retrain a probe-loop run's
+"""Training-seed spread of the probe loop's comparison: retrain a probe-loop run's
 round-2 policy and its uniform-widening control with other seeds (same focus systems, config
 and budget) and evaluate them like the loop does.
 

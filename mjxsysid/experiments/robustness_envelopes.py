@@ -223,7 +223,7 @@ def table_md(cfg: RobustnessConfig, numbers: dict) -> str:
     tg = "\n".join(f"- {k}: **{'met' if v else 'missed'}**" for k, v in numbers["targets"].items())
     return (f"## Step disturbances ({cfg.n_decoded} decoded, {cfg.n_perturbed} ±{cfg.perturbation:.0%} models)\n\n"
             f"{t1}\n## Monte Carlo, Gaussian forces ({cfg.mc_rollouts} seeds × {cfg.mc_models} models)\n\n{t2}\n"
-            f"## Targets (issue 10: lateral inside ≥ 0.90, envelope narrower than ±20 %)\n\n{tg}\n")
+            f"## Targets (lateral inside ≥ 0.90, envelope narrower than ±20 %)\n\n{tg}\n")
 
 
 def _plots(out: Path, cfg, res, steps, mcs, label: str):

@@ -78,7 +78,7 @@ def prior_vehicle(seed: int = 1) -> np.ndarray:
 
 
 VEHICLES = {"worn_motor": lambda: worn_vehicle(1, 0.8), "prior_seed1": lambda: prior_vehicle(1)}
-"""The experiment's vehicles by name: the paper vehicle with motor 1 at η 0.8 (issue 29's), and a
+"""The experiment's vehicles by name: the paper vehicle with motor 1 at η 0.8, and a
 vehicle of the policy's prior."""
 
 
@@ -184,7 +184,7 @@ def fly(theta, seconds: float, noise: dict, white, bias, ctrl, vib_white=None) -
 
 FULL = {"levels": "clean,x1,x5_white,x5_vibration,x20", "vehicles": ",".join(VEHICLES), "seconds": 10.0,
         "samples": 100}
-"""The committed run's settings: the levels of the log-grounded posterior's calibration (issue 38), both
+"""The committed run's settings: the levels of the log-grounded posterior's calibration, both
 :data:`VEHICLES`, ``samples`` decoded (decode's default)."""
 QUICK = {**FULL, "seconds": 2.0, "samples": 20, "levels": "clean,x5_white", "vehicles": "worn_motor"}
 NAMES = list(P.PARAM_NAMES) + list(P.IDENTIFIABLE_NAMES)

@@ -1,10 +1,10 @@
-"""Wall time against quality of policy-training configurations (issue 30): a table and a figure.
+"""Wall time against quality of policy-training configurations: a table and a figure.
 
     mjxsysid experiment speed-table --inputs docs/runs/measurements/speed-table --out docs/runs/measurements/speed-table
 
 Each run folder (as `tools/archive/gpu_speed.sh` leaves them) holds ``policy.npz`` (or its metadata alone as
 ``policy_meta.json``, as kept in docs/runs) (its metadata: the
-config, wall time and, since issue 30, the phase timings), ``train.txt`` (the command's wall time,
+config, wall time and, where recorded, the phase timings), ``train.txt`` (the command's wall time,
 ``command_wall_s``) and ``eval_fast/eval.json`` (``mjxsysid evaluate-policy --fast``). The
 reference evaluation (the shipped policy's, same command) is a row without a training.
 Runs whose names differ only in ``_seedN`` are seeds of one configuration: the summary table and
@@ -45,7 +45,7 @@ def run_row(d: Path) -> dict:
             "env_steps": meta.get("env_steps"), "updates": cfg["iterations"] * cfg["epochs"] * cfg["minibatches"],
             "train_wall_s": meta.get("wall_s"), "command_wall_s": int(m.group(1)) / 1e3 if m else None,
             "timing": meta.get("timing"), "device": meta.get("device"),
-            # the card: recorded by train-policy since 2026-11-26, or in device.txt beside older runs
+            # the card: the policy's metadata (train-policy records it), else device.txt beside the run
             "device_kind": meta.get("device_kind") or ((d / "device.txt").read_text().strip()
                                                         if (d / "device.txt").is_file() else None),
             "success": sm["success_policy"], "rmse_ratio": sm["rmse_ratio"],

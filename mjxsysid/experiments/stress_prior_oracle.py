@@ -1,5 +1,5 @@
 """Where does the oracle (K_θ with the true θ) still fly? The ablation behind the stress prior
-(issue 18, docs/probing.md): the oracle on the first stress prior (``stress_wide``) with one of
+(docs/probing.md): the oracle on the first stress prior (``stress_wide``) with one of
 its edges at a time brought back, on the stress prior that replaced it, and with rate gains
 lowered for slow motors (K_ω = min(K_ω, c / τ_m)). 10 s lemniscate, seeded draws.
 

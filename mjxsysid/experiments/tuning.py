@@ -91,12 +91,11 @@ def _ratio(res, a, b, k="pos_rmse_m", common=None):
     return None if x is None or y is None else x / y
 
 
-VARIANTS = {"heading_cost": "the tuner's cost with a heading term (weight HEADING_COST = 0.1; the default "
-                            "before 2026-11-25), not the paper's cost",
-            "no_lead_in": "tune-lemniscate without the hover lead-in (the lemniscate from t = 0, as "
-                          "before 2026-11-24)",
+VARIANTS = {"heading_cost": "the tuner's cost with a heading term (weight HEADING_COST = 0.1), "
+                            "not the paper's cost",
+            "no_lead_in": "tune-lemniscate without the hover lead-in (the lemniscate from t = 0)",
             "steady_rotor_state": "each model's rollouts start the rotors at its steady state for the last motor "
-                                  "command (the tuner before 2026-11-25)",
+                                  "command",
             "true_rotor_state": "the rollouts start from the simulator's true rotor speeds (a diagnostic: "
                                 "hardware cannot see them)",
             "baseline_start": "the tuner starts from the Baseline gains instead of the Naive ones",

@@ -78,8 +78,9 @@ coefficient), so a flat prior would leave thrust-to-weight to the bias's range."
 
 def full_precision(f):
     """``f`` with every float32 matmul it traces at full precision, on every backend. A GPU's
-    default (TF32 on an H100) narrowed and shifted the posterior's bands: on 25 logs at × 1 noise
-    the roll authority's coverage was 1.00 on a CPU and 0.84 on an H100 (docs/identify.md). CPUs
+    default (TF32 on an H100) narrows and shifts the posterior's bands: on 25 logs at × 1 noise
+    the roll authority's coverage is 1.00 on a CPU and 0.84 on an H100 at the default precision
+    (docs/identify.md). CPUs
     compute full float32 anyway. The public entry points of this module carry it."""
     @functools.wraps(f)
     def run(*args, **kwargs):
@@ -193,10 +194,10 @@ def _fit_ls_batched(z0, data, ld, ls, max_steps=200):
 
 def _fit_ls_many(z0, data, ld, ls, max_steps=200):
     """:func:`_fit_ls` from each start (K, 13): on a CPU one after the other — the batched solver's
-    trace compiled in twice the time (about 4 s against 2 s on a core, a first decode's largest
-    program) and ran until its slowest start had converged; on an accelerator batched, where one
-    start at a time is bound by kernel launches (a calibration of 96 logs on an H100 took 561 s
-    against 388 s)."""
+    trace compiles in twice the time (about 4 s against 2 s on a core, a first decode's largest
+    program) and runs until its slowest start has converged; on an accelerator batched, where one
+    start at a time is bound by kernel launches (a calibration of 96 logs on an H100: 561 s one at
+    a time against 388 s batched)."""
     if jax.default_backend() != "cpu":
         return _fit_ls_batched(jnp.asarray(z0), data, ld, ls, max_steps=max_steps)
     return jnp.stack([_fit_ls(z, data, ld, ls, max_steps=max_steps) for z in np.asarray(z0, np.float32)])
@@ -346,9 +347,9 @@ def _smc(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, share, ta
 
 RW_TARGET_ACCEPTANCE = 0.25
 """The SMC's random-walk moves aim at this acceptance rate (about the optimum for a Gaussian
-target, 0.234). Scaled by the particles' covariance alone (2.38/√d · chol Σ), they were accepted
-0–0.6 % of the time once the likelihood entered (a 10 s log: 15 stages, from the sixth on): 24
-moves then left most particles where resampling had copied them, and the posterior was the
+target, 0.234). Scaled by the particles' covariance alone (2.38/√d · chol Σ), they are accepted
+0–0.6 % of the time once the likelihood enters (a 10 s log: 15 stages, from the sixth on): 24
+moves then leave most particles where resampling copied them, and the posterior is the
 spread of a few ancestors — the bands too narrow."""
 
 

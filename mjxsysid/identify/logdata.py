@@ -49,8 +49,8 @@ SKIP_S = (0.2, 1.0)
 """s: the start of the log not used — a tenth of it, within these bounds. The rotor speeds are
 reconstructed from the commands starting at the first command; a log that starts with rotors at
 another speed (a take-off, a simulator's hover start) is wrong there for about 5 τ_m, and those
-windows would dominate the residuals (seen: a 10 s MJX flight's rate residuals were 10× larger
-with 0.2 s skipped than with 1 s)."""
+windows would dominate the residuals (a 10 s MJX flight's rate residuals are 10× larger with
+0.2 s skipped than with 1 s)."""
 TAU_GRID = np.exp(np.linspace(np.log(0.0015), np.log(0.35), 64))
 """s: the motor time constants the window features are computed at (log-spaced)."""
 RATES = "windows"

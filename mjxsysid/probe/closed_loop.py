@@ -1,4 +1,4 @@
-"""The probe's score and the probe itself (issue 18 §1).
+"""The probe's score and the probe itself.
 
 Badness of a latent z: decode it into ``samples`` physical systems (the policy's CFM), fly each
 with the policy and with the oracle (K_θ with its own θ) on the probe's reference, and average

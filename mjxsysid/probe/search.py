@@ -1,4 +1,4 @@
-"""Gradient-free search of latent space for where a score is high (issue 18 §1).
+"""Gradient-free search of latent space for where a score is high.
 
 Candidates are perturbations and stretches of anchor latents (e.g. the latents of prior vehicles):
 

@@ -1,4 +1,4 @@
-"""The probe's picture: the weak systems against the training prior (issue 18)."""
+"""The probe's picture: the weak systems against the training prior."""
 from __future__ import annotations
 
 import numpy as np

@@ -261,7 +261,7 @@ class _Scene:
         vis.offwidth = max(int(vis.offwidth), int(width))
         vis.offheight = max(int(vis.offheight), int(height))
         # no multisampling and no floor reflection (a second pass of the whole scene): on a CPU's
-        # software OpenGL (Mesa) the two were ~40 % of each frame's time, for a look that is the
+        # software OpenGL (Mesa) the two cost ~40 % of each frame's time, for a look that is the
         # same at video size but for slightly harder line edges (shadows kept); BENCHMARKS.md
         self.model.vis.quality.offsamples = 0
         self.model.mat_reflectance[:] = 0.0

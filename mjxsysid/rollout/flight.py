@@ -49,9 +49,8 @@ def make_reference(name: str, *, period: float = 10.0, duration: float | None = 
 
 def make_low_level(name: str, theta, policy=None, dt: float = 0.002):
     """'oracle': the lag-aware K_θ (:class:`~mjxsysid.control.low_level.KThetaLag`) with each
-    vehicle's true θ, the yardstick wherever an oracle is one (since issue 26); 'k_theta': the
-    paper's K_θ with each vehicle's true θ (ignores τ_m; the action-replay probe, the oracle
-    before issue 26); 'nominal': K_θ with the paper vehicle's θ whatever is flown
+    vehicle's true θ, the yardstick wherever an oracle is one; 'k_theta': the
+    paper's K_θ with each vehicle's true θ (ignores τ_m; the action-replay probe); 'nominal': K_θ with the paper vehicle's θ whatever is flown
     (non-adaptive); 'policy': the frozen latent policy ``policy``, already resolved (anything
     with ``batched(B)``: a :class:`~mjxsysid.policy.interface.PolicyRef` from
     :func:`~mjxsysid.policy.interface.resolve_policy`, or a controller). θ (B, 19) -> batched

@@ -15,8 +15,8 @@ xdist workers), whose per-process pools of one thread per core only contend with
 
 
 REMOVED_IN_JAXLIB = {"--xla_cpu_use_fusion_emitters": (0, 11)}
-"""Flags XLA no longer knows from a jaxlib version on (XLA exits on an unknown flag: jaxlib 0.11.2
-stopped every CLI command on the GPU machine with "Unknown flag in XLA_FLAGS")."""
+"""Flags XLA no longer knows from a jaxlib version on (XLA exits on an unknown flag, "Unknown flag in
+XLA_FLAGS": with jaxlib 0.11.2 one of these in XLA_FLAGS stops every CLI command)."""
 
 
 def _jaxlib_version() -> tuple[int, ...]:

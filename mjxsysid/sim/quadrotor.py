@@ -246,9 +246,9 @@ def vibration_step(prev, noise, freq_hz, bandwidth_hz: float, dt: float):
 
 def _physics_only(mj: mujoco.MjModel, xml_path) -> mujoco.MjModel:
     """``mj`` without its geoms, cameras and lights: what MJX steps when nothing collides. The body's
-    inertia is explicit (``<inertial>``), so the dynamics are the same to the bit; MJX no longer
-    places nine geoms, three cameras and a light at every step (one step's program 14 % smaller,
-    compiled in 15 % less time: BENCHMARKS.md, "Thirteenth session"). :attr:`Quadrotor.mj_model` keeps them for rendering."""
+    inertia is explicit (``<inertial>``), so the dynamics are the same to the bit; MJX does not
+    place nine geoms, three cameras and a light at every step (one step's program is 14 % smaller
+    and compiles in 15 % less time than with them: BENCHMARKS.md, "CPU compile settings"). :attr:`Quadrotor.mj_model` keeps them for rendering."""
     spec = mujoco.MjSpec.from_file(str(xml_path))
     for kind in ("geoms", "cameras", "lights"):
         for element in list(getattr(spec, kind)):

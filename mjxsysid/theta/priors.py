@@ -55,7 +55,7 @@ class SizeFactorPrior:
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
         """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static. One
-        compiled program per prior and n (called eagerly, the sampler's fifty-odd operations were
+        compiled program per prior and n (called eagerly, the sampler's fifty-odd operations are
         each compiled on their own for every n)."""
         return _sampled(self, key, int(n))
 

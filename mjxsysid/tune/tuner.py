@@ -63,7 +63,7 @@ class CostWeights:
     hits the ground or strays ``fail_dist`` m from the reference (RMSEs count the steps before).
 
     ``heading`` is 0 by default: the paper's cost penalises position error, motor saturation and
-    failure only. :data:`HEADING_COST` (0.1, the default before 2026-11-25) is the variant with
+    failure only. :data:`HEADING_COST` (0.1) is the variant with
     a heading term."""
     heading: float = 0.0
     saturation: float = 0.5
@@ -100,7 +100,7 @@ class TunerConfig:
     rotor_state: where each model's rollouts start their rotors (:data:`ROTOR_STATES`):
     'estimate' (default) runs each model's own motor lag over the commands of the last
     ``rotor_window`` s (what hardware can do); 'steady' the model's steady state for the last
-    command (the tuner before 2026-11-25); 'true' the simulator's hidden rotor speeds (a
+    command (ignores the motor lag of the commands before it); 'true' the simulator's hidden rotor speeds (a
     diagnostic only: hardware cannot see them). rotor_window: s of command history (several
     τ_m of the slowest prior: 0.6 s forgets a wrong start of a 0.12 s motor to e^-5).
     apply: 'mean' (the final CEM mean, the paper's) or 'best' (the best candidate of the last

@@ -1,4 +1,4 @@
-"""Closed-loop fidelity of decoded models (issue 5, item 4).
+"""Closed-loop fidelity of decoded models: does a decoded model fly like the true vehicle?
 
 For a true vehicle θ*: fly a first, undisturbed identification flight (a 10 s-period lemniscate,
 held out from the test flight, as the robustness experiment identifies) and decode S models from
@@ -126,8 +126,8 @@ def closed_loop_fidelity(theta_true, *, n_models: int = 32, seed: int = 0, decod
 
     ``identification="held_out"`` (default) decodes the latents of a separate, undisturbed
     identification flight (10 s-period lemniscate, 1 × 1 × 0.3 m, as long as the test flight,
-    its own key); ``"same"`` decodes those of the test flight itself (what this figure measured
-    before 2026-11-25: not a held-out figure). ``window="flight"`` decodes every ẑ of the
+    its own key); ``"same"`` decodes those of the test flight itself (not a held-out figure: the models
+    are scored on the flight they were decoded from). ``window="flight"`` decodes every ẑ of the
     identification flight read at ``rate`` Hz with the sequence decoder (``cfm_seq.npz``, the
     flight-level posterior, default), ``"instant"`` the last ẑ with the single-latent CFM (``cfm.npz``).
     ``decoder`` overrides the shipped one of that kind (it must be one trained on ``policy``'s

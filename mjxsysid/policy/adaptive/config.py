@@ -72,7 +72,7 @@ class TrainConfig:
     # Reconstruction of the identifiable combinations (log T/W, log angular authorities, log τ_m
     # and, with ident_yaw_authority, the yaw authority k_τ Ω_max²/J_zz in place of κ, which flight
     # does not reveal): what makes the latent carry T/W (probe R² 0.44 -> 0.92, docs/runs/archive/latent_trials/latent_trials.md).
-    # The policy shipped before 2026-11-24 had 0.0 / False (the latent trials' control).
+    # 0.0 / False: the latent trials' control.
     rec_ident_coef: float = 1.0
     ident_yaw_authority: bool = True
     bc_coef: float = 2.0
@@ -86,7 +86,7 @@ class TrainConfig:
     # environment per unroll (``unroll`` × fewer resets; the rollout's largest cost after the
     # simulator step, docs/runs/measurements/benchmarks/train_profile.json).
     reset_per_unroll: bool = False
-    # Options of issue 30 (off by default: the shipped policy's protocol). ``flat_optimizer``: Adam and
+    # Speed options of policy training (off by default: the shipped policy's protocol). ``flat_optimizer``: Adam and
     # the gradient clip on one concatenated parameter vector (optax.flatten; the same update up to float
     # reassociation; no measurable speed-up on an H200, docs/runs/measurements/benchmarks/train_profile_16k_4x8_flat_*.json).
     # ``lr_decay``: the learning rate falls linearly to ``lr_final`` × learning_rate over the run's

@@ -1,4 +1,4 @@
-"""Evaluation of an adaptive policy (issue 4, item 5).
+"""Evaluation of an adaptive policy.
 
 1. Command tracking: rate and collective-thrust error on the training environment's commands
    (cascade on random lemniscates + random excitation, noisy IMU, random forces), policy with
@@ -10,7 +10,7 @@
    entry and to the identifiable combinations (held-out 30 %).
 4. The same closed loop on the slow-actuator prior (τ_m ∈ [0.05, 0.10] s): reported, no target.
 
-:func:`fast_eval` is the quick version for training trials (issue 11): latent health on the
+:func:`fast_eval` is the quick version for training trials: latent health on the
 training commands and after a few seconds of collect-style closed-loop flight, and the
 lemniscate success / RMSE against the oracle on a few hundred vehicles, summarised in
 :func:`trial_summary` (probe R² of thrust-to-weight, κ, angular authority, τ_m; ‖z^θ − ẑ‖/spread).
@@ -144,7 +144,8 @@ def closed_loop(controller: PolicyController, theta, *, period=10.0, seed=0, sim
 
 
 def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 1000, sim=None, log=print) -> dict:
-    """All figures of issue 4 item 5 for the policy at ``path`` (default: the shipped one).
+    """The four evaluations of this module (command tracking, closed loop, latent health, slow
+    actuators) for the policy at ``path`` (default: the shipped one).
     ``sim``: a Quadrotor to share compiled flights with earlier calls (default: a fresh one)."""
     ctrl = PolicyController.load(path)
     env = TrainEnv(EnvConfig(episode_steps=steps + 1))

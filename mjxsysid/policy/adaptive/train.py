@@ -90,7 +90,7 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     ts = trainer.place(ts)
     steps_per_it = cfg.num_envs * cfg.unroll
     t_start = time.time()
-    # Where this call's wall time goes (BENCHMARKS.md, issue 30): building the trainer, initialising and
+    # Where this call's wall time goes (BENCHMARKS.md): building the trainer, initialising and
     # resetting (compiles), the first iteration (its compile), the loop, checkpoints, the export.
     timing = {"setup_s": t_start - t_enter, "first_iteration_s": 0.0, "checkpoint_s": 0.0}
     if t_built is not None:
