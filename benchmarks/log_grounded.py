@@ -54,6 +54,8 @@ def main():
     ap.add_argument("--drag", type=float, default=None, metavar="KG_PER_S",
                     help="a diagnostic: fly every vehicle with this body drag on each axis (the likelihood has no drag "
                          "term; e.g. 1e-6 to take it out of the flights)")
+    ap.add_argument("--no-velocity", action="store_true",
+                    help="logs without the body velocity (the likelihood's drag term then vanishes)")
     ap.add_argument("--rates", default=RATES, choices=("innovations", "windows"),
                     help="the posterior's rate term (default: the library's)")
     a = ap.parse_args()
@@ -87,10 +89,10 @@ def _main(a):
     th, index, flight_seed = shard(th, a.shard, a.seed)   # the flights' noise: another draw per shard
     res = {"command": "python benchmarks/log_grounded.py " + " ".join(f"--{k} {v}" for k, v in vars(a).items()
                                                                         if v is not None),
-           "prior": a.prior, "rates": a.rates, "drag": a.drag, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard,
+           "prior": a.prior, "rates": a.rates, "velocity": not a.no_velocity, "drag": a.drag, "vehicles": a.vehicles, "seed": a.seed, "shard": a.shard,
            "levels": []}
     for lv in a.levels.split(","):
-        r = run_level(th, lv, flight_seed, index, a.rates)
+        r = run_level(th, lv, flight_seed, index, a.rates, velocity=not a.no_velocity)
         res["levels"].append(r)
         print(json.dumps({k: v for k, v in r.items() if k != "rows"}), flush=True)
         if a.out:

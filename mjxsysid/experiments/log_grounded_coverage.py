@@ -50,15 +50,17 @@ def level_flights(theta, level: str, seed: int):
     return fl.frame, np.flatnonzero(~np.asarray(m["failed"], bool))
 
 
-def run_level(th, level: str, seed: int, index=None, rates: str = RATES) -> dict:
+def run_level(th, level: str, seed: int, index=None, rates: str = RATES, velocity: bool = True) -> dict:
     """Fly ``th`` (n, 19) at noise ``level`` and identify each flight; ``index`` (n,): the
     vehicles' indices in the whole draw (default 0..n-1; the posterior's seed is the index); ``rates``:
-    the posterior's rate term."""
+    the posterior's rate term; ``velocity``: whether the logs carry the body velocity (the drag's term)."""
     index = np.arange(len(th)) if index is None else np.asarray(index)
     frame, flown = level_flights(th, level, seed)
     rows = []
     for i in flown:
         rec = flight_log(frame, i)
+        if not velocity:
+            rec.pop("velocity_body")
         t0 = time.perf_counter()
         post = log_grounded_posterior(rec, None, seed=int(index[i]), rates=rates)
         sec = time.perf_counter() - t0

@@ -12,7 +12,10 @@ log is cut into non-overlapping windows of 2 × :data:`~.logdata.WINDOW_STEPS` c
   hardware-like white noise τ_m came out 25 % low and the yaw authority 4× high); averaged over W
   samples its share shrinks W-fold;
 - the mean measured specific force along body z over blocks of :data:`~.logdata.ACC_BLOCK_STEPS` is
-  compared with the thrust the commands imply, plus an accelerometer bias.
+  compared with the thrust the commands imply, plus an accelerometer bias, minus the body drag
+  D_z · v_z where the log carries its velocity (D_z = d_z / m, profiled: the least-squares value
+  in [0, :data:`DRAG_MAX`] for each candidate, :func:`drag_per_mass`). Without velocity the drag's
+  share of the specific force is left to the discrepancy δ and to the calibration.
 
 The rotor speeds are the commands through the simulator's first-order lag, integrated exactly
 (:func:`~mjxsysid.sim.quadrotor.mean_square_speed`: the exact mean of s² over each step for the
@@ -63,6 +66,9 @@ RESOLUTION = np.array([1e-4, 1e-4, 1e-4, 1e-3], np.float32)
 """rad/s, m/s²: the finest residual scale per channel — a logged number's resolution (a 16-bit
 gyro at ±2000 °/s has 1e-3 rad/s steps; a CSV with 7 digits ~1e-5 relative): without a floor a
 noise-free simulated log would make every model error infinitely significant."""
+DRAG_MAX = 3.0
+"""1/s: the largest body drag per mass D_z = d_z / m the accelerometer term profiles (a racing
+quadrotor's is about 0.3; the simulator's priors stay below 1)."""
 N_NUIS = 9
 """Nuisance parameters after v: log σ (4: gyro x, y, z, acc z), log δ (4, same channels), acc_z bias."""
 NUIS_NAMES = tuple(f"log_noise[{c}]" for c in CHANNELS) + tuple(f"log_discrepancy[{c}]" for c in CHANNELS) + (
@@ -167,11 +173,21 @@ def residuals(x, data: LogData):
     v, ls, ld, bias = x[:N_V], x[N_V:N_V + 4], x[N_V + 4:N_V + 8], x[N_V + 8]
     dgyro, acc = predict(v, data)
     var = data.kvar * jnp.exp(2 * ls) + jnp.exp(2 * ld) + jnp.asarray(RESOLUTION) ** 2
-    ra, sa = (data.acc - acc - bias) * data.bmask, jnp.sqrt(var[3])
+    r0 = (data.acc - acc - bias) * data.bmask
+    ra, sa = (r0 + drag_per_mass(r0, data) * data.vz) * data.bmask, jnp.sqrt(var[3])
     if data.rates == "innovations":
         z, s = innovations(x, data)
         return z, jnp.broadcast_to(jnp.sqrt(s), z.shape), ra, sa
     return ((data.dgyro - dgyro) * data.wmask[:, None], jnp.sqrt(var[:3] + data.gfloor ** 2), ra, sa)
+
+
+def drag_per_mass(r0, data: LogData):
+    """The body-z drag per mass D_z (1/s, in [0, :data:`DRAG_MAX`]) that best explains the blocks'
+    acc_z residual r0 (Wa,) through their body-z velocity (the model reads −D_z v_z): least squares;
+    0 where the log carries no velocity."""
+    vz = data.vz * data.bmask
+    d = -jnp.sum(r0 * vz) / jnp.maximum(jnp.sum(vz * vz), 1e-9)
+    return jnp.clip(d, 0.0, DRAG_MAX)
 
 
 residuals_jit = jax.jit(residuals)
@@ -282,11 +298,12 @@ def linear_start(data: LogData) -> np.ndarray:
     windows' rate changes are linear in (authority × ρ_i per rotor, c, the gyroscopic coefficient),
     so least squares per axis; the τ_m with the smallest total relative residual wins, ρ and the
     authorities come from its per-rotor coefficients, thrust-to-weight from the accelerometer
-    blocks (no bias), the noise from the second differences and δ from the residuals."""
+    blocks (no bias; with the drag's term where the log carries velocity), the noise from the second differences and δ from the residuals."""
     wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
     fg, fa = np.asarray(data.fg, np.float64)[:, wv], np.asarray(data.fa, np.float64)[:, bv]
     dg, gyq = np.asarray(data.dgyro, np.float64)[wv], np.asarray(data.gyq, np.float64)[wv]
     acc = np.asarray(data.acc, np.float64)[bv]
+    vz = np.asarray(data.vz, np.float64)[bv]
     span = float(data.span)
     if data.rates == "innovations":
         g, kk, c_rate, res = _innovation_start(data)
@@ -312,8 +329,10 @@ def linear_start(data: LogData) -> np.ndarray:
     rho = rho * 4.0 / rho.sum()
     auth = np.clip(np.abs(means[:, 0]), 11.0, 9000.0)
     f = fa[g] @ rho
-    twr = float(np.clip(4.0 / P.GRAVITY * (acc @ f) / max(float(f @ f), 1e-12), 1.1, 14.0))
-    ra = acc - P.GRAVITY / 4 * twr * f
+    X = np.stack([P.GRAVITY / 4 * f, -vz], 1) if np.any(vz) else (P.GRAVITY / 4 * f)[:, None]
+    k, *_ = np.linalg.lstsq(X, acc, rcond=None)        # thrust-to-weight (and D_z where velocity is logged)
+    twr = float(np.clip(k[0], 1.1, 14.0))
+    ra = acc - P.GRAVITY / 4 * twr * f + (float(np.clip(k[1], 0.0, DRAG_MAX)) * vz if len(k) > 1 else 0.0)
     az = 1.15 / (1 / auth[0] + 1 / auth[1])            # J_z a little below J_x + J_y (a flat vehicle)
     v = np.concatenate([[np.log(twr)], rho[:3], [float(np.asarray(data.log_tau)[g])],
                         np.log([auth[0], auth[1], max(az, 11.0)]), [np.log(auth[2])],

@@ -90,6 +90,8 @@ class LogData:
     (:func:`_innovation_factors`): kf_r (G, H, 3, 7, 7) per τ_m, per Kalman gain of
     :data:`KF_LOGIT_GRID` (kf_logit (H,)) and per axis, the upper Cholesky factor of the gain-filtered
     regressors' Gram matrix with the start offset profiled out; kf_n () the innovations counted.
+    vz (Wa,) m/s the mean velocity along body z over each accelerometer block, for the body drag's
+    term (0 where the log carries no velocity: the term then vanishes).
     ``rates`` (static): which rate term :func:`log_likelihood` reads, "innovations" or "windows"."""
     log_tau: jax.Array
     fg: jax.Array
@@ -108,6 +110,7 @@ class LogData:
     kf_r: jax.Array
     kf_logit: jax.Array
     kf_n: jax.Array
+    vz: jax.Array
     rates: str = dataclasses.field(default=RATES, metadata={"static": True})
 
 
@@ -266,6 +269,7 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     prod = np.stack([g[:, 1] * g[:, 2], g[:, 2] * g[:, 0], g[:, 0] * g[:, 1]], -1)
     gyq = np.einsum("nsa,s->na", prod[steps], tri) * DT
     acc = imu[bsteps + 1, 5].mean(1)
+    vz = block_velocity_z(rec, bsteps + 1)
     n2, s2, ratio = noise_statistics(rec)
     kvar = np.array([2.0 * ratio / W] * 3 + [ratio / B])
     f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
@@ -276,11 +280,26 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
                    f32(_pad(gyq, nw)), f32(_pad(acc, nb)), f32(W * DT), f32(kvar), f32(n2), f32(s2), f32(use),
                    f32(_pad(np.ones(len(k0)), nw)), f32(_pad(np.ones(len(acc)), nb)),
                    f32(_pad(REL_DISCREPANCY * np.abs(dgyro), nw)), f32(kf),
-                   f32(KF_LOGIT_GRID if rates == "innovations" else KF_LOGIT_GRID[:1]), f32(n_kf), rates)
+                   f32(KF_LOGIT_GRID if rates == "innovations" else KF_LOGIT_GRID[:1]), f32(n_kf), f32(_pad(vz, nb)),
+                   rates)
     # the log's rows, for host-side diagnostics of the innovations (residual_weights): not a
     # pytree field, so never passed into a compiled program
     object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf})
     return data
+
+
+def has_velocity(rec: dict) -> bool:
+    """Whether a log carries a usable body-frame velocity (``velocity_body`` (T, 3), finite)."""
+    vb = rec.get("velocity_body")
+    return vb is not None and np.shape(vb) == (len(rec["motor"]), 3) and bool(np.all(np.isfinite(vb)))
+
+
+def block_velocity_z(rec: dict, rows) -> np.ndarray:
+    """The mean body-z velocity (m/s) over each block of ``rows`` (nb, B) -> (nb,); zeros where the log
+    carries no velocity (:func:`has_velocity`)."""
+    if not has_velocity(rec):
+        return np.zeros(len(rows))
+    return np.asarray(rec["velocity_body"], np.float64)[rows, 2].mean(1)
 
 
 def bucket(n: int) -> int:

@@ -17,6 +17,7 @@ from mjxsysid.control.low_level import KTheta, KThetaLag
 from mjxsysid.control.references import Hover, Lemniscate, MinSnap, stack
 from mjxsysid.rollout.harness import Disturbance, Flight, batch_metrics, fly_batch, metrics_to_host, summarize
 from mjxsysid.sim import Quadrotor, SimConfig
+from mjxsysid.sim.quadrotor import quat_to_mat
 
 CONTROLLERS = ("oracle", "k_theta", "nominal", "policy")
 REFERENCES = ("hover", "lemniscate", "minsnap")
@@ -143,12 +144,15 @@ def seen_imu(imu) -> np.ndarray:
 def flight_log(frame, index: int | None = None) -> dict:
     """A flight's IMU and motor log as :func:`mjxsysid.logs.csvlog.read_log` gives a log's (what the
     log-grounded posterior reads), from its ``frame`` (a Flight's, or any Frame): 'imu' (T, 6) the
-    readings the controller acted on (:func:`seen_imu`), 'motor' (T, 4) the motor commands; of
+    readings the controller acted on (:func:`seen_imu`), 'motor' (T, 4) the motor commands,
+    'velocity_body' (T, 3) m/s the true velocity in the body frame (what a state estimate gives); of
     vehicle ``index`` of a batched flight."""
-    imu, motor = frame.imu, frame.motor_cmd
+    imu, motor, quat, vel = frame.imu, frame.motor_cmd, frame.quat, frame.vel
     if index is not None:
-        imu, motor = imu[index], motor[index]
-    return {"imu": seen_imu(imu), "motor": np.asarray(motor)}
+        imu, motor, quat, vel = imu[index], motor[index], quat[index], vel[index]
+    R = np.asarray(quat_to_mat(np.asarray(quat, np.float32)), np.float64)
+    return {"imu": seen_imu(imu), "motor": np.asarray(motor),
+            "velocity_body": np.einsum("tji,tj->ti", R, np.asarray(vel, np.float64))}
 
 
 def one_flight(flight: Flight, index: int = 0) -> Flight:
