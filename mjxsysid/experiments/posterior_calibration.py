@@ -158,14 +158,15 @@ def fit_file(paths, out: Path, note: str = "") -> dict:
 def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """A row's 90 % band (2, 12) after the ``table`` (None: raw) and a (12,) mask of the coordinates
     the model check and the rate logging let through."""
-    from mjxsysid.identify.calibrate import coord_ok, group_of, model_check, side_factors
+    from mjxsysid.identify.calibrate import coord_entry, coord_ok, group_of, model_check, side_factors
     q = np.asarray(row["bands"], np.float64)
     if table is None:
         return q[[0, 2]], np.ones(len(V_NAMES), bool)
     check = model_check(row["features"], row["weights"], table)
     ok = np.array([coord_ok(check, j) for j in range(len(V_NAMES))])
     lo, hi = q[0].copy(), q[2].copy()
-    for j, c in enumerate(table["coords"]):
+    for j in range(len(V_NAMES)):
+        c = coord_entry(table, j, row["features"])
         b = group_of(c, row["features"][c["feature"]], q[2, j] - q[0, j])
         k_lo, k_hi = side_factors(q[:, j], c, b)
         lo[j] = q[1, j] - k_lo * (q[1, j] - q[0, j])
@@ -174,11 +175,14 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
 
 
 def evaluate(rows: list[dict], table: dict | None, by: str = "level") -> dict:
-    """Coverage, widths and clustering per ``by`` ('level' or 'flight') of ``rows`` under ``table``
-    (None: the raw posterior)."""
+    """Coverage, widths and clustering per ``by`` ('level', 'flight' or 'velocity': whether the logs carried
+    it) of ``rows`` under ``table`` (None: the raw posterior)."""
     out = {}
     order = ("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20") + REFERENCES_ALL
-    key = lambda r: r.get(by, "lemniscate:10")        # noqa: E731  (rows of one flight name none)
+    if by == "velocity":
+        key = lambda r: "velocity" if r["features"].get("velocity_used") else "no velocity"  # noqa: E731
+    else:
+        key = lambda r: r.get(by, "lemniscate:10")    # noqa: E731  (rows of one flight name none)
     for lv in sorted({key(r) for r in rows}, key=lambda x: (order.index(x) if x in order else len(order), x)):
         rs = [r for r in rows if key(r) == lv]
         band, ok = zip(*(calibrated_bands(r, table) for r in rs))
@@ -276,9 +280,12 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     raw, cal = evaluate(rows, None), evaluate(rows, table)
     flights = evaluate(rows, table, by="flight")
-    res = {"rows": len(rows), "table": str(table_path), "raw": raw, "calibrated": cal, "calibrated_by_flight": flights}
+    vel = evaluate(rows, table, by="velocity")
+    res = {"rows": len(rows), "table": str(table_path), "raw": raw, "calibrated": cal, "calibrated_by_flight": flights,
+           "calibrated_by_velocity": vel}
     (out / "evaluation.json").write_text(json.dumps(res, indent=1) + "\n")
     md = (["## Calibrated", ""] + table_markdown(cal) + ["", "## Calibrated, by flight", ""] + table_markdown(flights)
+          + ["", "## Calibrated, by whether the log carried velocity", ""] + table_markdown(vel)
           + ["", "## Raw", ""] + table_markdown(raw))
     (out / "evaluation.md").write_text("\n".join(md) + "\n")
     coverage_width_figure(raw, cal, out / "coverage_width.png")

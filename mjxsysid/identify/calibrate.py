@@ -54,6 +54,10 @@ COORD_FEATURE = np.array([1, 0, 0, 0, 0, 2, 3, 4, 4, 2, 3, 4])
 accelerometer's (it does not depend on the rate windows, which a slowly logged motor leaves out), ρ and
 τ_m by the rate channels' mean, each authority and τ_ext/J by its own axis (the yaw authority by z)."""
 
+VELOCITY_COORDS = (0,)
+"""The coordinates a log's velocity changes (thrust-to-weight: the drag's term in the accelerometer's):
+calibrated apart on logs that carry velocity (``velocity_coords`` of the table)."""
+
 RATE_COORDS = np.array([False, True, True, True, True, True, True, True, True, True, True, True])
 """The coordinates the rate windows inform (not seen when the motors were logged too slowly)."""
 
@@ -71,7 +75,8 @@ def log_features(data, mode) -> dict:
     """What a log shows, from its reduction ``data`` (:class:`~.logdata.LogData`) and the posterior's
     ``mode`` (21,: v (12), log σ (4), log δ (4), bias) -> {rates_nsr (the mean of the axes'), acc_nsr,
     rates_nsr_x/y/z: log10 of the channels' residual scale √(k σ² + δ²) over their signal (the rate
-    windows' RMS measured rate change; the accelerometer blocks' mean), rates_used (bool), windows (int)}."""
+    windows' RMS measured rate change; the accelerometer blocks' mean), rates_used (bool), windows (int),
+    velocity_used (bool: the log's velocity entered the drag's term)}."""
     mode = np.asarray(mode, np.float64)
     sig, dl = np.exp(mode[N_V:N_V + 4]), np.exp(mode[N_V + 4:N_V + 8])
     scale = np.sqrt(np.asarray(data.kvar, np.float64) * sig ** 2 + dl ** 2)
@@ -83,7 +88,15 @@ def log_features(data, mode) -> dict:
     axes = np.log10(scale[:3] / gsig)
     return {"rates_nsr": float(np.mean(axes)), "acc_nsr": float(np.log10(scale[3] / asig)),
             "rates_nsr_x": float(axes[0]), "rates_nsr_y": float(axes[1]), "rates_nsr_z": float(axes[2]),
-            "rates_used": bool(np.asarray(data.use)[0] > 0), "windows": int(wm.sum())}
+            "rates_used": bool(np.asarray(data.use)[0] > 0), "windows": int(wm.sum()),
+            "velocity_used": bool(np.any(np.asarray(data.vz)[bm] != 0))}
+
+
+def coord_entry(table: dict, j: int, features: dict) -> dict:
+    """Coordinate j's table entry for a log with ``features``: the velocity stratum's for a log that
+    carries velocity (where the table has one), else the coordinate's."""
+    vel = table.get("velocity_coords", {})
+    return vel[str(j)] if features.get("velocity_used") and str(j) in vel else table["coords"][j]
 
 
 def raw_bands(v) -> np.ndarray:
@@ -127,35 +140,45 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
     bands = np.array([r["bands"] for r in rows], np.float64)
     feats = np.array([[r["features"][f] for f in FEATURE_NAMES] for r in rows], np.float64)
     used = np.array([r["features"]["rates_used"] for r in rows], bool)
+    vel = np.array([bool(r["features"].get("velocity_used", False)) for r in rows], bool)
     weights = np.array([r.get("weights", [1.0] * 4) for r in rows], np.float64)
-    below = bands[:, 1] - bands[:, 0]
-    above = bands[:, 2] - bands[:, 1]
-    side_level = 1 - (1 - level) / 2
-    table = []
+    strata = vel.sum() >= min_group * bins           # enough logs with velocity for a stratum of their own
+    table, vel_table = [], {}
     for j in range(N_V):
         keep = used if RATE_COORDS[j] else np.ones(len(rows), bool)
-        x = feats[keep, COORD_FEATURE[j]]
-        if keep.sum() < min_group * bins:
-            raise ValueError(f"posterior calibration: {int(keep.sum())} logs for {V_NAMES[j]}; need "
-                             f"{min_group * bins} ({bins} bins of {min_group})")
-        edges = np.quantile(x, np.linspace(0, 1, bins + 1)[1:-1])
-        k = np.searchsorted(edges, x)
-        width = bands[keep, 2, j] - bands[keep, 0, j]
-        split = [float(np.median(width[k == i])) if (k == i).any() else 0.0 for i in range(bins)]
-        entry = {"edges": edges.tolist(), "width_split": split}
-        grp = np.array([group_of(entry, xi, wi) for xi, wi in zip(x, width)])
-        d = truth[keep, j] - bands[keep, 1, j]          # > 0: the truth above the median
-        groups = [grp == i if (grp == i).sum() >= min_group else k == i // 2 for i in range(2 * bins)]
-        lo = [fit_scale_floor(np.maximum(-d[g], 0), below[keep, j][g], side_level) for g in groups]
-        hi = [fit_scale_floor(np.maximum(d[g], 0), above[keep, j][g], side_level) for g in groups]
-        table.append({"name": V_NAMES[j], "feature": FEATURE_NAMES[COORD_FEATURE[j]], **entry,
-                      "scale_below": [a for a, _ in lo], "floor_below": [b for _, b in lo],
-                      "scale_above": [a for a, _ in hi], "floor_above": [b for _, b in hi],
-                      "logs": [int((grp == i).sum()) for i in range(2 * bins)]})
+        if strata and j in VELOCITY_COORDS:
+            vel_table[str(j)] = _fit_coord(j, truth[keep & vel], bands[keep & vel], feats[keep & vel], level, bins,
+                                           min_group)
+            keep = keep & ~vel
+        table.append(_fit_coord(j, truth[keep], bands[keep], feats[keep], level, bins, min_group))
     rng = {f: [float(np.min(feats[:, i])), float(np.max(feats[:, i]))] for i, f in enumerate(FEATURE_NAMES)}
-    return {"level": level, "coords": table, "feature_range": rng,
+    return {"level": level, "coords": table, "velocity_coords": vel_table, "feature_range": rng,
             "min_weight": [float(np.quantile(weights[used][:, :3], 0.005))] * 3
                           + [float(np.quantile(weights[:, 3], 0.005))], "logs": len(rows)}
+
+
+def _fit_coord(j: int, truth, bands, feats, level: float, bins: int, min_group: int) -> dict:
+    """Coordinate j's table entry from its logs' truths (n, 12), raw bands (n, 3, 12) and features (n, F)."""
+    if len(truth) < min_group * bins:
+        raise ValueError(f"posterior calibration: {len(truth)} logs for {V_NAMES[j]}; need "
+                         f"{min_group * bins} ({bins} bins of {min_group})")
+    side_level = 1 - (1 - level) / 2
+    x = feats[:, COORD_FEATURE[j]]
+    edges = np.quantile(x, np.linspace(0, 1, bins + 1)[1:-1])
+    k = np.searchsorted(edges, x)
+    width = bands[:, 2, j] - bands[:, 0, j]
+    split = [float(np.median(width[k == i])) if (k == i).any() else 0.0 for i in range(bins)]
+    entry = {"edges": edges.tolist(), "width_split": split}
+    grp = np.array([group_of(entry, xi, wi) for xi, wi in zip(x, width)])
+    d = truth[:, j] - bands[:, 1, j]          # > 0: the truth above the median
+    below, above = bands[:, 1, j] - bands[:, 0, j], bands[:, 2, j] - bands[:, 1, j]
+    groups = [grp == i if (grp == i).sum() >= min_group else k == i // 2 for i in range(2 * bins)]
+    lo = [fit_scale_floor(np.maximum(-d[g], 0), below[g], side_level) for g in groups]
+    hi = [fit_scale_floor(np.maximum(d[g], 0), above[g], side_level) for g in groups]
+    return {"name": V_NAMES[j], "feature": FEATURE_NAMES[COORD_FEATURE[j]], **entry,
+            "scale_below": [a for a, _ in lo], "floor_below": [b for _, b in lo],
+            "scale_above": [a for a, _ in hi], "floor_above": [b for _, b in hi],
+            "logs": [int((grp == i).sum()) for i in range(2 * bins)]}
 
 
 def load(path=None) -> dict:
@@ -247,7 +270,8 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
     factor, bins, seen, why = np.ones(N_V), np.zeros(N_V, int), np.zeros(N_V, bool), [""] * N_V
     gen = np.random.default_rng(rng)
     prior_v = prior.sample_v(gen, len(v)).astype(np.float64)
-    for j, c in enumerate(table["coords"]):
+    for j in range(N_V):
+        c = coord_entry(table, j, features)
         if not coord_ok(check, j):
             out[:, j] = prior_v[:, j]
             factor[j] = np.nan
