@@ -4,7 +4,7 @@ PX4's estimator publishes the velocity in the local NED frame (``vehicle_local_p
 with ``v_xy_valid`` / ``v_z_valid``) and the attitude as the rotation from the FRD body to NED
 (``vehicle_attitude`` q, w x y z). The velocity is rotated into FRD by the attitude interpolated to
 its times, then brought to FLU as the IMU is (y and z negated). A velocity flagged invalid, not finite,
-or not covering the segment is not used: the record says so instead (``missing`` and a sentence).
+or not covering the segment (within one of its steps at either end) is not used: the record says so instead (``missing`` and a sentence).
 """
 from __future__ import annotations
 
@@ -56,7 +56,8 @@ def ulog_velocity_body(lp, att, start_us, t0: float, t1: float):
     good_q = np.isfinite(q).all(1) & (np.linalg.norm(q, axis=1) > 0.5)
     t_a, q = t_a[good_q], q[good_q]
     tn = cut(t_v, v_ned, t0, t1)[0]
-    if len(tn) < 2 or tn[0] > t0 + 1e-6 or tn[-1] < t1 - 1e-6:
+    step = 1.5 * float(np.median(np.diff(t_v))) if len(t_v) > 1 else 0.0    # the ends: held under one step
+    if len(tn) < 2 or tn[0] > t0 + step or tn[-1] < t1 - step:
         return None, (f"velocity_body: not given: vehicle_local_position does not cover the segment "
                       f"{t0:.2f}–{t1:.2f} s")
     bad = {why: int(cut(t_v, m, t0, t1)[1].sum()) for why, m in checks.items()}
