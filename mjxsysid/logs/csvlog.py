@@ -9,7 +9,8 @@ One row per control step at 500 Hz, header required::
 SI units, body frame x forward / y left / z up: gyro (rad/s), specific force acc (m/s², ≈ +9.81
 on z at hover), commanded mass-normalised collective thrust a_cmd (m/s²) and body rates (rad/s),
 motor commands Ω_cmd/Ω_max ∈ [0, 1] in mjxsysid's rotor order (1 front-right, 2 front-left,
-3 back-left, 4 back-right). The policy's history is rebuilt from the logged IMU, commands and
+3 back-left, 4 back-right). Optional, all three or none: ``vel_body_x, vel_body_y, vel_body_z`` the
+velocity in the body frame (m/s, same frame; a state estimate's), read as ``velocity_body``. The policy's history is rebuilt from the logged IMU, commands and
 motor commands (the logged motor commands stand in for the policy's actions).
 """
 from __future__ import annotations
@@ -21,6 +22,10 @@ import numpy as np
 
 LOG_COLUMNS = ("t", "gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z", "a_cmd", "omega_cmd_x",
                "omega_cmd_y", "omega_cmd_z", "motor_1", "motor_2", "motor_3", "motor_4")
+"""The columns every log has (in this order when written)."""
+
+VELOCITY_COLUMNS = ("vel_body_x", "vel_body_y", "vel_body_z")
+"""Optional, all three or none: the velocity in the body frame (m/s, FLU), read as ``velocity_body`` (T, 3)."""
 
 LOG_DT = 0.002  # s: the policies run at 500 Hz; a log's rows must be 500 Hz steps
 
@@ -31,12 +36,12 @@ logs room imports nothing from the policy, a test checks the two agree)."""
 
 def read_log(path) -> dict:
     """Read a flight-log CSV -> dict of arrays (imu (T, 6), a_cmd (T,), omega_cmd (T, 3),
-    motor (T, 4), t (T,)).
+    motor (T, 4), t (T,); velocity_body (T, 3) when the log has :data:`VELOCITY_COLUMNS`).
 
     The whole file is checked before anything is returned; ``ValueError`` names the file and
     the line/column of the first problem: not UTF-8 text, empty, a delimiter other than ``,``,
     missing or repeated columns (other extra columns are ignored), a row with the wrong number
-    of values, a non-numeric or non-finite cell, fewer than 100 rows (0.2 s), time not strictly
+    of values, a non-numeric or non-finite cell, some of :data:`VELOCITY_COLUMNS` without the others, fewer than 100 rows (0.2 s), time not strictly
     increasing or not sampled at 500 Hz (median step within 5 % of 2 ms), motor commands
     outside [0, 1]. Line numbers count the header as line 1; blank lines are skipped."""
     path = Path(path)
@@ -67,11 +72,12 @@ def read_log(path) -> dict:
     missing = [c for c in LOG_COLUMNS if c not in header]
     if missing:
         raise ValueError(f"{path}: missing column(s) {missing}; expected {list(LOG_COLUMNS)}")
+    names = LOG_COLUMNS + _velocity_columns(path, header, f"line {hline}: ")
     rows = lines[1:]
     if len(rows) < MIN_ROWS:
         raise ValueError(f"{path}: {len(rows)} rows; need at least {MIN_ROWS} (0.2 s at 500 Hz)")
-    idx = [header.index(c) for c in LOG_COLUMNS]
-    data = np.empty((len(rows), len(LOG_COLUMNS)), np.float64)
+    idx = [header.index(c) for c in names]
+    data = np.empty((len(rows), len(names)), np.float64)
     for r, (ln, row) in enumerate(rows):
         cells = row.split(",")
         if len(cells) != len(header):
@@ -82,11 +88,11 @@ def read_log(path) -> dict:
             try:
                 v = float(cell)
             except ValueError:
-                raise ValueError(f"{path}: line {ln}, column {LOG_COLUMNS[c]}: {cell[:40]!r} is not a number") from None
+                raise ValueError(f"{path}: line {ln}, column {names[c]}: {cell[:40]!r} is not a number") from None
             if not np.isfinite(v):
-                raise ValueError(f"{path}: line {ln}, column {LOG_COLUMNS[c]}: {cell!r} is not finite")
+                raise ValueError(f"{path}: line {ln}, column {names[c]}: {cell!r} is not finite")
             data[r, c] = v
-    col = {c: data[:, i] for i, c in enumerate(LOG_COLUMNS)}
+    col = {c: data[:, i] for i, c in enumerate(names)}
     dt = np.diff(col["t"])
     if np.any(dt <= 0):
         r = int(np.argmax(dt <= 0)) + 1
@@ -150,6 +156,7 @@ def cut_csv(rec: dict, path, segment=None) -> dict:
     rec["source"] = {"format": "CSV", "path": str(path), "rates_hz": rates,
                      "segment": {"t0": float(rec["t"][0]), "t1": float(rec["t"][-1]), "why": why,
                                  "clock": "the log's t column (s)"},
+                     "missing": [] if "velocity_body" in rec else ["velocity_body"],
                      "conversions": ["none: the CSV is the log contract (SI units, body frame FLU, Ω_cmd/Ω_max in "
                                      "mjxsysid's rotor order; docs/decoding.md)"]}
     return rec
@@ -187,9 +194,25 @@ def motor_range_problem(motor) -> str:
 
 def _record(col: dict, motor) -> dict:
     """Columns by name (T,) and the motor commands (T, 4) -> the arrays of :func:`read_log`."""
-    return {"t": col["t"], "imu": np.stack([col[c] for c in LOG_COLUMNS[1:7]], -1),
-            "a_cmd": col["a_cmd"], "omega_cmd": np.stack([col[c] for c in LOG_COLUMNS[8:11]], -1),
-            "motor": motor}
+    rec = {"t": col["t"], "imu": np.stack([col[c] for c in LOG_COLUMNS[1:7]], -1),
+           "a_cmd": col["a_cmd"], "omega_cmd": np.stack([col[c] for c in LOG_COLUMNS[8:11]], -1),
+           "motor": motor}
+    if all(c in col for c in VELOCITY_COLUMNS):
+        rec["velocity_body"] = np.stack([col[c] for c in VELOCITY_COLUMNS], -1)
+    return rec
+
+
+def _velocity_columns(path, header, where: str = "") -> tuple:
+    """:data:`VELOCITY_COLUMNS` when the header has all three, () when none; ValueError naming the
+    missing ones when it has some."""
+    have = [c for c in VELOCITY_COLUMNS if c in header]
+    if not have:
+        return ()
+    if len(have) < len(VELOCITY_COLUMNS):
+        lack = [c for c in VELOCITY_COLUMNS if c not in header]
+        raise ValueError(f"{path}: {where}velocity column(s) {lack} missing: the body-frame velocity needs all of "
+                         f"{list(VELOCITY_COLUMNS)} (or none), has only {have}")
+    return VELOCITY_COLUMNS
 
 
 LOG_MEMORY_FACTOR = 6.0
@@ -229,14 +252,15 @@ def _read_log_fast(path: Path) -> dict | None:
             head = f.readline()
             header = [h.strip() for h in head.split(",")]
             if (len(header) < len(LOG_COLUMNS) or sorted(set(header)) != sorted(header)
-                    or any(c not in header for c in LOG_COLUMNS)):
+                    or any(c not in header for c in LOG_COLUMNS)
+                    or 0 < sum(c in header for c in VELOCITY_COLUMNS) < len(VELOCITY_COLUMNS)):
                 return None
             data = np.loadtxt(f, delimiter=",", dtype=np.float64, ndmin=2)
     except (ValueError, UnicodeDecodeError, OSError):
         return None
     if data.shape[1] != len(header) or data.shape[0] < MIN_ROWS or not np.isfinite(data).all():
         return None
-    col = {c: data[:, header.index(c)] for c in LOG_COLUMNS}
+    col = {c: data[:, header.index(c)] for c in LOG_COLUMNS + VELOCITY_COLUMNS if c in header}
     dt = np.diff(col["t"])
     motor = np.stack([col[f"motor_{i}"] for i in range(1, 5)], -1)
     if (np.any(dt <= 0) or abs(float(np.median(dt)) - LOG_DT) > 0.05 * LOG_DT
@@ -253,10 +277,14 @@ def _is_number(text: str) -> bool:
         return False
 
 
-def write_log(path, t, imu, a_cmd, omega_cmd, motor) -> Path:
+def write_log(path, t, imu, a_cmd, omega_cmd, motor, velocity_body=None) -> Path:
     """Write a flight log in the documented CSV format (time with 15 significant digits: boot-time
-    stamps keep their 2 ms steps; the other columns 7, float32's precision)."""
-    arr = np.column_stack([t, imu, a_cmd, omega_cmd, motor])
-    np.savetxt(path, arr, delimiter=",", header=",".join(LOG_COLUMNS), comments="",
+    stamps keep their 2 ms steps; the other columns 7, float32's precision); ``velocity_body``
+    (T, 3) m/s FLU, when given, as :data:`VELOCITY_COLUMNS` after the others."""
+    parts, names = [t, imu, a_cmd, omega_cmd, motor], LOG_COLUMNS
+    if velocity_body is not None:
+        parts, names = parts + [np.asarray(velocity_body, np.float64).reshape(len(t), 3)], names + VELOCITY_COLUMNS
+    arr = np.column_stack(parts)
+    np.savetxt(path, arr, delimiter=",", header=",".join(names), comments="",
                fmt=["%.15g"] + ["%.7g"] * (arr.shape[1] - 1))
     return Path(path)

@@ -276,7 +276,9 @@ def read_ulog(path, segment=None) -> dict:
     Topics: IMU ``sensor_combined`` (else ``vehicle_angular_velocity`` + ``vehicle_acceleration``),
     motors ``actuator_motors`` (else ``actuator_outputs`` with the PWM limits and THR_MDL_FAC),
     ``vehicle_rates_setpoint`` (omega_cmd), ``vehicle_thrust_setpoint`` and
-    ``hover_thrust_estimate`` (else MPC_THR_HOVER) for a_cmd. ValueError: not a quad-X, a topic
+    ``hover_thrust_estimate`` (else MPC_THR_HOVER) for a_cmd; ``velocity_body`` (T, 3) m/s FLU from
+    ``vehicle_local_position`` and ``vehicle_attitude`` where valid (else ``source["missing"]`` names it:
+    :mod:`mjxsysid.logs.ulog_velocity`). ValueError: not a quad-X, a topic
     missing, a segment too short; ImportError without pyulog (``pip install mjxsysid[px4]``)."""
     ULog = _import_pyulog()
     path = Path(path)
@@ -402,9 +404,18 @@ def read_ulog(path, segment=None) -> dict:
     rec = {"t": grid, "imu": interp_linear(*native["imu"], grid),
            "a_cmd": hold(*native["a_cmd"], grid), "omega_cmd": hold(*native["omega_cmd"], grid),
            "motor": hold(*native["motor"], grid)}
+    hows = {"imu": "interpolated (linear)", "motor": "held (zero-order)", "omega_cmd": "held (zero-order)",
+            "a_cmd": "held (zero-order)"}
+    from mjxsysid.logs.ulog_velocity import ulog_velocity_body
+    vel, said_v = ulog_velocity_body(_topic(ulog, "vehicle_local_position"), _topic(ulog, "vehicle_attitude"),
+                                     start, t0, t1)
+    conv.append(said_v)
+    if vel is not None:
+        native["velocity_body"], rec["velocity_body"] = vel, interp_linear(*vel, grid)
+        hows["velocity_body"], rates["velocity_body"] = "interpolated (linear)", _rate(vel[0])
+        topics["velocity_body"] = "vehicle_local_position (vx, vy, vz) + vehicle_attitude (q)"
     resampled = {}
-    for k, how in (("imu", "interpolated (linear)"), ("motor", "held (zero-order)"),
-                   ("omega_cmd", "held (zero-order)"), ("a_cmd", "held (zero-order)")):
+    for k, how in hows.items():
         r = rates[k]
         resampled[k] = (f"{how} from {_rate_text(r)}" if abs(r * DT - 1) > 0.05 else f"native ({_rate_text(r)})")
     rec["native"] = native
@@ -414,6 +425,7 @@ def read_ulog(path, segment=None) -> dict:
                      "segment": {"t0": float(t0), "t1": float(t1), "why": why,
                                  "clock": "seconds since the log's start"},
                      "log_start_us": int(start), "conversions": conv,
+                     "missing": [] if vel is not None else ["velocity_body"],
                      "parameters": {k: float(params[k]) for k in ("THR_MDL_FAC", "MPC_THR_HOVER", "CA_ROTOR_COUNT",
                                                                   "MAV_TYPE", "SYS_AUTOSTART") if k in params}}
     return rec

@@ -12,7 +12,9 @@ Written, in PX4's frame and units (FRD body frame, normalised commands): ``senso
 (gyro rad/s, accelerometer m/s²), ``actuator_motors`` (each rotor's normalised thrust Ω² in PX4's
 quad-X order, with the CA_ROTORi geometry as parameters), ``vehicle_rates_setpoint`` (rad/s),
 ``vehicle_thrust_setpoint`` (−a_cmd · hover / g on z), ``hover_thrust_estimate``,
-``actuator_armed`` and ``vehicle_land_detected``.
+``actuator_armed`` and ``vehicle_land_detected``; given the flight's attitude and velocity,
+``vehicle_attitude`` (q, FRD body to NED) and ``vehicle_local_position`` (vx, vy, vz NED, both valid
+flags set), the simulator's world (x, y, z up) taken as north, west, up: NED = (x, −y, −z).
 """
 from __future__ import annotations
 
@@ -38,9 +40,14 @@ TOPICS = {
     "hover_thrust_estimate": (("float", "hover_thrust", 1), ("bool", "valid", 1)),
     "actuator_armed": (("bool", "armed", 1),),
     "vehicle_land_detected": (("bool", "landed", 1),),
+    "vehicle_attitude": (("float", "q", 4),),
+    "vehicle_local_position": (("float", "vx", 1), ("float", "vy", 1), ("float", "vz", 1),
+                               ("bool", "v_xy_valid", 1), ("bool", "v_z_valid", 1)),
 }
 _NP = {"float": "<f4", "int32_t": "<i4", "bool": "u1", "uint64_t": "<u8"}
 FRD = np.array([1.0, -1.0, -1.0])
+FRD_QUAT = np.array([1.0, 1.0, -1.0, -1.0])
+"""A body-FLU-to-world (z up) quaternion (w x y z) times this: the body-FRD-to-NED one."""
 QUADX_POSITIONS = {0: (1.0, 1.0), 1: (-1.0, -1.0), 2: (1.0, -1.0), 3: (-1.0, 1.0)}
 """PX4 motor -> (x forward, y right) signs of its rotor in PX4's default quad-X (FRD)."""
 
@@ -82,11 +89,13 @@ def _every(t, rate_hz):
 
 
 def write_ulog(path, t, imu, a_cmd, omega_cmd, motor, *, rates: dict | None = None, armed=None, landed=None,
-               hover_thrust: float | None = None, params: dict | None = None) -> Path:
+               hover_thrust: float | None = None, params: dict | None = None, quat=None, vel=None) -> Path:
     """Write a flight as a PX4 ULog: ``t`` (T,) s, ``imu`` (T, 6) gyro rad/s and specific force m/s²
     (FLU), ``a_cmd`` (T,) m/s², ``omega_cmd`` (T, 3) rad/s, ``motor`` (T, 4) Ω_cmd/Ω_max in mjxsysid's
-    rotor order (the arrays of :func:`~mjxsysid.logs.csvlog.read_log`). ``rates`` {imu, motor,
-    setpoint: Hz}: log a topic group at that rate (every k-th row; default every row); ``armed``,
+    rotor order (the arrays of :func:`~mjxsysid.logs.csvlog.read_log`); ``quat`` (T, 4) the attitude
+    (w x y z, body FLU to the world, z up) and ``vel`` (T, 3) m/s the world-frame velocity, both or
+    neither: the state estimate's topics (the reader's ``velocity_body``). ``rates`` {imu, motor,
+    setpoint, estimate: Hz}: log a topic group at that rate (every k-th row; default every row); ``armed``,
     ``landed`` (T,) bool (default armed and airborne throughout); ``hover_thrust`` the normalised
     collective thrust at hover (default the median mean Ω_cmd² while armed: a_cmd = g there);
     ``params`` extra parameters. -> ``path``."""
@@ -100,7 +109,7 @@ def write_ulog(path, t, imu, a_cmd, omega_cmd, motor, *, rates: dict | None = No
     if hover_thrust is None:
         hover_thrust = float(np.median(thrust[armed].mean(1))) if armed.any() else 0.5
     ts = (START_US + np.round(t * 1e6)).astype(np.uint64)
-    i_imu, i_m, i_sp = (_every(t, rates.get(k)) for k in ("imu", "motor", "setpoint"))
+    i_imu, i_m, i_sp, i_est = (_every(t, rates.get(k)) for k in ("imu", "motor", "setpoint", "estimate"))
     change = lambda x: np.concatenate([[0], np.flatnonzero(np.diff(x.astype(int))) + 1])  # noqa: E731
     i_arm, i_land = change(armed), change(landed)
     data = {
@@ -114,9 +123,19 @@ def write_ulog(path, t, imu, a_cmd, omega_cmd, motor, *, rates: dict | None = No
         "actuator_armed": (i_arm, {"armed": armed[i_arm]}),
         "vehicle_land_detected": (i_land, {"landed": landed[i_land]}),
     }
+    if (quat is None) != (vel is None):
+        raise ValueError("write_ulog: give both quat and vel (the attitude and the velocity), or neither")
+    if quat is not None:
+        q, v = np.asarray(quat, np.float64)[i_est], np.asarray(vel, np.float64)[i_est]
+        # NED = (x, −y, −z) of the world and FRD = (x, −y, −z) of FLU: a half turn about x on both sides
+        # of the rotation, i.e. its quaternion's y and z negated
+        data["vehicle_attitude"] = (i_est, {"q": q * FRD_QUAT})
+        data["vehicle_local_position"] = (i_est, {"vx": v[:, 0], "vy": -v[:, 1], "vz": -v[:, 2],
+                                                  "v_xy_valid": 1, "v_z_valid": 1})
     head = ULOG_MAGIC + bytes([1]) + struct.pack("<Q", START_US)
     defs = [_msg(b"B", bytes(40))]
-    for topic, fields in TOPICS.items():
+    for topic in data:
+        fields = TOPICS[topic]
         spec = "".join(f"{typ}[{n}] {name};" if n > 1 else f"{typ} {name};" for typ, name, n in fields)
         defs.append(_msg(b"F", f"{topic}:uint64_t timestamp;{spec}".encode()))
     defs += [_info("sys_name", "mjxsysid"), _info("ver_hw", "mjxsysid simulator")]
@@ -142,12 +161,14 @@ def write_ulog(path, t, imu, a_cmd, omega_cmd, motor, *, rates: dict | None = No
 def write_flight_logs(one, out) -> tuple[Path, Path]:
     """A flown flight (one vehicle's :class:`~mjxsysid.rollout.harness.Flight`, host arrays) written
     as logs: ``out/flight.ulg`` (this PX4 ULog: Flight Review and PlotJuggler open it) and
-    ``out/flight.csv`` (the CSV contract), each row the IMU the controller acted on, its commands and
-    motor commands, t from 0 in 2 ms steps. -> the two paths."""
+    ``out/flight.csv`` (the CSV contract), each row the IMU the controller acted on, its commands,
+    motor commands and the true velocity in the body frame (:func:`~mjxsysid.rollout.flight.flight_log`;
+    the ULog carries it as the attitude and NED velocity), t from 0 in 2 ms steps. -> the two paths."""
     from mjxsysid.logs.csvlog import LOG_DT, write_log
-    from mjxsysid.rollout.flight import seen_imu
+    from mjxsysid.rollout.flight import flight_log
     out = Path(out)
     t = np.asarray(one.time, np.float64) - LOG_DT
-    arrays = (t, np.asarray(seen_imu(one.frame.imu)), np.asarray(one.a_cmd), np.asarray(one.omega_cmd),
-              np.asarray(one.frame.motor_cmd))
-    return write_ulog(out / "flight.ulg", *arrays), write_log(out / "flight.csv", *arrays)
+    rec = flight_log(one.frame)
+    arrays = (t, np.asarray(rec["imu"]), np.asarray(one.a_cmd), np.asarray(one.omega_cmd), np.asarray(rec["motor"]))
+    return (write_ulog(out / "flight.ulg", *arrays, quat=np.asarray(one.frame.quat), vel=np.asarray(one.frame.vel)),
+            write_log(out / "flight.csv", *arrays, velocity_body=rec["velocity_body"]))

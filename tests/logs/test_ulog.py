@@ -93,7 +93,8 @@ def test_px4_sample_reads_as_the_log_contract():
     seg = r["source"]["segment"]
     assert 18.9 < seg["t0"] < 19.0 and 27.3 < seg["t1"] < 27.5 and "airborne" in seg["why"]   # ~8.5 s in flight
     assert r["resampled"] == {"imu": "interpolated (linear) from 250 Hz", "motor": "held (zero-order) from 10 Hz",
-                              "omega_cmd": "held (zero-order) from 50 Hz", "a_cmd": "held (zero-order) from 50 Hz"}
+                              "omega_cmd": "held (zero-order) from 50 Hz", "a_cmd": "held (zero-order) from 50 Hz",
+                              "velocity_body": "interpolated (linear) from 10 Hz"}
     assert 9.0 < r["imu"][:, 5].mean() < 10.5
 
 

@@ -147,10 +147,11 @@ COLUMN_GROUPS = ("imu", "motor", "a_cmd", "omega_cmd")
 
 
 def measure_columns(rec: dict) -> tuple[dict, dict, dict]:
-    """Every column group of a log on its grid (``rec``: t and :data:`COLUMN_GROUPS`) measured from
-    its samples -> (native {group: (t, values)}, resampled {group: how}, rates_hz {group: Hz})."""
+    """Every column group of a log on its grid (``rec``: t and :data:`COLUMN_GROUPS`, and velocity_body
+    where it has one) measured from its samples -> (native {group: (t, values)}, resampled {group: how},
+    rates_hz {group: Hz})."""
     native, said, rates = {}, {}, {}
-    for key in COLUMN_GROUPS:
+    for key in COLUMN_GROUPS + tuple(k for k in ("velocity_body",) if k in rec):
         rate, how, nat = measure_column(rec["t"], rec[key])
         native[key], rates[key] = nat, round(rate, 2)
         said[key] = f"native ({rate:.0f} Hz)" if how == "native" else how
