@@ -94,9 +94,14 @@ def log_features(data, mode) -> dict:
 
 def coord_entry(table: dict, j: int, features: dict) -> dict:
     """Coordinate j's table entry for a log with ``features``: the velocity stratum's for a log that
-    carries velocity (where the table has one), else the coordinate's."""
-    vel = table.get("velocity_coords", {})
-    return vel[str(j)] if features.get("velocity_used") and str(j) in vel else table["coords"][j]
+    carries velocity and whose feature lies within that stratum's logs' range (where the table has
+    one), else the coordinate's. A log with velocity whose residual stays above every simulated log's
+    with velocity has physics the drag's term did not explain: the logs without velocity, whose
+    residual holds the drag, are its nearer calibration."""
+    vel = table.get("velocity_coords", {}).get(str(j))
+    if vel is not None and features.get("velocity_used") and features[vel["feature"]] <= vel["feature_max"]:
+        return vel
+    return table["coords"][j]
 
 
 def raw_bands(v) -> np.ndarray:
@@ -170,6 +175,7 @@ def _fit_coord(j: int, truth, bands, feats, level: float, bins: int, min_group: 
     split = [float(np.median(width[k == i])) if (k == i).any() else 0.0 for i in range(bins)]
     entry = {"edges": edges.tolist(), "width_split": split}
     grp = np.array([group_of(entry, xi, wi) for xi, wi in zip(x, width)])
+    entry["feature_max"] = float(np.max(x))
     d = truth[:, j] - bands[:, 1, j]          # > 0: the truth above the median
     below, above = bands[:, 1, j] - bands[:, 0, j], bands[:, 2, j] - bands[:, 1, j]
     groups = [grp == i if (grp == i).sum() >= min_group else k == i // 2 for i in range(2 * bins)]
