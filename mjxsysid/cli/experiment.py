@@ -31,7 +31,8 @@ def add_experiment(sub) -> None:
                          "(tune-lemniscate), single_latent (robustness: the paper's single-latent CFM), accumulate "
                          "(probe-loop: each round fine-tunes the current policy on a re-scored replay buffer), widened "
                          "(probe-loop: a fair control on the default prior widened by the probe's reach, same budget), low "
-                         "(noise-sensitivity: the levels below x 1)")
+                         "(noise-sensitivity: the levels below x 1), velocity (rotorpy-noise: the logs carry the body "
+                         "velocity)")
     ex.add_argument("--inputs", type=Path, default=None, metavar="PATH",
                     help="experiments that read earlier runs: probe-loop-seeds (a probe-loop run), "
                          "long-flight-calibration (collect --seconds S pairs), speed-table (a folder of run folders)")

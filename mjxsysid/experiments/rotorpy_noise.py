@@ -43,7 +43,7 @@ from mjxsysid.experiments.common import write_results
 from mjxsysid.logs.csvlog import LOG_DT, write_log
 from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.interface import PRETRAINED_DIR, file_sha256
-from mjxsysid.sim.quadrotor import aliased_hz, vibration_step
+from mjxsysid.sim.quadrotor import aliased_hz, quat_to_mat, vibration_step
 from mjxsysid.decoding import run_decode
 from mjxsysid.uses.imu_noise import LEVELS as NOISE_LEVELS
 
@@ -136,7 +136,8 @@ def fly(theta, seconds: float, noise: dict, white, bias, ctrl, vib_white=None) -
     and, where the level has rotor vibration, the simulator's narrow-band vibration
     (:func:`mjxsysid.sim.quadrotor.vibration_step`, centred on RotorPy's mean rotor speed aliased into
     the IMU's band, driven by ``vib_white`` (T, 6) standard normals) at the level's stds.
-    Returns the log's arrays (row k: what the policy saw and did at step k) and the position error."""
+    Returns the log's arrays (row k: what the policy saw and did at step k, and the body-frame velocity
+    at its start, as a state estimate gives it) and the position error."""
     Multirotor, Imu = import_rotorpy()
     steps = int(round(seconds / LOG_DT))
     ref = Lemniscate.make(period=10.0)
@@ -155,13 +156,14 @@ def fly(theta, seconds: float, noise: dict, white, bias, ctrl, vib_white=None) -
     vib = np.zeros((2, 6), np.float32)                 # the resonator's last two outputs (unit std)
     true = np.array([0.0, 0, 0, 0, 0, P.GRAVITY])   # at rest before the first step
     hc, lc = high.init(), ctrl.init()
-    rec = {k: [] for k in ("imu", "a_cmd", "omega_cmd", "motor", "err")}
+    rec = {k: [] for k in ("imu", "a_cmd", "omega_cmd", "motor", "err", "velocity_body")}
     for i in range(steps):
         imu = true + sb * bias + sd * white[i]
         if sv.any():
             vib = np.asarray(_vibration(vib, np.float32(vib_white[i]), np.float32(state["rotor_speeds"])))
             imu = imu + sv * vib[1]
         x, v, q, w = state["x"], state["v"], state["q"], state["w"]
+        vel_body = np.asarray(quat_to_mat(np.r_[q[3], q[:3]].astype(np.float32)), np.float64).T @ v
         hc, lc, a_cmd, w_cmd, u, ref_pos = _control(
             ctrl, high, ref, hc, lc, jnp.asarray(x, jnp.float32), jnp.asarray(v, jnp.float32),
             jnp.asarray(np.r_[q[3], q[:3]], jnp.float32), jnp.asarray(w, jnp.float32),
@@ -172,7 +174,7 @@ def fly(theta, seconds: float, noise: dict, white, bias, ctrl, vib_white=None) -
         meas = imu_model.measurement(state, vehicle.statedot(state, control, LOG_DT), with_noise=False)
         true = np.r_[meas["gyro"], meas["accel"]]
         for k, val in (("imu", imu), ("a_cmd", float(a_cmd)), ("omega_cmd", np.asarray(w_cmd)), ("motor", u),
-                       ("err", state["x"] - np.asarray(ref_pos))):
+                       ("err", state["x"] - np.asarray(ref_pos)), ("velocity_body", vel_body)):
             rec[k].append(val)
         if np.linalg.norm(rec["err"][-1]) > 3.0 or state["x"][2] < 0 or not np.all(np.isfinite(state["x"])):
             break   # lost (the project's failure test: 3 m from the reference or below the ground)
@@ -196,12 +198,15 @@ def _inside(s: dict) -> tuple[int, list]:
 
 
 def run(out, *, quick=False, policy=None, seed=0, progress=True, levels: str | None = None,
-        vehicles: str | None = None) -> dict:
+        vehicles: str | None = None, variant: str | None = None) -> dict:
     """The RotorPy flights and their decoding (see the module doc) into OUT/results.json,
     results.md (the table) and OUT/logs/VEHICLE/ (the logs, truth.json and decode outputs). ``seed``:
     the IMU noise draws and decoding (decode's --seed). ``levels``, ``vehicles``: comma-separated
     names of :data:`LEVELS` and :data:`VEHICLES` (default: FULL's or QUICK's). The shipped policy
-    and decoders fly and decode (``policy`` is not used)."""
+    and decoders fly and decode (``policy`` is not used). ``variant`` "velocity": the logs carry the
+    body velocity (the CSV's vel_body_* columns), so the posterior models the body drag."""
+    if variant not in (None, "velocity"):
+        raise ValueError(f"rotorpy-noise: unknown variant {variant!r}; the one known: velocity")
     from types import SimpleNamespace
     a = SimpleNamespace(**(QUICK if quick else FULL), seed=seed, out=Path(out), logs=Path(out) / "logs")
     a.levels, a.vehicles = levels or a.levels, vehicles or a.vehicles
@@ -218,7 +223,8 @@ def run(out, *, quick=False, policy=None, seed=0, progress=True, levels: str | N
     steps = int(round(a.seconds / LOG_DT))
     # the same draws at every level and vehicle
     white, bias, vib_white = rng.standard_normal((steps, 6)), rng.standard_normal(6), rng.standard_normal((steps, 6))
-    res = {"command": f"mjxsysid experiment rotorpy-noise{' --quick' if quick else ''} --seed {seed} --out {out}",
+    res = {"command": f"mjxsysid experiment rotorpy-noise{' --quick' if quick else ''}"
+                      f"{f' --variant {variant}' if variant else ''} --seed {seed} --out {out}", "variant": variant,
            "rotorpy": getattr(rotorpy, "__version__", None) or _dist_version("rotorpy"), "seconds": a.seconds,
            "reference": "lemniscate, period 10 s, size (1, 1, 0.3) m", "samples": a.samples, "seed": a.seed,
            "weights_sha256": {f: file_sha256(PRETRAINED_DIR / f)[:16]
@@ -239,7 +245,8 @@ def run(out, *, quick=False, policy=None, seed=0, progress=True, levels: str | N
             vres["levels"][lv] = row
             tag = f"[{vn} {lv}]"
             print(f"{tag} flown {row['flown_s']:.1f} s, RMSE {100 * rmse:.2f} cm ({time.time() - t1:.0f} s)", file=sys.stderr)
-            log = write_log(work / f"{lv}.csv", rec["t"], rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"])
+            log = write_log(work / f"{lv}.csv", rec["t"], rec["imu"], rec["a_cmd"], rec["omega_cmd"], rec["motor"],
+                            velocity_body=rec["velocity_body"] if variant == "velocity" else None)
             try:
                 s = run_decode(work / lv, log=log, truth=P.load_vehicle(truth), samples=a.samples, seed=a.seed,
                                echo=lambda m: None, warn=lambda f, tag=tag: print(f"{tag} {f}", file=sys.stderr))
