@@ -28,6 +28,9 @@ def add_calibrate_posterior(sub) -> None:
     cp.add_argument("--levels", default="clean,x1,x5_white,x5_vibration,x20",
                     help="--collect: IMU noise levels, comma-separated (mjxsysid.uses.imu_noise.LEVELS)")
     cp.add_argument("--seed", type=int, default=5, help="--collect: the vehicles' and flights' seed")
+    cp.add_argument("--aero", action="store_true",
+                    help="--collect: fly with rotor aerodynamics (SimConfig.aero: RotorPy's rotor drag, induced inflow, "
+                         "parasitic drag and translational lift, scaled to the vehicle)")
     cp.add_argument("--flights", default="lemniscate:10",
                     help="--collect: the flights, comma-separated: lemniscate:PERIOD, minsnap:SECONDS, hover:SECONDS "
                          "(default lemniscate:10)")
@@ -50,7 +53,7 @@ def cmd_calibrate_posterior(args) -> int:
     if args.collect:
         res = pc.collect(prior=args.prior, vehicles=args.vehicles, levels=tuple(args.levels.split(",")),
                          seed=args.seed, shard=args.shard, out=args.collect, time_budget_s=args.time_budget,
-                         references=tuple(args.flights.split(",")), controller=args.controller)
+                         references=tuple(args.flights.split(",")), controller=args.controller, aero=args.aero)
         echo(f"{len(res['rows'])} rows -> {args.collect}")
     elif args.fit:
         out = args.out or SHIPPED

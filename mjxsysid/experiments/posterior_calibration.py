@@ -64,11 +64,12 @@ def parse_reference(spec: str) -> dict:
 
 def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_LEVELS, seed: int = 5,
             shard: str | None = None, out: Path, time_budget_s: float | None = None,
-            references=REFERENCES, controller: str = "oracle") -> dict:
+            references=REFERENCES, controller: str = "oracle", aero: bool = False) -> dict:
     """Fly and identify; write ``out`` (JSON: rows), after every log (a stopped run keeps what it
     finished); ``time_budget_s``: start no new flight after this long; ``references``: the flights
     (:func:`parse_reference`), each at every level; ``controller``: who flies ('oracle', the lag-aware
-    oracle, or 'policy', the shipped adaptive policy: another closed loop's reaction to the noise)."""
+    oracle, or 'policy', the shipped adaptive policy: another closed loop's reaction to the noise);
+    ``aero``: the simulator's rotor aerodynamics on (``SimConfig.aero``: physics the likelihood lacks)."""
     from mjxsysid.identify.inference import log_grounded_posterior
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
@@ -90,7 +91,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
-           "references": list(references), "controller": controller, "rows": []}
+           "references": list(references), "controller": controller, "aero": aero, "rows": []}
     t_start = time.perf_counter()
     for ref, lv in ((r, lv) for r in references for lv in levels):
         if lv not in LEVELS:
@@ -98,7 +99,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
         if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
             break
         s = seed + 1000 * (0 if shard is None else int(shard.split("/")[0])) + 97 * list(LEVELS).index(lv)
-        fl, m, _ = fly_vehicles(th, controller=controller, sim=Quadrotor(SimConfig(**LEVELS[lv])), seed=s, policy=pol,
+        fl, m, _ = fly_vehicles(th, controller=controller, sim=Quadrotor(SimConfig(**LEVELS[lv], aero=aero)), seed=s, policy=pol,
                                 **parse_reference(ref))
         flown = np.flatnonzero(~np.asarray(m["failed"], bool))
         for i in progress(flown, desc=f"calibration {lv}"):
@@ -111,7 +112,9 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
                 continue
             t0 = time.perf_counter()
             post = log_grounded_posterior(data, None, seed=int(index[i]), calibration=None)
-            res["rows"].append(row(post, th[i], lv, int(index[i]), time.perf_counter() - t0) | {"flight": ref if controller == "oracle" else f"{ref} ({controller})"})
+            flight = (ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if aero else "")
+            res["rows"].append(row(post, th[i], lv, int(index[i]), time.perf_counter() - t0)
+                               | {"flight": flight, "aero": aero})
             out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
         out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     return res
@@ -176,11 +179,13 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
 
 def evaluate(rows: list[dict], table: dict | None, by: str = "level") -> dict:
     """Coverage, widths and clustering per ``by`` ('level', 'flight' or 'velocity': whether the logs carried
-    it) of ``rows`` under ``table`` (None: the raw posterior)."""
+    it, and whether they were flown with rotor aerodynamics) of ``rows`` under ``table`` (None: the raw
+    posterior)."""
     out = {}
     order = ("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20") + REFERENCES_ALL
     if by == "velocity":
-        key = lambda r: "velocity" if r["features"].get("velocity_used") else "no velocity"  # noqa: E731
+        key = lambda r: (("velocity" if r["features"].get("velocity_used") else "no velocity")  # noqa: E731
+                         + (", aero" if r.get("aero") else ""))
     else:
         key = lambda r: r.get(by, "lemniscate:10")    # noqa: E731  (rows of one flight name none)
     for lv in sorted({key(r) for r in rows}, key=lambda x: (order.index(x) if x in order else len(order), x)):

@@ -29,6 +29,12 @@ from mjxsysid.runtime.quiet import import_mjx
 mjx = import_mjx()  # without MJX's "Failed to import warp" probe message
 
 ASSET = Path(__file__).resolve().parent.parent / "assets" / "quadrotor.xml"
+AERO_PARASITIC = (0.01, 0.01, 0.02)
+"""1/m: parasitic drag per mass along body x, y, z with ``SimConfig.aero`` (RotorPy's Hummingbird:
+c_D 0.005, 0.005, 0.01 N/(m/s)² on 0.5 kg)."""
+AERO_LIFT = 0.0028
+"""Per (m/s)²: translational lift as a share of the weight with ``SimConfig.aero`` (the Hummingbird's
+k_h 3.39e-3 N/(m/s)² on each of four rotors, over its 4.9 N)."""
 BODY = 1  # body id of the quadrotor in assets/quadrotor.xml (0 is the world)
 
 
@@ -45,7 +51,10 @@ class SimConfig:
     into the 0 – 1/(2 dt) band the IMU samples) and ``vibration_bandwidth_hz``. Off (0) by
     default; the other settings' noise is the same with it off. pos_limit (m), vel_limit (m/s),
     rate_limit (rad/s): a vehicle beyond any of these, or with a non-finite state, is flagged
-    ``diverged`` and frozen. randomize_imu: the noise, bias and vibration settings are maxima, each
+    ``diverged`` and frozen. aero: rotor aerodynamics beyond the linear body drag, in RotorPy's form
+    with its Hummingbird's coefficients scaled to the vehicle (:meth:`Quadrotor.aero_force`): the drag
+    grows with the rotor speed (rotor drag and induced inflow), a parasitic drag quadratic in the
+    airspeed, and translational lift; off by default (the physics θ describes). randomize_imu: the noise, bias and vibration settings are maxima, each
     flight drawing its levels uniform in [0, 1] × them; imu_clean_fraction: with it, that share of
     flights has a clean IMU (both levels 0).
     """
@@ -66,6 +75,7 @@ class SimConfig:
     pos_limit: float = 1.0e3
     vel_limit: float = 100.0
     rate_limit: float = 200.0
+    aero: bool = False
 
     def __post_init__(self):
         if not self.dt > 0:
@@ -347,21 +357,37 @@ class Quadrotor:
                         step=jnp.array(0, jnp.int32))
 
     # ------------------------------------------------------------------- step
-    def external_wrench(self, theta, data: mjx.Data, force_world) -> jax.Array:
-        """xfrc_applied row (6,) of the quadrotor body: drag −R D Rᵀ v + force_world, and torque
-        R τ_ext (world frame, applied at the centre of mass)."""
+    def aero_force(self, theta, v_body, rotor_speed) -> jax.Array:
+        """The body-frame force (3,) N of the air on the vehicle at body velocity ``v_body`` (3,) m/s:
+        the linear drag −D v; with ``config.aero``, RotorPy's aerodynamics instead, scaled to the vehicle:
+        −D v · Ω̄ / Ω_hover (rotor drag and induced inflow grow with the mean rotor speed Ω̄; D is their
+        value at hover), − m c |v| v with c = :data:`AERO_PARASITIC` (parasitic drag), and the
+        translational lift + m g · :data:`AERO_LIFT` · (v_x² + v_y²) along body z."""
+        drag = -theta[P.DRAG] * v_body
+        if not self.config.aero:
+            return drag
+        m = theta[P.MASS]
+        hover = jnp.sqrt(m * P.GRAVITY / (4.0 * jnp.mean(theta[P.ETA]) * theta[P.KT]))
+        speed = jnp.sqrt(jnp.sum(v_body * v_body) + 1e-12)
+        lift = m * P.GRAVITY * AERO_LIFT * (v_body[0] ** 2 + v_body[1] ** 2)
+        return (drag * jnp.mean(rotor_speed) / hover - m * jnp.asarray(AERO_PARASITIC) * speed * v_body
+                + jnp.array([0.0, 0.0, 1.0]) * lift)
+
+    def external_wrench(self, theta, data: mjx.Data, force_world, rotor_speed=None) -> jax.Array:
+        """xfrc_applied row (6,) of the quadrotor body: the air's force R :meth:`aero_force` + force_world,
+        and torque R τ_ext (world frame, applied at the centre of mass)."""
         rot = quat_to_mat(data.qpos[3:7])
         v_body = rot.T @ data.qvel[0:3]
-        drag = rot @ (-theta[P.DRAG] * v_body)
-        return jnp.concatenate([drag + force_world, rot @ theta[P.TAU_EXT]])
+        speed = jnp.zeros(4) if rotor_speed is None else rotor_speed
+        return jnp.concatenate([rot @ self.aero_force(theta, v_body, speed) + force_world, rot @ theta[P.TAU_EXT]])
 
     def specific_force(self, theta, data: mjx.Data, rotor_speed, force_world) -> jax.Array:
         """What an ideal accelerometer at the centre of mass reads, body frame (3,) m/s²:
-        (thrust + drag + disturbance) / m, at the state in ``data`` (no contacts)."""
+        (thrust + the air's force + disturbance) / m, at the state in ``data`` (no contacts)."""
         rot = quat_to_mat(data.qpos[3:7])
         thrust = jnp.sum(theta[P.ETA] * theta[P.KT] * rotor_speed**2)
-        drag = -theta[P.DRAG] * (rot.T @ data.qvel[0:3])
-        return (drag + rot.T @ force_world + jnp.array([0.0, 0.0, 1.0]) * thrust) / theta[P.MASS]
+        air = self.aero_force(theta, rot.T @ data.qvel[0:3], rotor_speed)
+        return (air + rot.T @ force_world + jnp.array([0.0, 0.0, 1.0]) * thrust) / theta[P.MASS]
 
     def step(self, theta, state: SimState, motor_cmd, force_world=None) -> SimState:
         """Advance one control step (dt). θ (19,); motor_cmd (4,) normalised rotor-speed commands
@@ -385,7 +411,7 @@ class Quadrotor:
         def substep(carry, _):
             data, speed = carry
             msq, speed = mean_square_speed(speed, omega_cmd, theta[P.TAU_M], h)
-            xfrc = data.xfrc_applied.at[BODY].set(self.external_wrench(theta, data, force_world))
+            xfrc = data.xfrc_applied.at[BODY].set(self.external_wrench(theta, data, force_world, speed))
             data = data.replace(ctrl=gain * msq, xfrc_applied=xfrc)
             data = mjx.step(model, data)
             return (data, speed), None

@@ -358,3 +358,23 @@ def test_imu_noise_without_vibration_or_randomisation_is_drawn_as_before():
     want = np.array([0.01] * 3 + [0.1] * 3) * np.asarray(jax.random.normal(k, (6,)))
     np.testing.assert_allclose(np.asarray(s1.imu) - np.asarray(s1.imu_buffer[0]), want, atol=1e-6)
     assert not np.asarray(s1.imu_vibration).any() and np.all(np.asarray(s1.imu_level) == 1)
+
+
+def test_aero_option_is_rotorpy_form_scaled_to_the_vehicle():
+    """SimConfig.aero: the linear drag grows with the mean rotor speed over hover's, plus parasitic drag
+    − m c |v| v and translational lift + m g k (v_x² + v_y²); off, the air's force is −D v alone."""
+    from mjxsysid.sim.quadrotor import AERO_LIFT, AERO_PARASITIC
+    th = jnp.asarray(P.paper_hardware())
+    v = jnp.array([2.0, -1.0, 0.5])
+    m, D = float(th[P.MASS]), np.asarray(th[P.DRAG], np.float64)
+    hover = float(np.sqrt(m * P.GRAVITY / (4 * float(jnp.mean(th[P.ETA])) * float(th[P.KT]))))
+    speed = jnp.full(4, 1.2 * hover)
+    off = Quadrotor(SimConfig()).aero_force(th, v, speed)
+    np.testing.assert_allclose(off, -D * np.asarray(v), rtol=1e-6)
+    on = np.asarray(Quadrotor(SimConfig(aero=True)).aero_force(th, v, speed), np.float64)
+    vv = np.asarray(v, np.float64)
+    want = (-D * vv * 1.2 - m * np.asarray(AERO_PARASITIC) * np.linalg.norm(vv) * vv
+            + np.array([0, 0, m * P.GRAVITY * AERO_LIFT * (4.0 + 1.0)]))
+    np.testing.assert_allclose(on, want, rtol=1e-4)
+    at_rest = Quadrotor(SimConfig(aero=True)).aero_force(th, jnp.zeros(3), speed)
+    np.testing.assert_allclose(at_rest, 0.0, atol=1e-6)
