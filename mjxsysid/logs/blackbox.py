@@ -28,7 +28,7 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.logs.segment import airborne_segment
-from mjxsysid.logs.ulog import DT, MIN_ROWS, hold, interp_linear, user_segment, world_to_body
+from mjxsysid.logs.grid import DT, MIN_ROWS, hold, interp_linear, user_segment, world_to_body
 
 MAGIC = b"H Product:Blackbox flight data recorder by Nicholas Sherlock"
 """The first header line of every log in a blackbox file."""

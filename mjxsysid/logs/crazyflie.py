@@ -34,8 +34,7 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.logs.segment import _runs, airborne_segment
 from mjxsysid.logs.record import rate_hz, rate_text
-from mjxsysid.logs.ulog import (DT, cut, hold, interp_linear, segment_grid, user_segment,
-                               world_to_body)
+from mjxsysid.logs.grid import DT, cut, hold, interp_linear, segment_grid, user_segment, world_to_body
 
 MAGIC = 0xBC
 STAMP = {1: ("<u4", 1e-3, "u32 ms"), 2: ("<u8", 1e-6, "u64 µs")}

@@ -134,7 +134,7 @@ def cut_csv(rec: dict, path, segment=None) -> dict:
     the airborne segment, measured (native rates of every column group) and said (``source``)."""
     from mjxsysid.logs.checks.rates import measure_columns
     from mjxsysid.logs.segment import airborne_segment
-    from mjxsysid.logs.ulog import parse_segment
+    from mjxsysid.logs.grid import parse_segment
     t = rec["t"]
     seg = parse_segment(segment)
     if seg is None:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from mjxsysid.logs.segment import airborne_segment
-from mjxsysid.logs.ulog import DT, MIN_ROWS, cut, hold, interp_linear, user_segment
+from mjxsysid.logs.grid import DT, MIN_ROWS, cut, hold, interp_linear, user_segment
 
 LINEAR, HELD = "interpolated (linear)", "held (zero-order)"
 

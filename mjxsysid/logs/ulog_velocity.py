@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mjxsysid.logs.ulog import cut, interp_linear, world_to_body
+from mjxsysid.logs.grid import cut, interp_linear, world_to_body
 
 FLU_FROM_FRD = np.array([1.0, -1.0, -1.0])
 

@@ -12,7 +12,7 @@ from mjxsysid.runtime.jsonout import dumps
 from mjxsysid.logs import checks as L
 from mjxsysid.logs.checks.rotors import check_motors
 from mjxsysid.logs.csvlog import LOG_COLUMNS, read_any_log, read_log, write_log
-from mjxsysid.logs.ulog import hold, interp_linear
+from mjxsysid.logs.grid import hold, interp_linear
 from support.synthetic_log import synthetic_flight
 
 TWR = 2.42
@@ -147,7 +147,7 @@ def test_information_gap_tick_labels_do_not_overlap(tmp_path):
 
 def test_the_logs_minimum_rows_are_the_policys_history():
     from mjxsysid.logs.csvlog import MIN_ROWS
-    from mjxsysid.logs.ulog import MIN_ROWS as ULOG_MIN_ROWS
+    from mjxsysid.logs.grid import MIN_ROWS as ULOG_MIN_ROWS
     from mjxsysid.policy.adaptive.networks import HISTORY
     assert MIN_ROWS == ULOG_MIN_ROWS == HISTORY
 

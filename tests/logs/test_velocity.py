@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from mjxsysid.logs.csvlog import LOG_COLUMNS, VELOCITY_COLUMNS, read_any_log, read_log, write_log
-from mjxsysid.logs.ulog import world_to_body
+from mjxsysid.logs.grid import world_to_body
 from support.paths import SHARED_DATA, require_shared
 from support.synthetic_log import synthetic_flight
 
