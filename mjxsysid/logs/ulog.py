@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from mjxsysid import theta as P
-from mjxsysid.logs.grid import DT, MIN_ROWS, interp_linear, hold, user_segment, cut, segment_grid
+from mjxsysid.logs.grid import DT, MIN_ROWS, cut, hold, interp_linear, segment_grid, user_segment
+from mjxsysid.logs.grid import parse_segment, world_to_body  # noqa: F401  (importable here too, their first home)
 
 PX4_QUADX_ORDER = (0, 2, 1, 3)
 """PX4's default quad-X outputs (front-right, back-left, front-left, back-right): the mjxsysid
