@@ -106,7 +106,7 @@ def _tune_slow(runs: RunFiles) -> Row:
 
 def _fidelity(runs: RunFiles) -> Row:
     rel = run_path("studies", "closed_loop_fidelity.json")
-    lg = {k: run_path("log_grounded", "smc-adaptive", "fidelity", f"{k}.json") for k in ("log_grounded", "log_grounded_weighed")}
+    lg = {k: run_path("log_grounded", "calibrated", "downstream", "fidelity", f"{k}.json") for k in ("log_grounded", "log_grounded_weighed")}
     d = runs.load(rel)
     inside, ratio = d["mean"]["inside_decoded"], d["width_ratio_decoded_over_pm20"]["median"]
     g, w = (runs.load(r) for r in lg.values())
