@@ -47,8 +47,10 @@ from mjxsysid.identify.likelihood import (
     N_NUIS,
     NU,
     best_log_delta,
+    drag_per_mass,
     linear_start,
     log_likelihood,
+    predict,
     rate_rows,
     residual_weights,
     residuals,
@@ -455,10 +457,20 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     xs = np.asarray(full_x(ys, ld))
     v_raw = xs[:, :N_V]
     out["features"] = log_features(data, mode)
+    out["drag_per_mass"] = mode_drag_per_mass(mode, data) if out["features"]["velocity_used"] else None
     v, out["calibration"] = _calibrated(v_raw, out["features"], w, calibration, prior, seed)
     h = prior.sample_h(r_h, samples)
     out.update(v=v, v_raw=v_raw, nuisance=xs[:, N_V:], theta=np.asarray(theta_from(v, h), np.float32))
     return out
+
+
+def mode_drag_per_mass(mode, data: LogData) -> float:
+    """The body-z drag per mass D_z = d_z / m (1/s) the accelerometer's term profiles at the posterior's
+    ``mode`` (21,) (:func:`~.likelihood.drag_per_mass`): a point value for a log that carries velocity."""
+    x = jnp.asarray(mode, jnp.float32)
+    _, acc = predict(x[:N_V], data)
+    r0 = (data.acc - acc - x[N_V + 8]) * data.bmask
+    return float(drag_per_mass(r0, data))
 
 
 def _calibrated(v_raw, features, weights, calibration, prior, seed):

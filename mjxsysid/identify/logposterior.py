@@ -22,7 +22,8 @@ from mjxsysid.identify.gap import information_gap, seen_by_name
 from mjxsysid.identify.inference import log_grounded_posterior
 
 DIAGNOSTIC_KEYS = ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
-                   "smc_acceptance_min", "smc_tempering", "features", "weights", "channels_used", "rates", "mode")
+                   "smc_acceptance_min", "smc_tempering", "features", "weights", "channels_used", "rates", "mode",
+                   "drag_per_mass")
 
 
 @dataclasses.dataclass(frozen=True)

@@ -151,7 +151,7 @@ def test_body_drag_from_the_logs_velocity_and_the_drag_free_model_biased():
     lo, med, hi = np.percentile(tw, [5, 50, 95])
     true = C.log_quantities(theta)[0]
     assert lo <= true <= hi and abs(med / true - 1) < 0.01, (lo, med, hi, true)
-    assert post["features"]["velocity_used"]
+    assert post["features"]["velocity_used"] and post["drag_per_mass"] == pytest.approx(0.6, rel=0.1)
 
 
 def test_posterior_covers_the_truth_hidden_directions_broad_and_the_proposal_only_proposes():
