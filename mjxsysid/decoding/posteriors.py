@@ -137,12 +137,13 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     diag["residual_weights"] = {c: float(x) for c, x in zip(CHANNELS, post["weights"])}
     diag["channels_used"] = [c for c, u in zip(CHANNELS, post["channels_used"]) if u > 0]
     diag["rates"] = post["rates"]
-    diag["drag_per_mass_z"] = ({"value": post["drag_per_mass"], "unit": "1/s",
-                                "what": "the body-z drag over the mass the accelerometer's term fits through the log's "
-                                        "velocity (at the posterior's mode; not calibrated)"}
-                               if post.get("drag_per_mass") is not None else
-                               {"value": None, "why": "the log carries no velocity: the drag's share of the specific "
-                                                      "force is left to the calibration"})
+    diag["drag_per_mass"] = ({"value": post["drag_per_mass"], "unit": "1/s", "axes": "body x, y, z",
+                              "what": "the body drag over the mass the accelerometer fits through the log's velocity "
+                                      "(x, y: least squares of its x and y; z: its term at the posterior's mode; "
+                                      "not calibrated)"}
+                             if post.get("drag_per_mass") is not None else
+                             {"value": None, "why": "the log carries no velocity: the drag's share of the specific "
+                                                    "force is left to the calibration"})
     cal = post["calibration"]
     seen = seen_by_name(cal) if cal.get("applied") else None
     diag["calibration"] = ({"applied": True, "table": cal["table"], "features": post["features"],

@@ -108,7 +108,10 @@ VARIANTS = {"heading_cost": "the tuner's cost with a heading term (weight HEADIN
                             "lag-aware oracle on a lemniscate, its IMU and motor commands), with the vehicle's "
                             "mass weighed (an IMU log cannot see it); the other methods as in the default protocol",
             "log_grounded_known_drag": "log_grounded with the ensemble's drag set to each vehicle's true drag too "
-                                       "(a diagnostic: an IMU log cannot see the drag)"}
+                                       "(a diagnostic: the posterior's drag is as broad as its prior)",
+            "log_grounded_log_drag": "log_grounded with the ensemble's drag set to what the log's velocity shows: "
+                                     "the drag per mass of each body axis fitted by the accelerometer, times the "
+                                     "weighed mass"}
 """Protocol variants of the tune-* experiments (``mjxsysid experiment NAME --variant V[,V2]``):
 choices made after seeing a result, or knobs measured, reported beside the default protocol."""
 
@@ -146,14 +149,16 @@ LOG_PARTICLES = 512
 
 
 def log_ensembles(theta, seed: int, *, draws: int = LOG_ENSEMBLE, particles: int | None = None,
-                  progress: bool = True, known_drag: bool = False) -> np.ndarray:
+                  progress: bool = True, known_drag: bool = False, log_drag: bool = False) -> np.ndarray:
     """The tuner given a log (variant ``log_grounded``): for each vehicle θ (B, 19) a 10 s
     identification flight (the lag-aware oracle, 10 s lemniscate, clean IMU, its own seed), the
     log-grounded posterior of its IMU and motor commands (no decoded proposal: the stated prior and
     the log), ``draws`` of it with the true mass (a vehicle put on a scale: the log cannot see the
     mass) -> (B, draws, 19). A failed identification flight is an error (no log, no models).
     ``particles``: the posterior's SMC particles (default its own). ``known_drag``: the draws' drag
-    set to the true one as well (a diagnostic)."""
+    set to the true one as well (a diagnostic); ``log_drag``: set to the log's fitted drag per mass
+    (:func:`mjxsysid.identify.inference.log_grounded_posterior`'s ``drag_per_mass``, body x, y, z) times
+    the weighed mass."""
     from mjxsysid.identify import log_grounded_posterior
     from mjxsysid.identify.coords import with_mass
     from mjxsysid.runtime.progress import progress as bar
@@ -170,6 +175,11 @@ def log_ensembles(theta, seed: int, *, draws: int = LOG_ENSEMBLE, particles: int
         out[i] = with_mass(post["theta"], float(theta[i, P.MASS]))
         if known_drag:
             out[i][:, P.DRAG] = theta[i, P.DRAG]
+        elif log_drag:
+            d = post["drag_per_mass"]
+            if d is None or any(x is None for x in d):
+                raise RuntimeError(f"vehicle {i}: the identification log shows no drag (no velocity)")
+            out[i][:, P.DRAG] = np.asarray(d, np.float32) * theta[i, P.MASS]
     return out
 
 
@@ -195,11 +205,12 @@ def _prior_experiment(name, prior, methods, out, quick, policy, seed, progress, 
     steps = int(round(duration / sim.config.dt))
     ensemble = None
     variants = (variant or "").split(",")
-    if "log_grounded" in variants or "log_grounded_known_drag" in variants:
+    if {"log_grounded", "log_grounded_known_drag", "log_grounded_log_drag"} & set(variants):
         methods = tuple(methods) + (() if "log_cem" in methods else ("log_cem",))
         _log(f"{name}: identification flights and log-grounded posteriors of {n} vehicles")
         ensemble = log_ensembles(theta, seed, particles=LOG_PARTICLES, progress=progress,
-                                 known_drag="log_grounded_known_drag" in variants)
+                                 known_drag="log_grounded_known_drag" in variants,
+                                 log_drag="log_grounded_log_drag" in variants)
     _log(f"{name}: {n} {prior}-prior vehicles × {duration:g} s min-snap, methods {methods}")
     res = compare_methods(theta, refs, steps=steps, methods=methods, cfg=cfg, policy=policy, sim=sim,
                           decoder=decoder, seed=seed, log=_log, progress=progress, ensemble=ensemble)

@@ -457,7 +457,11 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     xs = np.asarray(full_x(ys, ld))
     v_raw = xs[:, :N_V]
     out["features"] = log_features(data, mode)
-    out["drag_per_mass"] = mode_drag_per_mass(mode, data) if out["features"]["velocity_used"] else None
+    if out["features"]["velocity_used"]:     # (3,) 1/s: x and y from the accelerometer's x and y, z from its term
+        xy = getattr(data, "_rows", {}).get("drag_xy")
+        out["drag_per_mass"] = [*(xy.tolist() if xy is not None else [None, None]), mode_drag_per_mass(mode, data)]
+    else:
+        out["drag_per_mass"] = None
     v, out["calibration"] = _calibrated(v_raw, out["features"], w, calibration, prior, seed)
     h = prior.sample_h(r_h, samples)
     out.update(v=v, v_raw=v_raw, nuisance=xs[:, N_V:], theta=np.asarray(theta_from(v, h), np.float32))

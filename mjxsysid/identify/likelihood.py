@@ -57,7 +57,7 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.identify.coords import N_V
-from mjxsysid.identify.logdata import DT, KF_LOGIT_GRID, LogData, gain_filter, gyro_rows, kf_gains, step_lag
+from mjxsysid.identify.logdata import DRAG_MAX, DT, KF_LOGIT_GRID, LogData, gain_filter, gyro_rows, kf_gains, step_lag
 
 NU = 4.0
 """Degrees of freedom of the Student-t residuals (the windows' rate term and the accelerometer)."""
@@ -66,9 +66,6 @@ RESOLUTION = np.array([1e-4, 1e-4, 1e-4, 1e-3], np.float32)
 """rad/s, m/s²: the finest residual scale per channel — a logged number's resolution (a 16-bit
 gyro at ±2000 °/s has 1e-3 rad/s steps; a CSV with 7 digits ~1e-5 relative): without a floor a
 noise-free simulated log would make every model error infinitely significant."""
-DRAG_MAX = 3.0
-"""1/s: the largest body drag per mass D_z = d_z / m the accelerometer term profiles (a racing
-quadrotor's is about 0.3; the simulator's priors stay below 1)."""
 N_NUIS = 9
 """Nuisance parameters after v: log σ (4: gyro x, y, z, acc z), log δ (4, same channels), acc_z bias."""
 NUIS_NAMES = tuple(f"log_noise[{c}]" for c in CHANNELS) + tuple(f"log_discrepancy[{c}]" for c in CHANNELS) + (

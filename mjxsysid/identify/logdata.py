@@ -24,6 +24,9 @@ measured rates), so the length trades the feedback bias (a controller reacts to 
 its share falls with the samples averaged) against the rotor lag's visibility (shorter windows
 see τ_m better). Measured at 5× white noise, 4 MJX flights, the log-target gap between the fitted
 mode and the truth: 17–21 nats at 10 steps, 2–9 at 25, 2–11 at 50."""
+DRAG_MAX = 3.0
+"""1/s: the largest body drag per mass D = d / m the accelerometer's terms fit (a racing quadrotor's
+is about 0.3; the simulator's priors stay below 3)."""
 ACC_BLOCK_STEPS = 250
 """Control steps (0.5 s) over which the accelerometer residual is averaged: the specific force's
 largest unmodelled term, drag (−D_z v_z / m, the velocity not in an IMU log), varies over the
@@ -284,7 +287,8 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
                    rates)
     # the log's rows, for host-side diagnostics of the innovations (residual_weights): not a
     # pytree field, so never passed into a compiled program
-    object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf})
+    object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf,
+                                       "drag_xy": drag_per_mass_xy(rec, bsteps + 1)})
     return data
 
 
@@ -300,6 +304,21 @@ def block_velocity_z(rec: dict, rows) -> np.ndarray:
     if not has_velocity(rec):
         return np.zeros(len(rows))
     return np.asarray(rec["velocity_body"], np.float64)[rows, 2].mean(1)
+
+
+def drag_per_mass_xy(rec: dict, rows) -> np.ndarray | None:
+    """The body x and y drag per mass (2,) 1/s, in [0, :data:`DRAG_MAX`]: the accelerometer's x and y read
+    −D v in the body frame (plus a bias and whatever else pushes sideways), so least squares of their
+    block means (``rows`` (nb, B)) on the log's body velocity and a constant; None without velocity."""
+    if not has_velocity(rec) or len(rows) < 3:
+        return None
+    imu, vb = np.asarray(rec["imu"], np.float64), np.asarray(rec["velocity_body"], np.float64)
+    out = []
+    for a in (0, 1):
+        v = vb[rows, a].mean(1)
+        k, *_ = np.linalg.lstsq(np.stack([-v, np.ones_like(v)], 1), imu[rows, 3 + a].mean(1), rcond=None)
+        out.append(float(np.clip(k[0], 0.0, DRAG_MAX)))
+    return np.array(out)
 
 
 def bucket(n: int) -> int:
