@@ -41,9 +41,10 @@ from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.control.references import Lemniscate
 from mjxsysid.experiments.common import write_results
 from mjxsysid.logs.csvlog import LOG_DT, write_log
+from mjxsysid.logs.grid import world_to_body
 from mjxsysid.policy.adaptive.controller import PolicyController
 from mjxsysid.policy.interface import PRETRAINED_DIR, file_sha256
-from mjxsysid.sim.quadrotor import aliased_hz, quat_to_mat, vibration_step
+from mjxsysid.sim.quadrotor import aliased_hz, vibration_step
 from mjxsysid.decoding import run_decode
 from mjxsysid.uses.imu_noise import LEVELS as NOISE_LEVELS
 
@@ -156,14 +157,13 @@ def fly(theta, seconds: float, noise: dict, white, bias, ctrl, vib_white=None) -
     vib = np.zeros((2, 6), np.float32)                 # the resonator's last two outputs (unit std)
     true = np.array([0.0, 0, 0, 0, 0, P.GRAVITY])   # at rest before the first step
     hc, lc = high.init(), ctrl.init()
-    rec = {k: [] for k in ("imu", "a_cmd", "omega_cmd", "motor", "err", "velocity_body")}
+    rec = {k: [] for k in ("imu", "a_cmd", "omega_cmd", "motor", "err", "quat", "vel")}
     for i in range(steps):
         imu = true + sb * bias + sd * white[i]
         if sv.any():
             vib = np.asarray(_vibration(vib, np.float32(vib_white[i]), np.float32(state["rotor_speeds"])))
             imu = imu + sv * vib[1]
         x, v, q, w = state["x"], state["v"], state["q"], state["w"]
-        vel_body = np.asarray(quat_to_mat(np.r_[q[3], q[:3]].astype(np.float32)), np.float64).T @ v
         hc, lc, a_cmd, w_cmd, u, ref_pos = _control(
             ctrl, high, ref, hc, lc, jnp.asarray(x, jnp.float32), jnp.asarray(v, jnp.float32),
             jnp.asarray(np.r_[q[3], q[:3]], jnp.float32), jnp.asarray(w, jnp.float32),
@@ -174,11 +174,12 @@ def fly(theta, seconds: float, noise: dict, white, bias, ctrl, vib_white=None) -
         meas = imu_model.measurement(state, vehicle.statedot(state, control, LOG_DT), with_noise=False)
         true = np.r_[meas["gyro"], meas["accel"]]
         for k, val in (("imu", imu), ("a_cmd", float(a_cmd)), ("omega_cmd", np.asarray(w_cmd)), ("motor", u),
-                       ("err", state["x"] - np.asarray(ref_pos)), ("velocity_body", vel_body)):
+                       ("err", state["x"] - np.asarray(ref_pos)), ("quat", np.r_[q[3], q[:3]]), ("vel", v)):
             rec[k].append(val)
         if np.linalg.norm(rec["err"][-1]) > 3.0 or state["x"][2] < 0 or not np.all(np.isfinite(state["x"])):
             break   # lost (the project's failure test: 3 m from the reference or below the ground)
     rec = {k: np.asarray(v) for k, v in rec.items()}
+    rec["velocity_body"] = world_to_body(rec.pop("quat"), rec.pop("vel"))   # at each step's start, wxyz
     rec["t"] = LOG_DT * np.arange(len(rec["a_cmd"]))
     rec["lost"] = len(rec["t"]) < steps
     return rec

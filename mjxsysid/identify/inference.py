@@ -47,10 +47,9 @@ from mjxsysid.identify.likelihood import (
     N_NUIS,
     NU,
     best_log_delta,
-    drag_per_mass,
+    drag_at,
     linear_start,
     log_likelihood,
-    predict,
     rate_rows,
     residual_weights,
     residuals,
@@ -459,22 +458,13 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     out["features"] = log_features(data, mode)
     if out["features"]["velocity_used"]:     # (3,) 1/s: x and y from the accelerometer's x and y, z from its term
         xy = getattr(data, "_rows", {}).get("drag_xy")
-        out["drag_per_mass"] = [*(xy.tolist() if xy is not None else [None, None]), mode_drag_per_mass(mode, data)]
+        out["drag_per_mass"] = [*(xy.tolist() if xy is not None else [None, None]), drag_at(mode, data)]
     else:
         out["drag_per_mass"] = None
     v, out["calibration"] = _calibrated(v_raw, out["features"], w, calibration, prior, seed)
     h = prior.sample_h(r_h, samples)
     out.update(v=v, v_raw=v_raw, nuisance=xs[:, N_V:], theta=np.asarray(theta_from(v, h), np.float32))
     return out
-
-
-def mode_drag_per_mass(mode, data: LogData) -> float:
-    """The body-z drag per mass D_z = d_z / m (1/s) the accelerometer's term profiles at the posterior's
-    ``mode`` (21,) (:func:`~.likelihood.drag_per_mass`): a point value for a log that carries velocity."""
-    x = jnp.asarray(mode, jnp.float32)
-    _, acc = predict(x[:N_V], data)
-    r0 = (data.acc - acc - x[N_V + 8]) * data.bmask
-    return float(drag_per_mass(r0, data))
 
 
 def _calibrated(v_raw, features, weights, calibration, prior, seed):

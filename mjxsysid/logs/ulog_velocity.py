@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from mjxsysid.logs.grid import cut, interp_linear, world_to_body
+from mjxsysid.logs.record import sorted_unique
 
 FLU_FROM_FRD = np.array([1.0, -1.0, -1.0])
 
@@ -31,13 +32,6 @@ def continuous_quaternions(q):
     return q
 
 
-def _sorted(t, x):
-    o = np.argsort(t, kind="stable")
-    t, x = t[o], np.asarray(x, np.float64)[o]
-    keep = np.concatenate([[True], np.diff(t) > 0])
-    return t[keep], x[keep]
-
-
 def ulog_velocity_body(lp, att, start_us, t0: float, t1: float):
     """``vehicle_local_position`` ``lp`` and ``vehicle_attitude`` ``att`` (pyulog's data dicts, or
     None) -> ((t (N,) s, v (N, 3) m/s FLU) the native samples in the segment t0..t1 s (one more on
@@ -47,12 +41,12 @@ def ulog_velocity_body(lp, att, start_us, t0: float, t1: float):
     if att is None or not all(f"q[{i}]" in att for i in range(4)):
         return None, ("velocity_body: not given: vehicle_local_position is logged but vehicle_attitude (q) is not; "
                       "the NED velocity cannot be rotated into the body")
-    t_v, v_ned = _sorted(_times(lp, start_us), np.stack([lp["vx"], lp["vy"], lp["vz"]], -1))
+    t_v, v_ned = sorted_unique(_times(lp, start_us), np.stack([lp["vx"], lp["vy"], lp["vz"]], -1))
     checks = {"not finite": ~np.isfinite(v_ned).all(1)}
     flags = [k for k in ("v_xy_valid", "v_z_valid") if k in lp]
     for k in flags:
-        checks[f"{k} false"] = _sorted(_times(lp, start_us), np.asarray(lp[k], np.float64))[1] < 0.5
-    t_a, q = _sorted(_times(att, start_us), np.stack([att[f"q[{i}]"] for i in range(4)], -1))
+        checks[f"{k} false"] = sorted_unique(_times(lp, start_us), np.asarray(lp[k], np.float64))[1] < 0.5
+    t_a, q = sorted_unique(_times(att, start_us), np.stack([att[f"q[{i}]"] for i in range(4)], -1))
     good_q = np.isfinite(q).all(1) & (np.linalg.norm(q, axis=1) > 0.5)
     t_a, q = t_a[good_q], q[good_q]
     tn = cut(t_v, v_ned, t0, t1)[0]
