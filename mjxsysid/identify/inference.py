@@ -29,6 +29,7 @@ log, so θ = θ(v, h) with h drawn from the prior.
 from __future__ import annotations
 
 import functools
+import os
 
 import jax
 import jax.numpy as jnp
@@ -55,7 +56,7 @@ from mjxsysid.identify.likelihood import (
     residuals,
     residuals_jit,
 )
-from mjxsysid.identify.logdata import RATES, LogData, prepare
+from mjxsysid.identify.logdata import RATES, LogData, LogTooShort, prepare
 from mjxsysid.identify.proposals import StudentT, decoded_proposal, ess, nuisance_proposal, pareto_khat
 
 MIN_ESS_FRACTION = 0.05
@@ -214,6 +215,21 @@ def _ls_jacobian(z, args, w):
     return jax.jacfwd(lambda q: _ls_residuals(q, args) * sw)(z)
 
 
+@functools.partial(jax.jit, static_argnames=("max_steps",))
+def _fit_ls_logs(z0, data, ld, ls, max_steps=200):
+    """:func:`_fit_ls` from every start of every log at once: z0 (L, K, 13), data / ld / ls with a
+    leading log axis -> (L, K, 13)."""
+    def one(z, d, a, b):
+        return jax.vmap(lambda q: _fit_ls(q, d, a, b, max_steps=max_steps))(z)
+    return jax.vmap(one)(z0, data, ld, ls)
+
+
+@jax.jit
+def _ls_jacobian_logs(z, data, ld, ls, w):
+    """:func:`_ls_jacobian` of every log at z (L, 13) -> (L, R, 13)."""
+    return jax.vmap(lambda q, d, a, b, c: _ls_jacobian(q, (d, a, b), c))(z, data, ld, ls, w)
+
+
 def _discrepancy(y, data):
     """δ per channel (4,) at y (17,): what the residuals' mean square leaves beyond the scale they
     have without a discrepancy (noise, resolution, the windows' floor; at least 1e-6)."""
@@ -233,6 +249,100 @@ _DELTA_GRID = np.linspace(NUIS_BOUNDS[2], NUIS_BOUNDS[3], 64)
 """log δ the innovations' process noise is chosen from at the mode (:func:`_discrepancy`)."""
 
 
+def _take(tree, idx):
+    """The logs ``idx`` of a stacked pytree (leading axis: the log)."""
+    idx = np.asarray(idx)
+    return jax.tree.map(lambda a: a[idx], tree)
+
+
+def _pow2_pad(idx):
+    """Indices padded to the next power of two by repeating the first: a subset of a batch takes
+    one of a few compiled shapes, not one per size."""
+    idx = list(idx)
+    n = 1 << int(np.ceil(np.log2(max(len(idx), 1))))
+    return np.asarray(idx + [idx[0]] * (n - len(idx)))
+
+
+class _Logs:
+    """Logs of one shape (their :class:`LogData` pytrees' leaves alike) evaluated together.
+
+    One log runs the single-log programs (on a CPU the starts one after the other, see
+    :func:`_fit_ls_many`); several run programs vmapped over a leading log axis (:data:`LOG_BATCH`),
+    a subset padded to a power of two (:func:`_pow2_pad`)."""
+
+    def __init__(self, datas):
+        self.datas = list(datas)
+        self.stack = jax.tree.map(lambda *a: jnp.stack(a), *self.datas) if len(self.datas) > 1 else None
+
+    def __len__(self):
+        return len(self.datas)
+
+    def _sub(self, idx):
+        p = _pow2_pad(idx)
+        return p, _take(self.stack, p)
+
+    def targets(self, y, ld, w, prior, idx=None):
+        """log target of y (m, N, 17) for the logs ``idx`` (m,) (default all), each with its log δ
+        (m, 4) and weights (m, 4) (None: 1) -> (m, N)."""
+        idx = list(range(len(self))) if idx is None else list(idx)
+        w = np.ones((len(idx), 4), np.float32) if w is None else np.asarray(w, np.float32)
+        if self.stack is None:
+            return np.asarray(log_target(y[0], self.datas[idx[0]], ld[0], w[0], prior))[None]
+        p, data = self._sub(idx)
+        pad = len(p) - len(idx)
+        y, ld, w = (np.concatenate([a, np.broadcast_to(a[:1], (pad,) + a.shape[1:])]) if pad else a
+                    for a in (np.asarray(y, np.float32), np.asarray(ld, np.float32), w))
+        n = y.shape[1]
+        chunk = max(16, TARGET_EVALS // len(p))
+        padn = -n % chunk
+        if padn:
+            y = np.concatenate([y, np.broadcast_to(y[:, :1], (len(p), padn, y.shape[2]))], 1)
+        out = [np.asarray(_batch_log_target_logs(jnp.asarray(y[:, i:i + chunk]), data, jnp.asarray(ld), jnp.asarray(w), prior))
+               for i in range(0, y.shape[1], chunk)]
+        return np.concatenate(out, 1)[:len(idx), :n]
+
+    def fit(self, z, ld, ls):
+        """Levenberg–Marquardt from every start z (L, K, 13) -> (L, K, 13)."""
+        if self.stack is None:
+            return np.asarray(_fit_ls_many(jnp.asarray(z[0]), self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])))[None]
+        return np.asarray(_fit_ls_logs(jnp.asarray(z), self.stack, jnp.asarray(ld), jnp.asarray(ls)))
+
+    def jacobians(self, z, ld, ls, w):
+        """The tempered residuals' Jacobians at z (L, 13) -> (L, R, 13)."""
+        if self.stack is None:
+            return np.asarray(_ls_jacobian(jnp.asarray(z[0]), (self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])),
+                                           jnp.asarray(w[0])))[None]
+        return np.asarray(_ls_jacobian_logs(jnp.asarray(z), self.stack, jnp.asarray(ld), jnp.asarray(ls), jnp.asarray(w)))
+
+    def smc(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages):
+        """The tempered SMC of the logs ``idx`` (m,) from their particles y0 (m, P, 17) -> the
+        outputs of :func:`_smc`, each with a leading axis m."""
+        idx = list(idx)
+        args = (np.asarray(keys, np.uint32), np.asarray(y0, np.float32), np.asarray(ld, np.float32), np.asarray(w, np.float32))
+        if self.stack is None:
+            out = _smc(*(jnp.asarray(a[0]) for a in args[:2]), self.datas[idx[0]], *(jnp.asarray(a[0]) for a in args[2:]),
+                       qv[0], qn[0], lap[0], prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
+            return [np.asarray(o)[None] for o in out]
+        p, data = self._sub(idx)
+        pad = len(p) - len(idx)
+        args = [np.concatenate([a, np.broadcast_to(a[:1], (pad,) + a.shape[1:])]) if pad else a for a in args]
+        stk = lambda ts: None if ts[0] is None else jax.tree.map(lambda *a: jnp.stack(a), *(ts + [ts[0]] * pad))  # noqa: E731
+        out = _smc_logs(*(jnp.asarray(a) for a in args[:2]), data, *(jnp.asarray(a) for a in args[2:]),
+                        stk(list(qv)), stk(list(qn)), stk(list(lap)), prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
+        return [np.asarray(o)[:len(idx)] for o in out]
+
+
+TARGET_EVALS = 4096
+"""Evaluations of the target per call when several logs are evaluated together (a batch's draws are
+cut into chunks of TARGET_EVALS / logs each)."""
+
+
+@functools.partial(jax.jit, static_argnames=("prior",))
+def _batch_log_target_logs(y, data, log_delta, weights, prior):
+    """:func:`_batch_log_target` vmapped over logs: y (L, N, 17) -> (L, N)."""
+    return jax.vmap(lambda z, d, a, b: jax.vmap(lambda q: _log_target_y(q, d, a, b, prior))(z))(y, data, log_delta, weights)
+
+
 @full_precision
 def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3):
     """The mode from ``starts`` (K, 21) -> (x* (21,), log δ* (4,), weights (4,), y* (17,), the
@@ -241,27 +351,42 @@ def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, roun
     residuals, ``rounds`` times (δ free in the
     same fit lets a poor start explain the rates as discrepancy and stay there; a Student-t BFGS
     from a good start wandered off in float32); then the correlation discounts w are set."""
+    return find_modes(_Logs([data]), np.asarray(starts, np.float32)[None], prior, rounds)[0]
+
+
+def find_modes(logs: "_Logs", starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3) -> list:
+    """:func:`find_mode` of every log of ``logs`` at once from its starts (L, K, 21) -> L tuples."""
     starts = np.asarray(starts, np.float32)
-    ys = np.concatenate([starts[:, :N_V + 4], starts[:, N_V + 8:]], 1)
-    ld = starts[0, N_V + 4:N_V + 8].astype(np.float32)
-    ls = ys[0, N_V:N_V + 4]
+    L, K = starts.shape[:2]
+    rows = np.arange(L)
+    ys = np.concatenate([starts[..., :N_V + 4], starts[..., N_V + 8:]], -1)          # (L, K, 17)
+    ld = starts[:, 0, N_V + 4:N_V + 8].astype(np.float32)                               # (L, 4)
+    ls = ys[:, 0, N_V:N_V + 4]                                                          # (L, 4)
     for _ in range(rounds):
-        z = np.concatenate([ys[:, :N_V], ys[:, N_V + 4:]], 1)
-        z = np.asarray(_fit_ls_many(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls)))
-        fits = np.concatenate([z[:, :N_V], np.broadcast_to(ls, (len(z), 4)), z[:, N_V:]], 1)
-        fits = _project(np.asarray(full_x(fits, ld)), prior)
-        fits = np.concatenate([fits[:, :N_V + 4], fits[:, N_V + 8:]], 1)
-        lt = np.asarray(log_target(fits, data, ld, None, prior))
-        best = fits[int(np.argmax(np.where(np.isfinite(lt), lt, -np.inf)))]
-        ld = np.clip(_discrepancy(best, data), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
+        z = logs.fit(np.concatenate([ys[..., :N_V], ys[..., N_V + 4:]], -1), ld, ls)
+        fits = np.concatenate([z[..., :N_V], np.broadcast_to(ls[:, None], (L, K, 4)), z[..., N_V:]], -1)
+        fits = _project(np.asarray(full_x(fits, ld[:, None])).reshape(L * K, -1), prior).reshape(L, K, -1)
+        fits = np.concatenate([fits[..., :N_V + 4], fits[..., N_V + 8:]], -1)
+        lt = logs.targets(fits, ld, None, prior)
+        best = fits[rows, np.argmax(np.where(np.isfinite(lt), lt, -np.inf), 1)]
+        ld = np.stack([np.clip(_discrepancy(best[i], d), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
+                       for i, d in enumerate(logs.datas)]).astype(np.float32)
         ys = fits       # every start refitted under the new δ: the same rows each round, one compiled fit
-    w = residual_weights(full_x(best, ld), data)
-    y = best
-    # Gauss–Newton precision of the tempered Student-t residuals at the least-squares mode (Fisher
-    # information (ν+1)/(ν+3) per standardised residual); σ's from its second differences (2 n per log σ)
-    z = jnp.asarray(np.concatenate([y[:N_V], y[N_V + 4:]]))
-    args = (data, jnp.asarray(ld), jnp.asarray(y[N_V:N_V + 4]))
-    jac = np.asarray(_ls_jacobian(z, args, jnp.asarray(w)), np.float64)
+    w = np.stack([residual_weights(full_x(best[i], ld[i]), d) for i, d in enumerate(logs.datas)])
+    jac = logs.jacobians(np.concatenate([best[:, :N_V], best[:, N_V + 4:]], 1), ld, best[:, N_V:N_V + 4], w)
+    out = []
+    for i, d in enumerate(logs.datas):
+        x, ldi, yi, lap = _laplace(best[i], ld[i], jac[i], d, prior)
+        out.append((x, ldi, w[i], yi, lap))
+    return out
+
+
+def _laplace(y, ld, jac, data: LogData, prior: PhysicalPrior):
+    """The mode y (17,) with its log δ (4,) and the tempered residuals' Jacobian there (R, 13) -> (x*
+    (21,), log δ, y, the Laplace Student-t): the Gauss–Newton precision of the tempered Student-t
+    residuals (Fisher information (ν+1)/(ν+3) per standardised residual); σ's from its second
+    differences (2 n per log σ)."""
+    jac = np.asarray(jac, np.float64)
     pz = (NU + 1) / (NU + 3) * jac.T @ jac
     h = np.zeros((N_Y, N_Y))
     iz = np.r_[0:N_V, N_V + 4]
@@ -274,7 +399,7 @@ def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, roun
     prec = (u * ev) @ u.T + np.diag(1.0 / ((hi - lo) / 2) ** 2)        # no wider than the prior's box
     cov = np.linalg.inv(prec)
     lap = StudentT(y.astype(np.float32), (np.linalg.cholesky(0.5 * (cov + cov.T)) * LAPLACE_WIDEN).astype(np.float32))
-    return np.asarray(full_x(jnp.asarray(y)[None], ld))[0], ld, w, y, lap
+    return np.asarray(full_x(jnp.asarray(y)[None], ld))[0], ld, y, lap
 
 
 LAPLACE_WIDEN = 2.0
@@ -300,8 +425,9 @@ def _mixture_log_prob(y, qv, qn, lap, prior: PhysicalPrior, share: float):
     return out
 
 
-@functools.partial(jax.jit, static_argnames=("prior", "n_mcmc", "max_stages", "share", "target_ess"))
-def _smc(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, share, target_ess):
+def _smc_impl(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, share, target_ess):
+    """The tempered SMC of one log from its particles y0 (P, 17) -> (particles, weights, λ, stages,
+    mean acceptance, lowest stage's acceptance)."""
     import blackjax
     from blackjax.mcmc.random_walk import build_additive_step, normal
     from blackjax.smc.base import extend_params
@@ -346,6 +472,18 @@ def _smc(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, share, ta
     return st.particles, st.weights, st.tempering_param, n, acc / jnp.maximum(n, 1), acc_min
 
 
+_SMC_STATIC = ("prior", "n_mcmc", "max_stages", "share", "target_ess")
+_smc = jax.jit(_smc_impl, static_argnames=_SMC_STATIC)
+
+
+@functools.partial(jax.jit, static_argnames=_SMC_STATIC)
+def _smc_logs(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, share, target_ess):
+    """:func:`_smc` vmapped over logs (every argument but the static ones with a leading log axis)."""
+    def one(k, y, d, a, b, q1, q2, q3):
+        return _smc_impl(k, y, d, a, b, q1, q2, q3, prior, n_mcmc, max_stages, share, target_ess)
+    return jax.vmap(one)(key, y0, data, ld, w, qv, qn, lap)
+
+
 RW_TARGET_ACCEPTANCE = 0.25
 """The SMC's random-walk moves aim at this acceptance rate (about the optimum for a Gaussian
 target, 0.234). Scaled by the particles' covariance alone (2.38/√d · chol Σ), they are accepted
@@ -362,10 +500,9 @@ def rw_scale_update(acceptance):
     return jnp.clip(r, jnp.log(0.2), jnp.log(2.0))
 
 
-def _is(x, logq, data, ld, w, prior):
-    lw = np.asarray(log_target(x, data, ld, w, prior), np.float64) - np.asarray(logq, np.float64)
+def _ess_diag(lw) -> dict:
     e = ess(lw)
-    return lw, {"ess": e, "draws": len(x), "ess_fraction": e / len(x), "khat": pareto_khat(lw)}
+    return {"ess": e, "draws": len(lw), "ess_fraction": e / len(lw), "khat": pareto_khat(lw)}
 
 
 def _reliable(diag) -> bool:
@@ -373,15 +510,13 @@ def _reliable(diag) -> bool:
 
 
 @full_precision
-def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
-                           samples: int = 1000, draws: int | None = None, particles: int | None = None, seed: int = 0,
-                           n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
-                           force_smc: bool = False, rates: str | None = None, calibration="shipped") -> dict:
+def log_grounded_posterior(rec_or_data, decoded_theta=None, *, seed: int = 0, **kw) -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
     samples of this log, or None — as the proposal (module doc). ``draws`` / ``particles`` default to
     :data:`DRAWS` / :data:`PARTICLES`; ``rates``: the likelihood's rate term, "windows" or "innovations"
-    (default :data:`~.logdata.RATES`; a :class:`LogData` carries its own).
+    (default :data:`~.logdata.RATES`; a :class:`LogData` carries its own). The other keywords: those
+    of :func:`log_grounded_posteriors`, which this is for one log.
 
     -> dict: ``theta`` (samples, 19) (hidden coordinates drawn from the prior), ``v`` (samples, 12),
     ``nuisance`` (samples, 9: log σ (4), log δ (4, fixed), bias), ``method`` ('decoded_is',
@@ -395,64 +530,175 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     ``v`` / ``theta`` are the calibrated ones; ``v_raw`` the raw ones; ``features`` what the log
     shows; ``calibration`` the report (scale factor and bin per coordinate, the model check,
     ``seen`` (12,) and ``why`` (12,) per visible coordinate, ``table`` the file it came from)."""
-    draws = DRAWS if draws is None else int(draws)
-    particles = PARTICLES if particles is None else int(particles)
-    data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data, rates=RATES if rates is None else rates)
-    # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
-    r_is, r_n, r_mix, r_h, r_res, r_st, r_lp = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7))
-    k_smc = np.array([0, seed & 0xFFFFFFFF], np.uint32)
-    qv = None if decoded_theta is None else decoded_proposal(decoded_theta, prior)
-    qn = nuisance_proposal(data, ACC_BIAS_SD)
-    # 0. the mode from ``starts`` starting points (always as many: one compiled fit): a linear
-    # start, the decoded samples, prior draws
+    dec = None if decoded_theta is None else [decoded_theta]
+    return log_grounded_posteriors([rec_or_data], dec, seeds=[seed], **kw)[0]
+
+
+LOG_BATCH = 256
+"""Logs evaluated together on an accelerator (:func:`log_grounded_posteriors`; on a CPU one at a
+time: its cores are busy with one log's particles already)."""
+
+
+@full_precision
+def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
+                            samples: int = 1000, draws: int | None = None, particles: int | None = None,
+                            seeds=0, n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
+                            force_smc: bool = False, rates: str | None = None, calibration="shipped",
+                            batch: int | None = None, workers: int | None = None,
+                            desc: str | None = None) -> list[dict]:
+    """The posteriors of many logs (a list of what :func:`log_grounded_posterior` takes), batched:
+    logs of one shape (their windows and blocks bucketed, :func:`~.logdata.bucket`) and of one kind
+    of proposal are evaluated ``batch`` at a time (default :data:`LOG_BATCH` on an accelerator, 1 on
+    a CPU) by programs vmapped over the logs. ``decoded_thetas``: None, or one (S, 19) or None per
+    log; ``seeds``: one per log, or an int (log i gets seeds + i); ``workers``: threads that reduce
+    the logs (:func:`~.logdata.prepare`; default 1 on a CPU, up to 8 beside an accelerator);
+    ``desc``: a progress bar's label. A log too short for the posterior raises
+    :class:`~.logdata.LogTooShort` naming its index.
+    -> one dict per log, in order, as :func:`log_grounded_posterior` returns it (the same draws up
+    to float rounding, whatever the batch)."""
+    from mjxsysid.runtime.progress import progress
+    logs = list(logs)
+    n = len(logs)
+    dec = [None] * n if decoded_thetas is None else list(decoded_thetas)
+    seeds = [int(seeds) + i for i in range(n)] if np.ndim(seeds) == 0 else [int(s) for s in seeds]
+    if len(dec) != n or len(seeds) != n:
+        raise ValueError(f"log_grounded_posteriors: {n} logs, {len(dec)} decoded ensembles and {len(seeds)} seeds; "
+                         "give one of each per log")
+    cfg = dict(prior=prior, samples=int(samples), draws=DRAWS if draws is None else int(draws),
+               particles=PARTICLES if particles is None else int(particles), n_mcmc=n_mcmc, max_stages=max_stages,
+               starts=starts, force_smc=force_smc, calibration=calibration)
+    rates = RATES if rates is None else rates
+    if workers is None:
+        workers = 1 if jax.default_backend() == "cpu" else min(8, os.cpu_count() or 1)
+    datas = _prepare_all(logs, rates, int(workers))
+    qvs = [None if d is None else decoded_proposal(d, prior) for d in dec]
+    batch = (1 if jax.default_backend() == "cpu" else LOG_BATCH) if batch is None else int(batch)
+    if batch < 1:
+        raise ValueError(f"log_grounded_posteriors: batch must be ≥ 1, got {batch}")
+    groups: dict = {}
+    for i, (d, q) in enumerate(zip(datas, qvs)):
+        key = (d.rates, q is None, tuple(np.shape(a) for a in jax.tree.leaves(d)))
+        groups.setdefault(key, []).append(i)
+    chunks = [idx[c:c + batch] for idx in groups.values() for c in range(0, len(idx), batch)]
+    out = [None] * n
+    for chunk in progress(chunks, desc=desc or "log-grounded posteriors", enabled=False if len(chunks) < 2 else None):
+        res = _posterior_batch([datas[i] for i in chunk], [dec[i] for i in chunk], [qvs[i] for i in chunk],
+                               [seeds[i] for i in chunk], **cfg)
+        for i, r in zip(chunk, res):
+            out[i] = r
+    return out
+
+
+def _prepare_all(logs, rates: str, workers: int) -> list:
+    """Each log's :class:`LogData` (those given as one kept), ``workers`` threads at a time."""
+    def one(i):
+        x = logs[i]
+        if isinstance(x, LogData):
+            return x
+        try:
+            return prepare(x, rates=rates)
+        except LogTooShort as e:
+            raise LogTooShort(f"log {i}: {e}") from None
+    if workers <= 1 or len(logs) < 2:
+        return [one(i) for i in range(len(logs))]
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(workers) as ex:
+        return list(ex.map(one, range(len(logs))))
+
+
+def _starts(data, decoded_theta, rng, prior, starts: int) -> np.ndarray:
+    """The mode's ``starts`` starting points (starts, 21), always as many (one compiled fit): a
+    linear start, the decoded samples, prior draws."""
     x_lin = linear_start(data)
-    sv = [prior.sample_v(r_st, max(starts // 3, 1))]
+    sv = [prior.sample_v(rng, max(starts // 3, 1))]
     if decoded_theta is not None:
         dv = np.asarray(visible_from_theta(np.asarray(decoded_theta, np.float32)), np.float32)
         dv = dv[np.all(np.isfinite(dv), 1) & np.asarray(prior.v_valid(dv))][: starts - len(sv[0]) - 1]
         sv.append(dv)
     n_fill = max(starts - 1 - sum(len(a) for a in sv), 0)
     if n_fill:
-        sv.append(prior.sample_v(r_st, n_fill))
+        sv.append(prior.sample_v(rng, n_fill))
     sv = np.concatenate(sv)
-    st = np.concatenate([x_lin[None], np.concatenate([sv, np.broadcast_to(x_lin[N_V:], (len(sv), N_NUIS))], 1)])
-    mode, ld, w, _, lap = find_mode(data, st.astype(np.float32), prior)
-    out = {"proposal": "decoded" if qv is not None else "prior", "mode": mode, "weights": w,
-           "channels_used": np.asarray(data.use), "rates": data.rates}
-    chosen = None
-    # 1. the decoded ensemble as the proposal
-    if qv is not None:
-        y = np.concatenate([qv.sample(r_is, draws), qn.sample(r_n, draws)], 1)
-        lw, out["decoded_is"] = _is(y, qv.log_prob(y[:, :N_V]) + qn.log_prob(y[:, N_V:]), data, ld, w, prior)
-        if _reliable(out["decoded_is"]) and not force_smc:
-            chosen = ("decoded_is", y, lw)
-    if chosen is None:
-        y = lap.sample(r_lp, draws)
-        lw, out["laplace_is"] = _is(y, lap.log_prob(y), data, ld, w, prior)
-        if _reliable(out["laplace_is"]) and not force_smc:
-            chosen = ("laplace_is", y, lw)
-    if chosen is not None:
-        name, y, lw = chosen
-        p = np.exp(lw - lw.max())
-        idx = r_res.choice(len(y), samples, p=p / p.sum())
-        ys = y[idx]
-        out["method"] = name
-    else:   # 2. tempered SMC from a mixture of the proposals and the prior
-        n_prior = int(round(PRIOR_SHARE * particles))
-        parts = [np.concatenate([prior.sample_v(r_mix, n_prior), qn.sample(r_n, n_prior)], 1)]
-        rest = particles - n_prior
-        n_lap = rest if qv is None else rest // 2
-        parts.append(lap.sample(r_lp, n_lap))
-        if rest - n_lap:
-            parts.append(np.concatenate([qv.sample(r_is, rest - n_lap), qn.sample(r_n, rest - n_lap)], 1))
-        y0 = jnp.asarray(np.concatenate(parts), jnp.float32)
-        pts, wts, lam, n, acc, acc_min = _smc(k_smc, y0, data, jnp.asarray(ld), jnp.asarray(w), qv, qn, lap,
-                                              prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
-        wts = np.asarray(wts, np.float64)
-        idx = r_res.choice(particles, samples, p=wts / wts.sum())
-        ys = np.asarray(pts)[idx]
-        out.update(method="smc", smc_stages=int(n), smc_acceptance=float(acc), smc_acceptance_min=float(acc_min),
-                   smc_tempering=float(lam))
+    return np.concatenate([x_lin[None], np.concatenate([sv, np.broadcast_to(x_lin[N_V:], (len(sv), N_NUIS))], 1)])
+
+
+def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particles, n_mcmc, max_stages, starts,
+                     force_smc, calibration) -> list[dict]:
+    """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc)."""
+    L = len(datas)
+    logs = _Logs(datas)
+    # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
+    rng = [[np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7)] for seed in seeds]
+    r_is, r_n, r_mix, r_h, r_res, r_st, r_lp = (list(r) for r in zip(*rng))
+    qns = [nuisance_proposal(d, ACC_BIAS_SD) for d in datas]
+    # 0. the mode
+    st = np.stack([_starts(d, dc, r_st[i], prior, starts) for i, (d, dc) in enumerate(zip(datas, decs))])
+    modes = find_modes(logs, st.astype(np.float32), prior)
+    ld = np.stack([m[1] for m in modes]).astype(np.float32)
+    w = np.stack([m[2] for m in modes]).astype(np.float32)
+    laps = [m[4] for m in modes]
+    outs = [{"proposal": "decoded" if qvs[i] is not None else "prior", "mode": modes[i][0], "weights": modes[i][2],
+             "channels_used": np.asarray(d.use), "rates": d.rates} for i, d in enumerate(datas)]
+    chosen = [None] * L
+    # 1. the decoded ensemble as the proposal, then the Laplace proposal
+    if qvs[0] is not None:
+        ys = np.stack([np.concatenate([q.sample(r_is[i], draws), qns[i].sample(r_n[i], draws)], 1) for i, q in enumerate(qvs)])
+        lt = logs.targets(ys, ld, w, prior)
+        for i, q in enumerate(qvs):
+            lw = lt[i].astype(np.float64) - np.asarray(q.log_prob(ys[i, :, :N_V]) + qns[i].log_prob(ys[i, :, N_V:]), np.float64)
+            outs[i]["decoded_is"] = _ess_diag(lw)
+            if _reliable(outs[i]["decoded_is"]) and not force_smc:
+                chosen[i] = ("decoded_is", ys[i], lw)
+    need = [i for i in range(L) if chosen[i] is None]
+    if need:
+        ys = np.stack([laps[i].sample(r_lp[i], draws) for i in need])
+        lt = logs.targets(ys, ld[need], w[need], prior, idx=need)
+        for j, i in enumerate(need):
+            lw = lt[j].astype(np.float64) - np.asarray(laps[i].log_prob(ys[j]), np.float64)
+            outs[i]["laplace_is"] = _ess_diag(lw)
+            if _reliable(outs[i]["laplace_is"]) and not force_smc:
+                chosen[i] = ("laplace_is", ys[j], lw)
+    draws_y = [None] * L
+    for i, c in enumerate(chosen):
+        if c is not None:
+            name, y, lw = c
+            p = np.exp(lw - lw.max())
+            draws_y[i] = y[r_res[i].choice(len(y), samples, p=p / p.sum())]
+            outs[i]["method"] = name
+    # 2. tempered SMC from a mixture of the proposals and the prior
+    need = [i for i in range(L) if chosen[i] is None]
+    if need:
+        y0 = np.stack([_smc_start(prior, qvs[i], qns[i], laps[i], particles, r_mix[i], r_n[i], r_lp[i], r_is[i])
+                       for i in need])
+        keys = np.stack([np.array([0, seeds[i] & 0xFFFFFFFF], np.uint32) for i in need])
+        pts, wts, lam, stages, acc, acc_min = logs.smc(need, keys, y0, ld[need], w[need], [qvs[i] for i in need],
+                                                       [qns[i] for i in need], [laps[i] for i in need], prior,
+                                                       n_mcmc, max_stages)
+        for j, i in enumerate(need):
+            wt = np.asarray(wts[j], np.float64)
+            draws_y[i] = np.asarray(pts[j])[r_res[i].choice(particles, samples, p=wt / wt.sum())]
+            outs[i].update(method="smc", smc_stages=int(stages[j]), smc_acceptance=float(acc[j]),
+                           smc_acceptance_min=float(acc_min[j]), smc_tempering=float(lam[j]))
+    return [_finish(outs[i], draws_y[i], datas[i], ld[i], prior, calibration, seeds[i], r_h[i], samples)
+            for i in range(L)]
+
+
+def _smc_start(prior, qv, qn, lap, particles, r_mix, r_n, r_lp, r_is) -> np.ndarray:
+    """The SMC's starting particles (particles, 17): :data:`PRIOR_SHARE` from the prior, the rest
+    split between the Laplace and the decoded proposals."""
+    n_prior = int(round(PRIOR_SHARE * particles))
+    parts = [np.concatenate([prior.sample_v(r_mix, n_prior), qn.sample(r_n, n_prior)], 1)]
+    rest = particles - n_prior
+    n_lap = rest if qv is None else rest // 2
+    parts.append(lap.sample(r_lp, n_lap))
+    if rest - n_lap:
+        parts.append(np.concatenate([qv.sample(r_is, rest - n_lap), qn.sample(r_n, rest - n_lap)], 1))
+    return np.concatenate(parts).astype(np.float32)
+
+
+def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> dict:
+    """One log's draws y (samples, 17) -> its posterior dict: θ, v, the features, the drag, the calibration."""
+    mode = out["mode"]
     xs = np.asarray(full_x(ys, ld))
     v_raw = xs[:, :N_V]
     out["features"] = log_features(data, mode)
@@ -461,7 +707,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
         out["drag_per_mass"] = [*(xy.tolist() if xy is not None else [None, None]), drag_at(mode, data)]
     else:
         out["drag_per_mass"] = None
-    v, out["calibration"] = _calibrated(v_raw, out["features"], w, calibration, prior, seed)
+    v, out["calibration"] = _calibrated(v_raw, out["features"], out["weights"], calibration, prior, seed)
     h = prior.sample_h(r_h, samples)
     out.update(v=v, v_raw=v_raw, nuisance=xs[:, N_V:], theta=np.asarray(theta_from(v, h), np.float32))
     return out

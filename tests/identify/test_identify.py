@@ -235,7 +235,7 @@ def test_posterior_runs_at_full_matmul_precision():
         assert I.full_precision(lambda: jax.config.jax_default_matmul_precision)() == "highest"
         assert jax.config.jax_default_matmul_precision == "tensorfloat32"       # restored after the call
     code = I.full_precision(lambda: None).__code__
-    for f in (I.log_grounded_posterior, I.find_mode, I.log_target):
+    for f in (I.log_grounded_posterior, I.log_grounded_posteriors, I.find_mode, I.log_target):
         assert f.__code__ is code and f.__wrapped__.__module__ == I.__name__, f.__name__
 
 
@@ -286,3 +286,22 @@ def test_the_identify_room_is_callable_and_gives_a_posterior_object():
         post.sample(0)
     with pytest.raises(TypeError, match="flight-log path"):
         mjxsysid.identify(3.0)
+
+
+def test_logs_batched_give_each_logs_posterior():
+    """Several logs at once (vmapped over logs, batch 2; a log of another length in its own group)
+    give each log the posterior it gets alone: the same method, bands within a tenth of their width."""
+    from mjxsysid.identify.inference import log_grounded_posteriors
+    base = P.paper_hardware().copy()
+    thetas = [base, base * np.where(np.arange(19) == P.TAU_M, 1.5, 1.0).astype(np.float32), base]
+    recs = [synthetic_log(t, seconds=s, gyro_noise=0.05, acc_noise=0.5, seed=k)
+            for k, (t, s) in enumerate(zip(thetas, (3.0, 3.0, 5.0)))]
+    kw = dict(samples=400, particles=256, draws=512, calibration=None, force_smc=True)
+    alone = [log_grounded_posterior(r, seed=7 + k, **kw) for k, r in enumerate(recs)]
+    together = log_grounded_posteriors(recs, seeds=[7, 8, 9], batch=2, **kw)
+    for a, b in zip(alone, together):
+        assert a["method"] == b["method"] == "smc"
+        qa, qb = (np.percentile(x["v"], [5, 50, 95], 0) for x in (a, b))
+        assert np.all(np.abs(qa - qb) <= 0.1 * (qa[2] - qa[0]) + 1e-5), np.abs(qa - qb) / (qa[2] - qa[0])
+    with pytest.raises(ValueError, match="one of each per log"):
+        log_grounded_posteriors(recs, seeds=[1, 2])

@@ -1,0 +1,132 @@
+"""Many logs at once: the log-grounded posterior batched over logs
+(:func:`mjxsysid.identify.inference.log_grounded_posteriors`) against one log at a time.
+
+Flies ``--vehicles`` vehicles of the wide_actuators prior with the lag-aware oracle (10 s lemniscate),
+split over the noise levels asked for, turns each flight into a log (IMU, motors, body velocity),
+and times, in one run:
+
+- the logs' reduction (``prepare``), one thread and ``--workers`` threads;
+- the calibrated posterior of every log, batched (the defaults a user gets), cold (its first call
+  compiles) and warm;
+- the first ``--sequential`` logs one at a time (batch 1), for the ratio.
+
+It also reports the share of truths inside the calibrated 90 % bands, and how far the batched bands
+of the sequential logs lie from their one-at-a-time bands, as a fraction of the band's width, beside
+how far another seed's bands lie (the sampler's own Monte Carlo spread).
+
+    python benchmarks/batched_posterior.py --vehicles 1000 --levels clean,x1,x5_white,x20 \
+        --sequential 16 --out docs/runs/measurements/log-grounded/batched/h200.json
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from _bench import write_json
+
+
+def flights(vehicles: int, levels: list[str], seed: int):
+    """(logs, true θ (n, 19), their levels) of ``vehicles`` vehicles split over ``levels``."""
+    from mjxsysid import theta as P
+    from mjxsysid.experiments.log_grounded_coverage import level_flights
+    from mjxsysid.rollout.flight import flight_log
+    th = np.asarray(P.get_prior("wide_actuators").sample(jax.random.PRNGKey(seed), vehicles))
+    recs, truth, lv = [], [], []
+    for k, level in enumerate(levels):
+        part = th[k::len(levels)]
+        frame, flown = level_flights(part, level, seed + 97 * k)
+        for i in flown:
+            recs.append(flight_log(frame, i))
+            truth.append(part[i])
+            lv.append(level)
+    return recs, np.asarray(truth), lv
+
+
+def inside(posts, truth) -> np.ndarray:
+    """(n, 12) whether each truth lies inside its calibrated 90 % band (visible coordinates)."""
+    from mjxsysid.identify.coords import visible_from_theta
+    tv = np.asarray(visible_from_theta(np.asarray(truth, np.float32)), np.float64)
+    out = []
+    for p, t in zip(posts, tv):
+        lo, hi = np.percentile(p["v"], [5, 95], 0)
+        out.append((lo <= t) & (t <= hi))
+    return np.asarray(out)
+
+
+def shifts(ref, posts) -> dict:
+    """How far the 5/50/95 % quantiles of ``posts`` lie from those of ``ref`` (the same logs), the
+    largest over the quantiles as a fraction of ``ref``'s 90 % width: median and max over logs and
+    coordinates."""
+    out = []
+    for p, q in zip(posts, ref):
+        qa, qb = (np.percentile(x["v"], [5, 50, 95], 0) for x in (q, p))
+        out.append(np.abs(qa - qb).max(0) / np.maximum(qa[2] - qa[0], 1e-12))
+    return {"median": round(float(np.median(out)), 3), "max": round(float(np.max(out)), 3)} if out else {}
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--vehicles", type=int, default=1000)
+    ap.add_argument("--levels", default="clean,x1,x5_white,x20")
+    ap.add_argument("--seed", type=int, default=41)
+    ap.add_argument("--batch", type=int, default=None, help="logs per batch (default: the library's)")
+    ap.add_argument("--workers", type=int, default=8, help="threads that reduce the logs")
+    ap.add_argument("--sequential", type=int, default=16, help="logs also identified one at a time")
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args()
+    from mjxsysid.identify.inference import log_grounded_posteriors
+    from mjxsysid.identify.logdata import prepare
+
+    t0 = time.perf_counter()
+    recs, truth, levels = flights(a.vehicles, a.levels.split(","), a.seed)
+    fly_s = time.perf_counter() - t0
+    n = len(recs)
+    k = min(32, n)
+    t0 = time.perf_counter()
+    for r in recs[:k]:
+        prepare(r)
+    prep_one = (time.perf_counter() - t0) / k
+    seeds = list(range(n))
+    t0 = time.perf_counter()
+    cold = log_grounded_posteriors(recs[:min(n, 64)], seeds=seeds[:min(n, 64)], batch=a.batch, workers=a.workers)
+    cold_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    posts = log_grounded_posteriors(recs, seeds=seeds, batch=a.batch, workers=a.workers)
+    warm_s = time.perf_counter() - t0
+    m = min(a.sequential, n)
+    t0 = time.perf_counter()
+    log_grounded_posteriors(recs[:1], seeds=seeds[:1], batch=1, workers=1)
+    seq_first = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    seq = log_grounded_posteriors(recs[:m], seeds=seeds[:m], batch=1, workers=1)
+    seq_s = (time.perf_counter() - t0) / max(m, 1)
+    other = log_grounded_posteriors(recs[:m], seeds=[s + 10_000 for s in seeds[:m]], batch=a.batch, workers=a.workers)
+    dev, noise = shifts(seq, posts[:m]), shifts(seq, other)
+    ins = inside(posts, truth)
+    res = {
+        "device": str(jax.devices()[0]), "backend": jax.default_backend(), "jax": jax.__version__,
+        "date": time.strftime("%Y-%m-%d"), "logs": n, "levels": sorted(set(levels)), "seconds_of_flight": 10.0,
+        "batch": a.batch, "workers": a.workers, "fly_s": round(fly_s, 1),
+        "prepare_s_per_log_one_thread": round(prep_one, 4),
+        "cold_s_first_64": round(cold_s, 1), "cold_logs": len(cold),
+        "batched_s": round(warm_s, 1), "batched_logs_per_s": round(n / warm_s, 2),
+        "sequential_s_per_log": round(seq_s, 3), "sequential_first_call_s": round(seq_first, 1),
+        "speedup": round(seq_s * n / warm_s, 1),
+        "methods": {mm: sum(p["method"] == mm for p in posts) for mm in ("decoded_is", "laplace_is", "smc")},
+        "smc_stages_max": max((p.get("smc_stages", 0) for p in posts), default=0),
+        "truth_inside_90": round(float(ins.mean()), 3),
+        "truth_inside_90_by_level": {lv: round(float(ins[[x == lv for x in levels]].mean()), 3) for lv in sorted(set(levels))},
+        "shift_over_width_batched_vs_one_at_a_time": dev,
+        "shift_over_width_another_seed": noise,
+    }
+    for key, val in res.items():
+        print(f"{key}: {val}")
+    if a.out:
+        write_json(Path(a.out), res)
+
+
+if __name__ == "__main__":
+    main()
