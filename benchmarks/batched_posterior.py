@@ -5,7 +5,7 @@ Flies ``--vehicles`` vehicles of the wide_actuators prior with the lag-aware ora
 split over the noise levels asked for, turns each flight into a log (IMU, motors, body velocity),
 and times, in one run:
 
-- the logs' reduction (``prepare``), one thread and ``--workers`` threads;
+- the logs' reduction (``prepare``), one process and ``--workers`` processes;
 - the calibrated posterior of every log, batched (the defaults a user gets), cold (its first call
   compiles) and warm;
 - the first ``--sequential`` logs one at a time (batch 1), for the ratio.
@@ -67,22 +67,55 @@ def shifts(ref, posts) -> dict:
     return {"median": round(float(np.median(out)), 3), "max": round(float(np.max(out)), 3)} if out else {}
 
 
+PHASES: dict = {}
+
+
+def timed_phases():
+    """Accumulate the wall time of the batched posterior's phases in :data:`PHASES` (the mode, the
+    targets, the SMC, each log's finish), printed as the run goes."""
+    import functools
+
+    from mjxsysid.identify import inference as I
+
+    def wrap(owner, name):
+        f = getattr(owner, name)
+
+        @functools.wraps(f)
+        def run(*args, **kw):
+            t = time.perf_counter()
+            out = f(*args, **kw)
+            PHASES[name] = PHASES.get(name, 0.0) + time.perf_counter() - t
+            return out
+        setattr(owner, name, run)
+    for name in ("find_modes", "_finish", "_prepare_all"):
+        wrap(I, name)
+    for name in ("targets", "smc", "fit", "jacobians"):
+        wrap(I._Logs, name)
+
+
+def say(msg: str) -> None:
+    print(f"[{time.strftime('%H:%M:%S')}] {msg} | phases {({k: round(v, 1) for k, v in PHASES.items()})}", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--vehicles", type=int, default=1000)
     ap.add_argument("--levels", default="clean,x1,x5_white,x20")
     ap.add_argument("--seed", type=int, default=41)
     ap.add_argument("--batch", type=int, default=None, help="logs per batch (default: the library's)")
-    ap.add_argument("--workers", type=int, default=8, help="threads that reduce the logs")
+    ap.add_argument("--workers", type=int, default=16, help="processes that reduce the logs")
     ap.add_argument("--sequential", type=int, default=16, help="logs also identified one at a time")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
+    from mjxsysid.identify import inference as I
     from mjxsysid.identify.inference import log_grounded_posteriors
     from mjxsysid.identify.logdata import prepare
 
+    timed_phases()
     t0 = time.perf_counter()
     recs, truth, levels = flights(a.vehicles, a.levels.split(","), a.seed)
     fly_s = time.perf_counter() - t0
+    say(f"flew {len(recs)} logs in {fly_s:.0f} s")
     n = len(recs)
     k = min(32, n)
     t0 = time.perf_counter()
@@ -90,12 +123,17 @@ def main():
         prepare(r)
     prep_one = (time.perf_counter() - t0) / k
     seeds = list(range(n))
+    nb = min(n, a.batch or I.LOG_BATCH)
     t0 = time.perf_counter()
-    cold = log_grounded_posteriors(recs[:min(n, 64)], seeds=seeds[:min(n, 64)], batch=a.batch, workers=a.workers)
+    cold = log_grounded_posteriors(recs[:nb], seeds=seeds[:nb], batch=a.batch, workers=a.workers)
     cold_s = time.perf_counter() - t0
+    say(f"cold: {nb} logs in {cold_s:.0f} s")
+    PHASES.clear()
     t0 = time.perf_counter()
     posts = log_grounded_posteriors(recs, seeds=seeds, batch=a.batch, workers=a.workers)
     warm_s = time.perf_counter() - t0
+    phases = {k: round(v, 1) for k, v in PHASES.items()}
+    say(f"warm: {n} logs in {warm_s:.0f} s")
     m = min(a.sequential, n)
     t0 = time.perf_counter()
     log_grounded_posteriors(recs[:1], seeds=seeds[:1], batch=1, workers=1)
@@ -103,7 +141,8 @@ def main():
     t0 = time.perf_counter()
     seq = log_grounded_posteriors(recs[:m], seeds=seeds[:m], batch=1, workers=1)
     seq_s = (time.perf_counter() - t0) / max(m, 1)
-    other = log_grounded_posteriors(recs[:m], seeds=[s + 10_000 for s in seeds[:m]], batch=a.batch, workers=a.workers)
+    say(f"one at a time: {seq_s:.1f} s a log")
+    other = log_grounded_posteriors(recs[:m], seeds=[s + 10_000 for s in seeds[:m]], batch=1, workers=1)
     dev, noise = shifts(seq, posts[:m]), shifts(seq, other)
     ins = inside(posts, truth)
     res = {
@@ -111,8 +150,8 @@ def main():
         "date": time.strftime("%Y-%m-%d"), "logs": n, "levels": sorted(set(levels)), "seconds_of_flight": 10.0,
         "batch": a.batch, "workers": a.workers, "fly_s": round(fly_s, 1),
         "prepare_s_per_log_one_thread": round(prep_one, 4),
-        "cold_s_first_64": round(cold_s, 1), "cold_logs": len(cold),
-        "batched_s": round(warm_s, 1), "batched_logs_per_s": round(n / warm_s, 2),
+        "cold_s": round(cold_s, 1), "cold_logs": len(cold),
+        "batched_s": round(warm_s, 1), "batched_phases_s": phases, "batched_logs_per_s": round(n / warm_s, 2),
         "sequential_s_per_log": round(seq_s, 3), "sequential_first_call_s": round(seq_first, 1),
         "speedup": round(seq_s * n / warm_s, 1),
         "methods": {mm: sum(p["method"] == mm for p in posts) for mm in ("decoded_is", "laplace_is", "smc")},

@@ -190,9 +190,13 @@ def drag_per_mass(r0, data: LogData):
 def drag_at(x, data: LogData) -> float:
     """The body-z drag per mass D_z (1/s) :func:`residuals` profiles at the parameter vector x (21,)
     (the posterior's mode: a point value for a log that carries velocity)."""
-    x = jnp.asarray(x, jnp.float32)
+    return float(_drag_at(jnp.asarray(x, jnp.float32), data))
+
+
+@jax.jit
+def _drag_at(x, data: LogData):
     _, acc = predict(x[:N_V], data)
-    return float(drag_per_mass((data.acc - acc - x[N_V + 8]) * data.bmask, data))
+    return drag_per_mass((data.acc - acc - x[N_V + 8]) * data.bmask, data)
 
 
 residuals_jit = jax.jit(residuals)

@@ -11,7 +11,6 @@ from __future__ import annotations
 import dataclasses
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 from scipy.signal import lfilter
 
@@ -275,7 +274,7 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     vz = block_velocity_z(rec, bsteps + 1)
     n2, s2, ratio = noise_statistics(rec)
     kvar = np.array([2.0 * ratio / W] * 3 + [ratio / B])
-    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
+    f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731   host arrays: a reduction sent to another process stays NumPy
     nw, nb = bucket(len(k0)), bucket(len(acc))
     n_kf = int(min(T - 1 - start, round(MAX_RATE_S / DT)))
     kf = _innovation_factors(imu, u, start, n_kf) if rates == "innovations" else np.zeros((1, 1, 3, 7, 7))
