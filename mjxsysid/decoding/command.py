@@ -36,16 +36,16 @@ def _posterior_table(summary: dict) -> list[str]:
 
 def printed_summary(summary: dict) -> dict:
     """What ``mjxsysid decode`` prints (one JSON line): for a log-grounded posterior the quantities
-    the log pins first (those of :data:`~mjxsysid.identify.coords.LOG_NAMES` the information gap
-    says the log sees, in that order), then the policy's identifiable combinations
-    (:data:`~mjxsysid.theta.IDENTIFIABLE_NAMES`, whose widths the training prior sets where the log
-    cannot see them), and ``not_seen_by_log``; else the identifiable combinations alone."""
-    from mjxsysid.identify.coords import LOG_NAMES
+    the log pins first (those of :data:`~mjxsysid.identify.layout.LOG_NAMES` the information gap
+    says the log sees, in that order), then the derived quantities (:data:`~mjxsysid.theta.DERIVED_NAMES`,
+    whose widths the training prior sets where the log cannot see them), and ``not_seen_by_log``;
+    else the derived quantities alone."""
+    from mjxsysid.identify.layout import LOG_NAMES
     gap = (summary.get("_log_grounded") or {}).get("gap")
     out = {}
     if gap:
         out.update({k: summary[k] for k in LOG_NAMES if k in summary and gap.get(k, {}).get("seen_by_log")})
-    out.update({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES})
+    out.update({k: v for k, v in summary.items() if k in P.DERIVED_NAMES and k not in out})
     if gap:
         out["not_seen_by_log"] = [k for k in LOG_NAMES if k in gap and not gap[k].get("seen_by_log")]
     return out
@@ -53,7 +53,7 @@ def printed_summary(summary: dict) -> dict:
 
 def write_summary_md(summary: dict, path) -> Path:
     """summary.md: the checks' warnings first (out of prior, suspicious log), then the decoded
-    identifiable combinations and parameters (mean, 5–95 %, and the truth if known)."""
+    derived quantities and parameters (mean, 5–95 %, and the truth if known)."""
     c = summary.get("_checks", {})
     lines = ["# Decoded vehicle", ""]
     if c.get("is_out_of_prior"):
