@@ -36,11 +36,11 @@ def _posterior_table(summary: dict) -> list[str]:
 
 def printed_summary(summary: dict) -> dict:
     """What ``mjxsysid decode`` prints (one JSON line): for a log-grounded posterior the quantities
-    the log pins first (those of :data:`~mjxsysid.identify.layout.LOG_NAMES` the information gap
+    the log pins first (those of :data:`~mjxsysid.identify.logspace.LOG_NAMES` the information gap
     says the log sees, in that order), then the derived quantities (:data:`~mjxsysid.theta.DERIVED_NAMES`,
     whose widths the training prior sets where the log cannot see them), and ``not_seen_by_log``;
     else the derived quantities alone."""
-    from mjxsysid.identify.layout import LOG_NAMES
+    from mjxsysid.identify.logspace import LOG_NAMES
     gap = (summary.get("_log_grounded") or {}).get("gap")
     out = {}
     if gap:

@@ -105,13 +105,13 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     posterior of record, the decoded samples (the window's at the end of the flight, else the
     instant ones) as its proposal. In place: ``dec["samples_log_grounded"]`` (S, 19); ``summary``'s
     top-level entries (19 parameters, the derived quantities, and the log-identifiable
-    quantities of :data:`~mjxsysid.identify.layout.QUANTITIES`, each once:
+    quantities of :data:`~mjxsysid.identify.logspace.QUANTITIES`, each once:
     :func:`~mjxsysid.identify.gap.joint_summary`) become the log-grounded posterior's,
     the decoder-only entries move under ``_decoder_only``, and ``_log_grounded`` holds the method,
     its diagnostics (ESS, Pareto k̂, SMC stages), the IMU noise, discrepancy and bias it estimated,
     and the information gap. ``rates``: the likelihood's rate term (default
     :data:`~mjxsysid.identify.logdata.RATES`). Returns ``summary``."""
-    from mjxsysid.identify import layout as L
+    from mjxsysid.identify import logspace as L
     from mjxsysid.identify.gap import information_gap, joint_summary, log_summary, seen_by_name
     from mjxsysid.logs.checks.rotors import rotor_speed_lag
     from mjxsysid.identify.inference import log_grounded_posterior

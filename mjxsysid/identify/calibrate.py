@@ -36,10 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid.identify import layout as L
+from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
 from mjxsysid.identify.gap import UNSEEN_FRACTION
-from mjxsysid.identify.layout import N_V, V_NAMES
+from mjxsysid.identify.logspace import N_V, V_NAMES
 
 LEVEL = 0.90
 """The band's nominal coverage."""
@@ -59,7 +59,7 @@ COORD_FEATURE = np.array([FEATURE_NAMES.index(_FEATURE_OF[f.name] if isinstance(
                                               else _FEATURE_OF[f.name][i])
                           for f in L.V_FIELDS for i in range(f.size)])
 """Which feature (index into :data:`FEATURE_NAMES`) groups each visible coordinate
-(:data:`~.layout.V_NAMES`): the thrust-to-weight by the accelerometer's (it does not depend on the rate
+(:data:`~.logspace.V_NAMES`): the thrust-to-weight by the accelerometer's (it does not depend on the rate
 windows, which a slowly logged motor leaves out), ρ and τ_m by the rate channels' mean, each authority
 and τ_ext/J by its own axis (the yaw authority by z)."""
 

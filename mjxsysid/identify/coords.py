@@ -20,7 +20,7 @@ the rotor directions, σ_i the spin signs, and
 - ρ_i and τ_m themselves.
 
 These twelve numbers are the *visible* coordinates v (their table, with h's, the nuisances' and the
-reported quantities': [layout][mjxsysid.identify.layout]). The other seven — mass, arm length,
+reported quantities': [logspace][mjxsysid.identify.logspace]). The other seven — mass, arm length,
 Ω_max, η̄ and the three drag coefficients — are *hidden*: no IMU log without position or
 velocity changes with them while v is held (scale: mass against thrust coefficient, arm length
 against inertia; drag acts through the velocity a log of IMU and motors does not carry).
@@ -40,8 +40,8 @@ import warnings
 import numpy as np
 
 from mjxsysid import theta as P
-from mjxsysid.identify import layout as L
-from mjxsysid.identify.layout import H_NAMES, LOG_NAMES, LOG_UNITS, N_H, N_V, V_NAMES  # noqa: F401 (the room's names)
+from mjxsysid.identify import logspace as L
+from mjxsysid.identify.logspace import H_NAMES, LOG_NAMES, LOG_UNITS, N_H, N_V, V_NAMES  # noqa: F401 (the room's names)
 from mjxsysid.theta import xp_of
 
 

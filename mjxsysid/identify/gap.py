@@ -1,5 +1,5 @@
 """The information gap: what the decoders (the policy's latent) say against what the log shows,
-per log-identifiable quantity (:data:`~mjxsysid.identify.layout.QUANTITIES`); the log quantities'
+per log-identifiable quantity (:data:`~mjxsysid.identify.logspace.QUANTITIES`); the log quantities'
 summary, and one summary of them with θ's (each quantity once, by one name)."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, log_quantities
-from mjxsysid.identify.layout import LOG_NAMES, LOG_UNITS, QUANTITIES, QUANTITY, RENAMED, V_OF_QUANTITY
+from mjxsysid.identify.logspace import LOG_NAMES, LOG_UNITS, QUANTITIES, QUANTITY, RENAMED, V_OF_QUANTITY
 
 UNSEEN_FRACTION = 0.5
 """A log-grounded 90 % band wider than this share of the prior's range: the log did not see the
@@ -16,7 +16,7 @@ quantity (it stays as broad as the prior says)."""
 
 
 class Summary(dict):
-    """A summary keyed by quantity name that still answers an old name of :data:`~.layout.RENAMED`,
+    """A summary keyed by quantity name that still answers an old name of :data:`~.logspace.RENAMED`,
     with a FutureWarning naming the new one."""
 
     def __missing__(self, key):
@@ -73,12 +73,12 @@ def log_summary(samples, truth=None) -> dict:
 def joint_summary(theta_summary: dict, log_summary: dict) -> dict:
     """θ's summary (:func:`~mjxsysid.cfm.posterior.summarize_posterior`: 19 parameters and the derived
     quantities) and the log quantities' (:func:`log_summary`) as one, each quantity once by its one name.
-    A quantity both tables give (``in_theta`` of :data:`~.layout.QUANTITIES`: the same definition) is
+    A quantity both tables give (``in_theta`` of :data:`~.logspace.QUANTITIES`: the same definition) is
     θ's entry; any other name in both raises ValueError instead of overwriting one with the other."""
     clash = sorted(k for k in log_summary if k in theta_summary and not (k in QUANTITY and QUANTITY[k].in_theta))
     if clash:
         raise ValueError(f"the log's and θ's summaries both name {clash} as different quantities: one name per "
-                         f"quantity (identify/layout.py QUANTITIES, theta DERIVED_NAMES)")
+                         f"quantity (identify/logspace.py QUANTITIES, theta DERIVED_NAMES)")
     return Summary({**theta_summary, **{k: v for k, v in log_summary.items() if k not in theta_summary}})
 
 

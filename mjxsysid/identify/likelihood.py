@@ -56,8 +56,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import theta as P
-from mjxsysid.identify import layout as L
-from mjxsysid.identify.layout import CHANNELS, N_NUIS, NUIS_NAMES  # noqa: F401 (the likelihood's names)
+from mjxsysid.identify import logspace as L
+from mjxsysid.identify.logspace import CHANNELS, N_NUIS, NUIS_NAMES  # noqa: F401 (the likelihood's names)
 from mjxsysid.identify.logdata import DRAG_MAX, DT, KF_LOGIT_GRID, LogData, gain_filter, gyro_rows, kf_gains, step_lag
 
 NU = 4.0

@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy.signal import lfilter
 
-from mjxsysid.identify.layout import GYRO, N_CHANNELS
+from mjxsysid.identify.logspace import GYRO, N_CHANNELS
 
 DT = 0.002
 """s: the log's row spacing (500 Hz)."""

@@ -19,7 +19,7 @@ import numpy as np
 
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, log_quantities
 from mjxsysid.identify.gap import Summary, information_gap, seen_by_name
-from mjxsysid.identify.layout import LOG_NAMES, LOG_UNITS
+from mjxsysid.identify.logspace import LOG_NAMES, LOG_UNITS
 from mjxsysid.identify.inference import log_grounded_posterior
 
 DIAGNOSTIC_KEYS = ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
@@ -68,7 +68,7 @@ class LogPosterior:
         return {k: (v["seen_by_log"], v["seen_why"]) for k, v in gap.items()}
 
     def summary(self) -> dict:
-        """{quantity of LOG_NAMES (:data:`~.layout.QUANTITIES`): {unit, median, q05, q95, seen, why}}, the
+        """{quantity of LOG_NAMES (:data:`~.logspace.QUANTITIES`): {unit, median, q05, q95, seen, why}}, the
         quantities the log pins first; a quantity it does not pin is not seen, as broad as the prior, with why."""
         q = log_quantities(self.theta)
         lo, med, hi = np.percentile(q, [5, 50, 95], 0)

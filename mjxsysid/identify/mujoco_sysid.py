@@ -36,9 +36,9 @@ import numpy as np
 import scipy.special
 
 from mjxsysid import theta as P
-from mjxsysid.identify import layout as L
+from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, hidden_from_theta, theta_from, visible_from_theta
-from mjxsysid.identify.layout import N_V, V_NAMES
+from mjxsysid.identify.logspace import N_V, V_NAMES
 
 RHO4 = L.LOG_NAMES.index("relative_effectiveness[3]")
 """ρ_4's place among the quantities: its band comes from the covariance of ρ_1..3."""

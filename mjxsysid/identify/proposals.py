@@ -12,9 +12,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid.identify import layout as L
+from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, visible_from_theta, xp_of
-from mjxsysid.identify.layout import N_V
+from mjxsysid.identify.logspace import N_V
 from mjxsysid.identify.likelihood import noise_estimate
 from mjxsysid.identify.logdata import LogData
 
@@ -88,7 +88,7 @@ def decoded_proposal(decoded_theta, prior: PhysicalPrior = PHYSICAL_PRIOR, widen
 
 
 def nuisance_proposal(data: LogData, bias_sd: float) -> Gaussian:
-    """y's nuisances (:data:`~.layout.Y_NUIS_FIELDS`): log σ (4) near the second differences' estimate
+    """y's nuisances (:data:`~.logspace.Y_NUIS_FIELDS`): log σ (4) near the second differences' estimate
     (standard deviation 0.2), the bias near 0 (standard deviation ``bias_sd``)."""
     sig = np.maximum(noise_estimate(data), 1e-6)
     mean = L.pack(L.Y_NUIS_FIELDS, log_noise=np.log(sig), acc_z_bias=0.0).astype(np.float32)

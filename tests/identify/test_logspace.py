@@ -1,4 +1,4 @@
-"""The log space's one table (identify/layout.py): no integer index into its vectors elsewhere, one
+"""The log space's one table (identify/logspace.py): no integer index into its vectors elsewhere, one
 name per quantity across the log's and θ's summaries, one thrust-to-weight."""
 import ast
 import warnings
@@ -13,10 +13,10 @@ from mjxsysid.cfm.posterior import summarize_posterior
 from mjxsysid.identify import calibrate as Cal
 from mjxsysid.identify import coords as C
 from mjxsysid.identify import gap as G
-from mjxsysid.identify import layout as L
+from mjxsysid.identify import logspace as L
 
 PACKAGE = Path(L.__file__).resolve().parents[1]
-TABLE = {"identify/layout.py"}
+TABLE = {"identify/logspace.py"}
 NOT_YET = {"identify/inference.py"}
 """Modules the check leaves out: the table itself, and one being rewritten onto it."""
 LOG_VECTORS = {"v", "h", "x", "y", "z", "xs", "ys", "v0", "h0", "v_raw", "mode", "nuisance", "x_lin", "sigma_x",
@@ -89,7 +89,7 @@ def test_the_check_finds_what_it_must():
 
 
 def test_no_integer_index_into_the_log_space_outside_its_table():
-    """Outside identify/layout.py (and the module being moved onto it), nothing indexes v, h, x, y,
+    """Outside identify/logspace.py (and the module being moved onto it), nothing indexes v, h, x, y,
     z or the nuisances with an integer: the names of the table do."""
     hits = {}
     for p in sorted(PACKAGE.rglob("*.py")):
@@ -105,7 +105,7 @@ def test_no_integer_index_into_the_log_space_outside_its_table():
     assert not hits, hits
 
 
-def test_layout_views_agree():
+def test_logspace_views_agree():
     """The names, sizes and offsets come from the tables: x = [v, nuisances], y and z drop what the
     inference holds fixed, and the round trip y -> x -> y is exact."""
     assert (L.N_V, L.N_H, L.N_NUIS, L.N_X, L.N_Y, L.N_Z) == (12, 7, 9, 21, 17, 13)

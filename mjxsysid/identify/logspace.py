@@ -1,17 +1,15 @@
 """The log space's layout, written once: its tables and every view of them.
 
-What a flight log sees of θ, and what the inference works on, in four tables
-(a tuple of [Coord][mjxsysid.identify.layout.Coord] each, in order):
+What a flight log sees of θ, and what the inference works on, in three tables of
+[Coord][mjxsysid.identify.logspace.Coord], in order:
 
-- [V_FIELDS][mjxsysid.identify.layout.V_FIELDS]: the visible coordinates v (12,). An IMU log
+- [V_FIELDS][mjxsysid.identify.logspace.V_FIELDS]: the visible coordinates v (12,). An IMU log
   with the motor commands changes with them ([coords][mjxsysid.identify.coords]).
-- [H_FIELDS][mjxsysid.identify.layout.H_FIELDS]: the hidden coordinates h (7,). Such a log
+- [H_FIELDS][mjxsysid.identify.logspace.H_FIELDS]: the hidden coordinates h (7,). Such a log
   does not change with them.
-- [NUISANCE_FIELDS][mjxsysid.identify.layout.NUISANCE_FIELDS]: the nuisances (9,). Per channel
-  of [CHANNELS][mjxsysid.identify.layout.CHANNELS], the IMU's white-noise level log σ and the
+- [NUISANCE_FIELDS][mjxsysid.identify.logspace.NUISANCE_FIELDS]: the nuisances (9,). Per channel
+  of [CHANNELS][mjxsysid.identify.logspace.CHANNELS], the IMU's white-noise level log σ and the
   model discrepancy log δ; then the accelerometer's z bias.
-- [QUANTITIES][mjxsysid.identify.layout.QUANTITIES]: the physical quantities the posterior
-  reports (13), each made of entries of v.
 
 The vectors built from them:
 
@@ -19,9 +17,22 @@ The vectors built from them:
 - y (17,) = [v, log σ, bias]: what the posterior samples (δ is set at the mode).
 - z (13,) = [v, bias]: what the mode's least squares fits (σ and δ held).
 
-v comes first in x, y and z, so v's index constants index all three. The other constants
-(``X_*``, ``Y_*``, ``Z_*``) are offsets built here. Outside this module, no code indexes these
-vectors with an integer (tests/identify/test_layout.py).
+And [QUANTITIES][mjxsysid.identify.logspace.QUANTITIES], a table of
+[Quantity][mjxsysid.identify.logspace.Quantity]: the 13 physical quantities the posterior reports,
+each made of entries of v, each with one name.
+
+The index constants, generated from the tables:
+
+- v: ``LOG_TW``, ``RHO``, ``LOG_TAU_M``, ``LOG_AUTH`` (``LOG_AUTH_X``, ``_Y``, ``_Z``), ``LOG_YAW``,
+  ``EXT_ACC``. v comes first in x, y and z, so these index all three.
+- h: ``LOG_MASS``, ``LOG_ARM``, ``LOG_OMEGA_MAX``, ``ETA_MEAN``, ``LOG_DRAG``.
+- the nuisances (9,): ``LOG_NOISE``, ``LOG_DISCREPANCY``, ``BIAS``; a per-channel array (4,):
+  ``GYRO``, ``ACC_Z``.
+- x: ``X_V``, ``X_NUIS``, ``X_LOG_NOISE`` (``_GYRO``), ``X_LOG_DISCREPANCY`` (``_GYRO``), ``X_BIAS``.
+- y: ``Y_V``, ``Y_LOG_NOISE``, ``Y_BIAS``, ``Y_NUIS``; ``Y_IN_X`` and ``NUIS_IN_Y`` (what y keeps).
+- z: ``Z_V``, ``Z_BIAS``; ``Z_IN_Y``.
+
+Outside this module, no code indexes these vectors with an integer (tests/identify/test_logspace.py).
 """
 from __future__ import annotations
 
@@ -207,12 +218,12 @@ def pack(fields, **parts):
 class Quantity:
     """A physical quantity the log-grounded posterior reports, made of entries of v.
 
-    - ``of``: the v entries it is made of (:data:`V_NAMES`).
+    - ``of``: the v entries it is made of ([V_NAMES][mjxsysid.identify.logspace.V_NAMES]).
     - ``form``: "exp" (exp of a log coordinate), "plain" (the coordinate itself) or "rest"
       (4 minus the sum of its entries: ρ_4); "exp" and "plain" take one entry.
     - ``in_theta``: the same quantity, with the same name and definition, is in θ's summary too
       (θ's field or derived quantity). A summary of both enters it once; any other name in both
-      tables is an error (:func:`~mjxsysid.identify.gap.joint_summary`).
+      tables is an error ([joint_summary][mjxsysid.identify.gap.joint_summary]).
     """
     name: str
     unit: str
@@ -236,20 +247,22 @@ QUANTITIES: tuple[Quantity, ...] = (
     *(Quantity(f"external_acc[{i}]", "rad/s^2", (f"ext_acc[{i}]",), "plain",
                about=f"τ_ext / J along body {'xyz'[i]}") for i in range(3)),
 )
-"""The quantities an IMU log identifies, in their units, in the order of :data:`LOG_NAMES`."""
+"""The quantities an IMU log identifies, in their units: what the log-grounded posterior reports."""
 
 LOG_NAMES = tuple(q.name for q in QUANTITIES)
+"""The reported quantities' names (13), in the order of [QUANTITIES][mjxsysid.identify.logspace.QUANTITIES]."""
 LOG_UNITS = tuple(q.unit for q in QUANTITIES)
 QUANTITY = {q.name: q for q in QUANTITIES}
+"""Name -> its [Quantity][mjxsysid.identify.logspace.Quantity]."""
 V_OF_QUANTITY: tuple[tuple[int, ...], ...] = tuple(tuple(V_NAMES.index(n) for n in q.of) for q in QUANTITIES)
-"""Per quantity of :data:`QUANTITIES`, the indices of the v entries it is made of."""
+"""Per quantity of [QUANTITIES][mjxsysid.identify.logspace.QUANTITIES], the indices of the v entries it is made of."""
 
 RENAMED = {"thrust_to_weight_total": "thrust_to_weight"}
-"""Old quantity name -> its name now (read with a FutureWarning: :class:`~mjxsysid.identify.gap.Summary`)."""
+"""Old quantity name -> its name now (read with a FutureWarning: [Summary][mjxsysid.identify.gap.Summary])."""
 
 
 def quantities_of_v(v):
-    """v (..., 12) -> the :data:`QUANTITIES` (..., 13) in their units (NumPy, float64)."""
+    """v (..., 12) -> the [QUANTITIES][mjxsysid.identify.logspace.QUANTITIES] (..., 13) in their units (NumPy, float64)."""
     v = np.asarray(v, np.float64)
     cols = []
     for q, idx in zip(QUANTITIES, V_OF_QUANTITY):
