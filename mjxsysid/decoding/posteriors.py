@@ -125,7 +125,11 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
         return summary
     decoder_only = joint_summary({k: summary.pop(k) for k in list(summary) if not k.startswith("_")},
                                  log_summary(final, truth))
-    summary.update(joint_summary(summarize_posterior(post["theta"], truth), log_summary(post["theta"], truth)))
+    cal = post["calibration"]
+    seen = seen_by_name(cal) if cal.get("applied") else None
+    gap = information_gap(final, post["theta"], truth, seen=seen)
+    summary.update(joint_summary(summarize_posterior(post["theta"], truth), log_summary(post["theta"], truth),
+                                 seen={k: (g["seen_by_log"], g["seen_why"]) for k, g in gap.items()}))
     summary["_decoder_only"] = decoder_only
     diag = {k: post[k] for k in ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
                                  "smc_tempering") if k in post}
@@ -143,12 +147,10 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
                              if post.get("drag_per_mass") is not None else
                              {"value": None, "why": "the log carries no velocity: the drag's share of the specific "
                                                     "force is left to the calibration"})
-    cal = post["calibration"]
-    seen = seen_by_name(cal) if cal.get("applied") else None
     diag["calibration"] = ({"applied": True, "table": cal["table"], "features": post["features"],
                             "model_check": cal["check"], "width_factor": dict(zip(L.V_NAMES, cal["factor"].tolist()))}
                            if cal.get("applied") else {"applied": False, "why": cal["why"]})
-    diag["gap"] = information_gap(final, post["theta"], truth, seen=seen)
+    diag["gap"] = gap
     speed = rotor_speed_lag(rec)
     if speed is not None:       # measured rotor speeds: τ_m from command to speed, beside the posterior's
         diag["rotor_speed"] = speed

@@ -70,16 +70,29 @@ def log_summary(samples, truth=None) -> dict:
     return Summary(out)
 
 
-def joint_summary(theta_summary: dict, log_summary: dict) -> dict:
+HIDDEN_WHY = ("made of the hidden coordinates (mass, arm length, Ω_max, η̄, drag), which an IMU log does not "
+              "change with: as broad as the prior")
+"""Why a quantity of θ's summary that is not a log quantity is not seen by the log."""
+
+
+def joint_summary(theta_summary: dict, log_summary: dict, seen: dict | None = None) -> dict:
     """θ's summary (:func:`~mjxsysid.cfm.posterior.summarize_posterior`: 19 parameters and the derived
     quantities) and the log quantities' (:func:`log_summary`) as one, each quantity once by its one name.
     A quantity both tables give (``in_theta`` of :data:`~.logspace.QUANTITIES`: the same definition) is
-    θ's entry; any other name in both raises ValueError instead of overwriting one with the other."""
+    θ's entry; any other name in both raises ValueError instead of overwriting one with the other.
+
+    ``seen`` ({log quantity: (seen, why)}, a log-grounded posterior's): every entry then says whether
+    the log saw it (``seen_by_log``) and why; θ's other entries are not seen (:data:`HIDDEN_WHY`)."""
     clash = sorted(k for k in log_summary if k in theta_summary and not (k in QUANTITY and QUANTITY[k].in_theta))
     if clash:
         raise ValueError(f"the log's and θ's summaries both name {clash} as different quantities: one name per "
                          f"quantity (identify/logspace.py QUANTITIES, theta DERIVED_NAMES)")
-    return Summary({**theta_summary, **{k: v for k, v in log_summary.items() if k not in theta_summary}})
+    out = Summary({**theta_summary, **{k: v for k, v in log_summary.items() if k not in theta_summary}})
+    if seen is not None:
+        for k, v in out.items():
+            ok, why = seen[k] if k in QUANTITY else (False, HIDDEN_WHY)
+            out[k] = {**v, "seen_by_log": bool(ok), "why": why}
+    return out
 
 
 def seen_by_name(report: dict) -> dict:

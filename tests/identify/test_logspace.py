@@ -183,3 +183,29 @@ def test_the_shipped_calibration_table_loads_with_the_table_names():
     table = Cal.load()
     assert [c["name"] for c in table["coords"]] == list(L.V_NAMES)
     assert len(table["min_weight"]) == L.N_CHANNELS
+
+
+def test_what_the_log_does_not_pin_is_said_not_seen_with_why():
+    """Every entry of θ's summary that is not a log quantity is made of the hidden coordinates: moving h
+    with v held changes it (and no log quantity). A log-grounded joint summary then marks it not seen,
+    with that reason, and a log quantity as the log's own report says."""
+    th = np.asarray(P.get_prior("wide_actuators").sample(jax.random.PRNGKey(4), 8), np.float64)
+    v, h = np.asarray(C.visible_from_theta(th), np.float64), np.asarray(C.hidden_from_theta(th), np.float64)
+    h2 = h + np.array([0.3, 0.2, 0.1, 0.1, 0.5, 0.5, 0.5])            # every hidden coordinate moved
+    th2 = np.asarray(C.theta_from(v, h2, np.float64))
+
+    def theta_side(t):
+        return dict(zip(P.PARAM_NAMES + P.DERIVED_NAMES, np.concatenate([t, np.asarray(P.derived(t))], -1).T))
+
+    a, b = theta_side(th), theta_side(th2)
+    moved = {n for n in a if not np.allclose(a[n], b[n], rtol=1e-4)}
+    assert moved == set(a) - {q.name for q in L.QUANTITIES if q.in_theta}, moved
+    np.testing.assert_allclose(C.log_quantities(th2), C.log_quantities(th), rtol=1e-4, atol=1e-6)
+
+    s_theta, s_log = summarize_posterior(th), G.log_summary(th)
+    seen = {n: (n != "motor_time_constant", f"why {n}") for n in L.LOG_NAMES}
+    joint = G.joint_summary(s_theta, s_log, seen=seen)
+    assert joint["mass"]["seen_by_log"] is False and joint["mass"]["why"] == G.HIDDEN_WHY
+    assert joint["torque_ratio"]["why"] == G.HIDDEN_WHY
+    assert joint["thrust_to_weight"]["seen_by_log"] and joint["thrust_to_weight"]["why"] == "why thrust_to_weight"
+    assert not joint["motor_time_constant"]["seen_by_log"]
