@@ -27,6 +27,9 @@ class Summary(dict):
                       FutureWarning, stacklevel=2)
         return self[new]
 
+    def get(self, key, default=None):
+        return self[key] if key in self or RENAMED.get(key) in self else default
+
 
 def prior_ranges(prior: PhysicalPrior = PHYSICAL_PRIOR) -> tuple[np.ndarray, np.ndarray]:
     """Each quantity's (:data:`LOG_NAMES`) range under the prior -> lo (13,), hi (13,): its coordinate's

@@ -99,7 +99,8 @@ def _rate_coefficients(v):
     auth = jnp.exp(jnp.stack([v[L.LOG_AUTH_X], v[L.LOG_AUTH_Y], v[L.LOG_YAW]]))   # roll, pitch; yaw authority
     inv = 1.0 / jnp.exp(v[L.LOG_AUTH])                                             # ∝ J
     gyro_coef = jnp.stack([(inv[1] - inv[2]) / inv[0], (inv[2] - inv[0]) / inv[1], (inv[0] - inv[1]) / inv[2]])
-    return jnp.concatenate([auth[:, None] * jnp.asarray(_BASIS) * _rho(v)[None], gyro_coef[:, None], v[L.EXT_ACC, None]], 1)
+    return jnp.concatenate([auth[:, None] * jnp.asarray(_BASIS) * _rho(v)[None], gyro_coef[:, None],
+                            v[L.EXT_ACC, None]], 1)
 
 
 def predict(v, data: LogData):

@@ -262,7 +262,8 @@ RENAMED = {"thrust_to_weight_total": "thrust_to_weight"}
 
 
 def quantities_of_v(v):
-    """v (..., 12) -> the [QUANTITIES][mjxsysid.identify.logspace.QUANTITIES] (..., 13) in their units (NumPy, float64)."""
+    """v (..., 12) -> the [QUANTITIES][mjxsysid.identify.logspace.QUANTITIES] (..., 13) in their units
+    (NumPy, float64)."""
     v = np.asarray(v, np.float64)
     cols = []
     for q, idx in zip(QUANTITIES, V_OF_QUANTITY):

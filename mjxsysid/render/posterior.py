@@ -19,10 +19,10 @@ DERIVED_LABELS = {"thrust_to_weight": "thrust-to-weight 4 η̄ k_t Ω_max² / (m
 
 def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-level", title: str | None = None,
                            caption: str | None = None):
-    """ẑ and the derived quantities (median, 5–95 % band; :data:`~mjxsysid.theta.DERIVED_NAMES`) over time: the single-latent
-    (instant) posterior and, if decoded, the window's (flight-level) one (at its own decode
-    times ``times_window`` when given); ``title`` above all in red (a warning), ``caption``
-    below it in black (what the bands are)."""
+    """ẑ and the derived quantities (:data:`~mjxsysid.theta.DERIVED_NAMES`; median, 5–95 % band) over
+    time: the single-latent (instant) posterior and, if decoded, the window's (flight-level) one (at
+    its own decode times ``times_window`` when given); ``title`` above all in red (a warning),
+    ``caption`` below it in black (what the bands are)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -34,7 +34,7 @@ __all__ = ["ARM", "DEFAULT_PRIOR", "DERIVED_NAMES", "DRAG", "ETA", "FIELDS", "GR
            "STRESS_PRIOR", "STRESS_WIDE_PRIOR", "TAU_EXT", "TAU_M", "VEHICLE_KEYS", "WIDE_ACTUATOR_PRIOR",
            "XADAP_PRIOR", "YAW_SIGNS", "Field", "HeldOutFamily", "Normalizer", "Prior", "SizeFactorPrior",
            "XAdapPrior", "angular_authority", "as_batch", "check_flyable", "derived", "flyability", "get_prior",
-           "identifiable", "load_vehicle", "nominal_thrust_to_weight", "paper_hardware", "prior_normalizer", "project_valid",
-           "project_valid_jax", "rotor_positions", "save_vehicle", "theta_from_dict", "theta_to_dict",
+           "identifiable", "load_vehicle", "nominal_thrust_to_weight", "paper_hardware", "prior_normalizer",
+           "project_valid", "project_valid_jax", "rotor_positions", "save_vehicle", "theta_from_dict", "theta_to_dict",
            "thrust_to_weight", "torque_ratio", "validate_theta", "vehicle_path", "widened_prior",
            "xadap_training_prior", "xp_of"]
