@@ -209,7 +209,8 @@ def log_likelihood(x, data: LogData, weights=None):
         res = jnp.sum(w[L.GYRO] * _innovation_loglik(rg, sg[0] ** 2, data.kf_n)) + acc
     else:
         wm = data.wmask
-        res = jnp.sum(w[L.GYRO] * jax.vmap(_student_t, (1, 1, None))(rg, sg, wm)) + acc
+        gyro = range(L.GYRO.start, L.GYRO.stop)            # the rate residuals' columns are the gyro channels
+        res = sum(w[c] * _student_t(rg[:, c], sg[:, c], wm) for c in gyro) + acc
     var2 = comb(4, 2) * sig2                                 # variance of a second difference
     noise = jnp.sum(-0.5 * data.n2 * jnp.log(var2) - 0.5 * data.s2 / var2)
     return res + noise

@@ -32,6 +32,9 @@ The index constants, generated from the tables:
 - y: ``Y_V``, ``Y_LOG_NOISE``, ``Y_BIAS``, ``Y_NUIS``; ``Y_IN_X`` and ``NUIS_IN_Y`` (what y keeps).
 - z: ``Z_V``, ``Z_BIAS``; ``Z_IN_Y``.
 
+Between them: [x_from_y][mjxsysid.identify.logspace.x_from_y], ``y_from_x``, ``y_from_z``,
+``z_from_y``; [pack][mjxsysid.identify.logspace.pack] builds a vector from its fields by name.
+
 Outside this module, no code indexes these vectors with an integer (tests/identify/test_logspace.py).
 """
 from __future__ import annotations
@@ -199,6 +202,19 @@ def x_from_y(y, log_delta):
     y = xp.asarray(y)
     ld = xp.broadcast_to(xp.asarray(log_delta, y.dtype), y.shape[:-1] + (N_CHANNELS,))
     return xp.concatenate([y[..., Y_V], y[..., Y_LOG_NOISE], ld, y[..., Y_BIAS, None]], -1)
+
+
+def z_from_y(y):
+    """y (..., 17) -> z (..., 13)."""
+    return y[..., Z_IN_Y]
+
+
+def y_from_z(z, log_sigma):
+    """z (..., 13) and log σ (4,) or (..., 4) -> y (..., 17), in z's array library."""
+    xp = xp_of(z)
+    z = xp.asarray(z)
+    ls = xp.broadcast_to(xp.asarray(log_sigma, z.dtype), z.shape[:-1] + (N_CHANNELS,))
+    return xp.concatenate([z[..., Z_V], ls, z[..., Z_BIAS, None]], -1)
 
 
 def pack(fields, **parts):

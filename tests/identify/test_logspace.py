@@ -28,10 +28,14 @@ LOG_KEYS = {"v", "v_raw", "mode", "nuisance"}
 SIZES = {"N_V", "N_H", "N_X", "N_Y", "N_Z", "N_NUIS"}
 
 
+ROWS = "# rows, not coordinates"
+"""A line ending in this comment indexes a batch's rows (``y[:1]``), not a log-space axis."""
+
+
 def _literal_ints(index) -> list[ast.AST]:
-    """The integer literals an index expression uses directly: a[3], a[..., 3], a[:, 1:4], a[[0, 4]],
-    a[-1] (not those inside a call, e.g. a[np.all(m, -1)])."""
-    out, todo = [], [index]
+    """The integer literals an index expression uses directly on its last axis: a[3], a[..., 3],
+    a[:, 1:4], a[[0, 4]], a[-1] (not a[0, L.RHO]'s row, nor those inside a call: a[np.all(m, -1)])."""
+    out, todo = [], [index.elts[-1] if isinstance(index, ast.Tuple) and index.elts else index]
     while todo:
         n = todo.pop()
         if isinstance(n, ast.Constant) and type(n.value) is int:
@@ -58,8 +62,10 @@ def integer_indices(src: str, in_room: bool) -> list[str]:
     """Integer indices into a log-space vector in a module's source: subscripts with integer literals
     of :data:`LOG_VECTORS` (in the identify room) or :data:`LOG_KEYS` (anywhere), and offsets
     N_V + 4 etc. in an index or a definition."""
-    found = []
+    found, lines = [], src.splitlines()
     for n in ast.walk(ast.parse(src)):
+        if hasattr(n, "lineno") and lines[n.lineno - 1].rstrip().endswith(ROWS):
+            continue
         if isinstance(n, ast.Subscript):
             h = _holder(n.value) or ""
             log_vec = h[4:] in LOG_KEYS if h.startswith("key:") else (in_room and h in LOG_VECTORS)
@@ -82,7 +88,8 @@ def test_the_check_finds_what_it_must():
     for s in bad:
         assert integer_indices(s, in_room=True), s
     good = ("v[..., L.LOG_TAU_M]", "x[:, L.RHO]", "x[L.X_BIAS]", "q[1, j]", "rho[..., 0]", "len(v) < N_V + 2",
-            "v[np.all(np.isfinite(v), -1)]", "post['theta'][:, 0]")
+            "v[np.all(np.isfinite(v), -1)]", "post['theta'][:, 0]", "ys[0, L.Y_LOG_NOISE]",
+            "np.broadcast_to(y[:1], (3, 17))  " + ROWS)
     for s in good:
         assert not integer_indices(s, in_room=True), s
     assert not integer_indices("v[0]", in_room=False)         # a `v` outside the room is anything
@@ -120,6 +127,7 @@ def test_logspace_views_agree():
     x = rng.standard_normal((5, L.N_X)).astype(np.float32)
     y = L.y_from_x(x)
     np.testing.assert_array_equal(L.x_from_y(y, x[0, L.X_LOG_DISCREPANCY])[0], x[0])
+    np.testing.assert_array_equal(L.y_from_z(L.z_from_y(y), y[:, L.Y_LOG_NOISE]), y)
     with pytest.raises(ValueError, match=r"missing.*log_yaw_authority"):
         L.pack(L.V_FIELDS, log_thrust_to_weight=0.0, rel_effectiveness=np.ones(3), log_motor_time_constant=0.0,
                log_authority=np.zeros(3), ext_acc=np.zeros(3))
