@@ -157,38 +157,47 @@ LOG_MASS, LOG_ARM, LOG_OMEGA_MAX, ETA_MEAN, LOG_DRAG = (H_INDEX[f.name] for f in
 LOG_NOISE, LOG_DISCREPANCY, BIAS = (NUIS_INDEX[f.name] for f in NUISANCE_FIELDS)
 
 # x (21,) = [v, nuisances]
-N_X = N_V + N_NUIS
-X_V = slice(0, N_V)
-X_NUIS = slice(N_V, N_X)
-X_LOG_NOISE, X_LOG_DISCREPANCY, X_BIAS = (_shift(i, N_V) for i in (LOG_NOISE, LOG_DISCREPANCY, BIAS))
-X_LOG_NOISE_GYRO = _sub(X_LOG_NOISE, GYRO)
-X_LOG_DISCREPANCY_GYRO = _sub(X_LOG_DISCREPANCY, GYRO)
 X_FIELDS = V_FIELDS + NUISANCE_FIELDS
 """x's fields, in order."""
-X_NAMES = V_NAMES + NUIS_NAMES
+X_NAMES = _names(X_FIELDS)
+N_X = len(X_NAMES)
+X_INDEX = _index(X_FIELDS)
+X_V = slice(0, N_V)
+X_NUIS = slice(N_V, N_X)
+X_LOG_NOISE, X_LOG_DISCREPANCY, X_BIAS = (X_INDEX[f.name] for f in NUISANCE_FIELDS)
+X_LOG_NOISE_GYRO = _sub(X_LOG_NOISE, GYRO)
+X_LOG_DISCREPANCY_GYRO = _sub(X_LOG_DISCREPANCY, GYRO)
+
+
+def _positions(fields, index: dict, n: int) -> np.ndarray:
+    """The entries of ``fields`` in a vector of ``n`` laid out by ``index``, in the fields' order."""
+    return np.concatenate([np.atleast_1d(np.arange(n)[index[f.name]]) for f in fields])
+
 
 # y (17,) = [v, log σ, bias]: x without log δ
 Y_NUIS_FIELDS = tuple(f for f in NUISANCE_FIELDS if f.name != "log_discrepancy")
 """The nuisances y samples, in order (δ is set at the mode)."""
 Y_FIELDS = V_FIELDS + Y_NUIS_FIELDS
-Y_IN_X = np.r_[X_V, X_LOG_NOISE, X_BIAS]
-"""x's entries that y holds, in y's order: y = x[..., Y_IN_X]."""
-N_Y = len(Y_IN_X)
-Y_V = X_V
-Y_LOG_NOISE = slice(N_V, N_V + N_CHANNELS)
-Y_BIAS = int(np.flatnonzero(Y_IN_X == X_BIAS)[0])
+Y_NAMES = _names(Y_FIELDS)
+N_Y = len(Y_NAMES)
+Y_INDEX = _index(Y_FIELDS)
+Y_V = slice(0, N_V)
 Y_NUIS = slice(N_V, N_Y)
 """log σ and the bias in y: the nuisances y samples."""
-NUIS_IN_Y = np.r_[LOG_NOISE, BIAS]
+Y_LOG_NOISE, Y_BIAS = (Y_INDEX[f.name] for f in Y_NUIS_FIELDS)
+Y_IN_X = _positions(Y_FIELDS, X_INDEX, N_X)
+"""x's entries that y holds, in y's order: y = x[..., Y_IN_X]."""
+NUIS_IN_Y = _positions(Y_NUIS_FIELDS, NUIS_INDEX, N_NUIS)
 """The nuisances' entries (of 9) that y holds: y[..., Y_NUIS] = nuisances[..., NUIS_IN_Y]."""
-Y_NAMES = tuple(X_NAMES[i] for i in Y_IN_X)
 
 # z (13,) = [v, bias]: y without log σ
-Z_IN_Y = np.r_[Y_V, Y_BIAS]
+Z_FIELDS = V_FIELDS + tuple(f for f in Y_NUIS_FIELDS if f.name == "acc_z_bias")
+"""The fields the mode's least squares fits, in order (σ and δ held)."""
+N_Z = sum(f.size for f in Z_FIELDS)
+Z_V = slice(0, N_V)
+Z_BIAS = _index(Z_FIELDS)["acc_z_bias"]
+Z_IN_Y = _positions(Z_FIELDS, Y_INDEX, N_Y)
 """y's entries that z holds, in z's order: z = y[..., Z_IN_Y]."""
-N_Z = len(Z_IN_Y)
-Z_V = X_V
-Z_BIAS = N_V
 
 
 def y_from_x(x):
