@@ -24,28 +24,32 @@ OUT_OF_PRIOR_TITLE = "OUT OF THE DECODERS' PRIOR — bands not calibrated: "
 
 
 def _posterior_table(summary: dict) -> list[str]:
-    """summary.md's table rows of a posterior's summary entries (mean, 5–95 %, truth, inside)."""
-    rows = ["| quantity | mean | 5 % | 95 % | true | inside |", "|---|---|---|---|---|---|"]
+    """summary.md's table rows of a posterior's summary entries (mean, 5–95 %, truth, inside; for a
+    log-grounded posterior, whether the log saw the quantity)."""
+    seen = any(isinstance(v, dict) and "seen_by_log" in v for v in summary.values())
+    rows = ["| quantity | mean | 5 % | 95 % | true | inside |" + (" seen by the log |" if seen else ""),
+            "|---|---|---|---|---|---|" + ("---|" if seen else "")]
     for k, v in summary.items():
         if isinstance(v, dict) and "mean" in v and "q05" in v:
             true = f"{v['true']:.4g}" if "true" in v else ""
             inside = ("yes" if v["inside"] else "no") if "inside" in v else ""
-            rows.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} | {true} | {inside} |")
+            rows.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} | {true} | {inside} |"
+                        + ((" yes |" if v.get("seen_by_log") else " no: as broad as the prior |") if seen else ""))
     return rows
 
 
 def printed_summary(summary: dict) -> dict:
     """What ``mjxsysid decode`` prints (one JSON line): for a log-grounded posterior the quantities
-    the log pins first (those of :data:`~mjxsysid.identify.coords.LOG_NAMES` the information gap
-    says the log sees, in that order), then the policy's identifiable combinations
-    (:data:`~mjxsysid.theta.IDENTIFIABLE_NAMES`, whose widths the training prior sets where the log
-    cannot see them), and ``not_seen_by_log``; else the identifiable combinations alone."""
-    from mjxsysid.identify.coords import LOG_NAMES
+    the log pins first (those of :data:`~mjxsysid.identify.logspace.LOG_NAMES` the information gap
+    says the log sees, in that order), then the derived quantities (:data:`~mjxsysid.theta.DERIVED_NAMES`,
+    whose widths the training prior sets where the log cannot see them), and ``not_seen_by_log``;
+    else the derived quantities alone."""
+    from mjxsysid.identify.logspace import LOG_NAMES
     gap = (summary.get("_log_grounded") or {}).get("gap")
     out = {}
     if gap:
         out.update({k: summary[k] for k in LOG_NAMES if k in summary and gap.get(k, {}).get("seen_by_log")})
-    out.update({k: v for k, v in summary.items() if k in P.IDENTIFIABLE_NAMES})
+    out.update({k: v for k, v in summary.items() if k in P.DERIVED_NAMES and k not in out})
     if gap:
         out["not_seen_by_log"] = [k for k in LOG_NAMES if k in gap and not gap[k].get("seen_by_log")]
     return out
@@ -53,7 +57,7 @@ def printed_summary(summary: dict) -> dict:
 
 def write_summary_md(summary: dict, path) -> Path:
     """summary.md: the checks' warnings first (out of prior, suspicious log), then the decoded
-    identifiable combinations and parameters (mean, 5–95 %, and the truth if known)."""
+    derived quantities and parameters (mean, 5–95 %, and the truth if known)."""
     c = summary.get("_checks", {})
     lines = ["# Decoded vehicle", ""]
     if c.get("is_out_of_prior"):

@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 
-SHORT = {"thrust_to_weight_total": "T/W", "motor_time_constant": "τ_m (ms)", "authority_total[0]": "A_x",
+SHORT = {"thrust_to_weight": "T/W", "motor_time_constant": "τ_m (ms)", "authority_total[0]": "A_x",
          "authority_total[1]": "A_y", "authority_total[2]": "A_z", "yaw_authority_total": "yaw"}
 """The fleet table's columns (the quantities a user compares across vehicles first)."""
 

@@ -104,17 +104,17 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     """Make the log-grounded posterior (:mod:`mjxsysid.identify`) of a log's arrays ``rec`` the
     posterior of record, the decoded samples (the window's at the end of the flight, else the
     instant ones) as its proposal. In place: ``dec["samples_log_grounded"]`` (S, 19); ``summary``'s
-    top-level entries (19 parameters, identifiable combinations, and the log-identifiable
-    quantities of :data:`~mjxsysid.identify.coords.LOG_NAMES`) become the log-grounded posterior's,
+    top-level entries (19 parameters, the derived quantities, and the log-identifiable
+    quantities of :data:`~mjxsysid.identify.logspace.QUANTITIES`, each once:
+    :func:`~mjxsysid.identify.gap.joint_summary`) become the log-grounded posterior's,
     the decoder-only entries move under ``_decoder_only``, and ``_log_grounded`` holds the method,
     its diagnostics (ESS, Pareto k̂, SMC stages), the IMU noise, discrepancy and bias it estimated,
     and the information gap. ``rates``: the likelihood's rate term (default
     :data:`~mjxsysid.identify.logdata.RATES`). Returns ``summary``."""
-    from mjxsysid.identify.gap import information_gap, log_summary, seen_by_name
+    from mjxsysid.identify import logspace as L
+    from mjxsysid.identify.gap import information_gap, joint_summary, log_summary, seen_by_name
     from mjxsysid.logs.checks.rotors import rotor_speed_lag
     from mjxsysid.identify.inference import log_grounded_posterior
-    from mjxsysid.identify.coords import V_NAMES
-    from mjxsysid.identify.likelihood import CHANNELS
     from mjxsysid.identify.logdata import LogTooShort
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     try:
@@ -123,19 +123,22 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
         summary["_log_grounded"] = {"skipped": str(e)}
         summary["_posterior"] = "decoder-only"
         return summary
-    decoder_only = {k: summary.pop(k) for k in list(summary) if not k.startswith("_")}
-    decoder_only.update(log_summary(final, truth))
-    summary.update(summarize_posterior(post["theta"], truth))
-    summary.update(log_summary(post["theta"], truth))
+    decoder_only = joint_summary({k: summary.pop(k) for k in list(summary) if not k.startswith("_")},
+                                 log_summary(final, truth))
+    cal = post["calibration"]
+    seen = seen_by_name(cal) if cal.get("applied") else None
+    gap = information_gap(final, post["theta"], truth, seen=seen)
+    summary.update(joint_summary(summarize_posterior(post["theta"], truth), log_summary(post["theta"], truth),
+                                 seen={k: (g["seen_by_log"], g["seen_why"]) for k, g in gap.items()}))
     summary["_decoder_only"] = decoder_only
     diag = {k: post[k] for k in ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
                                  "smc_tempering") if k in post}
-    nz = np.exp(np.median(post["nuisance"][:, :8], 0))
-    diag["imu_noise"] = {c: float(x) for c, x in zip(CHANNELS, nz[:4])}
-    diag["discrepancy"] = {c: float(x) for c, x in zip(CHANNELS, nz[4:])}
-    diag["acc_z_bias"] = float(np.median(post["nuisance"][:, 8]))
-    diag["residual_weights"] = {c: float(x) for c, x in zip(CHANNELS, post["weights"])}
-    diag["channels_used"] = [c for c, u in zip(CHANNELS, post["channels_used"]) if u > 0]
+    nz = np.median(post["nuisance"], 0)
+    diag["imu_noise"] = {c: float(x) for c, x in zip(L.CHANNELS, np.exp(nz[L.LOG_NOISE]))}
+    diag["discrepancy"] = {c: float(x) for c, x in zip(L.CHANNELS, np.exp(nz[L.LOG_DISCREPANCY]))}
+    diag["acc_z_bias"] = float(nz[L.BIAS])
+    diag["residual_weights"] = {c: float(x) for c, x in zip(L.CHANNELS, post["weights"])}
+    diag["channels_used"] = [c for c, u in zip(L.CHANNELS, post["channels_used"]) if u > 0]
     diag["rates"] = post["rates"]
     diag["drag_per_mass"] = ({"value": post["drag_per_mass"], "unit": "1/s", "axes": "body x, y, z",
                               "what": "the body drag over the mass the accelerometer fits through the log's velocity "
@@ -144,12 +147,10 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
                              if post.get("drag_per_mass") is not None else
                              {"value": None, "why": "the log carries no velocity: the drag's share of the specific "
                                                     "force is left to the calibration"})
-    cal = post["calibration"]
-    seen = seen_by_name(cal) if cal.get("applied") else None
     diag["calibration"] = ({"applied": True, "table": cal["table"], "features": post["features"],
-                            "model_check": cal["check"], "width_factor": dict(zip(V_NAMES, cal["factor"].tolist()))}
+                            "model_check": cal["check"], "width_factor": dict(zip(L.V_NAMES, cal["factor"].tolist()))}
                            if cal.get("applied") else {"applied": False, "why": cal["why"]})
-    diag["gap"] = information_gap(final, post["theta"], truth, seen=seen)
+    diag["gap"] = gap
     speed = rotor_speed_lag(rec)
     if speed is not None:       # measured rotor speeds: τ_m from command to speed, beside the posterior's
         diag["rotor_speed"] = speed

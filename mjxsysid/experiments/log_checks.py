@@ -28,11 +28,12 @@ from mjxsysid.sim import Quadrotor, SimConfig
 
 
 def out_of_prior_sets(theta, rng) -> dict:
-    """Prior vehicles (n, 19) made to leave the prior one way each: thrust-to-weight 10–12 (RotorPy's
-    hummingbird is 10.2; Ω_max scaled), τ_m 3–10 ms (the hummingbird: 5 ms), one motor at η 0.4."""
+    """Prior vehicles (n, 19) made to leave the prior one way each: thrust-to-weight 10–12 at η = 1
+    (``nominal_thrust_to_weight``, as the measurement drew them; RotorPy's hummingbird is 10.2; Ω_max
+    scaled), τ_m 3–10 ms (the hummingbird: 5 ms), one motor at η 0.4."""
     n = len(theta)
     tw = theta.copy()
-    tw[:, P.OMEGA_MAX] *= np.sqrt(rng.uniform(10, 12, n) / np.asarray(P.thrust_to_weight(theta)))
+    tw[:, P.OMEGA_MAX] *= np.sqrt(rng.uniform(10, 12, n) / np.asarray(P.nominal_thrust_to_weight(theta)))
     fast = theta.copy()
     fast[:, P.TAU_M] = rng.uniform(0.003, 0.010, n)
     weak = theta.copy()

@@ -167,7 +167,7 @@ def latent_probe(policy, n: int, seed: int = 0, steps: int = 1000) -> dict | Non
     env = TrainEnv(EnvConfig(episode_steps=steps + 1))
     lat = latent_of_rollout(env_rollout(env, policy.load().params, jax.random.PRNGKey(seed), n, steps, False))
     idn = lat["probe_r2_identifiable"]
-    return {"r2_thrust_to_weight": idn["thrust_to_weight"],
+    return {"r2_thrust_to_weight": idn["nominal_thrust_to_weight"],
             "r2_authority": float(np.mean([idn[f"angular_authority[{i}]"] for i in range(3)])),
             "r2_tau_m": lat["probe_r2_theta"]["motor_time_constant"], "z_err_rel": lat["z_err_rel"]}
 

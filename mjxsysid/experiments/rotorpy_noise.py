@@ -4,8 +4,8 @@ reads and the log records, at multiples of the project's hardware-like levels (g
 accelerometer 0.1 m/s² per 2 ms sample, biases 0.005 rad/s and 0.05 m/s², vibration as the
 simulator's: mjxsysid.uses.imu_noise.LEVELS); each flight is written as a flight log and decoded as
 ``mjxsysid decode --log LOG --truth VEHICLE.json`` does (seed 0, 100 samples). Reported per vehicle
-and level: the tracking RMSE and how many of the 24 quantities (19 parameters and 5 identifiable
-combinations) have their truth inside the 5–95 % interval of the log-grounded posterior (decode's
+and level: the tracking RMSE and how many of the 24 quantities (19 parameters and the 5 derived
+quantities of decode's summary) have their truth inside the 5–95 % interval of the log-grounded posterior (decode's
 default, :mod:`mjxsysid.identify`) and of the decoders alone (the flight-level posterior, ``--decoder-only``).
 The vehicles (:data:`VEHICLES`): the paper vehicle with motor 1 worn to η 0.8, and a vehicle of the
 policy's training prior (``default``, drawn with seed 1).
@@ -190,7 +190,7 @@ FULL = {"levels": "clean,x1,x5_white,x5_vibration,x20", "vehicles": ",".join(VEH
 """The committed run's settings: the levels of the log-grounded posterior's calibration, both
 :data:`VEHICLES`, ``samples`` decoded (decode's default)."""
 QUICK = {**FULL, "seconds": 2.0, "samples": 20, "levels": "clean,x5_white", "vehicles": "worn_motor"}
-NAMES = list(P.PARAM_NAMES) + list(P.IDENTIFIABLE_NAMES)
+NAMES = list(P.PARAM_NAMES) + list(P.DERIVED_NAMES)
 
 
 def _inside(s: dict) -> tuple[int, list]:

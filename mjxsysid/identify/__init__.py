@@ -1,11 +1,12 @@
 """What the flight shows: the log-grounded posterior of a vehicle, calibrated by simulation.
 
 The room is callable: ``mjxsysid.identify(log)`` is :func:`.logposterior.identify` (a
-:class:`~.logposterior.LogPosterior`). :mod:`.coords` (θ in the coordinates an IMU log sees, the
-stated physical prior), :mod:`.likelihood` (the IMU given the motor commands, windowed equation
-error), :mod:`.inference` (the decoded ensemble as proposal, Laplace importance sampling, tempered
-SMC), :mod:`.calibrate` (the bands calibrated by simulation, the model check), :mod:`.gap` (the
-information gap between the decoders and the log).
+:class:`~.logposterior.LogPosterior`). :mod:`.logspace` (the log space's one table: v, h, the
+nuisances, the vectors x, y, z and the reported quantities, by name), :mod:`.coords` (θ in the
+coordinates an IMU log sees, the stated physical prior), :mod:`.likelihood` (the IMU given the motor
+commands, windowed equation error), :mod:`.inference` (the decoded ensemble as proposal, Laplace
+importance sampling, tempered SMC), :mod:`.calibrate` (the bands calibrated by simulation, the model
+check), :mod:`.gap` (the information gap between the decoders and the log).
 """
 import sys
 import types

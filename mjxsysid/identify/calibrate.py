@@ -36,8 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid.identify.coords import N_V, PHYSICAL_PRIOR, V_NAMES, PhysicalPrior
+from mjxsysid.identify import logspace as L
+from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
 from mjxsysid.identify.gap import UNSEEN_FRACTION
+from mjxsysid.identify.logspace import N_V, V_NAMES
 
 LEVEL = 0.90
 """The band's nominal coverage."""
@@ -49,17 +51,25 @@ FEATURE_NAMES = ("rates_nsr", "acc_nsr", "rates_nsr_x", "rates_nsr_y", "rates_ns
 """log10 of the residual scale over the signal: the gyro channels (mean over x, y, z), the accelerometer z,
 each gyro axis (how much the flight excited it against what the model leaves unexplained)."""
 
-COORD_FEATURE = np.array([1, 0, 0, 0, 0, 2, 3, 4, 4, 2, 3, 4])
-"""Which feature groups each visible coordinate (:data:`~.coords.V_NAMES`): the thrust-to-weight by the
-accelerometer's (it does not depend on the rate windows, which a slowly logged motor leaves out), ρ and
-τ_m by the rate channels' mean, each authority and τ_ext/J by its own axis (the yaw authority by z)."""
+_AXES = ("rates_nsr_x", "rates_nsr_y", "rates_nsr_z")
+_FEATURE_OF = {"log_thrust_to_weight": "acc_nsr", "rel_effectiveness": "rates_nsr",
+               "log_motor_time_constant": "rates_nsr", "log_authority": _AXES, "log_yaw_authority": "rates_nsr_z",
+               "ext_acc": _AXES}
+COORD_FEATURE = np.array([FEATURE_NAMES.index(_FEATURE_OF[f.name] if isinstance(_FEATURE_OF[f.name], str)
+                                              else _FEATURE_OF[f.name][i])
+                          for f in L.V_FIELDS for i in range(f.size)])
+"""Which feature (index into :data:`FEATURE_NAMES`) groups each visible coordinate
+(:data:`~.logspace.V_NAMES`): the thrust-to-weight by the accelerometer's (it does not depend on the rate
+windows, which a slowly logged motor leaves out), ρ and τ_m by the rate channels' mean, each authority
+and τ_ext/J by its own axis (the yaw authority by z)."""
 
-VELOCITY_COORDS = (0,)
+VELOCITY_COORDS = (L.LOG_TW,)
 """The coordinates a log's velocity changes (thrust-to-weight: the drag's term in the accelerometer's):
 calibrated apart on logs that carry velocity (``velocity_coords`` of the table)."""
 
-RATE_COORDS = np.array([False, True, True, True, True, True, True, True, True, True, True, True])
-"""The coordinates the rate windows inform (not seen when the motors were logged too slowly)."""
+RATE_COORDS = np.arange(N_V) != L.LOG_TW
+"""The coordinates the rate windows inform, every one but thrust-to-weight (not seen when the motors
+were logged too slowly)."""
 
 BOUND_FRACTION = 0.01
 """A narrow band within this share of the prior's range from one of its bounds is not seen: the log asks
@@ -78,17 +88,17 @@ def log_features(data, mode) -> dict:
     windows' RMS measured rate change; the accelerometer blocks' mean), rates_used (bool), windows (int),
     velocity_used (bool: the log's velocity entered the drag's term)}."""
     mode = np.asarray(mode, np.float64)
-    sig, dl = np.exp(mode[N_V:N_V + 4]), np.exp(mode[N_V + 4:N_V + 8])
+    sig, dl = np.exp(mode[L.X_LOG_NOISE]), np.exp(mode[L.X_LOG_DISCREPANCY])
     scale = np.sqrt(np.asarray(data.kvar, np.float64) * sig ** 2 + dl ** 2)
     wm = np.asarray(data.wmask, bool)
     bm = np.asarray(data.bmask, bool)
     dg = np.asarray(data.dgyro, np.float64)[wm]
     gsig = np.maximum(np.sqrt(np.mean(dg ** 2, 0)), 1e-9)
     asig = max(abs(float(np.mean(np.asarray(data.acc, np.float64)[bm]))), 1e-9)
-    axes = np.log10(scale[:3] / gsig)
-    return {"rates_nsr": float(np.mean(axes)), "acc_nsr": float(np.log10(scale[3] / asig)),
-            "rates_nsr_x": float(axes[0]), "rates_nsr_y": float(axes[1]), "rates_nsr_z": float(axes[2]),
-            "rates_used": bool(np.asarray(data.use)[0] > 0), "windows": int(wm.sum()),
+    axes = np.log10(scale[L.GYRO] / gsig)
+    return {"rates_nsr": float(np.mean(axes)), "acc_nsr": float(np.log10(scale[L.ACC_Z] / asig)),
+            **{f: float(a) for f, a in zip(_AXES, axes)},
+            "rates_used": bool(np.any(np.asarray(data.use)[L.GYRO] > 0)), "windows": int(wm.sum()),
             "velocity_used": bool(np.any(np.asarray(data.vz)[bm] != 0))}
 
 
@@ -146,7 +156,7 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
     feats = np.array([[r["features"][f] for f in FEATURE_NAMES] for r in rows], np.float64)
     used = np.array([r["features"]["rates_used"] for r in rows], bool)
     vel = np.array([bool(r["features"].get("velocity_used", False)) for r in rows], bool)
-    weights = np.array([r.get("weights", [1.0] * 4) for r in rows], np.float64)
+    weights = np.array([r.get("weights", [1.0] * L.N_CHANNELS) for r in rows], np.float64)
     strata = vel.sum() >= min_group * bins           # enough logs with velocity for a stratum of their own
     table, vel_table = [], {}
     for j in range(N_V):
@@ -157,9 +167,10 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
             keep = keep & ~vel
         table.append(_fit_coord(j, truth[keep], bands[keep], feats[keep], level, bins, min_group))
     rng = {f: [float(np.min(feats[:, i])), float(np.max(feats[:, i]))] for i, f in enumerate(FEATURE_NAMES)}
+    min_weight = np.full(L.N_CHANNELS, np.quantile(weights[used][:, L.GYRO], 0.005))
+    min_weight[L.ACC_Z] = np.quantile(weights[:, L.ACC_Z], 0.005)
     return {"level": level, "coords": table, "velocity_coords": vel_table, "feature_range": rng,
-            "min_weight": [float(np.quantile(weights[used][:, :3], 0.005))] * 3
-                          + [float(np.quantile(weights[:, 3], 0.005))], "logs": len(rows)}
+            "min_weight": min_weight.tolist(), "logs": len(rows)}
 
 
 def _fit_coord(j: int, truth, bands, feats, level: float, bins: int, min_group: int) -> dict:
@@ -224,13 +235,14 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
     w = np.asarray(weights, np.float64)
     wmin = np.asarray(table["min_weight"], np.float64)
     rates = [f for f in FEATURE_NAMES if f.startswith("rates")]
-    if np.any(w[:3] < wmin[:3]):
+    g, a = L.GYRO, L.ACC_Z
+    if np.any(w[g] < wmin[g]):
         for f in rates:
             why[f].append("the rate residuals are more correlated than 99.5 % of the simulated logs' (discount "
-                          f"{np.round(w[:3], 3).tolist()} below {wmin[0]:.3f}): physics the model lacks")
-    if w[3] < wmin[3]:
+                          f"{np.round(w[g], 3).tolist()} below {wmin[g].min():.3f}): physics the model lacks")
+    if w[a] < wmin[a]:
         why["acc_nsr"].append(f"the accelerometer residuals are more correlated than 99.5 % of the simulated logs' "
-                              f"(discount {w[3]:.3f} below {wmin[3]:.3f}): physics the model lacks")
+                              f"(discount {w[a]:.3f} below {wmin[a]:.3f}): physics the model lacks")
     if not features["rates_used"]:
         for f in rates:
             why[f].append("the motors were logged too slowly for the rate windows: τ_m, the authorities, ρ and "

@@ -11,15 +11,16 @@ simulator's own equations; η_i = η̄ ρ_i, ρ the effectiveness relative to th
 with s_i = Ω_i / Ω_max the rotor speed the first-order lag τ_m makes of the command, (x_i, y_i)
 the rotor directions, σ_i the spin signs, and
 
-- TWᵉ = 4 η̄ k_t Ω_max² / (m g): the thrust-to-weight of all four rotors at full speed (the
-  project's ``thrust_to_weight`` has η = 1: TWᵉ = η̄ · thrust_to_weight);
+- TWᵉ = 4 η̄ k_t Ω_max² / (m g): the thrust-to-weight of all four rotors at full speed, the one
+  every report gives (``thrust_to_weight``; ``nominal_thrust_to_weight`` is it at η = 1, not seen);
 - Aᵉ = η̄ l k_t Ω_max² / J: the angular authorities (``angular_authority`` × η̄); the inertia
   ratios of the gyroscopic terms are ratios of them (J_y / J_x = Aᵉ_x / Aᵉ_y);
 - Yᵉ = η̄ κ k_t Ω_max² / J_z: the yaw authority (κ / l × Aᵉ_z);
 - c = τ_ext / J: the constant angular acceleration of the external torque;
 - ρ_i and τ_m themselves.
 
-These twelve numbers are the *visible* coordinates v. The other seven — mass, arm length,
+These twelve numbers are the *visible* coordinates v (their table, with h's, the nuisances' and the
+reported quantities': [logspace][mjxsysid.identify.logspace]). The other seven — mass, arm length,
 Ω_max, η̄ and the three drag coefficients — are *hidden*: no IMU log without position or
 velocity changes with them while v is held (scale: mass against thrust coefficient, arm length
 against inertia; drag acts through the velocity a log of IMU and motors does not carry).
@@ -34,33 +35,20 @@ them is still identified.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 
 import numpy as np
 
 from mjxsysid import theta as P
+from mjxsysid.identify import logspace as L
+from mjxsysid.identify.logspace import H_NAMES, LOG_NAMES, LOG_UNITS, N_H, N_V, V_NAMES  # noqa: F401 (the room's names)
 from mjxsysid.theta import xp_of
-
-V_NAMES = ("log_thrust_to_weight", "rel_effectiveness[0]", "rel_effectiveness[1]", "rel_effectiveness[2]",
-           "log_motor_time_constant", "log_authority[0]", "log_authority[1]", "log_authority[2]",
-           "log_yaw_authority", "ext_acc[0]", "ext_acc[1]", "ext_acc[2]")
-"""The visible coordinates v (12,): logs of positive quantities, ρ_1..3 (ρ_4 = 4 − Σ), c (rad/s²)."""
-N_V = len(V_NAMES)
-H_NAMES = ("log_mass", "log_arm_length", "log_max_rotor_speed", "mean_effectiveness",
-           "log_drag[0]", "log_drag[1]", "log_drag[2]")
-"""The hidden coordinates h (7,)."""
-N_H = len(H_NAMES)
-
-LOG_NAMES = ("thrust_to_weight_total", "motor_time_constant", "authority_total[0]", "authority_total[1]",
-             "authority_total[2]", "yaw_authority_total", "relative_effectiveness[0]", "relative_effectiveness[1]",
-             "relative_effectiveness[2]", "relative_effectiveness[3]", "external_acc[0]", "external_acc[1]",
-             "external_acc[2]")
-"""The physical quantities an IMU log identifies, in their units (see :func:`log_quantities`)."""
-LOG_UNITS = ("-", "s", "rad/s^2", "rad/s^2", "rad/s^2", "rad/s^2", "-", "-", "-", "-", "rad/s^2", "rad/s^2",
-             "rad/s^2")
 
 
 def _rho4(v):
-    return 4.0 - v[..., 1] - v[..., 2] - v[..., 3]
+    """ρ_4 = 4 − ρ_1 − ρ_2 − ρ_3 of v (..., 12)."""
+    rho = v[..., L.RHO]
+    return 4.0 - rho[..., 0] - rho[..., 1] - rho[..., 2]
 
 
 def visible_from_theta(theta):
@@ -69,22 +57,21 @@ def visible_from_theta(theta):
     t = xp.asarray(theta, xp.float32)
     eta = t[..., P.ETA]
     eb = eta.mean(-1)
-    twr = P.thrust_to_weight(t) * eb
     auth = P.angular_authority(t) * eb[..., None]
     yaw = t[..., P.KTAU] / t[..., P.KT] / t[..., P.ARM] * auth[..., 2]
     rho = eta / eb[..., None]
-    c = t[..., P.TAU_EXT] / t[..., P.INERTIA]
-    return xp.concatenate([xp.log(twr)[..., None], rho[..., :3], xp.log(t[..., P.TAU_M])[..., None],
-                           xp.log(auth), xp.log(yaw)[..., None], c], -1)
+    return L.pack(L.V_FIELDS, log_thrust_to_weight=xp.log(P.thrust_to_weight(t)), rel_effectiveness=rho[..., :3],
+                  log_motor_time_constant=xp.log(t[..., P.TAU_M]), log_authority=xp.log(auth),
+                  log_yaw_authority=xp.log(yaw), ext_acc=t[..., P.TAU_EXT] / t[..., P.INERTIA])
 
 
 def hidden_from_theta(theta):
     """θ (..., 19) -> h (..., 7) (module doc)."""
     xp = xp_of(theta)
     t = xp.asarray(theta, xp.float32)
-    return xp.concatenate([xp.log(t[..., P.MASS:P.MASS + 1]), xp.log(t[..., P.ARM:P.ARM + 1]),
-                           xp.log(t[..., P.OMEGA_MAX:P.OMEGA_MAX + 1]), t[..., P.ETA].mean(-1, keepdims=True),
-                           xp.log(t[..., P.DRAG])], -1)
+    return L.pack(L.H_FIELDS, log_mass=xp.log(t[..., P.MASS]), log_arm_length=xp.log(t[..., P.ARM]),
+                  log_max_rotor_speed=xp.log(t[..., P.OMEGA_MAX]), mean_effectiveness=t[..., P.ETA].mean(-1),
+                  log_drag=xp.log(t[..., P.DRAG]))
 
 
 def theta_from(v, h, dtype=None):
@@ -93,17 +80,18 @@ def theta_from(v, h, dtype=None):
     xp = xp_of(v, h)
     dtype = xp.float32 if dtype is None else dtype
     v, h = xp.asarray(v, dtype), xp.asarray(h, dtype)
-    m, arm, wmax, eb = xp.exp(h[..., 0]), xp.exp(h[..., 1]), xp.exp(h[..., 2]), h[..., 3]
-    rho = xp.concatenate([v[..., 1:4], _rho4(v)[..., None]], -1)
-    twr = xp.exp(v[..., 0]) / eb
+    m, arm, wmax, eb = xp.exp(h[..., L.LOG_MASS]), xp.exp(h[..., L.LOG_ARM]), xp.exp(h[..., L.LOG_OMEGA_MAX]), \
+        h[..., L.ETA_MEAN]
+    rho = xp.concatenate([v[..., L.RHO], _rho4(v)[..., None]], -1)
+    twr = xp.exp(v[..., L.LOG_TW]) / eb
     kt = twr * m * P.GRAVITY / (4.0 * wmax**2)
-    auth = xp.exp(v[..., 5:8]) / eb[..., None]
+    auth = xp.exp(v[..., L.LOG_AUTH]) / eb[..., None]
     inertia = (arm * kt * wmax**2)[..., None] / auth
-    kappa = arm * xp.exp(v[..., 8]) / xp.exp(v[..., 7])
-    tau_ext = v[..., 9:12] * inertia
+    kappa = arm * xp.exp(v[..., L.LOG_YAW]) / xp.exp(v[..., L.LOG_AUTH_Z])
+    tau_ext = v[..., L.EXT_ACC] * inertia
     return xp.concatenate([m[..., None], arm[..., None], kt[..., None], (kappa * kt)[..., None], inertia,
-                           xp.exp(h[..., 4:7]), wmax[..., None], eb[..., None] * rho,
-                           xp.exp(v[..., 4])[..., None], tau_ext], -1)
+                           xp.exp(h[..., L.LOG_DRAG]), wmax[..., None], eb[..., None] * rho,
+                           xp.exp(v[..., L.LOG_TAU_M])[..., None], tau_ext], -1)
 
 
 def with_mass(theta, mass_kg) -> np.ndarray:
@@ -113,15 +101,13 @@ def with_mass(theta, mass_kg) -> np.ndarray:
     of the posterior given a weighed vehicle."""
     v, h = visible_from_theta(np.asarray(theta, np.float32)), hidden_from_theta(np.asarray(theta, np.float32))
     h = np.array(h)
-    h[..., 0] = np.log(np.float32(mass_kg))
+    h[..., L.LOG_MASS] = np.log(np.float32(mass_kg))
     return np.asarray(theta_from(v, h))
 
 
 def log_quantities(theta) -> np.ndarray:
     """θ (..., 19) -> the :data:`LOG_NAMES` quantities (..., 13) in physical units."""
-    v = np.asarray(visible_from_theta(theta), np.float64)
-    rho = np.concatenate([v[..., 1:4], (4.0 - v[..., 1:4].sum(-1))[..., None]], -1)
-    return np.concatenate([np.exp(v[..., [0, 4, 5, 6, 7, 8]]), rho, v[..., 9:12]], -1)
+    return L.quantities_of_v(visible_from_theta(theta))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -131,7 +117,7 @@ class PhysicalPrior:
     and the triangle inequality of J (1/Aᵉ_z ≤ 1/Aᵉ_x + 1/Aᵉ_y). Every range is physical
     (units in the field names) and wider than the decoders' training priors."""
     name: str = "physical"
-    thrust_to_weight_total: tuple[float, float] = (1.05, 15.0)
+    thrust_to_weight: tuple[float, float] = (1.05, 15.0)
     rel_eff: tuple[float, float] = (0.25, 1.9)
     motor_time_constant_s: tuple[float, float] = (0.002, 0.3)
     authority_rad_s2: tuple[float, float] = (10.0, 10_000.0)
@@ -143,20 +129,34 @@ class PhysicalPrior:
     mean_effectiveness: tuple[float, float] = (0.45, 1.35)
     drag_kg_s: tuple[float, float] = (0.001, 5.0)
 
-    def v_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """Box of v (12,), (12,) (before the truncations)."""
-        lg = np.log
-        rows = [lg(self.thrust_to_weight_total)] + [self.rel_eff] * 3 + [lg(self.motor_time_constant_s)] \
-            + [lg(self.authority_rad_s2)] * 3 + [lg(self.yaw_authority_rad_s2)] + [self.ext_acc_rad_s2] * 3
+    @property
+    def thrust_to_weight_total(self) -> tuple[float, float]:
+        """The old name of :attr:`thrust_to_weight` (a FutureWarning)."""
+        warnings.warn("PhysicalPrior.thrust_to_weight_total is now PhysicalPrior.thrust_to_weight (the one "
+                      "thrust-to-weight, 4 η̄ k_t Ω_max² / (m g)); the old name goes in the next release",
+                      FutureWarning, stacklevel=2)
+        return self.thrust_to_weight
+
+    def _bounds(self, fields, ranges: dict) -> tuple[np.ndarray, np.ndarray]:
+        """Per field of ``fields`` its (lo, hi), log for a field in log units -> lo, hi per entry."""
+        rows = [np.log(ranges[f.name]) if f.unit.startswith("log(") else ranges[f.name]
+                for f in fields for _ in range(f.size)]
         b = np.asarray(rows, np.float64)
         return b[:, 0], b[:, 1]
 
+    def v_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Box of v (12,), (12,) (before the truncations)."""
+        return self._bounds(L.V_FIELDS, {
+            "log_thrust_to_weight": self.thrust_to_weight, "rel_effectiveness": self.rel_eff,
+            "log_motor_time_constant": self.motor_time_constant_s, "log_authority": self.authority_rad_s2,
+            "log_yaw_authority": self.yaw_authority_rad_s2, "ext_acc": self.ext_acc_rad_s2})
+
     def h_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        lg = np.log
-        rows = [lg(self.mass_kg), lg(self.arm_length_m), lg(self.max_rotor_speed_rad_s), self.mean_effectiveness] \
-            + [lg(self.drag_kg_s)] * 3
-        b = np.asarray(rows, np.float64)
-        return b[:, 0], b[:, 1]
+        """Box of h (7,), (7,)."""
+        return self._bounds(L.H_FIELDS, {
+            "log_mass": self.mass_kg, "log_arm_length": self.arm_length_m,
+            "log_max_rotor_speed": self.max_rotor_speed_rad_s, "mean_effectiveness": self.mean_effectiveness,
+            "log_drag": self.drag_kg_s})
 
     def v_valid(self, v):
         """v (..., 12) -> (...) bool: inside the box, ρ_4 in range, J's triangle inequality."""
@@ -165,7 +165,7 @@ class PhysicalPrior:
         v = xp.asarray(v)
         box = xp.all((v >= lo) & (v <= hi), -1)
         r4 = _rho4(v)
-        inv = xp.exp(-v[..., 5:8])
+        inv = xp.exp(-v[..., L.LOG_AUTH])                    # ∝ J_x, J_y, J_z
         return box & (r4 >= self.rel_eff[0]) & (r4 <= self.rel_eff[1]) & (inv[..., 2] <= inv[..., 0] + inv[..., 1])
 
     def log_prob_v(self, v):

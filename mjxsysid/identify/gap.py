@@ -1,23 +1,56 @@
 """The information gap: what the decoders (the policy's latent) say against what the log shows,
-per log-identifiable quantity (:data:`~mjxsysid.identify.coords.LOG_NAMES`)."""
+per log-identifiable quantity (:data:`~mjxsysid.identify.logspace.QUANTITIES`); the log quantities'
+summary, and one summary of them with θ's (each quantity once, by one name)."""
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
-from mjxsysid.identify.coords import LOG_NAMES, LOG_UNITS, PHYSICAL_PRIOR, PhysicalPrior, log_quantities
+from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, log_quantities
+from mjxsysid.identify.logspace import LOG_NAMES, LOG_UNITS, QUANTITIES, QUANTITY, RENAMED, V_OF_QUANTITY
 
 UNSEEN_FRACTION = 0.5
 """A log-grounded 90 % band wider than this share of the prior's range: the log did not see the
 quantity (it stays as broad as the prior says)."""
 
 
+class Summary(dict):
+    """A summary keyed by quantity name that still answers an old name of :data:`~.logspace.RENAMED`,
+    with a FutureWarning naming the new one."""
+
+    def __missing__(self, key):
+        new = RENAMED.get(key)
+        if new is None or new not in self:
+            raise KeyError(key)
+        warnings.warn(f"{key!r} is now {new!r} (one name per quantity); the old name goes in the next release",
+                      FutureWarning, stacklevel=2)
+        return self[new]
+
+    def get(self, key, default=None):
+        return self[key] if key in self or RENAMED.get(key) in self else default
+
+
+def prior_ranges(prior: PhysicalPrior = PHYSICAL_PRIOR) -> tuple[np.ndarray, np.ndarray]:
+    """Each quantity's (:data:`LOG_NAMES`) range under the prior -> lo (13,), hi (13,): its coordinate's
+    box, exponentiated for a log coordinate; ρ_4's the truncation's (``rel_eff``)."""
+    vlo, vhi = prior.v_bounds()
+    rows = []
+    for q, idx in zip(QUANTITIES, V_OF_QUANTITY):
+        if q.form == "rest":
+            rows.append(prior.rel_eff)
+        else:
+            r = (vlo[idx[0]], vhi[idx[0]])
+            rows.append(np.exp(r) if q.form == "exp" else r)
+    b = np.asarray(rows, np.float64)
+    return b[:, 0], b[:, 1]
+
+
 def prior_widths(prior: PhysicalPrior = PHYSICAL_PRIOR) -> np.ndarray:
-    """Each LOG_NAMES quantity's prior range, in the units the gap measures widths in (log for the
+    """Each quantity's prior range, in the units the gap measures widths in (log for the
     positive ones, plain for τ_ext/J) -> (13,)."""
-    lo, hi = prior.v_bounds()
-    w = hi - lo
-    rho = np.log(prior.rel_eff[1] / prior.rel_eff[0])
-    return np.array([w[0], w[4], w[5], w[6], w[7], w[8], rho, rho, rho, rho, w[9], w[10], w[11]])
+    lo, hi = prior_ranges(prior)
+    return np.where(lo > 0, np.log(np.abs(hi / lo)), hi - lo)
 
 
 def _band(q):
@@ -37,19 +70,39 @@ def log_summary(samples, truth=None) -> dict:
         if tq is not None:
             d.update(true=float(tq[j]), inside=bool(lo[j] <= tq[j] <= hi[j]))
         out[n] = d
+    return Summary(out)
+
+
+HIDDEN_WHY = ("made of the hidden coordinates (mass, arm length, Ω_max, η̄, drag), which an IMU log does not "
+              "change with: as broad as the prior")
+"""Why a quantity of θ's summary that is not a log quantity is not seen by the log."""
+
+
+def joint_summary(theta_summary: dict, log_summary: dict, seen: dict | None = None) -> dict:
+    """θ's summary (:func:`~mjxsysid.cfm.posterior.summarize_posterior`: 19 parameters and the derived
+    quantities) and the log quantities' (:func:`log_summary`) as one, each quantity once by its one name.
+    A quantity both tables give (``in_theta`` of :data:`~.logspace.QUANTITIES`: the same definition) is
+    θ's entry; any other name in both raises ValueError instead of overwriting one with the other.
+
+    ``seen`` ({log quantity: (seen, why)}, a log-grounded posterior's): every entry then says whether
+    the log saw it (``seen_by_log``) and why; θ's other entries are not seen (:data:`HIDDEN_WHY`)."""
+    clash = sorted(k for k in log_summary if k in theta_summary and not (k in QUANTITY and QUANTITY[k].in_theta))
+    if clash:
+        raise ValueError(f"the log's and θ's summaries both name {clash} as different quantities: one name per "
+                         f"quantity (identify/logspace.py QUANTITIES, theta DERIVED_NAMES)")
+    out = Summary({**theta_summary, **{k: v for k, v in log_summary.items() if k not in theta_summary}})
+    if seen is not None:
+        for k, v in out.items():
+            ok, why = seen[k] if k in QUANTITY else (False, HIDDEN_WHY)
+            out[k] = {**v, "seen_by_log": bool(ok), "why": why}
     return out
-
-
-V_OF_LOG_NAME = (0, 4, 5, 6, 7, 8, 1, 2, 3, (1, 2, 3), 9, 10, 11)
-"""The visible coordinate(s) (:data:`~.coords.V_NAMES`) each LOG_NAMES quantity is made of (ρ_4 = 4 − ρ_1..3)."""
 
 
 def seen_by_name(report: dict) -> dict:
     """A calibration report (:func:`~.calibrate.calibrate`: ``seen`` (12,), ``why`` (12,)) -> {LOG_NAMES
     quantity: (seen, why)}; a quantity made of several coordinates is seen when all of them are."""
     out = {}
-    for name, j in zip(LOG_NAMES, V_OF_LOG_NAME):
-        js = j if isinstance(j, tuple) else (j,)
+    for name, js in zip(LOG_NAMES, V_OF_QUANTITY):
         bad = [k for k in js if not report["seen"][k]]
         out[name] = (not bad, report["why"][bad[0] if bad else js[0]])
     return out
@@ -88,7 +141,7 @@ def information_gap(decoded_theta, grounded_theta, truth=None, prior: PhysicalPr
             d.update(true=float(tq[j]), log_inside=bool(glo[j] <= tq[j] <= ghi[j]),
                      decoder_inside=bool(dlo[j] <= tq[j] <= dhi[j]))
         out[name] = d
-    return out
+    return Summary(out)
 
 
 def gap_markdown(gap: dict) -> list[str]:

@@ -35,9 +35,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import SHIPPED, calibrate, load, log_features
 from mjxsysid.identify.coords import (
-    N_V,
     PHYSICAL_PRIOR,
     PhysicalPrior,
     theta_from,
@@ -91,27 +91,26 @@ def full_precision(f):
     return run
 
 
-N_Y = N_V + 5
+N_Y = L.N_Y
 """The sampled coordinates: v (12), log σ (4), acc_z bias."""
 
 
 def _nuis_lo_hi():
     a, b, c, d, e, f = NUIS_BOUNDS
-    return np.array([a] * 4 + [c] * 4 + [e]), np.array([b] * 4 + [d] * 4 + [f])
+    n = L.N_CHANNELS
+    return (L.pack(L.NUISANCE_FIELDS, log_noise=np.full(n, a), log_discrepancy=np.full(n, c), acc_z_bias=e),
+            L.pack(L.NUISANCE_FIELDS, log_noise=np.full(n, b), log_discrepancy=np.full(n, d), acc_z_bias=f))
 
 
 def _y_lo_hi(prior):
     lo, hi = prior.v_bounds()
     nlo, nhi = _nuis_lo_hi()
-    return np.concatenate([lo, nlo[:4], nlo[8:]]), np.concatenate([hi, nhi[:4], nhi[8:]])
+    return np.concatenate([lo, nlo[L.NUIS_IN_Y]]), np.concatenate([hi, nhi[L.NUIS_IN_Y]])
 
 
 def full_x(y, log_delta):
     """y (..., 17) and log δ (4,) -> x (..., 21) = [v, log σ, log δ, bias]."""
-    xp = xp_of(y)
-    y = xp.asarray(y)
-    ld = xp.broadcast_to(xp.asarray(log_delta, y.dtype), y.shape[:-1] + (4,))
-    return xp.concatenate([y[..., :N_V + 4], ld, y[..., N_V + 4:]], -1)
+    return L.x_from_y(y, log_delta)
 
 
 
@@ -119,9 +118,9 @@ def log_prior(x, prior: PhysicalPrior = PHYSICAL_PRIOR):
     """log p(x) up to a constant, x (21,) = [v, log σ, log δ, bias]: the physical prior, uniform
     nuisances, the bias N(0, :data:`ACC_BIAS_SD`²)."""
     lo, hi = _nuis_lo_hi()
-    n = x[N_V:]
+    n = x[L.X_NUIS]
     ok = jnp.all((n >= lo) & (n <= hi))
-    return prior.log_prob_v(x[:N_V]) + jnp.where(ok, 0.0, -jnp.inf) - 0.5 * (x[-1] / ACC_BIAS_SD) ** 2
+    return prior.log_prob_v(x[L.X_V]) + jnp.where(ok, 0.0, -jnp.inf) - 0.5 * (x[L.X_BIAS] / ACC_BIAS_SD) ** 2
 
 
 def _log_target_y(y, data, log_delta, weights, prior):
@@ -145,12 +144,12 @@ serves the mode's few fits, the importance draws and any batch a caller passes."
 def log_target(y, data: LogData, log_delta=None, weights=None, prior: PhysicalPrior = PHYSICAL_PRIOR):
     """log prior + log likelihood of a batch y (N, 17) -> (N,), in jitted chunks of
     :data:`TARGET_CHUNK` (log δ (4,) default 1e-4; weights (4,) default 1)."""
-    ld = np.full(4, np.log(1e-4), np.float32) if log_delta is None else jnp.asarray(log_delta, jnp.float32)
-    w = np.ones(4, np.float32) if weights is None else jnp.asarray(weights, jnp.float32)
+    ld = np.full(L.N_CHANNELS, np.log(1e-4), np.float32) if log_delta is None else jnp.asarray(log_delta, jnp.float32)
+    w = np.ones(L.N_CHANNELS, np.float32) if weights is None else jnp.asarray(weights, jnp.float32)
     y = np.asarray(y, np.float32)
     n = len(y)
     pad = -n % TARGET_CHUNK
-    yp = np.concatenate([y, np.broadcast_to(y[:1], (pad, y.shape[1]))]) if pad else y
+    yp = np.concatenate([y, np.broadcast_to(y[:1], (pad, y.shape[1]))]) if pad else y  # rows, not coordinates
     out = [np.asarray(_batch_log_target(jnp.asarray(yp[i:i + TARGET_CHUNK]), data, ld, w, prior))
            for i in range(0, len(yp), TARGET_CHUNK)]
     return np.concatenate(out)[:n]
@@ -164,20 +163,21 @@ def _project(x, prior):
     lo, hi = np.concatenate([lo, nlo]), np.concatenate([hi, nhi])
     eps = 1e-4 * (hi - lo)
     x = np.clip(np.asarray(x, np.float64), lo + eps, hi - eps)
-    x[:, 7] = np.maximum(x[:, 7], -np.log(np.exp(-x[:, 5]) + np.exp(-x[:, 6])) + 1e-4)
-    r4 = 4.0 - x[:, 1:4].sum(1)
+    x[:, L.LOG_AUTH_Z] = np.maximum(x[:, L.LOG_AUTH_Z],
+                                    -np.log(np.exp(-x[:, L.LOG_AUTH_X]) + np.exp(-x[:, L.LOG_AUTH_Y])) + 1e-4)
+    r4 = 4.0 - x[:, L.RHO].sum(1)
     bad = (r4 < prior.rel_eff[0]) | (r4 > prior.rel_eff[1])
-    x[bad, 1:4] = 1.0
+    x[bad, L.RHO] = 1.0
     return x.astype(np.float32)
 
 
 def _ls_residuals(z, args):
     """Standardised residuals for the least-squares stage: z (13,) = [v, bias], σ fixed in ``args``."""
     data, ld, ls = args
-    x = jnp.concatenate([z[:N_V], ls, ld, z[N_V:]])
+    x = L.x_from_y(L.y_from_z(z, ls), ld)
     rg, sg, ra, sa = residuals(x, data)
     u = data.use
-    return jnp.concatenate([(rg * (u[:3] / sg)).ravel(), ra * (u[3] / sa), z[N_V:] / ACC_BIAS_SD])
+    return jnp.concatenate([(rg * (u[L.GYRO] / sg)).ravel(), ra * (u[L.ACC_Z] / sa), z[L.Z_BIAS, None] / ACC_BIAS_SD])
 
 
 @functools.partial(jax.jit, static_argnames=("max_steps", "normal"))
@@ -218,7 +218,8 @@ def _ls_jacobian(z, args, w):
     """Jacobian of the standardised residuals, each channel's × √w (the tempering), at z (13,)."""
     data = args[0]
     nw = rate_rows(data)
-    sw = jnp.concatenate([jnp.repeat(jnp.sqrt(w[None, :3]), nw, 0).ravel(), jnp.full(data.acc.shape[0], jnp.sqrt(w[3])),
+    sw = jnp.concatenate([jnp.repeat(jnp.sqrt(w[None, L.GYRO]), nw, 0).ravel(),
+                          jnp.full(data.acc.shape[0], jnp.sqrt(w[L.ACC_Z])),
                           jnp.ones(1)])
     return jax.jacfwd(lambda q: _ls_residuals(q, args) * sw)(z)
 
@@ -241,12 +242,12 @@ def _ls_jacobian_logs(z, data, ld, ls, w):
 def _discrepancy(y, data):
     """δ per channel (4,) at y (17,): what the residuals' mean square leaves beyond the scale they
     have without a discrepancy (noise, resolution, the windows' floor; at least 1e-6)."""
-    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in residuals_jit(full_x(y, np.full(4, -30.0)), data))
+    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in residuals_jit(full_x(y, np.full(L.N_CHANNELS, -30.0)), data))
     bv = np.asarray(data.bmask) > 0
     ms_acc = np.mean(ra[bv] ** 2) - sa ** 2
     if data.rates == "innovations":     # the process noise that makes the innovations most likely
         out = np.log(np.sqrt(np.maximum(np.array([1e-12] * 3 + [ms_acc]), 1e-12)))
-        out[:3] = best_log_delta(full_x(y, out), data, _DELTA_GRID)
+        out[L.GYRO] = best_log_delta(full_x(y, out), data, _DELTA_GRID)
         return out.astype(np.float32)
     wv = np.asarray(data.wmask) > 0
     ms = np.array([np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)] + [ms_acc])
@@ -293,9 +294,9 @@ class _Logs:
         """log target of y (m, N, 17) for the logs ``idx`` (m,) (default all), each with its log δ
         (m, 4) and weights (m, 4) (None: 1) -> (m, N)."""
         idx = list(range(len(self))) if idx is None else list(idx)
-        w = np.ones((len(idx), 4), np.float32) if w is None else np.asarray(w, np.float32)
+        w = np.ones((len(idx), L.N_CHANNELS), np.float32) if w is None else np.asarray(w, np.float32)
         if self.stack is None:
-            return np.asarray(log_target(y[0], self.datas[idx[0]], ld[0], w[0], prior))[None]
+            return np.asarray(log_target(y[0], self.datas[idx[0]], ld[0], w[0], prior))[None]  # rows, not coordinates
         p, data = self._sub(idx)
         pad = len(p) - len(idx)
         y, ld, w = (np.concatenate([a, np.broadcast_to(a[:1], (pad,) + a.shape[1:])]) if pad else a
@@ -304,7 +305,7 @@ class _Logs:
         chunk = max(16, TARGET_EVALS // len(p))
         padn = -n % chunk
         if padn:
-            y = np.concatenate([y, np.broadcast_to(y[:, :1], (len(p), padn, y.shape[2]))], 1)
+            y = np.concatenate([y, np.broadcast_to(y[:, :1], (len(p), padn, y.shape[2]))], 1)  # rows, not coordinates
         out = [np.asarray(_batch_log_target_logs(jnp.asarray(y[:, i:i + chunk]), data, jnp.asarray(ld), jnp.asarray(w), prior))
                for i in range(0, y.shape[1], chunk)]
         return np.concatenate(out, 1)[:len(idx), :n]
@@ -312,13 +313,15 @@ class _Logs:
     def fit(self, z, ld, ls):
         """Levenberg–Marquardt from every start z (L, K, 13) -> (L, K, 13)."""
         if self.stack is None:
-            return np.asarray(_fit_ls_many(jnp.asarray(z[0]), self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])))[None]
+            z0 = z[0]  # rows, not coordinates
+            return np.asarray(_fit_ls_many(jnp.asarray(z0), self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])))[None]
         return np.asarray(_fit_ls_logs(jnp.asarray(z), self.stack, jnp.asarray(ld), jnp.asarray(ls)))
 
     def jacobians(self, z, ld, ls, w):
         """The tempered residuals' Jacobians at z (L, 13) -> (L, R, 13)."""
         if self.stack is None:
-            return np.asarray(_ls_jacobian(jnp.asarray(z[0]), (self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])),
+            z0 = z[0]  # rows, not coordinates
+            return np.asarray(_ls_jacobian(jnp.asarray(z0), (self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])),
                                            jnp.asarray(w[0])))[None]
         return np.asarray(_ls_jacobian_logs(jnp.asarray(z), self.stack, jnp.asarray(ld), jnp.asarray(ls), jnp.asarray(w)))
 
@@ -365,23 +368,23 @@ def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, roun
 def find_modes(logs: "_Logs", starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3) -> list:
     """:func:`find_mode` of every log of ``logs`` at once from its starts (L, K, 21) -> L tuples."""
     starts = np.asarray(starts, np.float32)
-    L, K = starts.shape[:2]
-    rows = np.arange(L)
-    ys = np.concatenate([starts[..., :N_V + 4], starts[..., N_V + 8:]], -1)          # (L, K, 17)
-    ld = starts[:, 0, N_V + 4:N_V + 8].astype(np.float32)                               # (L, 4)
-    ls = ys[:, 0, N_V:N_V + 4]                                                          # (L, 4)
+    nl, K = starts.shape[:2]
+    rows = np.arange(nl)
+    ys = L.y_from_x(starts)                                                  # (L, K, 17)
+    ld = starts[:, 0, L.X_LOG_DISCREPANCY].astype(np.float32)                # (L, 4)
+    ls = ys[:, 0, L.Y_LOG_NOISE]                                             # (L, 4)
     for _ in range(rounds):
-        z = logs.fit(np.concatenate([ys[..., :N_V], ys[..., N_V + 4:]], -1), ld, ls)
-        fits = np.concatenate([z[..., :N_V], np.broadcast_to(ls[:, None], (L, K, 4)), z[..., N_V:]], -1)
-        fits = _project(np.asarray(full_x(fits, ld[:, None])).reshape(L * K, -1), prior).reshape(L, K, -1)
-        fits = np.concatenate([fits[..., :N_V + 4], fits[..., N_V + 8:]], -1)
+        z = logs.fit(L.z_from_y(ys), ld, ls)
+        fits = L.y_from_z(z, ls[:, None])
+        fits = _project(np.asarray(full_x(fits, ld[:, None])).reshape(nl * K, -1), prior).reshape(nl, K, -1)
+        fits = L.y_from_x(fits)
         lt = logs.targets(fits, ld, None, prior)
         best = fits[rows, np.argmax(np.where(np.isfinite(lt), lt, -np.inf), 1)]
         ld = np.stack([np.clip(_discrepancy(best[i], d), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
                        for i, d in enumerate(logs.datas)]).astype(np.float32)
         ys = fits       # every start refitted under the new δ: the same rows each round, one compiled fit
     w = np.stack([residual_weights(full_x(best[i], ld[i]), d) for i, d in enumerate(logs.datas)])
-    jac = logs.jacobians(np.concatenate([best[:, :N_V], best[:, N_V + 4:]], 1), ld, best[:, N_V:N_V + 4], w)
+    jac = logs.jacobians(L.z_from_y(best), ld, best[:, L.Y_LOG_NOISE], w)
     out = []
     for i, d in enumerate(logs.datas):
         x, ldi, yi, lap = _laplace(best[i], ld[i], jac[i], d, prior)
@@ -397,9 +400,9 @@ def _laplace(y, ld, jac, data: LogData, prior: PhysicalPrior):
     jac = np.asarray(jac, np.float64)
     pz = (NU + 1) / (NU + 3) * jac.T @ jac
     h = np.zeros((N_Y, N_Y))
-    iz = np.r_[0:N_V, N_V + 4]
+    iz = L.Z_IN_Y
     h[np.ix_(iz, iz)] = pz
-    h[N_V:N_V + 4, N_V:N_V + 4] = np.diag(2.0 * np.asarray(data.n2, np.float64))
+    h[L.Y_LOG_NOISE, L.Y_LOG_NOISE] = np.diag(2.0 * np.asarray(data.n2, np.float64))
     h = np.nan_to_num(0.5 * (h + h.T), nan=0.0, posinf=1e12, neginf=-1e12)
     ev, u = np.linalg.eigh(h)
     ev = np.clip(ev, 1e-9 + 1e-9 * max(ev.max(), 1e-12), None)      # flat directions: broad, not infinite
@@ -421,10 +424,10 @@ def _mixture_log_prob(y, qv, qn, lap, prior: PhysicalPrior, share: float):
     ``qn``), the rest split between the decoded proposal ``qv`` (with ``qn``) and ``lap``."""
     lo, hi = prior.v_bounds()
     vol = float(np.sum(np.log(hi - lo)))   # the box's volume (the truncation only adds a constant)
-    comps = [jnp.log(share) + jnp.where(prior.v_valid(y[..., :N_V]), -vol, -jnp.inf) + qn.log_prob(y[..., N_V:])]
+    comps = [jnp.log(share) + jnp.where(prior.v_valid(y[..., L.Y_V]), -vol, -jnp.inf) + qn.log_prob(y[..., L.Y_NUIS])]
     k = (qv is not None) + (lap is not None)
     if qv is not None:
-        comps.append(jnp.log((1 - share) / k) + qv.log_prob(y[..., :N_V]) + qn.log_prob(y[..., N_V:]))
+        comps.append(jnp.log((1 - share) / k) + qv.log_prob(y[..., L.Y_V]) + qn.log_prob(y[..., L.Y_NUIS]))
     if lap is not None:
         comps.append(jnp.log((1 - share) / k) + lap.log_prob(y))
     out = comps[0]
@@ -635,13 +638,13 @@ def _starts(data, decoded_theta, rng, prior, starts: int) -> np.ndarray:
     if n_fill:
         sv.append(prior.sample_v(rng, n_fill))
     sv = np.concatenate(sv)
-    return np.concatenate([x_lin[None], np.concatenate([sv, np.broadcast_to(x_lin[N_V:], (len(sv), N_NUIS))], 1)])
+    return np.concatenate([x_lin[None], np.concatenate([sv, np.broadcast_to(x_lin[L.X_NUIS], (len(sv), N_NUIS))], 1)])
 
 
 def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particles, n_mcmc, max_stages, starts,
                      force_smc, calibration) -> list[dict]:
     """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc)."""
-    L = len(datas)
+    nl = len(datas)
     logs = _Logs(datas)
     # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
     rng = [[np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7)] for seed in seeds]
@@ -655,17 +658,17 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
     laps = [m[4] for m in modes]
     outs = [{"proposal": "decoded" if qvs[i] is not None else "prior", "mode": modes[i][0], "weights": modes[i][2],
              "channels_used": np.asarray(d.use), "rates": d.rates} for i, d in enumerate(datas)]
-    chosen = [None] * L
+    chosen = [None] * nl
     # 1. the decoded ensemble as the proposal, then the Laplace proposal
     if qvs[0] is not None:
         ys = np.stack([np.concatenate([q.sample(r_is[i], draws), qns[i].sample(r_n[i], draws)], 1) for i, q in enumerate(qvs)])
         lt = logs.targets(ys, ld, w, prior)
         for i, q in enumerate(qvs):
-            lw = lt[i].astype(np.float64) - np.asarray(q.log_prob(ys[i, :, :N_V]) + qns[i].log_prob(ys[i, :, N_V:]), np.float64)
+            lw = lt[i].astype(np.float64) - np.asarray(q.log_prob(ys[i, :, L.Y_V]) + qns[i].log_prob(ys[i, :, L.Y_NUIS]), np.float64)
             outs[i]["decoded_is"] = _ess_diag(lw)
             if _reliable(outs[i]["decoded_is"]) and not force_smc:
                 chosen[i] = ("decoded_is", ys[i], lw)
-    need = [i for i in range(L) if chosen[i] is None]
+    need = [i for i in range(nl) if chosen[i] is None]
     if need:
         ys = np.stack([laps[i].sample(r_lp[i], draws) for i in need])
         lt = logs.targets(ys, ld[need], w[need], prior, idx=need)
@@ -674,7 +677,7 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
             outs[i]["laplace_is"] = _ess_diag(lw)
             if _reliable(outs[i]["laplace_is"]) and not force_smc:
                 chosen[i] = ("laplace_is", ys[j], lw)
-    draws_y = [None] * L
+    draws_y = [None] * nl
     for i, c in enumerate(chosen):
         if c is not None:
             name, y, lw = c
@@ -682,7 +685,7 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
             draws_y[i] = y[r_res[i].choice(len(y), samples, p=p / p.sum())]
             outs[i]["method"] = name
     # 2. tempered SMC from a mixture of the proposals and the prior
-    need = [i for i in range(L) if chosen[i] is None]
+    need = [i for i in range(nl) if chosen[i] is None]
     if need:
         y0 = np.stack([_smc_start(prior, qvs[i], qns[i], laps[i], particles, r_mix[i], r_n[i], r_lp[i], r_is[i])
                        for i in need])
@@ -696,7 +699,7 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
             outs[i].update(method="smc", smc_stages=int(stages[j]), smc_acceptance=float(acc[j]),
                            smc_acceptance_min=float(acc_min[j]), smc_tempering=float(lam[j]))
     return [_finish(outs[i], draws_y[i], datas[i], ld[i], prior, calibration, seeds[i], r_h[i], samples)
-            for i in range(L)]
+            for i in range(nl)]
 
 
 def _smc_start(prior, qv, qn, lap, particles, r_mix, r_n, r_lp, r_is) -> np.ndarray:
@@ -716,7 +719,7 @@ def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> 
     """One log's draws y (samples, 17) -> its posterior dict: θ, v, the features, the drag, the calibration."""
     mode = out["mode"]
     xs = np.asarray(full_x(ys, ld))
-    v_raw = xs[:, :N_V]
+    v_raw = xs[:, L.X_V]
     out["features"] = log_features(data, mode)
     if out["features"]["velocity_used"]:     # (3,) 1/s: x and y from the accelerometer's x and y, z from its term
         xy = getattr(data, "_rows", {}).get("drag_xy")
@@ -725,7 +728,7 @@ def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> 
         out["drag_per_mass"] = None
     v, out["calibration"] = _calibrated(v_raw, out["features"], out["weights"], calibration, prior, seed)
     h = prior.sample_h(r_h, samples)
-    out.update(v=v, v_raw=v_raw, nuisance=xs[:, N_V:], theta=np.asarray(theta_from(v, h), np.float32))
+    out.update(v=v, v_raw=v_raw, nuisance=xs[:, L.X_NUIS], theta=np.asarray(theta_from(v, h), np.float32))
     return out
 
 

@@ -56,21 +56,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import theta as P
-from mjxsysid.identify.coords import N_V
+from mjxsysid.identify import logspace as L
+from mjxsysid.identify.logspace import CHANNELS, N_NUIS, NUIS_NAMES  # noqa: F401 (the likelihood's names)
 from mjxsysid.identify.logdata import DRAG_MAX, DT, KF_LOGIT_GRID, LogData, gain_filter, gyro_rows, kf_gains, step_lag
 
 NU = 4.0
 """Degrees of freedom of the Student-t residuals (the windows' rate term and the accelerometer)."""
-CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "acc_z")
 RESOLUTION = np.array([1e-4, 1e-4, 1e-4, 1e-3], np.float32)
 """rad/s, m/s²: the finest residual scale per channel — a logged number's resolution (a 16-bit
 gyro at ±2000 °/s has 1e-3 rad/s steps; a CSV with 7 digits ~1e-5 relative): without a floor a
 noise-free simulated log would make every model error infinitely significant."""
-N_NUIS = 9
-"""Nuisance parameters after v: log σ (4: gyro x, y, z, acc z), log δ (4, same channels), acc_z bias."""
-NUIS_NAMES = tuple(f"log_noise[{c}]" for c in CHANNELS) + tuple(f"log_discrepancy[{c}]" for c in CHANNELS) + (
-    "acc_z_bias",)
-
 
 _BASIS = np.stack([P.ROTOR_DIRECTIONS[:, 1], -P.ROTOR_DIRECTIONS[:, 0], P.YAW_SIGNS]).astype(np.float32)  # (3, 4)
 
@@ -93,27 +88,29 @@ def _student_t(r, scale, mask):
 
 def _rho(v):
     """The four motor effectivenesses ρ (4,) of v (12,): three coordinates, the fourth makes Σρ = 4."""
-    return jnp.concatenate([v[1:4], (4.0 - v[1] - v[2] - v[3])[None]])
+    rho = v[L.RHO]
+    return jnp.concatenate([rho, (4.0 - rho[0] - rho[1] - rho[2])[None]])
 
 
 def _rate_coefficients(v):
     """The rate model's coefficients per axis (3, 6) under v (12,): authority × the basis × ρ_i per
     rotor (4), the gyroscopic coefficient (from the inertia ratios), the rate bias c — what multiplies
     each step's ∫ s_i² dt, gyroscopic product and dt (the innovations' β without its −1)."""
-    auth = jnp.exp(jnp.concatenate([v[5:7], v[8:9]]))        # roll, pitch authority; yaw authority
-    inv = 1.0 / jnp.exp(v[5:8])                               # ∝ J
+    auth = jnp.exp(jnp.stack([v[L.LOG_AUTH_X], v[L.LOG_AUTH_Y], v[L.LOG_YAW]]))   # roll, pitch; yaw authority
+    inv = 1.0 / jnp.exp(v[L.LOG_AUTH])                                             # ∝ J
     gyro_coef = jnp.stack([(inv[1] - inv[2]) / inv[0], (inv[2] - inv[0]) / inv[1], (inv[0] - inv[1]) / inv[2]])
-    return jnp.concatenate([auth[:, None] * jnp.asarray(_BASIS) * _rho(v)[None], gyro_coef[:, None], v[9:12, None]], 1)
+    return jnp.concatenate([auth[:, None] * jnp.asarray(_BASIS) * _rho(v)[None], gyro_coef[:, None],
+                            v[L.EXT_ACC, None]], 1)
 
 
 def predict(v, data: LogData):
     """The windows' predicted rate changes (W, 3) and the blocks' mean acc_z without bias (Wa,) under the
     visible coordinates v (12,) (:mod:`.coords`)."""
-    fg = _interp(v[4], data.log_tau, data.fg)               # (W, 4)
-    fa = _interp(v[4], data.log_tau, data.fa)
+    fg = _interp(v[L.LOG_TAU_M], data.log_tau, data.fg)     # (W, 4)
+    fa = _interp(v[L.LOG_TAU_M], data.log_tau, data.fa)
     c = _rate_coefficients(v)
     dgyro = fg @ c[:, :4].T + c[:, 4] * data.gyq + c[:, 5] * data.span
-    acc = P.GRAVITY / 4.0 * jnp.exp(v[0]) * (fa @ _rho(v))
+    acc = P.GRAVITY / 4.0 * jnp.exp(v[L.LOG_TW]) * (fa @ _rho(v))
     return dgyro, acc
 
 
@@ -121,7 +118,7 @@ def innovation_variance(log_sigma, log_delta):
     """The steady-state filter per gyro axis from the noise σ (3,) and the process noise δ (3,) per
     step (both log): (innovation variance S (3,), logit of the gain K = P / (P + r)), with
     r = σ² + the resolution², P the predicted state's variance, P = (Q + √(Q² + 4 Q r)) / 2."""
-    r = jnp.exp(2 * log_sigma) + jnp.asarray(RESOLUTION[:3]) ** 2
+    r = jnp.exp(2 * log_sigma) + jnp.asarray(RESOLUTION[L.GYRO]) ** 2
     q = jnp.exp(2 * log_delta)
     p = 0.5 * (q + jnp.sqrt(q * q + 4 * q * r))
     return p + r, jnp.log(p) - jnp.log(r)
@@ -143,9 +140,9 @@ def _interp2(log_tau, logit, data: LogData):
 def innovations(x, data: LogData):
     """The gyro's innovations under x (21,) as the whitened sums they enter through: z (7, 3) with
     Σ_k e_k² = ‖z[:, a]‖² per axis, and the innovation variance S (3,)."""
-    v, ls, ld = x[:N_V], x[N_V:N_V + 3], x[N_V + 4:N_V + 7]
+    v, ls, ld = x[L.X_V], x[L.X_LOG_NOISE_GYRO], x[L.X_LOG_DISCREPANCY_GYRO]
     s, logit = innovation_variance(ls, ld)
-    r = _interp2(v[4], logit, data)                                  # (3, 7, 7)
+    r = _interp2(v[L.LOG_TAU_M], logit, data)                                  # (3, 7, 7)
     beta = jnp.concatenate([_rate_coefficients(v), -jnp.ones((3, 1))], 1)
     return jnp.einsum("aij,aj->ia", r, beta), s
 
@@ -167,15 +164,15 @@ def residuals(x, data: LogData):
     discrepancy and resolution and the window's relative floor; for "innovations" the whitened
     innovation sums of :func:`innovations` with √S — and the blocks' acc_z (Wa,) with the
     accelerometer's scale (). The padding's residuals are 0."""
-    v, ls, ld, bias = x[:N_V], x[N_V:N_V + 4], x[N_V + 4:N_V + 8], x[N_V + 8]
+    v, ls, ld, bias = x[L.X_V], x[L.X_LOG_NOISE], x[L.X_LOG_DISCREPANCY], x[L.X_BIAS]
     dgyro, acc = predict(v, data)
     var = data.kvar * jnp.exp(2 * ls) + jnp.exp(2 * ld) + jnp.asarray(RESOLUTION) ** 2
     r0 = (data.acc - acc - bias) * data.bmask
-    ra, sa = (r0 + drag_per_mass(r0, data) * data.vz) * data.bmask, jnp.sqrt(var[3])
+    ra, sa = (r0 + drag_per_mass(r0, data) * data.vz) * data.bmask, jnp.sqrt(var[L.ACC_Z])
     if data.rates == "innovations":
         z, s = innovations(x, data)
         return z, jnp.broadcast_to(jnp.sqrt(s), z.shape), ra, sa
-    return ((data.dgyro - dgyro) * data.wmask[:, None], jnp.sqrt(var[:3] + data.gfloor ** 2), ra, sa)
+    return ((data.dgyro - dgyro) * data.wmask[:, None], jnp.sqrt(var[L.GYRO] + data.gfloor ** 2), ra, sa)
 
 
 def drag_per_mass(r0, data: LogData):
@@ -195,8 +192,8 @@ def drag_at(x, data: LogData) -> float:
 
 @jax.jit
 def _drag_at(x, data: LogData):
-    _, acc = predict(x[:N_V], data)
-    return drag_per_mass((data.acc - acc - x[N_V + 8]) * data.bmask, data)
+    _, acc = predict(x[L.X_V], data)
+    return drag_per_mass((data.acc - acc - x[L.X_BIAS]) * data.bmask, data)
 
 
 residuals_jit = jax.jit(residuals)
@@ -210,13 +207,14 @@ def log_likelihood(x, data: LogData, weights=None):
     :func:`residual_weights`); a channel the log cannot inform (``data.use``) counts 0."""
     rg, sg, ra, sa = residuals(x, data)
     w = data.use if weights is None else data.use * weights
-    sig2 = jnp.exp(2 * x[N_V:N_V + 4])
+    sig2 = jnp.exp(2 * x[L.X_LOG_NOISE])
+    acc = w[L.ACC_Z] * _student_t(ra, sa, data.bmask)
     if data.rates == "innovations":
-        res = jnp.sum(w[:3] * _innovation_loglik(rg, sg[0] ** 2, data.kf_n)) + w[3] * _student_t(ra, sa, data.bmask)
+        res = jnp.sum(w[L.GYRO] * _innovation_loglik(rg, sg[0] ** 2, data.kf_n)) + acc
     else:
         wm = data.wmask
-        res = (w[0] * _student_t(rg[:, 0], sg[:, 0], wm) + w[1] * _student_t(rg[:, 1], sg[:, 1], wm)
-               + w[2] * _student_t(rg[:, 2], sg[:, 2], wm) + w[3] * _student_t(ra, sa, data.bmask))
+        gyro = range(L.GYRO.start, L.GYRO.stop)            # the rate residuals' columns are the gyro channels
+        res = sum(w[c] * _student_t(rg[:, c], sg[:, c], wm) for c in gyro) + acc
     var2 = comb(4, 2) * sig2                                 # variance of a second difference
     noise = jnp.sum(-0.5 * data.n2 * jnp.log(var2) - 0.5 * data.s2 / var2)
     return res + noise
@@ -248,10 +246,10 @@ def innovation_series(x, data: LogData) -> np.ndarray:
     if rows is None:
         raise ValueError("this LogData has no log rows (made by prepare() in this process?): cannot form its innovations")
     x = np.asarray(x, np.float64)
-    v = x[:N_V]
+    v = x[L.X_V]
     y, q = gyro_rows(rows["imu"], rows["start"], rows["n"])
-    f = step_lag(rows["motor"], float(np.exp(v[4])), rows["start"], rows["n"])
-    logit = np.asarray(innovation_variance(x[N_V:N_V + 3], x[N_V + 4:N_V + 7])[1], np.float64)
+    f = step_lag(rows["motor"], float(np.exp(v[L.LOG_TAU_M])), rows["start"], rows["n"])
+    logit = np.asarray(innovation_variance(x[L.X_LOG_NOISE_GYRO], x[L.X_LOG_DISCREPANCY_GYRO])[1], np.float64)
     coef = np.asarray(_rate_coefficients(jnp.asarray(v, jnp.float32)), np.float64)
     gains = kf_gains(np.clip(logit, KF_LOGIT_GRID[0], KF_LOGIT_GRID[-1]))
     n = len(y)
@@ -269,7 +267,7 @@ def best_log_delta(x, data: LogData, grid: np.ndarray) -> np.ndarray:
     """Per gyro axis (3,), the process noise log δ of ``grid`` (D,) that maximises the innovations'
     likelihood at the other coordinates of x (21,) (the empirical-Bayes δ of the inference)."""
     xs = np.repeat(np.asarray(x, np.float32)[None], len(grid), 0)
-    xs[:, N_V + 4:N_V + 7] = np.asarray(grid, np.float32)[:, None]
+    xs[:, L.X_LOG_DISCREPANCY_GYRO] = np.asarray(grid, np.float32)[:, None]
     ll = np.asarray(_rate_loglik_jit(jnp.asarray(xs), data), np.float64)       # (D, 3)
     return np.asarray(grid, np.float64)[np.argmax(np.where(np.isfinite(ll), ll, -np.inf), 0)]
 
@@ -343,9 +341,10 @@ def linear_start(data: LogData) -> np.ndarray:
     twr = float(np.clip(k[0], 1.1, 14.0))
     ra = acc - P.GRAVITY / 4 * twr * f + (float(np.clip(k[1], 0.0, DRAG_MAX)) * vz if len(k) > 1 else 0.0)
     az = 1.15 / (1 / auth[0] + 1 / auth[1])            # J_z a little below J_x + J_y (a flat vehicle)
-    v = np.concatenate([[np.log(twr)], rho[:3], [float(np.asarray(data.log_tau)[g])],
-                        np.log([auth[0], auth[1], max(az, 11.0)]), [np.log(auth[2])],
-                        np.clip(c_rate, -140, 140)])
     sig = np.maximum(noise_estimate(data), 1e-6)
     dl = np.maximum(np.array(res + [float(np.sqrt(np.mean(ra * ra)))]), 1e-5)
-    return np.concatenate([v, np.log(sig), np.log(dl), [0.0]]).astype(np.float32)
+    return L.pack(L.X_FIELDS, log_thrust_to_weight=np.log(twr), rel_effectiveness=rho[:3],
+                  log_motor_time_constant=float(np.asarray(data.log_tau)[g]),
+                  log_authority=np.log([auth[0], auth[1], max(az, 11.0)]), log_yaw_authority=np.log(auth[2]),
+                  ext_acc=np.clip(c_rate, -140, 140), log_noise=np.log(sig), log_discrepancy=np.log(dl),
+                  acc_z_bias=0.0).astype(np.float32)

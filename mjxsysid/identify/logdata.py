@@ -14,6 +14,8 @@ import jax
 import numpy as np
 from scipy.signal import lfilter
 
+from mjxsysid.identify.logspace import GYRO, N_CHANNELS
+
 DT = 0.002
 """s: the log's row spacing (500 Hz)."""
 WINDOW_STEPS = 25
@@ -236,11 +238,11 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     u = np.clip(np.asarray(rec["motor"], np.float64), 0.0, 1.0)
     T = len(u)
     motor_rate = motor_rate_hz(rec)
-    use = np.ones(4)
+    use = np.ones(N_CHANNELS)
     if motor_rate < MIN_MOTOR_RATE_HZ:
         t_nat, u_nat = (np.asarray(a, np.float64) for a in rec["native"]["motor"])
         u = np.clip(np.stack([np.interp(rec["t"], t_nat, u_nat[:, i]) for i in range(4)], -1), 0.0, 1.0)
-        use[:3] = 0.0
+        use[GYRO] = 0.0
     W = int(window_steps)
     start = int(round(float(np.clip(0.1 * T * DT, *SKIP_S)) / DT))
     n_win = (T - 1 - start) // (2 * W)

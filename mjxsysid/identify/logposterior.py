@@ -1,7 +1,7 @@
 """The log-grounded posterior as one object: draws, summary, information gap, calibration, diagnostics.
 
     post = mjxsysid.identify("flight.ulg")          # any log format, or a log's arrays
-    post.summary()["thrust_to_weight_total"]        # {unit, median, q05, q95, seen, why}
+    post.summary()["thrust_to_weight"]              # {unit, median, q05, q95, seen, why}
     theta = post.sample(200)                        # (200, 19) physical models
     post.gap(decoded_theta)                         # what the log shows against what the latent knows
     post.calibration, post.diagnostics
@@ -17,8 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid.identify.coords import LOG_NAMES, LOG_UNITS, PHYSICAL_PRIOR, PhysicalPrior, log_quantities
-from mjxsysid.identify.gap import information_gap, seen_by_name
+from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, log_quantities
+from mjxsysid.identify.gap import Summary, information_gap, seen_by_name
+from mjxsysid.identify.logspace import LOG_NAMES, LOG_UNITS
 from mjxsysid.identify.inference import log_grounded_posterior
 
 DIAGNOSTIC_KEYS = ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
@@ -67,13 +68,14 @@ class LogPosterior:
         return {k: (v["seen_by_log"], v["seen_why"]) for k, v in gap.items()}
 
     def summary(self) -> dict:
-        """{quantity of LOG_NAMES: {unit, median, q05, q95, seen, why}}, the quantities the log pins first."""
+        """{quantity of LOG_NAMES (:data:`~.logspace.QUANTITIES`): {unit, median, q05, q95, seen, why}}, the
+        quantities the log pins first; a quantity it does not pin is not seen, as broad as the prior, with why."""
         q = log_quantities(self.theta)
         lo, med, hi = np.percentile(q, [5, 50, 95], 0)
         seen = self.seen()
         rows = {n: {"unit": u, "median": float(med[j]), "q05": float(lo[j]), "q95": float(hi[j]),
                     "seen": bool(seen[n][0]), "why": seen[n][1]} for j, (n, u) in enumerate(zip(LOG_NAMES, LOG_UNITS))}
-        return dict(sorted(rows.items(), key=lambda kv: not kv[1]["seen"]))
+        return Summary(sorted(rows.items(), key=lambda kv: not kv[1]["seen"]))
 
     def gap(self, decoded_theta, truth=None) -> dict:
         """The information gap against the decoders' samples θ (S, 19) (:func:`~.gap.information_gap`)."""

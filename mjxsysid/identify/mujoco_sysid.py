@@ -36,15 +36,12 @@ import numpy as np
 import scipy.special
 
 from mjxsysid import theta as P
-from mjxsysid.identify.coords import (
-    N_V,
-    PHYSICAL_PRIOR,
-    V_NAMES,
-    PhysicalPrior,
-    hidden_from_theta,
-    theta_from,
-    visible_from_theta,
-)
+from mjxsysid.identify import logspace as L
+from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, hidden_from_theta, theta_from, visible_from_theta
+from mjxsysid.identify.logspace import N_V, V_NAMES
+
+RHO4 = L.LOG_NAMES.index("relative_effectiveness[3]")
+"""ρ_4's place among the quantities: its band comes from the covariance of ρ_1..3."""
 
 CHUNK_STEPS = 50
 """Steps per multiple-shooting chunk (0.1 s at 500 Hz)."""
@@ -143,17 +140,10 @@ class SysidResult:
 
     def quantities(self) -> dict:
         """The :data:`.coords.LOG_NAMES` quantities: estimate, 5 % and 95 % (13,) each."""
-        est = _quantities(self.v)
-        lo, hi = _quantities(self.v - self.half_width), _quantities(self.v + self.half_width)
-        lo[9], hi[9] = est[9] - self.half_rho4, est[9] + self.half_rho4
+        est = L.quantities_of_v(self.v)
+        lo, hi = L.quantities_of_v(self.v - self.half_width), L.quantities_of_v(self.v + self.half_width)
+        lo[RHO4], hi[RHO4] = est[RHO4] - self.half_rho4, est[RHO4] + self.half_rho4
         return {"estimate": est, "q05": lo, "q95": hi}
-
-
-def _quantities(v):
-    """v (12,) -> LOG_NAMES quantities (13,): exp of the log coordinates, ρ_4 = 4 − Σ ρ."""
-    v = np.asarray(v, np.float64)
-    with np.errstate(over="ignore"):
-        return np.concatenate([np.exp(v[[0, 4, 5, 6, 7, 8]]), v[1:4], [4.0 - v[1:4].sum()], v[9:12]])
 
 
 def _chunk_starts(n: int, chunk: int, history: int, max_chunks: int) -> np.ndarray:
@@ -228,10 +218,10 @@ def identify(imu, motor, qpos, qvel, *, dt: float = 0.002, start_theta=None, pri
 
     def build_model(p, s=spec):
         v = v_of(p)
-        v[1:4] = np.clip(v[1:4], 0.05, None)
-        rho4 = 4.0 - v[1:4].sum()
+        v[L.RHO] = np.clip(v[L.RHO], 0.05, None)
+        rho4 = 4.0 - v[L.RHO].sum()
         if rho4 < 0.05:                                     # keep the vehicle valid
-            v[1:4] *= 3.95 / v[1:4].sum()
+            v[L.RHO] *= 3.95 / v[L.RHO].sum()
         apply_theta(s, theta_from(v, h0, np.float64))
         return s.compile()
 
@@ -309,6 +299,6 @@ def identify(imu, motor, qpos, qvel, *, dt: float = 0.002, start_theta=None, pri
     dof = max(final.size - jac.shape[1], 1)
     s2 = float(final @ final / dof)
     # ρ_4 = 4 − ρ_1 − ρ_2 − ρ_3: its half-width from the covariance, with calculate_intervals' quantile
-    half_rho4 = float(scipy.special.stdtrit(dof, 1 - alpha / 2)) * float(np.sqrt(max(sigma_x[1:4, 1:4].sum(), 0.0)))
+    half_rho4 = float(scipy.special.stdtrit(dof, 1 - alpha / 2)) * float(np.sqrt(max(sigma_x[L.RHO, L.RHO].sum(), 0.0)))
     return SysidResult(v=v_of(opt), half_width=np.asarray(half[:N_V], np.float64), half_rho4=half_rho4,
                        acc_bias=float(opt["acc_bias_z"].value[0]), s2=s2, seconds=seconds, chunks=len(starts))

@@ -12,7 +12,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid.identify.coords import N_V, PHYSICAL_PRIOR, PhysicalPrior, visible_from_theta, xp_of
+from mjxsysid.identify import logspace as L
+from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, visible_from_theta, xp_of
+from mjxsysid.identify.logspace import N_V
 from mjxsysid.identify.likelihood import noise_estimate
 from mjxsysid.identify.logdata import LogData
 
@@ -86,10 +88,12 @@ def decoded_proposal(decoded_theta, prior: PhysicalPrior = PHYSICAL_PRIOR, widen
 
 
 def nuisance_proposal(data: LogData, bias_sd: float) -> Gaussian:
-    """log σ (4) near the second differences' estimate, the bias (1) near 0 (standard deviation ``bias_sd``)."""
+    """y's nuisances (:data:`~.logspace.Y_NUIS_FIELDS`): log σ (4) near the second differences' estimate
+    (standard deviation 0.2), the bias near 0 (standard deviation ``bias_sd``)."""
     sig = np.maximum(noise_estimate(data), 1e-6)
-    mean = np.concatenate([np.log(sig), [0.0]]).astype(np.float32)
-    return Gaussian(mean, np.diag(np.array([0.2] * 4 + [bias_sd], np.float32)))
+    mean = L.pack(L.Y_NUIS_FIELDS, log_noise=np.log(sig), acc_z_bias=0.0).astype(np.float32)
+    sd = L.pack(L.Y_NUIS_FIELDS, log_noise=np.full(L.N_CHANNELS, 0.2), acc_z_bias=bias_sd)
+    return Gaussian(mean, np.diag(sd.astype(np.float32)))
 
 
 def pareto_khat(log_w) -> float:

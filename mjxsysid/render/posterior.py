@@ -10,7 +10,7 @@ import numpy as np
 from mjxsysid import theta as P
 
 
-IDENTIFIABLE_LABELS = {"thrust_to_weight": "thrust-to-weight 4 k_t Ω_max² / (m g)  [–]",
+DERIVED_LABELS = {"thrust_to_weight": "thrust-to-weight 4 η̄ k_t Ω_max² / (m g)  [–]",
                        "torque_ratio": "torque ratio κ = k_τ / k_t  [m]",
                        "angular_authority[0]": "roll authority l k_t Ω_max² / J_x  [rad/s²]",
                        "angular_authority[1]": "pitch authority l k_t Ω_max² / J_y  [rad/s²]",
@@ -19,25 +19,25 @@ IDENTIFIABLE_LABELS = {"thrust_to_weight": "thrust-to-weight 4 k_t Ω_max² / (m
 
 def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-level", title: str | None = None,
                            caption: str | None = None):
-    """ẑ and the identifiable combinations (median, 5–95 % band) over time: the single-latent
-    (instant) posterior and, if decoded, the window's (flight-level) one (at its own decode
-    times ``times_window`` when given); ``title`` above all in red (a warning), ``caption``
-    below it in black (what the bands are)."""
+    """ẑ and the derived quantities (:data:`~mjxsysid.theta.DERIVED_NAMES`; median, 5–95 % band) over
+    time: the single-latent (instant) posterior and, if decoded, the window's (flight-level) one (at
+    its own decode times ``times_window`` when given); ``title`` above all in red (a warning),
+    ``caption`` below it in black (what the bands are)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.ticker import FormatStrFormatter, LogLocator, NullFormatter
     t = dec["times"]
     tw = dec.get("times_window", t)
-    ident = np.asarray(P.identifiable(dec["samples"]))  # (K, S, 5)
-    identw = np.asarray(P.identifiable(dec["samples_window"])) if "samples_window" in dec else None
+    ident = np.asarray(P.derived(dec["samples"]))  # (K, S, 5)
+    identw = np.asarray(P.derived(dec["samples_window"])) if "samples_window" in dec else None
     fig, ax = plt.subplots(2, 3, figsize=(14, 7.2))
     ax = ax.flat
     ax[0].plot(t, dec["zhat"], lw=1)
     ax[0].set_title(f"policy latent ẑ (8 dims, at the {len(t)} decode times)", fontsize=10)
-    reg = np.asarray(P.identifiable(dec["regression"]))
+    reg = np.asarray(P.derived(dec["regression"]))
     mark = dict(marker="o", ms=3) if identw is not None and len(tw) < len(t) else {}
-    for j, n in enumerate(P.IDENTIFIABLE_NAMES):
+    for j, n in enumerate(P.DERIVED_NAMES):
         a = ax[j + 1]
         lo, med, hi = np.percentile(ident[:, :, j], [5, 50, 95], 1)
         a.fill_between(t, lo, hi, alpha=0.2, color="tab:blue", lw=0, label="instant p(θ | ẑ(t)) 5–95 %")
@@ -50,8 +50,8 @@ def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-l
             a.plot(tw, med, color="darkgreen", lw=1.8, label=f"{window_label} median", **mark)
         a.plot(t, reg[:, j], "--", color="tab:orange", lw=1, label="regression (point)")
         if truth is not None:
-            a.axhline(float(np.asarray(P.identifiable(truth))[j]), color="k", lw=1.5, label="true")
-        a.set_title(IDENTIFIABLE_LABELS.get(n, n), fontsize=10)
+            a.axhline(float(np.asarray(P.derived(truth))[j]), color="k", lw=1.5, label="true")
+        a.set_title(DERIVED_LABELS.get(n, n), fontsize=10)
         if n != "torque_ratio":
             a.set_yscale("log")
             lo_, hi_ = a.get_ylim()

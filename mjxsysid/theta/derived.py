@@ -1,4 +1,5 @@
-"""Quantities derived from θ: rotor positions, the identifiable combinations and flyability."""
+"""Quantities derived from θ: rotor positions, thrust-to-weight, the identifiable combinations, the
+derived quantities a posterior's summary reports, and flyability."""
 from __future__ import annotations
 
 import math
@@ -32,7 +33,17 @@ def _float32(theta):
 
 
 def thrust_to_weight(theta):
-    """4 k_t Ω_max² / (m g) with η = 1. θ (..., 19) -> (...)."""
+    """4 η̄ k_t Ω_max² / (m g): the four rotors' thrust at full speed over the weight, η̄ the motors'
+    mean effectiveness. The one thrust-to-weight every report gives (a log sees it:
+    [coords][mjxsysid.identify.coords]). θ (..., 19) -> (...)."""
+    xp, theta = _float32(theta)
+    return nominal_thrust_to_weight(theta) * xp.mean(theta[..., ETA], -1)
+
+
+def nominal_thrust_to_weight(theta):
+    """4 k_t Ω_max² / (m g): the thrust-to-weight at η = 1, what the priors draw and the latent's
+    identifiable combinations use (not reported: [thrust_to_weight][mjxsysid.theta.derived.thrust_to_weight]
+    is). θ (..., 19) -> (...)."""
     _, theta = _float32(theta)
     return 4.0 * theta[..., KT] * theta[..., OMEGA_MAX] ** 2 / (theta[..., MASS] * GRAVITY)
 
@@ -51,13 +62,29 @@ def angular_authority(theta):
     return num[..., None] / theta[..., INERTIA]
 
 
-IDENTIFIABLE_NAMES = ("thrust_to_weight", "torque_ratio",
+IDENTIFIABLE_NAMES = ("nominal_thrust_to_weight", "torque_ratio",
                       "angular_authority[0]", "angular_authority[1]", "angular_authority[2]")
+"""The identifiable combinations' names: the latent's training targets, at η = 1. Records written
+before the thrust-to-weight was made one name call the first "thrust_to_weight"."""
 
 
 def identifiable(theta):
-    """The combinations a hover latent can reveal (docs/concepts.md). θ (..., 19) -> (..., 5); NumPy in,
-    NumPy out ([xp_of][mjxsysid.theta.derived.xp_of])."""
+    """The combinations a hover latent can reveal (docs/concepts.md), at η = 1: what the policy's
+    latent is trained and scored on (not reported: [derived][mjxsysid.theta.derived.derived] is).
+    θ (..., 19) -> (..., 5); NumPy in, NumPy out ([xp_of][mjxsysid.theta.derived.xp_of])."""
+    xp, theta = _float32(theta)
+    return xp.concatenate([nominal_thrust_to_weight(theta)[..., None], torque_ratio(theta)[..., None],
+                           angular_authority(theta)], -1)
+
+
+DERIVED_NAMES = ("thrust_to_weight", "torque_ratio",
+                 "angular_authority[0]", "angular_authority[1]", "angular_authority[2]")
+"""The derived quantities a posterior's summary reports beside θ's 19 parameters."""
+
+
+def derived(theta):
+    """The [DERIVED_NAMES][mjxsysid.theta.derived.DERIVED_NAMES] quantities: θ (..., 19) -> (..., 5)
+    (the identifiable combinations with the thrust-to-weight of the rotors as they are, η̄ in)."""
     xp, theta = _float32(theta)
     return xp.concatenate([thrust_to_weight(theta)[..., None], torque_ratio(theta)[..., None],
                            angular_authority(theta)], -1)

@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from mjxsysid.theta.derived import thrust_to_weight
+from mjxsysid.theta.derived import nominal_thrust_to_weight
 from mjxsysid.theta.layout import ARM, ETA, GRAVITY, KT, KTAU, MASS, OMEGA_MAX, TAU_EXT
 from mjxsysid.theta.vehicles import check_flyable, validate_theta
 
@@ -228,7 +228,7 @@ def _sample_heldout(p: HeldOutFamily, key, n: int):
     if p.one_motor_eta is not None:
         which = jax.random.randint(k_motor, (n,), 0, 4)
         eta = jnp.where(jax.nn.one_hot(which, 4, dtype=bool), p.one_motor_eta, t[:, ETA])
-        twr = jnp.clip(thrust_to_weight(t), p.twr_min_eff / eta.min(-1), p.twr_max_eff / eta.max(-1))
+        twr = jnp.clip(nominal_thrust_to_weight(t), p.twr_min_eff / eta.min(-1), p.twr_max_eff / eta.max(-1))
         omega_max = jnp.sqrt(twr * t[:, MASS] * GRAVITY / (4.0 * t[:, KT]))
         t = t.at[:, ETA].set(eta).at[:, OMEGA_MAX].set(omega_max)
     if p.payload_torque_xy is not None:

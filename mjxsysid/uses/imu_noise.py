@@ -147,9 +147,16 @@ def noise_sensitivity(*, policy="mjxsysid", decoders=None, vehicles: int = 150, 
     return res
 
 
+def _ident_names(res: dict) -> list[str]:
+    """The identifiable combinations' names as a result names them (the record's own keys: a record
+    written before the nominal thrust-to-weight was named so calls it "thrust_to_weight")."""
+    first = next(iter(res["levels"].values()))
+    return list(first["flight_level"]["coverage_90_identifiable"])
+
+
 def table(res: dict) -> str:
     """The Markdown table of a result (docs/noise.md)."""
-    names = list(P.IDENTIFIABLE_NAMES)
+    names = _ident_names(res)
     rows = ["| IMU | policy RMSE (median) | decoder | 90 % within ±5 points: parameters / identifiable "
             "| identifiable 90 % coverage (T/W; κ; authorities) | 90 % width log T/W; authorities (× clean) "
             "| Regression abs. log error T/W; authorities |",
@@ -178,7 +185,7 @@ def figure(res: dict, path) -> Path:
     """The coverage and width figure of a result of :func:`noise_sensitivity` (its JSON)."""
     from mjxsysid.render.plots import plot_noise_sensitivity
     lv = list(res["levels"].values())
-    names = list(P.IDENTIFIABLE_NAMES)
+    names = _ident_names(res)
     kinds = {"flight-level (sequence decoder)": "flight_level", "single-latent CFM": "single_latent_cfm"}
     cov = {k: np.array([[v[kk]["coverage_90_identifiable"][n] for n in names] for v in lv]) for k, kk in kinds.items()}
     wid = {k: np.array([[v[kk]["width_90_identifiable_log"][n] for n in names] for v in lv]) for k, kk in kinds.items()}

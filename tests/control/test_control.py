@@ -248,7 +248,7 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
     assert s["log_grounded"]["method"] in ("decoded_is", "laplace_is", "smc")
     seen = [v for v in gap.values() if v["seen_by_log"]]
     assert len(seen) >= 8 and np.median([v["width_ratio"] for v in seen]) > 5   # the log is far sharper
-    tw = gap["thrust_to_weight_total"]
+    tw = gap["thrust_to_weight"]
     assert abs(tw["log_median"] / tw["true"] - 1) < 0.05 and tw["decoder_holds_log_median"]
     assert set(s["paper_vehicle_posterior_log_grounded"]) >= set(P.PARAM_NAMES)
     assert "the log-grounded posterior" in (out / "summary.md").read_text()
@@ -263,7 +263,7 @@ def test_demo_grounded_section_counts_and_names_the_miss():
     quantities the log sees, and a miss named with its quantity; nothing without a posterior."""
     from mjxsysid.decoding.demo import grounded_md
     row = dict(unit="-", decoder_q05=1.0, decoder_q95=3.0, log_q05=1.9, log_q95=2.1, decoder_holds_log_median=True)
-    gap = {"thrust_to_weight_total": dict(row, log_median=2.0, true=2.01, log_inside=True, decoder_inside=True,
+    gap = {"thrust_to_weight": dict(row, log_median=2.0, true=2.01, log_inside=True, decoder_inside=True,
                                           width_ratio=10.0, seen_by_log=True),
            "motor_time_constant": dict(row, log_median=0.03, true=0.036, log_inside=False, decoder_inside=True,
                                        width_ratio=30.0, seen_by_log=True),

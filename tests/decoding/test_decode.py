@@ -64,8 +64,8 @@ def test_log_replay_reproduces_the_flight_latent(paper_flight, tmp_path):
     # the posterior of record is the log-grounded one; the decoders' stays beside it
     assert st["_posterior"] == "log-grounded" and set(P.PARAM_NAMES) <= set(st["_decoder_only"])
     assert st["_log_grounded"]["rates"] == "windows"            # the default rate term, said
-    assert st["thrust_to_weight_total"]["inside"], st["thrust_to_weight_total"]
-    gap = st["_log_grounded"]["gap"]["thrust_to_weight_total"]
+    assert st["thrust_to_weight"]["inside"], st["thrust_to_weight"]
+    gap = st["_log_grounded"]["gap"]["thrust_to_weight"]
     assert gap["seen_by_log"] and gap["log_inside"]
     assert (out_t / "information_gap.png").stat().st_size > 0 and (out_t / "marginals_decoder_only.png").exists()
     assert "information gap" in (out_t / "summary.md").read_text()

@@ -28,7 +28,7 @@ def test_the_fleet_table_shows_what_each_log_saw_and_why_one_was_refused():
     seen = {"log_median": 2.0, "log_q05": 1.9, "log_q95": 2.1, "seen_by_log": True, "seen_why": "ok"}
     unseen = {"log_median": 0.02, "log_q05": 0.003, "log_q95": 0.2, "seen_by_log": False, "seen_why": "slow motors"}
     summary = {"_posterior": "log-grounded",
-               "_log_grounded": {"gap": {"thrust_to_weight_total": seen, "motor_time_constant": unseen}}}
+               "_log_grounded": {"gap": {"thrust_to_weight": seen, "motor_time_constant": unseen}}}
     rows = [fleet_row("a.ulg", summary), fleet_row("b.bin", None, "never armed: log a flight"),
             fleet_row("c.csv", {"_posterior": "decoder-only"})]
     md = fleet_markdown(rows)
@@ -39,7 +39,7 @@ def test_the_fleet_table_shows_what_each_log_saw_and_why_one_was_refused():
 
 def test_the_truth_headline_counts_only_what_the_log_saw():
     from mjxsysid.decoding.command import truth_headline
-    gap = {"thrust_to_weight_total": {"seen_by_log": True, "log_inside": True},
+    gap = {"thrust_to_weight": {"seen_by_log": True, "log_inside": True},
            "motor_time_constant": {"seen_by_log": True, "log_inside": False},
            "authority_total[0]": {"seen_by_log": False, "log_inside": True}}
     line = truth_headline({"_log_grounded": {"gap": gap}}, "flight")

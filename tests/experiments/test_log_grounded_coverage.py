@@ -31,8 +31,8 @@ def test_merge_joins_shards_across_runs_and_keeps_only_complete_levels(tmp_path,
     for lv in res["levels"]:
         assert lv["flown"] == 4 and [r["vehicle"] for r in lv["rows"]] == [0, 1, 2, 3]
         assert set(lv["rows"][0]) == set(B.ROW_KEYS)
-        assert lv["coverage_90"]["thrust_to_weight_total"] == 0.5
-        assert lv["median_width"]["thrust_to_weight_total"] == pytest.approx(0.25)
+        assert lv["coverage_90"]["thrust_to_weight"] == 0.5
+        assert lv["median_width"]["thrust_to_weight"] == pytest.approx(0.25)
         assert lv["seconds_median"] == pytest.approx(2.5)
     back = json.loads((tmp_path / "m.json").read_text())
     assert back["levels"][0]["rows"][0]["inside"][0] == 1 and (tmp_path / "m.png").exists()

@@ -71,7 +71,7 @@ def test_probe_reach_measures_how_far_systems_leave_the_prior():
     r = probe_reach(slow, n=4000)
     assert r["per_quantity"]["motor_time_constant"] == pytest.approx(np.log(2.0), abs=0.02)
     assert r["amount"] == pytest.approx(np.log(2.0), abs=0.02)
-    assert r["per_quantity"]["thrust_to_weight"] < 0.05
+    assert r["per_quantity"]["nominal_thrust_to_weight"] < 0.05
     with pytest.raises(ValueError, match="probe_reach: systems must have shape"):
         probe_reach(np.zeros((0, P.N_PARAMS)))
 

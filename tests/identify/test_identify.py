@@ -201,7 +201,7 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     assert lo[0] <= 16 / (0.8 * P.GRAVITY) <= hi[0] and hi[0] / lo[0] < 1.2, (lo[0], hi[0])
     assert lo[1] <= 0.005 <= hi[1]
     gap = information_gap(post["theta"], post["theta"])
-    assert not gap["authority_total[0]"]["seen_by_log"] and gap["thrust_to_weight_total"]["seen_by_log"]
+    assert not gap["authority_total[0]"]["seen_by_log"] and gap["thrust_to_weight"]["seen_by_log"]
     # the SMC's random-walk moves are accepted (their scale adapts stage by stage; scaled by the
     # particles' covariance alone, 0-0.6 % were once the likelihood entered)
     assert post["method"] == "smc" and post["smc_acceptance"] > 0.1, post["smc_acceptance"]
@@ -274,14 +274,14 @@ def test_the_identify_room_is_callable_and_gives_a_posterior_object():
     assert isinstance(post, LogPosterior) and post.calibration["applied"]
     s = post.summary()
     first = next(iter(s))
-    assert s[first]["seen"] and s["thrust_to_weight_total"]["seen"]
+    assert s[first]["seen"] and s["thrust_to_weight"]["seen"]
     tw = C.log_quantities(theta)[0]
-    assert s["thrust_to_weight_total"]["q05"] <= tw <= s["thrust_to_weight_total"]["q95"]
+    assert s["thrust_to_weight"]["q05"] <= tw <= s["thrust_to_weight"]["q95"]
     assert post.sample(50).shape == (50, P.N_PARAMS) and post.sample().shape == (600, P.N_PARAMS)
     assert post.diagnostics["method"] in ("decoded_is", "laplace_is", "smc") and "features" in post.diagnostics
-    assert "thrust_to_weight_total" in repr(post)
+    assert "thrust_to_weight" in repr(post)
     gap = post.gap(post.theta)
-    assert gap["thrust_to_weight_total"]["seen_by_log"] == s["thrust_to_weight_total"]["seen"]
+    assert gap["thrust_to_weight"]["seen_by_log"] == s["thrust_to_weight"]["seen"]
     with pytest.raises(ValueError, match="n must be"):
         post.sample(0)
     with pytest.raises(TypeError, match="flight-log path"):

@@ -105,13 +105,13 @@ def test_json_outputs_are_valid_json(tmp_path, capsys):
 def test_decode_prints_what_the_log_pins_first():
     from mjxsysid.decoding.command import printed_summary
     band = {"mean": 1.0, "q05": 0.9, "q95": 1.1}
-    summary = {"thrust_to_weight": band, "torque_ratio": band, "thrust_to_weight_total": band,
+    summary = {"thrust_to_weight": band, "torque_ratio": band,
                "motor_time_constant": band, "authority_total[0]": band,
-               "_log_grounded": {"gap": {"thrust_to_weight_total": {"seen_by_log": True},
+               "_log_grounded": {"gap": {"thrust_to_weight": {"seen_by_log": True},
                                          "motor_time_constant": {"seen_by_log": True},
                                          "authority_total[0]": {"seen_by_log": False}}}}
     out = printed_summary(summary)
-    assert list(out)[:2] == ["thrust_to_weight_total", "motor_time_constant"]
+    assert list(out)[:3] == ["thrust_to_weight", "motor_time_constant", "torque_ratio"]     # each once
     assert "authority_total[0]" not in out and out["not_seen_by_log"] == ["authority_total[0]"]
     assert list(printed_summary({"thrust_to_weight": band, "x": 1})) == ["thrust_to_weight"]
 

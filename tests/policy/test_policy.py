@@ -324,7 +324,7 @@ def test_identifiable_projection_is_exact():
     th = P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(9), 65)
     y, g = np.asarray(norm.normalize(th)), np.asarray(identifiable_log(th))
     np.testing.assert_allclose((y[1:] - y[:-1]) @ np.asarray(A), (g[1:] - g[:-1]) / std, atol=2e-4)
-    np.testing.assert_allclose(np.exp(g[:, 0]), np.asarray(P.thrust_to_weight(th)), rtol=1e-5)
+    np.testing.assert_allclose(np.exp(g[:, 0]), np.asarray(P.nominal_thrust_to_weight(th)), rtol=1e-5)
     assert float(A[P.MASS, 0]) < 0 < float(A[P.OMEGA_MAX, 0]) and float(A[P.TAU_M, 5]) > 0
     # the yaw-authority variant: column 1 becomes log(k_τ Ω_max² / J_zz), still exact
     Ay = np.asarray(identifiable_projection(norm, P.DEFAULT_PRIOR, n=3000, yaw_authority=True))

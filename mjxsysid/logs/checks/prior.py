@@ -15,10 +15,10 @@ from mjxsysid.logs.checks.signals import DT, fit_rows, lagged
 def estimate_vehicle(rec: dict, fit: dict | None = None) -> dict:
     """What the log alone says about the vehicle. From the thrust equation, specific force
     acc_z = (T/W · g / 4) Σ η_i ū_i² with ū the commands lagged by τ_m (drag along body z
-    averages out over a flight): ``thrust_to_weight`` = 4 mean(acc_z) / (g mean Σ ū²) (the
-    vehicle's T/W times the harmonic mean of its η); from
-    the hover balance (each rotor of an X layout delivers the same thrust, so η_i ∝ 1 / mean u_i²)
-    ``min_motor_effectiveness``, the weakest rotor's relative to the mean; from Euler's equation
+    averages out over a flight), and the hover balance (each rotor of an X layout delivers the same
+    thrust, so η_i ∝ 1 / mean ū_i²): ``thrust_to_weight`` = mean(acc_z) / g · mean_i(1 / mean ū_i²),
+    the one thrust-to-weight of the reports, 4 η̄ k_t Ω_max² / (m g) (:func:`mjxsysid.theta.thrust_to_weight`),
+    and ``min_motor_effectiveness``, the weakest rotor's η relative to the mean; from Euler's equation
     (the rotor order fit, ``fit`` of :func:`rotor_order_fit` if already computed)
     ``motor_time_constant``, the lag of the angular acceleration behind the commands, and
     ``torque_fit_r2``, how well that fit explains it; ``gyro_noise`` and ``accel_noise`` from
@@ -32,9 +32,9 @@ def estimate_vehicle(rec: dict, fit: dict | None = None) -> dict:
     # command's when the commands chatter (the lag removes variance), so lag them first.
     u2 = lagged(np.asarray(rec["motor"], np.float64), fit["tau"]) ** 2
     skip = min(100, len(acc_z) // 4)   # the first 0.2 s: the log may start before take-off settles
-    ms = u2[skip:].mean(0)
-    twr = 4.0 * float(acc_z[skip:].mean()) / (P.GRAVITY * max(float(ms.sum()), 1e-12))
-    eta = (1.0 / np.maximum(ms, 1e-12)) / np.mean(1.0 / np.maximum(ms, 1e-12))
+    ms = np.maximum(u2[skip:].mean(0), 1e-12)
+    twr = float(acc_z[skip:].mean()) / P.GRAVITY * float(np.mean(1.0 / ms))
+    eta = (1.0 / ms) / np.mean(1.0 / ms)
     lag = estimate_thrust_lag(rec) if reaches(motor_rate, MIN_ORDER_RATE_HZ) else {"tau": float("nan"), "r2": 0.0}
     torque_r2 = fit["given_r2"] if reaches(motor_rate, MIN_ORDER_RATE_HZ) else 0.0
     return {"thrust_to_weight": twr, "motor_time_constant": float(fit["tau"]), "torque_fit_r2": torque_r2,

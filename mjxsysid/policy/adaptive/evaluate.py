@@ -281,7 +281,7 @@ def trial_summary(ev: dict) -> dict:
     """The headline numbers of a :func:`fast_eval` (or :func:`evaluate_policy`) result."""
     def probes(lat):
         idn, th = lat["probe_r2_identifiable"], lat["probe_r2_theta"]
-        return {"r2_thrust_to_weight": idn["thrust_to_weight"], "r2_kappa": idn["torque_ratio"],
+        return {"r2_thrust_to_weight": idn["nominal_thrust_to_weight"], "r2_kappa": idn["torque_ratio"],
                 "r2_authority": float(np.mean([idn[f"angular_authority[{i}]"] for i in range(3)])),
                 "r2_tau_m": th["motor_time_constant"], "z_err_rel": lat["z_err_rel"],
                 "z_min_std": float(min(lat["z_theta_std"]))}

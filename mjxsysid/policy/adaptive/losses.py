@@ -94,7 +94,7 @@ def variance_loss(z, target):
     return jnp.sum(jax.nn.relu(target - jnp.sqrt(jnp.var(z, 0) + 1e-6)))
 
 
-IDENT_TARGET_NAMES = ("log_thrust_to_weight", "log_torque_ratio", "log_angular_authority[0]",
+IDENT_TARGET_NAMES = ("log_nominal_thrust_to_weight", "log_torque_ratio", "log_angular_authority[0]",
                       "log_angular_authority[1]", "log_angular_authority[2]", "log_motor_time_constant")
 
 

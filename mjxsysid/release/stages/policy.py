@@ -100,5 +100,5 @@ def policy_eval(rel: ReleaseView, out: Path) -> StageResult:
         figures={"success": lem["policy"]["success_rate"],
                  "rmse_ratio_over_oracle": lem.get("rmse_ratio_policy_over_oracle"),
                  "z_err_rel": lat["z_err_rel"],
-                 "probe_r2_thrust_to_weight": lat["probe_r2_identifiable"].get("thrust_to_weight"),
+                 "probe_r2_thrust_to_weight": lat["probe_r2_identifiable"].get("nominal_thrust_to_weight"),
                  "heldout_targets_met": {k: v["all"] for k, v in ho["numbers"]["targets"].items()}})
