@@ -55,6 +55,12 @@ def printed_summary(summary: dict) -> dict:
     return out
 
 
+
+def _khat(isd: dict) -> str:
+    """The Pareto k̂ of the decoded proposal's weights as the report prints it."""
+    k = isd.get("khat")
+    return "not fitted (ESS below 5 %)" if k is None and "ess" in isd else "?" if k is None else f"{k:.3g}"
+
 def write_summary_md(summary: dict, path) -> Path:
     """summary.md: the checks' warnings first (out of prior, suspicious log), then the decoded
     derived quantities and parameters (mean, 5–95 %, and the truth if known)."""
@@ -89,7 +95,7 @@ def write_summary_md(summary: dict, path) -> Path:
                   f"Method: {g['method']} (rate term: {g.get('rates', 'windows')}); the decoded ensemble as importance "
                   f"proposal: ESS {isd.get('ess', float('nan')):.3g} "
 
-                  f"of {isd.get('draws', '?')}, Pareto k̂ {isd.get('khat', float('nan')):.3g} (reliable: ESS ≥ 5 %, k̂ ≤ 0.7). Channels "
+                  f"of {isd.get('draws', '?')}, Pareto k̂ {_khat(isd)} (reliable: ESS ≥ 5 %, k̂ ≤ 0.7). Channels "
                   f"used: {', '.join(g.get('channels_used', []))}. A width ratio above 1: the log pins the quantity "
                   f"down more than the policy's latent does; a log-grounded band as wide as the prior: the log cannot "
                   f"see it (docs/identify.md).", ""]

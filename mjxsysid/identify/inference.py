@@ -512,12 +512,17 @@ def rw_scale_update(acceptance):
 
 
 def _ess_diag(lw) -> dict:
+    """Importance weights' diagnostics: ESS, and Pareto k̂ where the ESS passes (a generalised
+    Pareto fit, tens of ms; below :data:`MIN_ESS_FRACTION` the weights are unreliable whatever
+    k̂ says: ``khat`` None)."""
     e = ess(lw)
-    return {"ess": e, "draws": len(lw), "ess_fraction": e / len(lw), "khat": pareto_khat(lw)}
+    frac = e / len(lw)
+    return {"ess": e, "draws": len(lw), "ess_fraction": frac,
+            "khat": pareto_khat(lw) if frac >= MIN_ESS_FRACTION else None}
 
 
 def _reliable(diag) -> bool:
-    return diag["ess_fraction"] >= MIN_ESS_FRACTION and diag["khat"] <= MAX_KHAT
+    return diag["ess_fraction"] >= MIN_ESS_FRACTION and diag["khat"] is not None and diag["khat"] <= MAX_KHAT
 
 
 @full_precision

@@ -315,21 +315,19 @@ def linear_start(data: LogData) -> np.ndarray:
     if data.rates == "innovations":
         g, kk, c_rate, res = _innovation_start(data)
     else:
-        best = None
-        for g in range(fg.shape[0]):
-            coefs, cost, res = [], 0.0, []
-            for a in range(3):
-                X = np.concatenate([fg[g] * _BASIS[a], gyq[:, a:a + 1], np.full((len(dg), 1), span)], 1)
-                k, *_ = np.linalg.lstsq(X, dg[:, a], rcond=None)
-                r = dg[:, a] - X @ k
-                cost += float(r @ r) / max(float(dg[:, a] @ dg[:, a]), 1e-12)
-                coefs.append(k)
-                res.append(np.sqrt(np.mean(r * r)))
-            if best is None or cost < best[0]:
-                best = (cost, g, coefs, res)
-        _, g, coefs, res = best
-        kk = np.stack([c[:4] for c in coefs])                             # (3, 4): authority × ρ_i
-        c_rate = np.array([c[5] for c in coefs])
+        G, n = fg.shape[0], len(dg)
+        # every τ_m of the grid and axis at once: X (G, 3, n, 6), least squares by the pseudo-inverse
+        X = np.concatenate([fg[:, None] * _BASIS[None, :, None, :].astype(np.float64),
+                            np.broadcast_to(gyq.T[None, :, :, None], (G, 3, n, 1)),
+                            np.full((G, 3, n, 1), span)], -1)
+        d = dg.T                                                            # (3, n)
+        k = np.einsum("gamn,an->gam", np.linalg.pinv(X), d)                 # (G, 3, 6)
+        r = d[None] - np.einsum("gamk,gak->gam", X, k)                      # (G, 3, n)
+        cost = (np.sum(r * r, -1) / np.maximum(np.sum(d * d, -1), 1e-12)).sum(1)
+        g = int(np.argmin(cost))
+        res = list(np.sqrt(np.mean(r[g] ** 2, -1)))
+        kk = k[g, :, :4]                                                    # (3, 4): authority × ρ_i
+        c_rate = k[g, :, 5]
     means = kk.mean(1, keepdims=True)
     ok = np.abs(means[:, 0]) > 1e-9
     rho = np.clip((kk[ok] / means[ok]).mean(0) if ok.any() else np.ones(4), 0.35, 1.65)
