@@ -272,16 +272,23 @@ def _pow2_pad(idx):
     return np.asarray(idx + [idx[0]] * (n - len(idx)))
 
 
+def _pad_rows(a, n: int) -> np.ndarray:
+    """``a`` (m, ...) padded to n rows by repeating its first (the rows of :func:`_pow2_pad`)."""
+    a = np.asarray(a, np.float32)
+    return np.concatenate([a, np.broadcast_to(a[:1], (n - len(a),) + a.shape[1:])]) if n > len(a) else a  # rows, not coordinates
+
+
 class _Logs:
     """Logs of one shape (their :class:`LogData` pytrees' leaves alike) evaluated together.
 
     One log runs the single-log programs (on a CPU the starts one after the other, see
     :func:`_fit_ls_many`); several run programs vmapped over a leading log axis (:data:`LOG_BATCH`),
-    a subset padded to a power of two (:func:`_pow2_pad`)."""
+    the logs (or a subset of them) padded to a power of two (:func:`_pow2_pad`): a batch's last,
+    shorter chunk reuses the programs the full ones compiled."""
 
     def __init__(self, datas):
         self.datas = list(datas)
-        self.stack = jax.tree.map(lambda *a: jnp.stack(a), *self.datas) if len(self.datas) > 1 else None
+        self.stack = jax.tree.map(lambda *a: jnp.asarray(np.stack(a)), *self.datas) if len(self.datas) > 1 else None
 
     def __len__(self):
         return len(self.datas)
@@ -315,7 +322,9 @@ class _Logs:
         if self.stack is None:
             z0 = z[0]  # rows, not coordinates
             return np.asarray(_fit_ls_many(jnp.asarray(z0), self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])))[None]
-        return np.asarray(_fit_ls_logs(jnp.asarray(z), self.stack, jnp.asarray(ld), jnp.asarray(ls)))
+        p, data = self._sub(range(len(self)))
+        z, ld, ls = (_pad_rows(a, len(p)) for a in (z, ld, ls))
+        return np.asarray(_fit_ls_logs(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls)))[:len(self)]
 
     def jacobians(self, z, ld, ls, w):
         """The tempered residuals' Jacobians at z (L, 13) -> (L, R, 13)."""
@@ -323,7 +332,9 @@ class _Logs:
             z0 = z[0]  # rows, not coordinates
             return np.asarray(_ls_jacobian(jnp.asarray(z0), (self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])),
                                            jnp.asarray(w[0])))[None]
-        return np.asarray(_ls_jacobian_logs(jnp.asarray(z), self.stack, jnp.asarray(ld), jnp.asarray(ls), jnp.asarray(w)))
+        p, data = self._sub(range(len(self)))
+        z, ld, ls, w = (_pad_rows(a, len(p)) for a in (z, ld, ls, w))
+        return np.asarray(_ls_jacobian_logs(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls), jnp.asarray(w)))[:len(self)]
 
     def smc(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages):
         """The tempered SMC of the logs ``idx`` (m,) from their particles y0 (m, P, 17) -> the
