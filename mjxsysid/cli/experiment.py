@@ -40,7 +40,7 @@ def add_experiment(sub) -> None:
                     help="tune-*: the methods to fly (default: the experiment's own; naive, baseline, cfm, "
                          "nominal_cem, oracle_cem)")
     ex.add_argument("--logs", type=int, default=None, metavar="N",
-                    help="sampler-reference: how many simulated logs (default 12; the noise levels in turn)")
+                    help="sampler-reference: how many simulated logs (default 20; the noise levels in turn)")
     ex.add_argument("--chains", type=int, default=None, metavar="N", help="sampler-reference: NUTS chains per log (default 4)")
     ex.add_argument("--warmup", type=int, default=None, metavar="N",
                     help="sampler-reference: NUTS warm-up (window adaptation) steps per chain (default 1000)")

@@ -59,7 +59,7 @@ def test_nuts_and_the_smc_agree_on_an_exact_model_log():
     mode = post["mode"]
     smc_y = np.concatenate([post["v_raw"], post["nuisance"][:, :4], post["nuisance"][:, 8:]], 1)
     ref = S.nuts_reference(data, post["nuisance"][0, 4:8], post["weights"], np.r_[mode[:16], mode[20:]], smc_y,
-                           chains=2, warmup=100, draws=150, seed=0)
+                           chains=2, warmup=100, draws=150, seed=0, target_acceptance=0.8)
     assert ref["y"].shape == (2, 150, N_Y)
     out = S.compare(post["v_raw"], ref["y"].reshape(-1, N_Y)[:, :12], visible_from_theta(theta))
     for j in (0, 5, 6):
