@@ -64,6 +64,11 @@ INIT_JITTER = 1.0
 """Each chain starts at the mode plus N(0, this²) in the preconditioned coordinates u (one SMC
 posterior standard deviation per direction)."""
 QUANTILES = (5.0, 50.0, 95.0)
+RHAT_MAX = 1.01
+"""A log whose NUTS run ends with R̂ at or above this on any coordinate is run again once with
+:data:`LONGER` times the warm-up and draws (an × 1 log at 1000 + 2000 steps: R̂ 1.020 on the yaw
+authority; at 2000 + 8000, 1.001)."""
+LONGER = (2, 4)
 
 
 # ---- the unconstrained coordinates -------------------------------------------------------------
@@ -196,13 +201,14 @@ def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: in
 def compare(smc_v, mcmc_v, truth_v) -> dict:
     """SMC draws (S, 12), MCMC draws (N, 12), the truth (12,) -> per coordinate: ``smc`` and ``mcmc``
     quantiles (3, 12) at :data:`QUANTILES`, ``sampler_error`` (3, 12) |SMC − MCMC| per quantile over
-    the MCMC's 90 % band width, ``inside_smc`` / ``inside_mcmc`` (12,) the truth in each 90 % band,
-    ``model_error`` (12,) |truth − MCMC median| over the MCMC band's width."""
+    the MCMC's 90 % band width, ``width_ratio`` (12,) the SMC's band width over the MCMC's,
+    ``inside_smc`` / ``inside_mcmc`` (12,) the truth in each 90 % band, ``model_error`` (12,)
+    |truth − MCMC median| over the MCMC band's width."""
     qs = np.percentile(np.asarray(smc_v, np.float64), QUANTILES, 0)
     qm = np.percentile(np.asarray(mcmc_v, np.float64), QUANTILES, 0)
     t = np.asarray(truth_v, np.float64)
     width = np.maximum(qm[2] - qm[0], 1e-12)
-    return {"smc": qs, "mcmc": qm, "sampler_error": np.abs(qs - qm) / width,
+    return {"smc": qs, "mcmc": qm, "sampler_error": np.abs(qs - qm) / width, "width_ratio": (qs[2] - qs[0]) / width,
             "inside_smc": (qs[0] <= t) & (t <= qs[2]), "inside_mcmc": (qm[0] <= t) & (t <= qm[2]),
             "model_error": np.abs(t - qm[1]) / width}
 
@@ -217,7 +223,8 @@ def default_method(post: dict) -> str:
 
 def check_log(rec: dict, truth_theta, *, seed: int, chains: int, warmup: int, draws: int,
               particles: int | None = None) -> dict:
-    """One log: the SMC posterior (raw, ``force_smc``), NUTS on its target, their comparison
+    """One log: the SMC posterior (raw, ``force_smc``), NUTS on its target (longer where R̂ ≥
+    :data:`RHAT_MAX`; ``nuts_steps`` the warm-up and draws it ran), their comparison
     (:func:`compare`) against θ's visible coordinates, the same comparison between the first half of
     NUTS's chains and the rest (``nuts_halves_error`` (3, 12): the measurement's own noise), and the
     seconds of each."""
@@ -231,6 +238,9 @@ def check_log(rec: dict, truth_theta, *, seed: int, chains: int, warmup: int, dr
     t0 = time.perf_counter()
     smc_y = np.concatenate([post["v_raw"], post["nuisance"][:, :4], post["nuisance"][:, 8:]], 1)
     ref = nuts_reference(data, ld, w, start, smc_y, chains=chains, warmup=warmup, draws=draws, seed=seed)
+    if np.max(ref["rhat"]) >= RHAT_MAX:
+        warmup, draws = LONGER[0] * warmup, LONGER[1] * draws
+        ref = nuts_reference(data, ld, w, start, smc_y, chains=chains, warmup=warmup, draws=draws, seed=seed)
     t_nuts = time.perf_counter() - t0
     truth = np.asarray(visible_from_theta(np.asarray(truth_theta, np.float32)), np.float64)
     cmp = compare(post["v_raw"], ref["y"].reshape(-1, N_Y)[:, :N_V], truth)
@@ -238,15 +248,15 @@ def check_log(rec: dict, truth_theta, *, seed: int, chains: int, warmup: int, dr
     floor = compare(ref["y"][:half].reshape(-1, N_Y)[:, :N_V], ref["y"][half:].reshape(-1, N_Y)[:, :N_V], truth)
     return {**cmp, "nuts_halves_error": floor["sampler_error"], "truth": truth, "rhat": ref["rhat"], "ess_bulk": ref["ess_bulk"], "divergences": ref["divergences"],
             "leapfrog_mean": ref["leapfrog_mean"], "step_size": ref["step_size"], "smc_seconds": t_smc,
-            "nuts_seconds": t_nuts, "method_default": default_method(post), "smc_stages": post["smc_stages"],
+            "nuts_seconds": t_nuts, "nuts_steps": [warmup, draws], "method_default": default_method(post), "smc_stages": post["smc_stages"],
             "smc_acceptance": post["smc_acceptance"], "smc_tempering": post["smc_tempering"],
             "laplace_is": post["laplace_is"]}
 
 
 def summarise(rows: list) -> dict:
-    """Per visible coordinate over the logs: the median and largest sampler error per quantile, how
-    often the truth is inside the SMC's and the NUTS band, and how often outside both (the model's
-    miss); NUTS's largest R̂ and smallest bulk ESS."""
+    """Per visible coordinate over the logs: the median and largest sampler error per quantile, the
+    median and smallest width ratio, how often the truth is inside the SMC's and the NUTS band, and
+    how often outside both (the model's miss); NUTS's largest R̂ and smallest bulk ESS."""
     err = np.array([r["sampler_error"] for r in rows])           # (L, 3, 12)
     floor = np.array([r["nuts_halves_error"] for r in rows])
     ins, inm = (np.array([r[k] for r in rows]) for k in ("inside_smc", "inside_mcmc"))
@@ -255,6 +265,8 @@ def summarise(rows: list) -> dict:
     for j, name in enumerate(V_NAMES):
         out[name] = {"sampler_error_median": np.median(err[:, :, j], 0).round(3).tolist(),
                      "sampler_error_max": err[:, :, j].max(0).round(3).tolist(),
+                     "width_ratio_median": float(np.median([r["width_ratio"][j] for r in rows]).round(3)),
+                     "width_ratio_min": float(np.min([r["width_ratio"][j] for r in rows]).round(3)),
                      "nuts_halves_error_median": float(np.median(floor[:, :, j]).round(3)),
                      "nuts_halves_error_max": float(floor[:, :, j].max().round(3)),
                      "inside_smc": int(ins[:, j].sum()), "inside_mcmc": int(inm[:, j].sum()),
@@ -264,30 +276,61 @@ def summarise(rows: list) -> dict:
     return out
 
 
-def tables(summary: dict, rows: list, labels: list[str]) -> str:
+def by_level(rows: list, levels: list[str]) -> dict:
+    """Per noise level (``levels``: each row's): logs, the sampler error's median and largest over
+    every coordinate and quantile, NUTS halves' median, the median width ratio, the truths inside
+    the SMC's and NUTS's bands and outside both (of 12 per log)."""
+    out = {}
+    for lv in dict.fromkeys(levels):
+        rs = [r for r, x in zip(rows, levels) if x == lv]
+        err = np.array([r["sampler_error"] for r in rs])
+        out[lv] = {"logs": len(rs), "sampler_error_median": float(np.median(err).round(3)),
+                   "sampler_error_max": float(err.max().round(3)),
+                   "nuts_halves_error_median": float(np.median([r["nuts_halves_error"] for r in rs]).round(3)),
+                   "width_ratio_median": float(np.median([r["width_ratio"] for r in rs]).round(3)),
+                   "inside_smc": int(sum(r["inside_smc"].sum() for r in rs)),
+                   "inside_mcmc": int(sum(r["inside_mcmc"].sum() for r in rs)),
+                   "outside_both": int(sum((~r["inside_smc"] & ~r["inside_mcmc"]).sum() for r in rs)),
+                   "bands": 12 * len(rs)}
+    return out
+
+
+def tables(summary: dict, levels: dict, rows: list, labels: list[str]) -> str:
     """The results' markdown: the summary per coordinate, then each log's largest sampler error,
     its misses and NUTS's convergence."""
     n = len(rows)
     head = ["coordinate", "sampler error q05 / q50 / q95 (median)", "(max)", "NUTS halves (median / max)",
+            "SMC / NUTS width (median / min)",
             f"truth inside SMC / NUTS (of {n})", "outside both", "model error (median)", "R̂ max", "bulk ESS min"]
     body = [[k, " / ".join(f"{e:.2f}" for e in s["sampler_error_median"]),
              " / ".join(f"{e:.2f}" for e in s["sampler_error_max"]),
-             f"{s['nuts_halves_error_median']:.2f} / {s['nuts_halves_error_max']:.2f}", f"{s['inside_smc']} / {s['inside_mcmc']}",
+             f"{s['nuts_halves_error_median']:.2f} / {s['nuts_halves_error_max']:.2f}",
+             f"{s['width_ratio_median']:.2f} / {s['width_ratio_min']:.2f}", f"{s['inside_smc']} / {s['inside_mcmc']}",
              s["outside_both"], f"{s['model_error_median']:.2f}", f"{s['rhat_max']:.3f}", f"{s['ess_bulk_min']:.0f}"]
             for k, s in summary.items()]
     per = [[lab, r["method_default"], r["smc_stages"], f"{r['smc_acceptance']:.2f}",
             f"{float(np.max(r['sampler_error'])):.2f}", V_NAMES[int(np.argmax(np.max(r['sampler_error'], 0)))],
+            f"{float(np.median(r['width_ratio'])):.2f}",
             f"{int(r['inside_smc'].sum())} / {int(r['inside_mcmc'].sum())}",
             f"{float(np.max(r['rhat'])):.3f}", f"{float(np.min(r['ess_bulk'])):.0f}", r["divergences"],
-            f"{r['leapfrog_mean']:.0f}", f"{r['smc_seconds']:.0f} / {r['nuts_seconds']:.0f}"] for lab, r in zip(labels, rows)]
-    return ("## Per visible coordinate\n\nSampler error: |SMC quantile − NUTS quantile| / NUTS 90 % band width. "
+            f"{r['nuts_steps'][0]} + {r['nuts_steps'][1]}", f"{r['leapfrog_mean']:.0f}",
+            f"{r['smc_seconds']:.0f} / {r['nuts_seconds']:.0f}"] for lab, r in zip(labels, rows)]
+    lv = [[k, x["logs"], f"{x['sampler_error_median']:.2f}", f"{x['sampler_error_max']:.2f}",
+           f"{x['nuts_halves_error_median']:.2f}", f"{x['width_ratio_median']:.2f}",
+           f"{x['inside_smc']} / {x['inside_mcmc']} / {x['bands']}", x["outside_both"]] for k, x in levels.items()]
+    return ("## Per noise level\n\n" + markdown_table(
+        ["level", "logs", "sampler error (median)", "(max)", "NUTS halves (median)", "SMC / NUTS width (median)",
+         "truth inside SMC / NUTS / bands", "outside both"], lv)
+            + "\n## Per visible coordinate\n\nSampler error: |SMC quantile − NUTS quantile| / NUTS 90 % band width. "
             "NUTS halves: the same between NUTS's first chains and the others (the measurement's own noise, "
-            "over all three quantiles). Model error: |truth − NUTS median| / NUTS band width.\n\n"
+            "over all three quantiles). Width: the SMC's 90 % band width over NUTS's. "
+            "Model error: |truth − NUTS median| / NUTS band width.\n\n"
             + markdown_table(head, body)
             + "\n## Per log\n\nR̂, ESS: over all 17 sampled coordinates.\n\n"
             + markdown_table(["log", "default method", "SMC stages", "SMC acceptance", "sampler error max", "at",
+                              "SMC / NUTS width (median)",
                               "truth inside SMC / NUTS (of 12)", "R̂ max", "bulk ESS min", "divergences",
-                              "leapfrog / draw", "seconds SMC / NUTS"], per))
+                              "NUTS warm-up + draws", "leapfrog / draw", "seconds SMC / NUTS"], per))
 
 
 def plan(logs: int, levels=LEVELS) -> list[tuple[int, str]]:
@@ -310,7 +353,7 @@ def run(out, *, quick=False, policy=None, seed=5, logs=None, chains=None, warmup
     todo = plan(cfg["logs"])
     n_veh = max(v for v, _ in todo) + 1
     theta = np.asarray(P.get_prior(PRIOR).sample(jax.random.PRNGKey(seed), n_veh), np.float32)
-    rows, labels, lost = [], [], []
+    rows, labels, levels, lost = [], [], [], []
     for level in dict.fromkeys(lv for _, lv in todo):
         vehicles = [v for v, lv in todo if lv == level]
         frame, flown = level_flights(theta[: max(vehicles) + 1], level, seed)
@@ -322,6 +365,7 @@ def run(out, *, quick=False, policy=None, seed=5, logs=None, chains=None, warmup
                           draws=cfg["draws"], particles=particles)
             rows.append(r)
             labels.append(f"vehicle {v} {level}")
+            levels.append(level)
             if progress:
                 echo(f"[{len(rows)}/{len(todo)}] {labels[-1]}: sampler error max {np.max(r['sampler_error']):.2f}, "
                      f"inside SMC/NUTS {int(r['inside_smc'].sum())}/{int(r['inside_mcmc'].sum())} of 12, "
@@ -329,7 +373,7 @@ def run(out, *, quick=False, policy=None, seed=5, logs=None, chains=None, warmup
                      f"{r['divergences']} divergences; {r['smc_seconds']:.0f} s SMC, {r['nuts_seconds']:.0f} s NUTS")
     if not rows:
         raise ValueError(f"no log to check: every flight failed ({', '.join(lost)})")
-    summary = summarise(rows)
+    summary, per_level = summarise(rows), by_level(rows, levels)
     err = np.array([r["sampler_error"] for r in rows])
     floor = np.array([r["nuts_halves_error"] for r in rows])
     headline = {"logs": len(rows), "sampler_error_median": float(np.median(err).round(3)),
@@ -337,21 +381,24 @@ def run(out, *, quick=False, policy=None, seed=5, logs=None, chains=None, warmup
                 "nuts_halves_error_max": float(floor.max().round(3)),
                 "inside_smc": int(sum(r["inside_smc"].sum() for r in rows)),
                 "inside_mcmc": int(sum(r["inside_mcmc"].sum() for r in rows)),
-                "bands": 12 * len(rows), "rhat_max": float(max(np.max(r["rhat"]) for r in rows).round(4))}
+                "bands": 12 * len(rows), "outside_both": int(sum((~r["inside_smc"] & ~r["inside_mcmc"]).sum() for r in rows)),
+                "width_ratio_median": float(np.median([r["width_ratio"] for r in rows]).round(3)),
+                "rhat_max": float(max(np.max(r["rhat"]) for r in rows).round(4))}
     per_log = [{"log": lab, "method_default": r["method_default"], "smc_stages": r["smc_stages"],
                 "smc_acceptance": round(r["smc_acceptance"], 3), "sampler_error_max": float(np.max(r["sampler_error"]).round(3)),
                 "nuts_halves_error_max": float(np.max(r["nuts_halves_error"]).round(3)),
+                "width_ratio_median": float(np.median(r["width_ratio"]).round(3)),
                 "inside_smc": int(r["inside_smc"].sum()), "inside_mcmc": int(r["inside_mcmc"].sum()),
                 "rhat_max": float(np.max(r["rhat"]).round(4)), "ess_bulk_min": float(np.min(r["ess_bulk"]).round(0)),
-                "divergences": r["divergences"], "leapfrog_mean": round(r["leapfrog_mean"], 1),
+                "divergences": r["divergences"], "nuts_steps": r["nuts_steps"], "leapfrog_mean": round(r["leapfrog_mean"], 1),
                 "seconds_smc": round(r["smc_seconds"], 1), "seconds_nuts": round(r["nuts_seconds"], 1)}
                for lab, r in zip(labels, rows)]
-    numbers = {"headline": headline, "per_coordinate": summary, "per_log": per_log, "lost": lost}
+    numbers = {"headline": headline, "per_level": per_level, "per_coordinate": summary, "per_log": per_log, "lost": lost}
     config = {"quick": quick, **cfg, "levels": list(LEVELS), "prior": PRIOR, "particles": particles,
               "nuts": f"blackjax window_adaptation (dense mass matrix, target acceptance {TARGET_ACCEPTANCE}) then NUTS",
               "init": f"the SMC run's mode + N(0, {INIT_JITTER}^2) in the preconditioned coordinates"}
-    notes = (f"{len(rows)} logs ({', '.join(labels)}); {cfg['chains']} chains × ({cfg['warmup']} warm-up + "
-             f"{cfg['draws']} draws) of NUTS per log. Raw posteriors (no calibration). Lost flights: "
-             f"{', '.join(lost) or 'none'}.")
+    notes = (f"{len(rows)} logs; {cfg['chains']} chains × ({cfg['warmup']} warm-up + {cfg['draws']} draws) of NUTS "
+             f"per log, {LONGER[0]}× and {LONGER[1]}× those where R̂ ≥ {RHAT_MAX}. Raw posteriors (no calibration). "
+             f"Lost flights: {', '.join(lost) or 'none'}.")
     return write_results(Path(out), "sampler-reference", config=config, seeds={"seed": seed}, numbers=numbers,
-                         table_md=tables(summary, rows, labels), t0=t0, notes=notes)
+                         table_md=tables(summary, per_level, rows, labels), t0=t0, notes=notes)

@@ -45,6 +45,7 @@ def test_compare_measures_the_sampler_error_in_band_widths():
     smc = mcmc[:5000] + 0.5 * 3.29            # shifted by half the 90 % band (3.29 sd)
     out = S.compare(smc, mcmc, np.full(12, 1.5))
     np.testing.assert_allclose(out["sampler_error"], 0.5, atol=0.05)
+    np.testing.assert_allclose(out["width_ratio"], 1.0, atol=0.05)
     assert out["inside_mcmc"].all() and out["inside_smc"].all()
     np.testing.assert_allclose(out["model_error"], 1.5 / 3.29, atol=0.05)
 
