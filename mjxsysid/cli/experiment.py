@@ -16,7 +16,7 @@ def add_experiment(sub) -> None:
     ex = sub.add_parser("experiment", help="run one of the paper's experiments (results.json, results.md, PNGs)")
     ex.add_argument("name", help="tune-nominal | tune-slow | tune-lemniscate | robustness | payload | replay | probe-loop | "
                                  "probe-loop-seeds | lag-oracle | stress-prior-oracle | prediction-error | log-checks | "
-                                 "long-flight-calibration | noise-sensitivity | rotorpy-noise | speed-table")
+                                 "long-flight-calibration | noise-sensitivity | rotorpy-noise | speed-table | sampler-reference")
     ex.add_argument("--quick", action="store_true", help="small CPU version (minutes; a smoke test)")
     ex.add_argument("--cpu", action="store_true",
                     help="tune-*: the full protocol with fewer vehicles and smaller ensembles (tens of minutes on a CPU)")
@@ -39,6 +39,12 @@ def add_experiment(sub) -> None:
     ex.add_argument("--methods", default=None, metavar="M1,M2",
                     help="tune-*: the methods to fly (default: the experiment's own; naive, baseline, cfm, "
                          "nominal_cem, oracle_cem)")
+    ex.add_argument("--logs", type=int, default=None, metavar="N",
+                    help="sampler-reference: how many simulated logs (default 20; the noise levels in turn)")
+    ex.add_argument("--chains", type=int, default=None, metavar="N", help="sampler-reference: NUTS chains per log (default 4)")
+    ex.add_argument("--warmup", type=int, default=None, metavar="N",
+                    help="sampler-reference: NUTS warm-up (window adaptation) steps per chain (default 1000)")
+    ex.add_argument("--draws", type=int, default=None, metavar="N", help="sampler-reference: NUTS draws per chain (default 2000)")
     ex.add_argument("--out", type=Path, required=True)
     ex.set_defaults(handler=cmd_experiment)
 
@@ -73,6 +79,12 @@ def cmd_experiment(args) -> int:
         if "inputs" not in inspect.signature(run).parameters:
             raise ValueError(f"experiment {args.name} does not take --inputs")
         kw["inputs"] = args.inputs
+    for name in ("logs", "chains", "warmup", "draws"):
+        if getattr(args, name) is not None:
+            import inspect
+            if name not in inspect.signature(run).parameters:
+                raise ValueError(f"experiment {args.name} does not take --{name}")
+            kw[name] = getattr(args, name)
     if args.seed is not None:
         kw["seed"] = args.seed
     res = run(args.out, quick=args.quick, policy=policy_ref(args), **kw)

@@ -33,6 +33,7 @@ EXPERIMENTS = {
     "noise-sensitivity": "mjxsysid.experiments.noise_sensitivity:run",
     "rotorpy-noise": "mjxsysid.experiments.rotorpy_noise:run",
     "speed-table": "mjxsysid.experiments.speed_table:run",
+    "sampler-reference": "mjxsysid.experiments.sampler_reference:run",
 }
 """name -> 'module:function' (imported lazily, so the CLI's --help stays instant)."""
 

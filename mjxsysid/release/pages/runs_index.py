@@ -35,7 +35,7 @@ MEASUREMENTS = {
                 "set), `probing_1000/`, `probing_acc/`",
     "lag-oracle": "K_θ against the lag-aware oracle, with each design choice taken out, on four priors",
     "log-checks": "the flight-log checks: false alarms on correct logs, each mistake caught, IMU-noise estimates",
-    "log-grounded": "`python benchmarks/log_grounded.py`: the log-grounded posterior's calibration (`families/`: the held-out families) and cost; `fidelity/`, `robustness/`, `tuning/`: closed-loop fidelity, the robustness envelopes and the tuner with its draws (`benchmarks/closed_loop_fidelity.py --posterior`, `mjxsysid experiment robustness --variant`, `mjxsysid experiment tune-slow --variant log_grounded`); `sysid/`: `mujoco.sysid` side by side (`benchmarks/sysid_side_by_side.py`)",
+    "log-grounded": "`python benchmarks/log_grounded.py`: the log-grounded posterior's calibration (`families/`: the held-out families) and cost; `fidelity/`, `robustness/`, `tuning/`: closed-loop fidelity, the robustness envelopes and the tuner with its draws (`benchmarks/closed_loop_fidelity.py --posterior`, `mjxsysid experiment robustness --variant`, `mjxsysid experiment tune-slow --variant log_grounded`); `sysid/`: `mujoco.sysid` side by side (`benchmarks/sysid_side_by_side.py`); `sampler-reference/`: the SMC against a long NUTS run (`mjxsysid experiment sampler-reference`)",
     "long-flight-calibration": "flight-level decoding on 60 s flights: three windows' calibration",
     "nobc": "the policy trained without imitation (tools/archive/fair_baselines.sh nobc): evaluation, decoders, "
             "replay",
