@@ -41,7 +41,8 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.experiments.common import markdown_table, write_results
 from mjxsysid.experiments.log_grounded_coverage import level_flights
-from mjxsysid.identify.coords import N_V, PHYSICAL_PRIOR, V_NAMES, PhysicalPrior, visible_from_theta
+from mjxsysid.identify import logspace as L
+from mjxsysid.identify.coords import PHYSICAL_PRIOR, V_NAMES, PhysicalPrior, visible_from_theta
 from mjxsysid.identify.inference import N_Y, _log_target_y, _reliable, _y_lo_hi, log_grounded_posterior
 from mjxsysid.identify.logdata import prepare
 from mjxsysid.rollout.flight import flight_log
@@ -233,9 +234,9 @@ def check_log(rec: dict, truth_theta, *, seed: int, chains: int, warmup: int, dr
     post = log_grounded_posterior(data, None, force_smc=True, seed=seed, calibration=None, particles=particles)
     t_smc = time.perf_counter() - t0
     mode = np.asarray(post["mode"], np.float64)
-    start = np.concatenate([mode[:N_V + 4], mode[N_V + 8:]])
-    ld, w = post["nuisance"][0, 4:8], post["weights"]      # nuisance: log σ (4), log δ (4), bias
-    smc_y = np.concatenate([post["v_raw"], post["nuisance"][:, :4], post["nuisance"][:, 8:]], 1)
+    start = L.y_from_x(np.asarray(mode))
+    ld, w = post["nuisance"][0, L.LOG_DISCREPANCY], post["weights"]      # δ is fixed: any draw's
+    smc_y = np.concatenate([post["v_raw"], post["nuisance"][:, L.NUIS_IN_Y]], 1)
     t0 = time.perf_counter()
     ref = nuts_reference(data, ld, w, start, smc_y, chains=chains, warmup=warmup, draws=draws, seed=seed)
     if np.max(ref["rhat"]) >= RHAT_MAX:
@@ -243,9 +244,9 @@ def check_log(rec: dict, truth_theta, *, seed: int, chains: int, warmup: int, dr
         ref = nuts_reference(data, ld, w, start, smc_y, chains=chains, warmup=warmup, draws=draws, seed=seed)
     t_nuts = time.perf_counter() - t0
     truth = np.asarray(visible_from_theta(np.asarray(truth_theta, np.float32)), np.float64)
-    cmp = compare(post["v_raw"], ref["y"].reshape(-1, N_Y)[:, :N_V], truth)
+    cmp = compare(post["v_raw"], ref["y"].reshape(-1, N_Y)[:, L.Y_V], truth)
     half = chains // 2          # NUTS against itself: its first chains against the others
-    floor = compare(ref["y"][:half].reshape(-1, N_Y)[:, :N_V], ref["y"][half:].reshape(-1, N_Y)[:, :N_V], truth)
+    floor = compare(ref["y"][:half].reshape(-1, N_Y)[:, L.Y_V], ref["y"][half:].reshape(-1, N_Y)[:, L.Y_V], truth)
     return {**cmp, "nuts_halves_error": floor["sampler_error"], "truth": truth, "rhat": ref["rhat"],
             "ess_bulk": ref["ess_bulk"], "divergences": ref["divergences"], "leapfrog_mean": ref["leapfrog_mean"],
             "step_size": ref["step_size"], "nuts_steps": [warmup, draws], "smc_seconds": t_smc, "nuts_seconds": t_nuts,

@@ -1,7 +1,6 @@
-"""A flight log made in numpy by the log-grounded likelihood's own equations (the rotor lag's exact
-mean square speed, Euler's equation, the specific force), step by step: a log on which that model is
-exact. Open loop around hover, a rate damper and a chirp-like excitation; the same forward model as
-tests/identify/test_identify.py's ``synthetic_log``."""
+"""An exact-model flight log for the log-grounded posterior's tests: a forward model written for
+them (NumPy, step by step: the rotor lag, Euler's equation, the specific force), independent of the
+likelihood's windowed sums, so that inference is checked where the model is exact."""
 import numpy as np
 
 from mjxsysid import theta as P
@@ -9,38 +8,58 @@ from mjxsysid import theta as P
 DT = 0.002
 
 
-def exact_model_log(theta, seconds: float = 4.0, gyro_noise: float = 0.0, acc_noise: float = 0.0,
-                    seed: int = 0) -> dict:
-    """Fly θ (19,) for ``seconds`` -> {'imu' (T, 6) gyro rad/s and specific force m/s², 'motor' (T, 4)
-    commands Ω_cmd / Ω_max}, white noise of the given stds added to the gyro and accelerometer."""
+def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, closed_loop=False, drag=None):
+    """Fly θ (19,) open loop around hover with a rate damper and chirp excitation -> imu, motor.
+    ``closed_loop``: instead, a rate P controller on the *measured* (noisy) rates tracking a slow
+    sinusoid: the commands react to the gyro's noise, the feedback that biases an equation error.
+    ``drag`` (1/s): a body-z velocity 0.8 + 0.7 sin(0.9 t) m/s (a forward flight's, tilted) whose drag
+    −drag · v_z enters the specific force, and the log's ``velocity_body``."""
     rng = np.random.default_rng(seed)
     t = np.asarray(theta, np.float64)
     eta, tau, wmax = t[P.ETA], t[P.TAU_M], t[P.OMEGA_MAX]
-    kt, m, arm, inertia = t[P.KT], t[P.MASS], t[P.ARM], t[P.INERTIA]
-    kappa = t[P.KTAU] / kt
+    kt, m, arm, J = t[P.KT], t[P.MASS], t[P.ARM], t[P.INERTIA]
+    kap = t[P.KTAU] / kt
     d = P.ROTOR_DIRECTIONS.astype(np.float64)
     n = int(seconds / DT)
     hover = np.sqrt(m * P.GRAVITY / (4 * kt * eta)) / wmax
-    w = np.zeros(3)
+    w, meas = np.zeros(3), np.zeros(3)
     s = hover.copy()
     imu, mot = np.zeros((n, 6)), np.zeros((n, 4))
     imu[0, 5] = P.GRAVITY
     a = np.exp(-DT / tau)
     for k in range(n):
         tt = k * DT
-        exc = 0.08 * np.array([np.sin(7 * tt), np.sin(5 * tt + 1), np.sin(3 * tt + 2)]) + 0.03 * rng.standard_normal(3)
-        cmd = -0.02 * w + exc                                   # roll, pitch, yaw effort
+        if closed_loop:
+            ref = 2.0 * np.array([np.sin(3 * tt), np.sin(2.3 * tt + 1), 0.5 * np.sin(1.7 * tt + 2)])
+            cmd = 0.15 * (ref - meas) * np.array([1.0, 1.0, 2.0])
+        else:
+            exc = 0.08 * np.array([np.sin(7 * tt), np.sin(5 * tt + 1), np.sin(3 * tt + 2)]) + 0.03 * rng.standard_normal(3)
+            cmd = -0.02 * w + exc                                   # roll, pitch, yaw effort
         u = np.clip(hover * (1 + 0.05 * np.sin(2 * tt) + d[:, 1] * cmd[0] - d[:, 0] * cmd[1]
                              + P.YAW_SIGNS * cmd[2]), 0, 1)
         mot[k] = u
         d0 = s - u
-        ms = u * u + 2 * u * d0 * tau / DT * (1 - a) + d0 * d0 * tau / (2 * DT) * (1 - a * a)   # exact mean of s²
+        ms = u * u + 2 * u * d0 * tau / DT * (1 - a) + d0 * d0 * tau / (2 * DT) * (1 - a * a)
         s = u + d0 * a
-        thrust = eta * kt * wmax ** 2 * ms
-        torque = np.array([arm * d[:, 1] @ thrust, -arm * d[:, 0] @ thrust, kappa * P.YAW_SIGNS @ thrust]) + t[P.TAU_EXT]
-        w = w + DT * (torque - np.cross(w, inertia * w)) / inertia
+        T = eta * kt * wmax**2 * ms
+        tq = np.array([arm * d[:, 1] @ T, -arm * d[:, 0] @ T, kap * P.YAW_SIGNS @ T]) + t[P.TAU_EXT]
+        w = w + DT * (tq - np.cross(w, J * w)) / J
         if k + 1 < n:
-            sf = (eta * kt * wmax ** 2 * s * s).sum() / m
-            imu[k + 1] = np.concatenate([w + gyro_noise * rng.standard_normal(3),
-                                         acc_noise * rng.standard_normal(2), [sf + acc_noise * rng.standard_normal()]])
-    return {"imu": imu, "motor": mot}
+            sf = (eta * kt * wmax**2 * s * s).sum() / m
+            if drag is not None:
+                sf -= drag * (0.8 + 0.7 * np.sin(0.9 * (k + 1) * DT))
+            meas = w + gyro_noise * rng.standard_normal(3)
+            imu[k + 1] = np.concatenate([meas,
+                                         [acc_noise * rng.standard_normal(), acc_noise * rng.standard_normal(),
+                                          sf + acc_noise * rng.standard_normal()]])
+    rec = {"imu": imu, "motor": mot}
+    if drag is not None:
+        vz = 0.8 + 0.7 * np.sin(0.9 * np.arange(n) * DT)
+        rec["velocity_body"] = np.stack([np.zeros(n), np.zeros(n), vz], -1)
+    return rec
+
+
+def exact_model_log(theta, seconds: float = 4.0, gyro_noise: float = 0.0, acc_noise: float = 0.0,
+                    seed: int = 0) -> dict:
+    """:func:`synthetic_log` open loop, without drag: {'imu' (T, 6), 'motor' (T, 4)}."""
+    return synthetic_log(theta, seconds, gyro_noise, acc_noise, seed)
