@@ -65,12 +65,12 @@ def parse_reference(spec: str) -> dict:
 def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_LEVELS, seed: int = 5,
             shard: str | None = None, out: Path, time_budget_s: float | None = None,
             references=REFERENCES, controller: str = "oracle", aero: bool = False) -> dict:
-    """Fly and identify; write ``out`` (JSON: rows), after every log (a stopped run keeps what it
-    finished); ``time_budget_s``: start no new flight after this long; ``references``: the flights
+    """Fly and identify; write ``out`` (JSON: rows), after every log, or every batch of logs
+    identified together on an accelerator (a stopped run keeps what it finished); ``time_budget_s``: start no new flight after this long; ``references``: the flights
     (:func:`parse_reference`), each at every level; ``controller``: who flies ('oracle', the lag-aware
     oracle, or 'policy', the shipped adaptive policy: another closed loop's reaction to the noise);
     ``aero``: the simulator's rotor aerodynamics on (``SimConfig.aero``: physics the likelihood lacks)."""
-    from mjxsysid.identify.inference import log_grounded_posterior
+    from mjxsysid.identify.inference import LOG_BATCH, log_grounded_posteriors
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
     from mjxsysid.sim import Quadrotor, SimConfig
@@ -102,19 +102,25 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
         fl, m, _ = fly_vehicles(th, controller=controller, sim=Quadrotor(SimConfig(**LEVELS[lv], aero=aero)), seed=s, policy=pol,
                                 **parse_reference(ref))
         flown = np.flatnonzero(~np.asarray(m["failed"], bool))
-        for i in progress(flown, desc=f"calibration {lv}"):
+        flight = (ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if aero else "")
+        step = 1 if jax.default_backend() == "cpu" else LOG_BATCH      # logs identified together (batched on a GPU)
+        for c in progress(range(0, len(flown), step), desc=f"calibration {lv}"):
             if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
                 break
-            rec = flight_log(fl.frame, i)
-            try:
-                data = prepare(rec)
-            except LogTooShort:
+            datas, kept = [], []
+            for i in flown[c:c + step]:
+                try:
+                    datas.append(prepare(flight_log(fl.frame, i)))
+                    kept.append(i)
+                except LogTooShort:
+                    continue
+            if not kept:
                 continue
             t0 = time.perf_counter()
-            post = log_grounded_posterior(data, None, seed=int(index[i]), calibration=None)
-            flight = (ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if aero else "")
-            res["rows"].append(row(post, th[i], lv, int(index[i]), time.perf_counter() - t0)
-                               | {"flight": flight, "aero": aero})
+            posts = log_grounded_posteriors(datas, seeds=[int(index[i]) for i in kept], calibration=None)
+            sec = (time.perf_counter() - t0) / len(kept)
+            for i, post in zip(kept, posts):
+                res["rows"].append(row(post, th[i], lv, int(index[i]), sec) | {"flight": flight, "aero": aero})
             out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
         out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     return res
