@@ -4,7 +4,7 @@ The tempered SMC of :func:`mjxsysid.identify.inference.log_grounded_posterior` (
 and blackjax's NUTS (:func:`nuts_reference`: ``chains`` chains, Stan's window adaptation with a
 dense mass matrix, then ``draws`` draws each) sample one target per log: the same data, the
 same discrepancy δ and channel weights w (the SMC run's), the 17 coordinates y = [v (12),
-log σ (4), acc_z bias] (:func:`~mjxsysid.identify.inference._log_target_y`). NUTS runs in
+log σ (4), acc_z bias] (:func:`~mjxsysid.identify.target._log_target_y`). NUTS runs in
 unconstrained coordinates (:func:`to_constrained`): the prior's box through a logistic map, with
 the triangle inequality of J built into the yaw inertia's lower bound; only ρ_4's range stays
 a wall of −inf. There, an affine map u -> m + L u (m the mode, L L^T the SMC draws' covariance)
@@ -43,7 +43,8 @@ from mjxsysid.experiments.common import markdown_table, write_results
 from mjxsysid.experiments.log_grounded_coverage import level_flights
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, V_NAMES, PhysicalPrior, visible_from_theta
-from mjxsysid.identify.inference import N_Y, _log_target_y, _reliable, _y_lo_hi, log_grounded_posterior
+from mjxsysid.identify.inference import _reliable, log_grounded_posterior
+from mjxsysid.identify.target import N_Y, _log_target_y, _y_lo_hi
 from mjxsysid.identify.logdata import prepare
 from mjxsysid.rollout.flight import flight_log
 from mjxsysid.runtime.progress import echo

@@ -25,10 +25,12 @@ log, so θ = θ(v, h) with h drawn from the prior.
    (ESS < :data:`MIN_ESS_FRACTION` N or k̂ > :data:`MAX_KHAT`): from a mixture of the prior
    (:data:`PRIOR_SHARE`), the decoded and the Laplace proposals, tempered to the target (the path
    q^{1−λ} target^{λ}).
+
+The target is :mod:`.target`'s, the mode :mod:`.mode`'s, the SMC :mod:`.smc`'s; this module
+orchestrates them for one log (:func:`log_grounded_posterior`) or many (:func:`log_grounded_posteriors`).
 """
 from __future__ import annotations
 
-import functools
 import os
 
 import jax
@@ -37,225 +39,36 @@ import numpy as np
 
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import SHIPPED, calibrate, load, log_features
-from mjxsysid.identify.coords import (
-    PHYSICAL_PRIOR,
-    PhysicalPrior,
-    theta_from,
-    visible_from_theta,
-    xp_of,
-)
-from mjxsysid.identify.likelihood import (
-    N_NUIS,
-    NU,
-    best_log_delta,
-    drag_at,
-    linear_start,
-    log_likelihood,
-    rate_rows,
-    residual_weights,
-    residuals,
-    residuals_jit,
-)
+from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, theta_from, visible_from_theta
+from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
 from mjxsysid.identify.logdata import RATES, LogData, LogTooShort, prepare
-from mjxsysid.identify.proposals import StudentT, decoded_proposal, ess, nuisance_proposal, pareto_khat
+from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
+                                    _ls_jacobian_logs, find_modes)
+from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
+from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc, _smc_logs, _smc_start, rw_scale_update
+from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, TARGET_EVALS,
+                                      _batch_log_target_logs, full_precision, full_x,
+                                      log_prior, log_target)
+
+__all__ = ["ACC_BIAS_SD", "DRAWS", "LAPLACE_WIDEN", "LOG_BATCH", "MAX_KHAT", "MIN_ESS_FRACTION", "N_Y", "NUIS_BOUNDS",
+           "PARTICLES", "PRIOR_SHARE", "RW_TARGET_ACCEPTANCE", "TARGET_CHUNK", "find_mode", "find_modes",
+           "full_precision", "full_x", "log_grounded_posterior", "log_grounded_posteriors", "log_prior",
+           "log_target", "rw_scale_update"]
 
 MIN_ESS_FRACTION = 0.05
+
+
 MAX_KHAT = 0.7
 """Importance sampling is trusted when ESS ≥ 5 % of the draws and k̂ ≤ 0.7 (PSIS's threshold)."""
+
+
 DRAWS = 4096
 """Importance draws per proposal (``draws`` of :func:`log_grounded_posterior` when not given)."""
+
+
 PARTICLES = 2048
 """SMC particles (``particles`` of :func:`log_grounded_posterior` when not given). The test tier
 lowers both for its in-process decodes (tests/conftest.py): it checks behaviour, not resolution."""
-PRIOR_SHARE = 0.3
-"""Share of the prior in the SMC's starting mixture (the rest: the decoded and Laplace proposals)."""
-NUIS_BOUNDS = (np.log(1e-6), np.log(5.0), np.log(1e-6), np.log(5.0), -3.0, 3.0)
-"""Uniform priors of the nuisances: log σ, log δ in [log 1e-6, log 5] (rad/s, m/s²), acc_z bias
-in [−3, 3] m/s² (times :data:`ACC_BIAS_SD`'s normal)."""
-ACC_BIAS_SD = 0.3
-"""m/s²: the accelerometer's z bias is N(0, 0.3²) a priori (a calibrated MEMS accelerometer's bias:
-0.05–0.3 m/s²). It trades against thrust-to-weight at hover (acc_z = g there whatever the thrust
-coefficient), so a flat prior would leave thrust-to-weight to the bias's range."""
-
-
-def full_precision(f):
-    """``f`` with every float32 matmul it traces at full precision, on every backend. A GPU's
-    default (TF32 on an H100) narrows and shifts the posterior's bands: on 25 logs at × 1 noise
-    the roll authority's coverage is 1.00 on a CPU and 0.84 on an H100 at the default precision
-    (docs/identify.md). CPUs
-    compute full float32 anyway. The public entry points of this module carry it."""
-    @functools.wraps(f)
-    def run(*args, **kwargs):
-        with jax.default_matmul_precision("highest"):
-            return f(*args, **kwargs)
-    return run
-
-
-N_Y = L.N_Y
-"""The sampled coordinates: v (12), log σ (4), acc_z bias."""
-
-
-def _nuis_lo_hi():
-    a, b, c, d, e, f = NUIS_BOUNDS
-    n = L.N_CHANNELS
-    return (L.pack(L.NUISANCE_FIELDS, log_noise=np.full(n, a), log_discrepancy=np.full(n, c), acc_z_bias=e),
-            L.pack(L.NUISANCE_FIELDS, log_noise=np.full(n, b), log_discrepancy=np.full(n, d), acc_z_bias=f))
-
-
-def _y_lo_hi(prior):
-    lo, hi = prior.v_bounds()
-    nlo, nhi = _nuis_lo_hi()
-    return np.concatenate([lo, nlo[L.NUIS_IN_Y]]), np.concatenate([hi, nhi[L.NUIS_IN_Y]])
-
-
-def full_x(y, log_delta):
-    """y (..., 17) and log δ (4,) -> x (..., 21) = [v, log σ, log δ, bias]."""
-    return L.x_from_y(y, log_delta)
-
-
-
-def log_prior(x, prior: PhysicalPrior = PHYSICAL_PRIOR):
-    """log p(x) up to a constant, x (21,) = [v, log σ, log δ, bias]: the physical prior, uniform
-    nuisances, the bias N(0, :data:`ACC_BIAS_SD`²)."""
-    lo, hi = _nuis_lo_hi()
-    n = x[L.X_NUIS]
-    ok = jnp.all((n >= lo) & (n <= hi))
-    return prior.log_prob_v(x[L.X_V]) + jnp.where(ok, 0.0, -jnp.inf) - 0.5 * (x[L.X_BIAS] / ACC_BIAS_SD) ** 2
-
-
-def _log_target_y(y, data, log_delta, weights, prior):
-    x = full_x(y, log_delta)
-    lp = log_prior(x, prior)
-    ll = log_likelihood(x, data, weights)
-    return jnp.where(jnp.isfinite(lp) & jnp.isfinite(ll), lp + ll, -jnp.inf)
-
-
-@functools.partial(jax.jit, static_argnames=("prior",))
-def _batch_log_target(y, data, log_delta, weights, prior):
-    return jax.vmap(lambda z: _log_target_y(z, data, log_delta, weights, prior))(y)
-
-
-TARGET_CHUNK = 4096
-"""Candidates per call of the jitted target: a batch is padded to a multiple of it, so one program
-serves the mode's few fits, the importance draws and any batch a caller passes."""
-
-
-@full_precision
-def log_target(y, data: LogData, log_delta=None, weights=None, prior: PhysicalPrior = PHYSICAL_PRIOR):
-    """log prior + log likelihood of a batch y (N, 17) -> (N,), in jitted chunks of
-    :data:`TARGET_CHUNK` (log δ (4,) default 1e-4; weights (4,) default 1)."""
-    ld = np.full(L.N_CHANNELS, np.log(1e-4), np.float32) if log_delta is None else jnp.asarray(log_delta, jnp.float32)
-    w = np.ones(L.N_CHANNELS, np.float32) if weights is None else jnp.asarray(weights, jnp.float32)
-    y = np.asarray(y, np.float32)
-    n = len(y)
-    pad = -n % TARGET_CHUNK
-    yp = np.concatenate([y, np.broadcast_to(y[:1], (pad, y.shape[1]))]) if pad else y  # rows, not coordinates
-    out = [np.asarray(_batch_log_target(jnp.asarray(yp[i:i + TARGET_CHUNK]), data, ld, w, prior))
-           for i in range(0, len(yp), TARGET_CHUNK)]
-    return np.concatenate(out)[:n]
-
-
-def _project(x, prior):
-    """Optima (K, 21) into the prior's support: the box, and J's triangle inequality
-    (A_z no smaller than 1 / (1/A_x + 1/A_y))."""
-    lo, hi = prior.v_bounds()
-    nlo, nhi = _nuis_lo_hi()
-    lo, hi = np.concatenate([lo, nlo]), np.concatenate([hi, nhi])
-    eps = 1e-4 * (hi - lo)
-    x = np.clip(np.asarray(x, np.float64), lo + eps, hi - eps)
-    x[:, L.LOG_AUTH_Z] = np.maximum(x[:, L.LOG_AUTH_Z],
-                                    -np.log(np.exp(-x[:, L.LOG_AUTH_X]) + np.exp(-x[:, L.LOG_AUTH_Y])) + 1e-4)
-    r4 = 4.0 - x[:, L.RHO].sum(1)
-    bad = (r4 < prior.rel_eff[0]) | (r4 > prior.rel_eff[1])
-    x[bad, L.RHO] = 1.0
-    return x.astype(np.float32)
-
-
-def _ls_residuals(z, args):
-    """Standardised residuals for the least-squares stage: z (13,) = [v, bias], σ fixed in ``args``."""
-    data, ld, ls = args
-    x = L.x_from_y(L.y_from_z(z, ls), ld)
-    rg, sg, ra, sa = residuals(x, data)
-    u = data.use
-    return jnp.concatenate([(rg * (u[L.GYRO] / sg)).ravel(), ra * (u[L.ACC_Z] / sa), z[L.Z_BIAS, None] / ACC_BIAS_SD])
-
-
-@functools.partial(jax.jit, static_argnames=("max_steps", "normal"))
-def _fit_ls(z0, data, ld, ls, max_steps=200, normal=False):
-    """Levenberg–Marquardt (optimistix) on the standardised residuals from one start (13,).
-    ``normal``: each step's damped least squares by its normal equations (lineax's Cholesky of a
-    13 × 13 matrix) instead of a QR of the residuals' Jacobian: the same fits (on a 4 s log, the
-    same residual sums to 1e-6), and under a vmap over many logs on a GPU, where batched QR runs
-    one matrix after the other, about 50× faster."""
-    import optimistix as optx
-    if normal:
-        import lineax as lx
-        solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8, linear_solver=lx.Normal(lx.Cholesky()))
-    else:
-        solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)
-    return optx.least_squares(_ls_residuals, solver, z0, args=(data, ld, ls), max_steps=max_steps, throw=False).value
-
-
-@functools.partial(jax.jit, static_argnames=("max_steps",))
-def _fit_ls_batched(z0, data, ld, ls, max_steps=200):
-    """:func:`_fit_ls` from every start (K, 13) at once (vmapped)."""
-    return jax.vmap(lambda z: _fit_ls(z, data, ld, ls, max_steps=max_steps))(z0)
-
-
-def _fit_ls_many(z0, data, ld, ls, max_steps=200):
-    """:func:`_fit_ls` from each start (K, 13): on a CPU one after the other — the batched solver's
-    trace compiles in twice the time (about 4 s against 2 s on a core, a first decode's largest
-    program) and runs until its slowest start has converged; on an accelerator batched, where one
-    start at a time is bound by kernel launches (a calibration of 96 logs on an H100: 561 s one at
-    a time against 388 s batched)."""
-    if jax.default_backend() != "cpu":
-        return _fit_ls_batched(jnp.asarray(z0), data, ld, ls, max_steps=max_steps)
-    return jnp.stack([_fit_ls(z, data, ld, ls, max_steps=max_steps) for z in np.asarray(z0, np.float32)])
-
-
-@jax.jit
-def _ls_jacobian(z, args, w):
-    """Jacobian of the standardised residuals, each channel's × √w (the tempering), at z (13,)."""
-    data = args[0]
-    nw = rate_rows(data)
-    sw = jnp.concatenate([jnp.repeat(jnp.sqrt(w[None, L.GYRO]), nw, 0).ravel(),
-                          jnp.full(data.acc.shape[0], jnp.sqrt(w[L.ACC_Z])),
-                          jnp.ones(1)])
-    return jax.jacfwd(lambda q: _ls_residuals(q, args) * sw)(z)
-
-
-@functools.partial(jax.jit, static_argnames=("max_steps",))
-def _fit_ls_logs(z0, data, ld, ls, max_steps=200):
-    """:func:`_fit_ls` (by the normal equations) from every start of every log at once: z0 (L, K,
-    13), data / ld / ls with a leading log axis -> (L, K, 13)."""
-    def one(z, d, a, b):
-        return jax.vmap(lambda q: _fit_ls(q, d, a, b, max_steps=max_steps, normal=True))(z)
-    return jax.vmap(one)(z0, data, ld, ls)
-
-
-@jax.jit
-def _ls_jacobian_logs(z, data, ld, ls, w):
-    """:func:`_ls_jacobian` of every log at z (L, 13) -> (L, R, 13)."""
-    return jax.vmap(lambda q, d, a, b, c: _ls_jacobian(q, (d, a, b), c))(z, data, ld, ls, w)
-
-
-def _discrepancy(y, data):
-    """δ per channel (4,) at y (17,): what the residuals' mean square leaves beyond the scale they
-    have without a discrepancy (noise, resolution, the windows' floor; at least 1e-6)."""
-    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in residuals_jit(full_x(y, np.full(L.N_CHANNELS, -30.0)), data))
-    bv = np.asarray(data.bmask) > 0
-    ms_acc = np.mean(ra[bv] ** 2) - sa ** 2
-    if data.rates == "innovations":     # the process noise that makes the innovations most likely
-        out = np.log(np.sqrt(np.maximum(np.array([1e-12] * 3 + [ms_acc]), 1e-12)))
-        out[L.GYRO] = best_log_delta(full_x(y, out), data, _DELTA_GRID)
-        return out.astype(np.float32)
-    wv = np.asarray(data.wmask) > 0
-    ms = np.array([np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)] + [ms_acc])
-    return np.log(np.sqrt(np.maximum(ms, 1e-12))).astype(np.float32)
-
-
-_DELTA_GRID = np.linspace(NUIS_BOUNDS[2], NUIS_BOUNDS[3], 64)
-"""log δ the innovations' process noise is chosen from at the mode (:func:`_discrepancy`)."""
 
 
 def _take(tree, idx):
@@ -354,17 +167,6 @@ class _Logs:
         return [np.asarray(o)[:len(idx)] for o in out]
 
 
-TARGET_EVALS = 4096
-"""Evaluations of the target per call when several logs are evaluated together (a batch's draws are
-cut into chunks of TARGET_EVALS / logs each)."""
-
-
-@functools.partial(jax.jit, static_argnames=("prior",))
-def _batch_log_target_logs(y, data, log_delta, weights, prior):
-    """:func:`_batch_log_target` vmapped over logs: y (L, N, 17) -> (L, N)."""
-    return jax.vmap(lambda z, d, a, b: jax.vmap(lambda q: _log_target_y(q, d, a, b, prior))(z))(y, data, log_delta, weights)
-
-
 @full_precision
 def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3):
     """The mode from ``starts`` (K, 21) -> (x* (21,), log δ* (4,), weights (4,), y* (17,), the
@@ -374,152 +176,6 @@ def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, roun
     same fit lets a poor start explain the rates as discrepancy and stay there; a Student-t BFGS
     from a good start wandered off in float32); then the correlation discounts w are set."""
     return find_modes(_Logs([data]), np.asarray(starts, np.float32)[None], prior, rounds)[0]
-
-
-def find_modes(logs: "_Logs", starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3) -> list:
-    """:func:`find_mode` of every log of ``logs`` at once from its starts (L, K, 21) -> L tuples."""
-    starts = np.asarray(starts, np.float32)
-    nl, K = starts.shape[:2]
-    rows = np.arange(nl)
-    ys = L.y_from_x(starts)                                                  # (L, K, 17)
-    ld = starts[:, 0, L.X_LOG_DISCREPANCY].astype(np.float32)                # (L, 4)
-    ls = ys[:, 0, L.Y_LOG_NOISE]                                             # (L, 4)
-    for _ in range(rounds):
-        z = logs.fit(L.z_from_y(ys), ld, ls)
-        fits = L.y_from_z(z, ls[:, None])
-        fits = _project(np.asarray(full_x(fits, ld[:, None])).reshape(nl * K, -1), prior).reshape(nl, K, -1)
-        fits = L.y_from_x(fits)
-        lt = logs.targets(fits, ld, None, prior)
-        best = fits[rows, np.argmax(np.where(np.isfinite(lt), lt, -np.inf), 1)]
-        ld = np.stack([np.clip(_discrepancy(best[i], d), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
-                       for i, d in enumerate(logs.datas)]).astype(np.float32)
-        ys = fits       # every start refitted under the new δ: the same rows each round, one compiled fit
-    w = np.stack([residual_weights(full_x(best[i], ld[i]), d) for i, d in enumerate(logs.datas)])
-    jac = logs.jacobians(L.z_from_y(best), ld, best[:, L.Y_LOG_NOISE], w)
-    out = []
-    for i, d in enumerate(logs.datas):
-        x, ldi, yi, lap = _laplace(best[i], ld[i], jac[i], d, prior)
-        out.append((x, ldi, w[i], yi, lap))
-    return out
-
-
-def _laplace(y, ld, jac, data: LogData, prior: PhysicalPrior):
-    """The mode y (17,) with its log δ (4,) and the tempered residuals' Jacobian there (R, 13) -> (x*
-    (21,), log δ, y, the Laplace Student-t): the Gauss–Newton precision of the tempered Student-t
-    residuals (Fisher information (ν+1)/(ν+3) per standardised residual); σ's from its second
-    differences (2 n per log σ)."""
-    jac = np.asarray(jac, np.float64)
-    pz = (NU + 1) / (NU + 3) * jac.T @ jac
-    h = np.zeros((N_Y, N_Y))
-    iz = L.Z_IN_Y
-    h[np.ix_(iz, iz)] = pz
-    h[L.Y_LOG_NOISE, L.Y_LOG_NOISE] = np.diag(2.0 * np.asarray(data.n2, np.float64))
-    h = np.nan_to_num(0.5 * (h + h.T), nan=0.0, posinf=1e12, neginf=-1e12)
-    ev, u = np.linalg.eigh(h)
-    ev = np.clip(ev, 1e-9 + 1e-9 * max(ev.max(), 1e-12), None)      # flat directions: broad, not infinite
-    lo, hi = _y_lo_hi(prior)
-    prec = (u * ev) @ u.T + np.diag(1.0 / ((hi - lo) / 2) ** 2)        # no wider than the prior's box
-    cov = np.linalg.inv(prec)
-    lap = StudentT(y.astype(np.float32), (np.linalg.cholesky(0.5 * (cov + cov.T)) * LAPLACE_WIDEN).astype(np.float32))
-    return np.asarray(full_x(jnp.asarray(y)[None], ld))[0], ld, y, lap
-
-
-LAPLACE_WIDEN = 2.0
-"""The Laplace Student-t's scale is the inverse Hessian's × this (a defensive proposal; with 1.2
-and 8 moves per stage the SMC ended under-dispersed on clean logs: 8 MJX flights' 90 % coverage
-0.38–0.62, against 0.38–0.88 with 2.0 and 24 moves)."""
-
-
-def _mixture_log_prob(y, qv, qn, lap, prior: PhysicalPrior, share: float):
-    """log density of the SMC's starting mixture over y (17,): ``share`` prior (v; the nuisances from
-    ``qn``), the rest split between the decoded proposal ``qv`` (with ``qn``) and ``lap``."""
-    lo, hi = prior.v_bounds()
-    vol = float(np.sum(np.log(hi - lo)))   # the box's volume (the truncation only adds a constant)
-    comps = [jnp.log(share) + jnp.where(prior.v_valid(y[..., L.Y_V]), -vol, -jnp.inf) + qn.log_prob(y[..., L.Y_NUIS])]
-    k = (qv is not None) + (lap is not None)
-    if qv is not None:
-        comps.append(jnp.log((1 - share) / k) + qv.log_prob(y[..., L.Y_V]) + qn.log_prob(y[..., L.Y_NUIS]))
-    if lap is not None:
-        comps.append(jnp.log((1 - share) / k) + lap.log_prob(y))
-    out = comps[0]
-    for c in comps[1:]:
-        out = jnp.logaddexp(out, c)
-    return out
-
-
-def _smc_impl(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, share, target_ess):
-    """The tempered SMC of one log from its particles y0 (P, 17) -> (particles, weights, λ, stages,
-    mean acceptance, lowest stage's acceptance)."""
-    import blackjax
-    from blackjax.mcmc.random_walk import build_additive_step, normal
-    from blackjax.smc.base import extend_params
-
-    def logq(y):
-        return _mixture_log_prob(y, qv, qn, lap, prior, share)
-
-    def logrest(y):   # target / q: what the tempering brings in
-        lt = _log_target_y(y, data, ld, w, prior)
-        return jnp.where(jnp.isfinite(lt), lt - logq(y), -1e30)
-
-    rw = build_additive_step()
-
-    def step(rng, state, logdensity_fn, chol):
-        return rw(rng, state, logdensity_fn, normal(chol))
-
-    dim = y0.shape[1]
-
-    def chol_of(p):
-        return 2.38 / jnp.sqrt(dim) * jnp.linalg.cholesky(jnp.cov(p.T) + 1e-8 * jnp.eye(dim))
-
-    smc = blackjax.inner_kernel_tuning(
-        smc_algorithm=blackjax.adaptive_tempered_smc, logprior_fn=logq, loglikelihood_fn=logrest,
-        mcmc_step_fn=step, mcmc_init_fn=blackjax.rmh.init, resampling_fn=blackjax.smc.resampling.systematic,
-        mcmc_parameter_update_fn=lambda _k, state, _i: extend_params({"chol": chol_of(state.particles)}),
-        initial_parameter_value=extend_params({"chol": chol_of(y0)}), num_mcmc_steps=n_mcmc, target_ess=target_ess)
-
-    def cond(c):
-        return (c[0].sampler_state.tempering_param < 1.0) & (c[1] < max_stages)
-
-    def body(c):
-        s, i, k, acc, log_scale, acc_min = c
-        k, sub = jax.random.split(k)
-        s = s._replace(parameter_override={"chol": s.parameter_override["chol"] * jnp.exp(log_scale)})
-        s, info = smc.step(sub, s)
-        a = jnp.mean(info.update_info.is_accepted)
-        return s, i + 1, k, acc + a, log_scale + rw_scale_update(a), jnp.minimum(acc_min, a)
-
-    state, n, _, acc, _, acc_min = jax.lax.while_loop(
-        cond, body, (smc.init(y0), 0, key, 0.0, jnp.float32(0.0), jnp.float32(1.0)))
-    st = state.sampler_state
-    return st.particles, st.weights, st.tempering_param, n, acc / jnp.maximum(n, 1), acc_min
-
-
-_SMC_STATIC = ("prior", "n_mcmc", "max_stages", "share", "target_ess")
-_smc = jax.jit(_smc_impl, static_argnames=_SMC_STATIC)
-
-
-@functools.partial(jax.jit, static_argnames=_SMC_STATIC)
-def _smc_logs(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, share, target_ess):
-    """:func:`_smc` vmapped over logs (every argument but the static ones with a leading log axis)."""
-    def one(k, y, d, a, b, q1, q2, q3):
-        return _smc_impl(k, y, d, a, b, q1, q2, q3, prior, n_mcmc, max_stages, share, target_ess)
-    return jax.vmap(one)(key, y0, data, ld, w, qv, qn, lap)
-
-
-RW_TARGET_ACCEPTANCE = 0.25
-"""The SMC's random-walk moves aim at this acceptance rate (about the optimum for a Gaussian
-target, 0.234). Scaled by the particles' covariance alone (2.38/√d · chol Σ), they are accepted
-0–0.6 % of the time once the likelihood enters (a 10 s log: 15 stages, from the sixth on): 24
-moves then leave most particles where resampling copied them, and the posterior is the
-spread of a few ancestors — the bands too narrow."""
-
-
-def rw_scale_update(acceptance):
-    """The change of the random walk's log scale after a stage with this acceptance rate:
-    ½ log((a + 0.005) / target), within log 0.2 … log 2 (a stage at 0.5 % shrinks the steps
-    five-fold; one at 90 % doubles them)."""
-    r = 0.5 * jnp.log((acceptance + 0.005) / RW_TARGET_ACCEPTANCE)
-    return jnp.clip(r, jnp.log(0.2), jnp.log(2.0))
 
 
 def _ess_diag(lw) -> dict:
@@ -716,19 +372,6 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
                            smc_acceptance_min=float(acc_min[j]), smc_tempering=float(lam[j]))
     return [_finish(outs[i], draws_y[i], datas[i], ld[i], prior, calibration, seeds[i], r_h[i], samples)
             for i in range(nl)]
-
-
-def _smc_start(prior, qv, qn, lap, particles, r_mix, r_n, r_lp, r_is) -> np.ndarray:
-    """The SMC's starting particles (particles, 17): :data:`PRIOR_SHARE` from the prior, the rest
-    split between the Laplace and the decoded proposals."""
-    n_prior = int(round(PRIOR_SHARE * particles))
-    parts = [np.concatenate([prior.sample_v(r_mix, n_prior), qn.sample(r_n, n_prior)], 1)]
-    rest = particles - n_prior
-    n_lap = rest if qv is None else rest // 2
-    parts.append(lap.sample(r_lp, n_lap))
-    if rest - n_lap:
-        parts.append(np.concatenate([qv.sample(r_is, rest - n_lap), qn.sample(r_n, rest - n_lap)], 1))
-    return np.concatenate(parts).astype(np.float32)
 
 
 def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> dict:

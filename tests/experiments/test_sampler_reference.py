@@ -7,7 +7,8 @@ import pytest
 from mjxsysid import theta as P
 from mjxsysid.experiments import sampler_reference as S
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, visible_from_theta
-from mjxsysid.identify.inference import N_Y, _y_lo_hi, log_grounded_posterior
+from mjxsysid.identify.inference import log_grounded_posterior
+from mjxsysid.identify.target import N_Y, _y_lo_hi
 from mjxsysid.identify.logdata import prepare
 from support.exact_model_log import exact_model_log
 
