@@ -13,6 +13,7 @@ pytest.importorskip("orangebox")
 from mjxsysid.logs import blackbox as B
 from mjxsysid.logs.csvlog import read_any_log
 from mjxsysid.logs.formats import detect
+from mjxsysid.logs.formats_write import blackbox_log
 from support.paths import ROOT
 
 SAMPLES = ROOT.parent / "shared" / "data" / "logs" / "formats" / "blackbox"
@@ -22,44 +23,6 @@ BETAFLIGHT = SAMPLES / "betaflight315_cs110_example_smooth_tune.BBL"
 RATE = 1000                                   # Hz of the written log
 MOTOR_FLIGHT = (1000, 700, 800, 900)          # M1 rear-right, M2 front-right, M3 rear-left, M4 front-left
 IDLE = 158
-
-
-def _uvb(v: int) -> bytes:
-    out = bytearray()
-    while True:
-        b = v & 0x7F
-        v >>= 7
-        if v:
-            out.append(b | 0x80)
-        else:
-            out.append(b)
-            return bytes(out)
-
-
-def _svb(v: int) -> bytes:
-    return _uvb(-2 * v - 1 if v < 0 else 2 * v)
-
-
-def write_blackbox(fields: dict, headers: dict) -> bytes:
-    """One blackbox log: ``fields`` {name: (N,) ints} as I frames only (predictor none, signed VB
-    except loopIteration and time), ``headers`` {name: text}, the end-of-log event."""
-    names = ["loopIteration", "time"] + [k for k in fields if k not in ("loopIteration", "time")]
-    n = len(fields["time"])
-    fields = {"loopIteration": np.arange(n), **fields}
-    unsigned = ("loopIteration", "time")
-    head = [f"H Product:{B.MAGIC[10:].decode()}", "H Data version:2", "H I interval:1", "H P interval:1/1",
-            "H Firmware type:Cleanflight", f"H Field I name:{','.join(names)}",
-            f"H Field I signed:{','.join('0' if k in unsigned else '1' for k in names)}",
-            f"H Field I predictor:{','.join('0' for _ in names)}",
-            f"H Field I encoding:{','.join('1' if k in unsigned else '0' for k in names)}",
-            f"H Field P predictor:{','.join('0' for _ in names)}",
-            f"H Field P encoding:{','.join('1' if k in unsigned else '0' for k in names)}"]
-    head += [f"H {k}:{v}" for k, v in headers.items()]
-    body = bytearray("\n".join(head).encode() + b"\n")
-    for i in range(n):
-        body += b"I" + b"".join(_uvb(int(fields[k][i])) if k in unsigned else _svb(int(fields[k][i])) for k in names)
-    body += b"E\xffEnd of log\x00"
-    return bytes(body)
 
 
 def flight_fields(indiflight: bool = True, seconds=(1.0, 3.0, 1.0)) -> dict:
@@ -93,7 +56,7 @@ HEADERS = {"Firmware revision": "Indiflight 5.0.0 (test)", "gyro_scale": "0x3f80
 @pytest.fixture(scope="module")
 def written(tmp_path_factory):
     path = tmp_path_factory.mktemp("bb") / "LOG00001.BFL"
-    path.write_bytes(write_blackbox(flight_fields(), HEADERS))
+    path.write_bytes(blackbox_log(flight_fields(), HEADERS))
     return path, B.read(path)
 
 
@@ -143,7 +106,7 @@ def test_segment_argument_and_read_any_log_by_content(written, tmp_path):
 
 def test_log_without_setpoints_fills_them_and_says_so(tmp_path):
     path = tmp_path / "bf.bbl"
-    path.write_bytes(write_blackbox(flight_fields(indiflight=False),
+    path.write_bytes(blackbox_log(flight_fields(indiflight=False),
                                     {**HEADERS, "blackbox_high_resolution": "0", "Firmware revision": "Betaflight"}))
     r = B.read(path)
     assert r["source"]["missing"] == ["omega_cmd", "a_cmd"] and "rotor_speed" not in r
@@ -155,8 +118,8 @@ def test_log_without_setpoints_fills_them_and_says_so(tmp_path):
 
 
 def test_several_logs_largest_by_default_or_log_index(tmp_path):
-    short = write_blackbox(flight_fields(seconds=(0.5, 2.5, 0.5)), HEADERS)
-    long = write_blackbox(flight_fields(seconds=(0.5, 3.5, 0.5)), HEADERS)
+    short = blackbox_log(flight_fields(seconds=(0.5, 2.5, 0.5)), HEADERS)
+    long = blackbox_log(flight_fields(seconds=(0.5, 3.5, 0.5)), HEADERS)
     path = tmp_path / "two.bbl"
     path.write_bytes(short + long)
     r = B.read(path)
@@ -176,16 +139,16 @@ def test_bad_input_and_missing_dependency(tmp_path, monkeypatch, written):
     hexa = tmp_path / "hexa.bbl"
     f = flight_fields(indiflight=False)
     f["motor[4]"] = f["motor[0]"]
-    hexa.write_bytes(write_blackbox(f, HEADERS))
+    hexa.write_bytes(blackbox_log(f, HEADERS))
     with pytest.raises(ValueError, match="more than four motors"):
         B.read(hexa)
     noacc = tmp_path / "noacc.bbl"
     f = {k: v for k, v in flight_fields(indiflight=False).items() if not k.startswith("accSmooth")}
-    noacc.write_bytes(write_blackbox(f, HEADERS))
+    noacc.write_bytes(blackbox_log(f, HEADERS))
     with pytest.raises(ValueError, match=r"no accSmooth\[0\]"):
         B.read(noacc)
     props_out = tmp_path / "props_out.bbl"
-    props_out.write_bytes(write_blackbox(flight_fields(indiflight=False), {**HEADERS, "yaw_motors_reversed": "1"}))
+    props_out.write_bytes(blackbox_log(flight_fields(indiflight=False), {**HEADERS, "yaw_motors_reversed": "1"}))
     with pytest.raises(ValueError, match="props out"):
         B.read(props_out)
     monkeypatch.setitem(sys.modules, "orangebox", None)
