@@ -12,8 +12,8 @@ turn, so the ratios to the CSV are taken within one pass of a noisy machine:
 
 - ``read``: ``read_any_log`` in a fresh process, the reader alone (timed inside the process);
 - ``check-log``: `mjxsysid check-log FILE` as a user runs it, a fresh process (start-up included);
-- ``decode``: `mjxsysid decode --log FILE --out DIR -q`, a fresh process on the user's warm JAX
-  compilation cache (the first repeat of the first format fills it when cold).
+- ``decode``: `mjxsysid decode --log FILE --out DIR -q`, a fresh process on the user's JAX
+  compilation cache, warmed by one untimed decode first.
 
 ``--code DIR`` times another checkout's readers and CLI (the logs are written by this one): before
 and after a change, in one command each.
@@ -85,6 +85,11 @@ def measure(paths: dict, repeats: int, decode_repeats: int, env: dict, scratch: 
     """{format: {read: [s], check: [s], decode: [s], check_exit: code}}: every format in turn, ``repeats`` times."""
     py = sys.executable
     res = {k: {"read": [], "check": [], "decode": []} for k in paths}
+    if decode_repeats:                                   # fills the compilation cache: every timed decode is warm
+        first = next(iter(paths.values()))
+        wall, _ = _run([py, "-m", "mjxsysid.cli", "decode", "--log", str(first), "--out", str(scratch / "warm"), "-q"],
+                       env)
+        print(f"warm-up decode {wall:.1f} s", flush=True)
     for r in range(repeats):
         for k, path in paths.items():
             _, p = _run([py, "-c", READ, str(path)], env)

@@ -185,15 +185,26 @@ DF_TYPES = {"Q": "<u8", "q": "<i8", "I": "<u4", "i": "<i4", "f": "<f4", "d": "<f
 """DataFlash format characters (those written here) -> numpy dtypes."""
 
 
-class DataFlashLog:
-    """A DataFlash log being written: :meth:`define` a message type (its FMT record), :meth:`add`
-    records of it (columns of arrays, TimeUS first), then :meth:`bytes`: the FMT records, then every
-    record merged in TimeUS order (equal times in the order added)."""
+ARDUCOPTER_MESSAGES = (("PARM", "QNf", "TimeUS,Name,Value"), ("MSG", "QZ", "TimeUS,Message"), ("EV", "QB", "TimeUS,Id"),
+                       ("IMU", "QffffffB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,I"),
+                       ("RCOU", "QHHHHHH", "TimeUS,C1,C2,C3,C4,C5,C6"), ("RATE", "Qfff", "TimeUS,RDes,PDes,YDes"),
+                       ("CTUN", "Qff", "TimeUS,ThO,ThH"), ("XKF1", "QBfff", "TimeUS,C,VN,VE,VD"),
+                       ("ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw"))
+"""(name, format, columns) of the ArduCopter messages the DataFlash reader uses, as written here."""
 
-    def __init__(self):
+
+class DataFlashLog:
+    """A DataFlash log being written: :meth:`define` a message type (its FMT record; ``messages``
+    [(name, format, columns)] at once), :meth:`add` records of it (columns of arrays, TimeUS first),
+    then :meth:`bytes`: the FMT records, then every record merged in TimeUS order (equal times in the
+    order added)."""
+
+    def __init__(self, messages=()):
         self.types: dict = {}
         self.blocks: list = []
         self.define("FMT", "BBnNZ", "Type,Length,Name,Format,Columns")
+        for name, fmt, columns in messages:
+            self.define(name, fmt, columns)
 
     def define(self, name: str, fmt: str, columns: str) -> None:
         cols = columns.split(",")
@@ -242,13 +253,7 @@ def write_dataflash(path, t, imu, a_cmd, omega_cmd, motor, *, quat=None, vel=Non
     t, imu, a_cmd, omega_cmd, motor, *est = _flight(t, imu, a_cmd, omega_cmd, motor, quat, vel)
     us = np.round(t * 1e6).astype(np.uint64)
     hover = float(np.median((motor ** 2).mean(1))) if hover is None else hover
-    w = DataFlashLog()
-    for name, fmt, cols in (("PARM", "QNf", "TimeUS,Name,Value"), ("MSG", "QZ", "TimeUS,Message"),
-                            ("EV", "QB", "TimeUS,Id"), ("IMU", "QffffffB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,I"),
-                            ("RCOU", "QHHHH", "TimeUS,C1,C2,C3,C4"), ("RATE", "Qfff", "TimeUS,RDes,PDes,YDes"),
-                            ("CTUN", "Qff", "TimeUS,ThO,ThH"), ("XKF1", "QBfff", "TimeUS,C,VN,VE,VD"),
-                            ("ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw")):
-        w.define(name, fmt, cols)
+    w = DataFlashLog(ARDUCOPTER_MESSAGES)
     params = {"FRAME_CLASS": 1, "FRAME_TYPE": 1, "MOT_PWM_MIN": 1000, "MOT_PWM_MAX": 2000, "MOT_THST_EXPO": expo,
               "MOT_THST_HOVER": hover, "AHRS_EKF_TYPE": 3, **{f"SERVO{n}_FUNCTION": 32 + n for n in range(1, 5)}}
     w.add("PARM", TimeUS=np.zeros(len(params), np.uint64), Name=[k.encode() for k in params],
@@ -258,7 +263,7 @@ def write_dataflash(path, t, imu, a_cmd, omega_cmd, motor, *, quat=None, vel=Non
     g = imu * np.tile(FRD, 2)
     w.add("IMU", TimeUS=us, **{c: g[:, i] for i, c in enumerate(("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"))}, I=0)
     pwm = np.round(1000 + 1000 * throttle_for_rotor_speed(motor, expo))[:, list(AP_QUADX_ORDER)]
-    w.add("RCOU", TimeUS=us, **{f"C{k + 1}": pwm[:, k] for k in range(4)})
+    w.add("RCOU", TimeUS=us, **{f"C{k + 1}": pwm[:, k] for k in range(4)}, C5=0, C6=0)
     rate = np.rad2deg(omega_cmd * FRD)
     w.add("RATE", TimeUS=us, RDes=rate[:, 0], PDes=rate[:, 1], YDes=rate[:, 2])
     w.add("CTUN", TimeUS=us, ThO=a_cmd * hover / P.GRAVITY, ThH=hover)

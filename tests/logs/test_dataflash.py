@@ -14,7 +14,7 @@ from mjxsysid import theta as P
 from mjxsysid.logs import dataflash as D
 from mjxsysid.logs.csvlog import read_any_log
 from mjxsysid.logs.formats import detect
-from mjxsysid.logs.formats_write import DataFlashLog
+from mjxsysid.logs.formats_write import ARDUCOPTER_MESSAGES, DataFlashLog
 
 SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "logs" / "formats"
 SAMPLE = SHARED / "ardupilot_dataflash" / "erle_Erle-Brain3.BIN"
@@ -29,13 +29,7 @@ PARAMS = {"FRAME_CLASS": 1, "FRAME_TYPE": 1, "MOT_PWM_MIN": 1000, "MOT_PWM_MAX":
 def write_synthetic(path):
     """10 s at 100 Hz (IMU, RATE, XKF1, ATT) and 50 Hz (RCOU, CTUN); armed 1–9 s, motors up 3–7 s;
     a second IMU instance and a second EKF core with other values (not to be read)."""
-    w = DataFlashLog()
-    for name, fmt, cols in (("PARM", "QNf", "TimeUS,Name,Value"), ("MSG", "QZ", "TimeUS,Message"),
-                            ("EV", "QB", "TimeUS,Id"), ("IMU", "QffffffB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,I"),
-                            ("RCOU", "QHHHHHH", "TimeUS,C1,C2,C3,C4,C5,C6"), ("RATE", "Qfff", "TimeUS,RDes,PDes,YDes"),
-                            ("CTUN", "Qff", "TimeUS,ThO,ThH"), ("XKF1", "QBfff", "TimeUS,C,VN,VE,VD"),
-                            ("ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw")):
-        w.define(name, fmt, cols)
+    w = DataFlashLog(ARDUCOPTER_MESSAGES)
     w.add("PARM", TimeUS=np.zeros(len(PARAMS), np.uint64), Name=[k.encode() for k in PARAMS],
           Value=[float(v) for v in PARAMS.values()])
     w.add("MSG", TimeUS=1000, Message=b"ArduCopter V4.0.3 (abcdef12)")
