@@ -29,7 +29,8 @@ import numpy as np
 
 def base_flight() -> dict:
     """The shipped policy's 10 s lemniscate on the paper vehicle (MJX) as a log's arrays: t (T,) s from 0,
-    imu (T, 6) the readings the policy acted on, a_cmd (T,), omega_cmd (T, 3), motor (T, 4), quat (T, 4) w x y z and vel (T, 3) m/s in the world (the state estimate a format may carry)."""
+    imu (T, 6) the readings the policy acted on, a_cmd (T,), omega_cmd (T, 3), motor (T, 4), quat (T, 4)
+    w x y z and vel (T, 3) m/s in the world (the state estimate a format may carry)."""
     from mjxsysid import theta as P
     from mjxsysid.policy.interface import resolve_policy
     from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu

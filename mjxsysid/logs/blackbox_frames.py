@@ -89,7 +89,8 @@ def _sx(v: int, bits: int) -> int:
 
 
 def _uvb_rest(data: bytes, i: int, b: int):
-    """An unsigned variable-byte value whose first byte ``b`` (≥ 128) was read, ``i`` after it -> (value, next byte)."""
+    """An unsigned variable-byte value whose first byte ``b`` (≥ 128) was read, ``i`` after it -> (value,
+    next byte)."""
     v, shift = b & 0x7F, 7
     for _ in range(4):
         b = data[i]
@@ -194,13 +195,15 @@ def compile_frame(plan, consts: dict):
         if enc in (0, 1, 3):
             src += _vb(f"r{idx[0]}", enc == 0, "    ")
             if enc == 3:
-                src.append(f"    r{idx[0]} = -(((r{idx[0]} | 0xFFFFC000) - (1 << 32)) if r{idx[0]} & 0x2000 else r{idx[0]})")
+                r = f"r{idx[0]}"
+                src.append(f"    {r} = -((({r} | 0xFFFFC000) - (1 << 32)) if {r} & 0x2000 else {r})")
         elif enc == 6:
             src += ["    h = data[i]", "    i += 1"]
             for bit, k in enumerate(idx):
                 src += [f"    if h & {1 << bit}:"] + _vb(f"r{k}", True, "        ") + ["    else:", f"        r{k} = 0"]
         elif enc in (7, 8):
-            src.append(f"    ({', '.join(f'r{k}' for k in idx)},), i = {'_tag2_3s32' if enc == 7 else '_tag8_4s16'}(data, i)")
+            group = "_tag2_3s32" if enc == 7 else "_tag8_4s16"
+            src.append(f"    ({', '.join(f'r{k}' for k in idx)},), i = {group}(data, i)")
         else:
             src.append(f"    r{idx[0]} = 0")
     for k, pr in enumerate(preds):

@@ -85,7 +85,8 @@ def usd_log(version: int, events, records) -> bytes:
         for var, code in variables:
             out += f"{var}({code})".encode() + b"\0"
         dtypes[eid] = np.dtype([("id", "<u2"), ("t", STAMP[version][0])] + [(v, TYPE_CODES[c]) for v, c in variables])
-    blocks = [(ticks, _packed(dtypes[eid], {"id": eid, "t": ticks, **cols}, len(ticks))) for eid, ticks, cols in records]
+    blocks = [(ticks, _packed(dtypes[eid], {"id": eid, "t": ticks, **cols}, len(ticks)))
+              for eid, ticks, cols in records]
     out += interleave(blocks)
     return bytes(out) + struct.pack("<I", zlib.crc32(bytes(out)))
 
@@ -223,7 +224,8 @@ class DataFlashLog:
         fmt = _packed(dt, {"head": b"\xa3\x95", "type": typ,
                            "Type": [v[0] for v in self.types.values()],
                            "Length": [v[3].itemsize for v in self.types.values()],
-                           "Name": [k.encode() for k in self.types], "Format": [v[1].encode() for v in self.types.values()],
+                           "Name": [k.encode() for k in self.types],
+                           "Format": [v[1].encode() for v in self.types.values()],
                            "Columns": [v[2].encode() for v in self.types.values()]}, len(self.types))
         return fmt.tobytes() + interleave(self.blocks)
 
@@ -326,7 +328,8 @@ def flight_messages(typestore, t, imu, omega_cmd, motor, quat=None, vel=None, st
         w = omega_cmd[i]
         out.append(("/mavros/setpoint_raw/target_attitude", "mavros_msgs/msg/AttitudeTarget", ns,
                     T["mavros_msgs/msg/AttitudeTarget"](header=head(""), type_mask=0, orientation=Quat(
-                        x=q[i, 1], y=q[i, 2], z=q[i, 3], w=q[i, 0]), body_rate=Vec(x=w[0], y=w[1], z=w[2]), thrust=0.5)))
+                        x=q[i, 1], y=q[i, 2], z=q[i, 3], w=q[i, 0]), body_rate=Vec(x=w[0], y=w[1], z=w[2]),
+                        thrust=0.5)))
         if vel is not None:
             v = vel[i]
             tw = T["geometry_msgs/msg/Twist"](linear=Vec(x=v[0], y=v[1], z=v[2]), angular=Vec(x=0.0, y=0.0, z=0.0))

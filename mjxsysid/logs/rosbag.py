@@ -18,8 +18,9 @@ messages is used (said in ``rec["source"]["topics"]``):
 Every time is the message's ``header.stamp`` (the sender's clock, not the bag's receive time), in
 seconds since the bag's start; ``segment`` 't0:t1' is read on that clock.
 
-A topic's messages of one length and layout are read at once with numpy, and a ROS 1 bag's chunks and
-index too (:mod:`mjxsysid.logs.rosbag_fast`); rosbags opens and deserialises the others.
+A ROS 1 bag's and an MCAP file's chunks and message indexes are read with numpy, and a topic's messages
+of one length and layout at once (:mod:`mjxsysid.logs.rosbag_fast`); rosbags opens the other bags (SQLite,
+unindexed) and deserialises the other messages.
 """
 from __future__ import annotations
 
@@ -158,22 +159,45 @@ def _with_stamps(tb, f):
     return f["header.stamp.sec"].astype(np.float64) + 1e-9 * f["header.stamp.nanosec"].astype(np.float64), tb, f
 
 
-def _ros1_topics(bag, typestore, cons) -> dict:
-    """:func:`_read_topics` of a ROS 1 bag read by :func:`~mjxsysid.logs.rosbag_fast.read_ros1`."""
+def _bag_topics(bag, typestore, cons, cdr: bool) -> dict:
+    """:func:`_read_topics` of a bag read by :mod:`~mjxsysid.logs.rosbag_fast` (ROS 1, or MCAP when ``cdr``)."""
     out = {}
     for topic in {c.topic for c in cons}:
         mine = [c for c in cons if c.topic == topic]
-        t = np.concatenate([bag.messages[c.id][0] for c in mine])
-        parts = [bag.messages[c.id][1] for c in mine]
-        order = np.argsort(t, kind="stable")
-        if all(isinstance(p, np.ndarray) for p in parts) and len({p.shape[1] for p in parts}) == 1:
-            raws = np.concatenate(parts)[order]
+        t, parts = [bag.messages[c.id][0] for c in mine], [bag.messages[c.id][1] for c in mine]
+        if len(mine) == 1:                                       # one connection: in time order already
+            t, raws = t[0], parts[0]
         else:
+            t, order = np.concatenate(t), np.argsort(np.concatenate(t), kind="stable")
             flat = [r.tobytes() if isinstance(p, np.ndarray) else r for p in parts for r in p]
-            raws = [flat[i] for i in order.tolist()]
-        ser = lambda r, typ: typestore.deserialize_ros1(r, typ)     # noqa: E731
-        out[topic] = _with_stamps(t[order] * 1e-9, _topic_fields(typestore, mine[0].msgtype, raws, False, ser))
+            t, raws = t[order], [flat[i] for i in order.tolist()]
+        ser = typestore.deserialize_cdr if cdr else typestore.deserialize_ros1
+        out[topic] = _with_stamps(t * 1e-9, _topic_fields(typestore, mine[0].msgtype, raws, cdr, ser))
     return out
+
+
+def _fast_bag(path: Path):
+    """(bag, typestore, CDR or not) of a ROS 1 bag or an MCAP file (or a ROS 2 bag folder of one) read by
+    :mod:`~mjxsysid.logs.rosbag_fast`, or None (rosbags reads it)."""
+    if path.is_dir():
+        files = sorted(path.glob("*.mcap"))
+        if len(files) != 1 or any(path.glob("*.db3")):
+            return None
+        path = files[0]
+    if not path.is_file():
+        return None
+    with open(path, "rb") as f:
+        head = f.read(16)
+    if head.startswith(ROS1_MAGIC):
+        store = typestore_with_mavros(True)
+        bag = rosbag_fast.read_ros1(path.read_bytes(), store)
+        if bag is None or not all(rosbag_fast.md5_matches(store, c) for c in bag.connections if c.msgtype in FIELDS):
+            return None
+        return bag, store, False
+    if head.startswith(MCAP_MAGIC):
+        got = rosbag_fast.read_mcap(path.read_bytes(), typestore_with_mavros(False))
+        return None if got is None else (*got, True)
+    return None
 
 
 def _richest(connections, msgtype, keep=lambda c: True):
@@ -209,16 +233,10 @@ def read_rosbag(path, segment=None) -> dict:
     the bag's start). ValueError: not a bag, no IMU or motor topic, too short; ImportError without rosbags."""
     AnyReader, typestore = _import_rosbags()
     path = Path(path)
-    if path.is_file():
-        with open(path, "rb") as f:
-            head = f.read(len(ROS1_MAGIC))
-        if head == ROS1_MAGIC:
-            store = typestore_with_mavros(True)
-            bag = rosbag_fast.read_ros1(path.read_bytes(), store)
-            if bag is not None and all(rosbag_fast.md5_matches(store, c) for c in bag.connections
-                                       if c.msgtype in FIELDS):
-                return _read(bag.connections, bag.start_time, lambda cons: _ros1_topics(bag, store, cons),
-                             path, segment)
+    fast = _fast_bag(path)
+    if fast is not None:
+        bag, store, cdr = fast
+        return _read(bag.connections, bag.start_time, lambda cons: _bag_topics(bag, store, cons, cdr), path, segment)
     with _bag_path(path) as bag:
         try:
             with AnyReader([bag], default_typestore=typestore) as reader:

@@ -9,8 +9,10 @@ million messages takes half a minute. Here:
   the offsets are walked once on the first message from the type's definition (ROS 1 packed, or CDR
   aligned), and every message is a row of one matrix;
 - :func:`read_ros1` reads a ROS 1 bag's chunks (uncompressed, bz2 or lz4), its connections and its
-  per-chunk index with numpy, no Python step per message; a connection whose type's MD5 differs from the
-  typestore's (another definition than the one the offsets are walked from) is left out.
+  per-chunk index with numpy, no Python step per message (the reader checks each type's MD5 against
+  the typestore the offsets are walked from);
+- :func:`read_mcap` reads an MCAP file (a ROS 2 bag's storage) the same way, from its chunks
+  (uncompressed, zstd or lz4) and their message indexes, its types registered from its own schemas.
 """
 from __future__ import annotations
 
@@ -126,6 +128,11 @@ def fields(typestore, msgtype: str, raws, cdr: bool, paths) -> dict | None:
     return out
 
 
+def time_order(t):
+    """The stable order sorting times ``t`` (N,), or None when they are sorted already."""
+    return None if np.all(t[1:] >= t[:-1]) else np.argsort(t, kind="stable")
+
+
 # ---- ROS 1 bags
 
 @dataclass
@@ -139,8 +146,8 @@ class Connection:
 
 
 @dataclass
-class Ros1Bag:
-    """A ROS 1 bag read with numpy: ``connections``, ``start_time`` (ns, the earliest receive time) and
+class Bag:
+    """A bag read with numpy: ``connections``, ``start_time`` (ns, the earliest receive time) and
     per connection id its receive times (N,) ns and raw messages [bytes] in receive-time order."""
     connections: list
     start_time: int
@@ -171,8 +178,8 @@ def _chunk_bytes(head: dict, body: bytes) -> bytes:
     raise Unsupported(f"chunk compression {kind!r}")
 
 
-def read_ros1(data: bytes, typestore) -> Ros1Bag | None:
-    """A ROS 1 bag's bytes ``data`` -> its connections and messages (:class:`Ros1Bag`), or None when it
+def read_ros1(data: bytes, typestore) -> Bag | None:
+    """A ROS 1 bag's bytes ``data`` -> its connections and messages (:class:`Bag`), or None when it
     is not read here (an unindexed or unknown record, a compression other than bz2 and lz4: rosbags reads it)."""
     from rosbags.typesys.msg import normalize_msgtype
     if not data.startswith(b"#ROSBAG V2.0\n"):
@@ -207,21 +214,134 @@ def read_ros1(data: bytes, typestore) -> Ros1Bag | None:
         return None
     if not per_conn or set(per_conn) - set(conns):
         return None
-    bag = Ros1Bag([], 0)
+    return _bag(conns, per_conn)
+
+
+def _bag(conns: dict, per_conn: dict) -> Bag:
+    """A :class:`Bag` of ``conns`` {id: (topic, msgtype, md5 or "")} and ``per_conn`` {id: [(receive times
+    (n,) ns, chunk (B,) uint8, data starts (n,), data lengths (n,))]}: each connection's messages in
+    time order, one matrix where they share a length."""
+    bag = Bag([], 0)
     for cid, parts in per_conn.items():
         topic, msgtype, md5 = conns[cid]
         t = np.concatenate([p[0] for p in parts])
-        order = np.argsort(t, kind="stable")
+        order = time_order(t)
         lengths = np.concatenate([p[3] for p in parts])
         if np.all(lengths == lengths[0]):                         # one length: a matrix, no step per message
-            raw = np.concatenate([rows(c, start, int(lengths[0])) for _, c, start, _ in parts])[order]
+            raw = np.concatenate([rows(c, start, int(lengths[0])) for _, c, start, _ in parts])
         else:
-            msgs = [bytes(c[a:a + d]) for _, c, start, ln in parts for a, d in zip(start.tolist(), ln.tolist())]
-            raw = [msgs[i] for i in order.tolist()]
-        bag.messages[cid] = (t[order], raw)
+            raw = [bytes(c[a:a + d]) for _, c, start, ln in parts for a, d in zip(start.tolist(), ln.tolist())]
+        if order is not None:
+            t, raw = t[order], (raw[order] if isinstance(raw, np.ndarray) else [raw[i] for i in order.tolist()])
+        bag.messages[cid] = (t, raw)
         bag.connections.append(Connection(topic, msgtype, len(t), cid, md5))
     bag.start_time = min(int(t[0]) for t, _ in bag.messages.values())
     return bag
+
+
+# ---- MCAP (ROS 2)
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def _u(data, i: int, n: int) -> int:
+    return int.from_bytes(data[i:i + n], "little")
+
+
+def _text(data, i: int) -> tuple[str, int]:
+    n = _u(data, i, 4)
+    return bytes(data[i + 4:i + 4 + n]).decode("utf-8", "replace"), i + 4 + n
+
+
+def _decompress(kind: str, body, size: int) -> bytes:
+    if kind == "":
+        return bytes(body)
+    if kind == "zstd":
+        import zstandard
+        return zstandard.ZstdDecompressor().decompress(bytes(body), max_output_size=size)
+    if kind == "lz4":
+        from lz4.frame import decompress
+        return decompress(bytes(body))
+    raise Unsupported(f"MCAP chunk compression {kind!r}")
+
+
+def _schema_records(chunk: bytes, schemas: dict, channels: dict) -> None:
+    """The schema and channel records inside a chunk's records (they precede the messages using them)."""
+    i, n = 0, len(chunk)
+    while i + 9 <= n:
+        op, size = chunk[i], _u(chunk, i + 1, 8)
+        if op in (0x03, 0x04):
+            _definition(op, memoryview(chunk)[i + 9:i + 9 + size], schemas, channels)
+        elif op == 0x05 and channels:
+            return
+        i += 9 + size
+
+
+def _definition(op: int, body, schemas: dict, channels: dict) -> None:
+    if op == 0x03:                                                # schema: id, name, encoding, data
+        sid = _u(body, 0, 2)
+        name, j = _text(body, 2)
+        enc, j = _text(body, j)
+        schemas[sid] = (name, enc, bytes(body[j + 4:j + 4 + _u(body, j, 4)]).decode("utf-8", "replace"))
+    else:                                                         # channel: id, schema id, topic, encoding
+        cid, sid = _u(body, 0, 2), _u(body, 2, 2)
+        topic, j = _text(body, 4)
+        enc, _ = _text(body, j)
+        channels[cid] = (topic, sid, enc)
+
+
+def read_mcap(data: bytes, typestore):
+    """An MCAP file's bytes ``data`` -> (its connections and messages (:class:`Bag`, times in ns), the
+    typestore with its schemas registered), or None when it is not read here (no message index, a
+    compression other than zstd and lz4, a schema not in ros2msg, a message encoding not CDR)."""
+    from rosbags.typesys import get_types_from_msg
+    if not data.startswith(MCAP_MAGIC):
+        return None
+    view = memoryview(data)
+    i, n = len(MCAP_MAGIC), len(data)
+    schemas, channels, chunks, per_conn = {}, {}, [], {}
+    try:
+        while i + 9 <= n:
+            op, size = data[i], _u(data, i + 1, 8)
+            body = view[i + 9:i + 9 + size]
+            if op == 0x06:                                        # chunk
+                usize = _u(body, 16, 8)
+                kind, j = _text(body, 28)
+                chunk = _decompress(kind, body[j + 8:j + 8 + _u(body, j, 8)], usize)
+                if not chunks:
+                    _schema_records(chunk, schemas, channels)
+                chunks.append(np.frombuffer(chunk, np.uint8))
+            elif op == 0x07 and chunks:                           # the last chunk's message index, one channel
+                cid = _u(body, 0, 2)
+                idx = np.frombuffer(body[6:6 + _u(body, 2, 4)], [("t", "<u8"), ("off", "<u8")])
+                c = chunks[-1]
+                off = idx["off"].astype(np.int64)
+                if len(off) and np.any(c[off] != 0x05):
+                    return None
+                length = rows(c, off + 1, 8).copy().view("<u8")[:, 0].astype(np.int64) - 22
+                per_conn.setdefault(cid, []).append((idx["t"].astype(np.int64), c, off + 31, length))
+            elif op in (0x03, 0x04):
+                _definition(op, body, schemas, channels)
+            elif op == 0x02:                                      # footer
+                break
+            i += 9 + size
+    except (IndexError, ValueError, Unsupported, ImportError):
+        return None
+    if not per_conn or any(cid not in channels or channels[cid][1] not in schemas for cid in per_conn):
+        return None
+    types = {}
+    for cid in per_conn:
+        topic, sid, enc = channels[cid]
+        name, senc, text = schemas[sid]
+        if enc != "cdr" or senc != "ros2msg":
+            return None
+        types.update(get_types_from_msg(text, name))
+    try:
+        typestore.register(types)
+    except Exception:  # a schema that clashes with the typestore's definition
+        return None
+    conns = {cid: (channels[cid][0], schemas[channels[cid][1]][0], "") for cid in per_conn}
+    return _bag(conns, per_conn), typestore
 
 
 def md5_matches(typestore, conn: Connection) -> bool:

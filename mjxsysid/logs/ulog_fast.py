@@ -39,8 +39,8 @@ def rows(buf, starts, width: int) -> np.ndarray:
 
 
 def read_data_section(ULog, ulog, data: bytes) -> bool:
-    """Fill ``ulog`` (an instance of pyulog's ``ULog`` class, its definitions read) from its data section ``data`` as pyulog's
-    ``_read_file_data`` would, without a Python step per data message -> False (nothing changed) when
+    """Fill ``ulog`` (an instance of pyulog's ``ULog`` class, its definitions read) from its data section
+    ``data`` as pyulog's ``_read_file_data`` would, without a Python step per data message -> False (nothing changed) when
     the section does not walk cleanly."""
     offs = message_starts(data)
     if offs is None or not len(offs):

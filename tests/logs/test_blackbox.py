@@ -162,7 +162,8 @@ def test_bad_input_and_missing_dependency(tmp_path, monkeypatch, written):
 def _p_frames_log() -> bytes:
     """A log of one I frame and three P frames by hand: every group encoding (tag8_4s16 in 4-, 8- and
     16-bit fields across nibbles, tag2_3s32 in each of its four layouts, tag8_8svb with a field left
-    out, null; not last: orangebox loops forever on a group that ends the frame) and the predictors previous, straight line, average of two and increment."""
+    out, null; not last: orangebox loops forever on a group that ends the frame) and the predictors
+    previous, straight line, average of two and increment."""
     from mjxsysid.logs.formats_write import _vb_bytes
 
     def vb(*vals, signed=True):
@@ -179,7 +180,8 @@ def _p_frames_log() -> bytes:
             "H Field P encoding:9,0,0,8,8,8,8,7,7,7,6,6,0"]
     body = b"I" + vb(0, 1000, signed=False) + vb(5, -3, 40, 700, -9, 1, 2, 3, 100, -100, 7)
     tag4 = bytes([1 | 2 << 2 | 3 << 4 | 1 << 6, 0x3A, 0xBC, 0xDE, 0xF7])
-    body += b"P" + vb(2, -1) + tag4 + bytes([0xC0 | 0 | 1 << 2 | 3 << 4, 0x85, 0x34, 0x92, 1, 2, 3, 0x84]) + b"\x01" + vb(-7, 1)
+    tag3 = bytes([0xC0 | 0 | 1 << 2 | 3 << 4, 0x85, 0x34, 0x92, 1, 2, 3, 0x84])   # 8-, 16- and 32-bit fields
+    body += b"P" + vb(2, -1) + tag4 + tag3 + b"\x01" + vb(-7, 1)
     body += b"P" + vb(0, 4) + bytes([0]) + bytes([0x1B]) + b"\x03" + vb(5, -6, -2)
     body += b"P" + vb(1, 0) + bytes([2 | 2 << 2 | 2 << 4 | 2 << 6, 0x80, 0x7F, 0x01, 0xFE]) + bytes([0x45, 0xE2]) \
         + b"\x02" + vb(9, 300)

@@ -28,8 +28,8 @@ def write_usd(path, version, events, records):
     for eid, stamp, values in records:
         by_event.setdefault(eid, []).append((stamp, values))
     names = {eid: [v for v, _ in variables] for eid, _, variables in events}
-    blocks = [(eid, np.array([s for s, _ in r], np.uint64), {n: np.array([v[k] for _, v in r]) for k, n in enumerate(names[eid])})
-              for eid, r in by_event.items()]
+    blocks = [(eid, np.array([s for s, _ in r], np.uint64),
+               {n: np.array([v[k] for _, v in r]) for k, n in enumerate(names[eid])}) for eid, r in by_event.items()]
     Path(path).write_bytes(usd_log(version, events, blocks))
     return path
 

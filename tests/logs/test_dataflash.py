@@ -44,8 +44,8 @@ def write_synthetic(path):
     w.add("ATT", TimeUS=us, Roll=0.0, Pitch=0.0, Yaw=90.0)                      # heading east
     out = us[::2] + 100
     flying = (3.0 <= us[::2] * 1e-6) & (us[::2] * 1e-6 <= 7.0)
-    w.add("RCOU", TimeUS=out, **{f"C{n}": np.where(flying, MOTOR_PWM[SERVO_FUNCTION[n] - 32], 1100) for n in range(1, 5)},
-          C5=1500, C6=0)
+    pwm = {f"C{n}": np.where(flying, MOTOR_PWM[SERVO_FUNCTION[n] - 32], 1100) for n in range(1, 5)}
+    w.add("RCOU", TimeUS=out, **pwm, C5=1500, C6=0)
     w.add("CTUN", TimeUS=out, ThO=np.where(flying, 0.3, 0.0), ThH=0.3)
     Path(path).write_bytes(w.bytes())
     return path

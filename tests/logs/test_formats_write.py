@@ -27,7 +27,8 @@ def flight():
 
 
 def _read_back(write, path, flight, **kw):
-    """Write ``flight`` with ``write`` at ``path``, read it back -> (the reader's record, the flight's rows at its times)."""
+    """Write ``flight`` with ``write`` at ``path``, read it back -> (the reader's record, the flight's rows
+    at its times)."""
     write(path, flight["t"], flight["imu"], flight["a_cmd"], flight["omega_cmd"], flight["motor"],
           quat=flight["quat"], vel=flight["vel"], **kw)
     r = read_any_log(path)
@@ -70,7 +71,8 @@ def test_dataflash_round_trip(flight, tmp_path):
 
 @pytest.mark.parametrize("ros2", [False, True])
 def test_rosbag_round_trip(flight, tmp_path, ros2):
-    """float64 mavros topics (stamped at 1.6e9 s: 0.2 µs apart), PWM µs; no thrust setpoint in m/s² (filled from the IMU and said)."""
+    """float64 mavros topics (stamped at 1.6e9 s: 0.2 µs apart), PWM µs; no thrust setpoint in m/s² (filled
+    from the IMU and said)."""
     pytest.importorskip("rosbags")
     from rosbags.rosbag2 import StoragePlugin
     kw = {"storage": StoragePlugin.MCAP} if ros2 else {}

@@ -166,3 +166,19 @@ def test_real_mavros_sample():
     assert r["imu"][:, 5].mean() == pytest.approx(9.8, abs=0.3)
     assert 0.4 < r["motor"].min() and r["motor"].max() < 0.95
     assert set(s["missing"]) == {"omega_cmd", "a_cmd", "velocity_body"}
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_numpy_paths_read_as_rosbags(ros1, tmp_path, monkeypatch, kind):
+    """A ROS 1 bag and an MCAP bag read with numpy (chunks, message indexes, fixed-layout messages) give
+    rosbags' log to the bit."""
+    from mjxsysid.logs import rosbag_fast
+    bag = ros1 if kind == "ros1" else write_ros2(tmp_path / "flight", StoragePlugin.MCAP)
+    assert R._fast_bag(Path(bag)) is not None
+    fast = R.read_rosbag(bag)
+    for name in ("read_ros1", "read_mcap", "fields"):
+        monkeypatch.setattr(rosbag_fast, name, lambda *a, **k: None)
+    slow = R.read_rosbag(bag)
+    assert fast["source"] == slow["source"]
+    for k in ("t", "imu", "a_cmd", "omega_cmd", "motor", "velocity_body"):
+        np.testing.assert_array_equal(fast[k], slow[k])
