@@ -13,7 +13,8 @@ turn, so the ratios to the CSV are taken within one pass of a noisy machine:
 - ``read``: ``read_any_log`` in a fresh process, the reader alone (timed inside the process);
 - ``check-log``: `mjxsysid check-log FILE` as a user runs it, a fresh process (start-up included);
 - ``decode``: `mjxsysid decode --log FILE --out DIR -q`, a fresh process on the user's JAX
-  compilation cache, warmed by one untimed decode first.
+  compilation cache, warmed by one untimed decode first; its wall time and its CPU time (user + system:
+  less moved than the wall by other work on a shared machine).
 
 ``--code DIR`` times another checkout's readers and CLI (the logs are written by this one): before
 and after a change, in one command each.
@@ -24,6 +25,7 @@ import argparse
 import json
 import os
 import platform
+import resource
 import shutil
 import subprocess
 import sys
@@ -75,41 +77,48 @@ def write_logs(minutes: float, folder: Path, formats) -> dict:
     return paths
 
 
-def _run(cmd, env) -> tuple[float, subprocess.CompletedProcess]:
+def _run(cmd, env) -> tuple[float, float, subprocess.CompletedProcess]:
+    """``cmd`` in a fresh process -> (wall s, CPU s (user + system, its children's included), the process)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     p = subprocess.run(cmd, capture_output=True, text=True, env=env, cwd=env.get("PYTHONPATH", ROOT))
-    return time.perf_counter() - t, p
+    wall = time.perf_counter() - t
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), p
 
 
 def measure(paths: dict, repeats: int, decode_repeats: int, env: dict, scratch: Path) -> dict:
     """{format: {read: [s], check: [s], decode: [s], check_exit: code}}: every format in turn, ``repeats`` times."""
     py = sys.executable
-    res = {k: {"read": [], "check": [], "decode": []} for k in paths}
+    res = {k: {"read": [], "check": [], "decode": [], "decode_cpu": []} for k in paths}
     if decode_repeats:                                   # fills the compilation cache: every timed decode is warm
         first = next(iter(paths.values()))
-        wall, _ = _run([py, "-m", "mjxsysid.cli", "decode", "--log", str(first), "--out", str(scratch / "warm"), "-q"],
-                       env)
+        wall, _, _ = _run([py, "-m", "mjxsysid.cli", "decode", "--log", str(first), "--out", str(scratch / "warm"),
+                           "-q"], env)
         print(f"warm-up decode {wall:.1f} s", flush=True)
     for r in range(repeats):
         for k, path in paths.items():
-            _, p = _run([py, "-c", READ, str(path)], env)
+            _, _, p = _run([py, "-c", READ, str(path)], env)
             line = next((ln for ln in p.stdout.splitlines() if ln.startswith("READ")), None)
             if line is None:
                 sys.exit(f"reading {path} failed:\n{p.stderr[-2000:]}")
             res[k]["read"].append(float(line.split()[1]))
-            wall, p = _run([py, "-m", "mjxsysid.cli", "check-log", str(path)], env)
+            wall, _, p = _run([py, "-m", "mjxsysid.cli", "check-log", str(path)], env)
             res[k]["check"].append(wall)
             res[k]["check_exit"] = p.returncode
             if r < decode_repeats:
                 out = scratch / f"decode_{k}"
                 shutil.rmtree(out, ignore_errors=True)
-                wall, p = _run([py, "-m", "mjxsysid.cli", "decode", "--log", str(path), "--out", str(out), "-q"], env)
+                wall, cpu, p = _run([py, "-m", "mjxsysid.cli", "decode", "--log", str(path), "--out", str(out), "-q"],
+                                    env)
                 if p.returncode != 0:
                     sys.exit(f"decode --log {path} failed:\n{p.stderr[-2000:]}")
                 res[k]["decode"].append(wall)
-            d = res[k]["decode"][-1] if r < decode_repeats else float("nan")
+                res[k]["decode_cpu"].append(cpu)
+            d = (f"{res[k]['decode'][-1]:6.1f} s (CPU {res[k]['decode_cpu'][-1]:6.1f} s)" if r < decode_repeats
+                 else "–")
             print(f"repeat {r + 1} {k:10s} read {res[k]['read'][-1]:6.2f} s  check-log {res[k]['check'][-1]:6.2f} s "
-                  f"(exit {res[k]['check_exit']})  decode {d:6.1f} s", flush=True)
+                  f"(exit {res[k]['check_exit']})  decode {d}", flush=True)
     return res
 
 
@@ -118,7 +127,7 @@ def summary(res: dict) -> dict:
     out = {}
     for k, v in res.items():
         row = {"check_exit": v.get("check_exit")}
-        for m in ("read", "check", "decode"):
+        for m in ("read", "check", "decode", "decode_cpu"):
             x = np.asarray(v[m], np.float64)
             if not len(x):
                 continue
@@ -130,13 +139,16 @@ def summary(res: dict) -> dict:
 
 
 def table(s: dict) -> str:
-    lines = ["| format | read, min / median | `check-log`, min / median | `decode --log`, min / median | "
-             "decode / CSV (median of the repeats' ratios) |", "|---|---|---|---|---|"]
+    lines = ["| format | read, min / median | `check-log`, min / median | `decode --log` wall, min / median | "
+             "decode CPU, min / median | decode / CSV: wall, CPU (medians of the repeats' ratios) |",
+             "|---|---|---|---|---|---|"]
     for k, r in s.items():
-        dec = (f"{r['decode_min_s']:.1f} / {r['decode_median_s']:.1f} s" if "decode_min_s" in r else "–")
-        ratio = f"{r['decode_ratio_to_csv']:.2f}" if "decode_ratio_to_csv" in r else "–"
+        dec = {m: (f"{r[m + '_min_s']:.1f} / {r[m + '_median_s']:.1f} s" if m + "_min_s" in r else "–")
+               for m in ("decode", "decode_cpu")}
+        ratio = (f"{r['decode_ratio_to_csv']:.2f}, {r['decode_cpu_ratio_to_csv']:.2f}" if "decode_ratio_to_csv" in r
+                 else "–")
         lines.append(f"| {k} | {r['read_min_s']:.2f} / {r['read_median_s']:.2f} s | {r['check_min_s']:.2f} / "
-                     f"{r['check_median_s']:.2f} s | {dec} | {ratio} |")
+                     f"{r['check_median_s']:.2f} s | {dec['decode']} | {dec['decode_cpu']} | {ratio} |")
     return "\n".join(lines)
 
 
