@@ -27,24 +27,39 @@ from pathlib import Path
 import numpy as np
 
 
-def base_log() -> tuple:
+def base_flight() -> dict:
+    """The shipped policy's 10 s lemniscate on the paper vehicle (MJX) as a log's arrays: t (T,) s from 0,
+    imu (T, 6) the readings the policy acted on, a_cmd (T,), omega_cmd (T, 3), motor (T, 4), quat (T, 4)
+    w x y z and vel (T, 3) m/s in the world (the state estimate a format may carry)."""
     from mjxsysid import theta as P
     from mjxsysid.policy.interface import resolve_policy
     from mjxsysid.rollout.flight import fly_vehicles, one_flight, seen_imu
     fl, _, _ = fly_vehicles(P.PAPER_HARDWARE, controller="policy", policy=resolve_policy("mjxsysid"),
                             reference="lemniscate", period=10.0, duration=10.0)
     f = one_flight(fl)
-    return (np.asarray(f.time) - 0.002, np.asarray(seen_imu(f.frame.imu)), np.asarray(f.a_cmd),
-            np.asarray(f.omega_cmd), np.asarray(f.frame.motor_cmd))
+    return {"t": np.asarray(f.time, np.float64) - 0.002, "imu": np.asarray(seen_imu(f.frame.imu), np.float64),
+            "a_cmd": np.asarray(f.a_cmd, np.float64), "omega_cmd": np.asarray(f.omega_cmd, np.float64),
+            "motor": np.asarray(f.frame.motor_cmd, np.float64), "quat": np.asarray(f.frame.quat, np.float64),
+            "vel": np.asarray(f.frame.vel, np.float64)}
+
+
+def base_log() -> tuple:
+    f = base_flight()
+    return tuple(f[k] for k in ("t", "imu", "a_cmd", "omega_cmd", "motor"))
+
+
+def tiled(flight: dict, seconds: float) -> dict:
+    """``flight``'s arrays repeated end to end to ``seconds``, t continuous in 2 ms steps."""
+    n = int(round(seconds / 0.002))
+    reps = int(np.ceil(n / len(flight["t"])))
+    out = {k: np.tile(x, (reps,) + (1,) * (x.ndim - 1))[:n] for k, x in flight.items() if k != "t"}
+    return {"t": 0.002 * np.arange(n), **out}
 
 
 def tiled_log(base, seconds: float, path: Path) -> Path:
-    t, imu, a, w, m = base
-    n = int(round(seconds / 0.002))
-    reps = int(np.ceil(n / len(t)))
-    cols = [np.tile(x, (reps,) + (1,) * (x.ndim - 1))[:n] for x in (imu, a, w, m)]
-    tt = 0.002 * np.arange(n)
-    arr = np.column_stack([tt, *cols])
+    cols = tiled(dict(zip(("t", "imu", "a_cmd", "omega_cmd", "motor"), base)), seconds)
+    arr = np.column_stack([cols[k] for k in ("t", "imu", "a_cmd", "omega_cmd", "motor")])
+    n = len(arr)
     from mjxsysid.logs.csvlog import LOG_COLUMNS
     with open(path, "w") as f:
         f.write(",".join(LOG_COLUMNS) + "\n")

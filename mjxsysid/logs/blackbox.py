@@ -5,8 +5,9 @@ The format: ASCII header lines ``H name:value`` (firmware, ``acc_1G``, ``motorOu
 definitions with their predictors and encodings), then binary frames: intra (``I``) and inter (``P``)
 frames of the main fields on one clock (``time``, µs), slow (``S``), GPS and event (``E``) frames.
 One file may hold several logs, each starting with the header line ``H Product:Blackbox flight data
-recorder by Nicholas Sherlock``. The frames are decoded by orangebox (``pip install -e ".[blackbox]"``,
-orangebox 0.4.0: 0.5.0's wheel does not install); this module converts them.
+recorder by Nicholas Sherlock``. The frames are decoded by :mod:`mjxsysid.logs.blackbox_frames`; a log
+whose header it does not plan is decoded by orangebox (``pip install -e ".[blackbox]"``, orangebox 0.4.0:
+0.5.0's wheel does not install). This module converts them.
 
 Fields used: ``time``, ``gyroADC[0..2]`` (deg/s × ``gyro_scale``, × 10 with ``blackbox_high_resolution``),
 ``accSmooth[0..2]`` (``acc_1G`` per g), ``motor[0..3]`` (the ESC command between ``motorOutput[0]``
@@ -27,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from mjxsysid import theta as P
+from mjxsysid.logs import blackbox_frames
 from mjxsysid.logs.segment import airborne_segment
 from mjxsysid.logs.grid import DT, MIN_ROWS, hold, interp_linear, user_segment, world_to_body
 
@@ -146,8 +148,22 @@ def _import_orangebox():
     return Parser, FrameType.INTRA
 
 
-def _decode(path: Path, index: int):
-    """The headers, main field names and main frames (N, F) int64 of log ``index`` (1-based)."""
+def _decode(path: Path, index: int, data: bytes, starts: list[int]):
+    """The headers, main field names and main frames (N, F) int64 of log ``index`` (1-based) of the
+    file's bytes ``data`` whose logs start at ``starts``."""
+    end = starts[index] if index < len(starts) else len(data)
+    try:
+        headers, main, frames = blackbox_frames.decode_frames(data, starts[index - 1], end)
+    except blackbox_frames.Unsupported:
+        return _decode_orangebox(path, index)
+    if not frames:
+        raise ValueError(f"{path}: log {index} has no frames (armed and disarmed without logging?); "
+                         f"try another log_index")
+    return headers, main, np.asarray(frames, np.int64)
+
+
+def _decode_orangebox(path: Path, index: int):
+    """:func:`_decode` by orangebox."""
     Parser, intra = _import_orangebox()
     try:
         parser = Parser.load(str(path), log_index=index)
@@ -209,7 +225,7 @@ def read_blackbox(path, segment=None, log_index=None) -> dict:
                          f"give a .BBL/.BFL file as written by the flight controller")
     sizes = np.diff(starts + [len(data)])
     index, said_log = pick_log(sizes, log_index)
-    headers, names, frames = _decode(path, index)
+    headers, names, frames = _decode(path, index, data, starts)
     conv = [f"blackbox {said_log}; firmware {headers.get('Firmware revision', 'unknown')}"]
     if "motor[4]" in names:
         raise ValueError(f"{path}: the log has motor[4]: more than four motors; mjxsysid models a quad-X only")

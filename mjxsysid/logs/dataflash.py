@@ -1,8 +1,10 @@
 """ArduPilot (ArduCopter) DataFlash ``.bin`` logs -> the log contract of :mod:`mjxsysid.logs.formats`.
 
 A DataFlash log is a stream of binary records, each ``0xA3 0x95 <type>`` and a packed payload whose
-layout an ``FMT`` record declared earlier. Read with pymavlink's ``DFReader_binary`` (optional extra
-``ardupilot``). Used: ``IMU`` (GyrX/Y/Z rad/s, AccX/Y/Z m/s², FRD; instance ``I`` 0 where logged),
+layout an ``FMT`` record declared earlier. A clean log is read with numpy (:func:`parse_records`: the FMT
+records found first, the record boundaries walked once, each type's records decoded at once); a log whose
+records do not chain (damaged, resynchronised) is read with pymavlink's ``DFReader_binary`` (optional
+extra ``ardupilot``). Used: ``IMU`` (GyrX/Y/Z rad/s, AccX/Y/Z m/s², FRD; instance ``I`` 0 where logged),
 ``RCOU`` (servo outputs Cn, PWM µs), ``EV`` / ``ARM`` (armed and disarmed), ``RATE`` (RDes/PDes/YDes
 deg/s: omega_cmd), ``CTUN`` (ThO and ThH: a_cmd), ``NKF1`` (EKF2) or ``XKF1`` (EKF3) VN/VE/VD (NED)
 with ``ATT`` Roll/Pitch/Yaw for velocity_body, ``PARM`` (SERVOn_FUNCTION, MOT_PWM_MIN/MAX, RC3_MIN/MAX,
@@ -54,6 +56,110 @@ def _import_dfreader():
 def sniff(head: bytes) -> bool:
     """Is ``head`` (a file's first bytes) a DataFlash binary log? (:mod:`mjxsysid.logs.formats`)"""
     return head[:3] == MAGIC
+
+
+FORMAT_DTYPES = {"a": ("<i2", (32,)), "b": "i1", "B": "u1", "g": "<f2", "h": "<i2", "H": "<u2", "i": "<i4",
+                 "I": "<u4", "f": "<f4", "d": "<f8", "n": "S4", "N": "S16", "Z": "S64", "c": "<i2", "C": "<u2",
+                 "e": "<i4", "E": "<u4", "L": "<i4", "M": "i1", "q": "<i8", "Q": "<u8"}
+"""DataFlash format characters -> numpy dtypes (pymavlink's ``FORMAT_TO_STRUCT``)."""
+
+FORMAT_SCALES = {"c": 0.01, "C": 0.01, "e": 0.01, "E": 0.01, "L": 1e-7}
+"""Format characters stored scaled: the value is the integer times this (as pymavlink reads them)."""
+
+FMT_TYPE, FMT_SIZE = 128, 89
+"""The FMT record's type and size (header, Type, Length, Name[4], Format[16], Columns[64])."""
+
+
+def _fmt_dtype(fmt: str, columns: list[str]):
+    """The packed record dtype (after the 3-byte header) of a FMT's format and columns, or None when unknown."""
+    if any(c not in FORMAT_DTYPES for c in fmt) or len(columns) != len(fmt) or len(set(columns)) != len(columns):
+        return None
+    return np.dtype([(n, FORMAT_DTYPES[c]) for n, c in zip(columns, fmt)])
+
+
+def _formats(buf, cand):
+    """{type: (name, format, dtype)} of the FMT records among the record starts ``cand``; None when a type is
+    declared twice with different layouts (left to pymavlink)."""
+    out = {}
+    for p in cand[(buf[np.minimum(cand + 2, len(buf) - 1)] == FMT_TYPE) & (cand + FMT_SIZE <= len(buf))]:
+        rec = bytes(buf[p + 3:p + FMT_SIZE])
+        typ, length = rec[0], rec[1]
+        try:
+            name, fmt, cols = (rec[a:b].split(b"\0")[0].decode("ascii") for a, b in ((2, 6), (6, 22), (22, 86)))
+        except UnicodeDecodeError:
+            continue
+        dt = _fmt_dtype(fmt, cols.split(",")) if cols else np.dtype([])
+        if dt is None or dt.itemsize + 3 != length:
+            continue
+        if typ in out and out[typ][1:] != (fmt, dt):
+            return None
+        out[typ] = (name, fmt, dt)
+    return out
+
+
+def _chain(cand, nxt, end: int):
+    """Indices into ``cand`` of the records chained from the first (each record's end is the next one's start)
+    -> (indices, where the chain stopped)."""
+    j = np.searchsorted(cand, nxt)
+    ok = j < len(cand)
+    ok[ok] = cand[j[ok]] == nxt[ok]
+    step = np.where(ok, j, -1).tolist()
+    out, i = [], 0
+    while i >= 0:
+        out.append(i)
+        i = step[i]
+    return np.asarray(out, np.int64), int(nxt[out[-1]])
+
+
+def parse_records(data: bytes, types=None) -> dict | None:
+    """The records of a DataFlash log ``data`` with numpy -> {type name: {column: (N,) array}} for the
+    names in ``types`` (all when None; strings as str object arrays, scaled format characters as floats),
+    or None when its records do not chain from the first byte to the end (a damaged log: pymavlink reads
+    it). A last record cut short is dropped."""
+    buf = np.frombuffer(data, np.uint8)
+    if len(buf) < FMT_SIZE:
+        return None
+    cand = np.flatnonzero((buf[:-2] == 0xA3) & (buf[1:-1] == 0x95))
+    fmts = _formats(buf, cand)
+    if not fmts or cand[0] != 0:
+        return None
+    size = np.zeros(256, np.int64)
+    for typ, (_, _, dt) in fmts.items():
+        size[typ] = dt.itemsize + 3
+    kind = buf[np.minimum(cand + 2, len(buf) - 1)]
+    known = size[kind] > 0
+    cand, kind = cand[known], kind[known]
+    chain, stop = _chain(cand, cand + size[kind], len(buf))
+    if stop > len(buf):                                   # the last record cut short
+        chain = chain[:-1]
+        stop = int(cand[chain[-1]] + size[kind[chain[-1]]]) if len(chain) else 0
+    if len(buf) - stop >= 3:                             # bytes left the chain does not reach
+        return None
+    offs, kind = cand[chain], kind[chain]
+    out = {}
+    for typ, (name, fmt, dt) in fmts.items():
+        if types is not None and name not in types:
+            continue
+        o = offs[kind == typ] + 3
+        if not len(o):
+            continue
+        rows = buf[o[:, None] + np.arange(dt.itemsize)].reshape(-1).view(dt)
+        cols = {}
+        for c, n in zip(fmt, dt.names):
+            v = rows[n]
+            if v.dtype.kind == "S":
+                v = np.asarray([x.split(b"\0")[0].decode("utf-8", "replace") for x in v.tolist()], object)
+            elif c in FORMAT_SCALES:
+                v = v.astype(np.float64) * FORMAT_SCALES[c]
+            cols[n] = np.asarray(v)
+        out[name] = cols
+    return out
+
+
+def _params(msgs: dict) -> dict:
+    """{name: value} of the PARM records (the last value of a parameter set twice)."""
+    parm = msgs.get("PARM", {})
+    return {str(k): float(v) for k, v in zip(parm.get("Name", []), parm.get("Value", []))}
 
 
 def _messages(df) -> dict:
@@ -200,21 +306,25 @@ def read_dataflash(path, segment=None) -> dict:
     airborne part of its longest armed stretch (or ``segment`` 't0:t1', seconds of boot time).
     ValueError: not a DataFlash log, not a quad-X copter, IMU or RCOU missing, too short; ImportError
     without pymavlink."""
-    DFReader = _import_dfreader()
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"flight log not found: {path}")
-    with open(path, "rb") as f:
-        if not sniff(f.read(3)):
-            raise ValueError(f"{path}: not an ArduPilot DataFlash .bin log (no 0xA3 0x95 FMT header); "
-                             f"a .log text dump must be converted back with mavlogdump or read as .bin")
-    try:
-        df = DFReader.DFReader_binary(str(path), zero_time_base=False)
-        msgs = _messages(df)
-    except Exception as e:  # pymavlink raises assorted errors on a damaged log
-        raise ValueError(f"{path}: not a readable DataFlash log ({type(e).__name__}: {e}); "
-                         f"check it opens in MAVExplorer or Mission Planner") from None
-    params = dict(df.params)
+    data = path.read_bytes()
+    if not sniff(data[:3]):
+        raise ValueError(f"{path}: not an ArduPilot DataFlash .bin log (no 0xA3 0x95 FMT header); "
+                         f"a .log text dump must be converted back with mavlogdump or read as .bin")
+    msgs = parse_records(data, TYPES)
+    if msgs is not None:
+        params = _params(msgs)
+    else:
+        DFReader = _import_dfreader()
+        try:
+            df = DFReader.DFReader_binary(str(path), zero_time_base=False)
+            msgs = _messages(df)
+        except Exception as e:  # pymavlink raises assorted errors on a damaged log
+            raise ValueError(f"{path}: not a readable DataFlash log ({type(e).__name__}: {e}); "
+                             f"check it opens in MAVExplorer or Mission Planner") from None
+        params = dict(df.params)
     try:
         text, version = firmware(msgs)
         conv = [check_frame(params)]

@@ -17,16 +17,22 @@ messages is used (said in ``rec["source"]["topics"]``):
 
 Every time is the message's ``header.stamp`` (the sender's clock, not the bag's receive time), in
 seconds since the bag's start; ``segment`` 't0:t1' is read on that clock.
+
+A ROS 1 bag's and an MCAP file's chunks and message indexes are read with numpy, and a topic's messages
+of one length and layout at once (:mod:`mjxsysid.logs.rosbag_fast`); rosbags opens the other bags (SQLite,
+unindexed) and deserialises the other messages.
 """
 from __future__ import annotations
 
 import os
 import tempfile
 from contextlib import contextmanager
+from operator import attrgetter
 from pathlib import Path
 
 import numpy as np
 
+from mjxsysid.logs import rosbag_fast
 from mjxsysid.logs.record import (HELD, LINEAR, assemble, body_velocity_from_world, native_rates, pick_segment,
                                     sorted_unique)
 from mjxsysid.logs.ulog import PX4_QUADX_ORDER, throttle_to_rotor_speed
@@ -94,26 +100,110 @@ def _bag_path(path: Path):
         yield link
 
 
-def _stamp(msg) -> float:
-    return msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+STAMP = ("header.stamp.sec", "header.stamp.nanosec")
+FIELDS = {IMU: ("angular_velocity.x", "angular_velocity.y", "angular_velocity.z", "linear_acceleration.x",
+                "linear_acceleration.y", "linear_acceleration.z", "orientation.x", "orientation.y", "orientation.z",
+                "orientation.w"),
+          RCOUT: ("channels",), ATT_TARGET: ("body_rate.x", "body_rate.y", "body_rate.z"),
+          TWIST: ("twist.linear.x", "twist.linear.y", "twist.linear.z")}
+"""The fields read of each message type (after its header's stamp; TwistStamped's frame id too)."""
+
+MAVROS_TYPES = {
+    RCOUT: "std_msgs/Header header\nuint16[] channels\n",
+    ATT_TARGET: "std_msgs/Header header\nuint8 type_mask\ngeometry_msgs/Quaternion orientation\n"
+                "geometry_msgs/Vector3 body_rate\nfloat32 thrust\n"}
+"""mavros' message definitions (not in rosbags' stores) the ROS 1 fast path reads."""
+
+
+def typestore_with_mavros(ros1: bool):
+    """rosbags' typestore of ROS 1 Noetic or ROS 2 Humble with :data:`MAVROS_TYPES` registered."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
+    for name, text in MAVROS_TYPES.items():
+        ts.register(get_types_from_msg(text, name))
+    return ts
+
+
+def _topic_fields(typestore, msgtype, raws, cdr, deserialize) -> dict:
+    """{path: (N,) or (N, k) array} of :data:`STAMP` and :data:`FIELDS` of a topic's raw messages ``raws``
+    (and header.frame_id, a str): at once where they share a layout, else message by message."""
+    paths = STAMP + FIELDS[msgtype]
+    got = rosbag_fast.fields(typestore, msgtype, raws, cdr, paths)
+    if got is not None:
+        return got
+    if isinstance(raws, np.ndarray):
+        raws = [r.tobytes() for r in raws]
+    msgs = [deserialize(r, msgtype) for r in raws]
+    got = {p: np.asarray([attrgetter(p)(m) for m in msgs], np.float64) for p in paths if p != "channels"}
+    if "channels" in paths:
+        got["channels"] = np.array([np.asarray(m.channels[:4], np.float64) for m in msgs])
+    got["header.frame_id"] = msgs[0].header.frame_id if msgs else ""
+    return got
 
 
 def _read_topics(reader, cons) -> dict:
-    """{topic: (header times (N,) s, bag times (N,) s, messages)} of the connections ``cons``."""
-    out = {c.topic: ([], [], []) for c in cons}
-    for con, t_bag, raw in reader.messages(connections=cons):
-        m = reader.deserialize(raw, con.msgtype)
-        ts, tb, ms = out[con.topic]
-        ts.append(_stamp(m))
-        tb.append(t_bag * 1e-9)
-        ms.append(m)
-    return {k: (np.asarray(a, np.float64), np.asarray(b, np.float64), c) for k, (a, b, c) in out.items()}
+    """{topic: (header times (N,) s, bag times (N,) s, fields)} of the connections ``cons`` of an open
+    rosbags reader (fields: :func:`_topic_fields`)."""
+    raw = {c.topic: ([], []) for c in cons}
+    types = {c.topic: c.msgtype for c in cons}
+    for con, t_bag, data in reader.messages(connections=cons):
+        raw[con.topic][0].append(t_bag)
+        raw[con.topic][1].append(bytes(data))
+    cdr = reader.is2
+    return {k: _with_stamps(np.asarray(tb, np.float64) * 1e-9,
+                            _topic_fields(reader.typestore, types[k], msgs, cdr, reader.deserialize))
+            for k, (tb, msgs) in raw.items()}
 
 
-def _richest(reader, msgtype, keep=lambda c: True):
-    """The connections of the topic of ``msgtype`` with the most messages -> (topic or None, sentence)."""
+def _with_stamps(tb, f):
+    return f["header.stamp.sec"].astype(np.float64) + 1e-9 * f["header.stamp.nanosec"].astype(np.float64), tb, f
+
+
+def _bag_topics(bag, typestore, cons, cdr: bool) -> dict:
+    """:func:`_read_topics` of a bag read by :mod:`~mjxsysid.logs.rosbag_fast` (ROS 1, or MCAP when ``cdr``)."""
+    out = {}
+    for topic in {c.topic for c in cons}:
+        mine = [c for c in cons if c.topic == topic]
+        t, parts = [bag.messages[c.id][0] for c in mine], [bag.messages[c.id][1] for c in mine]
+        if len(mine) == 1:                                       # one connection: in time order already
+            t, raws = t[0], parts[0]
+        else:
+            t, order = np.concatenate(t), np.argsort(np.concatenate(t), kind="stable")
+            flat = [r.tobytes() if isinstance(p, np.ndarray) else r for p in parts for r in p]
+            t, raws = t[order], [flat[i] for i in order.tolist()]
+        ser = typestore.deserialize_cdr if cdr else typestore.deserialize_ros1
+        out[topic] = _with_stamps(t * 1e-9, _topic_fields(typestore, mine[0].msgtype, raws, cdr, ser))
+    return out
+
+
+def _fast_bag(path: Path):
+    """(bag, typestore, CDR or not) of a ROS 1 bag or an MCAP file (or a ROS 2 bag folder of one) read by
+    :mod:`~mjxsysid.logs.rosbag_fast`, or None (rosbags reads it)."""
+    if path.is_dir():
+        files = sorted(path.glob("*.mcap"))
+        if len(files) != 1 or any(path.glob("*.db3")):
+            return None
+        path = files[0]
+    if not path.is_file():
+        return None
+    with open(path, "rb") as f:
+        head = f.read(16)
+    if head.startswith(ROS1_MAGIC):
+        store = typestore_with_mavros(True)
+        bag = rosbag_fast.read_ros1(path.read_bytes(), store)
+        if bag is None or not all(rosbag_fast.md5_matches(store, c) for c in bag.connections if c.msgtype in FIELDS):
+            return None
+        return bag, store, False
+    if head.startswith(MCAP_MAGIC):
+        got = rosbag_fast.read_mcap(path.read_bytes(), typestore_with_mavros(False))
+        return None if got is None else (*got, True)
+    return None
+
+
+def _richest(connections, msgtype, keep=lambda c: True):
+    """The topic of ``msgtype`` among ``connections`` with the most messages -> (topic or None, sentence)."""
     counts: dict = {}
-    for c in reader.connections:
+    for c in connections:
         if c.msgtype == msgtype and keep(c):
             counts[c.topic] = counts.get(c.topic, 0) + c.msgcount
     if not counts:
@@ -143,10 +233,15 @@ def read_rosbag(path, segment=None) -> dict:
     the bag's start). ValueError: not a bag, no IMU or motor topic, too short; ImportError without rosbags."""
     AnyReader, typestore = _import_rosbags()
     path = Path(path)
+    fast = _fast_bag(path)
+    if fast is not None:
+        bag, store, cdr = fast
+        return _read(bag.connections, bag.start_time, lambda cons: _bag_topics(bag, store, cons, cdr), path, segment)
     with _bag_path(path) as bag:
         try:
             with AnyReader([bag], default_typestore=typestore) as reader:
-                return _read(reader, path, segment)
+                return _read(reader.connections, reader.start_time, lambda cons: _read_topics(reader, cons),
+                             path, segment)
         except (ValueError, ImportError, FileNotFoundError):
             raise
         except Exception as e:  # rosbags raises its own errors on a damaged or unindexed bag
@@ -155,24 +250,26 @@ def read_rosbag(path, segment=None) -> dict:
                              ) from None
 
 
-def _read(reader, path, segment) -> dict:
+def _read(connections, start_time, fetch, path, segment) -> dict:
+    """The log contract of a bag's ``connections`` (topic, msgtype, msgcount), ``start_time`` (ns) and
+    ``fetch(connections) -> {topic: (header times, bag times, fields)}`` (:func:`_read_topics`)."""
     topics, conv, missing = {}, [], []
-    imu_topic, said = _richest(reader, IMU)
+    imu_topic, said = _richest(connections, IMU)
     if imu_topic is None:
         raise ValueError(f"{path}: no sensor_msgs/Imu topic; mjxsysid needs the IMU (mavros: /mavros/imu/data)")
     topics["imu"] = said
-    rc_topic, said = _richest(reader, RCOUT)
+    rc_topic, said = _richest(connections, RCOUT)
     if rc_topic is None:
         raise ValueError(f"{path}: no mavros_msgs/RCOut topic (the motor PWM, mavros: /mavros/rc/out); "
                          f"record it to read this bag")
     topics["motor"] = said
-    at_topic, said_at = _richest(reader, ATT_TARGET)
-    tw_body, said_b = _richest(reader, TWIST, lambda c: "velocity_body" in c.topic)
-    tw_any, said_w = _richest(reader, TWIST)
+    at_topic, said_at = _richest(connections, ATT_TARGET)
+    tw_body, said_b = _richest(connections, TWIST, lambda c: "velocity_body" in c.topic)
+    tw_any, said_w = _richest(connections, TWIST)
     tw_topic, said_tw = (tw_body, said_b) if tw_body else (tw_any, said_w)
     wanted = {imu_topic, rc_topic} | {t for t in (at_topic, tw_topic) if t}
-    data = _read_topics(reader, [c for c in reader.connections if c.topic in wanted])
-    t_ref = reader.start_time * 1e-9
+    data = fetch([c for c in connections if c.topic in wanted])
+    t_ref = start_time * 1e-9
     clock = []
 
     def times(topic):
@@ -183,21 +280,20 @@ def _read(reader, path, segment) -> dict:
         return ts - t_ref
 
     # ---- IMU: FLU already
-    msgs = data[imu_topic][2]
+    f = data[imu_topic][2]
     t_imu = times(imu_topic)
-    x_imu = np.array([[m.angular_velocity.x, m.angular_velocity.y, m.angular_velocity.z, m.linear_acceleration.x,
-                       m.linear_acceleration.y, m.linear_acceleration.z] for m in msgs], np.float64)
-    quat = np.array([[m.orientation.x, m.orientation.y, m.orientation.z, m.orientation.w] for m in msgs], np.float64)
+    x_imu = np.stack([f[k] for k in FIELDS[IMU][:6]], -1).astype(np.float64)
+    quat = np.stack([f[k] for k in FIELDS[IMU][6:]], -1).astype(np.float64)
     t_imu, both = sorted_unique(t_imu, np.concatenate([x_imu, quat], 1))
     x_imu, quat = both[:, :6], both[:, 6:]
     conv.append("body frame: sensor_msgs/Imu is FLU already (REP-103; mavros converts PX4's FRD): angular_velocity "
                 "rad/s and linear_acceleration m/s² taken as they are")
 
     # ---- motors: PWM -> throttle -> Ω_cmd/Ω_max, PX4 quad-X order -> mjxsysid's
-    pwm = np.array([np.asarray(m.channels[:4], np.float64) for m in data[rc_topic][2]])
+    pwm = np.asarray(data[rc_topic][2]["channels"], np.float64)
     if pwm.ndim != 2 or pwm.shape[1] < 4:
         raise ValueError(f"{path}: {rc_topic} carries fewer than 4 channels; mjxsysid needs the four motors' PWM")
-    t_m, pwm = sorted_unique(times(rc_topic), pwm)
+    t_m, pwm = sorted_unique(times(rc_topic), pwm[:, :4])
     u = np.clip((pwm - PWM_MIN) / (PWM_MAX - PWM_MIN), 0.0, 1.0)
     rotor = throttle_to_rotor_speed(u, 0.0)[:, [list(PX4_QUADX_ORDER).index(j) for j in range(4)]]
     conv += [f"motor commands: RCOut channels 1..4 PWM µs, throttle u = (pwm − {PWM_MIN:g}) / ({PWM_MAX:g} − "
@@ -211,7 +307,7 @@ def _read(reader, path, segment) -> dict:
 
     channels = {"imu": (t_imu, x_imu, LINEAR), "motor": (t_m, rotor, HELD)}
     if at_topic:
-        w = np.array([[m.body_rate.x, m.body_rate.y, m.body_rate.z] for m in data[at_topic][2]], np.float64)
+        w = np.stack([data[at_topic][2][k] for k in FIELDS[ATT_TARGET]], -1).astype(np.float64)
         channels["omega_cmd"] = (*sorted_unique(times(at_topic), w), HELD)
         topics["omega_cmd"] = said_at
         conv.append("omega_cmd: AttitudeTarget body_rate, rad/s FLU (mavros converts PX4's FRD)")
@@ -249,12 +345,12 @@ def _read(reader, path, segment) -> dict:
     return rec
 
 
-def _velocity(msgs, t_v, t_imu, quat, topic):
-    """(t (N,), v (N, 3) m/s FLU, sentence) from TwistStamped ``msgs`` at ``t_v``: as they are in a body
+def _velocity(f, t_v, t_imu, quat, topic):
+    """(t (N,), v (N, 3) m/s FLU, sentence) from TwistStamped fields ``f`` at ``t_v``: as they are in a body
     frame, else rotated from the world (ENU, or NED for a '*_ned' frame) with the IMU orientation nearest in
     time; None when a world velocity has no orientation to rotate it."""
-    frame = msgs[0].header.frame_id
-    v = np.array([[m.twist.linear.x, m.twist.linear.y, m.twist.linear.z] for m in msgs], np.float64)
+    frame = f["header.frame_id"]
+    v = np.stack([f[k] for k in FIELDS[TWIST]], -1).astype(np.float64)
     t_v, v = sorted_unique(t_v, v)
     if _is_body_frame(frame):
         flip = np.array([1.0, -1.0, -1.0]) if frame.endswith("_frd") else np.ones(3)

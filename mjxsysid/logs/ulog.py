@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from mjxsysid import theta as P
+from mjxsysid.logs import ulog_fast
 from mjxsysid.logs.grid import DT, MIN_ROWS, cut, hold, interp_linear, segment_grid, user_segment
 from mjxsysid.logs.grid import parse_segment, world_to_body  # noqa: F401  (importable here too, their first home)
 
@@ -207,7 +208,7 @@ def read_ulog(path, segment=None) -> dict:
     if not path.is_file():
         raise FileNotFoundError(f"flight log not found: {path}")
     try:
-        ulog = ULog(str(path))
+        ulog = ulog_fast.load(ULog, str(path))
     except Exception as e:  # pyulog raises various errors on a file that is not ULog
         raise ValueError(f"{path}: not a readable PX4 ULog file ({type(e).__name__}: {e})") from None
     params = dict(ulog.initial_parameters)

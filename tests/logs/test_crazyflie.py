@@ -3,9 +3,7 @@ binary format (versions 1 and 2, with known gyro, accelerometer, motor commands,
 velocity) read back through every conversion, the bad files refused with a sentence, and the real
 samples of ../shared (skipped where absent). numpy only: no JAX compile."""
 import shutil
-import struct
 import time
-import zlib
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +13,7 @@ from mjxsysid import theta as P
 from mjxsysid.logs import crazyflie as C
 from mjxsysid.logs.csvlog import read_any_log
 from mjxsysid.logs.formats import detect
+from mjxsysid.logs.formats_write import usd_log
 from support.paths import ROOT
 
 SHARED = ROOT.parent / "shared" / "data" / "logs"
@@ -23,19 +22,15 @@ D2R = np.pi / 180
 
 
 def write_usd(path, version, events, records):
-    """A uSD log: ``events`` [(id, name, [(variable, struct code)])], ``records`` [(id, timestamp
-    ticks, values)] in file order; the CRC32 at the end."""
-    out = bytearray([0xBC]) + struct.pack("<HH", version, len(events))
-    fmt = {}
-    for eid, name, variables in events:
-        out += struct.pack("<H", eid) + name.encode() + b"\0" + struct.pack("<H", len(variables))
-        for var, code in variables:
-            out += f"{var}({code})".encode() + b"\0"
-        fmt[eid] = "<H" + ("I" if version == 1 else "Q") + "".join(c for _, c in variables)
+    """A uSD log (:func:`~mjxsysid.logs.formats_write.usd_log`): ``events`` [(id, name, [(variable, struct
+    code)])], ``records`` [(id, timestamp ticks, values)] in time order."""
+    by_event = {}
     for eid, stamp, values in records:
-        out += struct.pack(fmt[eid], eid, stamp, *values)
-    out += struct.pack("<I", zlib.crc32(bytes(out)))
-    Path(path).write_bytes(bytes(out))
+        by_event.setdefault(eid, []).append((stamp, values))
+    names = {eid: [v for v, _ in variables] for eid, _, variables in events}
+    blocks = [(eid, np.array([s for s, _ in r], np.uint64),
+               {n: np.array([v[k] for _, v in r]) for k, n in enumerate(names[eid])}) for eid, r in by_event.items()]
+    Path(path).write_bytes(usd_log(version, events, blocks))
     return path
 
 

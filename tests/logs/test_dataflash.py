@@ -2,7 +2,6 @@
 known gyro, accelerometer, motor outputs, setpoints and velocity) read back through every conversion,
 and the real ArduCopter 3.4 sample of /work/shared (skipped where absent). numpy only: no JAX."""
 import shutil
-import struct
 import sys
 from pathlib import Path
 
@@ -15,11 +14,11 @@ from mjxsysid import theta as P
 from mjxsysid.logs import dataflash as D
 from mjxsysid.logs.csvlog import read_any_log
 from mjxsysid.logs.formats import detect
+from mjxsysid.logs.formats_write import ARDUCOPTER_MESSAGES, DataFlashLog
 
 SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "logs" / "formats"
 SAMPLE = SHARED / "ardupilot_dataflash" / "erle_Erle-Brain3.BIN"
 
-STRUCT = {"Q": "Q", "f": "f", "B": "B", "H": "H", "n": "4s", "N": "16s", "Z": "64s"}
 GYRO_FRD, ACC_FRD = (0.1, 0.2, 0.3), (0.5, 0.6, -9.81)
 MOTOR_PWM = {1: 1500, 2: 1600, 3: 1700, 4: 1800}          # ArduCopter motor n -> PWM µs in flight
 SERVO_FUNCTION = {1: 34, 2: 33, 3: 36, 4: 35}             # output n drives motor function - 32
@@ -27,58 +26,28 @@ PARAMS = {"FRAME_CLASS": 1, "FRAME_TYPE": 1, "MOT_PWM_MIN": 1000, "MOT_PWM_MAX":
           "MOT_THST_HOVER": 0.3, "AHRS_EKF_TYPE": 3, **{f"SERVO{n}_FUNCTION": f for n, f in SERVO_FUNCTION.items()}}
 
 
-class DataFlashWriter:
-    """A minimal DataFlash writer: an FMT record per message type, then the records."""
-
-    def __init__(self):
-        self.buf, self.fmts = bytearray(), {}
-        self._fmt(128, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")
-
-    def _fmt(self, typ, name, fmt, cols):
-        layout = "<" + "".join(STRUCT[c] for c in fmt)
-        self.fmts[name] = (typ, layout)
-        self.record("FMT", typ, 3 + struct.calcsize(layout), name.encode(), fmt.encode(), cols.encode())
-
-    def define(self, name, fmt, cols):
-        self._fmt(129 + len(self.fmts) - 1, name, fmt, cols)
-
-    def record(self, name, *values):
-        typ, layout = self.fmts[name]
-        self.buf += b"\xa3\x95" + bytes([typ]) + struct.pack(layout, *values)
-
-
 def write_synthetic(path):
     """10 s at 100 Hz (IMU, RATE, XKF1, ATT) and 50 Hz (RCOU, CTUN); armed 1–9 s, motors up 3–7 s;
     a second IMU instance and a second EKF core with other values (not to be read)."""
-    w = DataFlashWriter()
-    w.define("PARM", "QNf", "TimeUS,Name,Value")
-    w.define("MSG", "QZ", "TimeUS,Message")
-    w.define("EV", "QB", "TimeUS,Id")
-    w.define("IMU", "QffffffB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,I")
-    w.define("RCOU", "QHHHHHH", "TimeUS,C1,C2,C3,C4,C5,C6")
-    w.define("RATE", "Qfff", "TimeUS,RDes,PDes,YDes")
-    w.define("CTUN", "Qff", "TimeUS,ThO,ThH")
-    w.define("XKF1", "QBfff", "TimeUS,C,VN,VE,VD")
-    w.define("ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw")
-    for k, v in PARAMS.items():
-        w.record("PARM", 0, k.encode(), float(v))
-    w.record("MSG", 1000, b"ArduCopter V4.0.3 (abcdef12)")
-    w.record("EV", 1_000_000, 10)
-    for i in range(1000):
-        us = 10_000 * i + 500
-        w.record("IMU", us, *GYRO_FRD, *ACC_FRD, 0)
-        w.record("IMU", us, 9.0, 9.0, 9.0, 9.0, 9.0, 9.0, 1)
-        w.record("RATE", us, 10.0, 20.0, 30.0)
-        w.record("XKF1", us, 0, 1.0, 0.0, -0.5)                  # north 1 m/s, up 0.5 m/s
-        w.record("XKF1", us, 1, 7.0, 7.0, 7.0)
-        w.record("ATT", us, 0.0, 0.0, 90.0)                      # heading east
-        if i % 2 == 0:
-            flying = 3.0 <= us * 1e-6 <= 7.0
-            out = {n: MOTOR_PWM[SERVO_FUNCTION[n] - 32] if flying else 1100 for n in range(1, 5)}
-            w.record("RCOU", us + 100, out[1], out[2], out[3], out[4], 1500, 0)
-            w.record("CTUN", us + 100, 0.3 if flying else 0.0, 0.3)
-    w.record("EV", 9_000_000, 11)
-    Path(path).write_bytes(bytes(w.buf))
+    w = DataFlashLog(ARDUCOPTER_MESSAGES)
+    w.add("PARM", TimeUS=np.zeros(len(PARAMS), np.uint64), Name=[k.encode() for k in PARAMS],
+          Value=[float(v) for v in PARAMS.values()])
+    w.add("MSG", TimeUS=1000, Message=b"ArduCopter V4.0.3 (abcdef12)")
+    w.add("EV", TimeUS=[1_000_000, 9_000_000], Id=[10, 11])
+    us = 10_000 * np.arange(1000) + 500
+    imu = dict(zip(("GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"), GYRO_FRD + ACC_FRD))
+    w.add("IMU", TimeUS=us, **imu, I=0)
+    w.add("IMU", TimeUS=us, **{k: 9.0 for k in imu}, I=1)
+    w.add("RATE", TimeUS=us, RDes=10.0, PDes=20.0, YDes=30.0)
+    w.add("XKF1", TimeUS=us, C=0, VN=1.0, VE=0.0, VD=-0.5)                     # north 1 m/s, up 0.5 m/s
+    w.add("XKF1", TimeUS=us, C=1, VN=7.0, VE=7.0, VD=7.0)
+    w.add("ATT", TimeUS=us, Roll=0.0, Pitch=0.0, Yaw=90.0)                      # heading east
+    out = us[::2] + 100
+    flying = (3.0 <= us[::2] * 1e-6) & (us[::2] * 1e-6 <= 7.0)
+    pwm = {f"C{n}": np.where(flying, MOTOR_PWM[SERVO_FUNCTION[n] - 32], 1100) for n in range(1, 5)}
+    w.add("RCOU", TimeUS=out, **pwm, C5=1500, C6=0)
+    w.add("CTUN", TimeUS=out, ThO=np.where(flying, 0.3, 0.0), ThH=0.3)
+    Path(path).write_bytes(w.bytes())
     return path
 
 
@@ -149,7 +118,17 @@ def test_mappings_frames_and_armed_stretches():
         D.firmware({"MSG": {"Message": np.array(["ArduPlane V4.1.0 (123)"])}})
 
 
-def test_bad_input_and_missing_pymavlink(tmp_path, monkeypatch):
+def test_numpy_records_read_as_pymavlinks(synthetic, monkeypatch):
+    """The numpy parser and pymavlink (the fallback for a damaged log) give the same log."""
+    fast = D.read_dataflash(synthetic)
+    monkeypatch.setattr(D, "parse_records", lambda *a, **k: None)
+    slow = D.read_dataflash(synthetic)
+    assert fast["source"] == slow["source"]
+    for k in ("t", "imu", "a_cmd", "omega_cmd", "motor", "velocity_body"):
+        np.testing.assert_allclose(fast[k], slow[k], atol=1e-6)
+
+
+def test_bad_input_and_missing_pymavlink(synthetic, tmp_path, monkeypatch):
     bad = tmp_path / "x.bin"
     bad.write_bytes(b"not a log" * 100)
     with pytest.raises(ValueError, match="not an ArduPilot DataFlash"):
@@ -158,9 +137,14 @@ def test_bad_input_and_missing_pymavlink(tmp_path, monkeypatch):
     empty.write_bytes(D.MAGIC + bytes(200))
     with pytest.raises(ValueError, match=str(empty.name)):
         D.read_dataflash(empty)
+    data = synthetic.read_bytes()
+    damaged = tmp_path / "damaged.bin"                       # garbage between records: they no longer chain
+    damaged.write_bytes(data[:len(data) // 2] + b"\x00\x01\x02" + data[len(data) // 2:])
+    assert D.parse_records(damaged.read_bytes()) is None and D.parse_records(data) is not None
     monkeypatch.setitem(sys.modules, "pymavlink", None)
+    assert D.read_dataflash(synthetic)["source"]["format"] == "ArduPilot DataFlash"     # numpy alone
     with pytest.raises(ImportError, match=r'pip install -e "\.\[ardupilot\]"'):
-        D.read_dataflash(bad)
+        D.read_dataflash(damaged)
 
 
 @pytest.mark.skipif(not SAMPLE.is_file(), reason=f"real DataFlash sample not found at {SAMPLE}")

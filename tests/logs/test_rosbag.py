@@ -11,31 +11,20 @@ import pytest
 
 pytest.importorskip("rosbags")
 
-from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import StoragePlugin
-from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from mjxsysid.logs import rosbag as R
 from mjxsysid.logs.csvlog import read_any_log
 from mjxsysid.logs.formats import detect
+from mjxsysid.logs.formats_write import write_bag
+from mjxsysid.logs.rosbag import typestore_with_mavros
 
 SHARED = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "logs" / "formats"
 SAMPLE = SHARED / "rosbag" / "bintel_2018-07-18-17-07-35.bag"
 
-MAVROS = {"mavros_msgs/msg/RCOut": "std_msgs/Header header\nuint16[] channels\n",
-          "mavros_msgs/msg/AttitudeTarget": "std_msgs/Header header\nuint8 type_mask\ngeometry_msgs/Quaternion "
-                                            "orientation\ngeometry_msgs/Vector3 body_rate\nfloat32 thrust\n"}
 BASE = 1_600_000_000.0            # header stamps, s
 IMU_LAG, RC_LAG = 0.05, 0.3       # s the bag received each message after its stamp
 PWM = (1500, 1600, 1700, 1800)    # PX4 outputs 1..4 in flight (M1 FR, M2 BL, M3 FL, M4 BR)
-
-
-def _store(ros1: bool):
-    ts = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
-    for name, text in MAVROS.items():
-        ts.register(get_types_from_msg(text, name))
-    return ts
 
 
 def _messages(ts):
@@ -78,29 +67,17 @@ def _messages(ts):
                                                  angular_velocity_covariance=cov,
                                                  linear_acceleration=Vec(x=9.0, y=9.0, z=9.0),
                                                  linear_acceleration_covariance=cov)))
-    return sorted(out, key=lambda m: m[2])
+    return [(topic, typ, int(round(t * 1e9)), msg) for topic, typ, t, msg in sorted(out, key=lambda m: m[2])]
 
 
 def write_ros1(path):
-    ts = _store(True)
-    with Writer1(path) as w:
-        conns = {}
-        for topic, typ, t, msg in _messages(ts):
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typ, typestore=ts)
-            w.write(conns[topic], int(round(t * 1e9)), ts.serialize_ros1(msg, typ))
-    return path
+    ts = typestore_with_mavros(True)
+    return write_bag(path, ts, _messages(ts))
 
 
 def write_ros2(path, storage):
-    ts = _store(False)
-    with Writer2(path, version=8, storage_plugin=storage) as w:
-        conns = {}
-        for topic, typ, t, msg in _messages(ts):
-            if topic not in conns:
-                conns[topic] = w.add_connection(topic, typ, typestore=ts)
-            w.write(conns[topic], int(round(t * 1e9)), ts.serialize_cdr(msg, typ))
-    return path
+    ts = typestore_with_mavros(False)
+    return write_bag(path, ts, _messages(ts), storage)
 
 
 @pytest.fixture(scope="module")
@@ -189,3 +166,19 @@ def test_real_mavros_sample():
     assert r["imu"][:, 5].mean() == pytest.approx(9.8, abs=0.3)
     assert 0.4 < r["motor"].min() and r["motor"].max() < 0.95
     assert set(s["missing"]) == {"omega_cmd", "a_cmd", "velocity_body"}
+
+
+@pytest.mark.parametrize("kind", ["ros1", "mcap"])
+def test_numpy_paths_read_as_rosbags(ros1, tmp_path, monkeypatch, kind):
+    """A ROS 1 bag and an MCAP bag read with numpy (chunks, message indexes, fixed-layout messages) give
+    rosbags' log to the bit."""
+    from mjxsysid.logs import rosbag_fast
+    bag = ros1 if kind == "ros1" else write_ros2(tmp_path / "flight", StoragePlugin.MCAP)
+    assert R._fast_bag(Path(bag)) is not None
+    fast = R.read_rosbag(bag)
+    for name in ("read_ros1", "read_mcap", "fields"):
+        monkeypatch.setattr(rosbag_fast, name, lambda *a, **k: None)
+    slow = R.read_rosbag(bag)
+    assert fast["source"] == slow["source"]
+    for k in ("t", "imu", "a_cmd", "omega_cmd", "motor", "velocity_body"):
+        np.testing.assert_array_equal(fast[k], slow[k])
