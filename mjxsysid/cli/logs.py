@@ -11,7 +11,7 @@ from mjxsysid.runtime import jsonout
 
 
 def add_check_log(sub) -> None:
-    ck = sub.add_parser("check-log", help="the physical plausibility checks of a flight log alone (CSV or PX4 ULog)")
+    ck = sub.add_parser("check-log", help="the physical plausibility checks of a flight log alone (any format decode reads)")
     ck.add_argument("log", type=Path, metavar="FILE",
                     help="a flight-log CSV (docs/decoding.md) or a PX4 ULog .ulg (docs/px4.md)")
     ck.add_argument("--segment", default=None, metavar="T0:T1",
