@@ -234,7 +234,8 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
                             force_smc: bool = False, rates: str | None = None, calibration="shipped",
                             batch: int | None = None, workers: int | None = None,
                             desc: str | None = None) -> list[dict]:
-    """The posteriors of many logs (a list of what :func:`log_grounded_posterior` takes), batched:
+    """The posteriors of many logs (paths of any format, or what :func:`log_grounded_posterior`
+    takes), batched:
     logs of one shape (their windows and blocks bucketed, :func:`~.logdata.bucket`) and of one kind
     of proposal are evaluated ``batch`` at a time (default :data:`LOG_BATCH` on an accelerator, 1 on
     a CPU) by programs vmapped over the logs. ``decoded_thetas``: None, or one (S, 19) or None per
@@ -278,8 +279,12 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
 
 
 def _prepare_one(x, rates: str, i: int):
+    """Log i (a path of any format, a log's arrays or a :class:`LogData`) -> its :class:`LogData`."""
     if isinstance(x, LogData):
         return x
+    if isinstance(x, (str, os.PathLike)):
+        from mjxsysid.logs.csvlog import read_any_log
+        x = read_any_log(x)
     try:
         return prepare(x, rates=rates)
     except LogTooShort as e:
