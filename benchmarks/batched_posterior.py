@@ -58,12 +58,10 @@ def inside(posts, truth) -> np.ndarray:
 
 def shifts(ref, posts) -> dict:
     """How far the 5/50/95 % quantiles of ``posts`` lie from those of ``ref`` (the same logs), the
-    largest over the quantiles as a fraction of ``ref``'s 90 % width: median and max over logs and
-    coordinates."""
-    out = []
-    for p, q in zip(posts, ref):
-        qa, qb = (np.percentile(x["v"], [5, 50, 95], 0) for x in (q, p))
-        out.append(np.abs(qa - qb).max(0) / np.maximum(qa[2] - qa[0], 1e-12))
+    largest over the quantiles as a fraction of ``ref``'s 90 % width (the sampler reference's
+    ``sampler_error``): median and max over logs and coordinates."""
+    from mjxsysid.experiments.sampler_reference import compare
+    out = [compare(p["v"], q["v"], np.zeros(q["v"].shape[1]))["sampler_error"].max(0) for p, q in zip(posts, ref)]
     return {"median": round(float(np.median(out)), 3), "max": round(float(np.max(out)), 3)} if out else {}
 
 

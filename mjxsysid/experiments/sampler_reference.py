@@ -42,6 +42,7 @@ from mjxsysid import theta as P
 from mjxsysid.experiments.common import markdown_table, write_results
 from mjxsysid.experiments.log_grounded_coverage import level_flights
 from mjxsysid.identify import logspace as L
+from mjxsysid.identify.calibrate import raw_bands
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, V_NAMES, PhysicalPrior, visible_from_theta
 from mjxsysid.identify.inference import _reliable, log_grounded_posterior
 from mjxsysid.identify.target import N_Y, _log_target_y, _y_lo_hi
@@ -65,7 +66,6 @@ divergent transitions of 8,000; 0.95 left 4, for 3× the leapfrog steps."""
 INIT_JITTER = 1.0
 """Each chain starts at the mode plus N(0, this²) in the preconditioned coordinates u (one SMC
 posterior standard deviation per direction)."""
-QUANTILES = (5.0, 50.0, 95.0)
 RHAT_MAX = 1.01
 """A log whose NUTS run ends with R̂ at or above this on any coordinate is run again once with
 :data:`LONGER` times the warm-up and draws (an × 1 log at 1000 + 2000 steps: R̂ 1.020 on the yaw
@@ -202,12 +202,12 @@ def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: in
 
 def compare(smc_v, mcmc_v, truth_v) -> dict:
     """SMC draws (S, 12), MCMC draws (N, 12), the truth (12,) -> per coordinate: ``smc`` and ``mcmc``
-    quantiles (3, 12) at :data:`QUANTILES`, ``sampler_error`` (3, 12) |SMC − MCMC| per quantile over
-    the MCMC's 90 % band width, ``width_ratio`` (12,) the SMC's band width over the MCMC's,
+    quantiles (3, 12) (5, 50, 95 %: :func:`~mjxsysid.identify.calibrate.raw_bands`), ``sampler_error``
+    (3, 12) |SMC − MCMC| per quantile over the MCMC's 90 % band width, ``width_ratio`` (12,) the
+    SMC's band width over the MCMC's,
     ``inside_smc`` / ``inside_mcmc`` (12,) the truth in each 90 % band, ``model_error`` (12,)
     |truth − MCMC median| over the MCMC band's width."""
-    qs = np.percentile(np.asarray(smc_v, np.float64), QUANTILES, 0)
-    qm = np.percentile(np.asarray(mcmc_v, np.float64), QUANTILES, 0)
+    qs, qm = raw_bands(smc_v), raw_bands(mcmc_v)
     t = np.asarray(truth_v, np.float64)
     width = np.maximum(qm[2] - qm[0], 1e-12)
     return {"smc": qs, "mcmc": qm, "sampler_error": np.abs(qs - qm) / width, "width_ratio": (qs[2] - qs[0]) / width,

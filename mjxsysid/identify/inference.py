@@ -46,7 +46,7 @@ from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _
                                     _ls_jacobian_logs, find_modes)
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
 from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc, _smc_logs, _smc_start, rw_scale_update
-from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, TARGET_EVALS,
+from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, target_evals,
                                       _batch_log_target_logs, full_precision, full_x,
                                       log_prior, log_target)
 
@@ -87,7 +87,7 @@ def _pow2_pad(idx):
 
 def _pad_rows(a, n: int) -> np.ndarray:
     """``a`` (m, ...) padded to n rows by repeating its first (the rows of :func:`_pow2_pad`)."""
-    a = np.asarray(a, np.float32)
+    a = np.asarray(a)
     return np.concatenate([a, np.broadcast_to(a[:1], (n - len(a),) + a.shape[1:])]) if n > len(a) else a  # rows, not coordinates
 
 
@@ -101,14 +101,18 @@ class _Logs:
 
     def __init__(self, datas):
         self.datas = list(datas)
-        self.stack = jax.tree.map(lambda *a: jnp.asarray(np.stack(a)), *self.datas) if len(self.datas) > 1 else None
+        self.stack = None
+        if len(self.datas) > 1:         # the logs padded to a power of two, on the device once
+            padded = [self.datas[i] for i in _pow2_pad(range(len(self.datas)))]
+            self.stack = jax.tree.map(lambda *a: jnp.asarray(np.stack(a)), *padded)
 
     def __len__(self):
         return len(self.datas)
 
     def _sub(self, idx):
+        """The padded indices of the logs ``idx`` and their stacked data (all of them: the stack)."""
         p = _pow2_pad(idx)
-        return p, _take(self.stack, p)
+        return p, self.stack if list(idx) == list(range(len(self))) else _take(self.stack, p)
 
     def targets(self, y, ld, w, prior, idx=None):
         """log target of y (m, N, 17) for the logs ``idx`` (m,) (default all), each with its log δ
@@ -118,11 +122,9 @@ class _Logs:
         if self.stack is None:
             return np.asarray(log_target(y[0], self.datas[idx[0]], ld[0], w[0], prior))[None]  # rows, not coordinates
         p, data = self._sub(idx)
-        pad = len(p) - len(idx)
-        y, ld, w = (np.concatenate([a, np.broadcast_to(a[:1], (pad,) + a.shape[1:])]) if pad else a
-                    for a in (np.asarray(y, np.float32), np.asarray(ld, np.float32), w))
+        y, ld, w = (_pad_rows(np.asarray(a, np.float32), len(p)) for a in (y, ld, w))
         n = y.shape[1]
-        chunk = max(16, TARGET_EVALS // len(p))
+        chunk = max(16, target_evals() // len(p))
         padn = -n % chunk
         if padn:
             y = np.concatenate([y, np.broadcast_to(y[:, :1], (len(p), padn, y.shape[2]))], 1)  # rows, not coordinates
@@ -136,7 +138,7 @@ class _Logs:
             z0 = z[0]  # rows, not coordinates
             return np.asarray(_fit_ls_many(jnp.asarray(z0), self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])))[None]
         p, data = self._sub(range(len(self)))
-        z, ld, ls = (_pad_rows(a, len(p)) for a in (z, ld, ls))
+        z, ld, ls = (_pad_rows(np.asarray(a, np.float32), len(p)) for a in (z, ld, ls))
         return np.asarray(_fit_ls_logs(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls)))[:len(self)]
 
     def jacobians(self, z, ld, ls, w):
@@ -146,7 +148,7 @@ class _Logs:
             return np.asarray(_ls_jacobian(jnp.asarray(z0), (self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])),
                                            jnp.asarray(w[0])))[None]
         p, data = self._sub(range(len(self)))
-        z, ld, ls, w = (_pad_rows(a, len(p)) for a in (z, ld, ls, w))
+        z, ld, ls, w = (_pad_rows(np.asarray(a, np.float32), len(p)) for a in (z, ld, ls, w))
         return np.asarray(_ls_jacobian_logs(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls), jnp.asarray(w)))[:len(self)]
 
     def smc(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages):
@@ -159,8 +161,8 @@ class _Logs:
                        qv[0], qn[0], lap[0], prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
             return [np.asarray(o)[None] for o in out]
         p, data = self._sub(idx)
+        args = [_pad_rows(a, len(p)) for a in args]
         pad = len(p) - len(idx)
-        args = [np.concatenate([a, np.broadcast_to(a[:1], (pad,) + a.shape[1:])]) if pad else a for a in args]
         stk = lambda ts: None if ts[0] is None else jax.tree.map(lambda *a: jnp.stack(a), *(ts + [ts[0]] * pad))  # noqa: E731
         out = _smc_logs(*(jnp.asarray(a) for a in args[:2]), data, *(jnp.asarray(a) for a in args[2:]),
                         stk(list(qv)), stk(list(qn)), stk(list(lap)), prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)

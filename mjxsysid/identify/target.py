@@ -105,12 +105,20 @@ def log_target(y, data: LogData, log_delta=None, weights=None, prior: PhysicalPr
     return np.concatenate(out)[:n]
 
 
-TARGET_EVALS = 4096
-"""Evaluations of the target per call when several logs are evaluated together (a batch's draws are
-cut into chunks of TARGET_EVALS / logs each)."""
+TARGET_EVALS = {"cpu": 4096}
+"""Evaluations of the target per call when several logs are evaluated together, per backend (a
+batch's draws are cut into chunks of TARGET_EVALS / logs each); an accelerator takes
+:data:`TARGET_EVALS_ACCELERATOR`."""
+TARGET_EVALS_ACCELERATOR = 1 << 18
+"""256 logs × 1024 draws a call: a few calls for a batch's 4096 importance draws, not 256."""
+
+
+def target_evals() -> int:
+    """:data:`TARGET_EVALS` of the default backend."""
+    return TARGET_EVALS.get(jax.default_backend(), TARGET_EVALS_ACCELERATOR)
 
 
 @functools.partial(jax.jit, static_argnames=("prior",))
 def _batch_log_target_logs(y, data, log_delta, weights, prior):
     """:func:`_batch_log_target` vmapped over logs: y (L, N, 17) -> (L, N)."""
-    return jax.vmap(lambda z, d, a, b: jax.vmap(lambda q: _log_target_y(q, d, a, b, prior))(z))(y, data, log_delta, weights)
+    return jax.vmap(lambda z, d, a, b: _batch_log_target(z, d, a, b, prior))(y, data, log_delta, weights)

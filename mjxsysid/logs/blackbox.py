@@ -155,8 +155,8 @@ def _decode(path: Path, index: int, data: bytes, starts: list[int]):
     try:
         headers, main, frames = blackbox_frames.decode_frames(data, starts[index - 1], end)
     except blackbox_frames.Unsupported:
-        return _decode_orangebox(path, index)
-    if not frames:
+        headers, main, frames = _decode_orangebox(path, index)
+    if not len(frames):
         raise ValueError(f"{path}: log {index} has no frames (armed and disarmed without logging?); "
                          f"try another log_index")
     return headers, main, np.asarray(frames, np.int64)
@@ -172,10 +172,7 @@ def _decode_orangebox(path: Path, index: int):
     except Exception as e:  # orangebox raises assorted errors on a damaged file
         raise ValueError(f"{path}: log {index} is not a readable blackbox log ({type(e).__name__}: {e}); "
                          f"check the file is complete (not truncated by a power cut) or try another log_index") from None
-    if not rows:
-        raise ValueError(f"{path}: log {index} has no frames (armed and disarmed without logging?); "
-                         f"try another log_index")
-    return dict(parser.headers), main, np.asarray(rows, np.int64)
+    return dict(parser.headers), main, rows
 
 
 def _columns(frames, names, stem, n, path, scale=1.0):
@@ -214,7 +211,8 @@ def read_blackbox(path, segment=None, log_index=None) -> dict:
     at one logging rate) by default. Frames
     before the longest run of monotonic time (garbage at a log's start) are dropped. ValueError: not
     a readable blackbox log, a field missing, not four motors, a segment too short; ImportError
-    without orangebox (``pip install -e ".[blackbox]"``)."""
+    without orangebox (``pip install -e ".[blackbox]"``) for a header the project's own decoder
+    does not plan (:mod:`.blackbox_frames`)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"flight log not found: {path}")

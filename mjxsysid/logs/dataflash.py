@@ -97,7 +97,7 @@ def _formats(buf, cand):
     return out
 
 
-def _chain(cand, nxt, end: int):
+def _chain(cand, nxt):
     """Indices into ``cand`` of the records chained from the first (each record's end is the next one's start)
     -> (indices, where the chain stopped)."""
     j = np.searchsorted(cand, nxt)
@@ -129,7 +129,7 @@ def parse_records(data: bytes, types=None) -> dict | None:
     kind = buf[np.minimum(cand + 2, len(buf) - 1)]
     known = size[kind] > 0
     cand, kind = cand[known], kind[known]
-    chain, stop = _chain(cand, cand + size[kind], len(buf))
+    chain, stop = _chain(cand, cand + size[kind])
     if stop > len(buf):                                   # the last record cut short
         chain = chain[:-1]
         stop = int(cand[chain[-1]] + size[kind[chain[-1]]]) if len(chain) else 0
@@ -305,7 +305,7 @@ def read_dataflash(path, segment=None) -> dict:
     """Read an ArduCopter DataFlash log -> the log contract (:mod:`mjxsysid.logs.formats`) over the
     airborne part of its longest armed stretch (or ``segment`` 't0:t1', seconds of boot time).
     ValueError: not a DataFlash log, not a quad-X copter, IMU or RCOU missing, too short; ImportError
-    without pymavlink."""
+    without pymavlink for a damaged log (its records then read one by one)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"flight log not found: {path}")

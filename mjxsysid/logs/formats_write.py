@@ -23,12 +23,10 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.logs.blackbox import BF_TO_MJX, MAGIC as BLACKBOX_MAGIC, QUAT_SCALE
 from mjxsysid.logs.crazyflie import CF_ORDER, MAGIC as USD_MAGIC, PWM_FULL, STAMP, TYPE_CODES
-from mjxsysid.logs.dataflash import AP_QUADX_ORDER, EV_ARMED, EV_DISARMED
+from mjxsysid.logs.dataflash import AP_QUADX_ORDER, EV_ARMED, EV_DISARMED, FORMAT_DTYPES
 from mjxsysid.logs.rosbag import typestore_with_mavros
 from mjxsysid.logs.ulog import PX4_QUADX_ORDER
-
-FRD = np.array([1.0, -1.0, -1.0])
-"""FLU <-> FRD, and the world (x, y, z up) <-> NED taken as (x, −y, −z), as :mod:`~mjxsysid.logs.ulog_write`."""
+from mjxsysid.logs.ulog_write import FRD, FRD_QUAT     # FLU <-> FRD, the world (z up) <-> NED as (x, −y, −z)
 
 
 def _flight(t, imu, a_cmd, omega_cmd, motor, quat, vel):
@@ -42,7 +40,7 @@ def _flight(t, imu, a_cmd, omega_cmd, motor, quat, vel):
 
 def _frd_to_ned(quat):
     """Attitudes (N, 4) w x y z, body FLU to the world (z up) -> body FRD to NED: y and z negated."""
-    return np.asarray(quat, np.float64) * np.array([1.0, 1.0, -1.0, -1.0])
+    return np.asarray(quat, np.float64) * FRD_QUAT
 
 
 def interleave(blocks, chunk: int = 1 << 17) -> bytes:
@@ -181,11 +179,6 @@ def write_blackbox(path, t, imu, a_cmd, omega_cmd, motor, *, quat=None, vel=None
 
 # ---- ArduPilot DataFlash (mjxsysid.logs.dataflash)
 
-DF_TYPES = {"Q": "<u8", "q": "<i8", "I": "<u4", "i": "<i4", "f": "<f4", "d": "<f8", "B": "u1", "b": "i1", "H": "<u2",
-            "h": "<i2", "n": "S4", "N": "S16", "Z": "S64"}
-"""DataFlash format characters (those written here) -> numpy dtypes."""
-
-
 ARDUCOPTER_MESSAGES = (("PARM", "QNf", "TimeUS,Name,Value"), ("MSG", "QZ", "TimeUS,Message"), ("EV", "QB", "TimeUS,Id"),
                        ("IMU", "QffffffB", "TimeUS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,I"),
                        ("RCOU", "QHHHHHH", "TimeUS,C1,C2,C3,C4,C5,C6"), ("RATE", "Qfff", "TimeUS,RDes,PDes,YDes"),
@@ -209,7 +202,7 @@ class DataFlashLog:
 
     def define(self, name: str, fmt: str, columns: str) -> None:
         cols = columns.split(",")
-        dt = np.dtype([("head", "S2"), ("type", "u1")] + [(c, DF_TYPES[f]) for c, f in zip(cols, fmt)])
+        dt = np.dtype([("head", "S2"), ("type", "u1")] + [(c, FORMAT_DTYPES[f]) for c, f in zip(cols, fmt)])
         self.types[name] = (128 + len(self.types), fmt, columns, dt)
 
     def add(self, name: str, **columns) -> None:

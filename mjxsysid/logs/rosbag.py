@@ -33,12 +33,11 @@ from pathlib import Path
 import numpy as np
 
 from mjxsysid.logs import rosbag_fast
+from mjxsysid.logs.rosbag_fast import MCAP_MAGIC, ROS1_MAGIC
 from mjxsysid.logs.record import (HELD, LINEAR, assemble, body_velocity_from_world, native_rates, pick_segment,
                                     sorted_unique)
 from mjxsysid.logs.ulog import PX4_QUADX_ORDER, throttle_to_rotor_speed
 
-ROS1_MAGIC = b"#ROSBAG V2.0"
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 
 PWM_MIN, PWM_MAX = 1000.0, 2000.0

@@ -22,10 +22,12 @@ import numpy as np
 
 from mjxsysid.logs.ulog_fast import rows
 
-SIZES = {"bool": 1, "int8": 1, "uint8": 1, "byte": 1, "char": 1, "int16": 2, "uint16": 2, "int32": 4, "uint32": 4,
-         "float32": 4, "int64": 8, "uint64": 8, "float64": 8}
 DTYPES = {"bool": "u1", "int8": "i1", "uint8": "u1", "byte": "u1", "char": "u1", "int16": "<i2", "uint16": "<u2",
           "int32": "<i4", "uint32": "<u4", "float32": "<f4", "int64": "<i8", "uint64": "<u8", "float64": "<f8"}
+SIZES = {t: np.dtype(d).itemsize for t, d in DTYPES.items()}
+"""Bytes of each fixed-size ROS field type."""
+ROS1_MAGIC = b"#ROSBAG V2.0"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 BASE, NAME, ARRAY, SEQUENCE = 1, 2, 3, 4
 """rosbags' Nodetype values."""
 
@@ -182,7 +184,7 @@ def read_ros1(data: bytes, typestore) -> Bag | None:
     """A ROS 1 bag's bytes ``data`` -> its connections and messages (:class:`Bag`), or None when it
     is not read here (an unindexed or unknown record, a compression other than bz2 and lz4: rosbags reads it)."""
     from rosbags.typesys.msg import normalize_msgtype
-    if not data.startswith(b"#ROSBAG V2.0\n"):
+    if not data.startswith(ROS1_MAGIC + b"\n"):
         return None
     pos, n = 13, len(data)
     conns, chunk, per_conn = {}, None, {}
@@ -241,7 +243,6 @@ def _bag(conns: dict, per_conn: dict) -> Bag:
 
 # ---- MCAP (ROS 2)
 
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def _u(data, i: int, n: int) -> int:

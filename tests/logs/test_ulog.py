@@ -253,3 +253,13 @@ def test_pwm_limits_per_channel_minus_one_means_unset():
               **{f"PWM_MAIN_MAX{i}": -1 for i in range(1, 9)}}
     lo, hi, said = U.pwm_limits(params, np.full((10, 4), 1500.0))
     assert (lo, hi) == (1230.0, 1950.0) and "PWM_MAIN_MIN" in said
+
+
+def test_fast_data_section_reads_what_pyulogs_loop_reads(written, monkeypatch):
+    """The numpy data section (logs.ulog_fast) gives the record pyulog's own message loop gives."""
+    from mjxsysid.logs import ulog_fast
+    fast = U.read_ulog(written)
+    monkeypatch.setattr(ulog_fast, "read_data_section", lambda *a: False)
+    slow = U.read_ulog(written)
+    for k in ("t", "imu", "motor", "a_cmd", "omega_cmd"):
+        np.testing.assert_array_equal(fast[k], slow[k], err_msg=k)
