@@ -33,7 +33,7 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.logs.segment import _runs, airborne_segment
-from mjxsysid.logs.record import rate_hz, rate_text
+from mjxsysid.logs.record import gather, rate_hz, rate_text
 from mjxsysid.logs.grid import DT, cut, hold, interp_linear, segment_grid, user_segment, world_to_body
 
 MAGIC = 0xBC
@@ -157,15 +157,6 @@ def _arrays(offsets):
     return {e: np.asarray(v, np.int64) for e, v in offsets.items()}
 
 
-def _records(data: bytes, offs, dtype):
-    """The records of one event at byte offsets ``offs`` (N,) -> structured array (N,)."""
-    if len(offs) > 1 and np.all(np.diff(offs) == dtype.itemsize):
-        return np.ndarray((len(offs),), dtype, data, int(offs[0]))
-    buf = np.frombuffer(data, np.uint8)
-    rows = buf[offs[:, None] + np.arange(dtype.itemsize)]
-    return rows.reshape(-1).view(dtype)
-
-
 def decode(path):
     """Decode a Crazyflie uSD log -> (version, {event name: {"t": (N,) s on the Crazyflie's clock,
     variable: (N,) as logged}}, CRC sentence). ValueError (one line, naming the file) when the
@@ -200,7 +191,7 @@ def decode(path):
     out = {}
     scale = STAMP[version][1]
     for eid, (name, names, dtype) in events.items():
-        rec = _records(data, offsets[eid], dtype)
+        rec = gather(data, offsets[eid], dtype)
         cols = {"t": rec["t"].astype(np.float64) * scale}
         cols.update({v: np.asarray(rec[v]) for v in names})
         out[name] = cols

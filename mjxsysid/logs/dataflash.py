@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from mjxsysid import theta as P
-from mjxsysid.logs.record import (HELD, LINEAR, assemble, body_velocity_from_world, native_rates, pick_segment,
-                                    sorted_unique)
+from mjxsysid.logs.record import (HELD, LINEAR, assemble, body_velocity_from_world, gather, native_rates,
+                                    pick_segment, sorted_unique)
 from mjxsysid.logs.ulog import throttle_to_rotor_speed
 
 MAGIC = b"\xa3\x95\x80"
@@ -143,7 +143,7 @@ def parse_records(data: bytes, types=None) -> dict | None:
         o = offs[kind == typ] + 3
         if not len(o):
             continue
-        rows = buf[o[:, None] + np.arange(dt.itemsize)].reshape(-1).view(dt)
+        rows = gather(buf, o, dt)
         cols = {}
         for c, n in zip(fmt, dt.names):
             v = rows[n]

@@ -2,7 +2,9 @@
 
 A reader converts its channels to SI units, body frame FLU and mjxsysid's rotor order on their own
 timestamps, picks the segment (:func:`pick_segment`) and hands the native samples to
-:func:`assemble`, which brings them to the 2 ms grid and says how (``rec["resampled"]``).
+:func:`assemble`, which brings them to the 2 ms grid and says how (``rec["resampled"]``). The binary readers
+(ULog, DataFlash, Crazyflie, ROS bags) take their fixed-size records out of the file's bytes with
+:func:`gather`.
 """
 from __future__ import annotations
 
@@ -12,6 +14,17 @@ from mjxsysid.logs.segment import airborne_segment
 from mjxsysid.logs.grid import DT, MIN_ROWS, cut, hold, interp_linear, user_segment
 
 LINEAR, HELD = "interpolated (linear)", "held (zero-order)"
+
+
+def gather(buf, starts, dtype) -> np.ndarray:
+    """The records of ``dtype`` at byte offsets ``starts`` (N,) of ``buf`` (bytes or (B,) uint8) -> (N,) of
+    ``dtype`` ((N, k) for a subarray dtype of k items). A view of ``buf`` where the records lie back to back,
+    else a copy."""
+    buf, dtype, n = np.frombuffer(buf, np.uint8), np.dtype(dtype), len(starts)
+    if n > 1 and np.all(np.diff(starts) == dtype.itemsize):
+        return np.ndarray((n,), dtype, buf, int(starts[0]))
+    rows = np.lib.stride_tricks.sliding_window_view(buf, dtype.itemsize)[starts] if n else np.empty(0, np.uint8)
+    return np.ndarray((n,), dtype, rows)
 
 
 def rate_hz(t) -> float:

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mjxsysid.logs.ulog_fast import rows
+from mjxsysid.logs.record import gather
 
 DTYPES = {"bool": "u1", "int8": "i1", "uint8": "u1", "byte": "u1", "char": "u1", "int16": "<i2", "uint16": "<u2",
           "int32": "<i4", "uint32": "<u4", "float32": "<f4", "int64": "<i8", "uint64": "<u8", "float64": "<f8"}
@@ -201,8 +201,8 @@ def read_ros1(data: bytes, typestore) -> Bag | None:
                 cid = int.from_bytes(head["conn"], "little")
                 idx = np.frombuffer(body, [("sec", "<u4"), ("nsec", "<u4"), ("off", "<u4")])
                 off = idx["off"].astype(np.int64)
-                hlen = rows(chunk, off, 4).copy().view("<u4")[:, 0].astype(np.int64)
-                dlen = rows(chunk, off + 4 + hlen, 4).copy().view("<u4")[:, 0].astype(np.int64)
+                hlen = gather(chunk, off, "<u4").astype(np.int64)
+                dlen = gather(chunk, off + 4 + hlen, "<u4").astype(np.int64)
                 t = idx["sec"].astype(np.int64) * 1_000_000_000 + idx["nsec"]
                 per_conn.setdefault(cid, []).append((t, chunk, off + 8 + hlen, dlen))
             elif op == 0x07:                                           # connection
@@ -230,7 +230,7 @@ def _bag(conns: dict, per_conn: dict) -> Bag:
         order = time_order(t)
         lengths = np.concatenate([p[3] for p in parts])
         if np.all(lengths == lengths[0]):                         # one length: a matrix, no step per message
-            raw = np.concatenate([rows(c, start, int(lengths[0])) for _, c, start, _ in parts])
+            raw = np.concatenate([gather(c, start, (np.uint8, (int(lengths[0]),))) for _, c, start, _ in parts])
         else:
             raw = [bytes(c[a:a + d]) for _, c, start, ln in parts for a, d in zip(start.tolist(), ln.tolist())]
         if order is not None:
@@ -319,7 +319,7 @@ def read_mcap(data: bytes, typestore):
                 off = idx["off"].astype(np.int64)
                 if len(off) and np.any(c[off] != 0x05):
                     return None
-                length = rows(c, off + 1, 8).copy().view("<u8")[:, 0].astype(np.int64) - 22
+                length = gather(c, off + 1, "<u8").astype(np.int64) - 22
                 per_conn.setdefault(cid, []).append((idx["t"].astype(np.int64), c, off + 31, length))
             elif op in (0x03, 0x04):
                 _definition(op, body, schemas, channels)

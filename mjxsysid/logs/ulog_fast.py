@@ -14,6 +14,8 @@ import io
 
 import numpy as np
 
+from mjxsysid.logs.record import gather
+
 KNOWN = frozenset(b"ADIMPQLCOS")
 """The data section's message types read here (pyulog's loop takes a file with any other)."""
 
@@ -31,11 +33,6 @@ def message_starts(data: bytes) -> np.ndarray | None:
     if np.any((buf[offs] == 0) & (buf[offs + 1] == 0)):
         return None
     return offs if i == len(data) else offs[:-1]
-
-
-def rows(buf, starts, width: int) -> np.ndarray:
-    """The ``width`` bytes at each of ``starts`` (N,) in ``buf`` -> (N, width) uint8 (a row copy each)."""
-    return np.lib.stride_tricks.sliding_window_view(buf, width)[starts]
 
 
 def read_data_section(ULog, ulog, data: bytes) -> bool:
@@ -67,9 +64,9 @@ def read_data_section(ULog, ulog, data: bytes) -> bool:
         width = sub.dtype.itemsize
         if np.any(d_size[mine] - 2 < width) or np.any(d_size[mine] - 2 > sub.max_data_size):
             return False
-        sub.buffer = bytearray(rows(buf, d_offs[mine] + 5, width).tobytes())
+        sub.buffer = bytearray(gather(buf, d_offs[mine] + 5, (np.uint8, (width,))).tobytes())
         at = d_offs[mine] + 5 + sub.timestamp_offset
-        stamps[mine] = rows(buf, at, 8).copy().view("<u8")[:, 0]
+        stamps[mine] = gather(buf, at, "<u8")
     # the latest data timestamp before each other message (pyulog stamps changed parameters and dropouts with it)
     latest = np.maximum.accumulate(np.concatenate([[ulog._last_timestamp], stamps]).astype(np.uint64))
     before = np.searchsorted(d_offs, offs[~is_data])
