@@ -146,14 +146,10 @@ def write_ulog(path, t, imu, a_cmd, omega_cmd, motor, *, rates: dict | None = No
     for k, v in {"MAV_TYPE": 2, "CA_AIRFRAME": 0, "CA_ROTOR_COUNT": 4, "THR_MDL_FAC": 0.0,
                  "MPC_THR_HOVER": hover_thrust, **geo, **(params or {})}.items():
         defs.append(_param(k, v))
-    subs, rows, stamps = [], [], []
-    for msg_id, (topic, (idx, cols)) in enumerate(data.items()):
-        subs.append(_msg(b"A", struct.pack("<BH", 0, msg_id) + topic.encode()))
-        r = _rows(msg_id, topic, ts[idx], cols)
-        rows += list(r)
-        stamps.append(ts[idx])
-    order = np.argsort(np.concatenate(stamps), kind="stable")
-    body = b"".join(rows[i].tobytes() for i in order)
+    from mjxsysid.logs.formats_write import interleave     # it imports this module
+    subs = [_msg(b"A", struct.pack("<BH", 0, msg_id) + topic.encode()) for msg_id, topic in enumerate(data)]
+    body = interleave([(ts[idx], _rows(msg_id, topic, ts[idx], cols))
+                       for msg_id, (topic, (idx, cols)) in enumerate(data.items())])
     Path(path).write_bytes(head + b"".join(defs) + b"".join(subs) + body)
     return Path(path)
 
