@@ -189,10 +189,8 @@ def _fast_bag(path: Path):
         head = f.read(16)
     if head.startswith(ROS1_MAGIC):
         store = typestore_with_mavros(True)
-        bag = rosbag_fast.read_ros1(path.read_bytes(), store)
-        if bag is None or not all(rosbag_fast.md5_matches(store, c) for c in bag.connections if c.msgtype in FIELDS):
-            return None
-        return bag, store, False
+        bag = rosbag_fast.read_ros1(path.read_bytes(), store, FIELDS)
+        return None if bag is None else (bag, store, False)
     if head.startswith(MCAP_MAGIC):
         got = rosbag_fast.read_mcap(path.read_bytes(), typestore_with_mavros(False))
         return None if got is None else (*got, True)

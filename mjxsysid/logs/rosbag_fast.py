@@ -9,8 +9,8 @@ million messages takes half a minute. Here:
   the offsets are walked once on the first message from the type's definition (ROS 1 packed, or CDR
   aligned), and every message is a row of one matrix;
 - :func:`read_ros1` reads a ROS 1 bag's chunks (uncompressed, bz2 or lz4), its connections and its
-  per-chunk index with numpy, no Python step per message (the reader checks each type's MD5 against
-  the typestore the offsets are walked from);
+  per-chunk index with numpy, no Python step per message; it checks the MD5 of each type read against
+  the typestore the offsets are walked from before it gathers any message;
 - :func:`read_mcap` reads an MCAP file (a ROS 2 bag's storage) the same way, from its chunks
   (uncompressed, zstd or lz4) and their message indexes, its types registered from its own schemas.
 """
@@ -180,9 +180,10 @@ def _chunk_bytes(head: dict, body: bytes) -> bytes:
     raise Unsupported(f"chunk compression {kind!r}")
 
 
-def read_ros1(data: bytes, typestore) -> Bag | None:
+def read_ros1(data: bytes, typestore, types) -> Bag | None:
     """A ROS 1 bag's bytes ``data`` -> its connections and messages (:class:`Bag`), or None when it
-    is not read here (an unindexed or unknown record, a compression other than bz2 and lz4: rosbags reads it)."""
+    is not read here (an unindexed or unknown record, a compression other than bz2 and lz4, a connection
+    of one of ``types`` whose definition's MD5 is not the typestore's: rosbags reads it)."""
     from rosbags.typesys.msg import normalize_msgtype
     if not data.startswith(ROS1_MAGIC + b"\n"):
         return None
@@ -215,6 +216,9 @@ def read_ros1(data: bytes, typestore) -> Bag | None:
     except (KeyError, IndexError, ValueError, Unsupported):
         return None
     if not per_conn or set(per_conn) - set(conns):
+        return None
+    read = [conns[cid][1:] for cid in per_conn if conns[cid][1] in types]          # (msgtype, md5) of each
+    if not all(md5_matches(typestore, msgtype, md5) for msgtype, md5 in read):
         return None
     return _bag(conns, per_conn)
 
@@ -345,9 +349,9 @@ def read_mcap(data: bytes, typestore):
     return _bag(conns, per_conn), typestore
 
 
-def md5_matches(typestore, conn: Connection) -> bool:
-    """Is the bag's MD5 of ``conn``'s type the typestore's (the same definition)?"""
+def md5_matches(typestore, msgtype: str, md5sum: str) -> bool:
+    """Is a bag's MD5 ``md5sum`` of ``msgtype`` the typestore's (the same definition)?"""
     try:
-        return typestore.generate_msgdef(conn.msgtype, ros_version=1)[1] == conn.md5sum
+        return typestore.generate_msgdef(msgtype, ros_version=1)[1] == md5sum
     except Exception:  # a type the typestore lacks
         return False

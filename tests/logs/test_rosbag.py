@@ -168,6 +168,21 @@ def test_real_mavros_sample():
     assert set(s["missing"]) == {"omega_cmd", "a_cmd", "velocity_body"}
 
 
+def test_ros1_definition_of_another_md5_is_left_to_rosbags_before_any_message_is_gathered(ros1, tmp_path,
+                                                                                          monkeypatch):
+    """A ROS 1 bag whose IMU definition's MD5 is not the typestore's is left to rosbags, and no message
+    matrix is built for it first."""
+    from mjxsysid.logs import rosbag_fast
+    md5 = typestore_with_mavros(True).generate_msgdef("sensor_msgs/msg/Imu", ros_version=1)[1].encode()
+    data = Path(ros1).read_bytes()
+    assert md5 in data
+    bag = tmp_path / "other_imu.bag"
+    bag.write_bytes(data.replace(md5, b"0" * len(md5)))
+    with monkeypatch.context() as m:
+        m.setattr(rosbag_fast, "_bag", lambda *a: pytest.fail("a message matrix was built"))
+        assert R._fast_bag(bag) is None
+
+
 @pytest.mark.parametrize("kind", ["ros1", "mcap"])
 def test_numpy_paths_read_as_rosbags(ros1, tmp_path, monkeypatch, kind):
     """A ROS 1 bag and an MCAP bag read with numpy (chunks, message indexes, fixed-layout messages) give
