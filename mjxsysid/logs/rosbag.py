@@ -140,39 +140,41 @@ def _topic_fields(typestore, msgtype, raws, cdr, deserialize) -> dict:
     return got
 
 
+def _topics(raw: dict, typestore, cdr: bool, deserialize) -> dict:
+    """{topic: (header times (N,) s, bag times (N,) s, fields)} of ``raw`` {topic: (msgtype, bag times (N,) ns,
+    raw messages)} (fields: :func:`_topic_fields`)."""
+    out = {}
+    for topic, (msgtype, t_bag, raws) in raw.items():
+        f = _topic_fields(typestore, msgtype, raws, cdr, deserialize)
+        t = f["header.stamp.sec"].astype(np.float64) + 1e-9 * f["header.stamp.nanosec"].astype(np.float64)
+        out[topic] = (t, np.asarray(t_bag, np.float64) * 1e-9, f)
+    return out
+
+
 def _read_topics(reader, cons) -> dict:
-    """{topic: (header times (N,) s, bag times (N,) s, fields)} of the connections ``cons`` of an open
-    rosbags reader (fields: :func:`_topic_fields`)."""
-    raw = {c.topic: ([], []) for c in cons}
-    types = {c.topic: c.msgtype for c in cons}
+    """:func:`_topics` of the connections ``cons`` of an open rosbags reader."""
+    raw = {c.topic: (c.msgtype, [], []) for c in cons}
     for con, t_bag, data in reader.messages(connections=cons):
-        raw[con.topic][0].append(t_bag)
-        raw[con.topic][1].append(bytes(data))
-    cdr = reader.is2
-    return {k: _with_stamps(np.asarray(tb, np.float64) * 1e-9,
-                            _topic_fields(reader.typestore, types[k], msgs, cdr, reader.deserialize))
-            for k, (tb, msgs) in raw.items()}
-
-
-def _with_stamps(tb, f):
-    return f["header.stamp.sec"].astype(np.float64) + 1e-9 * f["header.stamp.nanosec"].astype(np.float64), tb, f
+        raw[con.topic][1].append(t_bag)
+        raw[con.topic][2].append(bytes(data))
+    return _topics(raw, reader.typestore, reader.is2, reader.deserialize)
 
 
 def _bag_topics(bag, typestore, cons, cdr: bool) -> dict:
-    """:func:`_read_topics` of a bag read by :mod:`~mjxsysid.logs.rosbag_fast` (ROS 1, or MCAP when ``cdr``)."""
-    out = {}
-    for topic in {c.topic for c in cons}:
-        mine = [c for c in cons if c.topic == topic]
-        t, parts = [bag.messages[c.id][0] for c in mine], [bag.messages[c.id][1] for c in mine]
-        if len(mine) == 1:                                       # one connection: in time order already
-            t, raws = t[0], parts[0]
-        else:
-            t, order = np.concatenate(t), np.argsort(np.concatenate(t), kind="stable")
-            flat = [r.tobytes() if isinstance(p, np.ndarray) else r for p in parts for r in p]
-            t, raws = t[order], [flat[i] for i in order.tolist()]
-        ser = typestore.deserialize_cdr if cdr else typestore.deserialize_ros1
-        out[topic] = _with_stamps(t * 1e-9, _topic_fields(typestore, mine[0].msgtype, raws, cdr, ser))
-    return out
+    """:func:`_topics` of the connections ``cons`` of a bag read by :mod:`~mjxsysid.logs.rosbag_fast`
+    (ROS 1, or MCAP when ``cdr``)."""
+    raw = {t: _merged(bag, [c for c in cons if c.topic == t]) for t in {c.topic for c in cons}}
+    return _topics(raw, typestore, cdr, typestore.deserialize_cdr if cdr else typestore.deserialize_ros1)
+
+
+def _merged(bag, cons) -> tuple:
+    """(msgtype, bag times (N,) ns, raw messages) of a topic's connections ``cons`` in ``bag``, in time order."""
+    if len(cons) == 1:                                           # one connection: in time order already
+        return (cons[0].msgtype, *bag.messages[cons[0].id])
+    t = np.concatenate([bag.messages[c.id][0] for c in cons])
+    order = np.argsort(t, kind="stable")
+    flat = [r.tobytes() if isinstance(p, np.ndarray) else r for p in (bag.messages[c.id][1] for c in cons) for r in p]
+    return cons[0].msgtype, t[order], [flat[i] for i in order.tolist()]
 
 
 def _fast_bag(path: Path):
