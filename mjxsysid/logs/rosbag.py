@@ -48,13 +48,13 @@ IMU, RCOUT, ATT_TARGET, TWIST = ("sensor_msgs/msg/Imu", "mavros_msgs/msg/RCOut",
 
 
 def _import_rosbags():
+    """rosbags' ``AnyReader``; ImportError saying how to install rosbags where it is missing."""
     try:
         from rosbags.highlevel import AnyReader
-        from rosbags.typesys import Stores, get_typestore
     except ImportError:
         raise ImportError('reading ROS bags needs rosbags: pip install -e ".[rosbag]" '
                           "(or pip install rosbags)") from None
-    return AnyReader, get_typestore(Stores.ROS2_HUMBLE)
+    return AnyReader
 
 
 def _kind(head: bytes) -> str | None:
@@ -230,13 +230,15 @@ def read_rosbag(path, segment=None) -> dict:
     """Read a ROS 1 bag, a ROS 2 bag folder or an MCAP file -> the log contract
     (:mod:`mjxsysid.logs.formats`) over its airborne segment (or ``segment`` 't0:t1', seconds since
     the bag's start). ValueError: not a bag, no IMU or motor topic, too short; ImportError without rosbags."""
-    AnyReader, typestore = _import_rosbags()
+    AnyReader = _import_rosbags()
     path = Path(path)
     fast = _fast_bag(path)
     if fast is not None:
         bag, store, cdr = fast
         return _read(bag.connections, bag.start_time, lambda cons: _bag_topics(bag, store, cons, cdr), path, segment)
+    from rosbags.typesys import Stores, get_typestore
     with _bag_path(path) as bag:
+        typestore = get_typestore(Stores.ROS2_HUMBLE)        # the types of a bag without embedded definitions
         try:
             with AnyReader([bag], default_typestore=typestore) as reader:
                 return _read(reader.connections, reader.start_time, lambda cons: _read_topics(reader, cons),
