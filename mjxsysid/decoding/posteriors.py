@@ -132,7 +132,7 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
                                  seen={k: (g["seen_by_log"], g["seen_why"]) for k, g in gap.items()}))
     summary["_decoder_only"] = decoder_only
     diag = {k: post[k] for k in ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
-                                 "smc_tempering") if k in post}
+                                 "smc_tempering", "nuts") if k in post}
     nz = np.median(post["nuisance"], 0)
     diag["imu_noise"] = {c: float(x) for c, x in zip(L.CHANNELS, np.exp(nz[L.LOG_NOISE]))}
     diag["discrepancy"] = {c: float(x) for c, x in zip(L.CHANNELS, np.exp(nz[L.LOG_DISCREPANCY]))}

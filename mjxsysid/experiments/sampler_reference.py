@@ -30,12 +30,10 @@ the lag-aware oracle on the 10 s lemniscate in the MJX simulator, at the IMU noi
 """
 from __future__ import annotations
 
-import functools
 import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid import theta as P
@@ -43,13 +41,13 @@ from mjxsysid.experiments.common import markdown_table, write_results
 from mjxsysid.experiments.log_grounded_coverage import level_flights
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import raw_bands
-from mjxsysid.identify.coords import PHYSICAL_PRIOR, V_NAMES, PhysicalPrior, visible_from_theta
+from mjxsysid.identify.coords import V_NAMES, visible_from_theta
 from mjxsysid.identify.inference import _reliable, log_grounded_posterior
-from mjxsysid.identify.target import N_Y, _log_target_y, _y_lo_hi
 from mjxsysid.identify.logdata import prepare
+from mjxsysid.identify.nuts import INIT_JITTER, TARGET_ACCEPTANCE, nuts_reference
+from mjxsysid.identify.target import N_Y
 from mjxsysid.rollout.flight import flight_log
 from mjxsysid.runtime.progress import echo
-from mjxsysid.theta import xp_of
 
 LEVELS = ("clean", "x1", "x5_white", "x20")
 """The IMU noise levels of the logs (:data:`mjxsysid.uses.imu_noise.LEVELS`), taken in turn."""
@@ -58,144 +56,11 @@ PRIOR = "wide_actuators"
 FULL = {"logs": 20, "chains": 4, "warmup": 1000, "draws": 2000}
 """The committed run's sizes."""
 QUICK = {"logs": 1, "chains": 2, "warmup": 150, "draws": 200}
-TRIANGLE = 7
-"""The coordinate whose lower bound carries J's triangle inequality (log Aᵉ_z)."""
-TARGET_ACCEPTANCE = 0.95
-"""NUTS's target acceptance rate in the warm-up (blackjax's default is 0.8). On an × 1 log, 0.8 left 32
-divergent transitions of 8,000; 0.95 left 4, for 3× the leapfrog steps."""
-INIT_JITTER = 1.0
-"""Each chain starts at the mode plus N(0, this²) in the preconditioned coordinates u (one SMC
-posterior standard deviation per direction)."""
 RHAT_MAX = 1.01
 """A log whose NUTS run ends with R̂ at or above this on any coordinate is run again once with
 :data:`LONGER` times the warm-up and draws (an × 1 log at 1000 + 2000 steps: R̂ 1.020 on the yaw
 authority; at 2000 + 8000, 1.001)."""
 LONGER = (2, 4)
-
-
-# ---- the unconstrained coordinates -------------------------------------------------------------
-
-def _log_sigmoid(xp, z):
-    return -xp.logaddexp(0.0, -z)
-
-
-def _sigmoid(xp, z):
-    return xp.exp(_log_sigmoid(xp, z))
-
-
-def lower_bounds(y, lo):
-    """The support's lower bound per coordinate (..., 17) at y (..., 17): the box's ``lo`` (17,), with
-    log Aᵉ_z's raised to J's triangle inequality, −log(1/Aᵉ_x + 1/Aᵉ_y)."""
-    xp = xp_of(y)
-    tri = -xp.logaddexp(-y[..., 5], -y[..., 6])
-    low = xp.broadcast_to(xp.asarray(lo, y.dtype), y.shape)
-    return xp.concatenate([low[..., :TRIANGLE], xp.maximum(low[..., TRIANGLE], tri)[..., None],
-                           low[..., TRIANGLE + 1:]], -1)
-
-
-def to_constrained(z, lo, hi):
-    """z (..., 17) in R^17 -> y (..., 17) inside the support: y_j = l_j + (hi_j − l_j) sigmoid(z_j),
-    l the box's ``lo`` except log Aᵉ_z's, which the triangle inequality raises (:func:`lower_bounds`;
-    it depends on y_5, y_6 alone, so the map is triangular)."""
-    xp = xp_of(z)
-    z = xp.asarray(z)
-    lo, hi = xp.asarray(lo, z.dtype), xp.asarray(hi, z.dtype)
-    y = lo + (hi - lo) * _sigmoid(xp, z)
-    low = lower_bounds(y, lo)
-    return xp.concatenate([y[..., :TRIANGLE], (low + (hi - low) * _sigmoid(xp, z))[..., TRIANGLE:TRIANGLE + 1],
-                           y[..., TRIANGLE + 1:]], -1)
-
-
-def to_unconstrained(y, lo, hi, eps: float = 1e-6):
-    """The inverse of :func:`to_constrained`: y (..., 17) -> z (..., 17) (a point on the support's
-    edge is moved ``eps`` of its range inside)."""
-    xp = xp_of(y)
-    y = xp.asarray(y)
-    low = lower_bounds(y, lo)
-    p = xp.clip((y - low) / (xp.asarray(hi, y.dtype) - low), eps, 1.0 - eps)
-    return xp.log(p) - xp.log1p(-p)
-
-
-def log_jacobian(z, lo, hi):
-    """log |det ∂y/∂z| (...) of :func:`to_constrained` at z (..., 17): the Jacobian is triangular, so
-    the sum of log((hi_j − l_j) sigmoid(z_j) sigmoid(−z_j))."""
-    xp = xp_of(z)
-    z = xp.asarray(z)
-    low = lower_bounds(to_constrained(z, lo, hi), lo)
-    return xp.sum(xp.log(xp.asarray(hi, z.dtype) - low) + _log_sigmoid(xp, z) + _log_sigmoid(xp, -z), -1)
-
-
-def unconstrained_log_density(z, data, log_delta, weights, lo, hi, prior: PhysicalPrior = PHYSICAL_PRIOR):
-    """The SMC's target at y = :func:`to_constrained` (z) (17,) plus the log-Jacobian: the density
-    of z that NUTS samples."""
-    y = to_constrained(z, lo, hi)
-    return _log_target_y(y, data, log_delta, weights, prior) + log_jacobian(z, lo, hi)
-
-
-# ---- NUTS ---------------------------------------------------------------------------------------
-
-def preconditioner(draws_y, centre_y, lo, hi, ridge: float = 1e-3):
-    """The affine map of the module doc from draws y (S, 17) and the centre y (17,): (m (17,), L (17, 17))
-    with m the centre's unconstrained coordinates and L the Cholesky factor of the draws' covariance in
-    them (its diagonal raised by ``ridge`` of itself, and by 1e-12: draws with fewer distinct rows
-    than coordinates still give a map)."""
-    z = to_unconstrained(np.asarray(draws_y, np.float64), lo, hi)
-    cov = np.atleast_2d(np.cov(z.T))
-    cov = cov + np.diag(ridge * np.diag(cov) + 1e-12)
-    return to_unconstrained(np.asarray(centre_y, np.float64), lo, hi), np.linalg.cholesky(cov)
-
-
-@functools.partial(jax.jit, static_argnames=("prior", "warmup", "draws", "target_acceptance"))
-def _nuts(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance):
-    """Per chain (keys (C, 2), u0 (C, 17)): window adaptation for ``warmup`` steps, then ``draws``
-    NUTS draws of u, z = m + chol u -> y (C, draws, 17), divergent (C, draws), leapfrog steps
-    (C, draws), step size (C,)."""
-    import blackjax
-
-    def logdensity(u):
-        return unconstrained_log_density(m + chol @ u, data, log_delta, weights, lo, hi, prior)
-
-    def chain(key, u):
-        k_warm, k_draw = jax.random.split(key)
-        adapt = blackjax.window_adaptation(blackjax.nuts, logdensity, is_mass_matrix_diagonal=False,
-                                           target_acceptance_rate=target_acceptance)
-        (state, params), _ = adapt.run(k_warm, u, num_steps=warmup)
-        kernel = blackjax.nuts(logdensity, **params)
-
-        def step(s, k):
-            s, info = kernel.step(k, s)
-            return s, (to_constrained(m + chol @ s.position, lo, hi), info.is_divergent, info.num_integration_steps)
-
-        _, out = jax.lax.scan(step, state, jax.random.split(k_draw, draws))
-        return (*out, params["step_size"])
-
-    return jax.vmap(chain)(keys, u0)
-
-
-def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: int, warmup: int, draws: int,
-                   seed: int = 0, target_acceptance: float = TARGET_ACCEPTANCE,
-                   prior: PhysicalPrior = PHYSICAL_PRIOR) -> dict:
-    """NUTS on the log-grounded target of ``data`` (a LogData) at fixed log δ (4,) and weights (4,),
-    in the coordinates :func:`preconditioner` makes of ``start_y`` (17,) (the mode) and
-    ``scale_draws`` (S, 17) (the SMC's draws); ``chains`` chains started at the mode jittered by
-    :data:`INIT_JITTER`; ``target_acceptance``: the warm-up's. -> dict: ``y`` (chains, draws, 17),
-    ``rhat`` (17,) (rank-normalised split R̂, the larger of bulk and tail), ``ess_bulk`` (17,),
-    ``divergences``, ``leapfrog_mean`` (per draw), ``step_size`` (chains,)."""
-    from blackjax.diagnostics import ess_bulk, rhat
-    if chains < 2 or warmup < 10 or draws < 4:
-        raise ValueError(f"NUTS needs chains >= 2, warmup >= 10 and draws >= 4; got {chains}, {warmup}, {draws}")
-    lo, hi = (np.asarray(a, np.float32) for a in _y_lo_hi(prior))
-    m, chol = preconditioner(scale_draws, start_y, lo, hi)
-    u0 = INIT_JITTER * np.random.default_rng(seed).standard_normal((chains, N_Y))
-    keys = jax.random.split(jax.random.PRNGKey(seed), chains)
-    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
-    with jax.default_matmul_precision("highest"):       # as the SMC's target (inference.full_precision)
-        y, div, n_leap, step = _nuts(keys, f32(u0), data, f32(log_delta), f32(weights), f32(lo), f32(hi), f32(m),
-                                     f32(chol), prior, int(warmup), int(draws), float(target_acceptance))
-    y = np.asarray(y, np.float64)
-    return {"y": y, "rhat": np.asarray(rhat(y), np.float64), "ess_bulk": np.asarray(ess_bulk(y), np.float64),
-            "divergences": int(np.sum(div)), "leapfrog_mean": float(np.mean(n_leap)),
-            "step_size": np.asarray(step, np.float64)}
 
 
 # ---- the comparison -----------------------------------------------------------------------------

@@ -25,8 +25,12 @@ log, so θ = θ(v, h) with h drawn from the prior.
    (ESS < :data:`MIN_ESS_FRACTION` N or k̂ > :data:`MAX_KHAT`): from a mixture of the prior
    (:data:`PRIOR_SHARE`), the decoded and the Laplace proposals, tempered to the target (the path
    q^{1−λ} target^{λ}).
+3. **NUTS from the SMC's draws** (:mod:`.nuts`): on a clean log the SMC's particles descend from few
+   ancestors and its bands are about half the target's width. :data:`~.nuts.CHAINS` short NUTS
+   chains, preconditioned by the SMC draws' covariance, replace its draws; their split R̂,
+   bulk ESS and divergences are the fit's check.
 
-The target is :mod:`.target`'s, the mode :mod:`.mode`'s, the SMC :mod:`.smc`'s; this module
+The target is :mod:`.target`'s, the mode :mod:`.mode`'s, the SMC :mod:`.smc`'s, NUTS :mod:`.nuts`'s; this module
 orchestrates them for one log (:func:`log_grounded_posterior`) or many (:func:`log_grounded_posteriors`).
 """
 from __future__ import annotations
@@ -44,10 +48,13 @@ from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
 from mjxsysid.identify.logdata import RATES, LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
                                     _ls_jacobian_logs, find_modes)
+from mjxsysid.identify.nuts import CHAINS, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs, converged
+from mjxsysid.identify.nuts import diagnostics as nuts_diagnostics
+from mjxsysid.identify.nuts import start as nuts_start
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
 from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc, _smc_logs, _smc_start, rw_scale_update
 from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, target_evals,
-                                      _batch_log_target_logs, full_precision, full_x,
+                                      _batch_log_target_logs, _y_lo_hi, full_precision, full_x,
                                       log_prior, log_target)
 
 __all__ = ["ACC_BIAS_SD", "DRAWS", "LAPLACE_WIDEN", "LOG_BATCH", "MAX_KHAT", "MIN_ESS_FRACTION", "N_Y", "NUIS_BOUNDS",
@@ -168,6 +175,22 @@ class _Logs:
                         stk(list(qv)), stk(list(qn)), stk(list(lap)), prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
         return [np.asarray(o)[:len(idx)] for o in out]
 
+    def nuts(self, idx, keys, u0, ld, w, m, chol, prior, warmup, draws):
+        """NUTS of the logs ``idx`` (m,) from their starts (:func:`.nuts.start`: keys (m, C, 2), u0
+        (m, C, 17), m (m, 17), chol (m, 17, 17)) with their log δ and weights (m, 4) -> the outputs of
+        :func:`.nuts._nuts`, each with a leading axis m."""
+        idx = list(idx)
+        lo, hi = (jnp.asarray(a, jnp.float32) for a in _y_lo_hi(prior))
+        args = [np.asarray(keys, np.uint32)] + [np.asarray(a, np.float32) for a in (u0, ld, w, m, chol)]
+        if self.stack is None:
+            k, u, a, b, mm, c = (jnp.asarray(x[0]) for x in args)  # rows, not coordinates
+            out = _nuts(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior, warmup, draws, TARGET_ACCEPTANCE)
+            return [np.asarray(o)[None] for o in out]
+        p, data = self._sub(idx)
+        k, u, a, b, mm, c = (jnp.asarray(_pad_rows(x, len(p))) for x in args)
+        out = _nuts_logs(k, u, data, a, b, lo, hi, mm, c, prior, warmup, draws, TARGET_ACCEPTANCE)
+        return [np.asarray(o)[:len(idx)] for o in out]
+
 
 @full_precision
 def find_mode(data: LogData, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3):
@@ -198,7 +221,8 @@ def _reliable(diag) -> bool:
 def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                            samples: int = 1000, draws: int | None = None, particles: int | None = None, seed: int = 0,
                            n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
-                           force_smc: bool = False, rates: str | None = None, calibration="shipped") -> dict:
+                           force_smc: bool = False, refine: bool = True, rates: str | None = None,
+                           calibration="shipped") -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
     samples of this log, or None — as the proposal (module doc). ``draws`` / ``particles`` default to
@@ -208,10 +232,13 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
 
     -> dict: ``theta`` (samples, 19) (hidden coordinates drawn from the prior), ``v`` (samples, 12),
     ``nuisance`` (samples, 9: log σ (4), log δ (4, fixed), bias), ``method`` ('decoded_is',
-    'laplace_is' or 'smc'), ``decoded_is`` / ``laplace_is`` ({ess, ess_fraction, khat}),
+    'laplace_is', 'smc_nuts', or 'smc' with ``refine=False``), ``decoded_is`` / ``laplace_is`` ({ess, ess_fraction, khat}),
     ``weights`` (4,) the channels' correlation discounts, ``mode`` (21,), ``channels_used`` (4,),
     and for SMC ``smc_stages``, ``smc_acceptance`` (the moves' acceptance rate, mean over the stages),
-    ``smc_acceptance_min`` (the lowest stage's), ``smc_tempering`` (1 when it reached the target).
+    ``smc_acceptance_min`` (the lowest stage's), ``smc_tempering`` (1 when it reached the target),
+    and after NUTS ``nuts`` (chains, warm-up, draws per chain, ``converged`` and ``why``, the largest
+    split R̂, the smallest bulk ESS, divergences, leapfrog steps per draw). ``refine=False`` keeps the
+    SMC's draws (step 3 of the module doc skipped).
 
     ``calibration``: "shipped" (default: the table fitted on simulated logs,
     :mod:`.calibrate`), a table (dict) or a path to one, or None for the raw posterior. The draws
@@ -221,7 +248,8 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     dec = None if decoded_theta is None else [decoded_theta]
     return log_grounded_posteriors([rec_or_data], dec, seeds=[seed], prior=prior, samples=samples, draws=draws,
                                    particles=particles, n_mcmc=n_mcmc, max_stages=max_stages, starts=starts,
-                                   force_smc=force_smc, rates=rates, calibration=calibration, batch=1, workers=1)[0]
+                                   force_smc=force_smc, refine=refine, rates=rates, calibration=calibration, batch=1,
+                                   workers=1)[0]
 
 
 LOG_BATCH = 256
@@ -233,7 +261,8 @@ time: its cores are busy with one log's particles already)."""
 def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                             samples: int = 1000, draws: int | None = None, particles: int | None = None,
                             seeds=0, n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
-                            force_smc: bool = False, rates: str | None = None, calibration="shipped",
+                            force_smc: bool = False, refine: bool = True, rates: str | None = None,
+                            calibration="shipped",
                             batch: int | None = None, workers: int | None = None,
                             desc: str | None = None) -> list[dict]:
     """The posteriors of many logs (paths of any format, or what :func:`log_grounded_posterior`
@@ -257,7 +286,7 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
                          "give one of each per log")
     cfg = dict(prior=prior, samples=int(samples), draws=DRAWS if draws is None else int(draws),
                particles=PARTICLES if particles is None else int(particles), n_mcmc=n_mcmc, max_stages=max_stages,
-               starts=starts, force_smc=force_smc, calibration=calibration)
+               starts=starts, force_smc=force_smc, refine=refine, calibration=calibration)
     rates = RATES if rates is None else rates
     if workers is None:
         workers = 1 if jax.default_backend() == "cpu" else min(16, os.cpu_count() or 1)
@@ -321,13 +350,13 @@ def _starts(data, decoded_theta, rng, prior, starts: int) -> np.ndarray:
 
 
 def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particles, n_mcmc, max_stages, starts,
-                     force_smc, calibration) -> list[dict]:
+                     force_smc, refine, calibration) -> list[dict]:
     """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc)."""
     nl = len(datas)
     logs = _Logs(datas)
     # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
-    rng = [[np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(7)] for seed in seeds]
-    r_is, r_n, r_mix, r_h, r_res, r_st, r_lp = (list(r) for r in zip(*rng))
+    rng = [[np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(8)] for seed in seeds]
+    r_is, r_n, r_mix, r_h, r_res, r_st, r_lp, r_nuts = (list(r) for r in zip(*rng))
     qns = [nuisance_proposal(d, ACC_BIAS_SD) for d in datas]
     # 0. the mode
     st = np.stack([_starts(d, dc, r_st[i], prior, starts) for i, (d, dc) in enumerate(zip(datas, decs))])
@@ -377,8 +406,29 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
             draws_y[i] = np.asarray(pts[j])[r_res[i].choice(particles, samples, p=wt / wt.sum())]
             outs[i].update(method="smc", smc_stages=int(stages[j]), smc_acceptance=float(acc[j]),
                            smc_acceptance_min=float(acc_min[j]), smc_tempering=float(lam[j]))
+        if refine:
+            _refine(logs, need, draws_y, [modes[i][3] for i in need], ld[need], w[need], prior,
+                    [int(r_nuts[i].integers(2 ** 31)) for i in need], samples, outs)
     return [_finish(outs[i], draws_y[i], datas[i], ld[i], prior, calibration, seeds[i], r_h[i], samples)
             for i in range(nl)]
+
+
+def _refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> None:
+    """Step 3: the SMC's draws of the logs ``need`` replaced by NUTS's (:mod:`.nuts`: :data:`~.nuts.CHAINS`
+    chains from the mode, preconditioned by the SMC's draws), in place; each log's ``nuts`` entry
+    its chains' diagnostics and whether they mixed."""
+    per = -(-samples // CHAINS)
+    keys, u0, m, chol = (np.stack(a) for a in zip(*(nuts_start(draws_y[i], my, CHAINS, sd, prior)
+                                                      for i, my, sd in zip(need, modes_y, seeds))))
+    y, div, leap, step = logs.nuts(need, keys, u0, ld, w, m, chol, prior, WARMUP, per)
+    for j, i in enumerate(need):
+        diag = nuts_diagnostics(y[j], div[j], leap[j], step[j])
+        ok, why = converged(diag, CHAINS * per)
+        draws_y[i] = np.asarray(y[j]).transpose(1, 0, 2).reshape(-1, N_Y)[:samples]   # every chain's draws in turn
+        outs[i]["method"] = "smc_nuts"
+        outs[i]["nuts"] = {"chains": CHAINS, "warmup": WARMUP, "draws": per, "converged": ok, "why": why,
+                           "rhat_max": float(np.max(diag["rhat"])), "ess_bulk_min": float(np.min(diag["ess_bulk"])),
+                           "divergences": diag["divergences"], "leapfrog_mean": diag["leapfrog_mean"]}
 
 
 def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> dict:

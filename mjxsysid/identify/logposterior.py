@@ -23,7 +23,7 @@ from mjxsysid.identify.logspace import LOG_NAMES, LOG_UNITS
 from mjxsysid.identify.inference import log_grounded_posterior
 
 DIAGNOSTIC_KEYS = ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
-                   "smc_acceptance_min", "smc_tempering", "features", "weights", "channels_used", "rates", "mode",
+                   "smc_acceptance_min", "smc_tempering", "nuts", "features", "weights", "channels_used", "rates", "mode",
                    "drag_per_mass")
 
 

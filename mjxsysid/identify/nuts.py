@@ -1,0 +1,217 @@
+"""NUTS on the log-grounded target (step 3 of :mod:`.inference`): short chains from the SMC's draws
+that make its draws the target's, and the long runs that check them.
+
+The SMC's particles come from few ancestors on a clean log: its 90 % bands are about half as wide
+as a long NUTS run's on the same target and shifted by up to one of its band widths
+(``mjxsysid experiment sampler-reference``). Its draws still give a good scale: NUTS, preconditioned
+by their covariance, mixes within a few hundred steps. So every SMC posterior ends with
+:data:`CHAINS` chains of NUTS (blackjax: Stan's window adaptation with a dense mass matrix for
+:data:`WARMUP` steps, then the draws), and its split R̂, bulk ESS and divergences are the fit's
+check (:func:`converged`).
+
+Coordinates. NUTS runs in unconstrained coordinates z (:func:`to_constrained`): the prior's box
+through a logistic map, with J's triangle inequality built into the yaw-axis authority's lower
+bound; only ρ_4's range stays a wall of −inf. There, an affine map u -> m + L u (m the mode, L L^T
+the SMC draws' covariance, :func:`preconditioner`) makes the posterior's scales of order one: a
+clean log's posterior is 10⁻⁴ wide in some directions and 1 in others, below the floor blackjax's
+mass-matrix estimate regularises towards (10⁻³). The map only conditions the sampler: the target is
+the same, and R̂ across chains started apart checks it.
+"""
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxsysid.identify import logspace as L
+from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
+from mjxsysid.identify.target import N_Y, _log_target_y, _y_lo_hi
+from mjxsysid.theta import xp_of
+
+CHAINS = 8
+"""NUTS chains after an SMC (their draws pooled: ``samples`` / CHAINS each)."""
+WARMUP = 200
+"""Their warm-up steps (window adaptation). On five clean logs, 8 chains × (200 + 125) gave bands
+0.95–1.02 as wide as 4 × (1000 + 2000) and quantiles within 0.02 of its band widths (median; 0.15
+at most), against the SMC's 0.46–0.66 and 0.22 (1.0)."""
+TARGET_ACCEPTANCE = 0.95
+"""The warm-up's target acceptance rate (blackjax's default is 0.8). On an × 1 log, 0.8 left 32
+divergent transitions of 8,000; 0.95 left 4, for 3× the leapfrog steps."""
+INIT_JITTER = 1.0
+"""Each chain starts at the mode plus N(0, this²) in the preconditioned coordinates u (one SMC
+posterior standard deviation per direction)."""
+RHAT_OK = 1.1
+"""A fit whose largest split R̂ (over the 17 coordinates) reaches this has not mixed
+(:func:`converged`; Vehtari et al. 2021 ask 1.01 of a final analysis: these chains are short)."""
+DIVERGENT_OK = 0.01
+"""…nor one with more than this share of divergent draws."""
+
+_A = L.Y_INDEX["log_authority"]
+AX, AY, AZ = range(_A.start, _A.stop)
+"""The body axes' authorities in y; AZ's lower bound carries J's triangle inequality."""
+
+
+# ---- the unconstrained coordinates -------------------------------------------------------------
+
+def _log_sigmoid(xp, z):
+    return -xp.logaddexp(0.0, -z)
+
+
+def _sigmoid(xp, z):
+    return xp.exp(_log_sigmoid(xp, z))
+
+
+def lower_bounds(y, lo):
+    """The support's lower bound per coordinate (..., 17) at y (..., 17): the box's ``lo`` (17,), with
+    log Aᵉ_z's raised to J's triangle inequality, −log(1/Aᵉ_x + 1/Aᵉ_y)."""
+    xp = xp_of(y)
+    tri = -xp.logaddexp(-y[..., AX], -y[..., AY])
+    low = xp.broadcast_to(xp.asarray(lo, y.dtype), y.shape)
+    return xp.concatenate([low[..., :AZ], xp.maximum(low[..., AZ], tri)[..., None], low[..., AZ + 1:]], -1)
+
+
+def to_constrained(z, lo, hi):
+    """z (..., 17) in R^17 -> y (..., 17) inside the support: y_j = l_j + (hi_j − l_j) sigmoid(z_j),
+    l the box's ``lo`` except log Aᵉ_z's, which the triangle inequality raises (:func:`lower_bounds`;
+    it depends on the x and y authorities alone, so the map is triangular)."""
+    xp = xp_of(z)
+    z = xp.asarray(z)
+    lo, hi = xp.asarray(lo, z.dtype), xp.asarray(hi, z.dtype)
+    y = lo + (hi - lo) * _sigmoid(xp, z)
+    low = lower_bounds(y, lo)
+    return xp.concatenate([y[..., :AZ], (low + (hi - low) * _sigmoid(xp, z))[..., AZ:AZ + 1], y[..., AZ + 1:]], -1)
+
+
+def to_unconstrained(y, lo, hi, eps: float = 1e-6):
+    """The inverse of :func:`to_constrained`: y (..., 17) -> z (..., 17) (a point on the support's
+    edge is moved ``eps`` of its range inside)."""
+    xp = xp_of(y)
+    y = xp.asarray(y)
+    low = lower_bounds(y, lo)
+    p = xp.clip((y - low) / (xp.asarray(hi, y.dtype) - low), eps, 1.0 - eps)
+    return xp.log(p) - xp.log1p(-p)
+
+
+def log_jacobian(z, lo, hi):
+    """log |det ∂y/∂z| (...) of :func:`to_constrained` at z (..., 17): the Jacobian is triangular, so
+    the sum of log((hi_j − l_j) sigmoid(z_j) sigmoid(−z_j))."""
+    xp = xp_of(z)
+    z = xp.asarray(z)
+    low = lower_bounds(to_constrained(z, lo, hi), lo)
+    return xp.sum(xp.log(xp.asarray(hi, z.dtype) - low) + _log_sigmoid(xp, z) + _log_sigmoid(xp, -z), -1)
+
+
+def unconstrained_log_density(z, data, log_delta, weights, lo, hi, prior: PhysicalPrior = PHYSICAL_PRIOR):
+    """The SMC's target at y = :func:`to_constrained` (z) (17,) plus the log-Jacobian: the density
+    of z that NUTS samples."""
+    y = to_constrained(z, lo, hi)
+    return _log_target_y(y, data, log_delta, weights, prior) + log_jacobian(z, lo, hi)
+
+
+def preconditioner(draws_y, centre_y, lo, hi, ridge: float = 1e-3):
+    """The affine map of the module doc from draws y (S, 17) and the centre y (17,): (m (17,), L (17, 17))
+    with m the centre's unconstrained coordinates and L the Cholesky factor of the draws' covariance in
+    them (its diagonal raised by ``ridge`` of itself, and by 1e-12: draws with fewer distinct rows
+    than coordinates still give a map)."""
+    z = to_unconstrained(np.asarray(draws_y, np.float64), lo, hi)
+    cov = np.atleast_2d(np.cov(z.T))
+    cov = cov + np.diag(ridge * np.diag(cov) + 1e-12)
+    return to_unconstrained(np.asarray(centre_y, np.float64), lo, hi), np.linalg.cholesky(cov)
+
+
+# ---- NUTS ---------------------------------------------------------------------------------------
+
+def _chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance):
+    """Per chain (keys (C, 2), u0 (C, 17)): window adaptation for ``warmup`` steps, then ``draws``
+    NUTS draws of u, z = m + chol u -> y (C, draws, 17), divergent (C, draws), leapfrog steps
+    (C, draws), step size (C,)."""
+    import blackjax
+
+    def logdensity(u):
+        return unconstrained_log_density(m + chol @ u, data, log_delta, weights, lo, hi, prior)
+
+    def chain(key, u):
+        k_warm, k_draw = jax.random.split(key)
+        adapt = blackjax.window_adaptation(blackjax.nuts, logdensity, is_mass_matrix_diagonal=False,
+                                           target_acceptance_rate=target_acceptance)
+        (state, params), _ = adapt.run(k_warm, u, num_steps=warmup)
+        kernel = blackjax.nuts(logdensity, **params)
+
+        def step(s, k):
+            s, info = kernel.step(k, s)
+            return s, (to_constrained(m + chol @ s.position, lo, hi), info.is_divergent, info.num_integration_steps)
+
+        _, out = jax.lax.scan(step, state, jax.random.split(k_draw, draws))
+        return (*out, params["step_size"])
+
+    return jax.vmap(chain)(keys, u0)
+
+
+_STATIC = ("prior", "warmup", "draws", "target_acceptance")
+_nuts = jax.jit(_chains, static_argnames=_STATIC)
+
+
+@functools.partial(jax.jit, static_argnames=_STATIC)
+def _nuts_logs(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance):
+    """:func:`_nuts` vmapped over logs (keys, u0, data, log δ, weights, m and chol with a leading log axis)."""
+    def one(k, u, d, a, b, mm, c):
+        return _chains(k, u, d, a, b, lo, hi, mm, c, prior, warmup, draws, target_acceptance)
+    return jax.vmap(one)(keys, u0, data, log_delta, weights, m, chol)
+
+
+def _f32(a):
+    return jnp.asarray(a, jnp.float32)
+
+
+def start(draws_y, centre_y, chains: int, seed: int, prior: PhysicalPrior = PHYSICAL_PRIOR):
+    """One log's NUTS start: (keys (chains, 2), u0 (chains, 17), m (17,), chol (17, 17)) from the SMC's
+    draws y (S, 17) and the mode y (17,) (:func:`preconditioner`), the chains at the mode jittered by
+    :data:`INIT_JITTER`."""
+    lo, hi = _y_lo_hi(prior)
+    m, chol = preconditioner(draws_y, centre_y, lo, hi)
+    u0 = INIT_JITTER * np.random.default_rng(seed).standard_normal((chains, N_Y))
+    keys = np.asarray(jax.random.split(jax.random.PRNGKey(seed), chains))
+    return keys, u0, m, chol
+
+
+def diagnostics(y, divergent, leapfrog, step_size) -> dict:
+    """Chains' draws y (C, D, 17), divergent (C, D), leapfrog steps (C, D), step sizes (C,) ->
+    rank-normalised split R̂ (17,) (the larger of bulk and tail), bulk ESS (17,), divergences,
+    leapfrog steps per draw, step sizes (blackjax.diagnostics)."""
+    from blackjax.diagnostics import ess_bulk, rhat
+    y = np.asarray(y, np.float64)
+    return {"rhat": np.asarray(rhat(y), np.float64), "ess_bulk": np.asarray(ess_bulk(y), np.float64),
+            "divergences": int(np.sum(divergent)), "leapfrog_mean": float(np.mean(leapfrog)),
+            "step_size": np.asarray(step_size, np.float64)}
+
+
+def converged(diag: dict, draws: int) -> tuple[bool, str]:
+    """Whether a fit's chains mixed (:data:`RHAT_OK`, :data:`DIVERGENT_OK`) of ``draws`` draws, and why not."""
+    r = float(np.max(diag["rhat"]))
+    share = diag["divergences"] / max(draws, 1)
+    if not np.isfinite(r) or r >= RHAT_OK:
+        name = L.Y_NAMES[int(np.nanargmax(np.where(np.isfinite(diag["rhat"]), diag["rhat"], np.inf)))]
+        return False, f"NUTS's chains disagree (split R̂ {r:.2f} ≥ {RHAT_OK} on {name})"
+    if share > DIVERGENT_OK:
+        return False, f"{diag['divergences']} of {draws} NUTS draws divergent (> {DIVERGENT_OK:.0%})"
+    return True, f"split R̂ ≤ {r:.3f}, bulk ESS ≥ {float(np.min(diag['ess_bulk'])):.0f}, {diag['divergences']} divergent"
+
+
+def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: int, warmup: int, draws: int,
+                   seed: int = 0, target_acceptance: float = TARGET_ACCEPTANCE,
+                   prior: PhysicalPrior = PHYSICAL_PRIOR) -> dict:
+    """NUTS on the log-grounded target of ``data`` (a LogData) at fixed log δ (4,) and weights (4,),
+    in the coordinates :func:`preconditioner` makes of ``start_y`` (17,) (the mode) and
+    ``scale_draws`` (S, 17) (the SMC's draws); ``chains`` chains started at the mode jittered by
+    :data:`INIT_JITTER`; ``target_acceptance``: the warm-up's. -> dict: ``y`` (chains, draws, 17)
+    and :func:`diagnostics`."""
+    if chains < 2 or warmup < 10 or draws < 4:
+        raise ValueError(f"NUTS needs chains >= 2, warmup >= 10 and draws >= 4; got {chains}, {warmup}, {draws}")
+    lo, hi = (np.asarray(a, np.float32) for a in _y_lo_hi(prior))
+    keys, u0, m, chol = start(scale_draws, start_y, chains, seed, prior)
+    with jax.default_matmul_precision("highest"):       # as the SMC's target (target.full_precision)
+        y, div, n_leap, step = _nuts(jnp.asarray(keys), _f32(u0), data, _f32(log_delta), _f32(weights), _f32(lo), _f32(hi), _f32(m), _f32(chol), prior,
+                                     int(warmup), int(draws), float(target_acceptance))
+    return {"y": np.asarray(y, np.float64), **diagnostics(y, div, n_leap, step)}
