@@ -48,7 +48,7 @@ from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
 from mjxsysid.identify.logdata import RATES, LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
                                     _ls_jacobian_logs, find_modes)
-from mjxsysid.identify.nuts import CHAINS, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs, converged
+from mjxsysid.identify.nuts import CHAINS, LONGER, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs, converged
 from mjxsysid.identify.nuts import diagnostics as nuts_diagnostics
 from mjxsysid.identify.nuts import start as nuts_start
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
@@ -415,20 +415,35 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
 
 def _refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> None:
     """Step 3: the SMC's draws of the logs ``need`` replaced by NUTS's (:mod:`.nuts`: :data:`~.nuts.CHAINS`
-    chains from the mode, preconditioned by the SMC's draws), in place; each log's ``nuts`` entry
-    its chains' diagnostics and whether they mixed."""
+    chains from the mode, preconditioned by the SMC's draws), in place; logs whose chains did not mix
+    run once more with :data:`~.nuts.LONGER` times the warm-up and draws (thinned). Each log's
+    ``nuts`` entry: its chains' diagnostics and whether they mixed."""
     per = -(-samples // CHAINS)
-    keys, u0, m, chol = (np.stack(a) for a in zip(*(nuts_start(draws_y[i], my, CHAINS, sd, prior)
-                                                      for i, my, sd in zip(need, modes_y, seeds))))
-    y, div, leap, step = logs.nuts(need, keys, u0, ld, w, m, chol, prior, WARMUP, per)
-    for j, i in enumerate(need):
-        diag = nuts_diagnostics(y[j], div[j], leap[j], step[j])
-        ok, why = converged(diag, CHAINS * per)
-        draws_y[i] = np.asarray(y[j]).transpose(1, 0, 2).reshape(-1, N_Y)[:samples]   # every chain's draws in turn
-        outs[i]["method"] = "smc_nuts"
-        outs[i]["nuts"] = {"chains": CHAINS, "warmup": WARMUP, "draws": per, "converged": ok, "why": why,
-                           "rhat_max": float(np.max(diag["rhat"])), "ess_bulk_min": float(np.min(diag["ess_bulk"])),
-                           "divergences": diag["divergences"], "leapfrog_mean": diag["leapfrog_mean"]}
+    starts = [nuts_start(draws_y[i], my, CHAINS, sd, prior) for i, my, sd in zip(need, modes_y, seeds)]
+    todo, warmup, thin = list(range(len(need))), WARMUP, 1
+    for attempt in range(2):
+        keys, u0, m, chol = (np.stack([starts[j][k] for j in todo]) for k in range(4))
+        if attempt:
+            keys = keys ^ np.uint32(0x9E3779B9)          # fresh chains
+        y, div, leap, step = logs.nuts([need[j] for j in todo], keys, u0, ld[todo], w[todo], m, chol, prior,
+                                       warmup, per * thin)
+        again = []
+        for t, j in enumerate(todo):
+            yj = np.asarray(y[t])[:, ::thin]
+            diag = nuts_diagnostics(yj, div[t], leap[t], step[t])
+            ok, why = converged(diag)
+            i = need[j]
+            draws_y[i] = yj.transpose(1, 0, 2).reshape(-1, N_Y)[:samples]   # every chain's draws in turn
+            outs[i]["method"] = "smc_nuts"
+            outs[i]["nuts"] = {"chains": CHAINS, "warmup": warmup, "draws": per * thin, "thin": thin, "converged": ok,
+                               "why": why, "rhat_max": float(np.max(diag["rhat"])),
+                               "ess_bulk_min": float(np.min(diag["ess_bulk"])), "divergences": diag["divergences"],
+                               "leapfrog_mean": diag["leapfrog_mean"]}
+            if not ok:
+                again.append(j)
+        if not again:
+            return
+        todo, warmup, thin = again, LONGER[0] * WARMUP, LONGER[1]
 
 
 def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> dict:

@@ -153,8 +153,9 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     gap = information_gap(post["theta"], post["theta"])
     assert not gap["authority_total[0]"]["seen_by_log"] and gap["thrust_to_weight"]["seen_by_log"]
     # the SMC's random-walk moves are accepted (their scale adapts stage by stage; scaled by the
-    # particles' covariance alone, 0-0.6 % were once the likelihood entered)
-    assert post["method"] == "smc" and post["smc_acceptance"] > 0.1, post["smc_acceptance"]
+    # particles' covariance alone, 0-0.6 % were once the likelihood entered), then NUTS refines its draws
+    assert post["method"] == "smc_nuts" and post["smc_acceptance"] > 0.1, post["smc_acceptance"]
+    assert post["nuts"]["rhat_max"] < 1.1 or post["nuts"]["thin"] > 1, post["nuts"]   # else it ran longer
 
 
 def test_random_walk_scale_moves_toward_its_target_acceptance():
@@ -228,7 +229,7 @@ def test_the_identify_room_is_callable_and_gives_a_posterior_object():
     tw = C.log_quantities(theta)[0]
     assert s["thrust_to_weight"]["q05"] <= tw <= s["thrust_to_weight"]["q95"]
     assert post.sample(50).shape == (50, P.N_PARAMS) and post.sample().shape == (600, P.N_PARAMS)
-    assert post.diagnostics["method"] in ("decoded_is", "laplace_is", "smc") and "features" in post.diagnostics
+    assert post.diagnostics["method"] in ("decoded_is", "laplace_is", "smc_nuts") and "features" in post.diagnostics
     assert "thrust_to_weight" in repr(post)
     gap = post.gap(post.theta)
     assert gap["thrust_to_weight"]["seen_by_log"] == s["thrust_to_weight"]["seen"]
@@ -240,7 +241,8 @@ def test_the_identify_room_is_callable_and_gives_a_posterior_object():
 
 def test_logs_batched_give_each_logs_posterior():
     """Several logs at once (vmapped over logs, three padded to four; a log of another length alone)
-    give each log the posterior it gets alone: the same method, bands within a tenth of their width."""
+    give each log the posterior it gets alone: the same method, bands within a fifth of their width (NUTS's
+    trajectories part under float rounding: the same chains, not the same draws)."""
     from mjxsysid.identify.inference import log_grounded_posteriors
     base = P.paper_hardware().copy()
     slow = base * np.where(np.arange(19) == P.TAU_M, 1.5, 1.0).astype(np.float32)
@@ -250,8 +252,8 @@ def test_logs_batched_give_each_logs_posterior():
     alone = [log_grounded_posterior(r, seed=7 + k, **kw) for k, r in enumerate(recs)]
     together = log_grounded_posteriors(recs, seeds=[7, 8, 9, 10], batch=4, **kw)   # three logs padded to four
     for a, b in zip(alone, together):
-        assert a["method"] == b["method"] == "smc"
+        assert a["method"] == b["method"] == "smc_nuts"
         qa, qb = (np.percentile(x["v"], [5, 50, 95], 0) for x in (a, b))
-        assert np.all(np.abs(qa - qb) <= 0.1 * (qa[2] - qa[0]) + 1e-5), np.abs(qa - qb) / (qa[2] - qa[0])
+        assert np.all(np.abs(qa - qb) <= 0.2 * (qa[2] - qa[0]) + 1e-5), np.abs(qa - qb) / (qa[2] - qa[0])
     with pytest.raises(ValueError, match="one of each per log"):
         log_grounded_posteriors(recs, seeds=[1, 2])

@@ -41,15 +41,14 @@ def test_unconstrained_map_round_trips_into_the_support_with_its_log_jacobian():
 
 
 
-def test_converged_names_the_coordinate_whose_chains_disagree_and_counts_divergences():
-    ok = {"rhat": np.full(N_Y, 1.01), "ess_bulk": np.full(N_Y, 400.0), "divergences": 0}
-    assert S.converged(ok, 1000)[0]
-    bad = dict(ok, rhat=np.r_[np.full(N_Y - 1, 1.0), 1.3])
-    good, why = S.converged(bad, 1000)
+def test_converged_names_the_coordinate_whose_chains_disagree_and_asks_enough_draws():
+    ok = {"rhat": np.full(N_Y, 1.01), "ess_bulk": np.full(N_Y, 400.0), "divergences": 30}
+    assert S.converged(ok)[0]                       # divergent draws at ρ_4's wall are rejected moves: reported
+    good, why = S.converged(dict(ok, rhat=np.r_[np.full(N_Y - 1, 1.0), 1.3]))
     assert not good and "acc_z_bias" in why and "1.30" in why
-    assert not S.converged(dict(ok, rhat=np.r_[np.nan, np.ones(N_Y - 1)]), 1000)[0]
-    good, why = S.converged(dict(ok, divergences=20), 1000)
-    assert not good and "20 of 1000" in why
+    assert not S.converged(dict(ok, rhat=np.r_[np.nan, np.ones(N_Y - 1)]))[0]
+    good, why = S.converged(dict(ok, ess_bulk=np.r_[np.full(N_Y - 1, 400.0), 40.0]))
+    assert not good and "ESS ≥ 40" in why
 
 
 def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands():
