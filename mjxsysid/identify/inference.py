@@ -48,7 +48,7 @@ from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
 from mjxsysid.identify.logdata import RATES, LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
                                     _ls_jacobian_logs, find_modes)
-from mjxsysid.identify.nuts import CHAINS, LONGER, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs, converged
+from mjxsysid.identify.nuts import CHAINS, LONGER, MAX_DOUBLINGS, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs, converged
 from mjxsysid.identify.nuts import diagnostics as nuts_diagnostics
 from mjxsysid.identify.nuts import start as nuts_start
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
@@ -184,11 +184,11 @@ class _Logs:
         args = [np.asarray(keys, np.uint32)] + [np.asarray(a, np.float32) for a in (u0, ld, w, m, chol)]
         if self.stack is None:
             k, u, a, b, mm, c = (jnp.asarray(x[0]) for x in args)  # rows, not coordinates
-            out = _nuts(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior, warmup, draws, TARGET_ACCEPTANCE)
+            out = _nuts(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior, warmup, draws, TARGET_ACCEPTANCE, MAX_DOUBLINGS)
             return [np.asarray(o)[None] for o in out]
         p, data = self._sub(idx)
         k, u, a, b, mm, c = (jnp.asarray(_pad_rows(x, len(p))) for x in args)
-        out = _nuts_logs(k, u, data, a, b, lo, hi, mm, c, prior, warmup, draws, TARGET_ACCEPTANCE)
+        out = _nuts_logs(k, u, data, a, b, lo, hi, mm, c, prior, warmup, draws, TARGET_ACCEPTANCE, MAX_DOUBLINGS)
         return [np.asarray(o)[:len(idx)] for o in out]
 
 

@@ -49,6 +49,10 @@ ESS_OK = 100
 """…or whose smallest bulk ESS is below this. Divergent draws are reported, not judged: ρ_4's range
 is a wall of −inf that trajectories hit where the log leaves ρ broad (PX4's sample: 64 % of draws),
 and a trajectory that hits it is rejected, which leaves the chain correct."""
+MAX_DOUBLINGS = 7
+"""The refinement's trees stop at 2^7 − 1 = 127 leapfrog steps (blackjax's default: 10). Clean
+logs take 20–80 a draw; vmapped over logs and chains, every step waits for the deepest tree.
+The long reference runs keep 10."""
 LONGER = (2, 4)
 """A fit that did not mix runs once more with these times the warm-up and the draws (the draws
 thinned back to as many)."""
@@ -128,10 +132,11 @@ def preconditioner(draws_y, centre_y, lo, hi, ridge: float = 1e-3):
 
 # ---- NUTS ---------------------------------------------------------------------------------------
 
-def _chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance):
+def _chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance,
+            max_doublings):
     """Per chain (keys (C, 2), u0 (C, 17)): window adaptation for ``warmup`` steps, then ``draws``
-    NUTS draws of u, z = m + chol u -> y (C, draws, 17), divergent (C, draws), leapfrog steps
-    (C, draws), step size (C,)."""
+    NUTS draws of u (trees of at most 2^``max_doublings`` leapfrog steps), z = m + chol u -> y (C,
+    draws, 17), divergent (C, draws), leapfrog steps (C, draws), step size (C,)."""
     import blackjax
 
     def logdensity(u):
@@ -140,9 +145,9 @@ def _chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, 
     def chain(key, u):
         k_warm, k_draw = jax.random.split(key)
         adapt = blackjax.window_adaptation(blackjax.nuts, logdensity, is_mass_matrix_diagonal=False,
-                                           target_acceptance_rate=target_acceptance)
+                                           target_acceptance_rate=target_acceptance, max_num_doublings=max_doublings)
         (state, params), _ = adapt.run(k_warm, u, num_steps=warmup)
-        kernel = blackjax.nuts(logdensity, **params)
+        kernel = blackjax.nuts(logdensity, **params)       # params carry max_num_doublings
 
         def step(s, k):
             s, info = kernel.step(k, s)
@@ -154,15 +159,16 @@ def _chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, 
     return jax.vmap(chain)(keys, u0)
 
 
-_STATIC = ("prior", "warmup", "draws", "target_acceptance")
+_STATIC = ("prior", "warmup", "draws", "target_acceptance", "max_doublings")
 _nuts = jax.jit(_chains, static_argnames=_STATIC)
 
 
 @functools.partial(jax.jit, static_argnames=_STATIC)
-def _nuts_logs(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance):
+def _nuts_logs(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance,
+               max_doublings):
     """:func:`_nuts` vmapped over logs (keys, u0, data, log δ, weights, m and chol with a leading log axis)."""
     def one(k, u, d, a, b, mm, c):
-        return _chains(k, u, d, a, b, lo, hi, mm, c, prior, warmup, draws, target_acceptance)
+        return _chains(k, u, d, a, b, lo, hi, mm, c, prior, warmup, draws, target_acceptance, max_doublings)
     return jax.vmap(one)(keys, u0, data, log_delta, weights, m, chol)
 
 
@@ -205,7 +211,7 @@ def converged(diag: dict) -> tuple[bool, str]:
 
 
 def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: int, warmup: int, draws: int,
-                   seed: int = 0, target_acceptance: float = TARGET_ACCEPTANCE,
+                   seed: int = 0, target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = 10,
                    prior: PhysicalPrior = PHYSICAL_PRIOR) -> dict:
     """NUTS on the log-grounded target of ``data`` (a LogData) at fixed log δ (4,) and weights (4,),
     in the coordinates :func:`preconditioner` makes of ``start_y`` (17,) (the mode) and
@@ -218,5 +224,5 @@ def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: in
     keys, u0, m, chol = start(scale_draws, start_y, chains, seed, prior)
     with jax.default_matmul_precision("highest"):       # as the SMC's target (target.full_precision)
         y, div, n_leap, step = _nuts(jnp.asarray(keys), _f32(u0), data, _f32(log_delta), _f32(weights), _f32(lo), _f32(hi), _f32(m), _f32(chol), prior,
-                                     int(warmup), int(draws), float(target_acceptance))
+                                     int(warmup), int(draws), float(target_acceptance), int(max_doublings))
     return {"y": np.asarray(y, np.float64), **diagnostics(y, div, n_leap, step)}
