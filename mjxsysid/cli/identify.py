@@ -31,6 +31,8 @@ def add_calibrate_posterior(sub) -> None:
     cp.add_argument("--aero", action="store_true",
                     help="--collect: fly with rotor aerodynamics (SimConfig.aero: RotorPy's rotor drag, induced inflow, "
                          "parasitic drag and translational lift, scaled to the vehicle)")
+    cp.add_argument("--no-velocity", action="store_true",
+                    help="--collect: drop the logs' body velocity (logs without a state estimate: the drag unmodelled)")
     cp.add_argument("--flights", default="lemniscate:10",
                     help="--collect: the flights, comma-separated: lemniscate:PERIOD, minsnap:SECONDS, hover:SECONDS "
                          "(default lemniscate:10)")
@@ -53,7 +55,8 @@ def cmd_calibrate_posterior(args) -> int:
     if args.collect:
         res = pc.collect(prior=args.prior, vehicles=args.vehicles, levels=tuple(args.levels.split(",")),
                          seed=args.seed, shard=args.shard, out=args.collect, time_budget_s=args.time_budget,
-                         references=tuple(args.flights.split(",")), controller=args.controller, aero=args.aero)
+                         references=tuple(args.flights.split(",")), controller=args.controller, aero=args.aero,
+                         velocity=not args.no_velocity)
         echo(f"{len(res['rows'])} rows -> {args.collect}")
     elif args.fit:
         out = args.out or SHIPPED

@@ -64,12 +64,13 @@ def parse_reference(spec: str) -> dict:
 
 def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_LEVELS, seed: int = 5,
             shard: str | None = None, out: Path, time_budget_s: float | None = None,
-            references=REFERENCES, controller: str = "oracle", aero: bool = False) -> dict:
+            references=REFERENCES, controller: str = "oracle", aero: bool = False, velocity: bool = True) -> dict:
     """Fly and identify; write ``out`` (JSON: rows), after every log, or every batch of logs
     identified together on an accelerator (a stopped run keeps what it finished); ``time_budget_s``: start no new flight after this long; ``references``: the flights
     (:func:`parse_reference`), each at every level; ``controller``: who flies ('oracle', the lag-aware
     oracle, or 'policy', the shipped adaptive policy: another closed loop's reaction to the noise);
-    ``aero``: the simulator's rotor aerodynamics on (``SimConfig.aero``: physics the likelihood lacks)."""
+    ``aero``: the simulator's rotor aerodynamics on (``SimConfig.aero``: physics the likelihood lacks);
+    ``velocity``: False drops the logs' body velocity (a log without a state estimate)."""
     from mjxsysid.identify.inference import LOG_BATCH, log_grounded_posteriors
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
@@ -91,7 +92,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
-           "references": list(references), "controller": controller, "aero": aero, "rows": []}
+           "references": list(references), "controller": controller, "aero": aero, "velocity": velocity, "rows": []}
     t_start = time.perf_counter()
     for ref, lv in ((r, lv) for r in references for lv in levels):
         if lv not in LEVELS:
@@ -110,7 +111,10 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
             datas, kept = [], []
             for i in flown[c:c + step]:
                 try:
-                    datas.append(prepare(flight_log(fl.frame, i)))
+                    rec = flight_log(fl.frame, i)
+                    if not velocity:
+                        rec.pop("velocity_body")
+                    datas.append(prepare(rec))
                     kept.append(i)
                 except LogTooShort:
                     continue

@@ -325,7 +325,7 @@ def _prepare_one(x, rates: str, i: int):
 def _prepare_all(logs, rates: str, workers: int) -> list:
     """Each log's :class:`LogData` (those given as one kept), in ``workers`` processes (a reduction
     is many small NumPy calls: threads wait on each other's interpreter lock)."""
-    if workers <= 1 or len(logs) < 2 * workers:
+    if workers <= 1 or len(logs) < 2 * workers or all(isinstance(x, LogData) for x in logs):
         return [_prepare_one(x, rates, i) for i, x in enumerate(logs)]
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
