@@ -87,7 +87,7 @@ def timed_phases():
         setattr(owner, name, run)
     for name in ("find_modes", "_finish", "_prepare_all"):
         wrap(I, name)
-    for name in ("targets", "smc", "fit", "jacobians"):
+    for name in ("targets", "smc", "nuts", "fit", "jacobians"):
         wrap(I._Logs, name)
 
 

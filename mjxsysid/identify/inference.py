@@ -48,7 +48,8 @@ from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
 from mjxsysid.identify.logdata import RATES, LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
                                     _ls_jacobian_logs, find_modes)
-from mjxsysid.identify.nuts import CHAINS, LONGER, MAX_DOUBLINGS, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs, converged
+from mjxsysid.identify.nuts import (CHAINS, LONGER, MAX_DOUBLINGS, RHAT_OK, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs,
+                                    converged)
 from mjxsysid.identify.nuts import diagnostics as nuts_diagnostics
 from mjxsysid.identify.nuts import start as nuts_start
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
@@ -184,7 +185,8 @@ class _Logs:
         args = [np.asarray(keys, np.uint32)] + [np.asarray(a, np.float32) for a in (u0, ld, w, m, chol)]
         if self.stack is None:
             k, u, a, b, mm, c = (jnp.asarray(x[0]) for x in args)  # rows, not coordinates
-            out = _nuts(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior, warmup, draws, TARGET_ACCEPTANCE, MAX_DOUBLINGS)
+            out = _nuts(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior, warmup, draws, TARGET_ACCEPTANCE,
+                        MAX_DOUBLINGS)
             return [np.asarray(o)[None] for o in out]
         p, data = self._sub(idx)
         k, u, a, b, mm, c = (jnp.asarray(_pad_rows(x, len(p))) for x in args)
@@ -438,6 +440,7 @@ def _refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) ->
             outs[i]["nuts"] = {"chains": CHAINS, "warmup": warmup, "draws": per * thin, "thin": thin, "converged": ok,
                                "why": why, "rhat_max": float(np.max(diag["rhat"])),
                                "ess_bulk_min": float(np.min(diag["ess_bulk"])), "divergences": diag["divergences"],
+                               "rhat_v": np.round(diag["rhat"][L.Y_V], 4).tolist(),
                                "leapfrog_mean": diag["leapfrog_mean"]}
             if not ok:
                 again.append(j)
@@ -458,9 +461,20 @@ def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> 
     else:
         out["drag_per_mass"] = None
     v, out["calibration"] = _calibrated(v_raw, out["features"], out["weights"], calibration, prior, seed)
+    if "nuts" in out and out["calibration"].get("applied"):
+        _unmixed_not_seen(out["calibration"], out["nuts"])
     h = prior.sample_h(r_h, samples)
     out.update(v=v, v_raw=v_raw, nuisance=xs[:, L.X_NUIS], theta=np.asarray(theta_from(v, h), np.float32))
     return out
+
+
+def _unmixed_not_seen(report: dict, nuts: dict) -> None:
+    """A visible coordinate on which NUTS's chains disagree (split R̂ ≥ :data:`~.nuts.RHAT_OK`) is not
+    seen by the log, whatever its band's width: its draws pool chains that did not meet."""
+    for j, r in enumerate(nuts["rhat_v"]):
+        if not r < RHAT_OK:
+            report["seen"][j] = False
+            report["why"][j] = f"NUTS's chains disagree on it (split R̂ {r:.2f} ≥ {RHAT_OK}): the fit did not mix"
 
 
 def _calibrated(v_raw, features, weights, calibration, prior, seed):

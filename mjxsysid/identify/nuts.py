@@ -223,6 +223,7 @@ def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: in
     lo, hi = (np.asarray(a, np.float32) for a in _y_lo_hi(prior))
     keys, u0, m, chol = start(scale_draws, start_y, chains, seed, prior)
     with jax.default_matmul_precision("highest"):       # as the SMC's target (target.full_precision)
-        y, div, n_leap, step = _nuts(jnp.asarray(keys), _f32(u0), data, _f32(log_delta), _f32(weights), _f32(lo), _f32(hi), _f32(m), _f32(chol), prior,
+        y, div, n_leap, step = _nuts(jnp.asarray(keys), _f32(u0), data, _f32(log_delta), _f32(weights), _f32(lo), _f32(hi),
+                                     _f32(m), _f32(chol), prior,
                                      int(warmup), int(draws), float(target_acceptance), int(max_doublings))
     return {"y": np.asarray(y, np.float64), **diagnostics(y, div, n_leap, step)}

@@ -73,3 +73,11 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands():
         width = qr[2, j] - qr[0, j]
         assert np.all(np.abs(q[:, j] - qr[:, j]) < 0.3 * width), (j, q[:, j], qr[:, j])
         assert qr[0, j] <= truth[j] <= qr[2, j], j
+
+
+def test_a_coordinate_whose_chains_disagree_is_not_seen():
+    from mjxsysid.identify.inference import _unmixed_not_seen
+    report = {"seen": np.ones(12, bool), "why": ["calibrated band 0.01 of the prior's range"] * 12}
+    _unmixed_not_seen(report, {"rhat_v": [1.01] * 7 + [1.4] + [1.0] * 3 + [float("nan")]})
+    assert report["seen"].tolist() == [True] * 7 + [False] + [True] * 3 + [False]
+    assert "R̂ 1.40" in report["why"][7] and report["why"][0].startswith("calibrated")
