@@ -152,7 +152,7 @@ def main():
         "batched_s": round(warm_s, 1), "batched_phases_s": phases, "batched_logs_per_s": round(n / warm_s, 2),
         "sequential_s_per_log": round(seq_s, 3), "sequential_first_call_s": round(seq_first, 1),
         "speedup": round(seq_s * n / warm_s, 1),
-        "methods": {mm: sum(p["method"] == mm for p in posts) for mm in ("decoded_is", "laplace_is", "smc")},
+        "methods": {mm: sum(p["method"] == mm for p in posts) for mm in ("decoded_is", "laplace_is", "smc", "smc_nuts")},
         "smc_stages_max": max((p.get("smc_stages", 0) for p in posts), default=0),
         "truth_inside_90": round(float(ins.mean()), 3),
         "truth_inside_90_by_level": {lv: round(float(ins[[x == lv for x in levels]].mean()), 3) for lv in sorted(set(levels))},

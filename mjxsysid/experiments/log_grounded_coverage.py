@@ -84,7 +84,7 @@ def level_summary(level: str, rows: list) -> dict:
             "median_width": dict(zip(LOG_NAMES, np.median([r["width"] for r in rows], 0).round(4).tolist())),
             "median_rel_error": dict(zip(LOG_NAMES, np.median([r["rel_error_median"] for r in rows], 0).round(4).tolist())),
             "seconds_median": float(np.median([r["seconds"] for r in rows])),
-            "methods": {k: sum(r["method"] == k for r in rows) for k in ("decoded_is", "laplace_is", "smc")},
+            "methods": {k: sum(r["method"] == k for r in rows) for k in ("decoded_is", "laplace_is", "smc", "smc_nuts")},
             "rows": rows}
 
 

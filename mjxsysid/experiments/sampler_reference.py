@@ -1,6 +1,7 @@
 """The log-grounded posterior's sampler checked against a long MCMC on the same target.
 
-The tempered SMC of :func:`mjxsysid.identify.inference.log_grounded_posterior` (``force_smc=True``)
+The tempered SMC of :func:`mjxsysid.identify.inference.log_grounded_posterior` (``force_smc=True``),
+alone (``refine=False``) and refined by short NUTS chains as the library runs it (:mod:`mjxsysid.identify.nuts`),
 and blackjax's NUTS (:func:`nuts_reference`: ``chains`` chains, Stan's window adaptation with a
 dense mass matrix, then ``draws`` draws each) sample one target per log: the same data, the
 same discrepancy δ and channel weights w (the SMC run's), the 17 coordinates y = [v (12),
@@ -97,8 +98,12 @@ def check_log(rec: dict, truth_theta, *, seed: int, chains: int, warmup: int, dr
     seconds of each."""
     data = prepare(rec)
     t0 = time.perf_counter()
-    post = log_grounded_posterior(data, None, force_smc=True, seed=seed, calibration=None, particles=particles)
+    post = log_grounded_posterior(data, None, force_smc=True, refine=False, seed=seed, calibration=None,
+                                  particles=particles)
     t_smc = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    refined = log_grounded_posterior(data, None, force_smc=True, seed=seed, calibration=None, particles=particles)
+    t_refined = time.perf_counter() - t0
     mode = np.asarray(post["mode"], np.float64)
     start = L.y_from_x(np.asarray(mode))
     ld, w = post["nuisance"][0, L.LOG_DISCREPANCY], post["weights"]      # δ is fixed: any draw's
@@ -113,7 +118,10 @@ def check_log(rec: dict, truth_theta, *, seed: int, chains: int, warmup: int, dr
     cmp = compare(post["v_raw"], ref["y"].reshape(-1, N_Y)[:, L.Y_V], truth)
     half = chains // 2          # NUTS against itself: its first chains against the others
     floor = compare(ref["y"][:half].reshape(-1, N_Y)[:, L.Y_V], ref["y"][half:].reshape(-1, N_Y)[:, L.Y_V], truth)
-    return {**cmp, "nuts_halves_error": floor["sampler_error"], "truth": truth, "rhat": ref["rhat"],
+    ref_cmp = compare(refined["v_raw"], ref["y"].reshape(-1, N_Y)[:, L.Y_V], truth)
+    return {**cmp, "refined_sampler_error": ref_cmp["sampler_error"], "refined_width_ratio": ref_cmp["width_ratio"],
+            "inside_refined": ref_cmp["inside_smc"], "refined_seconds": t_refined, "refined_nuts": refined["nuts"],
+            "nuts_halves_error": floor["sampler_error"], "truth": truth, "rhat": ref["rhat"],
             "ess_bulk": ref["ess_bulk"], "divergences": ref["divergences"], "leapfrog_mean": ref["leapfrog_mean"],
             "step_size": ref["step_size"], "nuts_steps": [warmup, draws], "smc_seconds": t_smc, "nuts_seconds": t_nuts,
             "method_default": default_method(post), "smc_stages": post["smc_stages"],
@@ -157,6 +165,10 @@ def by_level(rows: list, levels: list[str]) -> dict:
                    "sampler_error_max": float(err.max().round(3)),
                    "nuts_halves_error_median": float(np.median([r["nuts_halves_error"] for r in rs]).round(3)),
                    "width_ratio_median": float(np.median([r["width_ratio"] for r in rs]).round(3)),
+                   "refined_sampler_error_median": float(np.median([r["refined_sampler_error"] for r in rs]).round(3)),
+                   "refined_sampler_error_max": float(np.max([r["refined_sampler_error"] for r in rs]).round(3)),
+                   "refined_width_ratio_median": float(np.median([r["refined_width_ratio"] for r in rs]).round(3)),
+                   "inside_refined": int(sum(r["inside_refined"].sum() for r in rs)),
                    "inside_smc": int(sum(r["inside_smc"].sum() for r in rs)),
                    "inside_mcmc": int(sum(r["inside_mcmc"].sum() for r in rs)),
                    "outside_both": int(sum((~r["inside_smc"] & ~r["inside_mcmc"]).sum() for r in rs)),
@@ -184,12 +196,16 @@ def tables(summary: dict, levels: dict, rows: list, labels: list[str]) -> str:
             f"{float(np.max(r['rhat'])):.3f}", f"{float(np.min(r['ess_bulk'])):.0f}", r["divergences"],
             f"{r['nuts_steps'][0]} + {r['nuts_steps'][1]}", f"{r['leapfrog_mean']:.0f}",
             f"{r['smc_seconds']:.0f} / {r['nuts_seconds']:.0f}"] for lab, r in zip(labels, rows)]
-    lv = [[k, x["logs"], f"{x['sampler_error_median']:.2f}", f"{x['sampler_error_max']:.2f}",
-           f"{x['nuts_halves_error_median']:.2f}", f"{x['width_ratio_median']:.2f}",
-           f"{x['inside_smc']} / {x['inside_mcmc']} / {x['bands']}", x["outside_both"]] for k, x in levels.items()]
-    return ("## Per noise level\n\n" + markdown_table(
-        ["level", "logs", "sampler error (median)", "(max)", "NUTS halves (median)", "SMC / NUTS width (median)",
-         "truth inside SMC / NUTS / bands", "outside both"], lv)
+    lv = [[k, x["logs"], f"{x['sampler_error_median']:.2f} ({x['sampler_error_max']:.2f})",
+           f"{x['refined_sampler_error_median']:.2f} ({x['refined_sampler_error_max']:.2f})",
+           f"{x['nuts_halves_error_median']:.2f}", f"{x['width_ratio_median']:.2f} / {x['refined_width_ratio_median']:.2f}",
+           f"{x['inside_smc']} / {x['inside_refined']} / {x['inside_mcmc']} / {x['bands']}", x["outside_both"]]
+          for k, x in levels.items()]
+    return ("## Per noise level\n\nThe SMC alone (``refine=False``) and the library's sampler, the SMC refined by "
+            "short NUTS chains (identify/nuts.py), each against the long NUTS run.\n\n" + markdown_table(
+        ["level", "logs", "sampler error, SMC: median (max)", "SMC + short NUTS: median (max)", "NUTS halves (median)",
+         "width over the long run's: SMC / SMC + short NUTS", "truth inside SMC / SMC + short NUTS / long NUTS / bands",
+         "outside SMC and long NUTS"], lv)
             + "\n## Per visible coordinate\n\nSampler error: |SMC quantile − NUTS quantile| / NUTS 90 % band width. "
             "NUTS halves: the same between NUTS's first chains and the others (the measurement's own noise, "
             "over all three quantiles). Width: the SMC's 90 % band width over NUTS's. "
@@ -237,7 +253,9 @@ def run(out, *, quick=False, policy=None, seed=5, logs=None, chains=None, warmup
             levels.append(level)
             if progress:
                 echo(f"[{len(rows)}/{len(todo)}] {labels[-1]}: sampler error max {np.max(r['sampler_error']):.2f}, "
-                     f"inside SMC/NUTS {int(r['inside_smc'].sum())}/{int(r['inside_mcmc'].sum())} of 12, "
+                     f"refined {np.max(r['refined_sampler_error']):.2f}, "
+                     f"inside SMC/refined/NUTS {int(r['inside_smc'].sum())}/{int(r['inside_refined'].sum())}/"
+                     f"{int(r['inside_mcmc'].sum())} of 12, "
                      f"R-hat max {np.max(r['rhat']):.3f}, ESS min {np.min(r['ess_bulk']):.0f}, "
                      f"{r['divergences']} divergences; {r['smc_seconds']:.0f} s SMC, {r['nuts_seconds']:.0f} s NUTS")
     if not rows:
@@ -254,12 +272,21 @@ def run(out, *, quick=False, policy=None, seed=5, logs=None, chains=None, warmup
                 "bands": 12 * len(rows),
                 "outside_both": int(sum((~r["inside_smc"] & ~r["inside_mcmc"]).sum() for r in rows)),
                 "width_ratio_median": float(np.median([r["width_ratio"] for r in rows]).round(3)),
+                "refined_sampler_error_median": float(np.median([r["refined_sampler_error"] for r in rows]).round(3)),
+                "refined_sampler_error_max": float(np.max([r["refined_sampler_error"] for r in rows]).round(3)),
+                "refined_width_ratio_median": float(np.median([r["refined_width_ratio"] for r in rows]).round(3)),
+                "inside_refined": int(sum(r["inside_refined"].sum() for r in rows)),
+                "refined_not_mixed": int(sum(not r["refined_nuts"]["converged"] for r in rows)),
                 "rhat_max": float(max(np.max(r["rhat"]) for r in rows).round(4)),
                 "method_default": {m: sum(r["method_default"] == m for r in rows)
                                    for m in ("decoded_is", "laplace_is", "smc")}}
     per_log = [{"log": lab, "sampler_error_max": float(np.max(r["sampler_error"]).round(3)),
                 "width_ratio_median": float(np.median(r["width_ratio"]).round(3)),
                 "inside_smc": int(r["inside_smc"].sum()), "inside_mcmc": int(r["inside_mcmc"].sum()),
+                "refined_sampler_error_max": float(np.max(r["refined_sampler_error"]).round(3)),
+                "refined_width_ratio_median": float(np.median(r["refined_width_ratio"]).round(3)),
+                "inside_refined": int(r["inside_refined"].sum()), "refined_nuts": r["refined_nuts"],
+                "refined_seconds": round(r["refined_seconds"], 1),
                 "rhat_max": float(np.max(r["rhat"]).round(4)), "nuts_steps": r["nuts_steps"]}
                for lab, r in zip(labels, rows)]        # the rest of each log's figures: results.md
     numbers = {"headline": headline, "per_level": per_level, "per_coordinate": summary, "per_log": per_log, "lost": lost}
