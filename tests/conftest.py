@@ -11,9 +11,11 @@ pytest_plugins = ("support.jax_setup", "support.xdist_queue", "support.worker_ex
 def posterior_at_test_resolution():
     """The log-grounded posterior's in-process runs (decode, the demo, the notebooks) on 1024
     importance draws and 512 SMC particles instead of 4096 and 2048: the tier checks what they
-    compute, not their resolution (tests/identify runs its coverage checks on 512 particles too)."""
+    compute, not their resolution (tests/identify runs its coverage checks on 512 particles too), and
+    without the SMC's NUTS refinement unless a test asks for it (``refine=True``)."""
     from mjxsysid.identify import inference
     inference.DRAWS, inference.PARTICLES = 1024, 512
+    inference.REFINE = False        # NUTS's compiles: tests/identify/test_nuts.py and the tests that ask for it
     yield
 
 

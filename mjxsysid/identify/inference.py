@@ -223,7 +223,7 @@ def _reliable(diag) -> bool:
 def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                            samples: int = 1000, draws: int | None = None, particles: int | None = None, seed: int = 0,
                            n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
-                           force_smc: bool = False, refine: bool = True, rates: str | None = None,
+                           force_smc: bool = False, refine: bool | None = None, rates: str | None = None,
                            calibration="shipped") -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
@@ -240,7 +240,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     ``smc_acceptance_min`` (the lowest stage's), ``smc_tempering`` (1 when it reached the target),
     and after NUTS ``nuts`` (chains, warm-up, draws per chain, ``converged`` and ``why``, the largest
     split R̂, the smallest bulk ESS, divergences, leapfrog steps per draw). ``refine=False`` keeps the
-    SMC's draws (step 3 of the module doc skipped).
+    SMC's draws (step 3 of the module doc skipped); None: :data:`REFINE`.
 
     ``calibration``: "shipped" (default: the table fitted on simulated logs,
     :mod:`.calibrate`), a table (dict) or a path to one, or None for the raw posterior. The draws
@@ -254,6 +254,12 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
                                    workers=1)[0]
 
 
+REFINE = True
+"""Whether an SMC's draws are refined by NUTS (``refine`` of :func:`log_grounded_posterior` when not
+given). The test tier turns it off for its in-process decodes (tests/conftest.py); NUTS's own tests
+ask for it."""
+
+
 LOG_BATCH = 256
 """Logs evaluated together on an accelerator (:func:`log_grounded_posteriors`; on a CPU one at a
 time: its cores are busy with one log's particles already)."""
@@ -263,7 +269,7 @@ time: its cores are busy with one log's particles already)."""
 def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                             samples: int = 1000, draws: int | None = None, particles: int | None = None,
                             seeds=0, n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
-                            force_smc: bool = False, refine: bool = True, rates: str | None = None,
+                            force_smc: bool = False, refine: bool | None = None, rates: str | None = None,
                             calibration="shipped",
                             batch: int | None = None, workers: int | None = None,
                             desc: str | None = None) -> list[dict]:
@@ -288,7 +294,8 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
                          "give one of each per log")
     cfg = dict(prior=prior, samples=int(samples), draws=DRAWS if draws is None else int(draws),
                particles=PARTICLES if particles is None else int(particles), n_mcmc=n_mcmc, max_stages=max_stages,
-               starts=starts, force_smc=force_smc, refine=refine, calibration=calibration)
+               starts=starts, force_smc=force_smc, refine=REFINE if refine is None else bool(refine),
+               calibration=calibration)
     rates = RATES if rates is None else rates
     if workers is None:
         workers = 1 if jax.default_backend() == "cpu" else min(16, os.cpu_count() or 1)

@@ -17,6 +17,7 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.logs import ulog_fast
+from mjxsysid.logs.record import rate_hz
 from mjxsysid.logs.grid import DT, MIN_ROWS, cut, hold, interp_linear, segment_grid, user_segment
 from mjxsysid.logs.grid import parse_segment, world_to_body  # noqa: F401  (importable here too, their first home)
 
@@ -37,12 +38,6 @@ def _import_pyulog():
         raise ImportError("reading PX4 ULog files needs pyulog: pip install mjxsysid[px4] "
                           "(or pip install pyulog==1.3.0)") from None
     return ULog
-
-
-def _rate(t) -> float:
-    d = np.diff(np.asarray(t, np.float64))
-    d = d[d > 0]
-    return float(1.0 / np.median(d)) if d.size else float("nan")
 
 
 def _rate_text(hz: float) -> str:
@@ -241,7 +236,7 @@ def read_ulog(path, segment=None) -> dict:
     t_g, gyro, t_a, acc = t_g[order_g], gyro[order_g], t_a[order_a], acc[order_a]
     frd = np.array([1.0, -1.0, -1.0])
     imu_native = np.concatenate([gyro * frd, interp_linear(t_a, acc, t_g) * frd], -1)
-    rates["imu"] = _rate(t_g)
+    rates["imu"] = rate_hz(t_g)
     conv.append("body frame: PX4's FRD (x forward, y right, z down) to FLU (x forward, y left, z up): "
                 "gyro, accelerometer and rate setpoint y and z negated")
 
@@ -291,7 +286,7 @@ def read_ulog(path, segment=None) -> dict:
     rotor = rotor[:, inv]
     srt = np.argsort(t_m, kind="stable")
     t_m, rotor = t_m[srt], rotor[srt]
-    rates["motor"] = _rate(t_m)
+    rates["motor"] = rate_hz(t_m)
 
     # ---- commands
     rs = _topic(ulog, "vehicle_rates_setpoint")
@@ -300,7 +295,7 @@ def read_ulog(path, segment=None) -> dict:
     t_w = _seconds(rs["timestamp"], start)
     w_cmd = np.stack([rs["roll"], rs["pitch"], rs["yaw"]], -1).astype(np.float64) * frd
     topics["omega_cmd"] = "vehicle_rates_setpoint (roll, pitch, yaw)"
-    rates["omega_cmd"] = _rate(t_w)
+    rates["omega_cmd"] = rate_hz(t_w)
     ts = _topic(ulog, "vehicle_thrust_setpoint")
     if ts is not None:
         t_T, thr = _seconds(ts["timestamp"], start), -np.asarray(ts["xyz[2]"], np.float64)
@@ -318,7 +313,7 @@ def read_ulog(path, segment=None) -> dict:
     thr = np.nan_to_num(thr, nan=0.0)
     hover, said_h = _hover_thrust(ulog, params, start, t0, t1)
     a_cmd = thr * g / hover
-    rates["a_cmd"] = _rate(t_T)
+    rates["a_cmd"] = rate_hz(t_T)
     conv.append(f"a_cmd: PX4's normalised collective thrust setpoint (−xyz[2], FRD z down) × g / hover thrust "
                 f"({said_h}): m/s², g at hover")
 
@@ -335,7 +330,7 @@ def read_ulog(path, segment=None) -> dict:
     conv.append(said_v)
     if vel is not None:
         native["velocity_body"], rec["velocity_body"] = vel, interp_linear(*vel, grid)
-        hows["velocity_body"], rates["velocity_body"] = "interpolated (linear)", _rate(vel[0])
+        hows["velocity_body"], rates["velocity_body"] = "interpolated (linear)", rate_hz(vel[0])
         topics["velocity_body"] = "vehicle_local_position (vx, vy, vz) + vehicle_attitude (q)"
     resampled = {}
     for k, how in hows.items():

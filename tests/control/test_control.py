@@ -245,7 +245,7 @@ def test_demo_runs(tmp_path, monkeypatch, decode_rate):
     assert "flight-level: mean" in (out / "summary.md").read_text()
     # the same flight read as a log: the log-grounded posterior beside the decoders' (issue 38 §2)
     gap = s["log_grounded"]["gap"]
-    assert s["log_grounded"]["method"] in ("decoded_is", "laplace_is", "smc_nuts")
+    assert s["log_grounded"]["method"] in ("decoded_is", "laplace_is", "smc", "smc_nuts")
     seen = [v for v in gap.values() if v["seen_by_log"]]
     assert len(seen) >= 8 and np.median([v["width_ratio"] for v in seen]) > 5   # the log is far sharper
     tw = gap["thrust_to_weight"]

@@ -144,7 +144,7 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     from mjxsysid.identify.gap import information_gap
     from mjxsysid.logs.ulog import read_ulog
     rec = read_ulog(require_shared(PX4_SAMPLE))
-    post = log_grounded_posterior(rec, None, samples=600, particles=512, seed=0)
+    post = log_grounded_posterior(rec, None, samples=600, particles=512, seed=0, refine=True)
     assert list(post["channels_used"]) == [0, 0, 0, 1]
     q = C.log_quantities(post["theta"])
     lo, hi = np.percentile(q, [5, 95], 0)
@@ -229,7 +229,7 @@ def test_the_identify_room_is_callable_and_gives_a_posterior_object():
     tw = C.log_quantities(theta)[0]
     assert s["thrust_to_weight"]["q05"] <= tw <= s["thrust_to_weight"]["q95"]
     assert post.sample(50).shape == (50, P.N_PARAMS) and post.sample().shape == (600, P.N_PARAMS)
-    assert post.diagnostics["method"] in ("decoded_is", "laplace_is", "smc_nuts") and "features" in post.diagnostics
+    assert post.diagnostics["method"] in ("decoded_is", "laplace_is", "smc", "smc_nuts") and "features" in post.diagnostics
     assert "thrust_to_weight" in repr(post)
     gap = post.gap(post.theta)
     assert gap["thrust_to_weight"]["seen_by_log"] == s["thrust_to_weight"]["seen"]
@@ -248,7 +248,7 @@ def test_logs_batched_give_each_logs_posterior():
     slow = base * np.where(np.arange(19) == P.TAU_M, 1.5, 1.0).astype(np.float32)
     recs = [synthetic_log(t, seconds=s, gyro_noise=0.05, acc_noise=0.5, seed=k)
             for k, (t, s) in enumerate(zip((base, slow, base, base), (3.0, 3.0, 3.0, 5.0)))]
-    kw = dict(samples=400, particles=256, draws=512, calibration=None, force_smc=True)
+    kw = dict(samples=400, particles=256, draws=512, calibration=None, force_smc=True, refine=True)
     alone = [log_grounded_posterior(r, seed=7 + k, **kw) for k, r in enumerate(recs)]
     together = log_grounded_posteriors(recs, seeds=[7, 8, 9, 10], batch=4, **kw)   # three logs padded to four
     for a, b in zip(alone, together):

@@ -57,7 +57,8 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands():
     widths, which hold the truth; without ``refine`` the SMC's draws stay."""
     theta = P.paper_hardware().copy()
     data = prepare(exact_model_log(theta, 4.0, gyro_noise=0.05, acc_noise=0.5, seed=3))
-    post = log_grounded_posterior(data, None, force_smc=True, seed=1, calibration=None, particles=256, samples=400)
+    post = log_grounded_posterior(data, None, force_smc=True, refine=True, seed=1, calibration=None, particles=256,
+                                  samples=400)
     assert post["method"] == "smc_nuts" and post["nuts"]["converged"], post["nuts"]
     assert post["nuts"]["chains"] * post["nuts"]["draws"] >= 400 and len(post["v_raw"]) == 400
     smc = log_grounded_posterior(data, None, force_smc=True, refine=False, seed=1, calibration=None, particles=256,
