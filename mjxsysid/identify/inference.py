@@ -48,8 +48,8 @@ from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
 from mjxsysid.identify.logdata import RATES, LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
                                     _ls_jacobian_logs, find_modes)
-from mjxsysid.identify.nuts import (CHAINS, LONGER, MAX_DOUBLINGS, RHAT_OK, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs,
-                                    converged)
+from mjxsysid.identify.nuts import (CHAINS, LONGER, MAX_DOUBLINGS, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs,
+                                    converged, unmixed_not_seen)
 from mjxsysid.identify.nuts import diagnostics as nuts_diagnostics
 from mjxsysid.identify.nuts import start as nuts_start
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
@@ -234,11 +234,11 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
 
     -> dict: ``theta`` (samples, 19) (hidden coordinates drawn from the prior), ``v`` (samples, 12),
     ``nuisance`` (samples, 9: log σ (4), log δ (4, fixed), bias), ``method`` ('decoded_is',
-    'laplace_is', 'smc_nuts', or 'smc' with ``refine=False``), ``decoded_is`` / ``laplace_is`` ({ess, ess_fraction, khat}),
+    'laplace_is', 'smc_nuts', or 'smc' with ``refine=False`` or where NUTS did not mix), ``decoded_is`` / ``laplace_is`` ({ess, ess_fraction, khat}),
     ``weights`` (4,) the channels' correlation discounts, ``mode`` (21,), ``channels_used`` (4,),
     and for SMC ``smc_stages``, ``smc_acceptance`` (the moves' acceptance rate, mean over the stages),
     ``smc_acceptance_min`` (the lowest stage's), ``smc_tempering`` (1 when it reached the target),
-    and after NUTS ``nuts`` (chains, warm-up, draws per chain, ``converged`` and ``why``, the largest
+    and after NUTS ``nuts`` (chains, warm-up, draws per chain, ``converged``, ``why`` and ``kept``, the largest
     split R̂, the smallest bulk ESS, divergences, leapfrog steps per draw). ``refine=False`` keeps the
     SMC's draws (step 3 of the module doc skipped); None: :data:`REFINE`.
 
@@ -425,9 +425,12 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
 def _refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> None:
     """Step 3: the SMC's draws of the logs ``need`` replaced by NUTS's (:mod:`.nuts`: :data:`~.nuts.CHAINS`
     chains from the mode, preconditioned by the SMC's draws), in place; logs whose chains did not mix
-    run once more with :data:`~.nuts.LONGER` times the warm-up and draws (thinned). Each log's
-    ``nuts`` entry: its chains' diagnostics and whether they mixed."""
+    run once more with :data:`~.nuts.LONGER` times the warm-up and draws (thinned), and keep the
+    SMC's draws (``method`` 'smc') if they still do not: chains that did not meet, or did not move
+    (a clean log's noise σ at its floor), would set the bands by where they started. Each log's
+    ``nuts`` entry: its chains' diagnostics, whether they mixed and which draws were kept."""
     per = -(-samples // CHAINS)
+    smc_draws = {i: draws_y[i] for i in need}
     starts = [nuts_start(draws_y[i], my, CHAINS, sd, prior) for i, my, sd in zip(need, modes_y, seeds)]
     todo, warmup, thin = list(range(len(need))), WARMUP, 1
     for attempt in range(2):
@@ -445,7 +448,7 @@ def _refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) ->
             draws_y[i] = yj.transpose(1, 0, 2).reshape(-1, N_Y)[:samples]   # every chain's draws in turn
             outs[i]["method"] = "smc_nuts"
             outs[i]["nuts"] = {"chains": CHAINS, "warmup": warmup, "draws": per * thin, "thin": thin, "converged": ok,
-                               "why": why, "rhat_max": float(np.max(diag["rhat"])),
+                               "why": why, "kept": "NUTS's draws", "rhat_max": float(np.max(diag["rhat"])),
                                "ess_bulk_min": float(np.min(diag["ess_bulk"])), "divergences": diag["divergences"],
                                "rhat_v": np.round(diag["rhat"][L.Y_V], 4).tolist(),
                                "leapfrog_mean": diag["leapfrog_mean"]}
@@ -453,6 +456,12 @@ def _refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) ->
                 again.append(j)
         if not again:
             return
+        if attempt:
+            for j in again:
+                i = need[j]
+                draws_y[i] = smc_draws[i]
+                outs[i]["method"] = "smc"
+                outs[i]["nuts"]["kept"] = "the SMC's draws: NUTS's chains did not mix"
         todo, warmup, thin = again, LONGER[0] * WARMUP, LONGER[1]
 
 
@@ -469,19 +478,10 @@ def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> 
         out["drag_per_mass"] = None
     v, out["calibration"] = _calibrated(v_raw, out["features"], out["weights"], calibration, prior, seed)
     if "nuts" in out and out["calibration"].get("applied"):
-        _unmixed_not_seen(out["calibration"], out["nuts"])
+        unmixed_not_seen(out["calibration"], out["nuts"])
     h = prior.sample_h(r_h, samples)
     out.update(v=v, v_raw=v_raw, nuisance=xs[:, L.X_NUIS], theta=np.asarray(theta_from(v, h), np.float32))
     return out
-
-
-def _unmixed_not_seen(report: dict, nuts: dict) -> None:
-    """A visible coordinate on which NUTS's chains disagree (split R̂ ≥ :data:`~.nuts.RHAT_OK`) is not
-    seen by the log, whatever its band's width: its draws pool chains that did not meet."""
-    for j, r in enumerate(nuts["rhat_v"]):
-        if not r < RHAT_OK:
-            report["seen"][j] = False
-            report["why"][j] = f"NUTS's chains disagree on it (split R̂ {r:.2f} ≥ {RHAT_OK}): the fit did not mix"
 
 
 def _calibrated(v_raw, features, weights, calibration, prior, seed):

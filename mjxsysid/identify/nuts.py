@@ -210,6 +210,16 @@ def converged(diag: dict) -> tuple[bool, str]:
     return True, what
 
 
+def unmixed_not_seen(report: dict, nuts: dict) -> None:
+    """A visible coordinate on which NUTS's chains disagree (split R̂ ≥ :data:`RHAT_OK`) is not
+    seen by the log, whatever its band's width: the fit did not converge there (where no chain mixed,
+    the posterior keeps the SMC's draws: :func:`~.inference._refine`)."""
+    for j, r in enumerate(nuts["rhat_v"]):
+        if not r < RHAT_OK:
+            report["seen"][j] = False
+            report["why"][j] = f"NUTS's chains disagree on it (split R̂ {r:.2f} ≥ {RHAT_OK}): the fit did not mix"
+
+
 def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: int, warmup: int, draws: int,
                    seed: int = 0, target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = 10,
                    prior: PhysicalPrior = PHYSICAL_PRIOR) -> dict:

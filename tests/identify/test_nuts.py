@@ -51,10 +51,10 @@ def test_converged_names_the_coordinate_whose_chains_disagree_and_asks_enough_dr
     assert not good and "ESS ≥ 40" in why
 
 
-def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands():
+def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch):
     """On a 4 s exact-model log: the SMC's draws replaced by short NUTS chains that mixed; their 5/50/95 %
     quantiles of thrust-to-weight and the roll and pitch authorities within 0.3 of a longer run's band
-    widths, which hold the truth; without ``refine`` the SMC's draws stay."""
+    widths, which hold the truth; without ``refine``, or where the chains never mix, the SMC's draws stay."""
     theta = P.paper_hardware().copy()
     data = prepare(exact_model_log(theta, 4.0, gyro_noise=0.05, acc_noise=0.5, seed=3))
     post = log_grounded_posterior(data, None, force_smc=True, refine=True, seed=1, calibration=None, particles=256,
@@ -64,6 +64,12 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands():
     smc = log_grounded_posterior(data, None, force_smc=True, refine=False, seed=1, calibration=None, particles=256,
                                  samples=400)
     assert smc["method"] == "smc" and "nuts" not in smc
+    from mjxsysid.identify import inference
+    monkeypatch.setattr(inference, "converged", lambda diag: (False, "forced"))   # chains that never mix
+    kept = log_grounded_posterior(data, None, force_smc=True, refine=True, seed=1, calibration=None, particles=256,
+                                  samples=400)
+    assert kept["method"] == "smc" and kept["nuts"]["thin"] > 1 and "SMC" in kept["nuts"]["kept"]
+    np.testing.assert_array_equal(kept["v_raw"], smc["v_raw"])      # the SMC's own draws, after the longer try
     y = np.concatenate([post["v_raw"], post["nuisance"][:, :4], post["nuisance"][:, 8:]], 1)
     mode = post["mode"]
     ref = S.nuts_reference(data, post["nuisance"][0, 4:8], post["weights"], np.r_[mode[:16], mode[20:]], y,
@@ -77,8 +83,7 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands():
 
 
 def test_a_coordinate_whose_chains_disagree_is_not_seen():
-    from mjxsysid.identify.inference import _unmixed_not_seen
     report = {"seen": np.ones(12, bool), "why": ["calibrated band 0.01 of the prior's range"] * 12}
-    _unmixed_not_seen(report, {"rhat_v": [1.01] * 7 + [1.4] + [1.0] * 3 + [float("nan")]})
+    S.unmixed_not_seen(report, {"rhat_v": [1.01] * 7 + [1.4] + [1.0] * 3 + [float("nan")]})
     assert report["seen"].tolist() == [True] * 7 + [False] + [True] * 3 + [False]
     assert "R̂ 1.40" in report["why"][7] and report["why"][0].startswith("calibrated")
