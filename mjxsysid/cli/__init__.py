@@ -8,7 +8,7 @@
     mjxsysid fly --policy xadap --weights DIR ...   any frozen latent policy (NAME or a path)
     mjxsysid view [--vehicle V.json] [--task hover|lemniscate|minsnap|force_step]   dm_control's viewer
     mjxsysid collect | train-cfm | evaluate-decoder | decode | replay | demo  [--policy NAME|PATH]
-    mjxsysid check-log FILE [--segment T0:T1]   a flight log's checks alone (CSV or PX4 ULog); exit 2/1/0
+    mjxsysid check-log FILE [--segment T0:T1]   a flight log's checks alone (any format decode reads); exit 2/1/0
     mjxsysid export [--weights policy.npz] --out policy.onnx   the policy as ONNX, checked in onnxruntime
     mjxsysid release --out DIR [--stages S1,S2] [--list]   a release in resumable stages (docs/release.md)
     mjxsysid profile -- COMMAND ...   a command's compile time per JAX program (docs/cli.md)

@@ -13,7 +13,7 @@ from mjxsysid.runtime import jsonout
 def add_check_log(sub) -> None:
     ck = sub.add_parser("check-log", help="the physical plausibility checks of a flight log alone (any format decode reads)")
     ck.add_argument("log", type=Path, metavar="FILE",
-                    help="a flight-log CSV (docs/decoding.md) or a PX4 ULog .ulg (docs/px4.md)")
+                    help="a flight log of any format decode reads (docs/logs.md)")
     ck.add_argument("--segment", default=None, metavar="T0:T1",
                     help="check only this part, in seconds (a ULog: since its start; default its armed, airborne "
                          "segment; a CSV: its t column)")

@@ -29,6 +29,7 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.logs import blackbox_frames
+from mjxsysid.logs.record import rate_hz
 from mjxsysid.logs.segment import airborne_segment
 from mjxsysid.logs.grid import DT, MIN_ROWS, hold, interp_linear, user_segment, world_to_body
 
@@ -196,11 +197,6 @@ def _segment(t, rotor, segment, path):
         raise ValueError(f"{path}: {e}") from None
 
 
-def _rate(t) -> float:
-    d = np.diff(t)
-    return float(1.0 / np.median(d[d > 0]))
-
-
 def read_blackbox(path, segment=None, log_index=None) -> dict:
     """Read a Betaflight / Indiflight / INAV blackbox log -> the log contract of
     :mod:`mjxsysid.logs.formats` (t (T,) s since the log's first valid frame, imu (T, 6), a_cmd (T,),
@@ -236,7 +232,7 @@ def read_blackbox(path, segment=None, log_index=None) -> dict:
                     f"monotonic time (steps ≤ {MAX_GAP_S:g} s; garbage frames at a log's start)")
     frames = frames[i0:i1]
     t = (frames[:, names.index("time")] - frames[0, names.index("time")]) * 1e-6
-    rate = _rate(t)
+    rate = rate_hz(t)
     g = P.GRAVITY
 
     deg, said_g = gyro_deg_per_lsb(headers)

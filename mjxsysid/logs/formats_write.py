@@ -22,6 +22,7 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.logs.blackbox import BF_TO_MJX, MAGIC as BLACKBOX_MAGIC, QUAT_SCALE
+from mjxsysid.logs.blackbox_frames import END_OF_LOG
 from mjxsysid.logs.crazyflie import CF_ORDER, MAGIC as USD_MAGIC, PWM_FULL, STAMP, TYPE_CODES
 from mjxsysid.logs.dataflash import AP_QUADX_ORDER, EV_ARMED, EV_DISARMED, FORMAT_DTYPES
 from mjxsysid.logs.rosbag import typestore_with_mavros
@@ -144,7 +145,7 @@ def blackbox_log(fields: dict, headers: dict) -> bytes:
         v = np.asarray(fields[k], np.int64)
         parts.append(_vb_bytes(v if k in unsigned else (v << 1) ^ (v >> 63)))
     body = np.concatenate([b for b, _ in parts], 1)[np.concatenate([m for _, m in parts], 1)]
-    return "\n".join(head).encode() + b"\n" + body.tobytes() + b"E\xffEnd of log\x00"
+    return "\n".join(head).encode() + b"\n" + body.tobytes() + b"E\xff" + END_OF_LOG
 
 
 BLACKBOX_IDLE = 158

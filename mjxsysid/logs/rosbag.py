@@ -189,11 +189,12 @@ def _fast_bag(path: Path):
         return None
     with open(path, "rb") as f:
         head = f.read(16)
-    if head.startswith(ROS1_MAGIC):
+    kind = _kind(head)
+    if kind == ".bag":
         store = typestore_with_mavros(True)
         bag = rosbag_fast.read_ros1(path.read_bytes(), store, FIELDS)
         return None if bag is None else (bag, store, False)
-    if head.startswith(MCAP_MAGIC):
+    if kind == ".mcap":
         got = rosbag_fast.read_mcap(path.read_bytes(), typestore_with_mavros(False))
         return None if got is None else (*got, True)
     return None

@@ -17,7 +17,7 @@ import numpy as np
 
 from mjxsysid import theta as P
 from mjxsysid.logs import ulog_fast
-from mjxsysid.logs.record import rate_hz
+from mjxsysid.logs.record import rate_hz, rate_text
 from mjxsysid.logs.grid import DT, MIN_ROWS, cut, hold, interp_linear, segment_grid, user_segment
 from mjxsysid.logs.grid import parse_segment, world_to_body  # noqa: F401  (importable here too, their first home)
 
@@ -38,10 +38,6 @@ def _import_pyulog():
         raise ImportError("reading PX4 ULog files needs pyulog: pip install mjxsysid[px4] "
                           "(or pip install pyulog==1.3.0)") from None
     return ULog
-
-
-def _rate_text(hz: float) -> str:
-    return f"{hz:.0f} Hz" if hz >= 2 else f"{hz:.2g} Hz"
 
 
 def rotor_order_from_params(params: dict):
@@ -335,7 +331,7 @@ def read_ulog(path, segment=None) -> dict:
     resampled = {}
     for k, how in hows.items():
         r = rates[k]
-        resampled[k] = (f"{how} from {_rate_text(r)}" if abs(r * DT - 1) > 0.05 else f"native ({_rate_text(r)})")
+        resampled[k] = (f"{how} from {rate_text(r)}" if abs(r * DT - 1) > 0.05 else f"native ({rate_text(r)})")
     rec["native"] = native
     rec["resampled"] = resampled
     rec["source"] = {"format": "PX4 ULog", "path": str(path), "topics": topics,

@@ -13,7 +13,8 @@ pytest.importorskip("orangebox")
 from mjxsysid.logs import blackbox as B
 from mjxsysid.logs.csvlog import read_any_log
 from mjxsysid.logs.formats import detect
-from mjxsysid.logs.formats_write import blackbox_log
+from mjxsysid.logs.blackbox_frames import END_OF_LOG
+from mjxsysid.logs.formats_write import BLACKBOX_IDLE, blackbox_log
 from support.paths import ROOT
 
 SAMPLES = ROOT.parent / "shared" / "data" / "logs" / "formats" / "blackbox"
@@ -22,7 +23,7 @@ BETAFLIGHT = SAMPLES / "betaflight315_cs110_example_smooth_tune.BBL"
 
 RATE = 1000                                   # Hz of the written log
 MOTOR_FLIGHT = (1000, 700, 800, 900)          # M1 rear-right, M2 front-right, M3 rear-left, M4 front-left
-IDLE = 158
+IDLE = BLACKBOX_IDLE
 
 
 def flight_fields(indiflight: bool = True, seconds=(1.0, 3.0, 1.0)) -> dict:
@@ -186,7 +187,7 @@ def _p_frames_log() -> bytes:
     body += b"P" + vb(1, 0) + bytes([2 | 2 << 2 | 2 << 4 | 2 << 6, 0x80, 0x7F, 0x01, 0xFE]) + bytes([0x45, 0xE2]) \
         + b"\x02" + vb(9, 300)
     body += b"P" + vb(0, 0) + bytes([0]) + bytes([0x8F, 0x21, 0x3F]) + b"\x00" + vb(0)
-    return "\n".join(head).encode() + b"\n" + body + b"E\xffEnd of log\x00"
+    return "\n".join(head).encode() + b"\n" + body + b"E\xff" + END_OF_LOG
 
 
 def test_p_frames_decode_as_orangebox(tmp_path):

@@ -258,8 +258,14 @@ def test_pwm_limits_per_channel_minus_one_means_unset():
 def test_fast_data_section_reads_what_pyulogs_loop_reads(written, monkeypatch):
     """The numpy data section (logs.ulog_fast) gives the record pyulog's own message loop gives."""
     from mjxsysid.logs import ulog_fast
-    fast = U.read_ulog(written)
+    took = []
+    real = ulog_fast.read_data_section
+    with monkeypatch.context() as m:      # the numpy path must be the one that read it
+        m.setattr(ulog_fast, "read_data_section", lambda *a: took.append(real(*a)) or took[-1])
+        fast = U.read_ulog(written)
+    assert took == [True]
     monkeypatch.setattr(ulog_fast, "read_data_section", lambda *a: False)
     slow = U.read_ulog(written)
+    assert fast["source"] == slow["source"]
     for k in ("t", "imu", "motor", "a_cmd", "omega_cmd"):
         np.testing.assert_array_equal(fast[k], slow[k], err_msg=k)
