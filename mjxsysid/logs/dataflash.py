@@ -77,11 +77,11 @@ def _fmt_dtype(fmt: str, columns: list[str]):
     return np.dtype([(n, FORMAT_DTYPES[c]) for n, c in zip(columns, fmt)])
 
 
-def _formats(buf, cand):
-    """{type: (name, format, dtype)} of the FMT records among the record starts ``cand``; None when a type is
-    declared twice with different layouts (left to pymavlink)."""
+def _formats(buf, cand, kind):
+    """{type: (name, format, dtype)} of the FMT records among the record starts ``cand`` (their types
+    ``kind``); None when a type is declared twice with different layouts (left to pymavlink)."""
     out = {}
-    for p in cand[(buf[np.minimum(cand + 2, len(buf) - 1)] == FMT_TYPE) & (cand + FMT_SIZE <= len(buf))]:
+    for p in cand[(kind == FMT_TYPE) & (cand + FMT_SIZE <= len(buf))]:
         rec = bytes(buf[p + 3:p + FMT_SIZE])
         typ, length = rec[0], rec[1]
         try:
@@ -120,13 +120,13 @@ def parse_records(data: bytes, types=None) -> dict | None:
     if len(buf) < FMT_SIZE:
         return None
     cand = np.flatnonzero((buf[:-2] == 0xA3) & (buf[1:-1] == 0x95))
-    fmts = _formats(buf, cand)
+    kind = buf[np.minimum(cand + 2, len(buf) - 1)]
+    fmts = _formats(buf, cand, kind)
     if not fmts or cand[0] != 0:
         return None
     size = np.zeros(256, np.int64)
     for typ, (_, _, dt) in fmts.items():
         size[typ] = dt.itemsize + 3
-    kind = buf[np.minimum(cand + 2, len(buf) - 1)]
     known = size[kind] > 0
     cand, kind = cand[known], kind[known]
     chain, stop = _chain(cand, cand + size[kind])
