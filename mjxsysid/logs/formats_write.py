@@ -25,6 +25,7 @@ from mjxsysid.logs.blackbox import BF_TO_MJX, MAGIC as BLACKBOX_MAGIC, QUAT_SCAL
 from mjxsysid.logs.blackbox_frames import END_OF_LOG
 from mjxsysid.logs.crazyflie import CF_ORDER, MAGIC as USD_MAGIC, PWM_FULL, STAMP, TYPE_CODES
 from mjxsysid.logs.dataflash import AP_QUADX_ORDER, EV_ARMED, EV_DISARMED, FORMAT_DTYPES
+from mjxsysid.logs.record import interleave
 from mjxsysid.logs.rosbag import typestore_with_mavros
 from mjxsysid.logs.ulog import PX4_QUADX_ORDER
 from mjxsysid.logs.ulog_write import FRD, FRD_QUAT     # FLU <-> FRD, the world (z up) <-> NED as (x, −y, −z)
@@ -42,26 +43,6 @@ def _flight(t, imu, a_cmd, omega_cmd, motor, quat, vel):
 def _frd_to_ned(quat):
     """Attitudes (N, 4) w x y z, body FLU to the world (z up) -> body FRD to NED: y and z negated."""
     return np.asarray(quat, np.float64) * FRD_QUAT
-
-
-def interleave(blocks, chunk: int = 1 << 17) -> bytes:
-    """Records of several types in time order: ``blocks`` [(stamps (N,), rows (N, size) uint8)], records
-    of equal stamps in block order -> their bytes, concatenated."""
-    stamps = np.concatenate([np.asarray(s, np.float64) for s, _ in blocks])
-    kind = np.concatenate([np.full(len(s), k) for k, (s, _) in enumerate(blocks)])
-    index = np.concatenate([np.arange(len(s)) for s, _ in blocks])
-    sizes = np.array([r.shape[1] for _, r in blocks], np.int64)
-    flat = np.concatenate([np.ascontiguousarray(r, np.uint8).reshape(-1) for _, r in blocks])
-    base = np.concatenate([[0], np.cumsum([r.size for _, r in blocks])[:-1]]).astype(np.int64)
-    order = np.lexsort((index, kind, stamps))
-    out = []
-    for i in range(0, len(order), chunk):              # bounded memory: gather a chunk of records at a time
-        o = order[i:i + chunk]
-        k = kind[o]
-        start, size = base[k] + index[o] * sizes[k], sizes[k]
-        first = np.cumsum(size) - size
-        out.append(flat[np.repeat(start - first, size) + np.arange(int(size.sum()))].tobytes())
-    return b"".join(out)
 
 
 def _packed(dtype, columns: dict, n: int) -> np.ndarray:

@@ -4,7 +4,8 @@ A reader converts its channels to SI units, body frame FLU and mjxsysid's rotor 
 timestamps, picks the segment (:func:`pick_segment`) and hands the native samples to
 :func:`assemble`, which brings them to the 2 ms grid and says how (``rec["resampled"]``). The binary readers
 (ULog, DataFlash, Crazyflie, ROS bags) take their fixed-size records out of the file's bytes with
-:func:`gather`.
+:func:`gather`; the writers (:mod:`~mjxsysid.logs.formats_write`, :mod:`~mjxsysid.logs.ulog_write`) merge
+theirs in time order with :func:`interleave`.
 """
 from __future__ import annotations
 
@@ -98,3 +99,23 @@ def body_velocity_from_world(v_world, R_world_body):
     """Velocity in the body frame (N, 3): Rᵀ v for world velocities ``v_world`` (N, 3) and the rotations
     ``R_world_body`` (N, 3, 3) taking body vectors to world vectors (same frames' handedness)."""
     return np.einsum("nji,nj->ni", R_world_body, v_world)
+
+
+def interleave(blocks, chunk: int = 1 << 17) -> bytes:
+    """Records of several types in time order: ``blocks`` [(stamps (N,), rows (N, size) uint8)], records
+    of equal stamps in block order -> their bytes, concatenated."""
+    stamps = np.concatenate([np.asarray(s, np.float64) for s, _ in blocks])
+    kind = np.concatenate([np.full(len(s), k) for k, (s, _) in enumerate(blocks)])
+    index = np.concatenate([np.arange(len(s)) for s, _ in blocks])
+    sizes = np.array([r.shape[1] for _, r in blocks], np.int64)
+    flat = np.concatenate([np.ascontiguousarray(r, np.uint8).reshape(-1) for _, r in blocks])
+    base = np.concatenate([[0], np.cumsum([r.size for _, r in blocks])[:-1]]).astype(np.int64)
+    order = np.lexsort((index, kind, stamps))
+    out = []
+    for i in range(0, len(order), chunk):              # bounded memory: gather a chunk of records at a time
+        o = order[i:i + chunk]
+        k = kind[o]
+        start, size = base[k] + index[o] * sizes[k], sizes[k]
+        first = np.cumsum(size) - size
+        out.append(flat[np.repeat(start - first, size) + np.arange(int(size.sum()))].tobytes())
+    return b"".join(out)

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from mjxsysid import theta as P
+from mjxsysid.logs.record import interleave
 from mjxsysid.logs.ulog import PX4_QUADX_ORDER, ULOG_MAGIC
 
 START_US = 1_000_000
@@ -146,7 +147,6 @@ def write_ulog(path, t, imu, a_cmd, omega_cmd, motor, *, rates: dict | None = No
     for k, v in {"MAV_TYPE": 2, "CA_AIRFRAME": 0, "CA_ROTOR_COUNT": 4, "THR_MDL_FAC": 0.0,
                  "MPC_THR_HOVER": hover_thrust, **geo, **(params or {})}.items():
         defs.append(_param(k, v))
-    from mjxsysid.logs.formats_write import interleave     # it imports this module
     subs = [_msg(b"A", struct.pack("<BH", 0, msg_id) + topic.encode()) for msg_id, topic in enumerate(data)]
     body = interleave([(ts[idx], _rows(msg_id, topic, ts[idx], cols))
                        for msg_id, (topic, (idx, cols)) in enumerate(data.items())])

@@ -269,3 +269,25 @@ def test_fast_data_section_reads_what_pyulogs_loop_reads(written, monkeypatch):
     assert fast["source"] == slow["source"]
     for k in ("t", "imu", "motor", "a_cmd", "omega_cmd"):
         np.testing.assert_array_equal(fast[k], slow[k], err_msg=k)
+
+
+def test_fast_ulog_object_is_pyulogs_on_a_real_log(monkeypatch):
+    """On PX4's sample (logged messages, changed parameters, info messages in its data section) the ULog
+    the numpy data section fills is pyulog's own: every topic's data, and the rest of the object."""
+    pyulog = pytest.importorskip("pyulog")
+    from support.paths import require_shared
+    from mjxsysid.logs import ulog_fast
+    path = str(require_shared(PX4_SAMPLE))
+    took, real = [], ulog_fast.read_data_section
+    monkeypatch.setattr(ulog_fast, "read_data_section", lambda *a: took.append(real(*a)) or took[-1])
+    fast, ref = ulog_fast.load(pyulog.ULog, path), pyulog.ULog(path)
+    assert took == [True]                     # the numpy path filled it
+    assert [(d.name, d.multi_id) for d in fast.data_list] == [(d.name, d.multi_id) for d in ref.data_list]
+    for a, b in zip(fast.data_list, ref.data_list):
+        for k in b.data:
+            np.testing.assert_array_equal(a.data[k], b.data[k], err_msg=f"{b.name}.{k}")
+    assert len(ref.logged_messages) and [(m.timestamp, m.message) for m in fast.logged_messages] == \
+        [(m.timestamp, m.message) for m in ref.logged_messages]
+    assert fast.changed_parameters == ref.changed_parameters and fast.msg_info_dict == ref.msg_info_dict
+    assert [(d.timestamp, d.duration) for d in fast.dropouts] == [(d.timestamp, d.duration) for d in ref.dropouts]
+    assert fast.last_timestamp == ref.last_timestamp
