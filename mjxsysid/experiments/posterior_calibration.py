@@ -65,8 +65,9 @@ def parse_reference(spec: str) -> dict:
 def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_LEVELS, seed: int = 5,
             shard: str | None = None, out: Path, time_budget_s: float | None = None,
             references=REFERENCES, controller: str = "oracle", aero: bool = False, velocity: bool = True) -> dict:
-    """Fly and identify; write ``out`` (JSON: rows), after every log, or every batch of logs
-    identified together on an accelerator (a stopped run keeps what it finished); ``time_budget_s``: start no new flight after this long; ``references``: the flights
+    """Fly every level, then identify; write ``out`` (JSON: rows) after every log, or every batch of logs
+    identified together on an accelerator (the levels interleaved: a stopped run keeps a balanced set of
+    what it finished); ``time_budget_s``: start no new batch after this long; ``references``: the flights
     (:func:`parse_reference`), each at every level; ``controller``: who flies ('oracle', the lag-aware
     oracle, or 'policy', the shipped adaptive policy: another closed loop's reaction to the noise);
     ``aero``: the simulator's rotor aerodynamics on (``SimConfig.aero``: physics the likelihood lacks);
@@ -94,39 +95,37 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
            "references": list(references), "controller": controller, "aero": aero, "velocity": velocity, "rows": []}
     t_start = time.perf_counter()
+    step = 1 if jax.default_backend() == "cpu" else LOG_BATCH      # logs identified together (batched on a GPU)
+    logs = []                                                       # (data, vehicle index, level, flight name)
     for ref, lv in ((r, lv) for r in references for lv in levels):
         if lv not in LEVELS:
             raise ValueError(f"unknown noise level {lv!r}; known: {sorted(LEVELS)}")
-        if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
-            break
         s = seed + 1000 * (0 if shard is None else int(shard.split("/")[0])) + 97 * list(LEVELS).index(lv)
         fl, m, _ = fly_vehicles(th, controller=controller, sim=Quadrotor(SimConfig(**LEVELS[lv], aero=aero)), seed=s, policy=pol,
                                 **parse_reference(ref))
-        flown = np.flatnonzero(~np.asarray(m["failed"], bool))
         flight = (ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if aero else "")
-        step = 1 if jax.default_backend() == "cpu" else LOG_BATCH      # logs identified together (batched on a GPU)
-        for c in progress(range(0, len(flown), step), desc=f"calibration {lv}"):
-            if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
-                break
-            datas, kept = [], []
-            for i in flown[c:c + step]:
-                try:
-                    rec = flight_log(fl.frame, i)
-                    if not velocity:
-                        rec.pop("velocity_body")
-                    datas.append(prepare(rec))
-                    kept.append(i)
-                except LogTooShort:
-                    continue
-            if not kept:
+        for i in np.flatnonzero(~np.asarray(m["failed"], bool)):
+            rec = flight_log(fl.frame, i)
+            if not velocity:
+                rec.pop("velocity_body")
+            try:
+                logs.append((prepare(rec), int(i), lv, flight))
+            except LogTooShort:
                 continue
-            t0 = time.perf_counter()
-            posts = log_grounded_posteriors(datas, seeds=[int(index[i]) for i in kept], calibration=None)
-            sec = (time.perf_counter() - t0) / len(kept)
-            for i, post in zip(kept, posts):
-                res["rows"].append(row(post, th[i], lv, int(index[i]), sec) | {"flight": flight, "aero": aero})
-            out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
+    # every flight's levels interleaved: a batch mixes them, so a run stopped by its budget keeps a balanced set
+    order = sorted(range(len(logs)), key=lambda k: (logs[k][1], k))
+    for c in progress(range(0, len(order), step), desc="calibration rows"):
+        if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
+            break
+        chunk = [logs[k] for k in order[c:c + step]]
+        t0 = time.perf_counter()
+        posts = log_grounded_posteriors([d for d, *_ in chunk], seeds=[int(index[i]) for _, i, _, _ in chunk],
+                                        calibration=None)
+        sec = (time.perf_counter() - t0) / len(chunk)
+        for (_, i, lv, flight), post in zip(chunk, posts):
+            res["rows"].append(row(post, th[i], lv, int(index[i]), sec) | {"flight": flight, "aero": aero})
         out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
+    out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     return res
 
 

@@ -67,6 +67,12 @@ RESOLUTION = np.array([1e-4, 1e-4, 1e-4, 1e-3], np.float32)
 gyro at ±2000 °/s has 1e-3 rad/s steps; a CSV with 7 digits ~1e-5 relative): without a floor a
 noise-free simulated log would make every model error infinitely significant."""
 
+QUANTISATION_VAR = RESOLUTION.astype(np.float64) ** 2 / 12.0
+"""(rad/s)², (m/s²)²: the variance a reading rounded to :data:`RESOLUTION` carries (q²/12), in the
+second differences' model beside the white noise σ². Below it the second differences cannot tell σ
+apart, so the posterior of log σ is flat down to its prior's floor instead of piling against it: on
+a noise-free simulated log (float32 rounding, σ ≈ 1e-6) NUTS's chains otherwise froze at the wall."""
+
 _BASIS = np.stack([P.ROTOR_DIRECTIONS[:, 1], -P.ROTOR_DIRECTIONS[:, 0], P.YAW_SIGNS]).astype(np.float32)  # (3, 4)
 
 
@@ -215,7 +221,7 @@ def log_likelihood(x, data: LogData, weights=None):
         wm = data.wmask
         gyro = range(L.GYRO.start, L.GYRO.stop)            # the rate residuals' columns are the gyro channels
         res = sum(w[c] * _student_t(rg[:, c], sg[:, c], wm) for c in gyro) + acc
-    var2 = comb(4, 2) * sig2                                 # variance of a second difference
+    var2 = comb(4, 2) * (sig2 + jnp.asarray(QUANTISATION_VAR))   # variance of a second difference
     noise = jnp.sum(-0.5 * data.n2 * jnp.log(var2) - 0.5 * data.s2 / var2)
     return res + noise
 
@@ -278,8 +284,18 @@ def _rate_loglik_jit(xs, data):
 
 
 def noise_estimate(data: LogData) -> np.ndarray:
-    """σ per channel (4,) from the second differences alone (the maximum of their own likelihood)."""
-    return np.sqrt(np.asarray(data.s2) / np.maximum(np.asarray(data.n2), 1) / comb(4, 2))
+    """σ per channel (4,) from the second differences alone (the maximum of their own likelihood), at
+    least 1e-6 (the prior's floor: a log whose second differences are at the readings' rounding,
+    :data:`QUANTISATION_VAR`)."""
+    var = np.asarray(data.s2, np.float64) / np.maximum(np.asarray(data.n2), 1) / comb(4, 2) - QUANTISATION_VAR
+    return np.sqrt(np.maximum(var, 1e-12))
+
+
+def noise_information(log_sigma, data: LogData) -> np.ndarray:
+    """The second differences' Fisher information (4,) on log σ at log σ (4,): 2 n f² with
+    f = σ² / (σ² + :data:`QUANTISATION_VAR`) (it fades where σ falls below the rounding)."""
+    s2 = np.exp(2.0 * np.asarray(log_sigma, np.float64))
+    return 2.0 * np.asarray(data.n2, np.float64) * (s2 / (s2 + QUANTISATION_VAR)) ** 2
 
 
 def _innovation_start(data: LogData):
@@ -339,7 +355,7 @@ def linear_start(data: LogData) -> np.ndarray:
     twr = float(np.clip(k[0], 1.1, 14.0))
     ra = acc - P.GRAVITY / 4 * twr * f + (float(np.clip(k[1], 0.0, DRAG_MAX)) * vz if len(k) > 1 else 0.0)
     az = 1.15 / (1 / auth[0] + 1 / auth[1])            # J_z a little below J_x + J_y (a flat vehicle)
-    sig = np.maximum(noise_estimate(data), 1e-6)
+    sig = noise_estimate(data)
     dl = np.maximum(np.array(res + [float(np.sqrt(np.mean(ra * ra)))]), 1e-5)
     return L.pack(L.X_FIELDS, log_thrust_to_weight=np.log(twr), rel_effectiveness=rho[:3],
                   log_motor_time_constant=float(np.asarray(data.log_tau)[g]),

@@ -12,7 +12,7 @@ import numpy as np
 
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
-from mjxsysid.identify.likelihood import NU, best_log_delta, rate_rows, residual_weights, residuals, residuals_jit
+from mjxsysid.identify.likelihood import NU, best_log_delta, noise_information, rate_rows, residual_weights, residuals, residuals_jit
 from mjxsysid.identify.logdata import LogData
 from mjxsysid.identify.proposals import StudentT
 from mjxsysid.identify.target import ACC_BIAS_SD, N_Y, NUIS_BOUNDS, _nuis_lo_hi, _y_lo_hi, full_x
@@ -150,13 +150,13 @@ def _laplace(y, jac, data: LogData, prior: PhysicalPrior) -> StudentT:
     """The Laplace Student-t at the mode y (17,) from the tempered residuals' Jacobian there (R, 13):
     the Gauss–Newton precision of the tempered Student-t
     residuals (Fisher information (ν+1)/(ν+3) per standardised residual); σ's from its second
-    differences (2 n per log σ)."""
+    differences (:func:`~.likelihood.noise_information`)."""
     jac = np.asarray(jac, np.float64)
     pz = (NU + 1) / (NU + 3) * jac.T @ jac
     h = np.zeros((N_Y, N_Y))
     iz = L.Z_IN_Y
     h[np.ix_(iz, iz)] = pz
-    h[L.Y_LOG_NOISE, L.Y_LOG_NOISE] = np.diag(2.0 * np.asarray(data.n2, np.float64))
+    h[L.Y_LOG_NOISE, L.Y_LOG_NOISE] = np.diag(noise_information(np.asarray(y, np.float64)[L.Y_LOG_NOISE], data))
     h = np.nan_to_num(0.5 * (h + h.T), nan=0.0, posinf=1e12, neginf=-1e12)
     ev, u = np.linalg.eigh(h)
     ev = np.clip(ev, 1e-9 + 1e-9 * max(ev.max(), 1e-12), None)      # flat directions: broad, not infinite

@@ -15,8 +15,9 @@ import numpy as np
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, visible_from_theta, xp_of
 from mjxsysid.identify.logspace import N_V
-from mjxsysid.identify.likelihood import noise_estimate
+from mjxsysid.identify.likelihood import QUANTISATION_VAR, noise_estimate
 from mjxsysid.identify.logdata import LogData
+from mjxsysid.identify.target import NUIS_BOUNDS
 
 PROPOSAL_WIDEN = 1.5
 """The decoded ensemble's Gaussian fit in v is widened by this factor (a defensive proposal)."""
@@ -89,10 +90,16 @@ def decoded_proposal(decoded_theta, prior: PhysicalPrior = PHYSICAL_PRIOR, widen
 
 def nuisance_proposal(data: LogData, bias_sd: float) -> Gaussian:
     """y's nuisances (:data:`~.logspace.Y_NUIS_FIELDS`): log σ (4) near the second differences' estimate
-    (standard deviation 0.2), the bias near 0 (standard deviation ``bias_sd``)."""
-    sig = np.maximum(noise_estimate(data), 1e-6)
-    mean = L.pack(L.Y_NUIS_FIELDS, log_noise=np.log(sig), acc_z_bias=0.0).astype(np.float32)
-    sd = L.pack(L.Y_NUIS_FIELDS, log_noise=np.full(L.N_CHANNELS, 0.2), acc_z_bias=bias_sd)
+    (standard deviation 0.2), the bias near 0 (standard deviation ``bias_sd``). A channel whose second
+    differences are at the readings' rounding (σ below √:data:`~.likelihood.QUANTISATION_VAR`) has a
+    flat likelihood in log σ from there down to the prior's floor: the proposal spans that range."""
+    sig = noise_estimate(data)
+    top = np.log(np.sqrt(QUANTISATION_VAR))
+    flat = np.log(sig) < top
+    floor = NUIS_BOUNDS[0]
+    mu = np.where(flat, 0.5 * (top + floor), np.log(sig))
+    mean = L.pack(L.Y_NUIS_FIELDS, log_noise=mu, acc_z_bias=0.0).astype(np.float32)
+    sd = L.pack(L.Y_NUIS_FIELDS, log_noise=np.where(flat, 0.5 * (top - floor), 0.2), acc_z_bias=bias_sd)
     return Gaussian(mean, np.diag(sd.astype(np.float32)))
 
 

@@ -154,3 +154,30 @@ def test_a_narrow_band_against_the_prior_bound_is_not_seen():
              "rates_used": True, "windows": 89}
     _, rep = C.calibrate(v, feats, [0.5] * 4, table)
     assert not rep["seen"][j] and "prior's bound" in rep["why"][j]
+
+
+def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_path, monkeypatch):
+    """collect flies every level first, then identifies the logs in batches that mix the levels, writes
+    the rows after each batch, and starts no batch past its time budget (the posterior stubbed: its
+    own tests check it; this one checks the orchestration)."""
+    import jax
+
+    import mjxsysid.identify.inference as I
+    calls = []
+
+    def fake(datas, seeds, calibration):
+        calls.append(len(datas))
+        return [{"method": "stub", "v_raw": np.zeros((8, N_V)), "features": {"rates_used": True}, "weights": [1.0] * 4}
+                for _ in datas]
+    monkeypatch.setattr(I, "log_grounded_posteriors", fake)
+    monkeypatch.setattr(I, "LOG_BATCH", 3)
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")       # batches of LOG_BATCH, as on an accelerator
+    out = tmp_path / "rows.json"
+    res = pc.collect(vehicles=2, levels=("clean", "x1"), references=("hover:2",), out=out)
+    levels = [r["level"] for r in res["rows"]]
+    assert sorted(levels) == ["clean", "clean", "x1", "x1"] and calls == [3, 1]
+    assert levels[:2] == ["clean", "x1"]                        # the first batch mixes the levels
+    assert json.loads(out.read_text())["rows"] == res["rows"]
+    calls.clear()
+    res = pc.collect(vehicles=2, levels=("clean", "x1"), references=("hover:2",), out=out, time_budget_s=0.0)
+    assert res["rows"] == [] and calls == [] and json.loads(out.read_text())["rows"] == []

@@ -51,6 +51,27 @@ def test_likelihood_peaks_at_the_truth_and_estimates_the_noise():
     assert np.argmax(lt) == 0 and np.all(lt[1:] < lt[0] - 5), lt
 
 
+def test_the_noise_below_the_readings_rounding_is_flat_not_a_wall():
+    """Second differences at the readings' rounding (a noise-free log) leave log σ without evidence
+    below √(q²/12): its Fisher information fades there and the estimate sits at the prior's floor,
+    while a noisy channel keeps its 2n."""
+    import dataclasses
+    data = LD.prepare(synthetic_log(P.paper_hardware(), seconds=4.0, gyro_noise=0.02, acc_noise=0.3))
+    s2 = np.asarray(data.s2).copy()
+    s2[:3] = 6 * np.asarray(data.n2)[:3] * 1e-14                  # the gyro's second differences at 1e-7 rad/s
+    data = dataclasses.replace(data, s2=np.asarray(s2, np.float32))
+    sig = L.noise_estimate(data)
+    assert np.all(sig[:3] <= 1.001e-6) and abs(sig[3] / 0.3 - 1) < 0.15
+    info = L.noise_information(np.log(np.maximum(sig, 1e-6)), data)
+    assert np.all(info[:3] < 1e-3 * info[3]) and abs(info[3] / (2 * float(data.n2[3])) - 1) < 1e-3
+    x = np.asarray(L.linear_start(data), np.float32)
+    lls = []
+    for s in (1e-6, 1e-5, 1e-3):
+        x[12:15] = np.log(s)
+        lls.append(float(L.log_likelihood(x, data)))
+    assert abs(lls[1] - lls[0]) < 0.05 * abs(lls[2] - lls[0]), lls     # flat below the rounding, steep above
+
+
 def test_linear_start_near_the_truth():
     theta = P.paper_hardware()
     data = LD.prepare(synthetic_log(theta, seconds=4.0, gyro_noise=0.01, acc_noise=0.1))
