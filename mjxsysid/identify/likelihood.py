@@ -59,6 +59,7 @@ from mjxsysid import theta as P
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.logspace import CHANNELS, N_NUIS, NUIS_NAMES  # noqa: F401 (the likelihood's names)
 from mjxsysid.identify.logdata import DRAG_MAX, DT, KF_LOGIT_GRID, LogData, gain_filter, gyro_rows, kf_gains, step_lag
+from mjxsysid.identify.speeds import SPEED_TAU_GRID
 
 NU = 4.0
 """Degrees of freedom of the Student-t residuals (the windows' rate term and the accelerometer)."""
@@ -112,6 +113,24 @@ def predict(v, data: LogData):
     dgyro = fg @ c[:, :4].T + c[:, 4] * data.gyq + c[:, 5] * data.span
     acc = P.GRAVITY / 4.0 * jnp.exp(v[L.LOG_TW]) * (fa @ _rho(v))
     return dgyro, acc
+
+
+_SPEED_LOG_TAU = np.log(SPEED_TAU_GRID).astype(np.float32)
+
+
+def speed_loglik(v, data: LogData):
+    """The measured rotor speeds' evidence on τ_m under v (12,) (:mod:`.speeds`): their term's
+    log-likelihood, linear in log τ_m between the nodes of :data:`~.speeds.SPEED_TAU_GRID`; 0 on a log
+    without speeds."""
+    return _interp(v[L.LOG_TAU_M], jnp.asarray(_SPEED_LOG_TAU), data.speed_ll)
+
+
+def speed_residual(log_tau, data: LogData):
+    """The speed term as one least-squares residual () at log τ_m: (log τ_m − its mean) / its standard
+    deviation (``data.speed``: the term's Gaussian summary); 0 on a log without speeds. What the mode's
+    least squares and its Laplace proposal read (the target reads :func:`speed_loglik`)."""
+    on = (data.speed[0] > 0).astype(log_tau.dtype)
+    return on * (log_tau - data.speed[1]) / data.speed[2]
 
 
 def innovation_variance(log_sigma, log_delta):
@@ -248,7 +267,9 @@ def innovation_series(x, data: LogData) -> np.ndarray:
     x = np.asarray(x, np.float64)
     v = x[L.X_V]
     y, q = gyro_rows(rows["imu"], rows["start"], rows["n"])
-    f = step_lag(rows["motor"], float(np.exp(v[L.LOG_TAU_M])), rows["start"], rows["n"])
+    f = rows.get("speed_f")
+    if f is None:
+        f = step_lag(rows["motor"], float(np.exp(v[L.LOG_TAU_M])), rows["start"], rows["n"])
     logit = np.asarray(innovation_variance(x[L.X_LOG_NOISE_GYRO], x[L.X_LOG_DISCREPANCY_GYRO])[1], np.float64)
     coef = np.asarray(_rate_coefficients(jnp.asarray(v, jnp.float32)), np.float64)
     gains = kf_gains(np.clip(logit, KF_LOGIT_GRID[0], KF_LOGIT_GRID[-1]))
@@ -328,6 +349,8 @@ def linear_start(data: LogData) -> np.ndarray:
         res = list(np.sqrt(np.mean(r[g] ** 2, -1)))
         kk = k[g, :, :4]                                                    # (3, 4): authority × ρ_i
         c_rate = k[g, :, 5]
+    speed = np.asarray(data.speed, np.float64)
+    log_tau0 = float(np.asarray(data.log_tau)[g]) if speed[0] <= 0 else float(speed[1])   # with speeds: their τ_m
     means = kk.mean(1, keepdims=True)
     ok = np.abs(means[:, 0]) > 1e-9
     rho = np.clip((kk[ok] / means[ok]).mean(0) if ok.any() else np.ones(4), 0.35, 1.65)
@@ -342,7 +365,7 @@ def linear_start(data: LogData) -> np.ndarray:
     sig = np.maximum(noise_estimate(data), 1e-6)
     dl = np.maximum(np.array(res + [float(np.sqrt(np.mean(ra * ra)))]), 1e-5)
     return L.pack(L.X_FIELDS, log_thrust_to_weight=np.log(twr), rel_effectiveness=rho[:3],
-                  log_motor_time_constant=float(np.asarray(data.log_tau)[g]),
+                  log_motor_time_constant=log_tau0,
                   log_authority=np.log([auth[0], auth[1], max(az, 11.0)]), log_yaw_authority=np.log(auth[2]),
                   ext_acc=np.clip(c_rate, -140, 140), log_noise=np.log(sig), log_discrepancy=np.log(dl),
                   acc_z_bias=0.0).astype(np.float32)

@@ -1,0 +1,191 @@
+"""Measured rotor speeds in the log-grounded likelihood (:mod:`.likelihood`).
+
+A log that carries the rotor speeds (``rotor_speed`` (T, 4) rad/s: a Crazyflie RPM deck, Indiflight's
+eRPM) gives two things the motor commands alone do not:
+
+- the thrust and torque terms read the measured speeds, s = Ω / Ω_ref, instead of the commands
+  through a lag of τ_m. Ω_ref is the speed at full command of the fit below (a + c), so the
+  authorities and thrust-to-weight keep their meaning (per full-command thrust);
+- τ_m comes from command to speed directly: for each τ of :data:`SPEED_TAU_GRID`, the commands
+  through the first-order lag, Ω ≈ a · lag_τ(u)(t − D) + c over the four rotors, a, c and a transport
+  delay D of :data:`SPEED_DELAYS` profiled; the concentrated Gaussian log-likelihood
+  −(n_eff / 2) log SSE(τ), with n_eff the samples discounted
+  for the residuals' lag-1 autocorrelation φ by (1 − φ) / (1 + φ): a motor model that does not fit
+  leaves correlated residuals and a broad band.
+
+The speeds are used where they are finite from the first row the likelihood reads on, there are at
+least :data:`MIN_SPEED_SAMPLES` of them, the speed rises with the command and the fit's R² is at
+least :data:`MIN_SPEED_R2`; otherwise the report says why not and the log is read as one without speeds.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import lfilter
+
+DT = 0.002
+"""s: the log's row spacing (500 Hz)."""
+SPEED_TAU_GRID = np.exp(np.linspace(np.log(0.0015), np.log(0.35), 8 * 63 + 1))
+"""s: the time constants the speed term is computed at: :data:`~.logdata.TAU_GRID`'s range and nodes,
+8× finer (1.1 % apart). The term is sharp (thousands of samples), and it is interpolated linearly in
+log τ: on the rate features' grid (9 % apart) its maximum would sit on a node."""
+SPEED_DELAYS = np.arange(0, 21)
+"""Speed samples (0–40 ms at 500 Hz): the transport delays between command and measured speed the fit profiles out
+(the speed at t follows the commands up to t − delay through the lag; measured on the Indiflight log's
+filtered ``omega`` field: 16–20 ms, docs/logs.md)."""
+MIN_SPEED_SAMPLES = 500
+"""Speed samples per rotor the fit needs (1 s at 500 Hz)."""
+MIN_SPEED_R2 = 0.5
+"""The command→speed fit's R² below which the speeds are not used (another motor model, or not speeds)."""
+SPEED_RESOLUTION = 1.0
+"""rad/s: a logged speed's resolution (Indiflight logs whole rad/s; an RPM deck 1 rpm): its rounding
+variance (q² / 12 per sample) floors the sum of squares, so an exact simulated speed is not infinitely sharp."""
+
+
+def row_speed(u, tau: float):
+    """Commands u (T, 4) held over each 2 ms step through the lag of time constant ``tau``, starting at
+    u[0] -> the speed at each row's time (T, 4): row k sees the commands of rows < k."""
+    a = np.exp(-DT / tau)
+    s_end = lfilter([1 - a], [1, -a], u, axis=0, zi=(a * u[0])[None])[0]
+    return np.concatenate([u[:1], s_end[:-1]], 0)
+
+
+def _samples(rec: dict, start: int):
+    """The speed samples the fit reads: (their times (N,) s, speeds (N, 4) rad/s, rows' times (T,), what
+    they are). The native samples where the log says the speeds were resampled, else the rows; from
+    row ``start`` on."""
+    T = len(rec["motor"])
+    t = np.asarray(rec["t"], np.float64) if "t" in rec else DT * np.arange(T)
+    nat = (rec.get("native") or {}).get("rotor_speed")
+    if nat is not None and len(nat[0]) > 2:
+        tn, wn = np.asarray(nat[0], np.float64), np.asarray(nat[1], np.float64)
+        keep = (tn >= t[start]) & (tn <= t[-1])
+        rate = 1.0 / max(float(np.median(np.diff(tn))), 1e-9)
+        return tn[keep], wn[keep], t, f"native samples ({rate:.0f} Hz)"
+    return t[start:], np.asarray(rec["rotor_speed"], np.float64)[start:], t, "the log's 2 ms rows"
+
+
+def _not_used(why: str, **kw) -> dict:
+    return {"used": False, "why": why, **kw}
+
+
+def speed_fit(rec: dict, start: int = 0) -> dict:
+    """A log's rotor speeds (``rotor_speed`` (T, 4) rad/s on the rows, ``native``'s where resampled) against
+    its commands ``motor`` (T, 4), from row ``start`` -> {used, why, and where fitted: tau_m_s (the best τ),
+    delay_s (the best delay), tau_m_s_no_delay and r2_no_delay (the fit without a delay), omega_ref_rad_s (a + c), idle_rad_s (c), r2, r2_no_lag (τ at the grid's smallest), n (samples × rotors),
+    phi (lag-1 autocorrelation of the residuals), n_eff, samples (what was read), and, used or not, the
+    arrays ``log_sse`` (Gs,) log SSE(τ) on :data:`SPEED_TAU_GRID`}."""
+    if rec.get("rotor_speed") is None:
+        return _not_used("the log carries no rotor speeds")
+    w_rows = np.asarray(rec["rotor_speed"], np.float64)
+    T = len(rec["motor"])
+    if w_rows.shape != (T, 4):
+        return _not_used(f"rotor_speed has shape {w_rows.shape}, not ({T}, 4)")
+    if not np.all(np.isfinite(w_rows[start:])):
+        bad = int((~np.all(np.isfinite(w_rows[start:]), 1)).sum())
+        return _not_used(f"{bad} of the {T - start} rows read have a rotor speed that is not finite")
+    u = np.clip(np.asarray(rec["motor"], np.float64), 0.0, 1.0)
+    ts, w, t, what = _samples(rec, start)
+    ok = np.all(np.isfinite(w), 1)
+    ts, w = ts[ok], w[ok]
+    if len(ts) < MIN_SPEED_SAMPLES + SPEED_DELAYS[-1]:
+        return _not_used(f"{len(ts)} speed samples per rotor; the fit needs {MIN_SPEED_SAMPLES + SPEED_DELAYS[-1]}")
+    dm = int(SPEED_DELAYS[-1])
+    y = w[dm:]                                      # (N − dm, 4): the samples every delay reads
+    m = y.size
+    sy, syy = float(y.sum()), float((y * y).sum())
+    syy_c = syy - sy * sy / m
+    if not syy_c > 0:
+        return _not_used("the rotor speeds do not vary (all equal: zeros, or a held value)")
+    n = m
+    floor = n * SPEED_RESOLUTION ** 2 / 12.0
+    idx, wt = _interpolator(t, ts)
+    N = len(ts)
+    sse = np.empty((len(SPEED_TAU_GRID), len(SPEED_DELAYS)))
+    for i, tau in enumerate(SPEED_TAU_GRID):
+        s_rows = row_speed(u, tau)
+        x = (1 - wt) * s_rows[idx] + wt * s_rows[idx + 1]            # (N, 4) the lag at the samples' times
+        c1 = np.concatenate([[0.0], np.cumsum(x.sum(1))])
+        c2 = np.concatenate([[0.0], np.cumsum((x * x).sum(1))])
+        for j, d in enumerate(SPEED_DELAYS):           # a delay of d samples: x[k − d] against y[k]
+            a0, a1 = dm - d, N - d
+            sx, sxx = c1[a1] - c1[a0], c2[a1] - c2[a0]
+            sxy = float(np.einsum("ij,ij->", x[a0:a1], y))
+            sxx_c, sxy_c = sxx - sx * sx / m, sxy - sx * sy / m
+            sse[i, j] = syy_c - (sxy_c * sxy_c / sxx_c if sxx_c > 0 else 0.0)
+    sse = np.maximum(sse, 0.0) + floor
+    g, dj = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    sse_d0, sse = sse[:, 0], sse.min(1)            # the delay profiled out
+    tau = float(SPEED_TAU_GRID[g])
+    s_rows = row_speed(u, tau)
+    x = ((1 - wt) * s_rows[idx] + wt * s_rows[idx + 1])[dm - int(SPEED_DELAYS[dj]):N - int(SPEED_DELAYS[dj])]
+    dt_s = float(np.median(np.diff(ts)))
+    y = y.ravel()
+    A = np.stack([x.ravel(), np.ones(n)], 1)
+    (a, c), *_ = np.linalg.lstsq(A, y, rcond=None)
+    r = (y - A @ np.array([a, c])).reshape(-1, 4)
+    r = r - r.mean(0)
+    den = float((r * r).sum())
+    phi = float((r[1:] * r[:-1]).sum()) / den if den > 0 else 0.0
+    n_eff = n * ((1 - phi) / (1 + phi) if phi > 0 else 1.0)
+    g0 = int(np.argmin(sse_d0))
+    out = {"tau_m_s": tau, "delay_s": float(SPEED_DELAYS[dj] * dt_s), "omega_ref_rad_s": float(a + c), "idle_rad_s": float(c),
+           "r2": float(1 - (sse[g] - floor) / syy_c), "r2_no_lag": float(1 - (sse[0] - floor) / syy_c),
+           "tau_m_s_no_delay": float(SPEED_TAU_GRID[g0]), "r2_no_delay": float(1 - (sse_d0[g0] - floor) / syy_c), "n": int(n),
+           "phi": phi, "n_eff": float(n_eff), "samples": what, "log_sse": np.log(sse)}
+    if not a > 0 or not a + c > 0:
+        return _not_used(f"the rotor speeds do not rise with the command (Ω ≈ {a:.3g} · lag(u) {c:+.3g})", **out)
+    if out["r2"] < MIN_SPEED_R2:
+        return _not_used(f"the rotor speeds do not follow the commands through a first-order lag (R² {out['r2']:.2f} "
+                         f"< {MIN_SPEED_R2}: another motor model, or not speeds)", **out)
+    return {"used": True, "why": f"τ_m from command to speed (R² {out['r2']:.3f}, {what}); the thrust and torque "
+                                 f"terms read the measured speeds over Ω_ref {a + c:.0f} rad/s", **out}
+
+
+def _interpolator(t, ts):
+    """Linear interpolation from the rows' times t (T,) to the times ts (N,) (clamped to the rows):
+    (index (N,), weight (N,)), a value at ts = (1 − weight) · row[index] + weight · row[index + 1]."""
+    x = np.clip(ts, t[0], t[-1])
+    i = np.clip(np.searchsorted(t, x, side="right") - 1, 0, len(t) - 2)
+    w = np.clip((x - t[i]) / np.maximum(t[i + 1] - t[i], 1e-12), 0.0, 1.0)
+    return i, w[:, None]
+
+
+def speed_term(fit: dict) -> tuple[np.ndarray, np.ndarray]:
+    """What :class:`~.logdata.LogData` carries of a :func:`speed_fit`: the term's log-likelihood (Gs,) on
+    :data:`SPEED_TAU_GRID`, −(n_eff / 2) (log SSE(τ) − its minimum), and (3,) [n_eff, the mean and the
+    standard deviation of log τ under the term alone] (a Gaussian summary for the mode's least squares);
+    zeros, and [0, 0, 1], where the speeds are not used."""
+    G = len(SPEED_TAU_GRID)
+    if not fit.get("used"):
+        return np.zeros(G), np.array([0.0, 0.0, 1.0])
+    ll = -0.5 * fit["n_eff"] * (fit["log_sse"] - fit["log_sse"].min())
+    x = np.log(SPEED_TAU_GRID)
+    p = np.exp(ll - ll.max())
+    p /= p.sum()
+    mu = float(p @ x)
+    sd = max(float(np.sqrt(p @ (x - mu) ** 2)), (x[1] - x[0]) / np.sqrt(12.0))
+    return ll, np.array([fit["n_eff"], mu, sd])
+
+
+def speed_features(s, steps, tri, bsteps) -> tuple[np.ndarray, np.ndarray]:
+    """Measured s = Ω / Ω_ref at the rows (T, 4) -> what the likelihood's lag features hold
+    (:func:`~.logdata._lag_features` at one τ): the windows' triangle-weighted sums of each step's mean
+    s² (the mean of its two ends' squares) × dt (n, 4) (``steps`` (n, S), weights ``tri`` (S,)), and
+    the blocks' mean s² at the rows the accelerometer reads, one after each step (nb, 4) (``bsteps`` (nb, B))."""
+    s2 = np.asarray(s, np.float64) ** 2
+    ms = 0.5 * (s2[steps] + s2[steps + 1])
+    return np.einsum("nsr,s->nr", ms, tri) * DT, s2[bsteps + 1].mean(1)
+
+
+def speed_step_integrals(s, start: int, n: int) -> np.ndarray:
+    """Each step's ∫ s_i² dt (n, 4) of the rows ``start`` … ``start + n`` from measured s (T, 4) (the mean of
+    its two ends' squares): what the innovations read in place of :func:`~.logdata.step_lag`."""
+    s2 = np.asarray(s, np.float64)[start:start + n + 1] ** 2
+    return 0.5 * (s2[:-1] + s2[1:]) * DT
+
+
+def report(fit: dict) -> dict:
+    """A :func:`speed_fit` without its arrays: what ``decode``'s ``_log_grounded.rotor_speed`` and
+    ``check-log`` say (``rotor_speed_used`` and why, the fit's τ_m, Ω_ref, idle offset, R², n_eff)."""
+    out = {"rotor_speed_used": bool(fit.get("used")), **{k: v for k, v in fit.items() if k not in ("used", "log_sse")}}
+    return out
