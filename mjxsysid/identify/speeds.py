@@ -159,11 +159,11 @@ def speed_term(fit: dict) -> tuple[np.ndarray, np.ndarray]:
     if not fit.get("used"):
         return np.zeros(G), np.array([0.0, 0.0, 1.0])
     ll = -0.5 * fit["n_eff"] * (fit["log_sse"] - fit["log_sse"].min())
-    x = np.log(SPEED_TAU_GRID)
+    lt = np.log(SPEED_TAU_GRID)
     p = np.exp(ll - ll.max())
     p /= p.sum()
-    mu = float(p @ x)
-    sd = max(float(np.sqrt(p @ (x - mu) ** 2)), (x[1] - x[0]) / np.sqrt(12.0))
+    mu = float(p @ lt)
+    sd = max(float(np.sqrt(p @ (lt - mu) ** 2)), float(np.diff(lt).min()) / np.sqrt(12.0))
     return ll, np.array([fit["n_eff"], mu, sd])
 
 
