@@ -125,14 +125,6 @@ def speed_loglik(v, data: LogData):
     return _interp(v[L.LOG_TAU_M], jnp.asarray(_SPEED_LOG_TAU), data.speed_ll)
 
 
-def speed_residual(log_tau, data: LogData):
-    """The speed term as one least-squares residual () at log τ_m: (log τ_m − its mean) / its standard
-    deviation (``data.speed``: the term's Gaussian summary); 0 on a log without speeds. What the mode's
-    least squares and its Laplace proposal read (the target reads :func:`speed_loglik`)."""
-    on = (data.speed[0] > 0).astype(log_tau.dtype)
-    return on * (log_tau - data.speed[1]) / data.speed[2]
-
-
 def innovation_variance(log_sigma, log_delta):
     """The steady-state filter per gyro axis from the noise σ (3,) and the process noise δ (3,) per
     step (both log): (innovation variance S (3,), logit of the gain K = P / (P + r)), with
