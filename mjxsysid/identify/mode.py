@@ -16,7 +16,6 @@ from mjxsysid.identify.likelihood import NU, best_log_delta, rate_rows, residual
 from mjxsysid.identify.logdata import LogData
 from mjxsysid.identify.proposals import StudentT
 from mjxsysid.identify.target import ACC_BIAS_SD, N_Y, NUIS_BOUNDS, _nuis_lo_hi, _y_lo_hi, full_x
-from mjxsysid.identify.likelihood import speed_residual
 
 
 def _project(x, prior):
@@ -36,14 +35,12 @@ def _project(x, prior):
 
 
 def _ls_residuals(z, args):
-    """Standardised residuals for the least-squares stage: z (13,) = [v, bias], σ fixed in ``args``; the
-    last, the measured rotor speeds' on τ_m (0 without them)."""
+    """Standardised residuals for the least-squares stage: z (13,) = [v, bias], σ fixed in ``args``."""
     data, ld, ls = args
     x = L.x_from_y(L.y_from_z(z, ls), ld)
     rg, sg, ra, sa = residuals(x, data)
     u = data.use
-    return jnp.concatenate([(rg * (u[L.GYRO] / sg)).ravel(), ra * (u[L.ACC_Z] / sa), z[L.Z_BIAS, None] / ACC_BIAS_SD,
-                            speed_residual(z[L.LOG_TAU_M], data)[None]])
+    return jnp.concatenate([(rg * (u[L.GYRO] / sg)).ravel(), ra * (u[L.ACC_Z] / sa), z[L.Z_BIAS, None] / ACC_BIAS_SD])
 
 
 @functools.partial(jax.jit, static_argnames=("max_steps", "normal"))
@@ -87,7 +84,7 @@ def _ls_jacobian(z, args, w):
     nw = rate_rows(data)
     sw = jnp.concatenate([jnp.repeat(jnp.sqrt(w[None, L.GYRO]), nw, 0).ravel(),
                           jnp.full(data.acc.shape[0], jnp.sqrt(w[L.ACC_Z])),
-                          jnp.ones(2)])
+                          jnp.ones(1)])
     return jax.jacfwd(lambda q: _ls_residuals(q, args) * sw)(z)
 
 
