@@ -259,9 +259,9 @@ def innovation_series(x, data: LogData) -> np.ndarray:
     x = np.asarray(x, np.float64)
     v = x[L.X_V]
     y, q = gyro_rows(rows["imu"], rows["start"], rows["n"])
-    f = rows.get("speed_f")
-    if f is None:
-        f = step_lag(rows["motor"], float(np.exp(v[L.LOG_TAU_M])), rows["start"], rows["n"])
+    tau = float(np.exp(v[L.LOG_TAU_M]))
+    step_f = rows.get("step_f")          # the rotor speeds' (:mod:`.speeds`), where used
+    f = step_lag(rows["motor"], tau, rows["start"], rows["n"]) if step_f is None else step_f(tau)
     logit = np.asarray(innovation_variance(x[L.X_LOG_NOISE_GYRO], x[L.X_LOG_DISCREPANCY_GYRO])[1], np.float64)
     coef = np.asarray(_rate_coefficients(jnp.asarray(v, jnp.float32)), np.float64)
     gains = kf_gains(np.clip(logit, KF_LOGIT_GRID[0], KF_LOGIT_GRID[-1]))

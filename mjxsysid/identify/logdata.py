@@ -9,13 +9,15 @@ one compiled program serves every log of a bucket).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import numpy as np
 from scipy.signal import lfilter
 
 from mjxsysid.identify.logspace import GYRO, N_CHANNELS
-from mjxsysid.identify.speeds import report, speed_features, speed_fit, speed_step_integrals, speed_term
+from mjxsysid.identify.speeds import (model_features, model_step_integrals, report, speed_features, speed_fit,
+                                      speed_step_integrals, speed_term)
 
 DT = 0.002
 """s: the log's row spacing (500 Hz)."""
@@ -99,7 +101,7 @@ class LogData:
     term (0 where the log carries no velocity: the term then vanishes). Measured rotor speeds
     (:mod:`.speeds`): speed_ll (Gs,) their evidence on τ_m at :data:`~.speeds.SPEED_TAU_GRID`, speed (3,)
     [n_eff, mean, sd of log τ under that term alone]; zeros and [0, 0, 1] without speeds (fg and fa are
-    then the commands' lag features; with speeds, the measured speeds' at every τ).
+    then the commands' lag features; with speeds, the fitted command→speed map's, per τ).
     ``rates`` (static): which rate term :func:`log_likelihood` reads, "innovations" or "windows"."""
     log_tau: jax.Array
     fg: jax.Array
@@ -179,7 +181,7 @@ def _axis_columns(a: int):
     return [0, 1, 2, 3, 4, 5 + a, 8, 9 + a]
 
 
-def _innovation_factors(imu, u, start: int, n: int, f_meas=None) -> np.ndarray:
+def _innovation_factors(imu, u, start: int, n: int, step_f=None) -> np.ndarray:
     """The innovations' sufficient statistics (G, H, 3, 7, 7), float64.
 
     With x̂ the predicted rate, the steady-state filter x̂_{k+1} = x̂_k + K (y_k − x̂_k) + α_k makes
@@ -188,8 +190,8 @@ def _innovation_factors(imu, u, start: int, n: int, f_meas=None) -> np.ndarray:
     product, dt for the rate bias). Per τ_m of :data:`TAU_GRID`, gain of :data:`KF_LOGIT_GRID` and
     axis: the Gram matrix of [ψ, H φ (6), ỹ], the start x̂_0 profiled out (its Schur complement),
     as its upper Cholesky factor R (7, 7), so that Σ e² = ‖R β‖² for β = [c (6), −1]. Float64
-    Gram matrices, a float32 factor: the sums of squares are formed without cancellation. ``f_meas``
-    (n, 4): each step's ∫ s_i² dt from measured rotor speeds, the same at every τ_m (None: the lag's)."""
+    Gram matrices, a float32 factor: the sums of squares are formed without cancellation. ``step_f``:
+    τ -> each step's ∫ s_i² dt (n, 4) from the rotor speeds (None: :func:`step_lag`'s)."""
     gains = kf_gains()
     y, q = gyro_rows(imu, start, n)
     kcols = []
@@ -199,7 +201,7 @@ def _innovation_factors(imu, u, start: int, n: int, f_meas=None) -> np.ndarray:
                                      gain_filter(np.full((n, 1), DT), K), y - K * gain_filter(y, K)], 1))
     out = np.zeros((len(TAU_GRID), len(gains), 3, 7, 7))
     for gi, tau in enumerate(TAU_GRID):
-        f = step_lag(u, tau, start, n) if f_meas is None else f_meas
+        f = step_lag(u, tau, start, n) if step_f is None else step_f(tau)
         for h, K in enumerate(gains):
             X = kcols[h]
             X[:, 1:5] = gain_filter(f, K)
@@ -235,10 +237,14 @@ class LogTooShort(ValueError):
 
 
 def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = MAX_WINDOWS,
-            rates: str = RATES) -> LogData:
+            rates: str = RATES, speeds: str = "model") -> LogData:
     """A log's arrays (``imu`` (T, 6) the reading each row's motor command was given, ``motor``
-    (T, 4) normalised rotor-speed commands, optional ``native``) -> :class:`LogData`. ``rates``:
-    the rate term (:data:`RATES`)."""
+    (T, 4) normalised rotor-speed commands, optional ``native``, ``rotor_speed``) -> :class:`LogData`.
+    ``rates``: the rate term (:data:`RATES`). ``speeds``: what the thrust and torque terms read where the
+    rotor speeds are used: "model", the fitted command→speed map's speeds per τ
+    (:func:`~.speeds.model_features`), or "raw", the measured samples at every τ (a diagnostic)."""
+    if speeds not in ("model", "raw"):
+        raise ValueError(f"speeds must be 'model' or 'raw', got {speeds!r}")
     if rates not in ("innovations", "windows"):
         raise ValueError(f"rates must be 'innovations' or 'windows', got {rates!r}")
     imu = np.asarray(rec["imu"], np.float64)
@@ -274,9 +280,12 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
         b0 = b0[np.linspace(0, n_blk - 1, max_windows).astype(int)]
     bsteps = b0[:, None] + np.arange(B)[None]
     speed = speed_fit(rec, start)
-    if speed["used"]:        # the measured speeds, the same at every τ_m (the speed term reads τ_m)
+    raw = speed["used"] and speeds == "raw"
+    if raw:                  # the measured speeds, the same at every τ_m (the speed term reads τ_m)
         s = np.asarray(rec["rotor_speed"], np.float64) / speed["omega_ref_rad_s"]
         fg, fa = (np.broadcast_to(f, (len(TAU_GRID),) + f.shape) for f in speed_features(s, steps, tri, bsteps))
+    elif speed["used"]:      # the fitted map's speeds per τ; the speed term pins τ_m
+        fg, fa = model_features(u, speed, TAU_GRID, steps, tri, bsteps)
     else:
         fg, fa = _lag_features(u, TAU_GRID, steps, tri, bsteps)   # (G, n, 4), (G, nb, 4)
     speed_ll, speed_sum = speed_term(speed)
@@ -292,8 +301,12 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731   host arrays: a reduction sent to another process stays NumPy
     nw, nb = bucket(len(k0)), bucket(len(acc))
     n_kf = int(min(T - 1 - start, round(MAX_RATE_S / DT)))
-    f_meas = speed_step_integrals(s, start, n_kf) if speed["used"] else None
-    kf = _innovation_factors(imu, u, start, n_kf, f_meas) if rates == "innovations" else np.zeros((1, 1, 3, 7, 7))
+    step_f = None            # τ -> (n_kf, 4); picklable: a LogData may come from another process
+    if raw:
+        step_f = functools.partial(speed_step_integrals, s, start, n_kf)
+    elif speed["used"]:
+        step_f = functools.partial(model_step_integrals, u, speed, start=start, n=n_kf)
+    kf = _innovation_factors(imu, u, start, n_kf, step_f) if rates == "innovations" else np.zeros((1, 1, 3, 7, 7))
     data = LogData(f32(np.log(TAU_GRID)), f32(_pad(fg, nw, 1)), f32(_pad(fa, nb, 1)), f32(_pad(dgyro, nw)),
                    f32(_pad(gyq, nw)), f32(_pad(acc, nb)), f32(W * DT), f32(kvar), f32(n2), f32(s2), f32(use),
                    f32(_pad(np.ones(len(k0)), nw)), f32(_pad(np.ones(len(acc)), nb)),
@@ -303,7 +316,7 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     # the log's rows, for host-side diagnostics of the innovations (residual_weights): not a
     # pytree field, so never passed into a compiled program
     object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf,
-                                       "drag_xy": drag_per_mass_xy(rec, bsteps + 1), "speed_f": f_meas,
+                                       "drag_xy": drag_per_mass_xy(rec, bsteps + 1), "step_f": step_f,
                                        "speed": report(speed)})
     return data
 

@@ -3,9 +3,12 @@
 A log that carries the rotor speeds (``rotor_speed`` (T, 4) rad/s: a Crazyflie RPM deck, Indiflight's
 eRPM) gives two things the motor commands alone do not:
 
-- the thrust and torque terms read the measured speeds, s = Ω / Ω_ref, instead of the commands
-  through a lag of τ_m. Ω_ref is the speed at full command of the fit below (a + c), so the
-  authorities and thrust-to-weight keep their meaning (per full-command thrust);
+- the thrust and torque terms read the fitted motor model's speeds, ŝ_τ = max(0, a_τ · lag_τ(u)(t − D_τ)
+  + c_τ) / Ω_ref, at every τ of the features' grid (:func:`model_features`): the motor's real map (idle
+  offset, gain, delay) without the sensor's noise in the regressors (measured speeds as regressors
+  are errors in variables: their noise attenuates the fitted authorities). Ω_ref is the speed at full
+  command at the best τ (a + c there), the same at every τ, so the authorities and thrust-to-weight
+  keep one meaning (per full-command thrust);
 - τ_m comes from command to speed directly: for each τ of :data:`SPEED_TAU_GRID`, the commands
   through the first-order lag, Ω ≈ a · lag_τ(u)(t − D) + c over the four rotors, a, c and a transport
   delay D of :data:`SPEED_DELAYS` profiled; the concentrated Gaussian log-likelihood
@@ -73,7 +76,8 @@ def speed_fit(rec: dict, start: int = 0) -> dict:
     its commands ``motor`` (T, 4), from row ``start`` -> {used, why, and where fitted: tau_m_s (the best τ),
     delay_s (the best delay), tau_m_s_no_delay and r2_no_delay (the fit without a delay), omega_ref_rad_s (a + c), idle_rad_s (c), r2, r2_no_lag (τ at the grid's smallest), n (samples × rotors),
     phi (lag-1 autocorrelation of the residuals), n_eff, samples (what was read), and, used or not, the
-    arrays ``log_sse`` (Gs,) log SSE(τ) on :data:`SPEED_TAU_GRID`}."""
+    arrays ``log_sse`` (Gs,) log SSE(τ) on :data:`SPEED_TAU_GRID` and ``model`` (Gs, 3) each τ's
+    [a rad/s, c rad/s, delay D s] (D profiled, a and c least squares)}."""
     if rec.get("rotor_speed") is None:
         return _not_used("the log carries no rotor speeds")
     w_rows = np.asarray(rec["rotor_speed"], np.float64)
@@ -101,6 +105,7 @@ def speed_fit(rec: dict, start: int = 0) -> dict:
     idx, wt = _interpolator(t, ts)
     N = len(ts)
     sse = np.empty((len(SPEED_TAU_GRID), len(SPEED_DELAYS)))
+    ab = np.zeros((len(SPEED_TAU_GRID), len(SPEED_DELAYS), 2))     # a, c of each (τ, delay)
     for i, tau in enumerate(SPEED_TAU_GRID):
         s_rows = row_speed(u, tau)
         x = (1 - wt) * s_rows[idx] + wt * s_rows[idx + 1]            # (N, 4) the lag at the samples' times
@@ -112,8 +117,12 @@ def speed_fit(rec: dict, start: int = 0) -> dict:
             sxy = float(np.einsum("ij,ij->", x[a0:a1], y))
             sxx_c, sxy_c = sxx - sx * sx / m, sxy - sx * sy / m
             sse[i, j] = syy_c - (sxy_c * sxy_c / sxx_c if sxx_c > 0 else 0.0)
+            ab[i, j, 0] = sxy_c / sxx_c if sxx_c > 0 else 0.0
+            ab[i, j, 1] = (sy - ab[i, j, 0] * sx) / m
     sse = np.maximum(sse, 0.0) + floor
     g, dj = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    dbest = np.argmin(sse, 1)                      # (Gs,) each τ's delay
+    model = np.stack([ab[np.arange(len(dbest)), dbest, 0], ab[np.arange(len(dbest)), dbest, 1], dbest], 1)
     sse_d0, sse = sse[:, 0], sse.min(1)            # the delay profiled out
     tau = float(SPEED_TAU_GRID[g])
     s_rows = row_speed(u, tau)
@@ -131,14 +140,15 @@ def speed_fit(rec: dict, start: int = 0) -> dict:
     out = {"tau_m_s": tau, "delay_s": float(SPEED_DELAYS[dj] * dt_s), "omega_ref_rad_s": float(a + c), "idle_rad_s": float(c),
            "r2": float(1 - (sse[g] - floor) / syy_c), "r2_no_lag": float(1 - (sse[0] - floor) / syy_c),
            "tau_m_s_no_delay": float(SPEED_TAU_GRID[g0]), "r2_no_delay": float(1 - (sse_d0[g0] - floor) / syy_c), "n": int(n),
-           "phi": phi, "n_eff": float(n_eff), "samples": what, "log_sse": np.log(sse)}
+           "phi": phi, "n_eff": float(n_eff), "samples": what, "log_sse": np.log(sse),
+           "model": np.concatenate([model[:, :2], (model[:, 2:] * dt_s)], 1)}
     if not a > 0 or not a + c > 0:
         return _not_used(f"the rotor speeds do not rise with the command (Ω ≈ {a:.3g} · lag(u) {c:+.3g})", **out)
     if out["r2"] < MIN_SPEED_R2:
         return _not_used(f"the rotor speeds do not follow the commands through a first-order lag (R² {out['r2']:.2f} "
                          f"< {MIN_SPEED_R2}: another motor model, or not speeds)", **out)
     return {"used": True, "why": f"τ_m from command to speed (R² {out['r2']:.3f}, {what}); the thrust and torque "
-                                 f"terms read the measured speeds over Ω_ref {a + c:.0f} rad/s", **out}
+                                 f"terms read the fitted speeds over Ω_ref {a + c:.0f} rad/s", **out}
 
 
 def _interpolator(t, ts):
@@ -167,8 +177,62 @@ def speed_term(fit: dict) -> tuple[np.ndarray, np.ndarray]:
     return ll, np.array([fit["n_eff"], mu, sd])
 
 
+def _model_at(fit: dict, tau: float):
+    """The fitted map at the node of :data:`SPEED_TAU_GRID` nearest ``tau``: (a / Ω_ref, c / Ω_ref, the delay
+    in whole rows)."""
+    i = int(np.argmin(np.abs(np.log(SPEED_TAU_GRID) - np.log(tau))))
+    a, c, d = fit["model"][i]
+    w = fit["omega_ref_rad_s"]
+    return a / w, c / w, int(round(d / DT))
+
+
+def _delayed(x, d: int):
+    """x (T, 4) d rows late: row k holds x[k − d] (x[0] before)."""
+    return x if d <= 0 else np.concatenate([np.repeat(x[:1], d, 0), x[:len(x) - d]], 0)
+
+
+def model_steps(u, fit: dict, tau: float):
+    """Commands u (T, 4) through the fitted map at τ (:func:`speed_fit`'s ``model``), ŝ = max(0, a · lag_τ(u)(t − D)
+    + c) / Ω_ref, the lag starting at u[0] -> (each step's mean ŝ² (T, 4), ŝ at each step's end (T, 4)).
+    The mean is exact where ŝ stays positive over the step (ŝ is affine in the lag), else the mean of
+    its two ends' squares."""
+    al, be, d = _model_at(fit, tau)
+    a = np.exp(-DT / tau)
+    s_end = lfilter([1 - a], [1, -a], u, axis=0, zi=(a * u[0])[None])[0]
+    s0 = np.concatenate([u[:1], s_end[:-1]], 0)
+    dd = s0 - u
+    r1, r2 = tau / DT * (1 - a), tau / (2 * DT) * (1 - a * a)
+    m1 = _delayed(u + dd * r1, d)
+    m2 = _delayed(u * u + 2 * u * dd * r1 + dd * dd * r2, d)
+    e0, e1 = al * _delayed(s0, d) + be, al * _delayed(s_end, d) + be
+    q = al * al * m2 + 2 * al * be * m1 + be * be
+    neg = np.minimum(e0, e1) < 0
+    e0, e1 = np.maximum(e0, 0.0), np.maximum(e1, 0.0)
+    return np.where(neg, 0.5 * (e0 * e0 + e1 * e1), q), e1
+
+
+def model_features(u, fit: dict, taus, steps, tri, bsteps) -> tuple[np.ndarray, np.ndarray]:
+    """The fitted speeds (:func:`model_steps`) of commands u (T, 4) at every τ of ``taus`` (G,) -> what the
+    likelihood's lag features hold (:func:`~.logdata._lag_features`): the windows' triangle-weighted sums
+    of each step's mean ŝ² × dt (G, n, 4) (``steps`` (n, S), weights ``tri`` (S,)) and the blocks' mean ŝ²
+    at the steps' ends (G, nb, 4) (``bsteps`` (nb, B))."""
+    fg, fa = [], []
+    for tau in taus:
+        q, e1 = model_steps(u, fit, float(tau))
+        fg.append(np.einsum("nsr,s->nr", q[steps], tri) * DT)
+        fa.append((e1[bsteps] ** 2).mean(1))
+    return np.stack(fg), np.stack(fa)
+
+
+def model_step_integrals(u, fit: dict, tau: float, start: int, n: int) -> np.ndarray:
+    """Each step's ∫ ŝ_i² dt (n, 4) of the rows ``start`` … ``start + n`` under the fitted map at τ: what the
+    innovations read in place of :func:`~.logdata.step_lag`."""
+    return model_steps(u, fit, tau)[0][start:start + n] * DT
+
+
 def speed_features(s, steps, tri, bsteps) -> tuple[np.ndarray, np.ndarray]:
-    """Measured s = Ω / Ω_ref at the rows (T, 4) -> what the likelihood's lag features hold
+    """Measured s = Ω / Ω_ref at the rows (T, 4) (``prepare(..., speeds="raw")``, a diagnostic: their noise
+    biases the authorities low) -> what the likelihood's lag features hold
     (:func:`~.logdata._lag_features` at one τ): the windows' triangle-weighted sums of each step's mean
     s² (the mean of its two ends' squares) × dt (n, 4) (``steps`` (n, S), weights ``tri`` (S,)), and
     the blocks' mean s² at the rows the accelerometer reads, one after each step (nb, 4) (``bsteps`` (nb, B))."""
@@ -177,9 +241,10 @@ def speed_features(s, steps, tri, bsteps) -> tuple[np.ndarray, np.ndarray]:
     return np.einsum("nsr,s->nr", ms, tri) * DT, s2[bsteps + 1].mean(1)
 
 
-def speed_step_integrals(s, start: int, n: int) -> np.ndarray:
+def speed_step_integrals(s, start: int, n: int, tau=None) -> np.ndarray:
     """Each step's ∫ s_i² dt (n, 4) of the rows ``start`` … ``start + n`` from measured s (T, 4) (the mean of
-    its two ends' squares): what the innovations read in place of :func:`~.logdata.step_lag`."""
+    its two ends' squares), the same at every ``tau``: what the innovations read in place of
+    :func:`~.logdata.step_lag` with ``speeds="raw"``."""
     s2 = np.asarray(s, np.float64)[start:start + n + 1] ** 2
     return 0.5 * (s2[:-1] + s2[1:]) * DT
 
@@ -187,5 +252,5 @@ def speed_step_integrals(s, start: int, n: int) -> np.ndarray:
 def report(fit: dict) -> dict:
     """A :func:`speed_fit` without its arrays: what ``decode``'s ``_log_grounded.rotor_speed`` and
     ``check-log`` say (``rotor_speed_used`` and why, the fit's τ_m, Ω_ref, idle offset, R², n_eff)."""
-    out = {"rotor_speed_used": bool(fit.get("used")), **{k: v for k, v in fit.items() if k not in ("used", "log_sse")}}
+    out = {"rotor_speed_used": bool(fit.get("used")), **{k: v for k, v in fit.items() if k not in ("used", "log_sse", "model")}}
     return out
