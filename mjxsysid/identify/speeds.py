@@ -14,7 +14,8 @@ eRPM) gives two things the motor commands alone do not:
   delay D of :data:`SPEED_DELAYS` profiled; the concentrated Gaussian log-likelihood
   −(n_eff / 2) log SSE(τ), with n_eff the samples discounted
   for the residuals' lag-1 autocorrelation φ by (1 − φ) / (1 + φ): a motor model that does not fit
-  leaves correlated residuals and a broad band.
+  leaves correlated residuals and a broad band. n_eff is capped where the term alone would pin log τ
+  tighter than :data:`SPEED_MODEL_SD` (the map's form, not only its noise, sets how well τ_m is known).
 
 The speeds are used where they are finite from the first row the likelihood reads on, there are at
 least :data:`MIN_SPEED_SAMPLES` of them, the speed rises with the command and the fit's R² is at
@@ -39,6 +40,10 @@ MIN_SPEED_SAMPLES = 500
 """Speed samples per rotor the fit needs (1 s at 500 Hz)."""
 MIN_SPEED_R2 = 0.5
 """The command→speed fit's R² below which the speeds are not used (another motor model, or not speeds)."""
+SPEED_MODEL_SD = 0.03
+"""The least standard deviation of log τ_m the speed term gives alone (90 % half-width 5 %): the fit's linear
+map from lag to speed is one model of several. A √ term in the map (Ω = a √x + b x + c) moved Indiflight's
+τ_m by about 1 ms of 21 (5 %); a band narrower than that would hold the linear map's τ_m only."""
 SPEED_RESOLUTION = 1.0
 """rad/s: a logged speed's resolution (Indiflight logs whole rad/s; an RPM deck 1 rpm): its rounding
 variance (q² / 12 per sample) floors the sum of squares, so an exact simulated speed is not infinitely sharp."""
@@ -160,21 +165,35 @@ def _interpolator(t, ts):
     return i, w[:, None]
 
 
-def speed_term(fit: dict) -> tuple[np.ndarray, np.ndarray]:
-    """What :class:`~.logdata.LogData` carries of a :func:`speed_fit`: the term's log-likelihood (Gs,) on
-    :data:`SPEED_TAU_GRID`, −(n_eff / 2) (log SSE(τ) − its minimum), and (3,) [n_eff, the mean and the
-    standard deviation of log τ under the term alone] (a Gaussian summary for the mode's least squares);
-    zeros, and [0, 0, 1], where the speeds are not used."""
-    G = len(SPEED_TAU_GRID)
-    if not fit.get("used"):
-        return np.zeros(G), np.array([0.0, 0.0, 1.0])
-    ll = -0.5 * fit["n_eff"] * (fit["log_sse"] - fit["log_sse"].min())
+def _moments(ll):
+    """The mean and standard deviation of log τ under a term ll (Gs,) on :data:`SPEED_TAU_GRID` alone."""
     lt = np.log(SPEED_TAU_GRID)
     p = np.exp(ll - ll.max())
     p /= p.sum()
     mu = float(p @ lt)
-    sd = max(float(np.sqrt(p @ (lt - mu) ** 2)), float(np.diff(lt).min()) / np.sqrt(12.0))
-    return ll, np.array([fit["n_eff"], mu, sd])
+    return mu, max(float(np.sqrt(p @ (lt - mu) ** 2)), float(np.diff(lt).min()) / np.sqrt(12.0))
+
+
+def speed_term(fit: dict) -> tuple[np.ndarray, np.ndarray]:
+    """What :class:`~.logdata.LogData` carries of a :func:`speed_fit`: the term's log-likelihood (Gs,) on
+    :data:`SPEED_TAU_GRID`, −(n / 2) (log SSE(τ) − its minimum), and (3,) [n, the mean and the standard
+    deviation of log τ under the term alone] (a Gaussian summary for the mode's least squares); zeros,
+    and [0, 0, 1], where the speeds are not used. n is n_eff, capped where the term alone would put
+    log τ's standard deviation below :data:`SPEED_MODEL_SD` (n then the one that puts it there, by bisection).
+    The term is log SSE: far from its minimum it is flatter than a parabola, so n is not scaled by (sd / floor)²."""
+    G = len(SPEED_TAU_GRID)
+    if not fit.get("used"):
+        return np.zeros(G), np.array([0.0, 0.0, 1.0])
+    dl = fit["log_sse"] - fit["log_sse"].min()
+    n = fit["n_eff"]
+    if _moments(-0.5 * n * dl)[1] < SPEED_MODEL_SD:      # bisect log n: sd falls as n grows
+        lo, hi = np.log(n) - 14.0, np.log(n)
+        for _ in range(40):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if _moments(-0.5 * np.exp(mid) * dl)[1] > SPEED_MODEL_SD else (lo, mid)
+        n = float(np.exp(lo))
+    ll = -0.5 * n * dl
+    return ll, np.array([n, *_moments(ll)])
 
 
 def _model_at(fit: dict, tau: float):

@@ -11,7 +11,7 @@ from mjxsysid.identify import logdata as LD
 from mjxsysid.identify.calibrate import SPEED_WHY
 from mjxsysid.identify.inference import log_grounded_posterior, log_target
 from mjxsysid.identify.logspace import LOG_TAU_M
-from mjxsysid.identify.speeds import speed_fit
+from mjxsysid.identify.speeds import SPEED_MODEL_SD, speed_fit, speed_term
 from support.exact_model_log import synthetic_log
 from support.paths import SHARED_DATA, require_shared
 
@@ -33,6 +33,8 @@ def test_speed_term_reads_tau_m_and_the_calibrated_band_holds_it():
     fit = speed_fit(rec, LD.first_row(len(rec["motor"])))
     assert fit["used"] and fit["tau_m_s"] == pytest.approx(THETA[P.TAU_M], rel=0.03) and fit["delay_s"] == 0
     assert fit["omega_ref_rad_s"] == pytest.approx(THETA[P.OMEGA_MAX], rel=0.01) and fit["n_eff"] > 5000
+    n, _, sd = speed_term(fit)[1]          # the model floor: τ_m's band no narrower than the map's form allows
+    assert n < fit["n_eff"] and sd == pytest.approx(SPEED_MODEL_SD, rel=0.01)
     d, base = LD.prepare(rec), LD.prepare({k: v for k, v in rec.items() if k != "rotor_speed"})
     g = int(np.argmin(np.abs(np.asarray(d.log_tau) - np.log(THETA[P.TAU_M]))))
     for f in ("fg", "fa"):          # the fitted map at the true τ: the commands' lag features
