@@ -19,7 +19,8 @@ log is cut into non-overlapping windows of 2 × :data:`~.logdata.WINDOW_STEPS` c
 
 The rotor speeds are the commands through the simulator's first-order lag, integrated exactly
 (:func:`~mjxsysid.sim.quadrotor.mean_square_speed`: the exact mean of s² over each step for the
-rates, the end-of-step s² for the accelerometer). The lag depends on τ_m alone, so the window
+rates, the end-of-step s² for the accelerometer); where the log's rotor speeds are used, through the
+fitted command→speed map as well (:func:`~.speeds.model_features`). The lag depends on τ_m alone, so the window
 sums of s² are computed once per log on a grid of τ_m (:data:`~.logdata.TAU_GRID`, :mod:`.logdata`) and interpolated in
 log τ_m per candidate: a candidate then costs a few multiply-adds per window, and thousands are
 evaluated in one jitted call.

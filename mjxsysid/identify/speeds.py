@@ -205,9 +205,9 @@ def _model_at(fit: dict, tau: float):
     return a / w, c / w, int(round(d / DT))
 
 
-def _delayed(x, d: int):
-    """x (T, 4) d rows late: row k holds x[k − d] (x[0] before)."""
-    return x if d <= 0 else np.concatenate([np.repeat(x[:1], d, 0), x[:len(x) - d]], 0)
+def _delayed(rows, d: int):
+    """``rows`` (T, 4) d rows late: row k holds rows[k − d] (rows[0] before)."""
+    return rows if d <= 0 else np.concatenate([np.repeat(rows[:1], d, 0), rows[:len(rows) - d]], 0)
 
 
 def model_steps(u, fit: dict, tau: float):
