@@ -35,10 +35,12 @@ def test_speed_term_reads_tau_m_and_the_calibrated_band_holds_it():
     assert fit["omega_ref_rad_s"] == pytest.approx(THETA[P.OMEGA_MAX], rel=0.01) and fit["n_eff"] > 5000
     n, _, sd = speed_term(fit)[1]          # the model floor: τ_m's band no narrower than the map's form allows
     assert n < fit["n_eff"] and sd == pytest.approx(SPEED_MODEL_SD, rel=0.01)
-    d, base = LD.prepare(rec), LD.prepare({k: v for k, v in rec.items() if k != "rotor_speed"})
+    blind = {k: v for k, v in rec.items() if k != "rotor_speed"}
+    d, base = LD.prepare(rec, rates="innovations"), LD.prepare(blind, rates="innovations")
     g = int(np.argmin(np.abs(np.asarray(d.log_tau) - np.log(THETA[P.TAU_M]))))
-    for f in ("fg", "fa"):          # the fitted map at the true τ: the commands' lag features
-        np.testing.assert_allclose(np.asarray(getattr(d, f))[g], np.asarray(getattr(base, f))[g], rtol=0.01)
+    for f in ("fg", "fa", "kf_r"):   # the fitted map at the true τ: the commands' lag features
+        a, b = np.asarray(getattr(d, f))[g], np.asarray(getattr(base, f))[g]
+        np.testing.assert_allclose(a, b, rtol=0.01, atol=1e-3 * np.abs(b).max())
     post = log_grounded_posterior(rec, None, samples=400, particles=256, seed=1)
     lo, med, hi = _bands(post)
     j = C.LOG_NAMES.index("motor_time_constant")
