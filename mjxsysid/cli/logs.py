@@ -36,11 +36,12 @@ def cmd_check_log(args) -> int:
         if args.prior.lower() != "none":
             found += L.prior_check(rec, args.prior, est)
     src = rec.get("source")
+    speed = _rotor_speed(rec)
     if args.json:
         tau = L.motor_time_constant(est) if est else (None, None)
         print(jsonout.dumps({"findings": [f.as_dict() for f in found], "estimates": est,
                           "notes": [tau[1]] if est and tau[0] is None else [], "source": src,
-                          "resampled": rec.get("resampled")}, indent=2))
+                          "resampled": rec.get("resampled"), "rotor_speed": speed}, indent=2))
     else:
         t = rec["t"]
         print(f"{args.log}: {len(t)} rows, {t[-1] - t[0] + 0.002:.2f} s"
@@ -56,6 +57,12 @@ def cmd_check_log(args) -> int:
                     f"/ {est['accel_noise']:.2g} m/s²")
             if tau is None:
                 print(f"note: {why}")
+        if speed is not None:
+            print("rotor speeds: " + (f"used by the likelihood: τ_m {1e3 * speed['tau_m_s']:.1f} ms from command to speed "
+                                      f"(delay {1e3 * speed['delay_s']:.0f} ms, R² {speed['r2']:.3f}, n_eff "
+                                      f"{speed['n_eff']:.0f}), Ω_ref {speed['omega_ref_rad_s']:.0f} rad/s, idle offset "
+                                      f"{speed['idle_rad_s']:.0f} rad/s" if speed["rotor_speed_used"]
+                                      else f"not used: {speed['why']}"))
         if not found:
             print("no findings")
         else:
@@ -66,3 +73,13 @@ def cmd_check_log(args) -> int:
                 print(f"{lv:<{w0}}  {col:<{w1}}  {msg}")
     levels = {f.level for f in found}
     return 2 if "error" in levels else 1 if levels & {"warning", "out_of_prior"} else 0
+
+
+def _rotor_speed(rec: dict) -> dict | None:
+    """What the likelihood makes of the log's measured rotor speeds (:func:`~mjxsysid.identify.speeds.report`),
+    None for a log without them."""
+    if rec.get("rotor_speed") is None:
+        return None
+    from mjxsysid.identify.logdata import first_row
+    from mjxsysid.identify.speeds import report, speed_fit
+    return report(speed_fit(rec, first_row(len(rec["motor"]))))

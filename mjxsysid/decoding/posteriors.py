@@ -109,13 +109,14 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     :func:`~mjxsysid.identify.gap.joint_summary`) become the log-grounded posterior's,
     the decoder-only entries move under ``_decoder_only``, and ``_log_grounded`` holds the method,
     its diagnostics (ESS, Pareto k̂, SMC stages), the IMU noise, discrepancy and bias it estimated,
+    the measured rotor speeds' use (``rotor_speed``: rotor_speed_used, why, the command→speed fit)
     and the information gap. ``rates``: the likelihood's rate term (default
     :data:`~mjxsysid.identify.logdata.RATES`). Returns ``summary``."""
     from mjxsysid.identify import logspace as L
     from mjxsysid.identify.gap import information_gap, joint_summary, log_summary, seen_by_name
-    from mjxsysid.logs.checks.rotors import rotor_speed_lag
+    from mjxsysid.identify.speeds import report, speed_fit
     from mjxsysid.identify.inference import log_grounded_posterior
-    from mjxsysid.identify.logdata import LogTooShort
+    from mjxsysid.identify.logdata import LogTooShort, first_row
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     try:
         post = log_grounded_posterior(rec, final, seed=seed, rates=rates)
@@ -151,9 +152,8 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
                             "model_check": cal["check"], "width_factor": dict(zip(L.V_NAMES, cal["factor"].tolist()))}
                            if cal.get("applied") else {"applied": False, "why": cal["why"]})
     diag["gap"] = gap
-    speed = rotor_speed_lag(rec)
-    if speed is not None:       # measured rotor speeds: τ_m from command to speed, beside the posterior's
-        diag["rotor_speed"] = speed
+    # the measured rotor speeds: used (τ_m from command to speed, the thrust and torque from the speeds) or why not
+    diag["rotor_speed"] = report(speed_fit(rec, first_row(len(rec["motor"]))))
     summary["_log_grounded"] = plain(diag)
     summary["_posterior"] = "log-grounded"
     dec["samples_log_grounded"] = post["theta"]

@@ -86,7 +86,8 @@ def log_features(data, mode) -> dict:
     ``mode`` (21,: v (12), log σ (4), log δ (4), bias) -> {rates_nsr (the mean of the axes'), acc_nsr,
     rates_nsr_x/y/z: log10 of the channels' residual scale √(k σ² + δ²) over their signal (the rate
     windows' RMS measured rate change; the accelerometer blocks' mean), rates_used (bool), windows (int),
-    velocity_used (bool: the log's velocity entered the drag's term)}."""
+    velocity_used (bool: the log's velocity entered the drag's term), rotor_speed_used (bool: τ_m from
+    the measured rotor speeds, :mod:`.speeds`)}."""
     mode = np.asarray(mode, np.float64)
     sig, dl = np.exp(mode[L.X_LOG_NOISE]), np.exp(mode[L.X_LOG_DISCREPANCY])
     scale = np.sqrt(np.asarray(data.kvar, np.float64) * sig ** 2 + dl ** 2)
@@ -99,7 +100,8 @@ def log_features(data, mode) -> dict:
     return {"rates_nsr": float(np.mean(axes)), "acc_nsr": float(np.log10(scale[L.ACC_Z] / asig)),
             **{f: float(a) for f, a in zip(_AXES, axes)},
             "rates_used": bool(np.any(np.asarray(data.use)[L.GYRO] > 0)), "windows": int(wm.sum()),
-            "velocity_used": bool(np.any(np.asarray(data.vz)[bm] != 0))}
+            "velocity_used": bool(np.any(np.asarray(data.vz)[bm] != 0)),
+            "rotor_speed_used": bool(np.asarray(data.speed)[0] > 0)}
 
 
 def coord_entry(table: dict, j: int, features: dict) -> dict:
@@ -273,11 +275,17 @@ def side_factors(q, coord: dict, b: int) -> tuple[float, float]:
             (coord["scale_above"][b] * above + coord["floor_above"][b]) / above)
 
 
+SPEED_WHY = ("τ_m from command to measured rotor speed: its raw band, not stretched by the table (fitted on "
+             "simulated logs without speeds), factor 1")
+"""Why τ_m's band is the raw one on a log whose speeds were used (:func:`calibrate`)."""
+
+
 def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PHYSICAL_PRIOR, rng=0) -> tuple:
     """Raw posterior draws v (S, 12) of one log -> (calibrated draws (S, 12), report). Each
     coordinate is stretched about its median by (a·w + b) / w (the table's scale and floor for
     the log's feature bin); a coordinate whose channels fail :func:`model_check` is drawn from the
-    prior instead. Draws outside the prior's support are replaced by resampled valid ones.
+    prior instead. On a log whose τ_m comes from measured rotor speeds (``rotor_speed_used``), τ_m's
+    draws stay raw (factor 1, :data:`SPEED_WHY`) and pass no model check of the rate channels. Draws outside the prior's support are replaced by resampled valid ones.
     report: {factor (12,) the band's width over the raw one, bin (12,), check, seen (12,) bool, why (12,) str}."""
     v = np.asarray(v, np.float64)
     q = raw_bands(v)
@@ -288,8 +296,11 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
     factor, bins, seen, why = np.ones(N_V), np.zeros(N_V, int), np.zeros(N_V, bool), [""] * N_V
     gen = np.random.default_rng(rng)
     prior_v = prior.sample_v(gen, len(v)).astype(np.float64)
+    speed_tau = bool(features.get("rotor_speed_used"))
     for j in range(N_V):
         c = coord_entry(table, j, features)
+        if speed_tau and j == L.LOG_TAU_M:       # τ_m from command to measured speed: the raw band (see SPEED_WHY)
+            continue
         if not coord_ok(check, j):
             out[:, j] = prior_v[:, j]
             factor[j] = np.nan
@@ -313,11 +324,12 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
     for j in range(N_V):
         if why[j]:
             continue
+        note = f"; {SPEED_WHY}" if speed_tau and j == L.LOG_TAU_M else ""
         if at_bound[j] and width[j] < UNSEEN_FRACTION * pw[j]:
             why[j] = ("the band lies against the prior's bound: the log asks for a vehicle beyond the physical "
                       "prior, a sign the model does not fit this log (motor model, units, rotor order)")
             continue
         seen[j] = width[j] < UNSEEN_FRACTION * pw[j]
         why[j] = (f"calibrated band {width[j] / pw[j]:.2g} of the prior's range, model check passed" if seen[j]
-                  else f"calibrated band {width[j] / pw[j]:.2g} of the prior's range (≥ {UNSEEN_FRACTION}): the log does not pin it")
+                  else f"calibrated band {width[j] / pw[j]:.2g} of the prior's range (≥ {UNSEEN_FRACTION}): the log does not pin it") + note
     return out.astype(np.float32), {"factor": factor, "bin": bins, "check": check, "seen": seen, "why": why}

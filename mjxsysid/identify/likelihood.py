@@ -19,7 +19,8 @@ log is cut into non-overlapping windows of 2 × :data:`~.logdata.WINDOW_STEPS` c
 
 The rotor speeds are the commands through the simulator's first-order lag, integrated exactly
 (:func:`~mjxsysid.sim.quadrotor.mean_square_speed`: the exact mean of s² over each step for the
-rates, the end-of-step s² for the accelerometer). The lag depends on τ_m alone, so the window
+rates, the end-of-step s² for the accelerometer); where the log's rotor speeds are used, through the
+fitted command→speed map as well (:func:`~.speeds.model_features`). The lag depends on τ_m alone, so the window
 sums of s² are computed once per log on a grid of τ_m (:data:`~.logdata.TAU_GRID`, :mod:`.logdata`) and interpolated in
 log τ_m per candidate: a candidate then costs a few multiply-adds per window, and thousands are
 evaluated in one jitted call.
@@ -59,6 +60,7 @@ from mjxsysid import theta as P
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.logspace import CHANNELS, N_NUIS, NUIS_NAMES  # noqa: F401 (the likelihood's names)
 from mjxsysid.identify.logdata import DRAG_MAX, DT, KF_LOGIT_GRID, LogData, gain_filter, gyro_rows, kf_gains, step_lag
+from mjxsysid.identify.speeds import SPEED_TAU_GRID
 
 NU = 4.0
 """Degrees of freedom of the Student-t residuals (the windows' rate term and the accelerometer)."""
@@ -118,6 +120,16 @@ def predict(v, data: LogData):
     dgyro = fg @ c[:, :4].T + c[:, 4] * data.gyq + c[:, 5] * data.span
     acc = P.GRAVITY / 4.0 * jnp.exp(v[L.LOG_TW]) * (fa @ _rho(v))
     return dgyro, acc
+
+
+_SPEED_LOG_TAU = np.log(SPEED_TAU_GRID).astype(np.float32)
+
+
+def speed_loglik(v, data: LogData):
+    """The measured rotor speeds' evidence on τ_m under v (12,) (:mod:`.speeds`): their term's
+    log-likelihood, linear in log τ_m between the nodes of :data:`~.speeds.SPEED_TAU_GRID`; 0 on a log
+    without speeds."""
+    return _interp(v[L.LOG_TAU_M], jnp.asarray(_SPEED_LOG_TAU), data.speed_ll)
 
 
 def innovation_variance(log_sigma, log_delta):
@@ -254,7 +266,9 @@ def innovation_series(x, data: LogData) -> np.ndarray:
     x = np.asarray(x, np.float64)
     v = x[L.X_V]
     y, q = gyro_rows(rows["imu"], rows["start"], rows["n"])
-    f = step_lag(rows["motor"], float(np.exp(v[L.LOG_TAU_M])), rows["start"], rows["n"])
+    tau = float(np.exp(v[L.LOG_TAU_M]))
+    step_f = rows.get("step_f")          # the rotor speeds' (:mod:`.speeds`), where used
+    f = step_lag(rows["motor"], tau, rows["start"], rows["n"]) if step_f is None else step_f(tau)
     logit = np.asarray(innovation_variance(x[L.X_LOG_NOISE_GYRO], x[L.X_LOG_DISCREPANCY_GYRO])[1], np.float64)
     coef = np.asarray(_rate_coefficients(jnp.asarray(v, jnp.float32)), np.float64)
     gains = kf_gains(np.clip(logit, KF_LOGIT_GRID[0], KF_LOGIT_GRID[-1]))
@@ -344,6 +358,8 @@ def linear_start(data: LogData) -> np.ndarray:
         res = list(np.sqrt(np.mean(r[g] ** 2, -1)))
         kk = k[g, :, :4]                                                    # (3, 4): authority × ρ_i
         c_rate = k[g, :, 5]
+    speed = np.asarray(data.speed, np.float64)
+    log_tau0 = float(np.asarray(data.log_tau)[g]) if speed[0] <= 0 else float(speed[1])   # with speeds: their τ_m
     means = kk.mean(1, keepdims=True)
     ok = np.abs(means[:, 0]) > 1e-9
     rho = np.clip((kk[ok] / means[ok]).mean(0) if ok.any() else np.ones(4), 0.35, 1.65)
@@ -358,7 +374,7 @@ def linear_start(data: LogData) -> np.ndarray:
     sig = noise_estimate(data)
     dl = np.maximum(np.array(res + [float(np.sqrt(np.mean(ra * ra)))]), 1e-5)
     return L.pack(L.X_FIELDS, log_thrust_to_weight=np.log(twr), rel_effectiveness=rho[:3],
-                  log_motor_time_constant=float(np.asarray(data.log_tau)[g]),
+                  log_motor_time_constant=log_tau0,
                   log_authority=np.log([auth[0], auth[1], max(az, 11.0)]), log_yaw_authority=np.log(auth[2]),
                   ext_acc=np.clip(c_rate, -140, 140), log_noise=np.log(sig), log_discrepancy=np.log(dl),
                   acc_z_bias=0.0).astype(np.float32)

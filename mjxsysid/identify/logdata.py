@@ -9,12 +9,15 @@ one compiled program serves every log of a bucket).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import numpy as np
 from scipy.signal import lfilter
 
 from mjxsysid.identify.logspace import GYRO, N_CHANNELS
+from mjxsysid.identify.speeds import (model_features, model_step_integrals, report, speed_features, speed_fit,
+                                      speed_step_integrals, speed_term)
 
 DT = 0.002
 """s: the log's row spacing (500 Hz)."""
@@ -95,7 +98,10 @@ class LogData:
     :data:`KF_LOGIT_GRID` (kf_logit (H,)) and per axis, the upper Cholesky factor of the gain-filtered
     regressors' Gram matrix with the start offset profiled out; kf_n () the innovations counted.
     vz (Wa,) m/s the mean velocity along body z over each accelerometer block, for the body drag's
-    term (0 where the log carries no velocity: the term then vanishes).
+    term (0 where the log carries no velocity: the term then vanishes). Measured rotor speeds
+    (:mod:`.speeds`): speed_ll (Gs,) their evidence on τ_m at :data:`~.speeds.SPEED_TAU_GRID`, speed (3,)
+    [n_eff, mean, sd of log τ under that term alone]; zeros and [0, 0, 1] without speeds (fg and fa are
+    then the commands' lag features; with speeds, the fitted command→speed map's, per τ).
     ``rates`` (static): which rate term :func:`log_likelihood` reads, "innovations" or "windows"."""
     log_tau: jax.Array
     fg: jax.Array
@@ -115,6 +121,8 @@ class LogData:
     kf_logit: jax.Array
     kf_n: jax.Array
     vz: jax.Array
+    speed_ll: jax.Array
+    speed: jax.Array
     rates: str = dataclasses.field(default=RATES, metadata={"static": True})
 
 
@@ -173,7 +181,7 @@ def _axis_columns(a: int):
     return [0, 1, 2, 3, 4, 5 + a, 8, 9 + a]
 
 
-def _innovation_factors(imu, u, start: int, n: int) -> np.ndarray:
+def _innovation_factors(imu, u, start: int, n: int, step_f=None) -> np.ndarray:
     """The innovations' sufficient statistics (G, H, 3, 7, 7), float64.
 
     With x̂ the predicted rate, the steady-state filter x̂_{k+1} = x̂_k + K (y_k − x̂_k) + α_k makes
@@ -182,7 +190,8 @@ def _innovation_factors(imu, u, start: int, n: int) -> np.ndarray:
     product, dt for the rate bias). Per τ_m of :data:`TAU_GRID`, gain of :data:`KF_LOGIT_GRID` and
     axis: the Gram matrix of [ψ, H φ (6), ỹ], the start x̂_0 profiled out (its Schur complement),
     as its upper Cholesky factor R (7, 7), so that Σ e² = ‖R β‖² for β = [c (6), −1]. Float64
-    Gram matrices, a float32 factor: the sums of squares are formed without cancellation."""
+    Gram matrices, a float32 factor: the sums of squares are formed without cancellation. ``step_f``:
+    τ -> each step's ∫ s_i² dt (n, 4) from the rotor speeds (None: :func:`step_lag`'s)."""
     gains = kf_gains()
     y, q = gyro_rows(imu, start, n)
     kcols = []
@@ -192,7 +201,7 @@ def _innovation_factors(imu, u, start: int, n: int) -> np.ndarray:
                                      gain_filter(np.full((n, 1), DT), K), y - K * gain_filter(y, K)], 1))
     out = np.zeros((len(TAU_GRID), len(gains), 3, 7, 7))
     for gi, tau in enumerate(TAU_GRID):
-        f = step_lag(u, tau, start, n)
+        f = step_lag(u, tau, start, n) if step_f is None else step_f(tau)
         for h, K in enumerate(gains):
             X = kcols[h]
             X[:, 1:5] = gain_filter(f, K)
@@ -228,10 +237,14 @@ class LogTooShort(ValueError):
 
 
 def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = MAX_WINDOWS,
-            rates: str = RATES) -> LogData:
+            rates: str = RATES, speeds: str = "model") -> LogData:
     """A log's arrays (``imu`` (T, 6) the reading each row's motor command was given, ``motor``
-    (T, 4) normalised rotor-speed commands, optional ``native``) -> :class:`LogData`. ``rates``:
-    the rate term (:data:`RATES`)."""
+    (T, 4) normalised rotor-speed commands, optional ``native``, ``rotor_speed``) -> :class:`LogData`.
+    ``rates``: the rate term (:data:`RATES`). ``speeds``: what the thrust and torque terms read where the
+    rotor speeds are used: "model", the fitted command→speed map's speeds per τ
+    (:func:`~.speeds.model_features`), or "raw", the measured samples at every τ (a diagnostic)."""
+    if speeds not in ("model", "raw"):
+        raise ValueError(f"speeds must be 'model' or 'raw', got {speeds!r}")
     if rates not in ("innovations", "windows"):
         raise ValueError(f"rates must be 'innovations' or 'windows', got {rates!r}")
     imu = np.asarray(rec["imu"], np.float64)
@@ -244,7 +257,7 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
         u = np.clip(np.stack([np.interp(rec["t"], t_nat, u_nat[:, i]) for i in range(4)], -1), 0.0, 1.0)
         use[GYRO] = 0.0
     W = int(window_steps)
-    start = int(round(float(np.clip(0.1 * T * DT, *SKIP_S)) / DT))
+    start = first_row(T)
     n_win = (T - 1 - start) // (2 * W)
     if n_win < 5:
         raise LogTooShort(f"flight log: {T} rows ({T * DT:.2f} s) leave {max(n_win, 0)} windows of {2 * W} steps for the "
@@ -266,7 +279,16 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     if n_blk > max_windows:             # as the windows: evenly spaced over a longer log
         b0 = b0[np.linspace(0, n_blk - 1, max_windows).astype(int)]
     bsteps = b0[:, None] + np.arange(B)[None]
-    fg, fa = _lag_features(u, TAU_GRID, steps, tri, bsteps)   # (G, n, 4), (G, nb, 4)
+    speed = speed_fit(rec, start)
+    raw = speed["used"] and speeds == "raw"
+    if raw:                  # the measured speeds, the same at every τ_m (the speed term reads τ_m)
+        s = np.asarray(rec["rotor_speed"], np.float64) / speed["omega_ref_rad_s"]
+        fg, fa = (np.broadcast_to(f, (len(TAU_GRID),) + f.shape) for f in speed_features(s, steps, tri, bsteps))
+    elif speed["used"]:      # the fitted map's speeds per τ; the speed term pins τ_m
+        fg, fa = model_features(u, speed, TAU_GRID, steps, tri, bsteps)
+    else:
+        fg, fa = _lag_features(u, TAU_GRID, steps, tri, bsteps)   # (G, n, 4), (G, nb, 4)
+    speed_ll, speed_sum = speed_term(speed)
     g = imu[:, :3]
     half = np.arange(W)
     dgyro = g[k0[:, None] + W + half].mean(1) - g[k0[:, None] + half].mean(1)
@@ -279,18 +301,29 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731   host arrays: a reduction sent to another process stays NumPy
     nw, nb = bucket(len(k0)), bucket(len(acc))
     n_kf = int(min(T - 1 - start, round(MAX_RATE_S / DT)))
-    kf = _innovation_factors(imu, u, start, n_kf) if rates == "innovations" else np.zeros((1, 1, 3, 7, 7))
+    step_f = None            # τ -> (n_kf, 4); picklable: a LogData may come from another process
+    if raw:
+        step_f = functools.partial(speed_step_integrals, s, start, n_kf)
+    elif speed["used"]:
+        step_f = functools.partial(model_step_integrals, u, speed, start=start, n=n_kf)
+    kf = _innovation_factors(imu, u, start, n_kf, step_f) if rates == "innovations" else np.zeros((1, 1, 3, 7, 7))
     data = LogData(f32(np.log(TAU_GRID)), f32(_pad(fg, nw, 1)), f32(_pad(fa, nb, 1)), f32(_pad(dgyro, nw)),
                    f32(_pad(gyq, nw)), f32(_pad(acc, nb)), f32(W * DT), f32(kvar), f32(n2), f32(s2), f32(use),
                    f32(_pad(np.ones(len(k0)), nw)), f32(_pad(np.ones(len(acc)), nb)),
                    f32(_pad(REL_DISCREPANCY * np.abs(dgyro), nw)), f32(kf),
                    f32(KF_LOGIT_GRID if rates == "innovations" else KF_LOGIT_GRID[:1]), f32(n_kf), f32(_pad(vz, nb)),
-                   rates)
+                   f32(speed_ll), f32(speed_sum), rates)
     # the log's rows, for host-side diagnostics of the innovations (residual_weights): not a
     # pytree field, so never passed into a compiled program
     object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf,
-                                       "drag_xy": drag_per_mass_xy(rec, bsteps + 1)})
+                                       "drag_xy": drag_per_mass_xy(rec, bsteps + 1), "step_f": step_f,
+                                       "speed": report(speed)})
     return data
+
+
+def first_row(T: int) -> int:
+    """The first row of a log of T rows that the likelihood reads (:data:`SKIP_S`)."""
+    return int(round(float(np.clip(0.1 * T * DT, *SKIP_S)) / DT))
 
 
 def has_velocity(rec: dict) -> bool:

@@ -141,9 +141,22 @@ def find_modes(logs, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int 
                        for i, d in enumerate(logs.datas)]).astype(np.float32)
         ys = fits       # every start refitted under the new δ: the same rows each round, one compiled fit
     w = np.stack([residual_weights(full_x(best[i], ld[i]), d) for i, d in enumerate(logs.datas)])
-    jac = logs.jacobians(L.z_from_y(best), ld, best[:, L.Y_LOG_NOISE], w)
+    jac = _with_speed_rows(np.asarray(logs.jacobians(L.z_from_y(best), ld, best[:, L.Y_LOG_NOISE], w)), logs.datas)
     return [(np.asarray(full_x(best[i][None], ld[i]))[0], ld[i], w[i], best[i], _laplace(best[i], jac[i], d, prior))
             for i, d in enumerate(logs.datas)]
+
+
+def _with_speed_rows(jac, datas) -> np.ndarray:
+    """The residuals' Jacobians (L, R, 13) with one row more per log: the measured rotor speeds' term
+    on τ_m as a residual (log τ_m − its mean) / its standard deviation (``data.speed``, :mod:`.speeds`;
+    × √((ν + 3)/(ν + 1)), the Student-t factor :func:`_laplace` applies undone), a row of zeros for a
+    log without speeds. The least squares do not read it: τ_m starts at the speeds' (:func:`~.likelihood.linear_start`)."""
+    row = np.zeros((len(datas), 1, jac.shape[-1]))
+    for i, d in enumerate(datas):
+        n_eff, _, sd = np.asarray(d.speed, np.float64)
+        if n_eff > 0:
+            row[i, 0, L.LOG_TAU_M] = np.sqrt((NU + 3) / (NU + 1)) / sd
+    return np.concatenate([jac, row], 1)
 
 
 def _laplace(y, jac, data: LogData, prior: PhysicalPrior) -> StudentT:

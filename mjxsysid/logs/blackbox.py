@@ -12,7 +12,7 @@ whose header it does not plan is decoded by orangebox (``pip install -e ".[black
 Fields used: ``time``, ``gyroADC[0..2]`` (deg/s × ``gyro_scale``, × 10 with ``blackbox_high_resolution``),
 ``accSmooth[0..2]`` (``acc_1G`` per g), ``motor[0..3]`` (the ESC command between ``motorOutput[0]``
 and ``motorOutput[1]``), rate setpoints ``setpoint[0..2]`` (Betaflight 4) or ``gyroSp[0..2]``
-(Indiflight), Indiflight's ``spfSp[2]`` (specific force setpoint, cm/s², FRD), ``omega[0..3]`` (rotor
+(Indiflight), Indiflight's ``spfSp[2]`` (specific force setpoint, cm/s², FRD), ``omegaUnfiltered[0..3]`` (else ``omega``: rotor
 speed, rad/s), ``vel[0..2]`` (cm/s, NED) and ``quat[0..3]`` (body FRD to NED, × 8127).
 
 Frames as logged (measured on the samples against the quaternion's rates and the motors' regression,
@@ -280,9 +280,11 @@ def read_blackbox(path, segment=None, log_index=None) -> dict:
         native_all["a_cmd"] = acc[:, 2]
         missing.append("a_cmd")
         conv.append("a_cmd: the log has no thrust setpoint: filled with the measured specific force along z")
-    if "omega[0]" in names:
-        native_all["rotor_speed"] = _columns(frames, names, "omega", 4, path)[:, list(BF_TO_MJX)]
-        conv.append("rotor_speed: Indiflight's omega[0..3] (rad/s from the ESCs' eRPM), reordered as the motors")
+    speed_field = next((f for f in ("omegaUnfiltered", "omega") if f"{f}[0]" in names), None)
+    if speed_field is not None:     # omega is low-pass filtered on board: its lag reads as ~16 ms more τ_m
+        native_all["rotor_speed"] = _columns(frames, names, speed_field, 4, path)[:, list(BF_TO_MJX)]
+        conv.append(f"rotor_speed: Indiflight's {speed_field}[0..3] (rad/s from the ESCs' eRPM"
+                    f"{'' if speed_field == 'omega' else '; not omega, which is filtered on board'}), reordered as the motors")
     if "vel[0]" in names and "quat[0]" in names:
         v_ned = _columns(frames, names, "vel", 3, path, 0.01)
         q = _columns(frames, names, "quat", 4, path, 1.0 / QUAT_SCALE)

@@ -8,12 +8,16 @@ from mjxsysid import theta as P
 DT = 0.002
 
 
-def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, closed_loop=False, drag=None):
+def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, closed_loop=False, drag=None,
+                  speed_noise=None, motor_delay=0):
     """Fly θ (19,) open loop around hover with a rate damper and chirp excitation -> imu, motor.
     ``closed_loop``: instead, a rate P controller on the *measured* (noisy) rates tracking a slow
     sinusoid: the commands react to the gyro's noise, the feedback that biases an equation error.
     ``drag`` (1/s): a body-z velocity 0.8 + 0.7 sin(0.9 t) m/s (a forward flight's, tilted) whose drag
-    −drag · v_z enters the specific force, and the log's ``velocity_body``."""
+    −drag · v_z enters the specific force, and the log's ``velocity_body``. ``speed_noise`` (rad/s): the
+    log carries the true rotor speeds (``rotor_speed`` (T, 4), row k the speed at its time) with this white
+    noise. ``motor_delay`` (steps): the motors act on each logged command that many steps late (they hold
+    the hover command before)."""
     rng = np.random.default_rng(seed)
     t = np.asarray(theta, np.float64)
     eta, tau, wmax = t[P.ETA], t[P.TAU_M], t[P.OMEGA_MAX]
@@ -24,7 +28,7 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
     hover = np.sqrt(m * P.GRAVITY / (4 * kt * eta)) / wmax
     w, meas = np.zeros(3), np.zeros(3)
     s = hover.copy()
-    imu, mot = np.zeros((n, 6)), np.zeros((n, 4))
+    imu, mot, speed = np.zeros((n, 6)), np.zeros((n, 4)), np.zeros((n, 4))
     imu[0, 5] = P.GRAVITY
     a = np.exp(-DT / tau)
     for k in range(n):
@@ -38,6 +42,8 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
         u = np.clip(hover * (1 + 0.05 * np.sin(2 * tt) + d[:, 1] * cmd[0] - d[:, 0] * cmd[1]
                              + P.YAW_SIGNS * cmd[2]), 0, 1)
         mot[k] = u
+        u = mot[k - motor_delay] if k >= motor_delay else hover
+        speed[k] = s * wmax
         d0 = s - u
         ms = u * u + 2 * u * d0 * tau / DT * (1 - a) + d0 * d0 * tau / (2 * DT) * (1 - a * a)
         s = u + d0 * a
@@ -53,6 +59,8 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
                                          [acc_noise * rng.standard_normal(), acc_noise * rng.standard_normal(),
                                           sf + acc_noise * rng.standard_normal()]])
     rec = {"imu": imu, "motor": mot}
+    if speed_noise is not None:
+        rec["rotor_speed"] = speed + speed_noise * rng.standard_normal(speed.shape)
     if drag is not None:
         vz = 0.8 + 0.7 * np.sin(0.9 * np.arange(n) * DT)
         rec["velocity_body"] = np.stack([np.zeros(n), np.zeros(n), vz], -1)

@@ -188,14 +188,19 @@ def rotor_speed_lag(rec: dict) -> dict | None:
 
 
 def check_rotor_speed(rec) -> list[Finding]:
-    """A warning where a log's measured rotor speeds do not follow its commands through a first-order
-    lag (:func:`rotor_speed_lag`, R² < 0.5: another motor model, or the speeds in another unit); the
-    fit itself is reported by ``decode`` (``_log_grounded.rotor_speed``)."""
-    fit = rotor_speed_lag(rec)
-    if fit is None or fit["r2"] >= 0.5:
+    """A warning where a log carries rotor speeds that the log-grounded likelihood will not use
+    (:func:`~mjxsysid.identify.speeds.speed_fit`: not finite, too few, not rising with the command, or not
+    following it through a first-order lag, R² < 0.5: another motor model, or not speeds); where used, the
+    fit is reported by ``check-log`` and ``decode`` (``_log_grounded.rotor_speed``)."""
+    from mjxsysid.identify.logdata import first_row
+    from mjxsysid.identify.speeds import speed_fit
+    if rec.get("rotor_speed") is None:
         return []
-    msg = (f"measured rotor speeds: τ_m {1e3 * fit['tau_m_s']:.1f} ms from command to speed (R² {fit['r2']:.2f}, "
-           f"{fit['r2_no_lag']:.2f} without a lag), Ω ≈ {fit['omega_max_rad_s']:.0f} rad/s at full command, "
-           f"{fit['idle_rad_s']:.0f} rad/s offset")
-    msg += ": the rotor speeds do not follow the commands through a first-order lag (another motor model, or units)"
+    fit = speed_fit(rec, first_row(len(rec["motor"])))
+    if fit["used"]:
+        return []
+    msg = f"measured rotor speeds not used by the likelihood: {fit['why']}"
+    if "tau_m_s" in fit:
+        msg += (f" (best fit: τ_m {1e3 * fit['tau_m_s']:.1f} ms, R² {fit['r2']:.2f}, {fit['r2_no_lag']:.2f} without a "
+                f"lag, Ω ≈ {fit['omega_ref_rad_s']:.0f} rad/s at full command, {fit['idle_rad_s']:.0f} rad/s offset)")
     return [Finding("warning", "rotor_speed", msg)]
