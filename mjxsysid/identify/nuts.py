@@ -190,7 +190,7 @@ def start(draws_y, centre_y, chains: int, seed: int, prior: PhysicalPrior = PHYS
 @functools.lru_cache(maxsize=1)
 def _rhat_ess():
     """blackjax's split R̂ and bulk ESS of draws (C, D, 17), compiled once per shape: called eagerly,
-    its ESS's scans and conds were rebuilt for every log (on a GPU, 80 s of XLA compiles in 320 logs)."""
+    its ESS's scans and conds were rebuilt for every log (on a GPU, 116 s of XLA compiles in 320 logs)."""
     from blackjax.diagnostics import ess_bulk, rhat
     return jax.jit(lambda y: (rhat(y), ess_bulk(y)))
 
