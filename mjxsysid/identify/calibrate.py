@@ -267,12 +267,22 @@ def group_of(coord: dict, x: float, width: float) -> int:
     return 2 * i + int(width > coord["width_split"][i])
 
 
+MIN_SIDE = 0.5
+"""The least a side of a band is stretched (:func:`side_factors`): the calibration may move a band and
+widen it, and narrow each side at most to half the raw posterior's. A group of calibration logs whose
+truths all lay on one side of the median fits a zero extent on the other (the shipped table: the yaw-axis
+authority's upper side in 6 of 8 bins), and a log biased the other way (a real flight) then gets a band
+that ends at its median. On the held-out rows this costs little: the SMC's 2,941 test rows 0.884 -> 0.886
+mean coverage; a table refitted on NUTS's rows, cross-validated, 0.894 -> 0.903 at 6 % more width (1.0,
+never narrowing: 0.939 at 28 % more)."""
+
+
 def side_factors(q, coord: dict, b: int) -> tuple[float, float]:
     """A coordinate's raw 5/50/95 % quantiles q (3,) and its table entry in bin ``b`` -> the stretch
-    below and above the median, (a·w + b_floor) / w on each side."""
+    below and above the median, (a·w + b_floor) / w on each side, at least :data:`MIN_SIDE`."""
     below, above = max(q[1] - q[0], 1e-12), max(q[2] - q[1], 1e-12)
-    return ((coord["scale_below"][b] * below + coord["floor_below"][b]) / below,
-            (coord["scale_above"][b] * above + coord["floor_above"][b]) / above)
+    return (max((coord["scale_below"][b] * below + coord["floor_below"][b]) / below, MIN_SIDE),
+            max((coord["scale_above"][b] * above + coord["floor_above"][b]) / above, MIN_SIDE))
 
 
 SPEED_WHY = ("τ_m from command to measured rotor speed: its raw band, not stretched by the table (fitted on "

@@ -181,3 +181,17 @@ def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_
     calls.clear()
     res = pc.collect(vehicles=2, levels=("clean", "x1"), references=("hover:2",), out=out, time_budget_s=0.0)
     assert res["rows"] == [] and calls == [] and json.loads(out.read_text())["rows"] == []
+
+
+def test_a_band_side_never_collapses_to_its_median():
+    """Calibration logs whose truths all lay below the median fit a zero upper extent; applied, the
+    upper side keeps half the raw one (MIN_SIDE), so a log biased the other way is not cut at its median."""
+    rng = np.random.default_rng(3)
+    rows = _rows(400, rng, bias=1.5, spread=0.3)               # medians above the truth: errors below only
+    tab = C.fit(rows, bins=2)
+    j = 5
+    c = tab["coords"][j]
+    assert min(c["scale_above"]) == 0.0 and min(c["floor_above"]) == 0.0      # the fit's collapsed side
+    q = np.array([0.9, 1.0, 1.1])
+    k_lo, k_hi = C.side_factors(q, c, int(np.argmin(c["scale_above"])))
+    assert k_hi == C.MIN_SIDE == 0.5 and k_lo > 1.0
