@@ -45,7 +45,8 @@ from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import SHIPPED, calibrate, load, log_features
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, theta_from, visible_from_theta
 from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
-from mjxsysid.identify.logdata import RATES, LogData, LogTooShort, prepare
+from mjxsysid.identify.config import PosteriorConfig, resolve
+from mjxsysid.identify.logdata import LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
                                     _ls_jacobian_logs, find_modes)
 from mjxsysid.identify.nuts import (CHAINS, LONGER, MAX_DOUBLINGS, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs,
@@ -58,8 +59,8 @@ from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUN
                                       _batch_log_target_logs, _y_lo_hi, full_precision, full_x,
                                       log_prior, log_target)
 
-__all__ = ["ACC_BIAS_SD", "DRAWS", "LAPLACE_WIDEN", "LOG_BATCH", "MAX_KHAT", "MIN_ESS_FRACTION", "N_Y", "NUIS_BOUNDS",
-           "PARTICLES", "PRIOR_SHARE", "RW_TARGET_ACCEPTANCE", "TARGET_CHUNK", "find_mode", "find_modes",
+__all__ = ["ACC_BIAS_SD", "LAPLACE_WIDEN", "LOG_BATCH", "MAX_KHAT", "MIN_ESS_FRACTION", "N_Y", "NUIS_BOUNDS",
+           "PRIOR_SHARE", "RW_TARGET_ACCEPTANCE", "TARGET_CHUNK", "find_mode", "find_modes",
            "full_precision", "full_x", "log_grounded_posterior", "log_grounded_posteriors", "log_prior",
            "log_target", "rw_scale_update"]
 
@@ -68,15 +69,6 @@ MIN_ESS_FRACTION = 0.05
 
 MAX_KHAT = 0.7
 """Importance sampling is trusted when ESS ≥ 5 % of the draws and k̂ ≤ 0.7 (PSIS's threshold)."""
-
-
-DRAWS = 4096
-"""Importance draws per proposal (``draws`` of :func:`log_grounded_posterior` when not given)."""
-
-
-PARTICLES = 2048
-"""SMC particles (``particles`` of :func:`log_grounded_posterior` when not given). The test tier
-lowers both for its in-process decodes (tests/conftest.py): it checks behaviour, not resolution."""
 
 
 def _take(tree, idx):
@@ -221,16 +213,13 @@ def _reliable(diag) -> bool:
 
 @full_precision
 def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
-                           samples: int = 1000, draws: int | None = None, particles: int | None = None, seed: int = 0,
-                           n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
-                           force_smc: bool = False, refine: bool | None = None, rates: str | None = None,
-                           calibration="shipped") -> dict:
+                           seed: int = 0, config: PosteriorConfig | None = None, **settings) -> dict:
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
-    samples of this log, or None — as the proposal (module doc). ``draws`` / ``particles`` default to
-    :data:`DRAWS` / :data:`PARTICLES`; ``rates``: the likelihood's rate term, "windows" or "innovations"
-    (default :data:`~.logdata.RATES`; a :class:`LogData` carries its own). It is
-    :func:`log_grounded_posteriors` of one log.
+    samples of this log, or None — as the proposal (module doc). ``config``: a
+    :class:`~.config.PosteriorConfig` (None: :data:`~.config.DEFAULT`); ``settings``: fields of it
+    that override it (samples, draws, particles, n_mcmc, max_stages, starts, force_smc, refine, rates,
+    calibration; a :class:`LogData` carries its own rates). It is :func:`log_grounded_posteriors` of one log.
 
     -> dict: ``theta`` (samples, 19) (hidden coordinates drawn from the prior), ``v`` (samples, 12),
     ``nuisance`` (samples, 9: log σ (4), log δ (4, fixed), bias), ``method`` ('decoded_is',
@@ -240,7 +229,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     ``smc_acceptance_min`` (the lowest stage's), ``smc_tempering`` (1 when it reached the target),
     and after NUTS ``nuts`` (chains, warm-up, draws per chain, ``converged``, ``why`` and ``kept``, the largest
     split R̂, the smallest bulk ESS, divergences, leapfrog steps per draw). ``refine=False`` keeps the
-    SMC's draws (step 3 of the module doc skipped); None: :data:`REFINE`.
+    SMC's draws (step 3 of the module doc skipped).
 
     ``calibration``: "shipped" (default: the table fitted on simulated logs,
     :mod:`.calibrate`), a table (dict) or a path to one, or None for the raw posterior. The draws
@@ -248,16 +237,8 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     shows; ``calibration`` the report (scale factor and bin per coordinate, the model check,
     ``seen`` (12,) and ``why`` (12,) per visible coordinate, ``table`` the file it came from)."""
     dec = None if decoded_theta is None else [decoded_theta]
-    return log_grounded_posteriors([rec_or_data], dec, seeds=[seed], prior=prior, samples=samples, draws=draws,
-                                   particles=particles, n_mcmc=n_mcmc, max_stages=max_stages, starts=starts,
-                                   force_smc=force_smc, refine=refine, rates=rates, calibration=calibration, batch=1,
-                                   workers=1)[0]
-
-
-REFINE = True
-"""Whether an SMC's draws are refined by NUTS (``refine`` of :func:`log_grounded_posterior` when not
-given). The test tier turns it off for its in-process decodes (tests/conftest.py); NUTS's own tests
-ask for it."""
+    return log_grounded_posteriors([rec_or_data], dec, seeds=[seed], prior=prior, config=config, batch=1, workers=1,
+                                   **settings)[0]
 
 
 LOG_BATCH = 256
@@ -266,13 +247,9 @@ time: its cores are busy with one log's particles already)."""
 
 
 @full_precision
-def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
-                            samples: int = 1000, draws: int | None = None, particles: int | None = None,
-                            seeds=0, n_mcmc: int = 24, max_stages: int = 200, starts: int = 12,
-                            force_smc: bool = False, refine: bool | None = None, rates: str | None = None,
-                            calibration="shipped",
-                            batch: int | None = None, workers: int | None = None,
-                            desc: str | None = None) -> list[dict]:
+def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR, seeds=0,
+                            config: PosteriorConfig | None = None, batch: int | None = None,
+                            workers: int | None = None, desc: str | None = None, **settings) -> list[dict]:
     """The posteriors of many logs (paths of any format, or what :func:`log_grounded_posterior`
     takes), batched:
     logs of one shape (their windows and blocks bucketed, :func:`~.logdata.bucket`) and of one kind
@@ -280,7 +257,8 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     a CPU) by programs vmapped over the logs. ``decoded_thetas``: None, or one (S, 19) or None per
     log; ``seeds``: one per log, or an int (log i gets seeds + i); ``workers``: processes that reduce
     the logs (:func:`~.logdata.prepare`; default 1 on a CPU, up to 16 beside an accelerator);
-    ``desc``: a progress bar's label. A log too short for the posterior raises
+    ``desc``: a progress bar's label; ``config`` and ``settings`` as :func:`log_grounded_posterior`'s.
+    A log too short for the posterior raises
     :class:`~.logdata.LogTooShort` naming its index.
     -> one dict per log, in order, as :func:`log_grounded_posterior` returns it (the same draws up
     to float rounding, whatever the batch)."""
@@ -292,11 +270,11 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     if len(dec) != n or len(seeds) != n:
         raise ValueError(f"log_grounded_posteriors: {n} logs, {len(dec)} decoded ensembles and {len(seeds)} seeds; "
                          "give one of each per log")
-    cfg = dict(prior=prior, samples=int(samples), draws=DRAWS if draws is None else int(draws),
-               particles=PARTICLES if particles is None else int(particles), n_mcmc=n_mcmc, max_stages=max_stages,
-               starts=starts, force_smc=force_smc, refine=REFINE if refine is None else bool(refine),
-               calibration=calibration)
-    rates = RATES if rates is None else rates
+    c = resolve(config, **settings)
+    cfg = dict(prior=prior, samples=c.samples, draws=c.draws, particles=c.particles, n_mcmc=c.n_mcmc,
+               max_stages=c.max_stages, starts=c.starts, force_smc=c.force_smc, refine=bool(c.refine),
+               calibration=c.calibration)
+    rates = c.rates
     if workers is None:
         workers = 1 if jax.default_backend() == "cpu" else min(16, os.cpu_count() or 1)
     datas = _prepare_all(logs, rates, int(workers))

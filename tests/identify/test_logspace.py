@@ -219,3 +219,21 @@ def test_what_the_log_does_not_pin_is_said_not_seen_with_why():
     assert joint["torque_ratio"]["why"] == G.HIDDEN_WHY
     assert joint["thrust_to_weight"]["seen_by_log"] and joint["thrust_to_weight"]["why"] == "why thrust_to_weight"
     assert not joint["motor_time_constant"]["seen_by_log"]
+
+
+def test_posterior_config_validates_and_overrides():
+    """One object says how the posterior is computed: bad fields name themselves, keyword settings
+    override a given config, None keeps its field (calibration's None means the raw posterior)."""
+    import pytest
+
+    from mjxsysid.identify import config as K
+    base = K.PosteriorConfig(samples=200, refine=False)
+    assert K.resolve(base, samples=K.UNSET, draws=None) == base
+    assert K.resolve(base, draws=512).draws == 512 and K.resolve(base, calibration=None).calibration is None
+    assert K.resolve(None) == K.DEFAULT
+    for bad, msg in (({"samples": 0}, "samples"), ({"rates": "kalman"}, "rates"), ({"calibration": 3}, "calibration"),
+                     ({"particles": 1.5}, "particles")):
+        with pytest.raises(ValueError, match=msg):
+            K.PosteriorConfig(**bad)
+    with pytest.raises(TypeError, match="no field.*partcles"):
+        K.resolve(base, partcles=10)

@@ -76,9 +76,9 @@ def test_noisy_speeds_enter_through_the_fitted_map_and_leave_the_authorities_unb
     lo, med, hi = _bands(model)
     for j in (0, 1, 2, 3):
         assert lo[j] <= TRUE[j] <= hi[j] and abs(med[j] / TRUE[j] - 1) < 0.02, (C.LOG_NAMES[j], lo[j], TRUE[j], hi[j])
-    med = _bands(raw)[1]
-    for j in (2, 3):
-        assert med[j] / TRUE[j] < 0.975, (C.LOG_NAMES[j], med[j], TRUE[j])
+    med_raw = _bands(raw)[1]
+    for j in (2, 3):     # the raw samples' authorities 2.5–5 % low, at least 1 % below the fitted map's
+        assert med_raw[j] / TRUE[j] < 0.985 and med_raw[j] < med[j] - 0.01 * TRUE[j], (C.LOG_NAMES[j], med_raw[j], med[j])
 
 
 def test_a_log_without_speeds_reads_as_before_and_bad_speeds_are_not_used():
