@@ -43,7 +43,7 @@ from mjxsysid.experiments.log_grounded_coverage import level_flights
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import raw_bands
 from mjxsysid.identify.coords import V_NAMES, visible_from_theta
-from mjxsysid.identify.inference import _reliable, log_grounded_posterior, refine_posterior
+from mjxsysid.identify.inference import default_method, log_grounded_posterior, refine_posterior
 from mjxsysid.identify.logdata import prepare
 from mjxsysid.identify.nuts import INIT_JITTER, TARGET_ACCEPTANCE, nuts_reference
 from mjxsysid.identify.target import N_Y
@@ -79,14 +79,6 @@ def compare(smc_v, mcmc_v, truth_v) -> dict:
     return {"smc": qs, "mcmc": qm, "sampler_error": np.abs(qs - qm) / width, "width_ratio": (qs[2] - qs[0]) / width,
             "inside_smc": (qs[0] <= t) & (t <= qs[2]), "inside_mcmc": (qm[0] <= t) & (t <= qm[2]),
             "model_error": np.abs(t - qm[1]) / width}
-
-
-def default_method(post: dict) -> str:
-    """What :func:`log_grounded_posterior` would have used without ``force_smc`` (no decoded
-    proposal): the Laplace importance sampler where its weights are reliable, else the SMC."""
-    if "decoded_is" in post and _reliable(post["decoded_is"]):
-        return "decoded_is"
-    return "laplace_is" if _reliable(post["laplace_is"]) else "smc"
 
 
 def check_log(rec: dict, truth_theta, *, seed: int, chains: int, warmup: int, draws: int,

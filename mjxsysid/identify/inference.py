@@ -57,8 +57,8 @@ from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUN
                                       log_prior, log_target)
 
 __all__ = ["ACC_BIAS_SD", "DRAWS", "LAPLACE_WIDEN", "LOG_BATCH", "MAX_KHAT", "MIN_ESS_FRACTION", "N_Y", "NUIS_BOUNDS",
-           "PARTICLES", "PRIOR_SHARE", "RW_TARGET_ACCEPTANCE", "TARGET_CHUNK", "find_mode", "find_modes",
-           "full_precision", "full_x", "log_grounded_posterior", "log_grounded_posteriors", "log_prior",
+           "PARTICLES", "PRIOR_SHARE", "RW_TARGET_ACCEPTANCE", "TARGET_CHUNK", "default_method", "find_mode",
+           "find_modes", "full_precision", "full_x", "log_grounded_posterior", "log_grounded_posteriors", "log_prior",
            "log_target", "refine_posterior", "rw_scale_update"]
 
 MIN_ESS_FRACTION = 0.05
@@ -215,6 +215,15 @@ def _ess_diag(lw) -> dict:
 
 def _reliable(diag) -> bool:
     return diag["ess_fraction"] >= MIN_ESS_FRACTION and diag["khat"] is not None and diag["khat"] <= MAX_KHAT
+
+
+def default_method(out: dict) -> str:
+    """The method a posterior's importance diagnostics choose without ``force_smc``: the decoded
+    proposal's, else the Laplace's, where their weights are reliable; else 'smc'."""
+    for name in ("decoded_is", "laplace_is"):
+        if name in out and _reliable(out[name]):
+            return name
+    return "smc"
 
 
 @full_precision
@@ -413,7 +422,7 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
         for i, q in enumerate(qvs):
             lw = lt[i].astype(np.float64) - np.asarray(q.log_prob(ys[i, :, L.Y_V]) + qns[i].log_prob(ys[i, :, L.Y_NUIS]), np.float64)
             outs[i]["decoded_is"] = _ess_diag(lw)
-            if _reliable(outs[i]["decoded_is"]) and not force_smc:
+            if default_method(outs[i]) == "decoded_is" and not force_smc:
                 chosen[i] = ("decoded_is", ys[i], lw)
     need = [i for i in range(nl) if chosen[i] is None]
     if need:
@@ -422,7 +431,7 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
         for j, i in enumerate(need):
             lw = lt[j].astype(np.float64) - np.asarray(laps[i].log_prob(ys[j]), np.float64)
             outs[i]["laplace_is"] = _ess_diag(lw)
-            if _reliable(outs[i]["laplace_is"]) and not force_smc:
+            if default_method(outs[i]) == "laplace_is" and not force_smc:
                 chosen[i] = ("laplace_is", ys[j], lw)
     draws_y = [None] * nl
     for i, c in enumerate(chosen):
