@@ -130,7 +130,8 @@ def fly(vehicle=None, controller: str = "policy", *, reference: str = "lemniscat
 
 def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None, weights=None,
            decoders=None, seed: int = 0, truth=None, index: int = 0, allow_mismatch: bool = False,
-           window="flight", decoder_only: bool = False, segment=None, rates: str | None = None) -> dict:
+           window="flight", decoder_only: bool = False, segment=None, rates: str | None = None,
+           refine: bool | None = None) -> dict:
     """Decode a policy's latent into a distribution of vehicles, as ``mjxsysid decode``.
 
     ``flight_or_log``: a :class:`FlightResult` of :func:`fly` with ``controller="policy"``
@@ -156,15 +157,17 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
     commands under a physical prior, the decoded samples as its proposal), the decoders' under
     ``summary["_decoder_only"]``, the information gap under ``summary["_log_grounded"]["gap"]``,
     and ``samples_log_grounded`` (S, 19) is returned too; ``rates`` its likelihood's rate term
-    (``"windows"``, the default, or ``"innovations"``: docs/identify.md).
+    (``"windows"``, the default, or ``"innovations"``: docs/identify.md); ``refine=False`` keeps the
+    SMC's draws where it falls back to its SMC (default: refined by NUTS).
 
     A log is checked first, as by :func:`check_log`: one that cannot be right raises
     :class:`LogError`; warnings and a flight outside the decoders' training prior are printed
     (stderr) and kept in ``summary["_checks"]``."""
     if rates not in (None, "windows", "innovations"):
         raise ValueError(f"rates must be 'windows' or 'innovations', got {rates!r}")
-    if rates is not None and (decoder_only or not isinstance(flight_or_log, (str, Path))):
-        raise ValueError("rates applies to the log-grounded posterior of a log path (not decoder_only)")
+    for name, given in (("rates", rates), ("refine", refine)):
+        if given is not None and (decoder_only or not isinstance(flight_or_log, (str, Path))):
+            raise ValueError(f"{name} applies to the log-grounded posterior of a log path (not decoder_only)")
     if not rate > 0:
         raise ValueError(f"rate must be > 0 Hz, got {rate}")
     if samples < 2:
@@ -212,7 +215,7 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
                             seed=seed, window=window, seq_decoder=seq)
     post["summary"]["_checks"] = checks_summary(checks)
     if isinstance(flight_or_log, (str, Path)) and not decoder_only:
-        ground_in_log(post, post["summary"], rec, th, seed=seed, rates=rates)
+        ground_in_log(post, post["summary"], rec, th, seed=seed, rates=rates, refine=refine)
     return post
 
 

@@ -41,6 +41,10 @@ def add_decode(sub) -> None:
                     help="with --log: the log-grounded likelihood's rate term (default windows; innovations: "
                          "unbiased in closed loop under white IMU noise, wrong under a rotor vibration; "
                          "docs/identify.md, 'The rate term, two ways')")
+    dc.add_argument("--no-refine", action="store_true",
+                    help="with --log: keep the SMC's draws where the log-grounded posterior falls back to its SMC "
+                         "(default: refined by short NUTS chains; faster, its bands too narrow on a clean log; "
+                         "docs/identify.md, 'The SMC refined by NUTS')")
     dc.add_argument("--decoder-only", action="store_true",
                     help="with --log: report the decoders' posterior alone (default: the log-grounded posterior — "
                          "the log's IMU given its motor commands, the decoded samples as proposal — with the "
@@ -68,6 +72,8 @@ def cmd_decode(args) -> int:
         raise ValueError("--segment needs --log")
     if args.rates is not None and (args.log is None or args.decoder_only):
         raise ValueError("--rates needs --log and the log-grounded posterior (not --decoder-only)")
+    if args.no_refine and (args.log is None or args.decoder_only):
+        raise ValueError("--no-refine needs --log and the log-grounded posterior (not --decoder-only)")
     if args.log is not None:
         from mjxsysid.decoding.fleet import expand_logs
         logs = expand_logs(args.log)
@@ -81,7 +87,8 @@ def cmd_decode(args) -> int:
                              duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
                              decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
                              echo=lambda m: echo(m, file=sys.stderr), segment=args.segment,
-                             decoder_only=args.decoder_only, rates=args.rates)
+                             decoder_only=args.decoder_only, rates=args.rates,
+                             refine=False if args.no_refine else None)
     except BaseException:
         if not existed and Path(args.out).is_dir():   # no half-written output folder of this run left behind
             import shutil
@@ -109,7 +116,8 @@ def _decode_fleet(args, logs, truth, window) -> int:
                                  duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
                                  decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
                                  echo=lambda m: echo(m, file=sys.stderr), segment=args.segment,
-                                 decoder_only=args.decoder_only, rates=args.rates)
+                                 decoder_only=args.decoder_only, rates=args.rates,
+                             refine=False if args.no_refine else None)
             rows.append(fleet_row(log.name, summary))
         except (ValueError, LogError, ImportError, OSError) as e:
             rows.append(fleet_row(log.name, None, str(e).splitlines()[0]))

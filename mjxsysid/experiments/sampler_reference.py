@@ -1,8 +1,8 @@
 """The log-grounded posterior's sampler checked against a long MCMC on the same target.
 
 The tempered SMC of :func:`mjxsysid.identify.inference.log_grounded_posterior` (``force_smc=True``),
-alone (``refine=False``) and refined by short NUTS chains as the library runs it (:mod:`mjxsysid.identify.nuts`),
-and blackjax's NUTS (:func:`nuts_reference`: ``chains`` chains, Stan's window adaptation with a
+alone (``refine=False``) and its same draws refined by short NUTS chains as the library runs it
+(:func:`~mjxsysid.identify.inference.refine_posterior`, :mod:`mjxsysid.identify.nuts`), and blackjax's NUTS (:func:`nuts_reference`: ``chains`` chains, Stan's window adaptation with a
 dense mass matrix, then ``draws`` draws each) sample one target per log: the same data, the
 same discrepancy δ and channel weights w (the SMC run's), the 17 coordinates y = [v (12),
 log σ (4), acc_z bias] (:func:`~mjxsysid.identify.target._log_target_y`). NUTS runs in
@@ -43,7 +43,7 @@ from mjxsysid.experiments.log_grounded_coverage import level_flights
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import raw_bands
 from mjxsysid.identify.coords import V_NAMES, visible_from_theta
-from mjxsysid.identify.inference import _reliable, log_grounded_posterior
+from mjxsysid.identify.inference import default_method, log_grounded_posterior, refine_posterior
 from mjxsysid.identify.logdata import prepare
 from mjxsysid.identify.nuts import INIT_JITTER, TARGET_ACCEPTANCE, nuts_reference
 from mjxsysid.identify.target import N_Y
@@ -81,29 +81,22 @@ def compare(smc_v, mcmc_v, truth_v) -> dict:
             "model_error": np.abs(t - qm[1]) / width}
 
 
-def default_method(post: dict) -> str:
-    """What :func:`log_grounded_posterior` would have used without ``force_smc`` (no decoded
-    proposal): the Laplace importance sampler where its weights are reliable, else the SMC."""
-    if "decoded_is" in post and _reliable(post["decoded_is"]):
-        return "decoded_is"
-    return "laplace_is" if _reliable(post["laplace_is"]) else "smc"
-
-
 def check_log(rec: dict, truth_theta, *, seed: int, chains: int, warmup: int, draws: int,
               particles: int | None = None) -> dict:
     """One log: the SMC posterior (raw, ``force_smc``), NUTS on its target (longer where R̂ ≥
     :data:`RHAT_MAX`; ``nuts_steps`` the warm-up and draws it ran), their comparison
     (:func:`compare`) against θ's visible coordinates, the same comparison between the first half of
     NUTS's chains and the rest (``nuts_halves_error`` (3, 12): the measurement's own noise), and the
-    seconds of each."""
+    seconds of each. The SMC runs once: the refined posterior is its draws refined by the library's
+    short chains (``refined_seconds``: the SMC's seconds and theirs)."""
     data = prepare(rec)
     t0 = time.perf_counter()
     post = log_grounded_posterior(data, None, force_smc=True, refine=False, seed=seed, calibration=None,
                                   particles=particles)
     t_smc = time.perf_counter() - t0
     t0 = time.perf_counter()
-    refined = log_grounded_posterior(data, None, force_smc=True, seed=seed, calibration=None, particles=particles)
-    t_refined = time.perf_counter() - t0
+    refined = refine_posterior(data, post, seed=seed, calibration=None)
+    t_refined = t_smc + time.perf_counter() - t0
     mode = np.asarray(post["mode"], np.float64)
     start = L.y_from_x(np.asarray(mode))
     ld, w = post["nuisance"][0, L.LOG_DISCREPANCY], post["weights"]      # δ is fixed: any draw's

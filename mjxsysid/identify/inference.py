@@ -49,10 +49,8 @@ from mjxsysid.identify.config import PosteriorConfig, resolve
 from mjxsysid.identify.logdata import LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
                                     _ls_jacobian_logs, find_modes)
-from mjxsysid.identify.nuts import (CHAINS, LONGER, MAX_DOUBLINGS, TARGET_ACCEPTANCE, WARMUP, _nuts, _nuts_logs,
-                                    converged, unmixed_not_seen)
-from mjxsysid.identify.nuts import diagnostics as nuts_diagnostics
-from mjxsysid.identify.nuts import start as nuts_start
+from mjxsysid.identify.nuts import MAX_DOUBLINGS, TARGET_ACCEPTANCE, _nuts, _nuts_logs, unmixed_not_seen
+from mjxsysid.identify.nuts import refine as nuts_refine
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
 from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc, _smc_logs, _smc_start, rw_scale_update
 from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, target_evals,
@@ -60,9 +58,9 @@ from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUN
                                       log_prior, log_target)
 
 __all__ = ["ACC_BIAS_SD", "LAPLACE_WIDEN", "LOG_BATCH", "MAX_KHAT", "MIN_ESS_FRACTION", "N_Y", "NUIS_BOUNDS",
-           "PRIOR_SHARE", "RW_TARGET_ACCEPTANCE", "TARGET_CHUNK", "find_mode", "find_modes",
+           "PRIOR_SHARE", "RW_TARGET_ACCEPTANCE", "TARGET_CHUNK", "default_method", "find_mode", "find_modes",
            "full_precision", "full_x", "log_grounded_posterior", "log_grounded_posteriors", "log_prior",
-           "log_target", "rw_scale_update"]
+           "log_target", "refine_posterior", "rw_scale_update"]
 
 MIN_ESS_FRACTION = 0.05
 
@@ -211,6 +209,15 @@ def _reliable(diag) -> bool:
     return diag["ess_fraction"] >= MIN_ESS_FRACTION and diag["khat"] is not None and diag["khat"] <= MAX_KHAT
 
 
+def default_method(out: dict) -> str:
+    """The method a posterior's importance diagnostics choose without ``force_smc``: the decoded
+    proposal's, else the Laplace's, where their weights are reliable; else 'smc'."""
+    for name in ("decoded_is", "laplace_is"):
+        if name in out and _reliable(out[name]):
+            return name
+    return "smc"
+
+
 @full_precision
 def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPrior = PHYSICAL_PRIOR,
                            seed: int = 0, config: PosteriorConfig | None = None, **settings) -> dict:
@@ -336,14 +343,46 @@ def _starts(data, decoded_theta, rng, prior, starts: int) -> np.ndarray:
     return np.concatenate([x_lin[None], np.concatenate([sv, np.broadcast_to(x_lin[L.X_NUIS], (len(sv), N_NUIS))], 1)])
 
 
+_STREAMS = ("is", "nuisance", "mixture", "hidden", "resample", "starts", "laplace", "nuts")
+"""A log's host random streams, one generator per use."""
+
+
+def _streams(seed: int) -> dict:
+    """{use: generator} of :data:`_STREAMS` from a log's seed."""
+    return dict(zip(_STREAMS, (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(len(_STREAMS)))))
+
+
+def _nuts_seed(r) -> int:
+    """The NUTS chains' seed from a log's "nuts" stream."""
+    return int(r.integers(2 ** 31))
+
+
+@full_precision
+def refine_posterior(rec_or_data, post: dict, *, seed: int = 0, prior: PhysicalPrior = PHYSICAL_PRIOR,
+                     calibration="shipped") -> dict:
+    """An SMC posterior of the log ``rec_or_data`` (:func:`log_grounded_posterior` with ``refine=False``)
+    refined by NUTS (step 3 of the module doc): the same as ``refine=True`` with that ``seed`` gives,
+    from the SMC's draws, mode, δ and weights in ``post`` (nothing sampled again). -> a new dict."""
+    if post.get("method") != "smc" or "nuts" in post:
+        raise ValueError(f"refine_posterior: needs an SMC posterior without NUTS, not {post.get('method')!r}")
+    data = rec_or_data if isinstance(rec_or_data, LogData) else prepare(rec_or_data, rates=post["rates"])
+    ys = L.y_from_x(np.concatenate([post["v_raw"], post["nuisance"]], 1)).astype(np.float32)
+    mode = np.asarray(post["mode"], np.float32)
+    ld, w, r = mode[L.X_LOG_DISCREPANCY], np.asarray(post["weights"], np.float32), _streams(seed)
+    out, draws = dict(post), [ys]           # refined in place: NUTS's draws, or the SMC's kept
+    nuts_refine(_Logs([data]), [0], draws, [L.y_from_x(mode)], ld[None], w[None], prior, [_nuts_seed(r["nuts"])],
+                len(ys), [out])
+    return _finish(out, draws.pop(), data, ld, prior, calibration, seed, r["hidden"], len(ys))
+
+
 def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particles, n_mcmc, max_stages, starts,
                      force_smc, refine, calibration) -> list[dict]:
     """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc)."""
     nl = len(datas)
     logs = _Logs(datas)
     # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
-    rng = [[np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(8)] for seed in seeds]
-    r_is, r_n, r_mix, r_h, r_res, r_st, r_lp, r_nuts = (list(r) for r in zip(*rng))
+    rng = [_streams(seed) for seed in seeds]
+    r_is, r_n, r_mix, r_h, r_res, r_st, r_lp, r_nuts = ([g[k] for g in rng] for k in _STREAMS)
     qns = [nuisance_proposal(d, ACC_BIAS_SD) for d in datas]
     # 0. the mode
     st = np.stack([_starts(d, dc, r_st[i], prior, starts) for i, (d, dc) in enumerate(zip(datas, decs))])
@@ -361,7 +400,7 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
         for i, q in enumerate(qvs):
             lw = lt[i].astype(np.float64) - np.asarray(q.log_prob(ys[i, :, L.Y_V]) + qns[i].log_prob(ys[i, :, L.Y_NUIS]), np.float64)
             outs[i]["decoded_is"] = _ess_diag(lw)
-            if _reliable(outs[i]["decoded_is"]) and not force_smc:
+            if default_method(outs[i]) == "decoded_is" and not force_smc:
                 chosen[i] = ("decoded_is", ys[i], lw)
     need = [i for i in range(nl) if chosen[i] is None]
     if need:
@@ -370,7 +409,7 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
         for j, i in enumerate(need):
             lw = lt[j].astype(np.float64) - np.asarray(laps[i].log_prob(ys[j]), np.float64)
             outs[i]["laplace_is"] = _ess_diag(lw)
-            if _reliable(outs[i]["laplace_is"]) and not force_smc:
+            if default_method(outs[i]) == "laplace_is" and not force_smc:
                 chosen[i] = ("laplace_is", ys[j], lw)
     draws_y = [None] * nl
     for i, c in enumerate(chosen):
@@ -394,53 +433,10 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
             outs[i].update(method="smc", smc_stages=int(stages[j]), smc_acceptance=float(acc[j]),
                            smc_acceptance_min=float(acc_min[j]), smc_tempering=float(lam[j]))
         if refine:
-            _refine(logs, need, draws_y, [modes[i][3] for i in need], ld[need], w[need], prior,
-                    [int(r_nuts[i].integers(2 ** 31)) for i in need], samples, outs)
+            nuts_refine(logs, need, draws_y, [modes[i][3] for i in need], ld[need], w[need], prior,
+                        [_nuts_seed(r_nuts[i]) for i in need], samples, outs)
     return [_finish(outs[i], draws_y[i], datas[i], ld[i], prior, calibration, seeds[i], r_h[i], samples)
             for i in range(nl)]
-
-
-def _refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> None:
-    """Step 3: the SMC's draws of the logs ``need`` replaced by NUTS's (:mod:`.nuts`: :data:`~.nuts.CHAINS`
-    chains from the mode, preconditioned by the SMC's draws), in place; logs whose chains did not mix
-    run once more with :data:`~.nuts.LONGER` times the warm-up and draws (thinned), and keep the
-    SMC's draws (``method`` 'smc') if they still do not: chains that did not meet, or did not move
-    (a clean log's noise σ at its floor), would set the bands by where they started. Each log's
-    ``nuts`` entry: its chains' diagnostics, whether they mixed and which draws were kept."""
-    per = -(-samples // CHAINS)
-    smc_draws = {i: draws_y[i] for i in need}
-    starts = [nuts_start(draws_y[i], my, CHAINS, sd, prior) for i, my, sd in zip(need, modes_y, seeds)]
-    todo, warmup, thin = list(range(len(need))), WARMUP, 1
-    for attempt in range(2):
-        keys, u0, m, chol = (np.stack([starts[j][k] for j in todo]) for k in range(4))
-        if attempt:
-            keys = keys ^ np.uint32(0x9E3779B9)          # fresh chains
-        y, div, leap, step = logs.nuts([need[j] for j in todo], keys, u0, ld[todo], w[todo], m, chol, prior,
-                                       warmup, per * thin)
-        again = []
-        for t, j in enumerate(todo):
-            yj = np.asarray(y[t])[:, ::thin]
-            diag = nuts_diagnostics(yj, div[t], leap[t], step[t])
-            ok, why = converged(diag)
-            i = need[j]
-            draws_y[i] = yj.transpose(1, 0, 2).reshape(-1, N_Y)[:samples]   # every chain's draws in turn
-            outs[i]["method"] = "smc_nuts"
-            outs[i]["nuts"] = {"chains": CHAINS, "warmup": warmup, "draws": per * thin, "thin": thin, "converged": ok,
-                               "why": why, "kept": "NUTS's draws", "rhat_max": float(np.max(diag["rhat"])),
-                               "ess_bulk_min": float(np.min(diag["ess_bulk"])), "divergences": diag["divergences"],
-                               "rhat_v": np.round(diag["rhat"][L.Y_V], 4).tolist(),
-                               "leapfrog_mean": diag["leapfrog_mean"]}
-            if not ok:
-                again.append(j)
-        if not again:
-            return
-        if attempt:
-            for j in again:
-                i = need[j]
-                draws_y[i] = smc_draws[i]
-                outs[i]["method"] = "smc"
-                outs[i]["nuts"]["kept"] = "the SMC's draws: NUTS's chains did not mix"
-        todo, warmup, thin = again, LONGER[0] * WARMUP, LONGER[1]
 
 
 def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> dict:

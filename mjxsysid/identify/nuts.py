@@ -217,10 +217,54 @@ def converged(diag: dict) -> tuple[bool, str]:
     return True, what
 
 
+def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> None:
+    """Step 3 of :mod:`.inference`: the SMC's draws of the logs ``need`` replaced by NUTS's (:data:`CHAINS`
+    chains from the mode, preconditioned by the SMC's draws), in place; logs whose chains did not mix
+    run once more with :data:`LONGER` times the warm-up and draws (thinned), and keep the
+    SMC's draws (``method`` 'smc') if they still do not: chains that did not meet, or did not move
+    (a clean log's noise σ at its floor), would set the bands by where they started. Each log's
+    ``nuts`` entry: its chains' diagnostics, whether they mixed and which draws were kept. ``logs``:
+    :class:`~.inference._Logs` (its ``nuts``)."""
+    per = -(-samples // CHAINS)
+    smc_draws = {i: draws_y[i] for i in need}
+    starts = [start(draws_y[i], my, CHAINS, sd, prior) for i, my, sd in zip(need, modes_y, seeds)]
+    todo, warmup, thin = list(range(len(need))), WARMUP, 1
+    for attempt in range(2):
+        keys, u0, m, chol = (np.stack([starts[j][k] for j in todo]) for k in range(4))
+        if attempt:
+            keys = keys ^ np.uint32(0x9E3779B9)          # fresh chains
+        y, div, leap, step = logs.nuts([need[j] for j in todo], keys, u0, ld[todo], w[todo], m, chol, prior,
+                                       warmup, per * thin)
+        again = []
+        for t, j in enumerate(todo):
+            yj = np.asarray(y[t])[:, ::thin]
+            diag = diagnostics(yj, div[t], leap[t], step[t])
+            ok, why = converged(diag)
+            i = need[j]
+            draws_y[i] = yj.transpose(1, 0, 2).reshape(-1, N_Y)[:samples]   # every chain's draws in turn
+            outs[i]["method"] = "smc_nuts"
+            outs[i]["nuts"] = {"chains": CHAINS, "warmup": warmup, "draws": per * thin, "thin": thin, "converged": ok,
+                               "why": why, "kept": "NUTS's draws", "rhat_max": float(np.max(diag["rhat"])),
+                               "ess_bulk_min": float(np.min(diag["ess_bulk"])), "divergences": diag["divergences"],
+                               "rhat_v": np.round(diag["rhat"][L.Y_V], 4).tolist(),
+                               "leapfrog_mean": diag["leapfrog_mean"]}
+            if not ok:
+                again.append(j)
+        if not again:
+            return
+        if attempt:
+            for j in again:
+                i = need[j]
+                draws_y[i] = smc_draws[i]
+                outs[i]["method"] = "smc"
+                outs[i]["nuts"]["kept"] = "the SMC's draws: NUTS's chains did not mix"
+        todo, warmup, thin = again, LONGER[0] * WARMUP, LONGER[1]
+
+
 def unmixed_not_seen(report: dict, nuts: dict) -> None:
     """A visible coordinate on which NUTS's chains disagree (split R̂ ≥ :data:`RHAT_OK`) is not
     seen by the log, whatever its band's width: the fit did not converge there (where no chain mixed,
-    the posterior keeps the SMC's draws: :func:`~.inference._refine`)."""
+    the posterior keeps the SMC's draws: :func:`refine`)."""
     for j, r in enumerate(nuts["rhat_v"]):
         if not r < RHAT_OK:
             report["seen"][j] = False

@@ -249,7 +249,6 @@ def decode_frames(data: bytes, start: int, end: int) -> tuple[dict, list[str], l
         raise Unsupported("no 'Field I name' header")
     plan_p, _ = _plan(headers, "P", names) if "Field P encoding" in headers else (None, None)
     others = {m: _plan(headers, m)[0] for m in "SGH"}
-    version = int(headers.get("Data version", 1) if isinstance(headers.get("Data version", 1), int) else 1)
     minthrottle = headers.get("minthrottle", 0)
     vbatref = headers.get("vbatref", 0)
     motor_out = headers.get("motorOutput", [0, 0])
@@ -262,10 +261,9 @@ def decode_frames(data: bytes, start: int, end: int) -> tuple[dict, list[str], l
     i_iter = names.index("loopIteration") if "loopIteration" in names else None
     consts = {"minthrottle": int(minthrottle), "vbatref": int(vbatref), "minmotor": int(minmotor),
               "motor0": names.index("motor[0]") if "motor[0]" in names else None}
-    for m, plan in others.items():
-        if plan is not None and any(p == 8 for p in [e for e, _ in plan[0]]) and version < 2:
-            raise Unsupported("tag8_4s16 of data version 1")
-    if version < 2 and any(e == 8 for e, _ in plan_i[0] + (plan_p[0] if plan_p else [])):
+    version = headers.get("Data version", 1)
+    plans = [plan for plan in (plan_i, plan_p, *others.values()) if plan is not None]
+    if not (isinstance(version, int) and version >= 2) and any(e == 8 for plan in plans for e, _ in plan[0]):
         raise Unsupported("tag8_4s16 of data version 1")
     read = {0x49: compile_frame(plan_i, consts), 0x50: compile_frame(plan_p, consts) if plan_p else None}
     skip = {ord(m): compile_frame((plan[0], [0] * len(plan[1])), consts) for m, plan in others.items() if plan}

@@ -28,16 +28,14 @@ from mjxsysid.logs.dataflash import AP_QUADX_ORDER, EV_ARMED, EV_DISARMED, FORMA
 from mjxsysid.logs.record import interleave
 from mjxsysid.logs.rosbag import typestore_with_mavros
 from mjxsysid.logs.ulog import PX4_QUADX_ORDER
-from mjxsysid.logs.ulog_write import FRD, FRD_QUAT     # FLU <-> FRD, the world (z up) <-> NED as (x, −y, −z)
+from mjxsysid.logs.ulog_write import FRD, FRD_QUAT, state_estimate  # FLU <-> FRD, world <-> NED: (x, −y, −z)
 
 
 def _flight(t, imu, a_cmd, omega_cmd, motor, quat, vel):
-    if (quat is None) != (vel is None):
-        raise ValueError("give both quat and vel (the attitude and the world velocity), or neither")
+    """The flight's arrays as float64, then its attitude and velocity where given (:func:`~.ulog_write.state_estimate`)."""
+    est = state_estimate(quat, vel)
     f = [np.asarray(x, np.float64) for x in (t, imu, a_cmd, omega_cmd, motor)]
-    if quat is not None:
-        f += [np.asarray(quat, np.float64), np.asarray(vel, np.float64)]
-    return f
+    return f + list(est) if est[0] is not None else f
 
 
 def _frd_to_ned(quat):

@@ -173,7 +173,10 @@ def _merged(bag, cons) -> tuple:
         return (cons[0].msgtype, *bag.messages[cons[0].id])
     t = np.concatenate([bag.messages[c.id][0] for c in cons])
     order = np.argsort(t, kind="stable")
-    flat = [r.tobytes() if isinstance(p, np.ndarray) else r for p in (bag.messages[c.id][1] for c in cons) for r in p]
+    parts = [bag.messages[c.id][1] for c in cons]
+    if all(isinstance(p, np.ndarray) for p in parts) and len({p.shape[1] for p in parts}) == 1:
+        return cons[0].msgtype, t[order], np.concatenate(parts)[order]      # one length: still one matrix
+    flat = [r.tobytes() if isinstance(p, np.ndarray) else r for p in parts for r in p]
     return cons[0].msgtype, t[order], [flat[i] for i in order.tolist()]
 
 

@@ -53,6 +53,16 @@ QUADX_POSITIONS = {0: (1.0, 1.0), 1: (-1.0, -1.0), 2: (1.0, -1.0), 3: (-1.0, 1.0
 """PX4 motor -> (x forward, y right) signs of its rotor in PX4's default quad-X (FRD)."""
 
 
+def state_estimate(quat, vel):
+    """A flight's attitude (T, 4) and world velocity (T, 3), both or neither -> both as float64, or
+    (None, None)."""
+    if (quat is None) != (vel is None):
+        raise ValueError("give both quat and vel (the attitude and the world velocity), or neither")
+    if quat is None:
+        return None, None
+    return np.asarray(quat, np.float64), np.asarray(vel, np.float64)
+
+
 def _msg(kind: bytes, body: bytes) -> bytes:
     return struct.pack("<HB", len(body), kind[0]) + body
 
@@ -124,10 +134,9 @@ def write_ulog(path, t, imu, a_cmd, omega_cmd, motor, *, rates: dict | None = No
         "actuator_armed": (i_arm, {"armed": armed[i_arm]}),
         "vehicle_land_detected": (i_land, {"landed": landed[i_land]}),
     }
-    if (quat is None) != (vel is None):
-        raise ValueError("write_ulog: give both quat and vel (the attitude and the velocity), or neither")
+    quat, vel = state_estimate(quat, vel)
     if quat is not None:
-        q, v = np.asarray(quat, np.float64)[i_est], np.asarray(vel, np.float64)[i_est]
+        q, v = quat[i_est], vel[i_est]
         # NED = (x, −y, −z) of the world and FRD = (x, −y, −z) of FLU: a half turn about x on both sides
         # of the rotation, i.e. its quaternion's y and z negated
         data["vehicle_attitude"] = (i_est, {"q": q * FRD_QUAT})

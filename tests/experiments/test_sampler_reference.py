@@ -5,8 +5,8 @@ import pytest
 
 from mjxsysid import theta as P
 from mjxsysid.experiments import sampler_reference as S
-from mjxsysid.identify.coords import PHYSICAL_PRIOR, visible_from_theta
-from mjxsysid.identify.inference import log_grounded_posterior
+from mjxsysid.identify.coords import visible_from_theta
+from mjxsysid.identify.inference import default_method, log_grounded_posterior
 from mjxsysid.identify.target import N_Y
 from mjxsysid.identify.logdata import prepare
 from support.exact_model_log import exact_model_log
@@ -41,10 +41,17 @@ def test_nuts_and_the_smc_agree_on_an_exact_model_log():
         assert s5 <= m50 <= s95 and m5 <= s50 <= m95, (j, out["smc"][:, j], out["mcmc"][:, j])
         assert out["inside_mcmc"][j], j
         assert ref["rhat"][j] < 1.1, (j, ref["rhat"][j])
-    assert S.default_method(post) in ("laplace_is", "smc")
+    assert default_method(post) in ("laplace_is", "smc")
 
 
 def test_plan_takes_the_levels_in_turn_and_names_a_bad_count():
     assert S.plan(5) == [(0, "clean"), (0, "x1"), (0, "x5_white"), (0, "x20"), (1, "clean")]
     with pytest.raises(ValueError, match="logs"):
         S.plan(0)
+
+
+def test_default_method_takes_the_first_reliable_importance_sampler():
+    ok, broad, few = {"ess_fraction": 0.5, "khat": 0.3}, {"ess_fraction": 0.5, "khat": 0.9}, {"ess_fraction": 0.01, "khat": None}
+    assert default_method({"decoded_is": ok, "laplace_is": ok}) == "decoded_is"
+    assert default_method({"decoded_is": few, "laplace_is": ok}) == "laplace_is"
+    assert default_method({"laplace_is": broad}) == "smc"

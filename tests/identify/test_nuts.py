@@ -65,7 +65,13 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch):
                                  samples=400)
     assert smc["method"] == "smc" and "nuts" not in smc
     from mjxsysid.identify import inference
-    monkeypatch.setattr(inference, "converged", lambda diag: (False, "forced"))   # chains that never mix
+    again = inference.refine_posterior(data, smc, seed=1, calibration=None)      # the same SMC draws, refined after
+    assert again["method"] == post["method"] and again["nuts"] == post["nuts"]
+    for k in ("v_raw", "nuisance", "theta"):
+        np.testing.assert_array_equal(again[k], post[k])
+    with pytest.raises(ValueError, match="SMC posterior without NUTS"):
+        inference.refine_posterior(data, post, seed=1)
+    monkeypatch.setattr(S, "converged", lambda diag: (False, "forced"))   # chains that never mix
     kept = log_grounded_posterior(data, None, force_smc=True, refine=True, seed=1, calibration=None, particles=256,
                                   samples=400)
     assert kept["method"] == "smc" and kept["nuts"]["thin"] > 1 and "SMC" in kept["nuts"]["kept"]

@@ -206,6 +206,16 @@ def test_p_frames_decode_as_orangebox(tmp_path):
     assert [f[0] for f in frames] == [0, 1, 2, 3, 4] and frames[1][3:7] == [-3 + 3, 40 - 85, 700 - 12817, -9 + 7]
 
 
+def test_tag8_4s16_needs_data_version_2():
+    """tag8_4s16 (encoding 8) changed its layout in data version 2: under version 1, or no version
+    header, the decoder refuses it."""
+    from mjxsysid.logs.blackbox_frames import Unsupported, decode_frames
+    data = _p_frames_log()
+    for old in (data.replace(b"H Data version:2", b"H Data version:1"), data.replace(b"H Data version:2\n", b"")):
+        with pytest.raises(Unsupported, match="data version 1"):
+            decode_frames(old, 0, len(old))
+
+
 def test_dshot_command_and_frames():
     np.testing.assert_allclose(B.rotor_command(np.array([[158, 2047, 1102.5, 0]]), 158, 2047),
                                [[1.0, 0.0, np.sqrt(0.5), 0.0]])                         # FR=M2, FL=M4, BL=M3, BR=M1

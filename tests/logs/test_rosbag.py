@@ -201,3 +201,17 @@ def test_numpy_paths_read_as_rosbags(ros1, tmp_path, monkeypatch, kind):
     assert fast["source"] == slow["source"]
     for k in ("t", "imu", "a_cmd", "omega_cmd", "motor", "velocity_body"):
         np.testing.assert_array_equal(fast[k], slow[k])
+
+
+def test_connections_of_one_topic_merge_in_time_order():
+    """A topic's connections merged by receive time: matrices of one message length stay one matrix,
+    messages of other lengths become bytes."""
+    from types import SimpleNamespace as NS
+    a, b = np.arange(12, dtype=np.uint8).reshape(3, 4), 100 + np.arange(8, dtype=np.uint8).reshape(2, 4)
+    bag = NS(messages={1: (np.array([0, 20, 40]), a), 2: (np.array([10, 30]), b)})
+    cons = [NS(id=1, msgtype="m"), NS(id=2, msgtype="m")]
+    msgtype, t, raw = R._merged(bag, cons)
+    assert msgtype == "m" and t.tolist() == [0, 10, 20, 30, 40] and isinstance(raw, np.ndarray)
+    np.testing.assert_array_equal(raw, np.stack([a[0], b[0], a[1], b[1], a[2]]))
+    bag.messages[2] = (np.array([10, 30]), [b"xy", b"z"])
+    assert R._merged(bag, cons)[2] == [a[0].tobytes(), b"xy", a[1].tobytes(), b"z", a[2].tobytes()]
