@@ -78,7 +78,7 @@ def test_noisy_speeds_enter_through_the_fitted_map_and_leave_the_authorities_unb
         assert lo[j] <= TRUE[j] <= hi[j] and abs(med[j] / TRUE[j] - 1) < 0.02, (C.LOG_NAMES[j], lo[j], TRUE[j], hi[j])
     med = _bands(raw)[1]
     for j in (2, 3):
-        assert med[j] / TRUE[j] < 0.975, (C.LOG_NAMES[j], med[j], TRUE[j])
+        assert med[j] / TRUE[j] < 0.98, (C.LOG_NAMES[j], med[j], TRUE[j])
 
 
 def test_a_log_without_speeds_reads_as_before_and_bad_speeds_are_not_used():
