@@ -15,7 +15,7 @@ eRPM) gives two things the motor commands alone do not:
   leaves correlated residuals and a broad band. n_eff is capped where the term alone would pin log τ
   tighter than :data:`SPEED_MODEL_SD` (the map's form, not only its noise, sets how well τ_m is known).
 
-**Per-rotor maps, one Ω_ref.** The four motors differ (a Crazyflie's RPM deck: idle offsets −233 to −642
+**Per-rotor maps, one Ω_ref.** The four motors differ (a Crazyflie's RPM deck: idle offsets −221 to −633
 rad/s; one map for the four fits it at R² 0.856, a map each at 0.976), so each rotor has its own gain and
 offset. They are normalised by one Ω_ref, the mean over rotors of a_i + c_i (each speed at full command) at
 the best τ, the same at every τ: a rotor's faster or slower speed stays in its ŝ_i, so ρ_i (thrust per Ω²
