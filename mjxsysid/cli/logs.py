@@ -59,9 +59,12 @@ def cmd_check_log(args) -> int:
                 print(f"note: {why}")
         if speed is not None:
             print("rotor speeds: " + (f"used by the likelihood: τ_m {1e3 * speed['tau_m_s']:.1f} ms from command to speed "
-                                      f"(delay {1e3 * speed['delay_s']:.0f} ms, R² {speed['r2']:.3f}, n_eff "
-                                      f"{speed['n_eff']:.0f}), Ω_ref {speed['omega_ref_rad_s']:.0f} rad/s, idle offset "
-                                      f"{speed['idle_rad_s']:.0f} rad/s" if speed["rotor_speed_used"]
+                                      f"(delay {1e3 * speed['delay_s']:.0f} ms, R² {speed['r2']:.3f}: "
+                                      f"{'a map per rotor' if speed['per_rotor'] else 'one map'}; one map "
+                                      f"{speed['r2_shared']:.3f}, per rotor {speed['r2_per_rotor']:.3f}; n_eff "
+                                      f"{speed['n_eff']:.0f}), Ω_ref {speed['omega_ref_rad_s']:.0f} rad/s, idle offsets "
+                                      + " ".join(f"{c:.0f}" for c in speed["offset_rad_s"]) + " rad/s"
+                                      if speed["rotor_speed_used"]
                                       else f"not used: {speed['why']}"))
         if not found:
             print("no findings")

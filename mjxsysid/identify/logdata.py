@@ -241,10 +241,11 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     """A log's arrays (``imu`` (T, 6) the reading each row's motor command was given, ``motor``
     (T, 4) normalised rotor-speed commands, optional ``native``, ``rotor_speed``) -> :class:`LogData`.
     ``rates``: the rate term (:data:`RATES`). ``speeds``: what the thrust and torque terms read where the
-    rotor speeds are used: "model", the fitted command→speed map's speeds per τ
-    (:func:`~.speeds.model_features`), or "raw", the measured samples at every τ (a diagnostic)."""
-    if speeds not in ("model", "raw"):
-        raise ValueError(f"speeds must be 'model' or 'raw', got {speeds!r}")
+    rotor speeds are used: "model", the fitted command→speed maps' speeds per τ
+    (:func:`~.speeds.model_features`: a map per rotor), "shared", one map for the four rotors (a diagnostic),
+    or "raw", the measured samples at every τ (a diagnostic)."""
+    if speeds not in ("model", "shared", "raw"):
+        raise ValueError(f"speeds must be 'model', 'shared' or 'raw', got {speeds!r}")
     if rates not in ("innovations", "windows"):
         raise ValueError(f"rates must be 'innovations' or 'windows', got {rates!r}")
     imu = np.asarray(rec["imu"], np.float64)
@@ -279,7 +280,7 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     if n_blk > max_windows:             # as the windows: evenly spaced over a longer log
         b0 = b0[np.linspace(0, n_blk - 1, max_windows).astype(int)]
     bsteps = b0[:, None] + np.arange(B)[None]
-    speed = speed_fit(rec, start)
+    speed = speed_fit(rec, start, per_rotor=speeds != "shared")
     raw = speed["used"] and speeds == "raw"
     if raw:                  # the measured speeds, the same at every τ_m (the speed term reads τ_m)
         s = np.asarray(rec["rotor_speed"], np.float64) / speed["omega_ref_rad_s"]

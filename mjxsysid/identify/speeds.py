@@ -3,19 +3,25 @@
 A log that carries the rotor speeds (``rotor_speed`` (T, 4) rad/s: a Crazyflie RPM deck, Indiflight's
 eRPM) gives two things the motor commands alone do not:
 
-- the thrust and torque terms read the fitted motor model's speeds, ŝ_τ = max(0, a_τ · lag_τ(u)(t − D_τ)
-  + c_τ) / Ω_ref, at every τ of the features' grid (:func:`model_features`): the motor's real map (idle
-  offset, gain, delay) without the sensor's noise in the regressors (measured speeds as regressors
-  are errors in variables: their noise attenuates the fitted authorities). Ω_ref is the speed at full
-  command at the best τ (a + c there), the same at every τ, so the authorities and thrust-to-weight
-  keep one meaning (per full-command thrust);
+- the thrust and torque terms read the fitted motor model's speeds, ŝ_i,τ = max(0, a_i,τ · lag_τ(u_i)(t − D_τ)
+  + c_i,τ) / Ω_ref, at every τ of the features' grid (:func:`model_features`): each motor's real map (idle
+  offset, gain) and the shared delay, without the sensor's noise in the regressors (measured speeds as
+  regressors are errors in variables: their noise attenuates the fitted authorities);
 - τ_m comes from command to speed directly: for each τ of :data:`SPEED_TAU_GRID`, the commands
-  through the first-order lag, Ω ≈ a · lag_τ(u)(t − D) + c over the four rotors, a, c and a transport
-  delay D of :data:`SPEED_DELAYS` profiled; the concentrated Gaussian log-likelihood
-  −(n_eff / 2) log SSE(τ), with n_eff the samples discounted
+  through the first-order lag, Ω_i ≈ a_i · lag_τ(u_i)(t − D) + c_i, a_i and c_i per rotor and a transport
+  delay D of :data:`SPEED_DELAYS` profiled (τ and D shared: one motor type); the concentrated Gaussian
+  log-likelihood −(n_eff / 2) log SSE(τ), with n_eff the samples discounted
   for the residuals' lag-1 autocorrelation φ by (1 − φ) / (1 + φ): a motor model that does not fit
   leaves correlated residuals and a broad band. n_eff is capped where the term alone would pin log τ
   tighter than :data:`SPEED_MODEL_SD` (the map's form, not only its noise, sets how well τ_m is known).
+
+**Per-rotor maps, one Ω_ref.** The four motors differ (a Crazyflie's RPM deck: idle offsets −221 to −633
+rad/s; one map for the four fits it at R² 0.856, a map each at 0.976), so each rotor has its own gain and
+offset. They are normalised by one Ω_ref, the mean over rotors of a_i + c_i (each speed at full command) at
+the best τ, the same at every τ: a rotor's faster or slower speed stays in its ŝ_i, so ρ_i (thrust per Ω²
+relative to the others) keeps its meaning, and the authorities and thrust-to-weight keep theirs (per
+Ω_ref² of thrust). One map for the four replaces them where a rotor's own map is ill-posed (its gain not
+positive, or its speed at full command not), or with ``per_rotor=False``; both fits' R² are reported.
 
 The speeds are used where they are finite from the first row the likelihood reads on, there are at
 least :data:`MIN_SPEED_SAMPLES` of them, the speed rises with the command and the fit's R² is at
@@ -76,13 +82,53 @@ def _not_used(why: str, **kw) -> dict:
     return {"used": False, "why": why, **kw}
 
 
-def speed_fit(rec: dict, start: int = 0) -> dict:
+def _regress(x, y, dm: int, N: int):
+    """Per delay of :data:`SPEED_DELAYS` and rotor, least squares of y (N − dm, 4) on the lag at the samples
+    x (N, 4) read d samples earlier -> (SSE (D, 4), gain a (D, 4), offset c (D, 4)); a 0 where a rotor's
+    lag does not vary."""
+    m = len(y)
+    sy, syy = y.sum(0), (y * y).sum(0)
+    c1 = np.concatenate([np.zeros((1, 4)), np.cumsum(x, 0)])
+    c2 = np.concatenate([np.zeros((1, 4)), np.cumsum(x * x, 0)])
+    out = np.empty((3, len(SPEED_DELAYS), 4))
+    for j, d in enumerate(SPEED_DELAYS):           # a delay of d samples: x[k − d] against y[k]
+        a0, a1 = dm - d, N - d
+        sx, sxx = c1[a1] - c1[a0], c2[a1] - c2[a0]
+        sxy = np.einsum("ij,ij->j", x[a0:a1], y)
+        sxx_c, sxy_c = sxx - sx * sx / m, sxy - sx * sy / m
+        a = np.where(sxx_c > 0, sxy_c / np.where(sxx_c > 0, sxx_c, 1.0), 0.0)
+        out[:, j] = syy - sy * sy / m - a * sxy_c, a, (sy - a * sx) / m
+    return out
+
+
+def _pooled(x, y, dm: int, N: int):
+    """:func:`_regress` with one a and c for the four rotors -> (SSE (D,), a (D,), c (D,))."""
+    m = y.size
+    sy, syy = float(y.sum()), float((y * y).sum())
+    c1 = np.concatenate([[0.0], np.cumsum(x.sum(1))])
+    c2 = np.concatenate([[0.0], np.cumsum((x * x).sum(1))])
+    out = np.empty((3, len(SPEED_DELAYS)))
+    for j, d in enumerate(SPEED_DELAYS):
+        a0, a1 = dm - d, N - d
+        sx, sxx = c1[a1] - c1[a0], c2[a1] - c2[a0]
+        sxy = float(np.einsum("ij,ij->", x[a0:a1], y))
+        sxx_c, sxy_c = sxx - sx * sx / m, sxy - sx * sy / m
+        a = sxy_c / sxx_c if sxx_c > 0 else 0.0
+        out[:, j] = syy - sy * sy / m - a * sxy_c, a, (sy - a * sx) / m
+    return out
+
+
+def speed_fit(rec: dict, start: int = 0, per_rotor: bool = True) -> dict:
     """A log's rotor speeds (``rotor_speed`` (T, 4) rad/s on the rows, ``native``'s where resampled) against
-    its commands ``motor`` (T, 4), from row ``start`` -> {used, why, and where fitted: tau_m_s (the best τ),
-    delay_s (the best delay), tau_m_s_no_delay and r2_no_delay (the fit without a delay), omega_ref_rad_s (a + c), idle_rad_s (c), r2, r2_no_lag (τ at the grid's smallest), n (samples × rotors),
-    phi (lag-1 autocorrelation of the residuals), n_eff, samples (what was read), and, used or not, the
-    arrays ``log_sse`` (Gs,) log SSE(τ) on :data:`SPEED_TAU_GRID` and ``model`` (Gs, 3) each τ's
-    [a rad/s, c rad/s, delay D s] (D profiled, a and c least squares)}."""
+    its commands ``motor`` (T, 4), from row ``start``; a map per rotor (``per_rotor``) or one map for the
+    four -> {used, why, and where fitted: per_rotor (the map used: per rotor
+    unless a rotor's map is ill-posed), tau_m_s (the best τ), delay_s (the best delay), tau_m_s_no_delay and
+    r2_no_delay (the fit without a delay), omega_ref_rad_s (the mean over rotors of a_i + c_i), idle_rad_s
+    (the mean c_i), gain_rad_s and offset_rad_s (a_i, c_i: 4 each), r2, r2_shared and r2_per_rotor (one
+    map, per-rotor maps), r2_no_lag (τ at the grid's smallest), n (samples × rotors), phi (lag-1
+    autocorrelation of the residuals), n_eff, samples (what was read), and, used or not, the arrays
+    ``log_sse`` (Gs,) log SSE(τ) on :data:`SPEED_TAU_GRID` and ``model`` (Gs, 9) each τ's
+    [a_i (4) rad/s, c_i (4) rad/s, delay D s] (D profiled, a_i and c_i least squares)}."""
     if rec.get("rotor_speed") is None:
         return _not_used("the log carries no rotor speeds")
     w_rows = np.asarray(rec["rotor_speed"], np.float64)
@@ -100,60 +146,62 @@ def speed_fit(rec: dict, start: int = 0) -> dict:
         return _not_used(f"{len(ts)} speed samples per rotor; the fit needs {MIN_SPEED_SAMPLES + SPEED_DELAYS[-1]}")
     dm = int(SPEED_DELAYS[-1])
     y = w[dm:]                                      # (N − dm, 4): the samples every delay reads
-    m = y.size
-    sy, syy = float(y.sum()), float((y * y).sum())
-    syy_c = syy - sy * sy / m
+    n = y.size
+    syy_c = float(((y - y.mean()) ** 2).sum())
     if not syy_c > 0:
         return _not_used("the rotor speeds do not vary (all equal: zeros, or a held value)")
-    n = m
     floor = n * SPEED_RESOLUTION ** 2 / 12.0
     idx, wt = _interpolator(t, ts)
     N = len(ts)
-    sse = np.empty((len(SPEED_TAU_GRID), len(SPEED_DELAYS)))
-    ab = np.zeros((len(SPEED_TAU_GRID), len(SPEED_DELAYS), 2))     # a, c of each (τ, delay)
+    Gs, D = len(SPEED_TAU_GRID), len(SPEED_DELAYS)
+    per, shared = np.empty((Gs, 3, D, 4)), np.empty((Gs, 3, D))
     for i, tau in enumerate(SPEED_TAU_GRID):
         s_rows = row_speed(u, tau)
         x = (1 - wt) * s_rows[idx] + wt * s_rows[idx + 1]            # (N, 4) the lag at the samples' times
-        c1 = np.concatenate([[0.0], np.cumsum(x.sum(1))])
-        c2 = np.concatenate([[0.0], np.cumsum((x * x).sum(1))])
-        for j, d in enumerate(SPEED_DELAYS):           # a delay of d samples: x[k − d] against y[k]
-            a0, a1 = dm - d, N - d
-            sx, sxx = c1[a1] - c1[a0], c2[a1] - c2[a0]
-            sxy = float(np.einsum("ij,ij->", x[a0:a1], y))
-            sxx_c, sxy_c = sxx - sx * sx / m, sxy - sx * sy / m
-            sse[i, j] = syy_c - (sxy_c * sxy_c / sxx_c if sxx_c > 0 else 0.0)
-            ab[i, j, 0] = sxy_c / sxx_c if sxx_c > 0 else 0.0
-            ab[i, j, 1] = (sy - ab[i, j, 0] * sx) / m
-    sse = np.maximum(sse, 0.0) + floor
+        per[i], shared[i] = _regress(x, y, dm, N), _pooled(x, y, dm, N)
+    sse_p = np.maximum(per[:, 0].sum(-1), 0.0) + floor              # (Gs, D)
+    sse_s = np.maximum(shared[:, 0], 0.0) + floor
+    r2_p, r2_s = 1 - (sse_p.min() - floor) / syy_c, 1 - (sse_s.min() - floor) / syy_c
+    gp, dp = np.unravel_index(int(np.argmin(sse_p)), sse_p.shape)
+    ap, cp = per[gp, 1, dp], per[gp, 2, dp]
+    posed = bool(np.all(ap > 0) and np.all(ap + cp > 0))
+    use_p = per_rotor and posed
+    if use_p:
+        sse, coef = sse_p, per[:, 1:]                                   # (Gs, D), (Gs, 2, D, 4)
+    else:
+        sse, coef = sse_s, np.repeat(shared[:, 1:, :, None], 4, -1)
     g, dj = np.unravel_index(int(np.argmin(sse)), sse.shape)
     dbest = np.argmin(sse, 1)                      # (Gs,) each τ's delay
-    model = np.stack([ab[np.arange(len(dbest)), dbest, 0], ab[np.arange(len(dbest)), dbest, 1], dbest], 1)
+    ab = coef[np.arange(Gs), :, dbest]             # (Gs, 2, 4)
+    dt_s = float(np.median(np.diff(ts)))
+    model = np.concatenate([ab[:, 0], ab[:, 1], dbest[:, None] * dt_s], 1)
     sse_d0, sse = sse[:, 0], sse.min(1)            # the delay profiled out
     tau = float(SPEED_TAU_GRID[g])
+    a, c = ab[g]
     s_rows = row_speed(u, tau)
     x = ((1 - wt) * s_rows[idx] + wt * s_rows[idx + 1])[dm - int(SPEED_DELAYS[dj]):N - int(SPEED_DELAYS[dj])]
-    dt_s = float(np.median(np.diff(ts)))
-    y = y.ravel()
-    A = np.stack([x.ravel(), np.ones(n)], 1)
-    (a, c), *_ = np.linalg.lstsq(A, y, rcond=None)
-    r = (y - A @ np.array([a, c])).reshape(-1, 4)
+    r = y - (a * x + c)
     r = r - r.mean(0)
     den = float((r * r).sum())
     phi = float((r[1:] * r[:-1]).sum()) / den if den > 0 else 0.0
     n_eff = n * ((1 - phi) / (1 + phi) if phi > 0 else 1.0)
     g0 = int(np.argmin(sse_d0))
-    out = {"tau_m_s": tau, "delay_s": float(SPEED_DELAYS[dj] * dt_s), "omega_ref_rad_s": float(a + c), "idle_rad_s": float(c),
-           "r2": float(1 - (sse[g] - floor) / syy_c), "r2_no_lag": float(1 - (sse[0] - floor) / syy_c),
+    w_ref = float(np.mean(a + c))
+    out = {"per_rotor": use_p, "tau_m_s": tau, "delay_s": float(SPEED_DELAYS[dj] * dt_s), "omega_ref_rad_s": w_ref,
+           "idle_rad_s": float(np.mean(c)), "gain_rad_s": [float(v) for v in a], "offset_rad_s": [float(v) for v in c],
+           "r2": float(1 - (sse[g] - floor) / syy_c), "r2_shared": float(r2_s), "r2_per_rotor": float(r2_p),
+           "r2_no_lag": float(1 - (sse[0] - floor) / syy_c),
            "tau_m_s_no_delay": float(SPEED_TAU_GRID[g0]), "r2_no_delay": float(1 - (sse_d0[g0] - floor) / syy_c), "n": int(n),
-           "phi": phi, "n_eff": float(n_eff), "samples": what, "log_sse": np.log(sse),
-           "model": np.concatenate([model[:, :2], (model[:, 2:] * dt_s)], 1)}
-    if not a > 0 or not a + c > 0:
-        return _not_used(f"the rotor speeds do not rise with the command (Ω ≈ {a:.3g} · lag(u) {c:+.3g})", **out)
+           "phi": phi, "n_eff": float(n_eff), "samples": what, "log_sse": np.log(sse), "model": model}
+    if not np.all(a > 0) or not w_ref > 0:
+        return _not_used(f"the rotor speeds do not rise with the command (Ω ≈ {np.mean(a):.3g} · lag(u) "
+                         f"{np.mean(c):+.3g})", **out)
     if out["r2"] < MIN_SPEED_R2:
         return _not_used(f"the rotor speeds do not follow the commands through a first-order lag (R² {out['r2']:.2f} "
                          f"< {MIN_SPEED_R2}: another motor model, or not speeds)", **out)
-    return {"used": True, "why": f"τ_m from command to speed (R² {out['r2']:.3f}, {what}); the thrust and torque "
-                                 f"terms read the fitted speeds over Ω_ref {a + c:.0f} rad/s", **out}
+    maps = "per-rotor maps" if use_p else ("one map" + ("" if not per_rotor else " (a rotor's own map is ill-posed)"))
+    return {"used": True, "why": f"τ_m from command to speed ({maps}, R² {out['r2']:.3f}, {what}); the thrust and "
+                                 f"torque terms read the fitted speeds over Ω_ref {w_ref:.0f} rad/s", **out}
 
 
 def _interpolator(t, ts):
@@ -197,12 +245,11 @@ def speed_term(fit: dict) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _model_at(fit: dict, tau: float):
-    """The fitted map at the node of :data:`SPEED_TAU_GRID` nearest ``tau``: (a / Ω_ref, c / Ω_ref, the delay
-    in whole rows)."""
+    """The fitted map at the node of :data:`SPEED_TAU_GRID` nearest ``tau``: (a_i / Ω_ref (4,), c_i / Ω_ref (4,),
+    the delay in whole rows)."""
     i = int(np.argmin(np.abs(np.log(SPEED_TAU_GRID) - np.log(tau))))
-    a, c, d = fit["model"][i]
-    w = fit["omega_ref_rad_s"]
-    return a / w, c / w, int(round(d / DT))
+    m, w = fit["model"][i], fit["omega_ref_rad_s"]
+    return m[:4] / w, m[4:8] / w, int(round(m[8] / DT))
 
 
 def _delayed(rows, d: int):
@@ -211,8 +258,8 @@ def _delayed(rows, d: int):
 
 
 def model_steps(u, fit: dict, tau: float):
-    """Commands u (T, 4) through the fitted map at τ (:func:`speed_fit`'s ``model``), ŝ = max(0, a · lag_τ(u)(t − D)
-    + c) / Ω_ref, the lag starting at u[0] -> (each step's mean ŝ² (T, 4), ŝ at each step's end (T, 4)).
+    """Commands u (T, 4) through the fitted map at τ (:func:`speed_fit`'s ``model``), ŝ_i = max(0, a_i · lag_τ(u_i)(t − D)
+    + c_i) / Ω_ref, the lag starting at u[0] -> (each step's mean ŝ² (T, 4), ŝ at each step's end (T, 4)).
     The mean is exact where ŝ stays positive over the step (ŝ is affine in the lag), else the mean of
     its two ends' squares."""
     al, be, d = _model_at(fit, tau)

@@ -9,7 +9,7 @@ DT = 0.002
 
 
 def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, closed_loop=False, drag=None,
-                  speed_noise=None, motor_delay=0):
+                  speed_noise=None, motor_delay=0, rotor_gain=None, rotor_offset=None):
     """Fly θ (19,) open loop around hover with a rate damper and chirp excitation -> imu, motor.
     ``closed_loop``: instead, a rate P controller on the *measured* (noisy) rates tracking a slow
     sinusoid: the commands react to the gyro's noise, the feedback that biases an equation error.
@@ -17,7 +17,9 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
     −drag · v_z enters the specific force, and the log's ``velocity_body``. ``speed_noise`` (rad/s): the
     log carries the true rotor speeds (``rotor_speed`` (T, 4), row k the speed at its time) with this white
     noise. ``motor_delay`` (steps): the motors act on each logged command that many steps late (they hold
-    the hover command before)."""
+    the hover command before). ``rotor_gain`` (4,), ``rotor_offset`` (4,) rad/s: each rotor's speed is
+    Ω_i = rotor_gain_i · Ω_max · s_i + rotor_offset_i (s_i its command through the lag; default 1 and 0), the
+    thrust η k_T Ω_i², and each rotor's hover command gives the hover speed (the vehicle trimmed)."""
     rng = np.random.default_rng(seed)
     t = np.asarray(theta, np.float64)
     eta, tau, wmax = t[P.ETA], t[P.TAU_M], t[P.OMEGA_MAX]
@@ -25,7 +27,9 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
     kap = t[P.KTAU] / kt
     d = P.ROTOR_DIRECTIONS.astype(np.float64)
     n = int(seconds / DT)
-    hover = np.sqrt(m * P.GRAVITY / (4 * kt * eta)) / wmax
+    gain = wmax * (np.ones(4) if rotor_gain is None else np.asarray(rotor_gain, np.float64))
+    off = np.zeros(4) if rotor_offset is None else np.asarray(rotor_offset, np.float64)
+    hover = (np.sqrt(m * P.GRAVITY / (4 * kt * eta)) - off) / gain
     w, meas = np.zeros(3), np.zeros(3)
     s = hover.copy()
     imu, mot, speed = np.zeros((n, 6)), np.zeros((n, 4)), np.zeros((n, 4))
@@ -43,15 +47,16 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
                              + P.YAW_SIGNS * cmd[2]), 0, 1)
         mot[k] = u
         u = mot[k - motor_delay] if k >= motor_delay else hover
-        speed[k] = s * wmax
+        speed[k] = gain * s + off
         d0 = s - u
         ms = u * u + 2 * u * d0 * tau / DT * (1 - a) + d0 * d0 * tau / (2 * DT) * (1 - a * a)
+        m1 = u + d0 * tau / DT * (1 - a)                        # the mean of s over the step
         s = u + d0 * a
-        T = eta * kt * wmax**2 * ms
+        T = eta * kt * (gain * gain * ms + 2 * gain * off * m1 + off * off)
         tq = np.array([arm * d[:, 1] @ T, -arm * d[:, 0] @ T, kap * P.YAW_SIGNS @ T]) + t[P.TAU_EXT]
         w = w + DT * (tq - np.cross(w, J * w)) / J
         if k + 1 < n:
-            sf = (eta * kt * wmax**2 * s * s).sum() / m
+            sf = (eta * kt * (gain * s + off) ** 2).sum() / m
             if drag is not None:
                 sf -= drag * (0.8 + 0.7 * np.sin(0.9 * (k + 1) * DT))
             meas = w + gyro_noise * rng.standard_normal(3)
