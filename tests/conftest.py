@@ -13,9 +13,9 @@ def posterior_at_test_resolution():
     importance draws and 512 SMC particles instead of 4096 and 2048: the tier checks what they
     compute, not their resolution (tests/identify runs its coverage checks on 512 particles too), and
     without the SMC's NUTS refinement unless a test asks for it (``refine=True``)."""
-    from mjxsysid.identify import config
+    from mjxsysid.identify import posterior_config as pc
     # NUTS's compiles: tests/identify/test_nuts.py and the tests that ask for it (refine=True)
-    config.DEFAULT = config.PosteriorConfig(draws=1024, particles=512, refine=False)
+    pc.DEFAULT = pc.PosteriorConfig(draws=1024, particles=512, refine=False)
     yield
 
 

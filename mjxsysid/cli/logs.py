@@ -83,6 +83,6 @@ def _rotor_speed(rec: dict) -> dict | None:
     None for a log without them."""
     if rec.get("rotor_speed") is None:
         return None
-    from mjxsysid.identify.logdata import first_row
-    from mjxsysid.identify.speeds import report, speed_fit
+    from mjxsysid.identify.speeds import report
+    from mjxsysid.logs.speedmap import first_row, speed_fit
     return report(speed_fit(rec, first_row(len(rec["motor"]))))

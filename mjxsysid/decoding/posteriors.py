@@ -113,12 +113,13 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     the measured rotor speeds' use (``rotor_speed``: rotor_speed_used, why, the command→speed fit)
     and the information gap. ``rates``: the likelihood's rate term (default
     :data:`~mjxsysid.identify.logdata.RATES`); ``refine``: whether an SMC's draws are refined by NUTS
-    (default: the posterior config's, :data:`~mjxsysid.identify.config.DEFAULT`). Returns ``summary``."""
+    (default: the posterior config's, :data:`~mjxsysid.identify.posterior_config.DEFAULT`). Returns ``summary``."""
     from mjxsysid.identify import logspace as L
     from mjxsysid.identify.gap import information_gap, joint_summary, log_summary, seen_by_name
-    from mjxsysid.identify.speeds import report, speed_fit
+    from mjxsysid.identify.speeds import report
+    from mjxsysid.logs.speedmap import first_row, speed_fit
     from mjxsysid.identify.inference import log_grounded_posterior
-    from mjxsysid.identify.logdata import LogTooShort, first_row
+    from mjxsysid.identify.logdata import LogTooShort
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     try:
         post = log_grounded_posterior(rec, final, seed=seed, rates=rates, refine=refine)

@@ -4,7 +4,7 @@ The room is callable: ``mjxsysid.identify(log)`` is :func:`.logposterior.identif
 :class:`~.logposterior.LogPosterior`). :mod:`.logspace` (the log space's one table: v, h, the
 nuisances, the vectors x, y, z and the reported quantities, by name), :mod:`.coords` (θ in the
 coordinates an IMU log sees, the stated physical prior), :mod:`.likelihood` (the IMU given the motor
-commands, windowed equation error), :mod:`.config` (how it is computed: :class:`~.config.PosteriorConfig`),
+commands, windowed equation error), :mod:`.posterior_config` (how it is computed: :class:`~.posterior_config.PosteriorConfig`),
 :mod:`.inference` (the decoded ensemble as proposal, Laplace
 importance sampling, tempered SMC; one log or many at once) with :mod:`.target`, :mod:`.mode` and
 :mod:`.smc`, :mod:`.calibrate` (the bands calibrated by simulation, the model
@@ -13,7 +13,7 @@ check), :mod:`.gap` (the information gap between the decoders and the log).
 import sys
 import types
 
-from mjxsysid.identify.config import PosteriorConfig
+from mjxsysid.identify.posterior_config import PosteriorConfig
 from mjxsysid.identify.coords import LOG_NAMES, PHYSICAL_PRIOR, PhysicalPrior, log_quantities
 from mjxsysid.identify.inference import log_grounded_posterior, log_grounded_posteriors
 from mjxsysid.identify.logposterior import LogPosterior, identify

@@ -45,7 +45,7 @@ from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import SHIPPED, calibrate, load, log_features
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, theta_from, visible_from_theta
 from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
-from mjxsysid.identify.config import PosteriorConfig, resolve
+from mjxsysid.identify.posterior_config import PosteriorConfig, resolve
 from mjxsysid.identify.logdata import LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
                                     _ls_jacobian_logs, find_modes)
@@ -224,7 +224,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     """The posterior of a flight log (``rec_or_data``: the arrays of ``read_log`` or a
     :class:`LogData`) under the physical ``prior``, with ``decoded_theta`` (S, 19) — the decoders'
     samples of this log, or None — as the proposal (module doc). ``config``: a
-    :class:`~.config.PosteriorConfig` (None: :data:`~.config.DEFAULT`); ``settings``: fields of it
+    :class:`~.posterior_config.PosteriorConfig` (None: :data:`~.posterior_config.DEFAULT`); ``settings``: fields of it
     that override it (samples, draws, particles, n_mcmc, max_stages, starts, force_smc, refine, rates,
     calibration; a :class:`LogData` carries its own rates). It is :func:`log_grounded_posteriors` of one log.
 

@@ -16,8 +16,9 @@ import numpy as np
 from scipy.signal import lfilter
 
 from mjxsysid.identify.logspace import GYRO, N_CHANNELS
-from mjxsysid.identify.speeds import (model_features, model_step_integrals, report, speed_features, speed_fit,
+from mjxsysid.identify.speeds import (model_features, model_step_integrals, report, speed_features,
                                       speed_step_integrals, speed_term)
+from mjxsysid.logs.speedmap import SKIP_S, first_row, speed_fit
 
 DT = 0.002
 """s: the log's row spacing (500 Hz)."""
@@ -52,12 +53,6 @@ accelerometer blocks (128 s of 0.5 s blocks). The posterior's cost grows with th
 windows made `decode --log` 72–92 s slower on 2 cores; a 10-minute log's 1,198 blocks, padded to
 2,048, made its SMC 4× slower than a 10 s log's); a longer log's extra windows would only narrow
 bands that the discrepancy and correlation terms, not the count, already set."""
-SKIP_S = (0.2, 1.0)
-"""s: the start of the log not used — a tenth of it, within these bounds. The rotor speeds are
-reconstructed from the commands starting at the first command; a log that starts with rotors at
-another speed (a take-off, a simulator's hover start) is wrong there for about 5 τ_m, and those
-windows would dominate the residuals (a 10 s MJX flight's rate residuals are 10× larger with
-0.2 s skipped than with 1 s)."""
 TAU_GRID = np.exp(np.linspace(np.log(0.0015), np.log(0.35), 64))
 """s: the motor time constants the window features are computed at (log-spaced)."""
 RATES = "windows"
@@ -320,11 +315,6 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
                                        "drag_xy": drag_per_mass_xy(rec, bsteps + 1), "step_f": step_f,
                                        "speed": report(speed)})
     return data
-
-
-def first_row(T: int) -> int:
-    """The first row of a log of T rows that the likelihood reads (:data:`SKIP_S`)."""
-    return int(round(float(np.clip(0.1 * T * DT, *SKIP_S)) / DT))
 
 
 def has_velocity(rec: dict) -> bool:

@@ -106,7 +106,7 @@ def identify(log, decoded_theta=None, *, segment=None, **kw) -> LogPosterior:
     """The log-grounded posterior of a flight log: a path of any known format
     (:func:`mjxsysid.logs.csvlog.read_any_log`, cut at its airborne ``segment``) or a log's arrays ->
     :class:`LogPosterior`. ``decoded_theta``: the decoders' samples of the log (S, 19) as the proposal,
-    or None (the prior and the log alone); ``kw``: seed, ``config`` (a :class:`~.config.PosteriorConfig`)
+    or None (the prior and the log alone); ``kw``: seed, ``config`` (a :class:`~.posterior_config.PosteriorConfig`)
     and any of its fields (those of :func:`~mjxsysid.identify.inference.log_grounded_posterior`)."""
     if isinstance(log, (str, Path)):
         from mjxsysid.logs.csvlog import read_any_log

@@ -51,7 +51,7 @@ def test_fit_reaches_its_coverage_on_fresh_logs_and_moves_a_biased_median():
 
 
 def test_the_shipped_table_is_applied_by_default():
-    from mjxsysid.identify.config import PosteriorConfig
+    from mjxsysid.identify.posterior_config import PosteriorConfig
     assert PosteriorConfig().calibration == "shipped"
     table = C.load()
     assert table["logs"] >= 500 and len(table["coords"]) == N_V

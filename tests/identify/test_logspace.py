@@ -226,7 +226,7 @@ def test_posterior_config_validates_and_overrides():
     override a given config, None keeps its field (calibration's None means the raw posterior)."""
     import pytest
 
-    from mjxsysid.identify import config as K
+    from mjxsysid.identify import posterior_config as K
     base = K.PosteriorConfig(samples=200, refine=False)
     assert K.resolve(base, samples=K.UNSET, draws=None) == base
     assert K.resolve(base, draws=512).draws == 512 and K.resolve(base, calibration=None).calibration is None

@@ -11,7 +11,8 @@ from mjxsysid.identify import logdata as LD
 from mjxsysid.identify.calibrate import SPEED_WHY
 from mjxsysid.identify.inference import log_grounded_posterior, log_target
 from mjxsysid.identify.logspace import LOG_TAU_M
-from mjxsysid.identify.speeds import SPEED_MODEL_SD, speed_fit, speed_term
+from mjxsysid.identify.speeds import SPEED_MODEL_SD, speed_term
+from mjxsysid.logs.speedmap import first_row, speed_fit
 from support.exact_model_log import synthetic_log
 from support.paths import SHARED_DATA, require_shared
 
@@ -30,7 +31,7 @@ def _bands(post):
 
 def test_speed_term_reads_tau_m_and_the_calibrated_band_holds_it():
     rec = _log()
-    fit = speed_fit(rec, LD.first_row(len(rec["motor"])))
+    fit = speed_fit(rec, first_row(len(rec["motor"])))
     assert fit["used"] and fit["tau_m_s"] == pytest.approx(THETA[P.TAU_M], rel=0.03) and fit["delay_s"] == 0
     assert fit["omega_ref_rad_s"] == pytest.approx(THETA[P.OMEGA_MAX], rel=0.01) and fit["n_eff"] > 5000
     n, _, sd = speed_term(fit)[1]          # the model floor: τ_m's band no narrower than the map's form allows
@@ -114,7 +115,7 @@ def test_real_logs_with_rotor_speeds_use_them():
     fits = []
     for p in paths:
         rec = read_any_log(p)
-        fits.append(speed_fit(rec, LD.first_row(len(rec["motor"]))))
+        fits.append(speed_fit(rec, first_row(len(rec["motor"]))))
         assert fits[-1]["used"] and fits[-1]["samples"].startswith("native"), (p, fits[-1]["why"])
     assert 0.020 < fits[0]["tau_m_s"] < 0.030 and fits[0]["r2"] > 0.95
 
@@ -129,7 +130,7 @@ def test_per_rotor_maps_recover_each_motor_and_keep_the_authorities():
     w = THETA[P.OMEGA_MAX]
     rec = synthetic_log(THETA, seconds=4.0, gyro_noise=0.02, acc_noise=0.2, seed=3, speed_noise=5.0,
                         rotor_gain=gain, rotor_offset=off * w)
-    fit = speed_fit(rec, LD.first_row(len(rec["motor"])))
+    fit = speed_fit(rec, first_row(len(rec["motor"])))
     assert fit["per_rotor"] and fit["r2"] > 0.98 and fit["r2_shared"] < 0.8, (fit["r2"], fit["r2_shared"])
     np.testing.assert_allclose(np.array(fit["gain_rad_s"]) / w, gain, rtol=0.01)
     np.testing.assert_allclose(np.array(fit["offset_rad_s"]) / w, off, atol=0.005)

@@ -189,11 +189,10 @@ def rotor_speed_lag(rec: dict) -> dict | None:
 
 def check_rotor_speed(rec) -> list[Finding]:
     """A warning where a log carries rotor speeds that the log-grounded likelihood will not use
-    (:func:`~mjxsysid.identify.speeds.speed_fit`: not finite, too few, not rising with the command, or not
+    (:func:`~mjxsysid.logs.speedmap.speed_fit`: not finite, too few, not rising with the command, or not
     following it through a first-order lag, R² < 0.5: another motor model, or not speeds); where used, the
     fit is reported by ``check-log`` and ``decode`` (``_log_grounded.rotor_speed``)."""
-    from mjxsysid.identify.logdata import first_row
-    from mjxsysid.identify.speeds import speed_fit
+    from mjxsysid.logs.speedmap import first_row, speed_fit
     if rec.get("rotor_speed") is None:
         return []
     fit = speed_fit(rec, first_row(len(rec["motor"])))

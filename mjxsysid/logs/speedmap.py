@@ -1,0 +1,200 @@
+"""The map from motor commands to measured rotor speeds, fitted from a log that carries them
+(``rotor_speed`` (T, 4) rad/s: a Crazyflie RPM deck, Indiflight's eRPM): for each τ of
+:data:`SPEED_TAU_GRID`, the commands through a first-order lag, Ω_i ≈ a_i · lag_τ(u_i)(t − D) + c_i (per
+rotor, or one map for the four), a, c and a transport delay D of :data:`SPEED_DELAYS` profiled. What
+``check-log`` reports and what the log-grounded likelihood reads (:mod:`mjxsysid.identify.speeds`).
+
+The fit starts at :func:`first_row` (:data:`SKIP_S`): a log whose rotors start at another speed than
+its first command (a take-off, a simulator's hover start) is wrong there for about 5 τ_m.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.signal import lfilter
+
+SKIP_S = (0.2, 1.0)
+"""s: the start of the log not used — a tenth of it, within these bounds. The rotor speeds are
+reconstructed from the commands starting at the first command; a log that starts with rotors at
+another speed (a take-off, a simulator's hover start) is wrong there for about 5 τ_m, and those
+windows would dominate the residuals (a 10 s MJX flight's rate residuals are 10× larger with
+0.2 s skipped than with 1 s)."""
+DT = 0.002
+"""s: the log's row spacing (500 Hz)."""
+SPEED_TAU_GRID = np.exp(np.linspace(np.log(0.0015), np.log(0.35), 8 * 63 + 1))
+"""s: the time constants the speed term is computed at: :data:`~.logdata.TAU_GRID`'s range and nodes,
+8× finer (1.1 % apart). The term is sharp (thousands of samples), and it is interpolated linearly in
+log τ: on the rate features' grid (9 % apart) its maximum would sit on a node."""
+SPEED_DELAYS = np.arange(0, 21)
+"""Speed samples (0–40 ms at 500 Hz): the transport delays between command and measured speed the fit profiles out
+(the speed at t follows the commands up to t − delay through the lag; measured on the Indiflight log's
+filtered ``omega`` field: 16–20 ms, docs/logs.md)."""
+MIN_SPEED_SAMPLES = 500
+"""Speed samples per rotor the fit needs (1 s at 500 Hz)."""
+MIN_SPEED_R2 = 0.5
+"""The command→speed fit's R² below which the speeds are not used (another motor model, or not speeds)."""
+SPEED_RESOLUTION = 1.0
+"""rad/s: a logged speed's resolution (Indiflight logs whole rad/s; an RPM deck 1 rpm): its rounding
+variance (q² / 12 per sample) floors the sum of squares, so an exact simulated speed is not infinitely sharp."""
+
+
+def row_speed(u, tau: float):
+    """Commands u (T, 4) held over each 2 ms step through the lag of time constant ``tau``, starting at
+    u[0] -> the speed at each row's time (T, 4): row k sees the commands of rows < k."""
+    a = np.exp(-DT / tau)
+    s_end = lfilter([1 - a], [1, -a], u, axis=0, zi=(a * u[0])[None])[0]
+    return np.concatenate([u[:1], s_end[:-1]], 0)
+
+
+def _samples(rec: dict, start: int):
+    """The speed samples the fit reads: (their times (N,) s, speeds (N, 4) rad/s, rows' times (T,), what
+    they are). The native samples where the log says the speeds were resampled, else the rows; from
+    row ``start`` on."""
+    T = len(rec["motor"])
+    t = np.asarray(rec["t"], np.float64) if "t" in rec else DT * np.arange(T)
+    nat = (rec.get("native") or {}).get("rotor_speed")
+    if nat is not None and len(nat[0]) > 2:
+        tn, wn = np.asarray(nat[0], np.float64), np.asarray(nat[1], np.float64)
+        keep = (tn >= t[start]) & (tn <= t[-1])
+        rate = 1.0 / max(float(np.median(np.diff(tn))), 1e-9)
+        return tn[keep], wn[keep], t, f"native samples ({rate:.0f} Hz)"
+    return t[start:], np.asarray(rec["rotor_speed"], np.float64)[start:], t, "the log's 2 ms rows"
+
+
+def _not_used(why: str, **kw) -> dict:
+    return {"used": False, "why": why, **kw}
+
+
+def _regress(x, y, dm: int, N: int):
+    """Per delay of :data:`SPEED_DELAYS` and rotor, least squares of y (N − dm, 4) on the lag at the samples
+    x (N, 4) read d samples earlier -> (SSE (D, 4), gain a (D, 4), offset c (D, 4)); a 0 where a rotor's
+    lag does not vary."""
+    m = len(y)
+    sy, syy = y.sum(0), (y * y).sum(0)
+    c1 = np.concatenate([np.zeros((1, 4)), np.cumsum(x, 0)])
+    c2 = np.concatenate([np.zeros((1, 4)), np.cumsum(x * x, 0)])
+    out = np.empty((3, len(SPEED_DELAYS), 4))
+    for j, d in enumerate(SPEED_DELAYS):           # a delay of d samples: x[k − d] against y[k]
+        a0, a1 = dm - d, N - d
+        sx, sxx = c1[a1] - c1[a0], c2[a1] - c2[a0]
+        sxy = np.einsum("ij,ij->j", x[a0:a1], y)
+        sxx_c, sxy_c = sxx - sx * sx / m, sxy - sx * sy / m
+        a = np.where(sxx_c > 0, sxy_c / np.where(sxx_c > 0, sxx_c, 1.0), 0.0)
+        out[:, j] = syy - sy * sy / m - a * sxy_c, a, (sy - a * sx) / m
+    return out
+
+
+def _pooled(x, y, dm: int, N: int):
+    """:func:`_regress` with one a and c for the four rotors -> (SSE (D,), a (D,), c (D,))."""
+    m = y.size
+    sy, syy = float(y.sum()), float((y * y).sum())
+    c1 = np.concatenate([[0.0], np.cumsum(x.sum(1))])
+    c2 = np.concatenate([[0.0], np.cumsum((x * x).sum(1))])
+    out = np.empty((3, len(SPEED_DELAYS)))
+    for j, d in enumerate(SPEED_DELAYS):
+        a0, a1 = dm - d, N - d
+        sx, sxx = c1[a1] - c1[a0], c2[a1] - c2[a0]
+        sxy = float(np.einsum("ij,ij->", x[a0:a1], y))
+        sxx_c, sxy_c = sxx - sx * sx / m, sxy - sx * sy / m
+        a = sxy_c / sxx_c if sxx_c > 0 else 0.0
+        out[:, j] = syy - sy * sy / m - a * sxy_c, a, (sy - a * sx) / m
+    return out
+
+
+def speed_fit(rec: dict, start: int = 0, per_rotor: bool = True) -> dict:
+    """A log's rotor speeds (``rotor_speed`` (T, 4) rad/s on the rows, ``native``'s where resampled) against
+    its commands ``motor`` (T, 4), from row ``start``; a map per rotor (``per_rotor``) or one map for the
+    four -> {used, why, and where fitted: per_rotor (the map used: per rotor
+    unless a rotor's map is ill-posed), tau_m_s (the best τ), delay_s (the best delay), tau_m_s_no_delay and
+    r2_no_delay (the fit without a delay), omega_ref_rad_s (the mean over rotors of a_i + c_i), idle_rad_s
+    (the mean c_i), gain_rad_s and offset_rad_s (a_i, c_i: 4 each), r2, r2_shared and r2_per_rotor (one
+    map, per-rotor maps), r2_no_lag (τ at the grid's smallest), n (samples × rotors), phi (lag-1
+    autocorrelation of the residuals), n_eff, samples (what was read), and, used or not, the arrays
+    ``log_sse`` (Gs,) log SSE(τ) on :data:`SPEED_TAU_GRID` and ``model`` (Gs, 9) each τ's
+    [a_i (4) rad/s, c_i (4) rad/s, delay D s] (D profiled, a_i and c_i least squares)}."""
+    if rec.get("rotor_speed") is None:
+        return _not_used("the log carries no rotor speeds")
+    w_rows = np.asarray(rec["rotor_speed"], np.float64)
+    T = len(rec["motor"])
+    if w_rows.shape != (T, 4):
+        return _not_used(f"rotor_speed has shape {w_rows.shape}, not ({T}, 4)")
+    if not np.all(np.isfinite(w_rows[start:])):
+        bad = int((~np.all(np.isfinite(w_rows[start:]), 1)).sum())
+        return _not_used(f"{bad} of the {T - start} rows read have a rotor speed that is not finite")
+    u = np.clip(np.asarray(rec["motor"], np.float64), 0.0, 1.0)
+    ts, w, t, what = _samples(rec, start)
+    ok = np.all(np.isfinite(w), 1)
+    ts, w = ts[ok], w[ok]
+    if len(ts) < MIN_SPEED_SAMPLES + SPEED_DELAYS[-1]:
+        return _not_used(f"{len(ts)} speed samples per rotor; the fit needs {MIN_SPEED_SAMPLES + SPEED_DELAYS[-1]}")
+    dm = int(SPEED_DELAYS[-1])
+    y = w[dm:]                                      # (N − dm, 4): the samples every delay reads
+    n = y.size
+    syy_c = float(((y - y.mean()) ** 2).sum())
+    if not syy_c > 0:
+        return _not_used("the rotor speeds do not vary (all equal: zeros, or a held value)")
+    floor = n * SPEED_RESOLUTION ** 2 / 12.0
+    idx, wt = _interpolator(t, ts)
+    N = len(ts)
+    Gs, D = len(SPEED_TAU_GRID), len(SPEED_DELAYS)
+    per, shared = np.empty((Gs, 3, D, 4)), np.empty((Gs, 3, D))
+    for i, tau in enumerate(SPEED_TAU_GRID):
+        s_rows = row_speed(u, tau)
+        x = (1 - wt) * s_rows[idx] + wt * s_rows[idx + 1]            # (N, 4) the lag at the samples' times
+        per[i], shared[i] = _regress(x, y, dm, N), _pooled(x, y, dm, N)
+    sse_p = np.maximum(per[:, 0].sum(-1), 0.0) + floor              # (Gs, D)
+    sse_s = np.maximum(shared[:, 0], 0.0) + floor
+    r2_p, r2_s = 1 - (sse_p.min() - floor) / syy_c, 1 - (sse_s.min() - floor) / syy_c
+    gp, dp = np.unravel_index(int(np.argmin(sse_p)), sse_p.shape)
+    ap, cp = per[gp, 1, dp], per[gp, 2, dp]
+    posed = bool(np.all(ap > 0) and np.all(ap + cp > 0))
+    use_p = per_rotor and posed
+    if use_p:
+        sse, coef = sse_p, per[:, 1:]                                   # (Gs, D), (Gs, 2, D, 4)
+    else:
+        sse, coef = sse_s, np.repeat(shared[:, 1:, :, None], 4, -1)
+    g, dj = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    dbest = np.argmin(sse, 1)                      # (Gs,) each τ's delay
+    ab = coef[np.arange(Gs), :, dbest]             # (Gs, 2, 4)
+    dt_s = float(np.median(np.diff(ts)))
+    model = np.concatenate([ab[:, 0], ab[:, 1], dbest[:, None] * dt_s], 1)
+    sse_d0, sse = sse[:, 0], sse.min(1)            # the delay profiled out
+    tau = float(SPEED_TAU_GRID[g])
+    a, c = ab[g]
+    s_rows = row_speed(u, tau)
+    x = ((1 - wt) * s_rows[idx] + wt * s_rows[idx + 1])[dm - int(SPEED_DELAYS[dj]):N - int(SPEED_DELAYS[dj])]
+    r = y - (a * x + c)
+    r = r - r.mean(0)
+    den = float((r * r).sum())
+    phi = float((r[1:] * r[:-1]).sum()) / den if den > 0 else 0.0
+    n_eff = n * ((1 - phi) / (1 + phi) if phi > 0 else 1.0)
+    g0 = int(np.argmin(sse_d0))
+    w_ref = float(np.mean(a + c))
+    out = {"per_rotor": use_p, "tau_m_s": tau, "delay_s": float(SPEED_DELAYS[dj] * dt_s), "omega_ref_rad_s": w_ref,
+           "idle_rad_s": float(np.mean(c)), "gain_rad_s": [float(v) for v in a], "offset_rad_s": [float(v) for v in c],
+           "r2": float(1 - (sse[g] - floor) / syy_c), "r2_shared": float(r2_s), "r2_per_rotor": float(r2_p),
+           "r2_no_lag": float(1 - (sse[0] - floor) / syy_c),
+           "tau_m_s_no_delay": float(SPEED_TAU_GRID[g0]), "r2_no_delay": float(1 - (sse_d0[g0] - floor) / syy_c), "n": int(n),
+           "phi": phi, "n_eff": float(n_eff), "samples": what, "log_sse": np.log(sse), "model": model}
+    if not np.all(a > 0) or not w_ref > 0:
+        return _not_used(f"the rotor speeds do not rise with the command (Ω ≈ {np.mean(a):.3g} · lag(u) "
+                         f"{np.mean(c):+.3g})", **out)
+    if out["r2"] < MIN_SPEED_R2:
+        return _not_used(f"the rotor speeds do not follow the commands through a first-order lag (R² {out['r2']:.2f} "
+                         f"< {MIN_SPEED_R2}: another motor model, or not speeds)", **out)
+    maps = "per-rotor maps" if use_p else ("one map" + ("" if not per_rotor else " (a rotor's own map is ill-posed)"))
+    return {"used": True, "why": f"τ_m from command to speed ({maps}, R² {out['r2']:.3f}, {what}); the thrust and "
+                                 f"torque terms read the fitted speeds over Ω_ref {w_ref:.0f} rad/s", **out}
+
+
+def _interpolator(t, ts):
+    """Linear interpolation from the rows' times t (T,) to the times ts (N,) (clamped to the rows):
+    (index (N,), weight (N,)), a value at ts = (1 − weight) · row[index] + weight · row[index + 1]."""
+    x = np.clip(ts, t[0], t[-1])
+    i = np.clip(np.searchsorted(t, x, side="right") - 1, 0, len(t) - 2)
+    w = np.clip((x - t[i]) / np.maximum(t[i + 1] - t[i], 1e-12), 0.0, 1.0)
+    return i, w[:, None]
+
+
+def first_row(T: int) -> int:
+    """The first row of a log of T rows that the fits read (:data:`SKIP_S`)."""
+    return int(round(float(np.clip(0.1 * T * DT, *SKIP_S)) / DT))
