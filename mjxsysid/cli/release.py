@@ -11,8 +11,8 @@ from pathlib import Path
 from mjxsysid.cli._common import echo
 
 STAGE_NAMES = ("policy", "policy_eval", "pairs", "decoders", "seq_pairs", "seq_decoder", "decoder_eval", "noise",
-               "tune_nominal", "tune_slow", "tune_slow_more", "tune_lemniscate", "studies", "fidelity", "tables",
-               "ship")  # = mjxsysid.release.stages.STAGES.names() (light import)
+               "tune_nominal", "tune_slow", "tune_slow_more", "tune_lemniscate", "studies", "fidelity",
+               "posterior_calibration", "tables", "ship")  # = mjxsysid.release.stages.STAGES.names() (light import)
 
 
 def add_release(sub) -> None:

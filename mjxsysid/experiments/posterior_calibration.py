@@ -64,14 +64,16 @@ def parse_reference(spec: str) -> dict:
 
 def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_LEVELS, seed: int = 5,
             shard: str | None = None, out: Path, time_budget_s: float | None = None,
-            references=REFERENCES, controller: str = "oracle", aero: bool = False, velocity: bool = True) -> dict:
+            references=REFERENCES, controller: str = "oracle", aero: bool = False, velocity: bool = True,
+            policy=None) -> dict:
     """Fly every level, then identify; write ``out`` (JSON: rows) after every log, or every batch of logs
     identified together on an accelerator (the levels interleaved: a stopped run keeps a balanced set of
     what it finished); ``time_budget_s``: start no new batch after this long; ``references``: the flights
     (:func:`parse_reference`), each at every level; ``controller``: who flies ('oracle', the lag-aware
     oracle, or 'policy', the shipped adaptive policy: another closed loop's reaction to the noise);
     ``aero``: the simulator's rotor aerodynamics on (``SimConfig.aero``: physics the likelihood lacks);
-    ``velocity``: False drops the logs' body velocity (a log without a state estimate)."""
+    ``velocity``: False drops the logs' body velocity (a log without a state estimate); ``policy``: the
+    weights controller 'policy' flies (a path; None: the shipped policy)."""
     from mjxsysid.identify.inference import LOG_BATCH, log_grounded_posteriors
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
@@ -85,7 +87,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     pol = None
     if controller == "policy":
         from mjxsysid.policy.interface import resolve_policy
-        pol = resolve_policy("mjxsysid")
+        pol = resolve_policy("mjxsysid", policy)
     th_all = (pr.vehicles(vehicles) if prior in P.HELDOUT_FAMILIES
               else np.asarray(pr.sample(jax.random.PRNGKey(seed), vehicles)))
     index = _shard(vehicles, shard)

@@ -1,8 +1,10 @@
-"""A release in resumable stages: policy → decoders → every quoted experiment → docs tables → shipped files.
+"""A release in resumable stages: policy → decoders → every quoted experiment → posterior calibration →
+docs tables → shipped files.
 
 One command (``mjxsysid release --out DIR``): the policy, its decoders and their
-calibration, every experiment whose numbers the docs quote, the generated docs pages and the
-shipped files, as an ordered list of named, resumable stages.
+calibration, every experiment whose numbers the docs quote, the log-grounded posterior's
+calibration table, the generated docs pages and the shipped files, as an ordered list of named,
+resumable stages.
 
 Each stage writes into ``DIR/<stage>/`` and is recorded in ``DIR/release.json``
 ([record][mjxsysid.release.record]): status (done or failed), wall seconds, start and end time,

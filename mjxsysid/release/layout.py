@@ -21,7 +21,7 @@ RUNS = "docs/runs"
 KINDS = {
     # shipped by a release: docs/runs/release/, replaced whole at each ship
     "policy": "release/policy", "decoders": "release/decoders", "noise": "release/noise",
-    "tuning": "release/tuning", "studies": "release/studies",
+    "tuning": "release/tuning", "studies": "release/studies", "calibration": "release/calibration",
     # measured outside a release (``mjxsysid experiment NAME``), read by the generated pages
     "lag_oracle": "measurements/lag-oracle", "nobc": "measurements/nobc", "xadap": "measurements/xadap",
     "held_out": "measurements/held-out", "log_grounded": "measurements/log-grounded",
@@ -63,6 +63,8 @@ DOCS_RUNS = (
     *(("studies", r.folder, run_path("studies", r.folder)) for r in STUDY_RUNS),
     ("fidelity", "closed_loop_fidelity.json", run_path("studies", "closed_loop_fidelity.json")),
     ("fidelity", "closed_loop_fidelity_same_flight.json", run_path("studies", "closed_loop_fidelity_same_flight.json")),
+    *(("posterior_calibration", f, run_path("calibration", f))
+      for f in ("evaluation.json", "evaluation.md", "coverage_width.png", "ranks.png")),
 )
 """The run outputs the docs quote, and where in the shipped tree a release puts them."""
 OPTIONAL = ("train_log.jsonl", "single/paper_vehicle_posterior.png")
@@ -73,6 +75,9 @@ DOCS_FILES = (("noise", "noise_sensitivity.png", f"{DOCS}/noise_sensitivity.png"
 SHIPPED = (("policy", "policy.npz"), ("decoders", "cfm.npz"), ("decoders", "regression.npz"),
            ("seq_decoder", "cfm_seq.npz"))
 """(stage, weights file) shipped into :data:`PRETRAINED` with a provenance JSON each."""
+TABLES = (("posterior_calibration", "posterior_calibration.json"),)
+"""(stage, JSON file) shipped into :data:`PRETRAINED` with the provenance inside (its ``provenance``
+key): the posterior calibration table."""
 
 
 def shrink_pngs(path: Path) -> None:

@@ -174,11 +174,11 @@ class Release:
         """The stages with their status, recorded times and the H100 estimate (``--list``)."""
         policy = self.options.from_policy or self.options.policy_config or f"{DEFAULT_POLICY_CONFIG.name} (default)"
         rows = [f"release {self.out} ({self.options.scale}; policy: {policy})",
-                f"{'stage':17s} {'status':10s} {'wall':>8s} {'H100 est.':>9s}  {'ended':25s} needs"]
+                f"{'stage':21s} {'status':10s} {'wall':>8s} {'H100 est.':>9s}  {'ended':25s} needs"]
         for s in self.stages:
             e = self.entry(s.name)
             wall = f"{e['wall_s']:.0f} s" if e.get("wall_s") is not None else "–"
-            rows.append(f"{s.name:17s} {self.status(s.name):10s} {wall:>8s} {s.estimate_s / 60:>7.1f} m  "
+            rows.append(f"{s.name:21s} {self.status(s.name):10s} {wall:>8s} {s.estimate_s / 60:>7.1f} m  "
                         f"{e.get('ended', '–'):25s} {','.join(s.needs) or '–'}")
         total = sum(s.estimate_s for s in self.stages)
         spent = sum(self.entry(s.name).get("wall_s") or 0 for s in self.stages if self.done(s.name))

@@ -45,6 +45,63 @@ class FidelitySizes:
 
 
 @dataclasses.dataclass(frozen=True)
+class CalibrationSet:
+    """One collection of posterior-calibration rows
+    (:func:`mjxsysid.experiments.posterior_calibration.collect`): ``vehicles`` drawn with ``seed``,
+    each flying ``flights`` ('lemniscate:PERIOD', 'minsnap:SECONDS', 'hover:SECONDS') at every
+    level; ``controller`` 'oracle' or 'policy' (the release's); ``aero``: rotor aerodynamics on;
+    ``velocity``: the logs keep their body velocity."""
+    vehicles: int
+    seed: int
+    flights: tuple[str, ...]
+    controller: str = "oracle"
+    aero: bool = False
+    velocity: bool = True
+
+    def logs(self, levels: int) -> int:
+        """The logs it flies at ``levels`` levels (before failed flights are dropped)."""
+        return self.vehicles * len(self.flights) * levels
+
+
+@dataclasses.dataclass(frozen=True)
+class CalibrationSizes:
+    """The posterior calibration stage: ``train`` and ``held_out`` sets (name → CalibrationSet),
+    flown at ``train_levels`` and ``held_out_levels`` (:data:`mjxsysid.uses.imu_noise.LEVELS`);
+    each set collected in ``shards`` pieces (every shards-th vehicle: a piece resumes on its own);
+    the table's ``bins`` and ``min_group`` (:func:`mjxsysid.identify.calibrate.fit`)."""
+    train: Mapping[str, CalibrationSet]
+    held_out: Mapping[str, CalibrationSet]
+    train_levels: tuple[str, ...]
+    held_out_levels: tuple[str, ...]
+    shards: int
+    bins: int
+    min_group: int
+
+    def logs(self) -> tuple[int, int]:
+        """(training logs, held-out logs) flown."""
+        return (sum(s.logs(len(self.train_levels)) for s in self.train.values()),
+                sum(s.logs(len(self.held_out_levels)) for s in self.held_out.values()))
+
+
+_CAL = CalibrationSet
+FULL_CALIBRATION = CalibrationSizes(
+    train=_frozen(vel_lem=_CAL(128, 5, ("lemniscate:10",)),
+                  novel_lem=_CAL(128, 6, ("lemniscate:10",), velocity=False),
+                  vel_ms=_CAL(128, 7, ("minsnap:10",)),
+                  novel_ms=_CAL(128, 8, ("minsnap:10",), velocity=False),
+                  aero=_CAL(128, 9, ("lemniscate:10",), aero=True),
+                  policy=_CAL(128, 10, ("lemniscate:10",), controller="policy"),
+                  slow=_CAL(128, 11, ("lemniscate:20", "hover:8"))),
+    held_out=_frozen(test_vel=_CAL(128, 71, ("lemniscate:10",)),
+                     test_novel=_CAL(128, 72, ("minsnap:10",), velocity=False)),
+    train_levels=("clean", "x1", "x5_white", "x5_vibration", "x20"),
+    held_out_levels=("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20"),
+    shards=4, bins=4, min_group=30)
+"""The protocol of the shipped table's rows (.carry/cal_nuts.sh): 7 training sets of 128 vehicles at
+5 levels, 2 held-out sets at 7 (other seeds), 4 bins of at least 30 logs."""
+
+
+@dataclasses.dataclass(frozen=True)
 class Sizes:
     """What a release's stages run at.
 
@@ -58,6 +115,7 @@ class Sizes:
         eval_cases, eval_samples: ``evaluate-decoder``'s held-out cases and posterior samples;
             ``paper_flight``: also decode the paper vehicle's flight.
         noise, fidelity: those stages' sizes; ``quick``: the experiments' ``--quick`` protocol.
+        calibration: the posterior calibration stage's sets and table.
     """
     train: Mapping[str, Any]
     eval_vehicles: int
@@ -75,6 +133,7 @@ class Sizes:
     noise: NoiseSizes
     quick: bool
     fidelity: FidelitySizes
+    calibration: CalibrationSizes
 
 
 FULL = Sizes(
@@ -84,7 +143,7 @@ FULL = Sizes(
     noise=NoiseSizes(vehicles=128, seconds=4.0, samples=100, levels=_frozen(**{
         "noise_sensitivity.json": None,   # None: the study's DEFAULT_LEVELS
         "noise_sensitivity_low.json": ("clean", "x0.5_white", "x1_white")})),
-    quick=False, fidelity=FidelitySizes(vehicles=20, models=100, duration=4.0))
+    quick=False, fidelity=FidelitySizes(vehicles=20, models=100, duration=4.0), calibration=FULL_CALIBRATION)
 
 TINY = Sizes(
     # tests/policy/test_policy.py's tiny trainer (4 iterations), warm-started from the shipped policy
@@ -98,7 +157,13 @@ TINY = Sizes(
     eval_cases=8, eval_samples=20, paper_flight=False,
     noise=NoiseSizes(vehicles=4, seconds=1.0, samples=8, levels=_frozen(**{
         "noise_sensitivity.json": ("clean", "x1"), "noise_sensitivity_low.json": ("clean", "x1_white")})),
-    quick=True, fidelity=FidelitySizes(vehicles=2, models=2, duration=1.0))
+    quick=True, fidelity=FidelitySizes(vehicles=2, models=2, duration=1.0),
+    # hover:2 leaves the 5 rate windows a log needs; logs without velocity (no velocity stratum to fill);
+    # 6 training rows: a group of fewer than 19 has no finite conformal quantile (an infinite band)
+    calibration=CalibrationSizes(
+        train=_frozen(train=_CAL(3, 5, ("hover:2",), velocity=False)),
+        held_out=_frozen(test=_CAL(2, 71, ("hover:2",), velocity=False)),
+        train_levels=("clean", "x1"), held_out_levels=("clean", "x1"), shards=1, bins=1, min_group=2))
 
 SIZES = {"full": FULL, "tiny": TINY}
 """Per scale, its sizes."""

@@ -159,10 +159,18 @@ def test_stage_list_is_the_pipeline():
     names = [s.name for s in STAGES]
     from mjxsysid.cli.release import STAGE_NAMES
     assert tuple(names) == STAGE_NAMES == STAGES.names()
+    assert names.index("posterior_calibration") < names.index("tables") < names.index("ship")
     for i, s in enumerate(STAGES):                                      # dependencies come earlier
         assert all(names.index(d) < i for d in s.needs), s.name
-        assert 0 < s.estimate_s <= 600, s.name                          # each fits a 10-minute GPU call
-    assert sum(s.estimate_s for s in STAGES) <= 45 * 60
+        if s.name != "posterior_calibration":                           # resumes by piece (below)
+            assert 0 < s.estimate_s <= 600, s.name                      # each fits a 10-minute GPU call
+    assert sum(s.estimate_s for s in STAGES if s.name != "posterior_calibration") <= 45 * 60
+    # the calibration's ≈ 6,900 logs at 1.5 logs/s: over an hour, in pieces that each fit a call
+    from mjxsysid.release.sizes import FULL_CALIBRATION as cal
+    from mjxsysid.release.stages.calibration import LOGS_PER_S, pieces
+    est = STAGES["posterior_calibration"].estimate_s
+    assert cal.logs() == (5120, 1792) and est == sum(cal.logs()) / LOGS_PER_S
+    assert all(s.logs(len(lv)) / cal.shards / LOGS_PER_S <= 300 for _, _, s, lv, _, _ in pieces(cal))
 
 
 def _cli(capsys, *args):
@@ -264,6 +272,9 @@ def test_tiny_release_end_to_end(tmp_path, capsys):
     assert (ship / "docs/runs/release/tuning/tune_slow/results.json").is_file()
     assert (ship / "docs/runs/release/decoders/seq_decoder_eval.json").is_file()
     assert rec["stages"]["pairs"]["config"]["imu"]["randomize_imu"] is True      # the release config's IMU
+    table = json.loads((ship / "mjxsysid/pretrained/posterior_calibration.json").read_text())
+    assert table["provenance"]["release"]["dir"] == "rel" and table["provenance"]["rows"] > 0
+    assert (ship / "docs/runs/release/calibration/evaluation.json").is_file()
     rc, _, err = _cli(capsys, "--out", out, "-q")
     assert rc == 0 and "stages run" not in err
     assert json.loads((out / "release.json").read_text())["runs"] == rec["runs"]    # nothing ran again

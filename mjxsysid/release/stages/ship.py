@@ -40,7 +40,8 @@ def build_tree(rel: ReleaseView, tree: Path, *, partial: bool = False) -> list[s
     """Lay out what a release ships, as a tree rooted at ``tree`` (paths of
     [layout][mjxsysid.release.layout]): the weights, hard-linked, and their provenance JSON
     (each with the calls of the stage that made it and a ``release`` section: the release
-    folder, commit, stage, its wall time and device), the docs' run files and figures.
+    folder, commit, stage, its wall time and device), the posterior calibration table with that
+    section in its own provenance, the docs' run files and figures.
     ``partial``: skip what a stage not done did not write (else an error). Returns what was left
     out."""
     left_out = []
@@ -87,6 +88,13 @@ def build_tree(rel: ReleaseView, tree: Path, *, partial: bool = False) -> list[s
                     evaluation_calls=rel.entry("decoder_eval").get("calls", []))
         prov["release"] = release_info(stage)
         (pre / f"{kind}.json").write_text(jsonout.dumps(prov, indent=2, ensure_ascii=False) + "\n")
+    for stage, f in layout.TABLES:
+        if have(stage, f):
+            table = _json(rel.stage_dir(stage) / f)
+            prov = table.setdefault("provenance", {})
+            prov.update(calls=rel.entry(stage).get("calls", prov.get("calls", [])), release=release_info(stage))
+            pre.mkdir(parents=True, exist_ok=True)
+            (pre / f).write_text(json.dumps(table, indent=1, ensure_ascii=False) + "\n")   # its infinities kept
     for stage, src, dst in layout.DOCS_RUNS:
         if have(stage, src):
             layout.copy(rel.stage_dir(stage) / src, tree / dst)
@@ -98,7 +106,7 @@ def build_tree(rel: ReleaseView, tree: Path, *, partial: bool = False) -> list[s
 
 
 @STAGES.add(needs=("policy_eval", "decoder_eval", "noise", "tune_nominal", "tune_slow", "tune_slow_more",
-                   "tune_lemniscate", "studies", "fidelity"),
+                   "tune_lemniscate", "studies", "fidelity", "posterior_calibration"),
             outputs=("tree",), estimate_s=5,
             what="lay out the shipped tree and regenerate the generated docs pages in it (pages.generate)")
 def tables(rel: ReleaseView, out: Path) -> StageResult:

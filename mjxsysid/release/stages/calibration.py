@@ -1,0 +1,132 @@
+"""The posterior calibration stage: collect simulated logs' rows, fit the calibration table
+(:mod:`mjxsysid.identify.calibrate`) on the training sets, evaluate it on the held-out sets."""
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+from mjxsysid.release.provenance import call, jsonable
+from mjxsysid.release.record import now
+from mjxsysid.release.sizes import FULL_CALIBRATION, CalibrationSet, CalibrationSizes
+from mjxsysid.release.stages.registry import STAGES, ReleaseView, StageResult
+
+LOGS_PER_S = 1.5
+"""Rows collected per second on one H200 (the log-grounded posterior with NUTS refinement,
+docs/identify.md): the stage's GPU estimate."""
+TABLE = "posterior_calibration.json"
+"""The fitted table in the stage folder (shipped as mjxsysid/pretrained/posterior_calibration.json)."""
+ROWS = "rows"
+"""The stage folder's subfolder of row files, one per set and shard (:func:`pieces`)."""
+
+
+def pieces(cal: CalibrationSizes) -> list[tuple[str, str, CalibrationSet, tuple[str, ...], str | None, str]]:
+    """The collections of a calibration, in order: (kind 'train' or 'held_out', set name, set,
+    levels, shard 'i/k' or None, row file relative to the stage folder: rows/<set>.json, or
+    rows/<set>.<i>of<k>.json with shards)."""
+    out = []
+    for kind, sets, levels in (("train", cal.train, cal.train_levels), ("held_out", cal.held_out, cal.held_out_levels)):
+        for name, s in sets.items():
+            for i in range(cal.shards):
+                shard = None if cal.shards == 1 else f"{i}/{cal.shards}"
+                f = f"{ROWS}/{name}.json" if shard is None else f"{ROWS}/{name}.{i}of{cal.shards}.json"
+                out.append((kind, name, s, tuple(levels), shard, f))
+    return out
+
+
+def estimate_s(cal: CalibrationSizes = FULL_CALIBRATION) -> float:
+    """GPU seconds on one H200 at :data:`LOGS_PER_S` (the logs flown, before failed flights)."""
+    return sum(cal.logs()) / LOGS_PER_S
+
+
+def _kwargs(rel: ReleaseView, s: CalibrationSet, levels, shard) -> dict:
+    """collect's keyword arguments for one piece (the release's policy where the set flies it)."""
+    kw = {"vehicles": s.vehicles, "seed": s.seed, "levels": tuple(levels), "references": tuple(s.flights),
+          "controller": s.controller, "aero": s.aero, "velocity": s.velocity, "shard": shard}
+    if s.controller == "policy":
+        kw["policy"] = rel.policy_path
+    return kw
+
+
+def collect_piece(rel: ReleaseView, out: Path, piece, device: str | None, commit: str | None) -> tuple[dict, bool]:
+    """Collect one piece's rows into its file (written under a .partial name, renamed when complete,
+    with a ``release`` section: wall time, device, commit, end time); a complete file is kept.
+    Returns (the call's record, whether it ran)."""
+    from mjxsysid.experiments.posterior_calibration import collect
+    _, name, s, levels, shard, f = piece
+    kw = _kwargs(rel, s, levels, shard)
+    dst = out / f
+    record = call(collect, out=dst, **kw)
+    if dst.is_file():
+        rel.log(f"[release] posterior_calibration: {f} collected before, kept")
+        return record, False
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.with_name(dst.name + ".partial")
+    rel.log(f"[release] posterior_calibration: collecting {name}" + (f" shard {shard}" if shard else "")
+            + f" ({s.logs(len(levels)) // (1 if shard is None else int(shard.split('/')[1]))} logs) → {f}")
+    t0 = time.time()
+    res = collect(out=tmp, **kw)
+    res["release"] = {"wall_s": round(time.time() - t0, 1), "device": device, "commit": commit, "ended": now()}
+    tmp.write_text(json.dumps(res, separators=(",", ":")) + "\n")
+    os.replace(tmp, dst)
+    return record, True
+
+
+def _mean_coverage(levels: dict) -> dict:
+    import numpy as np
+    return {lv: round(float(np.nanmean(list(r["coverage"].values()))), 3) for lv, r in levels.items()}
+
+
+@STAGES.add(needs=("policy",), outputs=(TABLE, "evaluation.json", "evaluation.md"), estimate_s=estimate_s(),
+            what="calibrate-posterior: collect the training and held-out rows, fit the table, evaluate it "
+                 "(resumes by set and shard)")
+def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
+    """Collect every set's rows (:func:`collect_piece`; a complete row file is kept, so a call cut
+    off resumes at the piece it was collecting), fit the table on the training rows
+    (:func:`mjxsysid.identify.calibrate.fit` at the sizes' bins and min_group) into
+    out/posterior_calibration.json with its provenance (the sets, sizes, calls, commit, device,
+    wall times), and evaluate it on the held-out rows
+    (:func:`mjxsysid.experiments.posterior_calibration.report`: out/evaluation.json, evaluation.md,
+    coverage_width.png, ranks.png)."""
+    from mjxsysid.experiments.posterior_calibration import read_rows, report
+    from mjxsysid.identify.calibrate import fit
+    from mjxsysid.release.provenance import code_commit, device_name
+    cal = rel.sizes.calibration
+    entry = rel.entry("posterior_calibration")
+    device = entry.get("device") or device_name()
+    commit = entry.get("commit") or code_commit()
+    t0 = time.time()
+    calls, ran = [], []
+    todo = pieces(cal)
+    for p in todo:
+        c, did = collect_piece(rel, out, p, device, commit)
+        calls.append(c)
+        if did:
+            ran.append(p[5])
+    train = [out / p[5] for p in todo if p[0] == "train"]
+    held = [out / p[5] for p in todo if p[0] == "held_out"]
+    rows = read_rows(train)
+    t_fit = time.time()
+    table = fit(rows, bins=cal.bins, min_group=cal.min_group)
+    calls.append(call(fit, rows=train, bins=cal.bins, min_group=cal.min_group))
+    collected = {p[5]: json.loads((out / p[5]).read_text()).get("release", {}) for p in todo}
+    table["provenance"] = {
+        "command": f"mjxsysid release --out {rel.out.name} --stages posterior_calibration",
+        "what": "the log-grounded posterior's calibration table, fitted on simulated logs (identify.calibrate.fit)",
+        "rows": len(rows), "levels": sorted({r["level"] for r in rows}), "commit": commit, "device": device,
+        "scale": rel.options.scale, "fit_seconds": round(time.time() - t_fit, 3), "date": time.strftime("%Y-%m-%d"),
+        "sizes": jsonable(cal), "calls": list(calls),
+        "collected": collected, "collect_wall_s": round(sum(v.get("wall_s") or 0 for v in collected.values()), 1)}
+    (out / TABLE).write_text(json.dumps(table, indent=1) + "\n")
+    res = report(held, out / TABLE, out)
+    cov = _mean_coverage(res["calibrated"])
+    table["provenance"]["held_out"] = {"rows": res["rows"], "mean_coverage": cov}
+    (out / TABLE).write_text(json.dumps(table, indent=1) + "\n")
+    calls.append(call(report, paths=held, table_path=out / TABLE, out=out))
+    return StageResult(
+        calls=tuple(calls),
+        config={"sizes": jsonable(cal), "collected_now": ran},
+        figures={"train_logs": len(rows), "held_out_logs": res["rows"], "mean_coverage": cov,
+                 "mean_coverage_raw": _mean_coverage(res["raw"]),
+                 "wall_s_this_call": round(time.time() - t0, 1)})

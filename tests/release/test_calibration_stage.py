@@ -1,0 +1,80 @@
+"""The posterior_calibration release stage at the tiny sizes with the posterior stubbed (default
+tier: the vehicles fly on the CPU, the posterior is a fake): a row file per set, the table with its
+provenance, the held-out evaluation, resuming by set, and the table in the shipped tree."""
+import json
+
+import numpy as np
+
+from mjxsysid.release import Release
+from mjxsysid.release.sizes import TINY
+from mjxsysid.release.stages import STAGES, Stage, StageResult
+from mjxsysid.release.stages.calibration import pieces
+from mjxsysid.release.stages.ship import build_tree
+
+
+def _fake_posteriors(calls):
+    """log_grounded_posteriors' stand-in: per log, 64 draws spread about zero in the visible
+    coordinates (12,), features that pass the model check, no velocity."""
+    from mjxsysid.identify.coords import N_V
+    rng = np.random.default_rng(0)
+
+    def fake(datas, seeds, calibration):
+        calls.append(len(datas))
+        return [{"method": "stub", "v_raw": rng.normal(0.0, 0.5, (64, N_V)), "weights": [1.0] * 4,
+                 "features": {"rates_nsr": rng.uniform(-2, -1), "acc_nsr": rng.uniform(-2, -1),
+                              "rates_nsr_x": -1.5, "rates_nsr_y": -1.5, "rates_nsr_z": -1.5, "rates_used": True,
+                              "windows": 8, "velocity_used": False, "rotor_speed_used": False}}
+                for _ in datas]
+    return fake
+
+
+def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, monkeypatch):
+    import mjxsysid.identify.inference as I
+    from mjxsysid.identify.calibrate import load
+    calls = []
+    monkeypatch.setattr(I, "log_grounded_posteriors", _fake_posteriors(calls))
+    stages = (Stage("policy", lambda r, o: StageResult(), (), (), 1, "stub"), STAGES["posterior_calibration"])
+    rel = Release(tmp_path / "rel", {"scale": "tiny"}, stages=stages, log=None, device=lambda: "dev",
+                  commit=lambda: "c0ffee")
+    rel.record["stages"]["policy"] = {"status": "done", "run": 0}
+    cal = TINY.calibration
+    assert rel.run(["posterior_calibration"]) == ["posterior_calibration"]
+    out = rel.stage_dir("posterior_calibration")
+    n_train, n_held = (s.logs(len(cal.train_levels)) for s in cal.train.values()), cal.logs()[1]
+    n_train = sum(n_train)
+    assert sum(calls) == n_train + n_held
+    for _, name, _, _, _, f in pieces(cal):                        # a row file per set, with its provenance
+        rows = json.loads((out / f).read_text())
+        assert f == f"rows/{name}.json" and rows["release"]["device"] == "dev" and rows["rows"]
+    assert not list(out.rglob("*.partial"))
+    table = load(out / "posterior_calibration.json")
+    prov = table["provenance"]
+    assert prov["rows"] == n_train and prov["commit"] == "c0ffee" and prov["device"] == "dev"
+    assert prov["sizes"]["bins"] == cal.bins and set(prov["sizes"]["train"]) == set(cal.train)
+    assert set(prov["collected"]) == {f for *_, f in pieces(cal)}
+    assert [c["call"].rsplit(".", 1)[1] for c in prov["calls"]] == ["collect", "collect", "fit"]
+    assert set(prov["held_out"]["mean_coverage"]) == set(cal.held_out_levels)
+    ev = json.loads((out / "evaluation.json").read_text())
+    assert ev["rows"] == n_held and set(ev["calibrated"]) == set(cal.held_out_levels)
+    assert (out / "evaluation.md").read_text().startswith("## Calibrated")
+    entry = rel.entry("posterior_calibration")
+    assert set(entry["figures"]["mean_coverage"]) == set(cal.held_out_levels)
+    assert entry["figures"]["train_logs"] == n_train and entry["calls"][-1]["call"].endswith(".report")
+    # a second run (the table lost, one held-out set not finished) collects that set only
+    (out / "posterior_calibration.json").unlink()
+    held = next(f for kind, *_, f in pieces(cal) if kind == "held_out")
+    (out / held).rename(out / (held + ".partial"))
+    calls.clear()
+    rel = Release(tmp_path / "rel", stages=stages, log=None, device=lambda: "dev", commit=lambda: "c0ffee")
+    assert rel.status("posterior_calibration") == "incomplete"
+    assert rel.run() == ["posterior_calibration"] and sum(calls) == n_held
+    assert rel.entry("posterior_calibration")["config"]["collected_now"] == [held]
+    assert load(out / "posterior_calibration.json")["provenance"]["rows"] == n_train
+    # the shipped tree: the table with a release section, the evaluation under docs/runs/release/calibration/
+    left = build_tree(rel, tmp_path / "tree", partial=True)
+    assert "posterior_calibration/evaluation.json" not in left
+    shipped = json.loads((tmp_path / "tree/mjxsysid/pretrained/posterior_calibration.json").read_text())
+    assert shipped["provenance"]["release"]["stage"] == "posterior_calibration"
+    assert shipped["provenance"]["release"]["commit"] == "c0ffee" and shipped["coords"] == table["coords"]
+    for f in ("evaluation.json", "evaluation.md", "ranks.png", "coverage_width.png"):
+        assert (tmp_path / "tree/docs/runs/release/calibration" / f).is_file(), f
