@@ -220,7 +220,8 @@ residuals_jit = jax.jit(residuals)
 
 def log_likelihood(x, data: LogData, weights=None):
     """log p(log | v, nuisances) for one parameter vector x (12 + 9,) = [v, log σ (4), log δ (4),
-    acc_z bias]: the Student-t window residuals plus the second differences' evidence on σ.
+    acc_z bias]: the Student-t window residuals, the second differences' evidence on σ and, where the
+    log's rotor speeds are used, their evidence on τ_m (:func:`speed_loglik`).
     ``weights`` (4,): each channel's residual term multiplied by it (default 1: see
     :func:`residual_weights`); a channel the log cannot inform (``data.use``) counts 0."""
     rg, sg, ra, sa = residuals(x, data)
@@ -235,7 +236,7 @@ def log_likelihood(x, data: LogData, weights=None):
         res = sum(w[c] * _student_t(rg[:, c], sg[:, c], wm) for c in gyro) + acc
     var2 = comb(4, 2) * (sig2 + jnp.asarray(QUANTISATION_VAR))   # variance of a second difference
     noise = jnp.sum(-0.5 * data.n2 * jnp.log(var2) - 0.5 * data.s2 / var2)
-    return res + noise
+    return res + noise + speed_loglik(x[L.X_V], data)
 
 
 def residual_weights(x, data: LogData) -> np.ndarray:

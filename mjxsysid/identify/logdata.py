@@ -18,7 +18,7 @@ from scipy.signal import lfilter
 from mjxsysid.identify.logspace import GYRO, N_CHANNELS
 from mjxsysid.identify.speeds import (model_features, model_step_integrals, report, speed_features,
                                       speed_step_integrals, speed_term)
-from mjxsysid.logs.speedmap import SKIP_S, first_row, speed_fit
+from mjxsysid.logs.speedmap import SKIP_S, first_row, lag_steps, speed_fit
 
 DT = 0.002
 """s: the log's row spacing (500 Hz)."""
@@ -124,15 +124,8 @@ class LogData:
 def _lagged(u, tau, rows=None):
     """Motor commands u (T, 4) through the lag of time constant ``tau``, s_0 = u_0 -> the exact mean
     of s² over each step (the rows ``rows``, default all) and s at each step's end (T, 4)."""
-    a = np.exp(-DT / tau)
-    # s_{k+1} = a s_k + (1 − a) u_k, s_0 = u_0
-    s_end = lfilter([1 - a], [1, -a], u, axis=0, zi=(a * u[0])[None])[0]
-    rows = slice(None) if rows is None else rows
-    d = np.concatenate([u[:1], s_end[:-1]], 0)[rows] - u[rows]      # start of each step − command
-    us = u[rows]
-    r1 = tau / DT * (1 - a)
-    r2 = tau / (2 * DT) * (1 - a * a)
-    return us * us + 2 * us * d * r1 + d * d * r2, s_end
+    _, s_end, _, ms = lag_steps(u, tau)
+    return ms[slice(None) if rows is None else rows], s_end
 
 
 def _lag_features(u, taus, steps, tri, bsteps):

@@ -31,9 +31,9 @@ least :data:`MIN_SPEED_R2`; otherwise the report says why not and the log is rea
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
 
-from mjxsysid.logs.speedmap import DT, SPEED_TAU_GRID
+from mjxsysid.logs.checks.signals import DT
+from mjxsysid.logs.speedmap import SPEED_TAU_GRID, lag_steps
 
 SPEED_MODEL_SD = 0.03
 """The least standard deviation of log τ_m the speed term gives alone (90 % half-width 5 %): the fit's linear
@@ -89,14 +89,8 @@ def model_steps(u, fit: dict, tau: float):
     The mean is exact where ŝ stays positive over the step (ŝ is affine in the lag), else the mean of
     its two ends' squares."""
     al, be, d = _model_at(fit, tau)
-    a = np.exp(-DT / tau)
-    s_end = lfilter([1 - a], [1, -a], u, axis=0, zi=(a * u[0])[None])[0]
-    s0 = np.concatenate([u[:1], s_end[:-1]], 0)
-    dd = s0 - u
-    r1, r2 = tau / DT * (1 - a), tau / (2 * DT) * (1 - a * a)
-    m1 = _delayed(u + dd * r1, d)
-    m2 = _delayed(u * u + 2 * u * dd * r1 + dd * dd * r2, d)
-    e0, e1 = al * _delayed(s0, d) + be, al * _delayed(s_end, d) + be
+    s0, s_end, m1, m2 = (_delayed(x, d) for x in lag_steps(u, tau))
+    e0, e1 = al * s0 + be, al * s_end + be
     q = al * al * m2 + 2 * al * be * m1 + be * be
     neg = np.minimum(e0, e1) < 0
     e0, e1 = np.maximum(e0, 0.0), np.maximum(e1, 0.0)

@@ -1,5 +1,5 @@
 """The log-grounded posterior's target: the stated prior of v and the nuisances times the log's
-likelihood (:mod:`.likelihood`; with the measured rotor speeds' term on τ_m where the log has them), evaluated in jitted chunks, for one log or a batch of logs, at full
+likelihood (:mod:`.likelihood`), evaluated in jitted chunks, for one log or a batch of logs, at full
 float32 precision on every backend (:func:`full_precision`).
 
 Coordinates (:mod:`.logspace`): y (17,) = [v (12), log σ (4), acc_z bias] is what the samplers move;
@@ -14,7 +14,7 @@ import numpy as np
 
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
-from mjxsysid.identify.likelihood import log_likelihood, speed_loglik
+from mjxsysid.identify.likelihood import log_likelihood
 from mjxsysid.identify.logdata import LogData
 
 
@@ -76,7 +76,7 @@ def log_prior(x, prior: PhysicalPrior = PHYSICAL_PRIOR):
 def _log_target_y(y, data, log_delta, weights, prior):
     x = full_x(y, log_delta)
     lp = log_prior(x, prior)
-    ll = log_likelihood(x, data, weights) + speed_loglik(x[L.X_V], data)     # the measured speeds' term: 0 without
+    ll = log_likelihood(x, data, weights)
     return jnp.where(jnp.isfinite(lp) & jnp.isfinite(ll), lp + ll, -jnp.inf)
 
 

@@ -10,7 +10,8 @@ its first command (a take-off, a simulator's hover start) is wrong there for abo
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter
+
+from mjxsysid.logs.checks.signals import DT, lagged
 
 SKIP_S = (0.2, 1.0)
 """s: the start of the log not used — a tenth of it, within these bounds. The rotor speeds are
@@ -18,8 +19,6 @@ reconstructed from the commands starting at the first command; a log that starts
 another speed (a take-off, a simulator's hover start) is wrong there for about 5 τ_m, and those
 windows would dominate the residuals (a 10 s MJX flight's rate residuals are 10× larger with
 0.2 s skipped than with 1 s)."""
-DT = 0.002
-"""s: the log's row spacing (500 Hz)."""
 SPEED_TAU_GRID = np.exp(np.linspace(np.log(0.0015), np.log(0.35), 8 * 63 + 1))
 """s: the time constants the speed term is computed at: :data:`~.logdata.TAU_GRID`'s range and nodes,
 8× finer (1.1 % apart). The term is sharp (thousands of samples), and it is interpolated linearly in
@@ -37,12 +36,22 @@ SPEED_RESOLUTION = 1.0
 variance (q² / 12 per sample) floors the sum of squares, so an exact simulated speed is not infinitely sharp."""
 
 
+def lag_steps(u, tau: float):
+    """Commands u (T, 4) held over each 2 ms step through the lag of time constant ``tau``, s_0 = u_0 ->
+    (s at each step's start (T, 4), s at its end (T, 4), the exact mean of s over each step (T, 4), the
+    exact mean of s² (T, 4)): s_{k+1} = a s_k + (1 − a) u_k, a = exp(−dt/τ)."""
+    a = np.exp(-DT / tau)
+    s_end = lagged(u, tau)
+    s0 = np.concatenate([u[:1], s_end[:-1]], 0)
+    d = s0 - u                                                   # start of each step − command
+    r1, r2 = tau / DT * (1 - a), tau / (2 * DT) * (1 - a * a)
+    return s0, s_end, u + d * r1, u * u + 2 * u * d * r1 + d * d * r2
+
+
 def row_speed(u, tau: float):
     """Commands u (T, 4) held over each 2 ms step through the lag of time constant ``tau``, starting at
     u[0] -> the speed at each row's time (T, 4): row k sees the commands of rows < k."""
-    a = np.exp(-DT / tau)
-    s_end = lfilter([1 - a], [1, -a], u, axis=0, zi=(a * u[0])[None])[0]
-    return np.concatenate([u[:1], s_end[:-1]], 0)
+    return np.concatenate([u[:1], lagged(u, tau)[:-1]], 0)
 
 
 def _samples(rec: dict, start: int):
@@ -64,40 +73,21 @@ def _not_used(why: str, **kw) -> dict:
     return {"used": False, "why": why, **kw}
 
 
-def _regress(x, y, dm: int, N: int):
-    """Per delay of :data:`SPEED_DELAYS` and rotor, least squares of y (N − dm, 4) on the lag at the samples
-    x (N, 4) read d samples earlier -> (SSE (D, 4), gain a (D, 4), offset c (D, 4)); a 0 where a rotor's
-    lag does not vary."""
-    m = len(y)
-    sy, syy = y.sum(0), (y * y).sum(0)
+def _sums(x, y, dm: int, N: int):
+    """Per delay of :data:`SPEED_DELAYS` and rotor, the sums least squares of y (N − dm, 4) on the lag at
+    the samples x (N, 4) read d samples earlier needs -> (Σx, Σx², Σxy) (D, 4) each, Σy (4,), Σy² (4,)."""
     c1 = np.concatenate([np.zeros((1, 4)), np.cumsum(x, 0)])
     c2 = np.concatenate([np.zeros((1, 4)), np.cumsum(x * x, 0)])
-    out = np.empty((3, len(SPEED_DELAYS), 4))
-    for j, d in enumerate(SPEED_DELAYS):           # a delay of d samples: x[k − d] against y[k]
-        a0, a1 = dm - d, N - d
-        sx, sxx = c1[a1] - c1[a0], c2[a1] - c2[a0]
-        sxy = np.einsum("ij,ij->j", x[a0:a1], y)
-        sxx_c, sxy_c = sxx - sx * sx / m, sxy - sx * sy / m
-        a = np.where(sxx_c > 0, sxy_c / np.where(sxx_c > 0, sxx_c, 1.0), 0.0)
-        out[:, j] = syy - sy * sy / m - a * sxy_c, a, (sy - a * sx) / m
-    return out
+    a0, a1 = dm - SPEED_DELAYS, N - SPEED_DELAYS                # a delay of d samples: x[k − d] against y[k]
+    sxy = np.stack([np.einsum("ij,ij->j", x[b0:b1], y) for b0, b1 in zip(a0, a1)])
+    return c1[a1] - c1[a0], c2[a1] - c2[a0], sxy, y.sum(0), (y * y).sum(0)
 
 
-def _pooled(x, y, dm: int, N: int):
-    """:func:`_regress` with one a and c for the four rotors -> (SSE (D,), a (D,), c (D,))."""
-    m = y.size
-    sy, syy = float(y.sum()), float((y * y).sum())
-    c1 = np.concatenate([[0.0], np.cumsum(x.sum(1))])
-    c2 = np.concatenate([[0.0], np.cumsum((x * x).sum(1))])
-    out = np.empty((3, len(SPEED_DELAYS)))
-    for j, d in enumerate(SPEED_DELAYS):
-        a0, a1 = dm - d, N - d
-        sx, sxx = c1[a1] - c1[a0], c2[a1] - c2[a0]
-        sxy = float(np.einsum("ij,ij->", x[a0:a1], y))
-        sxx_c, sxy_c = sxx - sx * sx / m, sxy - sx * sy / m
-        a = sxy_c / sxx_c if sxx_c > 0 else 0.0
-        out[:, j] = syy - sy * sy / m - a * sxy_c, a, (sy - a * sx) / m
-    return out
+def _least_squares(sx, sxx, sxy, sy, syy, m):
+    """y ≈ a x + c from the sums of m pairs (any shape, broadcast) -> (SSE, a, c); a 0 where x does not vary."""
+    sxx_c, sxy_c = sxx - sx * sx / m, sxy - sx * sy / m
+    a = np.where(sxx_c > 0, sxy_c / np.where(sxx_c > 0, sxx_c, 1.0), 0.0)
+    return np.stack([syy - sy * sy / m - a * sxy_c, a, (sy - a * sx) / m])
 
 
 def speed_fit(rec: dict, start: int = 0, per_rotor: bool = True) -> dict:
@@ -140,7 +130,9 @@ def speed_fit(rec: dict, start: int = 0, per_rotor: bool = True) -> dict:
     for i, tau in enumerate(SPEED_TAU_GRID):
         s_rows = row_speed(u, tau)
         x = (1 - wt) * s_rows[idx] + wt * s_rows[idx + 1]            # (N, 4) the lag at the samples' times
-        per[i], shared[i] = _regress(x, y, dm, N), _pooled(x, y, dm, N)
+        sx, sxx, sxy, sy, syy = _sums(x, y, dm, N)
+        per[i] = _least_squares(sx, sxx, sxy, sy, syy, len(y))                       # a map per rotor
+        shared[i] = _least_squares(sx.sum(-1), sxx.sum(-1), sxy.sum(-1), sy.sum(), syy.sum(), y.size)   # one map
     sse_p = np.maximum(per[:, 0].sum(-1), 0.0) + floor              # (Gs, D)
     sse_s = np.maximum(shared[:, 0], 0.0) + floor
     r2_p, r2_s = 1 - (sse_p.min() - floor) / syy_c, 1 - (sse_s.min() - floor) / syy_c

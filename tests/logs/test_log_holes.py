@@ -155,16 +155,16 @@ def test_the_logs_minimum_rows_are_the_policys_history():
 def test_tau_m_is_read_from_command_to_measured_rotor_speed():
     """A log that measures rotor speed (RPM deck, bidirectional DShot): the lag from command to speed
     is the rotors' 35 ms, whatever the idle offset; a log without speeds gives None."""
-    from mjxsysid.logs.checks.rotors import check_rotor_speed, rotor_speed_lag
-    from mjxsysid.logs.checks.signals import lagged
+    from mjxsysid.logs.checks.rotors import check_rotor_speed
+    from mjxsysid.logs.speedmap import first_row, row_speed, speed_fit
     rng = np.random.default_rng(0)
     T = 5000
     steps = np.repeat(rng.uniform(0.3, 0.9, (T // 100, 4)), 100, axis=0)
-    omega = 3000.0 * lagged(steps, 0.035) - 200.0 + rng.normal(0, 5, (T, 4))
-    fit = rotor_speed_lag({"motor": steps, "rotor_speed": omega})
-    assert fit["tau_m_s"] == pytest.approx(0.035, rel=0.1) and fit["r2"] > 0.99 > fit["r2_no_lag"]
-    assert fit["omega_max_rad_s"] == pytest.approx(2800.0, rel=0.02)
+    omega = 3000.0 * row_speed(steps, 0.035) - 200.0 + rng.normal(0, 5, (T, 4))
+    fit = speed_fit({"motor": steps, "rotor_speed": omega}, first_row(T))
+    assert fit["used"] and fit["tau_m_s"] == pytest.approx(0.035, rel=0.05) and fit["r2"] > 0.99 > fit["r2_no_lag"]
+    assert fit["omega_ref_rad_s"] == pytest.approx(2800.0, rel=0.02) and fit["delay_s"] == 0.0
     assert check_rotor_speed({"motor": steps, "rotor_speed": omega}) == []
-    assert rotor_speed_lag({"motor": steps}) is None
+    assert not speed_fit({"motor": steps})["used"]
     bad = check_rotor_speed({"motor": steps, "rotor_speed": rng.normal(2000, 300, (T, 4))})
     assert bad and bad[0].level == "warning" and "do not follow" in bad[0].message

@@ -154,39 +154,6 @@ def check_motors(rec) -> list[Finding]:
     return []
 
 
-SPEED_LAGS = np.geomspace(0.002, 0.3, 64)
-"""s: the time constants tried by :func:`rotor_speed_lag`."""
-
-
-def rotor_speed_lag(rec: dict) -> dict | None:
-    """τ_m read directly from command to measured rotor speed, for a log that measures it (``rotor_speed``
-    (T, 4) rad/s: a Crazyflie RPM deck, bidirectional DShot): for each τ of :data:`SPEED_LAGS`, the
-    commands ``motor`` (T, 4) through the first-order lag, Ω = a · lagged + c fitted over the four rotors;
-    the τ of the best fit -> {tau_m_s, omega_max_rad_s (a + c: the speed at full command), idle_rad_s (c),
-    r2, r2_no_lag (τ at the grid's smallest)}, or None without rotor speeds."""
-    if "rotor_speed" not in rec:
-        return None
-    u = np.clip(np.asarray(rec["motor"], np.float64), 0.0, 1.0)
-    w = np.asarray(rec["rotor_speed"], np.float64)
-    ok = np.all(np.isfinite(w), 1)
-    if ok.sum() < 100:
-        return None
-    best = None
-    r2s = []
-    for tau in SPEED_LAGS:
-        x = lagged(u, float(tau))[ok].ravel()
-        y = w[ok].ravel()
-        A = np.stack([x, np.ones_like(x)], 1)
-        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-        r2 = 1 - np.mean((y - A @ coef) ** 2) / max(np.var(y), 1e-12)
-        r2s.append(r2)
-        if best is None or r2 > best[0]:
-            best = (r2, float(tau), coef)
-    r2, tau, (a, c) = best
-    return {"tau_m_s": tau, "omega_max_rad_s": float(a + c), "idle_rad_s": float(c), "r2": float(r2),
-            "r2_no_lag": float(r2s[0])}
-
-
 def check_rotor_speed(rec) -> list[Finding]:
     """A warning where a log carries rotor speeds that the log-grounded likelihood will not use
     (:func:`~mjxsysid.logs.speedmap.speed_fit`: not finite, too few, not rising with the command, or not
