@@ -116,8 +116,6 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     (default: the posterior config's, :data:`~mjxsysid.identify.posterior_config.DEFAULT`). Returns ``summary``."""
     from mjxsysid.identify import logspace as L
     from mjxsysid.identify.gap import information_gap, joint_summary, log_summary, seen_by_name
-    from mjxsysid.identify.speeds import report
-    from mjxsysid.logs.speedmap import first_row, speed_fit
     from mjxsysid.identify.inference import log_grounded_posterior
     from mjxsysid.identify.logdata import LogTooShort
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
@@ -156,7 +154,7 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
                            if cal.get("applied") else {"applied": False, "why": cal["why"]})
     diag["gap"] = gap
     # the measured rotor speeds: used (τ_m from command to speed, the thrust and torque from the speeds) or why not
-    diag["rotor_speed"] = report(speed_fit(rec, first_row(len(rec["motor"]))))
+    diag["rotor_speed"] = post["rotor_speed"]
     summary["_log_grounded"] = plain(diag)
     summary["_posterior"] = "log-grounded"
     dec["samples_log_grounded"] = post["theta"]

@@ -440,8 +440,10 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
 
 
 def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> dict:
-    """One log's draws y (samples, 17) -> its posterior dict: θ, v, the features, the drag, the calibration."""
+    """One log's draws y (samples, 17) -> its posterior dict: θ, v, the features, the drag, the measured rotor
+    speeds' use (:func:`~.speeds.report`, where the log was prepared in this process), the calibration."""
     mode = out["mode"]
+    out["rotor_speed"] = getattr(data, "_rows", {}).get("speed")
     xs = np.asarray(full_x(ys, ld))
     v_raw = xs[:, L.X_V]
     out["features"] = log_features(data, mode)

@@ -221,8 +221,9 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
     """Step 3 of :mod:`.inference`: the SMC's draws of the logs ``need`` replaced by NUTS's (:data:`CHAINS`
     chains from the mode, preconditioned by the SMC's draws), in place; logs whose chains did not mix
     run once more with :data:`LONGER` times the warm-up and draws (thinned), and keep the
-    SMC's draws (``method`` 'smc') if they still do not: chains that did not meet, or did not move
-    (a clean log's noise σ at its floor), would set the bands by where they started. Each log's
+    SMC's draws (``method`` 'smc') if they still do not: chains that did not meet would set the
+    bands by where they started (× 5 vibration, 7 of 12 such logs: the SMC's draws held 78 of 84 truths, the
+    pooled chains 74). Each log's
     ``nuts`` entry: its chains' diagnostics, whether they mixed and which draws were kept. ``logs``:
     :class:`~.inference._Logs` (its ``nuts``)."""
     per = -(-samples // CHAINS)

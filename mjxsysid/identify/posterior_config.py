@@ -11,6 +11,7 @@ single fields of the config they are given.
 from __future__ import annotations
 
 import dataclasses
+import numbers
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +42,9 @@ class PosteriorConfig:
     def __post_init__(self):
         for name in ("samples", "draws", "particles", "n_mcmc", "max_stages", "starts"):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or v < 1:
                 raise ValueError(f"PosteriorConfig.{name} must be a positive integer, got {v!r}")
+            object.__setattr__(self, name, int(v))          # a NumPy integer stored as an int
         if self.rates not in ("windows", "innovations"):
             raise ValueError(f"PosteriorConfig.rates must be 'windows' or 'innovations', got {self.rates!r}")
         c = self.calibration
@@ -62,17 +64,10 @@ class PosteriorConfig:
 DEFAULT = PosteriorConfig()
 """The settings of a call that names no config."""
 
-UNSET = "from config"
-"""The default of the posterior functions' keyword arguments: take the field from the config."""
-
-
 def resolve(config: PosteriorConfig | None = None, **overrides) -> PosteriorConfig:
-    """``config`` (None: :data:`DEFAULT`, read at call time) with every override not :data:`UNSET`."""
+    """``config`` (None: :data:`DEFAULT`, read at call time) with the overrides that are not None
+    (calibration's None is one: the raw posterior)."""
     base = DEFAULT if config is None else config
     if not isinstance(base, PosteriorConfig):
         raise TypeError(f"config must be a PosteriorConfig, got {type(base).__name__}")
-    given = {k: v for k, v in overrides.items() if not (isinstance(v, str) and v == UNSET)}
-    for k in ("samples", "draws", "particles", "n_mcmc", "max_stages", "starts"):
-        if k in given and given[k] is not None and not isinstance(given[k], bool):
-            given[k] = int(given[k])
-    return base.replace(**{k: v for k, v in given.items() if v is not None or k == "calibration"})
+    return base.replace(**{k: v for k, v in overrides.items() if v is not None or k == "calibration"})

@@ -27,6 +27,10 @@ SPEED_DELAYS = np.arange(0, 21)
 """Speed samples (0–40 ms at 500 Hz): the transport delays between command and measured speed the fit profiles out
 (the speed at t follows the commands up to t − delay through the lag; measured on the Indiflight log's
 filtered ``omega`` field: 16–20 ms, docs/logs.md)."""
+MAX_SPEED_S = 30.0
+"""s: the stretch of speeds the fit reads at most, from the first row it reads (as the innovations' 30 s): the
+fit costs 505 lags of the rows it reads (1.4 s for 24 s of Indiflight's log on 2 cores), and a longer log's
+speeds would only narrow a band the model floor (:data:`~mjxsysid.identify.speeds.SPEED_MODEL_SD`) already sets."""
 MIN_SPEED_SAMPLES = 500
 """Speed samples per rotor the fit needs (1 s at 500 Hz)."""
 MIN_SPEED_R2 = 0.5
@@ -54,19 +58,19 @@ def row_speed(u, tau: float):
     return np.concatenate([u[:1], lagged(u, tau)[:-1]], 0)
 
 
-def _samples(rec: dict, start: int):
-    """The speed samples the fit reads: (their times (N,) s, speeds (N, 4) rad/s, rows' times (T,), what
+def _samples(rec: dict, start: int, end: int):
+    """The speed samples the fit reads: (their times (N,) s, speeds (N, 4) rad/s, rows' times (end,), what
     they are). The native samples where the log says the speeds were resampled, else the rows; from
-    row ``start`` on."""
+    row ``start`` to row ``end``."""
     T = len(rec["motor"])
-    t = np.asarray(rec["t"], np.float64) if "t" in rec else DT * np.arange(T)
+    t = (np.asarray(rec["t"], np.float64) if "t" in rec else DT * np.arange(T))[:end]
     nat = (rec.get("native") or {}).get("rotor_speed")
     if nat is not None and len(nat[0]) > 2:
         tn, wn = np.asarray(nat[0], np.float64), np.asarray(nat[1], np.float64)
         keep = (tn >= t[start]) & (tn <= t[-1])
         rate = 1.0 / max(float(np.median(np.diff(tn))), 1e-9)
         return tn[keep], wn[keep], t, f"native samples ({rate:.0f} Hz)"
-    return t[start:], np.asarray(rec["rotor_speed"], np.float64)[start:], t, "the log's 2 ms rows"
+    return t[start:], np.asarray(rec["rotor_speed"], np.float64)[start:end], t, "the log's 2 ms rows"
 
 
 def _not_used(why: str, **kw) -> dict:
@@ -92,7 +96,7 @@ def _least_squares(sx, sxx, sxy, sy, syy, m):
 
 def speed_fit(rec: dict, start: int = 0, per_rotor: bool = True) -> dict:
     """A log's rotor speeds (``rotor_speed`` (T, 4) rad/s on the rows, ``native``'s where resampled) against
-    its commands ``motor`` (T, 4), from row ``start``; a map per rotor (``per_rotor``) or one map for the
+    its commands ``motor`` (T, 4), from row ``start`` for at most :data:`MAX_SPEED_S`; a map per rotor (``per_rotor``) or one map for the
     four -> {used, why, and where fitted: per_rotor (the map used: per rotor
     unless a rotor's map is ill-posed), tau_m_s (the best τ), delay_s (the best delay), tau_m_s_no_delay and
     r2_no_delay (the fit without a delay), omega_ref_rad_s (the mean over rotors of a_i + c_i), idle_rad_s
@@ -107,11 +111,12 @@ def speed_fit(rec: dict, start: int = 0, per_rotor: bool = True) -> dict:
     T = len(rec["motor"])
     if w_rows.shape != (T, 4):
         return _not_used(f"rotor_speed has shape {w_rows.shape}, not ({T}, 4)")
-    if not np.all(np.isfinite(w_rows[start:])):
-        bad = int((~np.all(np.isfinite(w_rows[start:]), 1)).sum())
-        return _not_used(f"{bad} of the {T - start} rows read have a rotor speed that is not finite")
-    u = np.clip(np.asarray(rec["motor"], np.float64), 0.0, 1.0)
-    ts, w, t, what = _samples(rec, start)
+    end = min(T, start + int(round(MAX_SPEED_S / DT)))
+    if not np.all(np.isfinite(w_rows[start:end])):
+        bad = int((~np.all(np.isfinite(w_rows[start:end]), 1)).sum())
+        return _not_used(f"{bad} of the {end - start} rows read have a rotor speed that is not finite")
+    u = np.clip(np.asarray(rec["motor"], np.float64)[:end], 0.0, 1.0)
+    ts, w, t, what = _samples(rec, start, end)
     ok = np.all(np.isfinite(w), 1)
     ts, w = ts[ok], w[ok]
     if len(ts) < MIN_SPEED_SAMPLES + SPEED_DELAYS[-1]:

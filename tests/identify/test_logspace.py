@@ -228,7 +228,7 @@ def test_posterior_config_validates_and_overrides():
 
     from mjxsysid.identify import posterior_config as K
     base = K.PosteriorConfig(samples=200, refine=False)
-    assert K.resolve(base, samples=K.UNSET, draws=None) == base
+    assert K.resolve(base, draws=None) == base and K.resolve(base, samples=np.int64(300)).samples == 300
     assert K.resolve(base, draws=512).draws == 512 and K.resolve(base, calibration=None).calibration is None
     assert K.resolve(None) == K.DEFAULT
     for bad, msg in (({"samples": 0}, "samples"), ({"rates": "kalman"}, "rates"), ({"calibration": 3}, "calibration"),
