@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from mjxsysid.identify.calibrate import (
+    BINS,
     COORD_FEATURE,
     FEATURE_NAMES,
     fit,
@@ -153,16 +154,19 @@ def read_rows(paths) -> list[dict]:
     return rows
 
 
-def fit_file(paths, out: Path, note: str = "") -> dict:
-    """Fit the table on the rows of ``paths`` and write it to ``out`` with its provenance."""
+def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: int = 30, command: str | None = None,
+             provenance: dict | None = None) -> dict:
+    """Fit the table on the rows of ``paths`` (``bins``, ``min_group``: :func:`~mjxsysid.identify.calibrate.fit`'s)
+    and write it to ``out`` with its provenance (``command`` that made it, default the CLI's; ``provenance``:
+    more entries, e.g. a release stage's)."""
     rows = read_rows(paths)
     t0 = time.perf_counter()
-    table = fit(rows)
+    table = fit(rows, bins=bins, min_group=min_group)
     levels = sorted({r["level"] for r in rows})
-    table["provenance"] = {"command": "mjxsysid calibrate-posterior --fit " + " ".join(map(str, paths)),
+    table["provenance"] = {"command": command or "mjxsysid calibrate-posterior --fit " + " ".join(map(str, paths)),
                            "rows": len(rows), "levels": levels, "commit": git_commit() or "unknown",
                            "fitted_on": platform.node() or "unknown", "fit_seconds": round(time.perf_counter() - t0, 3),
-                           "date": time.strftime("%Y-%m-%d"), "note": note}
+                           "date": time.strftime("%Y-%m-%d"), "note": note, **(provenance or {})}
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(table, indent=1) + "\n")

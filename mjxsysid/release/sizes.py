@@ -97,7 +97,7 @@ FULL_CALIBRATION = CalibrationSizes(
     train_levels=("clean", "x1", "x5_white", "x5_vibration", "x20"),
     held_out_levels=("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20"),
     shards=4, bins=4, min_group=30)
-"""The protocol of the shipped table's rows (.carry/cal_nuts.sh): 7 training sets of 128 vehicles at
+"""The protocol of the shipped table's rows (docs/identify.md, "Calibration by simulation"): 7 training sets of 128 vehicles at
 5 levels, 2 held-out sets at 7 (other seeds), 4 bins of at least 30 logs."""
 
 

@@ -52,7 +52,7 @@ def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, 
     assert prov["rows"] == n_train and prov["commit"] == "c0ffee" and prov["device"] == "dev"
     assert prov["sizes"]["bins"] == cal.bins and set(prov["sizes"]["train"]) == set(cal.train)
     assert set(prov["collected"]) == {f for *_, f in pieces(cal)}
-    assert [c["call"].rsplit(".", 1)[1] for c in prov["calls"]] == ["collect", "collect", "fit"]
+    assert [c["call"].rsplit(".", 1)[1] for c in prov["calls"]] == ["collect", "collect", "fit_file"]
     assert set(prov["held_out"]["mean_coverage"]) == set(cal.held_out_levels)
     ev = json.loads((out / "evaluation.json").read_text())
     assert ev["rows"] == n_held and set(ev["calibrated"]) == set(cal.held_out_levels)

@@ -89,8 +89,7 @@ def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
     wall times), and evaluate it on the held-out rows
     (:func:`mjxsysid.experiments.posterior_calibration.report`: out/evaluation.json, evaluation.md,
     coverage_width.png, ranks.png)."""
-    from mjxsysid.experiments.posterior_calibration import read_rows, report
-    from mjxsysid.identify.calibrate import fit
+    from mjxsysid.experiments.posterior_calibration import fit_file, report
     from mjxsysid.release.provenance import code_commit, device_name
     cal = rel.sizes.calibration
     entry = rel.entry("posterior_calibration")
@@ -106,19 +105,16 @@ def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
             ran.append(p[5])
     train = [out / p[5] for p in todo if p[0] == "train"]
     held = [out / p[5] for p in todo if p[0] == "held_out"]
-    rows = read_rows(train)
-    t_fit = time.time()
-    table = fit(rows, bins=cal.bins, min_group=cal.min_group)
-    calls.append(call(fit, rows=train, bins=cal.bins, min_group=cal.min_group))
+    calls.append(call(fit_file, paths=train, out=out / TABLE, bins=cal.bins, min_group=cal.min_group))
     collected = {p[5]: json.loads((out / p[5]).read_text()).get("release", {}) for p in todo}
-    table["provenance"] = {
-        "command": f"mjxsysid release --out {rel.out.name} --stages posterior_calibration",
-        "what": "the log-grounded posterior's calibration table, fitted on simulated logs (identify.calibrate.fit)",
-        "rows": len(rows), "levels": sorted({r["level"] for r in rows}), "commit": commit, "device": device,
-        "scale": rel.options.scale, "fit_seconds": round(time.time() - t_fit, 3), "date": time.strftime("%Y-%m-%d"),
-        "sizes": jsonable(cal), "calls": list(calls),
-        "collected": collected, "collect_wall_s": round(sum(v.get("wall_s") or 0 for v in collected.values()), 1)}
-    (out / TABLE).write_text(json.dumps(table, indent=1) + "\n")
+    table = fit_file(train, out / TABLE, bins=cal.bins, min_group=cal.min_group,
+                     command=f"mjxsysid release --out {rel.out.name} --stages posterior_calibration", provenance={
+                         "what": "the log-grounded posterior's calibration table, fitted on simulated logs "
+                                 "(identify.calibrate.fit)",
+                         "commit": commit, "device": device, "scale": rel.options.scale, "sizes": jsonable(cal),
+                         "calls": list(calls), "collected": collected,
+                         "collect_wall_s": round(sum(v.get("wall_s") or 0 for v in collected.values()), 1)})
+    rows = table["provenance"]["rows"]
     res = report(held, out / TABLE, out)
     cov = _mean_coverage(res["calibrated"])
     table["provenance"]["held_out"] = {"rows": res["rows"], "mean_coverage": cov}
@@ -127,6 +123,6 @@ def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
     return StageResult(
         calls=tuple(calls),
         config={"sizes": jsonable(cal), "collected_now": ran},
-        figures={"train_logs": len(rows), "held_out_logs": res["rows"], "mean_coverage": cov,
+        figures={"train_logs": rows, "held_out_logs": res["rows"], "mean_coverage": cov,
                  "mean_coverage_raw": _mean_coverage(res["raw"]),
                  "wall_s_this_call": round(time.time() - t0, 1)})
