@@ -28,15 +28,17 @@ def cmd_check_log(args) -> int:
     """Exit 2 on an error finding, 1 on a warning or out-of-prior finding, 0 on none."""
     from mjxsysid.logs import checks as L
     from mjxsysid.logs.csvlog import read_any_log
+    from mjxsysid.logs.speedmap import check_fit
     rec = read_any_log(args.log, args.segment)
-    found = L.check_log(rec)
+    fit = check_fit(rec)                 # once: the check and the report read it
+    found = L.check_log(rec, speed_fit=fit)
     est = None
     if not any(f.level == "error" for f in found):
         est = L.estimate_vehicle(rec)
         if args.prior.lower() != "none":
             found += L.prior_check(rec, args.prior, est)
     src = rec.get("source")
-    speed = _rotor_speed(rec)
+    speed = _rotor_speed(fit)
     if args.json:
         tau = L.motor_time_constant(est) if est else (None, None)
         print(jsonout.dumps({"findings": [f.as_dict() for f in found], "estimates": est,
@@ -78,11 +80,10 @@ def cmd_check_log(args) -> int:
     return 2 if "error" in levels else 1 if levels & {"warning", "out_of_prior"} else 0
 
 
-def _rotor_speed(rec: dict) -> dict | None:
-    """What the likelihood makes of the log's measured rotor speeds (:func:`~mjxsysid.identify.speeds.report`),
-    None for a log without them."""
-    if rec.get("rotor_speed") is None:
+def _rotor_speed(fit: dict | None) -> dict | None:
+    """What the likelihood makes of the log's measured rotor speeds (:func:`~mjxsysid.identify.speeds.report`
+    of its :func:`~mjxsysid.logs.speedmap.check_fit`), None for a log without them."""
+    if fit is None:
         return None
     from mjxsysid.identify.speeds import report
-    from mjxsysid.logs.speedmap import first_row, speed_fit
-    return report(speed_fit(rec, first_row(len(rec["motor"]))))
+    return report(fit)

@@ -195,3 +195,9 @@ def _interpolator(t, ts):
 def first_row(T: int) -> int:
     """The first row of a log of T rows that the fits read (:data:`SKIP_S`)."""
     return int(round(float(np.clip(0.1 * T * DT, *SKIP_S)) / DT))
+
+
+def check_fit(rec: dict) -> dict | None:
+    """The :func:`speed_fit` the checks and ``check-log``'s report read (from :func:`first_row`, a map per
+    rotor); None for a log without rotor speeds."""
+    return None if rec.get("rotor_speed") is None else speed_fit(rec, first_row(len(rec["motor"])))

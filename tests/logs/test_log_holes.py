@@ -168,3 +168,19 @@ def test_tau_m_is_read_from_command_to_measured_rotor_speed():
     assert not speed_fit({"motor": steps})["used"]
     bad = check_rotor_speed({"motor": steps, "rotor_speed": rng.normal(2000, 300, (T, 4))})
     assert bad and bad[0].level == "warning" and "do not follow" in bad[0].message
+
+
+def test_check_log_fits_the_rotor_speeds_once(tmp_path, monkeypatch, capsys):
+    """``check-log`` on a log with rotor speeds: the check and the printed report read one command→speed fit."""
+    import mjxsysid.logs.csvlog as csvlog
+    from mjxsysid.logs import speedmap
+    r = synthetic_flight(seconds=4.0, twr=TWR)
+    path = _csv(tmp_path / "speeds.csv", r)
+    read = csvlog.read_any_log
+    monkeypatch.setattr(csvlog, "read_any_log", lambda p, seg=None: {**read(p, seg), "rotor_speed": 3000.0 * r["rotor_speed"]})
+    calls = []
+    fit = speedmap.speed_fit
+    monkeypatch.setattr(speedmap, "speed_fit", lambda *a, **k: calls.append(1) or fit(*a, **k))
+    main(["check-log", str(path), "--prior", "none"])
+    assert "rotor speeds: used by the likelihood" in capsys.readouterr().out
+    assert len(calls) == 1

@@ -17,7 +17,8 @@ GYRO_FULL_SCALE = np.deg2rad(2000.0)
 cannot have been measured: the column is not in rad/s."""
 
 
-def check_log(rec: dict, *, policy=None, zhat=None, imu_limit: dict | None = None) -> list[Finding]:
+def check_log(rec: dict, *, policy=None, zhat=None, imu_limit: dict | None = None,
+              speed_fit: dict | None = None) -> list[Finding]:
     """Physical plausibility of a flight log read by
     [read_log][mjxsysid.logs.csvlog.read_log] (``rec``: t, imu (T, 6), a_cmd, omega_cmd (T, 3),
     motor (T, 4)). ``policy``: the loaded latent policy being decoded, and ``zhat`` (T, 8) its
@@ -27,7 +28,9 @@ def check_log(rec: dict, *, policy=None, zhat=None, imu_limit: dict | None = Non
     ``imu_limit``: the IMU noise the decoders are calibrated under (:func:`imu_noise_limit`;
     default :data:`IMU_NOISE_LIMIT`). Columns resampled from a lower rate (declared by the reader
     in ``rec["native"]`` / ``rec["resampled"]``, or detected in a CSV) are named, and each check
-    reads the native samples or says that it cannot tell at that rate. -> findings, errors first."""
+    reads the native samples or says that it cannot tell at that rate. ``speed_fit``: the log's
+    :func:`~mjxsysid.logs.speedmap.check_fit` where the caller has it (``check-log`` prints it): not fitted
+    again. -> findings, errors first."""
     out = []
     out += check_specific_force(rec)
     out += check_gyro(rec)
@@ -39,7 +42,7 @@ def check_log(rec: dict, *, policy=None, zhat=None, imu_limit: dict | None = Non
         out += check_resampled(rec)
         out += check_motors(rec)
         out += check_thrust_model(rec)
-        out += check_rotor_speed(rec)
+        out += check_rotor_speed(rec, speed_fit)
         out += check_imu_noise(rec, imu_limit)
         if policy is not None and zhat is not None and hasattr(policy, "replay_actions"):
             out += check_replay(rec, policy, zhat)

@@ -154,15 +154,16 @@ def check_motors(rec) -> list[Finding]:
     return []
 
 
-def check_rotor_speed(rec) -> list[Finding]:
+def check_rotor_speed(rec, fit: dict | None = None) -> list[Finding]:
     """A warning where a log carries rotor speeds that the log-grounded likelihood will not use
     (:func:`~mjxsysid.logs.speedmap.speed_fit`: not finite, too few, not rising with the command, or not
     following it through a first-order lag, R² < 0.5: another motor model, or not speeds); where used, the
-    fit is reported by ``check-log`` and ``decode`` (``_log_grounded.rotor_speed``)."""
-    from mjxsysid.logs.speedmap import first_row, speed_fit
+    fit is reported by ``check-log`` and ``decode`` (``_log_grounded.rotor_speed``). ``fit``: the log's
+    :func:`~mjxsysid.logs.speedmap.check_fit` where the caller has it (then not fitted again)."""
+    from mjxsysid.logs.speedmap import check_fit
     if rec.get("rotor_speed") is None:
         return []
-    fit = speed_fit(rec, first_row(len(rec["motor"])))
+    fit = check_fit(rec) if fit is None else fit
     if fit["used"]:
         return []
     msg = f"measured rotor speeds not used by the likelihood: {fit['why']}"
