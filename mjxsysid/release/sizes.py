@@ -50,13 +50,16 @@ class CalibrationSet:
     (:func:`mjxsysid.experiments.posterior_calibration.collect`): ``vehicles`` drawn with ``seed``,
     each flying ``flights`` ('lemniscate:PERIOD', 'minsnap:SECONDS', 'hover:SECONDS') at every
     level; ``controller`` 'oracle' or 'policy' (the release's); ``aero``: rotor aerodynamics on;
-    ``velocity``: the logs keep their body velocity."""
+    ``velocity``: the logs keep their body velocity; ``motor_idle``, ``motor_kappa``: the simulator's
+    static motor map (``SimConfig``'s; 0 and 1: the map θ describes)."""
     vehicles: int
     seed: int
     flights: tuple[str, ...]
     controller: str = "oracle"
     aero: bool = False
     velocity: bool = True
+    motor_idle: float = 0.0
+    motor_kappa: float = 1.0
 
     def logs(self, levels: int) -> int:
         """The logs it flies at ``levels`` levels (before failed flights are dropped)."""
