@@ -31,6 +31,12 @@ def add_calibrate_posterior(sub) -> None:
     cp.add_argument("--aero", action="store_true",
                     help="--collect: fly with rotor aerodynamics (SimConfig.aero: RotorPy's rotor drag, induced inflow, "
                          "parasitic drag and translational lift, scaled to the vehicle)")
+    cp.add_argument("--motor-idle", type=float, default=0.0, metavar="SHARE",
+                    help="--collect: fly with an idle offset in the static motor map, a share of the maximum rotor "
+                         "speed (SimConfig.motor_idle; default 0)")
+    cp.add_argument("--motor-kappa", type=float, default=1.0, metavar="K",
+                    help="--collect: the static motor map's curvature (SimConfig.motor_kappa; 1 linear, the "
+                         "default; 0 a square root)")
     cp.add_argument("--no-velocity", action="store_true",
                     help="--collect: drop the logs' body velocity (logs without a state estimate: the drag unmodelled)")
     cp.add_argument("--flights", default="lemniscate:10",
@@ -56,7 +62,7 @@ def cmd_calibrate_posterior(args) -> int:
         res = pc.collect(prior=args.prior, vehicles=args.vehicles, levels=tuple(args.levels.split(",")),
                          seed=args.seed, shard=args.shard, out=args.collect, time_budget_s=args.time_budget,
                          references=tuple(args.flights.split(",")), controller=args.controller, aero=args.aero,
-                         velocity=not args.no_velocity)
+                         velocity=not args.no_velocity, motor_idle=args.motor_idle, motor_kappa=args.motor_kappa)
         echo(f"{len(res['rows'])} rows -> {args.collect}")
     elif args.fit:
         out = args.out or SHIPPED

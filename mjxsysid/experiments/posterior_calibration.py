@@ -66,7 +66,7 @@ def parse_reference(spec: str) -> dict:
 def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_LEVELS, seed: int = 5,
             shard: str | None = None, out: Path, time_budget_s: float | None = None,
             references=REFERENCES, controller: str = "oracle", aero: bool = False, velocity: bool = True,
-            policy=None) -> dict:
+            policy=None, motor_idle: float = 0.0, motor_kappa: float = 1.0) -> dict:
     """Fly every level, then identify; write ``out`` (JSON: rows) after every log, or every batch of logs
     identified together on an accelerator (the levels interleaved: a stopped run keeps a balanced set of
     what it finished); ``time_budget_s``: start no new batch after this long; ``references``: the flights
@@ -74,7 +74,9 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     oracle, or 'policy', the shipped adaptive policy: another closed loop's reaction to the noise);
     ``aero``: the simulator's rotor aerodynamics on (``SimConfig.aero``: physics the likelihood lacks);
     ``velocity``: False drops the logs' body velocity (a log without a state estimate); ``policy``: the
-    weights controller 'policy' flies (a path; None: the shipped policy)."""
+    weights controller 'policy' flies (a path; None: the shipped policy); ``motor_idle``, ``motor_kappa``: the
+    simulator's static motor map (``SimConfig.motor_idle``, ``motor_kappa``: an idle offset and a curvature the
+    likelihood lacks; 0 and 1: the map θ describes)."""
     from mjxsysid.identify.inference import LOG_BATCH, log_grounded_posteriors
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
@@ -84,6 +86,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
 
     from mjxsysid import theta as P
 
+    motor = SimConfig(motor_idle=motor_idle, motor_kappa=motor_kappa)    # checks them before any flight
     pr = P.get_prior(prior)
     pol = None
     if controller == "policy":
@@ -96,7 +99,9 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
-           "references": list(references), "controller": controller, "aero": aero, "velocity": velocity, "rows": []}
+           "references": list(references), "controller": controller, "aero": aero, "velocity": velocity,
+           "motor_idle": motor_idle, "motor_kappa": motor_kappa, "rows": []}
+    tag = {"motor": [motor_idle, motor_kappa]} if motor.motor_map else {}
     t_start = time.perf_counter()
     step = 1 if jax.default_backend() == "cpu" else LOG_BATCH      # logs identified together (batched on a GPU)
     logs = []                                                       # (data, vehicle index, level, flight name)
@@ -104,9 +109,10 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
         if lv not in LEVELS:
             raise ValueError(f"unknown noise level {lv!r}; known: {sorted(LEVELS)}")
         s = seed + 1000 * (0 if shard is None else int(shard.split("/")[0])) + 97 * list(LEVELS).index(lv)
-        fl, m, _ = fly_vehicles(th, controller=controller, sim=Quadrotor(SimConfig(**LEVELS[lv], aero=aero)), seed=s, policy=pol,
-                                **parse_reference(ref))
-        flight = (ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if aero else "")
+        sim = Quadrotor(SimConfig(**LEVELS[lv], aero=aero, motor_idle=motor_idle, motor_kappa=motor_kappa))
+        fl, m, _ = fly_vehicles(th, controller=controller, sim=sim, seed=s, policy=pol, **parse_reference(ref))
+        flight = ((ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if aero else "")
+                  + (f" motor {motor_idle:g}/{motor_kappa:g}" if motor.motor_map else ""))
         for i in np.flatnonzero(~np.asarray(m["failed"], bool)):
             rec = flight_log(fl.frame, i)
             if not velocity:
@@ -126,7 +132,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
                                         calibration=None)
         sec = (time.perf_counter() - t0) / len(chunk)
         for (_, i, lv, flight), post in zip(chunk, posts):
-            res["rows"].append(row(post, th[i], lv, int(index[i]), sec) | {"flight": flight, "aero": aero})
+            res["rows"].append(row(post, th[i], lv, int(index[i]), sec) | {"flight": flight, "aero": aero} | tag)
         out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     return res
@@ -194,13 +200,13 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
 
 def evaluate(rows: list[dict], table: dict | None, by: str = "level") -> dict:
     """Coverage, widths and clustering per ``by`` ('level', 'flight' or 'velocity': whether the logs carried
-    it, and whether they were flown with rotor aerodynamics) of ``rows`` under ``table`` (None: the raw
-    posterior)."""
+    it, and whether they were flown with rotor aerodynamics or another motor map) of ``rows`` under
+    ``table`` (None: the raw posterior)."""
     out = {}
     order = ("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20") + REFERENCES_ALL
     if by == "velocity":
         key = lambda r: (("velocity" if r["features"].get("velocity_used") else "no velocity")  # noqa: E731
-                         + (", aero" if r.get("aero") else ""))
+                         + (", aero" if r.get("aero") else "") + (", motor map" if r.get("motor") else ""))
     else:
         key = lambda r: r.get(by, "lemniscate:10")    # noqa: E731  (rows of one flight name none)
     for lv in sorted({key(r) for r in rows}, key=lambda x: (order.index(x) if x in order else len(order), x)):

@@ -7,7 +7,7 @@ never captured, so a new batch of vehicles re-uses the compiled code.
 What MuJoCo integrates: the free rigid body (mass, inertia, gravity, gyroscopic terms), the four
 thrust actuators at the rotor sites (their gear carries the yaw-torque ratio κ = k_τ / k_t),
 and the external wrench in ``xfrc_applied``. What is computed in JAX around ``mjx.step``: rotor
-first-order speed dynamics (integrated exactly), quadratic thrust η_i k_t Ω_i², body-frame linear
+first-order speed dynamics towards the commanded speed (integrated exactly), quadratic thrust η_i k_t Ω_i², body-frame linear
 drag −D v_body, the constant body-frame torque τ_ext, the world-frame disturbance force, the IMU
 (noise, bias, latency) and divergence detection.
 """
@@ -54,7 +54,11 @@ class SimConfig:
     ``diverged`` and frozen. aero: rotor aerodynamics beyond the linear body drag, in RotorPy's form
     with its Hummingbird's coefficients scaled to the vehicle (:meth:`Quadrotor.aero_force`): the drag
     grows with the rotor speed (rotor drag and induced inflow), a parasitic drag quadratic in the
-    airspeed, and translational lift; off by default (the physics θ describes). randomize_imu: the noise, bias and vibration settings are maxima, each
+    airspeed, and translational lift; off by default (the physics θ describes). motor_idle, motor_kappa:
+    another static motor map, the steady-state rotor speed of a command u being
+    Ω_max (idle + (1 − idle) √(κ u² + (1 − κ) u)) (:func:`commanded_speed`): an idle offset (a share of
+    Ω_max; negative: a dead band) and a curvature (κ 1: linear, 0: √u); off (0 and 1) by default (the
+    map θ describes, Ω_max u). randomize_imu: the noise, bias and vibration settings are maxima, each
     flight drawing its levels uniform in [0, 1] × them; imu_clean_fraction: with it, that share of
     flights has a clean IMU (both levels 0).
     """
@@ -76,6 +80,8 @@ class SimConfig:
     vel_limit: float = 100.0
     rate_limit: float = 200.0
     aero: bool = False
+    motor_idle: float = 0.0
+    motor_kappa: float = 1.0
 
     def __post_init__(self):
         if not self.dt > 0:
@@ -92,6 +98,10 @@ class SimConfig:
             raise ValueError(f"SimConfig.imu_clean_fraction must be in [0, 1], got {self.imu_clean_fraction}")
         if self.imu_clean_fraction > 0 and not self.randomize_imu:
             raise ValueError("SimConfig.imu_clean_fraction needs randomize_imu (it is a share of the per-flight draws)")
+        if not -1.0 < self.motor_idle < 1.0:
+            raise ValueError(f"SimConfig.motor_idle must be in (-1, 1) (a share of Ω_max), got {self.motor_idle}")
+        if not 0.0 <= self.motor_kappa <= 1.0:
+            raise ValueError(f"SimConfig.motor_kappa must be in [0, 1], got {self.motor_kappa}")
         if not 0 < self.vibration_bandwidth_hz < 0.5 / self.dt:
             raise ValueError(f"SimConfig.vibration_bandwidth_hz must be in (0, {0.5 / self.dt:g}) Hz "
                              f"(the IMU's Nyquist band), got {self.vibration_bandwidth_hz}")
@@ -100,6 +110,11 @@ class SimConfig:
     def vibration(self) -> bool:
         """Whether the IMU carries rotor vibration (decided at trace time)."""
         return self.gyro_vibration > 0 or self.accel_vibration > 0
+
+    @property
+    def motor_map(self) -> bool:
+        """Whether the static motor map differs from Ω_max u (decided at trace time)."""
+        return self.motor_idle != 0.0 or self.motor_kappa != 1.0
 
     @property
     def physics_dt(self) -> float:
@@ -206,12 +221,26 @@ def mean_square_speed(omega0, omega_cmd, tau_m, h, exp=jnp.exp):
     return omega_cmd**2 + 2.0 * omega_cmd * d * r1 + d * d * r2, omega_cmd + d * a
 
 
+def commanded_speed(cmd, omega_max, config: "SimConfig"):
+    """The steady-state rotor speed (rad/s) of the normalised command ``cmd`` (..., 4), clipped to [0, 1],
+    at ``omega_max`` (rad/s, broadcast): Ω_max u by default; with ``config.motor_map``, Indiflight's
+    Ω_max max(0, idle + (1 − idle) √(κ u² + (1 − κ) u)) (idle ``motor_idle``, κ ``motor_kappa``): it is
+    Ω_max at u = 1 and idle Ω_max at u = 0."""
+    u = jnp.clip(jnp.asarray(cmd, jnp.float32), 0.0, 1.0)
+    if not config.motor_map:  # a Python branch: off, the default map to the bit
+        return u * omega_max
+    idle, kappa = config.motor_idle, config.motor_kappa
+    shape = u if kappa == 1.0 else jnp.sqrt(kappa * u * u + (1.0 - kappa) * u)
+    return jnp.maximum(idle + (1.0 - idle) * shape, 0.0) * omega_max
+
+
 def rotor_speed_after(theta, speed0, motor_cmds, config: "SimConfig", mask=None) -> jax.Array:
     """The rotor speeds (4,) rad/s after the motor commands ``motor_cmds`` (W, 4) (normalised, one
     per control step, oldest first) starting from ``speed0`` (4,) rad/s, by θ's (19,) motor lag
-    (τ_m, Ω_max): the simulator's own integration, substep by substep, so with the true θ and the
-    true start it reproduces the simulator's rotor speeds to float round-off. ``mask`` (W,)
-    bool: steps to apply (others are skipped; None: all)."""
+    (τ_m, Ω_max) and ``config``'s motor map (:func:`commanded_speed`): the simulator's own
+    integration, substep by substep, so with the true θ and the true start it reproduces the
+    simulator's rotor speeds to float round-off. ``mask`` (W,) bool: steps to apply (others are
+    skipped; None: all)."""
     theta = jnp.asarray(theta, jnp.float32)
     cmds = jnp.asarray(motor_cmds, jnp.float32)
     mask = jnp.ones(cmds.shape[0], bool) if mask is None else jnp.asarray(mask, bool)
@@ -219,7 +248,7 @@ def rotor_speed_after(theta, speed0, motor_cmds, config: "SimConfig", mask=None)
 
     def body(speed, inp):
         cmd, on = inp
-        omega_cmd = jnp.clip(cmd, 0.0, 1.0) * theta[P.OMEGA_MAX]
+        omega_cmd = commanded_speed(cmd, theta[P.OMEGA_MAX], config)
         new = speed
         for _ in range(config.substeps):
             _, new = mean_square_speed(new, omega_cmd, theta[P.TAU_M], h)
@@ -404,8 +433,7 @@ class Quadrotor:
         h = c.physics_dt
         model = self.model(theta)
         force_world = jnp.zeros(3, jnp.float32) if force_world is None else jnp.asarray(force_world, jnp.float32)
-        cmd = jnp.clip(jnp.asarray(motor_cmd, jnp.float32), 0.0, 1.0)
-        omega_cmd = cmd * theta[P.OMEGA_MAX]
+        omega_cmd = commanded_speed(motor_cmd, theta[P.OMEGA_MAX], c)
         gain = theta[P.ETA] * theta[P.KT]
 
         def substep(carry, _):

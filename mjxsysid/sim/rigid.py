@@ -24,6 +24,7 @@ from mjxsysid import theta as P
 from mjxsysid.sim.quadrotor import (
     Frame,
     SimConfig,
+    commanded_speed,
     hover_rotor_speed,
     initial_imu,
     mean_square_speed,
@@ -75,7 +76,8 @@ def _quat_integrate(q, omega, h):
 
 class RigidSim:
     """Deterministic rigid-body quadrotor for predictions (see the module doc). ``config``: a
-    :class:`SimConfig` (dt, substeps and the divergence limits are used; noise is not)."""
+    :class:`SimConfig` (dt, substeps, the motor map and the divergence limits are used; noise and
+    ``aero`` are not)."""
 
     def __init__(self, config: SimConfig = SimConfig()):
         self.config = config
@@ -104,7 +106,7 @@ class RigidSim:
         c = self.config
         h = c.physics_dt
         f_world = jnp.zeros(3, jnp.float32) if force_world is None else jnp.asarray(force_world, jnp.float32)
-        omega_cmd = jnp.clip(jnp.asarray(motor_cmd, jnp.float32), 0.0, 1.0) * theta[P.OMEGA_MAX]
+        omega_cmd = commanded_speed(motor_cmd, theta[P.OMEGA_MAX], c)
         gain = theta[P.ETA] * theta[P.KT]
         rotors = P.rotor_positions(theta)                               # (4, 3) body
         kappa = theta[P.KTAU] / theta[P.KT]

@@ -158,8 +158,8 @@ def test_a_narrow_band_against_the_prior_bound_is_not_seen():
 
 def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_path, monkeypatch):
     """collect flies every level first, then identifies the logs in batches that mix the levels, writes
-    the rows after each batch, and starts no batch past its time budget (the posterior stubbed: its
-    own tests check it; this one checks the orchestration)."""
+    the rows after each batch, starts no batch past its time budget, and tags the rows of another motor
+    map (the posterior stubbed: its own tests check it; this one checks the orchestration)."""
     import jax
 
     import mjxsysid.identify.inference as I
@@ -181,6 +181,13 @@ def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_
     calls.clear()
     res = pc.collect(vehicles=2, levels=("clean", "x1"), references=("hover:2",), out=out, time_budget_s=0.0)
     assert res["rows"] == [] and calls == [] and json.loads(out.read_text())["rows"] == []
+    # another motor map: its rows say so, in the flight's name and a field of their own; the others do not
+    res = pc.collect(vehicles=2, levels=("clean",), references=("hover:2",), out=out, motor_idle=0.1)
+    assert {r["flight"] for r in res["rows"]} == {"hover:2 motor 0.1/1"}
+    assert all(r["motor"] == [0.1, 1.0] for r in res["rows"]) and res["motor_idle"] == 0.1
+    assert "motor" not in pc.collect(vehicles=1, levels=("clean",), references=("hover:2",), out=out)["rows"][0]
+    with pytest.raises(ValueError, match="motor_kappa"):
+        pc.collect(vehicles=1, levels=("clean",), references=("hover:2",), out=out, motor_kappa=2.0)
 
 
 def test_a_band_side_never_collapses_to_its_median():
