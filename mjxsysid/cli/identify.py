@@ -49,6 +49,11 @@ def add_calibrate_posterior(sub) -> None:
                     help="--evaluate: the table (default the shipped one)")
     cp.add_argument("--record", action="store_true",
                     help="--evaluate: write the mean coverage per level into the table's provenance")
+    cp.add_argument("--method", choices=("smc", "smc_nuts"), default=None,
+                    help="--fit: fit on the rows of this sampler only (smc_nuts: NUTS's mixed chains) and add the "
+                         "table to --base as that sampler's own")
+    cp.add_argument("--base", type=Path, default=None,
+                    help="--fit --method: the table it is added to (default the shipped one)")
     cp.add_argument("--note", default="", help="--fit: where and how the rows were collected (the provenance)")
     cp.add_argument("--out", type=Path, default=None,
                     help="--fit: the table's path (default the shipped one); --evaluate: a folder")
@@ -66,8 +71,9 @@ def cmd_calibrate_posterior(args) -> int:
         echo(f"{len(res['rows'])} rows -> {args.collect}")
     elif args.fit:
         out = args.out or SHIPPED
-        table = pc.fit_file(args.fit, out, note=args.note)
-        echo(f"calibration of {table['logs']} logs -> {out}")
+        table = pc.fit_file(args.fit, out, note=args.note, method=args.method, base=args.base)
+        sub = table["by_method"][args.method] if args.method else table
+        echo(f"calibration of {sub['logs']} logs" + (f" ({args.method}'s table)" if args.method else "") + f" -> {out}")
     else:
         if args.out is None:
             raise ValueError("--evaluate needs --out FOLDER")

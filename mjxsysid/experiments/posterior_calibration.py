@@ -161,18 +161,29 @@ def read_rows(paths) -> list[dict]:
 
 
 def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: int = 30, command: str | None = None,
-             provenance: dict | None = None) -> dict:
+             provenance: dict | None = None, method: str | None = None, base: Path | None = None) -> dict:
     """Fit the table on the rows of ``paths`` (``bins``, ``min_group``: :func:`~mjxsysid.identify.calibrate.fit`'s)
     and write it to ``out`` with its provenance (``command`` that made it, default the CLI's; ``provenance``:
-    more entries, e.g. a release stage's)."""
+    more entries, e.g. a release stage's). ``method`` ('smc_nuts', 'smc'): fit on that sampler's rows only and
+    write the table at ``base`` (default the shipped one) with this one as its table for ``method``
+    (:func:`~mjxsysid.identify.calibrate.with_method`)."""
+    from mjxsysid.identify.calibrate import load, with_method
     rows = read_rows(paths)
+    if method is not None:
+        n = len(rows)
+        rows = [r for r in rows if r.get("method") == method]
+        if not rows:
+            raise ValueError(f"no calibration rows of method {method!r} among the {n} rows of {[str(p) for p in paths]}")
     t0 = time.perf_counter()
     table = fit(rows, bins=bins, min_group=min_group)
     levels = sorted({r["level"] for r in rows})
-    table["provenance"] = {"command": command or "mjxsysid calibrate-posterior --fit " + " ".join(map(str, paths)),
+    cmd = "mjxsysid calibrate-posterior --fit " + " ".join(map(str, paths)) + (f" --method {method}" if method else "")
+    table["provenance"] = {"command": command or cmd,
                            "rows": len(rows), "levels": levels, "commit": git_commit() or "unknown",
                            "fitted_on": platform.node() or "unknown", "fit_seconds": round(time.perf_counter() - t0, 3),
                            "date": time.strftime("%Y-%m-%d"), "note": note, **(provenance or {})}
+    if method is not None:
+        table = with_method(load(base), table, method)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(table, indent=1) + "\n")
@@ -181,11 +192,12 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
 
 def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """A row's 90 % band (2, 12) after the ``table`` (None: raw) and a (12,) mask of the coordinates
-    the model check and the rate logging let through."""
-    from mjxsysid.identify.calibrate import coord_entry, coord_ok, group_of, model_check, side_factors
+    the model check and the rate logging let through (the table of the row's ``method`` where it has one)."""
+    from mjxsysid.identify.calibrate import coord_entry, coord_ok, for_method, group_of, model_check, side_factors
     q = np.asarray(row["bands"], np.float64)
     if table is None:
         return q[[0, 2]], np.ones(len(V_NAMES), bool)
+    table = for_method(table, row.get("method"))
     check = model_check(row["features"], row["weights"], table)
     ok = np.array([coord_ok(check, j) for j in range(len(V_NAMES))])
     lo, hi = q[0].copy(), q[2].copy()

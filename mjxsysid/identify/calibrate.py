@@ -76,6 +76,11 @@ BOUND_FRACTION = 0.01
 for a vehicle the physical prior excludes (the model does not fit it)."""
 
 SHIPPED = Path(__file__).resolve().parents[1] / "pretrained" / "posterior_calibration.json"
+BY_METHOD = "by_method"
+"""A table's key for the tables of posteriors of one sampler (:func:`for_method`): NUTS's mixed chains are
+sharper than the SMC's particles, so each is calibrated on rows of its own."""
+METHODS = ("smc", "smc_nuts")
+"""The posterior's ``method``: the SMC's draws, or NUTS's refining them (:mod:`.nuts`)."""
 
 B_GRID_QUANTILES = np.linspace(0.0, 0.95, 20)
 """The floors b tried: these quantiles of the group's errors (0 included)."""
@@ -201,21 +206,44 @@ def _fit_coord(j: int, truth, bands, feats, level: float, bins: int, min_group: 
 
 
 def load(path=None) -> dict:
-    """The calibration table at ``path`` (default the shipped one, :data:`SHIPPED`). FileNotFoundError
-    names the command that writes it."""
+    """The calibration table at ``path`` (default the shipped one, :data:`SHIPPED`), its per-method
+    tables (:data:`BY_METHOD`) checked too. FileNotFoundError names the command that writes it."""
     path = SHIPPED if path is None else Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"posterior calibration not found: {path} (write it with "
                                 f"`mjxsysid calibrate-posterior --fit ROWS...`)")
     table = json.loads(path.read_text())
+    _check(table, str(path))
+    for m, sub in table.get(BY_METHOD, {}).items():
+        _check(sub, f"{path} ({BY_METHOD}[{m!r}])")
+    return table
+
+
+def _check(table: dict, where: str) -> None:
+    """ValueError naming ``where`` if ``table`` is not a table of this code's coordinates and features."""
     if len(table.get("coords", [])) != N_V:
-        raise ValueError(f"{path}: a calibration of {len(table.get('coords', []))} coordinates; expected {N_V}")
+        raise ValueError(f"{where}: a calibration of {len(table.get('coords', []))} coordinates; expected {N_V}")
     want = [FEATURE_NAMES[i] for i in COORD_FEATURE]
     got = [c.get("feature") for c in table["coords"]]
     if got != want:
-        raise ValueError(f"{path}: fitted with the features {got}, this code groups by {want}: refit it "
+        raise ValueError(f"{where}: fitted with the features {got}, this code groups by {want}: refit it "
                          f"(`mjxsysid calibrate-posterior --fit ROWS...`)")
-    return table
+
+
+def for_method(table: dict, method: str | None) -> dict:
+    """The table for a posterior drawn by ``method`` ('smc', 'smc_nuts'): its own (``table[BY_METHOD]``)
+    where it has one, else ``table`` itself (the pooled table)."""
+    return table.get(BY_METHOD, {}).get(method, table)
+
+
+def with_method(base: dict, sub: dict, method: str) -> dict:
+    """``base`` with ``sub`` as the table of posteriors drawn by ``method`` (a new dict)."""
+    if method not in METHODS:
+        raise ValueError(f"calibration method {method!r}: expected one of {METHODS}")
+    _check(sub, f"the {method} table")
+    out = dict(base)
+    out[BY_METHOD] = {**base.get(BY_METHOD, {}), method: {k: v for k, v in sub.items() if k != BY_METHOD}}
+    return out
 
 
 def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> dict:

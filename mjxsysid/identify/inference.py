@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid.identify import logspace as L
-from mjxsysid.identify.calibrate import SHIPPED, calibrate, load, log_features
+from mjxsysid.identify.calibrate import SHIPPED, calibrate, for_method, load, log_features
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, theta_from, visible_from_theta
 from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
 from mjxsysid.identify.posterior_config import PosteriorConfig, resolve
@@ -452,7 +452,8 @@ def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> 
         out["drag_per_mass"] = [*(xy.tolist() if xy is not None else [None, None]), drag_at(mode, data)]
     else:
         out["drag_per_mass"] = None
-    v, out["calibration"] = _calibrated(v_raw, out["features"], out["weights"], calibration, prior, seed)
+    v, out["calibration"] = _calibrated(v_raw, out["features"], out["weights"], calibration, prior, seed,
+                                        out.get("method"))
     if "nuts" in out and out["calibration"].get("applied"):
         unmixed_not_seen(out["calibration"], out["nuts"])
     h = prior.sample_h(r_h, samples)
@@ -460,13 +461,14 @@ def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> 
     return out
 
 
-def _calibrated(v_raw, features, weights, calibration, prior, seed):
+def _calibrated(v_raw, features, weights, calibration, prior, seed, method=None):
     """The raw draws through the calibration table (``calibration``: "shipped", a dict, a path or
-    None) -> (draws (S, 12), report)."""
+    None; its table for ``method`` where it has one, :func:`~.calibrate.for_method`) -> (draws (S, 12), report)."""
     if calibration is None:
         return v_raw, {"applied": False, "why": "calibration=None: the raw posterior"}
     table = load() if calibration == "shipped" else calibration if isinstance(calibration, dict) else load(calibration)
-    v, rep = calibrate(v_raw, features, weights, table, prior, rng=seed)
-    rep.update(applied=True, table=str(SHIPPED) if calibration == "shipped" else
+    own = for_method(table, method)
+    v, rep = calibrate(v_raw, features, weights, own, prior, rng=seed)
+    rep.update(applied=True, method_table=method if own is not table else "pooled", table=str(SHIPPED) if calibration == "shipped" else
                (str(calibration) if not isinstance(calibration, dict) else "a table given in Python"))
     return v, rep

@@ -20,11 +20,11 @@ def _fake_posteriors(calls):
 
     def fake(datas, seeds, calibration):
         calls.append(len(datas))
-        return [{"method": "stub", "v_raw": rng.normal(0.0, 0.5, (64, N_V)), "weights": [1.0] * 4,
+        return [{"method": ("smc_nuts", "smc")[(len(calls) + k) % 2], "v_raw": rng.normal(0.0, 0.5, (64, N_V)), "weights": [1.0] * 4,
                  "features": {"rates_nsr": rng.uniform(-2, -1), "acc_nsr": rng.uniform(-2, -1),
                               "rates_nsr_x": -1.5, "rates_nsr_y": -1.5, "rates_nsr_z": -1.5, "rates_used": True,
                               "windows": 8, "velocity_used": False, "rotor_speed_used": False}}
-                for _ in datas]
+                for k in range(len(datas))]
     return fake
 
 
@@ -50,6 +50,9 @@ def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, 
     table = load(out / "posterior_calibration.json")
     prov = table["provenance"]
     assert prov["rows"] == n_train and prov["commit"] == "c0ffee" and prov["device"] == "dev"
+    nuts = sum(r["method"] == "smc_nuts" for f in (out / "rows").glob("train*.json")
+               for r in json.loads(f.read_text())["rows"])
+    assert 0 < nuts < n_train and table["by_method"]["smc_nuts"]["logs"] == nuts   # NUTS's rows: a table of their own
     assert prov["sizes"]["bins"] == cal.bins and set(prov["sizes"]["train"]) == set(cal.train)
     assert set(prov["collected"]) == {f for *_, f in pieces(cal)}
     assert [c["call"].rsplit(".", 1)[1] for c in prov["calls"]] == ["collect", "collect", "fit_file"]

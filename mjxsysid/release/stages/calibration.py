@@ -80,6 +80,19 @@ def _mean_coverage(levels: dict) -> dict:
     return {lv: round(float(np.nanmean(list(r["coverage"].values()))), 3) for lv, r in levels.items()}
 
 
+def _nuts_table(train: list[Path], path: Path, cal: CalibrationSizes, commit, device, command: str) -> dict | None:
+    """The table at ``path`` with a table of its own for NUTS-refined posteriors (the rows whose chains mixed,
+    :func:`mjxsysid.identify.calibrate.for_method`), written there; None (the pooled table alone) where they
+    are too few for the sizes' bins."""
+    from mjxsysid.experiments.posterior_calibration import fit_file
+    try:
+        return fit_file(train, path, bins=cal.bins, min_group=cal.min_group, method="smc_nuts", base=path,
+                        command=command + " (NUTS's table: the rows whose chains mixed)",
+                        provenance={"commit": commit, "device": device})
+    except ValueError:
+        return None
+
+
 @STAGES.add(needs=("policy",), outputs=(TABLE, "evaluation.json", "evaluation.md"), estimate_s=estimate_s(),
             what="calibrate-posterior: collect the training and held-out rows, fit the table, evaluate it "
                  "(resumes by set and shard)")
@@ -116,6 +129,9 @@ def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
                          "commit": commit, "device": device, "scale": rel.options.scale, "sizes": jsonable(cal),
                          "calls": list(calls), "collected": collected,
                          "collect_wall_s": round(sum(v.get("wall_s") or 0 for v in collected.values()), 1)})
+    nuts = _nuts_table(train, out / TABLE, cal, commit, device, table["provenance"]["command"])
+    if nuts is not None:
+        table["by_method"] = nuts["by_method"]
     rows = table["provenance"]["rows"]
     res = report(held, out / TABLE, out)
     cov = _mean_coverage(res["calibrated"])
