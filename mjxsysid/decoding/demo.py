@@ -77,11 +77,12 @@ def decoded_caption(info: dict, n_decodes: int) -> str:
             f"{info['times_s'][-1]:g} s; trained on 1–{info['max_trained_latents']})")
 
 
-def _held_out_coverage() -> str:
-    """What the shipped calibration holds on held-out simulated logs, from its provenance: ', holding the
+def _held_out_coverage(method: str | None = None) -> str:
+    """What the shipped calibration holds on held-out simulated logs, from the provenance of the table of
+    posteriors drawn by ``method`` (:func:`~mjxsysid.identify.calibrate.for_method`): ', holding the
     truth X % of the time on noise-free simulated logs, Y–Z % under IMU noise' ('' where not recorded)."""
-    from mjxsysid.identify.calibrate import load
-    held = load().get("provenance", {}).get("held_out", {})
+    from mjxsysid.identify.calibrate import for_method, load
+    held = for_method(load(), method).get("provenance", {}).get("held_out", {})
     cov = next((v["mean_coverage"] for k, v in held.items() if k.endswith("/test")), None)
     if not cov or "clean" not in cov:
         return ""
@@ -102,7 +103,7 @@ def grounded_md(grounded: dict | None) -> str:
     seen = [gap[k]["width_ratio"] for k in seen_q]
     how = lg["method"] + (f", {lg['smc_stages']} SMC stages" if "smc_stages" in lg else "")
     cal = lg.get("calibration", {})
-    what = (f"Its 90 % bands are calibrated by simulation (docs/identify.md){_held_out_coverage()}" if cal.get("applied")
+    what = (f"Its 90 % bands are calibrated by simulation (docs/identify.md){_held_out_coverage(lg["method"])}" if cal.get("applied")
             else "Its bands are not calibrated (calibration=None): they may hold the truth less often than 90 %")
     misses = [k for k in seen_q if not gap[k]["log_inside"]]
     miss = "" if not misses else (f" Seen and missed: {', '.join(misses)}: on a noise-free log the bands are as narrow "

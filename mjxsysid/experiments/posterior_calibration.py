@@ -275,6 +275,7 @@ def coverage_width_figure(before: dict, after: dict, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
     fig, ax = plt.subplots(figsize=(7, 4.6))
     ax.axhspan(0.85, 0.95, color="0.9", label="0.85–0.95")
     for res, mk, lab in ((before, "o", "raw"), (after, "s", "calibrated")):
@@ -287,6 +288,9 @@ def coverage_width_figure(before: dict, after: dict, path: Path) -> None:
         ax.scatter(xs, ys, marker=mk, s=18, alpha=0.7, label=lab)
     ax.axvline(2.0, color="k", lw=0.8, ls="--", label="2× the oracle width")
     ax.set_xscale("log")
+    ax.xaxis.set_major_locator(matplotlib.ticker.LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set_xlabel("median 90 % band width / oracle width (log scale)")
     ax.set_ylabel("truth inside the 90 % band")
     ax.set_ylim(0, 1.02)
@@ -310,7 +314,8 @@ def table_markdown(res: dict) -> list[str]:
 def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     """Evaluate the table at ``table_path`` (default the shipped one) on the rows of ``paths`` (held out)
     against the raw posterior; write ``out``/evaluation.json, evaluation.md, coverage_width.png,
-    ranks.png; ``record``: also the mean coverage per level into the table's provenance (``held_out``)."""
+    ranks.png; ``record``: also the mean coverage per level into the table's provenance (``held_out``; the
+    provenance of the table of the rows' most common sampler, where the table has one of its own)."""
     from mjxsysid.identify.calibrate import SHIPPED, load
     rows = read_rows(paths)
     table = load(table_path)
@@ -331,7 +336,9 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     if not record:
         return res
     path = Path(table_path) if table_path is not None else SHIPPED
-    held = table.setdefault("provenance", {}).setdefault("held_out", {})
+    methods = [r.get("method") for r in rows]
+    own = max(set(methods), key=methods.count)            # the rows' sampler: its table's provenance, where it has one
+    held = table.get("by_method", {}).get(own, table).setdefault("provenance", {}).setdefault("held_out", {})
     held[str(out)] = {"rows": len(rows), "mean_coverage": {lv: round(float(np.nanmean(list(r["coverage"].values()))), 3)
                                                            for lv, r in cal.items()}}
     path.write_text(json.dumps(table, indent=1) + "\n")

@@ -32,7 +32,7 @@ def test_no_module_over_500_lines():
     assert long == {}
 
 
-def test_docs_runs_stays_under_10_mb():
+def test_docs_runs_stays_under_11_mb():
     """docs/runs/ holds the run files the docs quote (superseded ones leave the tree, git keeps them):
     the clone stays light. 11 MB: the rows the shipped calibration table was fitted on are its provenance."""
     size = sum(p.stat().st_size for p in (ROOT / "docs" / "runs").rglob("*") if p.is_file())
