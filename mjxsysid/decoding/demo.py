@@ -103,7 +103,7 @@ def grounded_md(grounded: dict | None) -> str:
     seen = [gap[k]["width_ratio"] for k in seen_q]
     how = lg["method"] + (f", {lg['smc_stages']} SMC stages" if "smc_stages" in lg else "")
     cal = lg.get("calibration", {})
-    what = (f"Its 90 % bands are calibrated by simulation (docs/identify.md){_held_out_coverage(lg["method"])}" if cal.get("applied")
+    what = (f"Its 90 % bands are calibrated by simulation (docs/identify.md){_held_out_coverage(lg['method'])}" if cal.get("applied")
             else "Its bands are not calibrated (calibration=None): they may hold the truth less often than 90 %")
     misses = [k for k in seen_q if not gap[k]["log_inside"]]
     miss = "" if not misses else (f" Seen and missed: {', '.join(misses)}: on a noise-free log the bands are as narrow "

@@ -253,3 +253,14 @@ def test_the_shipped_nuts_table_holds_its_coverage_on_held_out_logs():
         assert 0.85 <= cov <= 0.99, (lv, r["coverage"])
         assert np.median([r["median_width"][c] / pooled[lv]["median_width"][c] for c in r["coverage"]]) < 0.96, lv
     assert np.mean(list(pc.evaluate(rows, None)["x20"]["coverage"].values())) < 0.7
+
+
+def test_the_demo_quotes_the_held_out_coverage_of_its_own_samplers_table():
+    """The demo's posterior is NUTS-refined: its sentence quotes NUTS's table's held-out coverage, not the SMC's."""
+    from mjxsysid.decoding.demo import _held_out_coverage
+    table = C.load()
+    want = {m: C.for_method(table, m)["provenance"]["held_out"] for m in ("smc", "smc_nuts")}
+    clean = {m: next(v["mean_coverage"]["clean"] for k, v in h.items() if k.endswith("/test")) for m, h in want.items()}
+    for m in ("smc", "smc_nuts"):
+        assert f"truth {100 * clean[m]:.0f} % of the time" in _held_out_coverage(m), m
+    assert _held_out_coverage("smc") != _held_out_coverage("smc_nuts")
