@@ -455,7 +455,7 @@ def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> 
     v, out["calibration"] = _calibrated(v_raw, out["features"], out["weights"], calibration, prior, seed,
                                         out.get("method"))
     if "nuts" in out and out["calibration"].get("applied"):
-        unmixed_not_seen(out["calibration"], out["nuts"])
+        v = unmixed_not_seen(out["calibration"], out["nuts"], v, prior.sample_v(np.random.default_rng(seed), len(v)))
     h = prior.sample_h(r_h, samples)
     out.update(v=v, v_raw=v_raw, nuisance=xs[:, L.X_NUIS], theta=np.asarray(theta_from(v, h), np.float32))
     return out

@@ -262,14 +262,25 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
         todo, warmup, thin = again, LONGER[0] * WARMUP, LONGER[1]
 
 
-def unmixed_not_seen(report: dict, nuts: dict) -> None:
+def unmixed_not_seen(report: dict, nuts: dict, v=None, prior_v=None):
     """A visible coordinate on which NUTS's chains disagree (split R̂ ≥ :data:`RHAT_OK`) is not
     seen by the log, whatever its band's width: the fit did not converge there (where no chain mixed,
-    the posterior keeps the SMC's draws: :func:`refine`)."""
-    for j, r in enumerate(nuts["rhat_v"]):
-        if not r < RHAT_OK:
-            report["seen"][j] = False
-            report["why"][j] = f"NUTS's chains disagree on it (split R̂ {r:.2f} ≥ {RHAT_OK}): the fit did not mix"
+    the posterior keeps the SMC's draws: :func:`refine`, and on a flat ridge, a hover's authorities, the SMC's
+    band is narrow and wrong). With draws ``v`` (S, 12) and ``prior_v`` (S, 12), those coordinates are
+    drawn from the prior (as a failed model check's): returns the draws (``v`` itself without them)."""
+    bad = [j for j, r in enumerate(nuts["rhat_v"]) if not r < RHAT_OK]
+    for j in bad:
+        report["seen"][j] = False
+        report["why"][j] = (f"NUTS's chains disagree on it (split R̂ {nuts['rhat_v'][j]:.2f} ≥ {RHAT_OK}): the fit did "
+                            "not mix" + ("; as broad as the prior" if prior_v is not None else ""))
+    if v is None or prior_v is None or not bad:
+        return v
+    v = np.array(v, copy=True)
+    v[:, bad] = np.asarray(prior_v, v.dtype)[:, bad]
+    if "factor" in report:
+        report["factor"] = np.asarray(report["factor"], np.float64).copy()
+        report["factor"][bad] = np.nan
+    return v
 
 
 def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: int, warmup: int, draws: int,

@@ -93,3 +93,19 @@ def test_a_coordinate_whose_chains_disagree_is_not_seen():
     S.unmixed_not_seen(report, {"rhat_v": [1.01] * 7 + [1.4] + [1.0] * 3 + [float("nan")]})
     assert report["seen"].tolist() == [True] * 7 + [False] + [True] * 3 + [False]
     assert "R̂ 1.40" in report["why"][7] and report["why"][0].startswith("calibrated")
+
+
+def test_a_coordinate_whose_chains_disagree_is_drawn_from_the_prior():
+    """Sharp and wrong is worse than broad and right: where the chains did not meet (a hover's flat ridge), the
+    band is the prior's, not the SMC's narrow one."""
+    from mjxsysid.identify.coords import PHYSICAL_PRIOR
+    rng = np.random.default_rng(0)
+    v = np.tile(PHYSICAL_PRIOR.sample_v(rng, 1), (500, 1)) + 1e-3 * rng.standard_normal((500, 12)).astype(np.float32)
+    prior_v = PHYSICAL_PRIOR.sample_v(rng, 500)
+    report = {"seen": np.ones(12, bool), "why": [""] * 12, "factor": np.ones(12)}
+    out = S.unmixed_not_seen(report, {"rhat_v": [1.0] * 5 + [1.3] + [1.0] * 6}, v, prior_v)
+    assert np.array_equal(out[:, 5], prior_v[:, 5]) and np.array_equal(np.delete(out, 5, 1), np.delete(v, 5, 1))
+    assert not report["seen"][5] and np.isnan(report["factor"][5]) and "as broad as the prior" in report["why"][5]
+    lo, hi = PHYSICAL_PRIOR.v_bounds()
+    assert np.ptp(np.percentile(out[:, 5], [5, 95])) > 0.5 * (hi[5] - lo[5])
+    assert S.unmixed_not_seen(dict(report), {"rhat_v": [1.0] * 12}, v, prior_v) is v
