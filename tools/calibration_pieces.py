@@ -1,0 +1,94 @@
+"""The posterior calibration's rows on the device machine, piece by piece: pieces of the release stage's
+sets (``FULL_CALIBRATION``, :func:`mjxsysid.release.stages.calibration.pieces`) collected in one process (one
+set of compiles), each written as OUT/rows/<set>.<i>of<k>.json with the stage's ``release`` section, or as
+``.partial`` where the deadline cut it. A device call is 10 minutes: about 600 logs a call on one H200.
+
+    PYTHONPATH=$PWD/.site:$PWD MJXSYSID_COMMIT=<sha> python tools/calibration_pieces.py $OUT 550 \\
+        rows/vel_ms.1of4.json,rows/novel_ms.1of4.json
+    python tools/calibration_pieces.py --todo docs/runs/measurements/log-grounded/nuts-calibration/rows
+
+``--todo DIR``: the pieces not yet in DIR (its train/ and held_out/ folders, .json or .json.gz), with their logs.
+Never point a JAX cache at OUT: the device returns a limited number of files.
+"""
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+T0 = time.perf_counter()
+
+
+def todo(folder: Path) -> list[tuple[str, int]]:
+    """The pieces (row file, logs) of FULL_CALIBRATION not in ``folder`` (a complete piece's file, gzipped or
+    not, in its train/ or held_out/ subfolder; a file marked ``partial`` is not complete)."""
+    import gzip
+    from mjxsysid.release.sizes import FULL_CALIBRATION
+    from mjxsysid.release.stages.calibration import pieces
+
+    def complete(p: Path) -> bool:
+        text = gzip.decompress(p.read_bytes()).decode() if p.suffix == ".gz" else p.read_text()
+        return "partial" not in p.name and "partial" not in json.loads(text)
+    have = {p.name.split(".json")[0] for p in folder.rglob("*.json*") if complete(p)}
+    out = []
+    for kind, name, s, levels, shard, f in pieces(FULL_CALIBRATION):
+        if Path(f).name.split(".json")[0] not in have:
+            out.append((f, s.logs(len(levels)) // FULL_CALIBRATION.shards))
+    return out
+
+
+def collect_pieces(out: Path, deadline_s: float, want: list[str]) -> None:
+    """Collect the pieces ``want`` (row files of :func:`~mjxsysid.release.stages.calibration.pieces`) into
+    ``out`` until ``deadline_s`` seconds after start."""
+    import types
+    from mjxsysid.experiments.posterior_calibration import collect
+    from mjxsysid.release.provenance import code_commit, device_name
+    from mjxsysid.release.record import now
+    from mjxsysid.release.sizes import FULL_CALIBRATION
+    from mjxsysid.release.stages.calibration import _kwargs, pieces
+    from mjxsysid.runtime.profiling import compile_profile
+    table = {p[5]: p for p in pieces(FULL_CALIBRATION)}
+    unknown = [w for w in want if w not in table]
+    if unknown:
+        raise SystemExit(f"unknown pieces {unknown}; known: {sorted(table)}")
+    rel, device, commit = types.SimpleNamespace(policy_path=None), device_name(), code_commit()
+    for f in want:
+        left = deadline_s - (time.perf_counter() - T0)
+        if left < 40:
+            print(f"deadline: {f} not started", flush=True)
+            continue
+        _, name, s, levels, shard, _ = table[f]
+        dst = out / f
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        tmp = dst.with_name(dst.name + ".partial")
+        t = time.perf_counter()
+        with compile_profile() as prof:
+            res = collect(out=tmp, time_budget_s=left - 15, **_kwargs(rel, s, levels, shard))
+        dt = time.perf_counter() - t
+        cut = time.perf_counter() - T0 > deadline_s - 15
+        res["release"] = {"wall_s": round(dt, 1), "device": device, "commit": commit, "ended": now(),
+                          "driver": "tools/calibration_pieces.py"}
+        (tmp if cut else dst).write_text(json.dumps(res, separators=(",", ":")) + "\n")
+        if not cut:
+            tmp.unlink(missing_ok=True)
+        print(prof.table(), flush=True)
+        n = len(res["rows"])
+        print(f"{f}: {n} rows in {dt:.0f} s ({n / max(dt, 1):.2f} logs/s){' (cut by the deadline)' if cut else ''}",
+              flush=True)
+
+
+def main(argv: list[str]) -> None:
+    if argv[:1] == ["--todo"]:
+        left = todo(Path(argv[1]))
+        for f, n in left:
+            print(f"{f}  {n} logs")
+        print(f"{len(left)} pieces, {sum(n for _, n in left)} logs")
+        return
+    if len(argv) != 3:
+        raise SystemExit(__doc__)
+    collect_pieces(Path(argv[0]), float(argv[1]), argv[2].split(","))
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
