@@ -19,6 +19,9 @@ def add_decode(sub) -> None:
                     help="decode a recorded flight instead: a CSV (the contract: docs/decoding.md), a PX4 ULog "
                          "(docs/px4.md), a Crazyflie uSD log, a Betaflight blackbox, an ArduPilot DataFlash log or a ROS bag (docs/logs.md); "
                          "several files or a folder: each into OUT/NAME and one table, OUT/fleet.md")
+    dc.add_argument("--same-vehicle", action="store_true",
+                    help="with several logs: they are flights of one vehicle; fleet.md names the quantities whose "
+                         "bands exclude each other from one log to another")
     dc.add_argument("--segment", default=None, metavar="T0:T1",
                     help="with --log: decode only this part, in seconds (a ULog: since its start; default its armed, "
                          "airborne segment; a CSV: its t column)")
@@ -72,11 +75,15 @@ def cmd_decode(args) -> int:
         raise ValueError("--segment needs --log")
     if args.rates is not None and (args.log is None or args.decoder_only):
         raise ValueError("--rates needs --log and the log-grounded posterior (not --decoder-only)")
+    if args.same_vehicle and args.log is None:
+        raise ValueError("--same-vehicle needs --log with several logs")
     if args.no_refine and (args.log is None or args.decoder_only):
         raise ValueError("--no-refine needs --log and the log-grounded posterior (not --decoder-only)")
     if args.log is not None:
         from mjxsysid.decoding.fleet import expand_logs
         logs = expand_logs(args.log)
+        if args.same_vehicle and len(logs) < 2:
+            raise ValueError(f"--same-vehicle compares several logs; --log names {len(logs)}")
         if len(logs) > 1:
             return _decode_fleet(args, logs, truth, window)
         args.log = logs[0]
@@ -106,7 +113,7 @@ def _decode_fleet(args, logs, truth, window) -> int:
     from mjxsysid.logs.checks.findings import LogError
     from mjxsysid.runtime.progress import progress
     from mjxsysid.decoding import run_decode
-    from mjxsysid.decoding.fleet import fleet_markdown, fleet_row
+    from mjxsysid.decoding.fleet import disagreements, disagreements_markdown, fleet_markdown, fleet_row
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
@@ -123,6 +130,12 @@ def _decode_fleet(args, logs, truth, window) -> int:
             rows.append(fleet_row(log.name, None, str(e).splitlines()[0]))
     (out / "fleet.json").write_text(jsonout.dumps(rows, indent=1) + "\n")
     table = fleet_markdown(rows)
+    if args.same_vehicle:
+        found = disagreements(rows)
+        table += "\n" + disagreements_markdown(found)
+        if found:
+            echo(f"warning: {len(found)} pairs of bands exclude each other across these flights of one vehicle "
+                 "(fleet.md)", file=sys.stderr)
     (out / "fleet.md").write_text("# Fleet\n\n" + table)
     print(table)
     print(f"wrote {out}/fleet.md, fleet.json and a folder per log", file=sys.stderr)

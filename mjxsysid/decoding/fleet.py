@@ -69,3 +69,37 @@ def fleet_markdown(rows: list[dict]) -> str:
     lines += ["", "Median (5–95 %) of the log-grounded posterior, calibrated; '–': not seen by this log "
               "(its summary.json says why). τ_m in ms, the authorities in rad/s²."]
     return "\n".join(lines) + "\n"
+
+
+def disagreements(rows: list[dict]) -> list[dict]:
+    """Flights of one vehicle: every pair of logs whose 90 % bands of a quantity both logs saw do not overlap
+    -> [{quantity, logs (a, b), bands ((q05, q95), (q05, q95))}]. One of the two logs' models does not hold
+    (another excitation, a motor model, aerodynamics): the calibration cannot tell which."""
+    out = []
+    fine = [r for r in rows if r.get("quantities")]
+    for q in SHORT:
+        for i, a in enumerate(fine):
+            for b in fine[i + 1:]:
+                va, vb = a["quantities"].get(q), b["quantities"].get(q)
+                if va and vb and va["seen"] and vb["seen"] and (va["q95"] < vb["q05"] or vb["q95"] < va["q05"]):
+                    out.append({"quantity": q, "logs": (a["log"], b["log"]),
+                                "bands": ((va["q05"], va["q95"]), (vb["q05"], vb["q95"]))})
+    return out
+
+
+def disagreements_markdown(found: list[dict]) -> str:
+    """fleet.md's section for ``decode --same-vehicle``: the pairs of :func:`disagreements`, or that none."""
+    head = "## One vehicle: do the logs agree?\n\n"
+    if not found:
+        return head + "Every quantity two logs saw has overlapping 90 % bands.\n"
+    lines = [f"- **{SHORT[d['quantity']]}**: {d['logs'][0]} {_band(d['quantity'], d['bands'][0])} against "
+             f"{d['logs'][1]} {_band(d['quantity'], d['bands'][1])}" for d in found]
+    return (head + f"{len(found)} pairs of bands exclude each other: for each, at least one log's model does not "
+            "hold (a flight that hardly excites that axis, a motor map, aerodynamics), though each passed its "
+            "checks. Where one flight excites that axis far more than the others, its band is the likelier "
+            "(docs/logs.md, a Crazyflie's three flights).\n\n" + "\n".join(lines) + "\n")
+
+
+def _band(q: str, b) -> str:
+    k = 1e3 if q == "motor_time_constant" else 1.0
+    return f"{k * b[0]:.3g}–{k * b[1]:.3g}"

@@ -44,3 +44,25 @@ def test_the_truth_headline_counts_only_what_the_log_saw():
            "authority_total[0]": {"seen_by_log": False, "log_inside": True}}
     line = truth_headline({"_log_grounded": {"gap": gap}}, "flight")
     assert "1/2 quantities the log saw" in line and "1 not seen" in line
+
+
+def test_flights_of_one_vehicle_whose_bands_exclude_each_other_are_named():
+    from mjxsysid.decoding.fleet import disagreements, disagreements_markdown
+
+    def q(lo, hi, seen=True):
+        return {"log_median": (lo + hi) / 2, "log_q05": lo, "log_q95": hi, "seen_by_log": seen}
+
+    def row(name, tau, ax, tw):
+        return fleet_row(name, {"_log_grounded": {"gap": {"motor_time_constant": tau, "authority_total[0]": ax,
+                                                          "thrust_to_weight": tw}}})
+    rows = [row("log10", q(0.015, 0.032), q(71, 125), q(1.41, 1.87)),        # Crazyflie's three flights
+            row("log15", q(0.053, 0.070), q(341, 420), q(1.34, 1.66)),
+            row("log16", q(0.012, 0.030), q(54, 106, seen=False), q(1.40, 2.0)),
+            fleet_row("bench", None, "never armed")]
+    found = disagreements(rows)
+    pairs = {(d["quantity"], d["logs"]) for d in found}
+    assert pairs == {("motor_time_constant", ("log10", "log15")), ("motor_time_constant", ("log15", "log16")),
+                     ("authority_total[0]", ("log10", "log15"))}                # log16's A_x unseen; T/W overlaps
+    md = disagreements_markdown(found)
+    assert "3 pairs of bands exclude each other" in md and "log10 15–32 against log15 53–70" in md
+    assert "overlapping" in disagreements_markdown([])
