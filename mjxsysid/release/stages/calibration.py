@@ -12,9 +12,10 @@ from mjxsysid.release.record import now
 from mjxsysid.release.sizes import FULL_CALIBRATION, CalibrationSet, CalibrationSizes
 from mjxsysid.release.stages.registry import STAGES, ReleaseView, StageResult
 
-LOGS_PER_S = 1.5
+LOGS_PER_S = 1.1
 """Rows collected per second on one H200 (the log-grounded posterior with NUTS refinement,
-docs/identify.md): the stage's GPU estimate."""
+docs/identify.md): the stage's GPU estimate. Pieces of 160–320 logs, padded to a power of two: 1.0–1.3
+logs/s warm (2026-11-29; 1.5 in batches of 256)."""
 TABLE = "posterior_calibration.json"
 """The fitted table in the stage folder (shipped as mjxsysid/pretrained/posterior_calibration.json)."""
 ROWS = "rows"
