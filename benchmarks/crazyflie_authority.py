@@ -1,8 +1,8 @@
 """Crazyflie's three flights: does the likelihood itself prefer their roll/pitch authorities and τ_m, or do the
 chains sit on a narrow mode of a flat one? Per log its posterior (the defaults, no decoded proposal), then the
 profile log-target of log τ_m and log A_x (the other visible coordinates and the bias re-fitted exactly for the
-Student-t residuals, at the mode's σ, δ and weights), and each log's target at the others' (τ_m, A_x, A_y)
-with the rest re-fitted.
+Student-t residuals, at the mode's σ, δ and weights), each log's target at the others' (τ_m, A_x, A_y)
+with the rest re-fitted, and the target's maximum with rate windows of other lengths.
 
     python benchmarks/crazyflie_authority.py --logs /work/shared/data/logs/crazyflie/log{10,15,16}.bin
 """
@@ -106,6 +106,19 @@ def profile(data, mode, weights, js: tuple, grid) -> np.ndarray:
     return out
 
 
+def student_t_fit(data, seed: int = 0) -> np.ndarray:
+    """The target's maximum z (13,) of a log: the library's mode (:func:`~mjxsysid.identify.inference.find_mode`, a
+    Gaussian least-squares fit, from its usual 12 starts) re-fitted for the Student-t residuals at its σ, δ and
+    weights (the bias held)."""
+    from mjxsysid.identify import logspace as L
+    from mjxsysid.identify.coords import PHYSICAL_PRIOR
+    from mjxsysid.identify.inference import _starts, find_mode
+    x, _, w, _, _ = find_mode(data, _starts(data, None, np.random.default_rng(seed), PHYSICAL_PRIOR, 12))
+    fit, _, _ = make_fit(data, np.asarray(x, np.float32), w)
+    zm = np.asarray(L.z_from_y(L.y_from_x(np.asarray(x, np.float32))))
+    return np.asarray(fit(zm[:L.Z_BIAS], zm[[L.Z_BIAS]], (L.Z_BIAS,))[1])
+
+
 def interval(grid, prof, threshold: float = THRESHOLD) -> tuple[float, float, bool]:
     """The grid's span (exp'd) where prof ≥ max − threshold, and whether it reaches the grid's edge."""
     inside = prof >= prof.max() - threshold
@@ -117,6 +130,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--logs", nargs="+", required=True)
     ap.add_argument("--points", type=int, default=17)
+    ap.add_argument("--window-steps", type=int, nargs="+", default=[5, 10, 25, 50],
+                    help="half-window lengths (control steps) of the window sweep")
     ap.add_argument("--out", default=None, help="write the numbers as JSON here")
     a = ap.parse_args()
     import json
@@ -161,6 +176,14 @@ def main():
                 res[name].setdefault("cross", {})[other] = dl
                 print(f"| {name} | {other} (τ_m {np.exp(at[0]) * 1e3:.3g} ms, A_x {np.exp(at[1]):.3g}, "
                       f"A_y {np.exp(at[2]):.3g}) | {dl:+.1f} |", flush=True)
+    print("\n| log | window (ms) | τ_m (ms) | A_x | A_y |")
+    print("|---|---|---|---|---|")
+    for name, p in zip(names, a.logs):
+        for ws in a.window_steps:
+            z = student_t_fit(prepare(read_any_log(p), window_steps=ws))
+            res[name].setdefault("windows", {})[ws] = np.exp(z[list(js)]).tolist()
+            print(f"| {name} | {4 * ws} | {np.exp(z[L.LOG_TAU_M]) * 1e3:.3g} | {np.exp(z[L.LOG_AUTH_X]):.3g} "
+                  f"| {np.exp(z[L.LOG_AUTH_Y]):.3g} |", flush=True)
     if a.out:
         Path(a.out).write_text(json.dumps(res, indent=1))
 
