@@ -38,8 +38,10 @@ def t_residuals(z, data, ld, ls, weights):
 
 
 def make_fit(data, mode, weights):
-    """A jitted fit (z_free (F,), fixed values (k,), fixed indices (k,) static) -> the free coordinates of z
-    maximising the target (Levenberg–Marquardt on :func:`t_residuals`), and the target there."""
+    """-> (fit, target, 13): fit(z_free (F,), fixed values (k,), fixed indices (k,)) the free coordinates of z
+    that maximise the target (Levenberg–Marquardt on :func:`t_residuals`, inside the prior's box and J's
+    triangle inequality; A_z always free) and the full z (13,); target(z) the log target at z (σ, δ, weights
+    the mode's)."""
     import functools
     import jax
     import jax.numpy as jnp
