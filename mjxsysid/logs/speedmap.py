@@ -94,7 +94,24 @@ def _least_squares(sx, sxx, sxy, sy, syy, m):
     return np.stack([syy - sy * sy / m - a * sxy_c, a, (sy - a * sx) / m])
 
 
+_LAST: list = []
+"""The last :func:`speed_fit`: (rotor_speed, motor, start, per_rotor, result), reused for the same arrays."""
+
+
 def speed_fit(rec: dict, start: int = 0, per_rotor: bool = True) -> dict:
+    """:func:`_speed_fit`, the last fit reused for the same ``rotor_speed`` and ``motor`` arrays (by identity),
+    ``start`` and ``per_rotor``: a log's checks and its posterior read one fit (a copy of the dict)."""
+    rs, mo = rec.get("rotor_speed"), rec.get("motor")
+    for c in _LAST:
+        if c[0] is rs and c[1] is mo and c[2] == start and c[3] == per_rotor:
+            return dict(c[4])
+    out = _speed_fit(rec, start, per_rotor)
+    if rs is not None:
+        _LAST[:] = [(rs, mo, start, per_rotor, out)]
+    return dict(out)
+
+
+def _speed_fit(rec: dict, start: int = 0, per_rotor: bool = True) -> dict:
     """A log's rotor speeds (``rotor_speed`` (T, 4) rad/s on the rows, ``native``'s where resampled) against
     its commands ``motor`` (T, 4), from row ``start`` for at most :data:`MAX_SPEED_S`; a map per rotor (``per_rotor``) or one map for the
     four -> {used, why, and where fitted: per_rotor (the map used: per rotor

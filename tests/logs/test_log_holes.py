@@ -184,3 +184,21 @@ def test_check_log_fits_the_rotor_speeds_once(tmp_path, monkeypatch, capsys):
     main(["check-log", str(path), "--prior", "none"])
     assert "rotor speeds: used by the likelihood" in capsys.readouterr().out
     assert len(calls) == 1
+
+
+def test_the_checks_and_the_posterior_read_one_rotor_speed_fit(monkeypatch):
+    """``decode --log``: the plausibility checks and the posterior's preparation share one command→speed fit."""
+    from mjxsysid.identify.logdata import prepare
+    from mjxsysid.logs import speedmap
+    from mjxsysid.logs.checks.plausibility import check_log
+    r = synthetic_flight(seconds=4.0, twr=TWR)
+    rec = {**r, "rotor_speed": 3000.0 * r["rotor_speed"]}
+    calls = []
+    fit = speedmap._speed_fit
+    monkeypatch.setattr(speedmap, "_speed_fit", lambda *a, **k: calls.append(1) or fit(*a, **k))
+    monkeypatch.setattr(speedmap, "_LAST", [])
+    check_log(rec)
+    prepare(rec)
+    assert len(calls) == 1
+    prepare({**rec, "rotor_speed": rec["rotor_speed"].copy()})      # other arrays: fitted anew
+    assert len(calls) == 2
