@@ -248,6 +248,7 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
                                "why": why, "kept": "NUTS's draws", "rhat_max": float(np.max(diag["rhat"])),
                                "ess_bulk_min": float(np.min(diag["ess_bulk"])), "divergences": diag["divergences"],
                                "rhat_v": np.round(diag["rhat"][L.Y_V], 4).tolist(),
+                               "chain_spread_v": np.round(np.ptp(yj[:, :, L.Y_V].mean(1), 0), 5).tolist(),
                                "leapfrog_mean": diag["leapfrog_mean"]}
             if not ok:
                 again.append(j)
@@ -267,12 +268,16 @@ def unmixed_not_seen(report: dict, nuts: dict, v=None, prior_v=None):
     seen by the log, whatever its band's width: the fit did not converge there (where no chain mixed,
     the posterior keeps the SMC's draws: :func:`refine`, and on a flat ridge, a hover's authorities, the SMC's
     band is narrow and wrong). With draws ``v`` (S, 12) and ``prior_v`` (S, 12), those coordinates are
-    drawn from the prior (as a failed model check's): returns the draws (``v`` itself without them)."""
+    drawn from the prior, as a failed model check's (a band only where the chains' means, ``chain_spread_v``,
+    lie further apart than it is wide held 4 of 6 hovers' roll authorities, not 6: docs/identify.md).
+    Returns the draws (``v`` itself where none is replaced)."""
     bad = [j for j, r in enumerate(nuts["rhat_v"]) if not r < RHAT_OK]
+    spread = nuts.get("chain_spread_v")
     for j in bad:
         report["seen"][j] = False
-        report["why"][j] = (f"NUTS's chains disagree on it (split R̂ {nuts['rhat_v'][j]:.2f} ≥ {RHAT_OK}): the fit did "
-                            "not mix" + ("; as broad as the prior" if prior_v is not None else ""))
+        report["why"][j] = (f"NUTS's chains disagree on it (split R̂ {nuts['rhat_v'][j]:.2f} ≥ {RHAT_OK}"
+                            + (f", their means {spread[j]:.2g} apart" if spread is not None else "")
+                            + "): the fit did not mix" + ("; as broad as the prior" if prior_v is not None else ""))
     if v is None or prior_v is None or not bad:
         return v
     v = np.array(v, copy=True)
