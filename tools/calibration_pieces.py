@@ -40,41 +40,32 @@ def todo(folder: Path) -> list[tuple[str, int]]:
 
 def collect_pieces(out: Path, deadline_s: float, want: list[str]) -> None:
     """Collect the pieces ``want`` (row files of :func:`~mjxsysid.release.stages.calibration.pieces`) into
-    ``out`` until ``deadline_s`` seconds after start."""
+    ``out`` (:func:`~mjxsysid.release.stages.calibration.collect_piece`, the shipped policy where a set flies
+    one) until ``deadline_s`` seconds after start."""
     import types
-    from mjxsysid.experiments.posterior_calibration import collect
     from mjxsysid.release.provenance import code_commit, device_name
-    from mjxsysid.release.record import now
     from mjxsysid.release.sizes import FULL_CALIBRATION
-    from mjxsysid.release.stages.calibration import _kwargs, pieces
+    from mjxsysid.release.stages.calibration import collect_piece, pieces
     from mjxsysid.runtime.profiling import compile_profile
     table = {p[5]: p for p in pieces(FULL_CALIBRATION)}
     unknown = [w for w in want if w not in table]
     if unknown:
         raise SystemExit(f"unknown pieces {unknown}; known: {sorted(table)}")
-    rel, device, commit = types.SimpleNamespace(policy_path=None), device_name(), code_commit()
+    rel = types.SimpleNamespace(policy_path=None, log=lambda m: print(m, flush=True))
+    device, commit = device_name(), code_commit()
     for f in want:
         left = deadline_s - (time.perf_counter() - T0)
         if left < 40:
             print(f"deadline: {f} not started", flush=True)
             continue
-        _, name, s, levels, shard, _ = table[f]
-        dst = out / f
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        tmp = dst.with_name(dst.name + ".partial")
         t = time.perf_counter()
         with compile_profile() as prof:
-            res = collect(out=tmp, time_budget_s=left - 15, **_kwargs(rel, s, levels, shard))
+            collect_piece(rel, out, table[f], device, commit, time_budget_s=left - 15)
+        done = (out / f).is_file()
+        n = len(json.loads((out / f if done else out / (f + ".partial")).read_text())["rows"])
         dt = time.perf_counter() - t
-        cut = time.perf_counter() - T0 > deadline_s - 15
-        res["release"] = {"wall_s": round(dt, 1), "device": device, "commit": commit, "ended": now(),
-                          "driver": "tools/calibration_pieces.py"}
-        (tmp if cut else dst).write_text(json.dumps(res, separators=(",", ":")) + "\n")
-        if not cut:
-            tmp.unlink(missing_ok=True)
         print(prof.table(), flush=True)
-        n = len(res["rows"])
-        print(f"{f}: {n} rows in {dt:.0f} s ({n / max(dt, 1):.2f} logs/s){' (cut by the deadline)' if cut else ''}",
+        print(f"{f}: {n} rows in {dt:.0f} s ({n / max(dt, 1):.2f} logs/s){'' if done else ' (cut by the deadline)'}",
               flush=True)
 
 

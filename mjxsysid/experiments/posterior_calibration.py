@@ -69,7 +69,8 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
             policy=None, motor_idle: float = 0.0, motor_kappa: float = 1.0) -> dict:
     """Fly every level, then identify; write ``out`` (JSON: rows) after every log, or every batch of logs
     identified together on an accelerator (the levels interleaved: a stopped run keeps a balanced set of
-    what it finished); ``time_budget_s``: start no new batch after this long; ``references``: the flights
+    what it finished); ``time_budget_s``: start no new batch after this long (the result then says
+    ``cut_by_budget``); ``references``: the flights
     (:func:`parse_reference`), each at every level; ``controller``: who flies ('oracle', the lag-aware
     oracle, or 'policy', the shipped adaptive policy: another closed loop's reaction to the noise);
     ``aero``: the simulator's rotor aerodynamics on (``SimConfig.aero``: physics the likelihood lacks);
@@ -125,6 +126,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     order = sorted(range(len(logs)), key=lambda k: (logs[k][1], k))
     for c in progress(range(0, len(order), step), desc="calibration rows"):
         if time_budget_s is not None and time.perf_counter() - t_start > time_budget_s:
+            res["cut_by_budget"] = True
             break
         chunk = [logs[k] for k in order[c:c + step]]
         t0 = time.perf_counter()
@@ -316,7 +318,7 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     against the raw posterior; write ``out``/evaluation.json, evaluation.md, coverage_width.png,
     ranks.png; ``record``: also the mean coverage per level into the table's provenance (``held_out``; the
     provenance of the table of the rows' most common sampler, where the table has one of its own)."""
-    from mjxsysid.identify.calibrate import SHIPPED, load
+    from mjxsysid.identify.calibrate import SHIPPED, for_method, load
     rows = read_rows(paths)
     table = load(table_path)
     out = Path(out)
@@ -338,7 +340,7 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     path = Path(table_path) if table_path is not None else SHIPPED
     methods = [r.get("method") for r in rows]
     own = max(set(methods), key=methods.count)            # the rows' sampler: its table's provenance, where it has one
-    held = table.get("by_method", {}).get(own, table).setdefault("provenance", {}).setdefault("held_out", {})
+    held = for_method(table, own).setdefault("provenance", {}).setdefault("held_out", {})
     held[str(out)] = {"rows": len(rows), "mean_coverage": {lv: round(float(np.nanmean(list(r["coverage"].values()))), 3)
                                                            for lv, r in cal.items()}}
     path.write_text(json.dumps(table, indent=1) + "\n")

@@ -81,3 +81,20 @@ def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, 
     assert shipped["provenance"]["release"]["commit"] == "c0ffee" and shipped["coords"] == table["coords"]
     for f in ("evaluation.json", "evaluation.md", "ranks.png", "coverage_width.png"):
         assert (tmp_path / "tree/docs/runs/release/calibration" / f).is_file(), f
+
+
+def test_a_piece_cut_by_its_time_budget_stays_partial(tmp_path, monkeypatch):
+    """tools/calibration_pieces.py's deadline: a piece collect stops for its budget keeps its rows under the
+    .partial name, so the stage collects it again; one that finishes is renamed."""
+    import types
+    import mjxsysid.identify.inference as I
+    from mjxsysid.release.stages.calibration import collect_piece
+    monkeypatch.setattr(I, "log_grounded_posteriors", _fake_posteriors([]))
+    rel = types.SimpleNamespace(policy_path=None, log=lambda m: None)
+    piece = pieces(TINY.calibration)[0]
+    _, ran = collect_piece(rel, tmp_path, piece, "dev", "c0ffee", time_budget_s=0.0)
+    part = tmp_path / (piece[5] + ".partial")
+    assert ran and not (tmp_path / piece[5]).exists() and json.loads(part.read_text())["cut_by_budget"]
+    _, ran = collect_piece(rel, tmp_path, piece, "dev", "c0ffee")
+    done = json.loads((tmp_path / piece[5]).read_text())
+    assert ran and done["rows"] and "cut_by_budget" not in done and done["release"]["commit"] == "c0ffee"

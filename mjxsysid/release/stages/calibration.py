@@ -52,9 +52,11 @@ def _kwargs(rel: ReleaseView, s: CalibrationSet, levels, shard) -> dict:
     return kw
 
 
-def collect_piece(rel: ReleaseView, out: Path, piece, device: str | None, commit: str | None) -> tuple[dict, bool]:
+def collect_piece(rel: ReleaseView, out: Path, piece, device: str | None, commit: str | None,
+                  time_budget_s: float | None = None) -> tuple[dict, bool]:
     """Collect one piece's rows into its file (written under a .partial name, renamed when complete,
-    with a ``release`` section: wall time, device, commit, end time); a complete file is kept.
+    with a ``release`` section: wall time, device, commit, end time); a complete file is kept;
+    ``time_budget_s``: collect's (a piece it cuts stays .partial, its rows kept).
     Returns (the call's record, whether it ran)."""
     from mjxsysid.experiments.posterior_calibration import collect
     _, name, s, levels, shard, f = piece
@@ -69,10 +71,11 @@ def collect_piece(rel: ReleaseView, out: Path, piece, device: str | None, commit
     rel.log(f"[release] posterior_calibration: collecting {name}" + (f" shard {shard}" if shard else "")
             + f" ({s.logs(len(levels)) // (1 if shard is None else int(shard.split('/')[1]))} logs) → {f}")
     t0 = time.time()
-    res = collect(out=tmp, **kw)
+    res = collect(out=tmp, time_budget_s=time_budget_s, **kw)
     res["release"] = {"wall_s": round(time.time() - t0, 1), "device": device, "commit": commit, "ended": now()}
     tmp.write_text(json.dumps(res, separators=(",", ":")) + "\n")
-    os.replace(tmp, dst)
+    if not res.get("cut_by_budget"):
+        os.replace(tmp, dst)
     return record, True
 
 
