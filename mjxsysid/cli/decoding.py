@@ -95,7 +95,7 @@ def cmd_decode(args) -> int:
                              decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
                              echo=lambda m: echo(m, file=sys.stderr), segment=args.segment,
                              decoder_only=args.decoder_only, rates=args.rates,
-                                 refine=False if args.no_refine else None)
+                             refine=False if args.no_refine else None)
     except BaseException:
         if not existed and Path(args.out).is_dir():   # no half-written output folder of this run left behind
             import shutil
