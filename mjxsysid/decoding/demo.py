@@ -79,11 +79,12 @@ def decoded_caption(info: dict, n_decodes: int) -> str:
 
 def _held_out_coverage(method: str | None = None) -> str:
     """What the shipped calibration holds on held-out simulated logs, from the provenance of the table of
-    posteriors drawn by ``method`` (:func:`~mjxsysid.identify.calibrate.for_method`): ', holding the
+    posteriors drawn by ``method`` (:func:`~mjxsysid.identify.calibrate.for_method`; its largest held-out
+    evaluation): ', holding the
     truth X % of the time on noise-free simulated logs, Y–Z % under IMU noise' ('' where not recorded)."""
     from mjxsysid.identify.calibrate import for_method, load
     held = for_method(load(), method).get("provenance", {}).get("held_out", {})
-    cov = next((v["mean_coverage"] for k, v in held.items() if k.endswith("/test")), None)
+    cov = max(held.values(), key=lambda v: v.get("rows", 0), default={}).get("mean_coverage")
     if not cov or "clean" not in cov:
         return ""
     noisy = [v for k, v in cov.items() if k != "clean"]

@@ -316,8 +316,9 @@ def table_markdown(res: dict) -> list[str]:
 def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     """Evaluate the table at ``table_path`` (default the shipped one) on the rows of ``paths`` (held out)
     against the raw posterior; write ``out``/evaluation.json, evaluation.md, coverage_width.png,
-    ranks.png; ``record``: also the mean coverage per level into the table's provenance (``held_out``; the
-    provenance of the table of the rows' most common sampler, where the table has one of its own)."""
+    ranks.png; ``record``: also the mean coverage per level into the table's provenance (``held_out``, keyed by
+    ``out``): per sampler, of its own rows, in the provenance of the table that calibrates them
+    (:func:`~mjxsysid.identify.calibrate.for_method`)."""
     from mjxsysid.identify.calibrate import SHIPPED, for_method, load
     rows = read_rows(paths)
     table = load(table_path)
@@ -338,11 +339,11 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     if not record:
         return res
     path = Path(table_path) if table_path is not None else SHIPPED
-    methods = [r.get("method") for r in rows]
-    own = max(set(methods), key=methods.count)            # the rows' sampler: its table's provenance, where it has one
-    held = for_method(table, own).setdefault("provenance", {}).setdefault("held_out", {})
-    held[str(out)] = {"rows": len(rows), "mean_coverage": {lv: round(float(np.nanmean(list(r["coverage"].values()))), 3)
-                                                           for lv, r in cal.items()}}
+    for method in sorted({r.get("method") for r in rows}, key=str):    # each sampler's rows, in its own table
+        own = [r for r in rows if r.get("method") == method]
+        held = for_method(table, method).setdefault("provenance", {}).setdefault("held_out", {})
+        held[str(out)] = {"rows": len(own), "mean_coverage": {
+            lv: round(float(np.nanmean(list(r["coverage"].values()))), 3) for lv, r in evaluate(own, table).items()}}
     path.write_text(json.dumps(table, indent=1) + "\n")
     return res
 

@@ -69,7 +69,8 @@ class CalibrationSet:
 @dataclasses.dataclass(frozen=True)
 class CalibrationSizes:
     """The posterior calibration stage: ``train`` and ``held_out`` sets (name → CalibrationSet),
-    flown at ``train_levels`` and ``held_out_levels`` (:data:`mjxsysid.uses.imu_noise.LEVELS`);
+    flown at ``train_levels`` and ``held_out_levels`` (:data:`mjxsysid.uses.imu_noise.LEVELS`), and
+    ``misfit`` sets flown at ``train_levels``: a misspecification the table is not fitted on, evaluated apart;
     each set collected in ``shards`` pieces (every shards-th vehicle: a piece resumes on its own);
     the table's ``bins`` and ``min_group`` (:func:`mjxsysid.identify.calibrate.fit`)."""
     train: Mapping[str, CalibrationSet]
@@ -79,11 +80,13 @@ class CalibrationSizes:
     shards: int
     bins: int
     min_group: int
+    misfit: Mapping[str, CalibrationSet] = dataclasses.field(default_factory=_frozen)
 
-    def logs(self) -> tuple[int, int]:
-        """(training logs, held-out logs) flown."""
+    def logs(self) -> tuple[int, int, int]:
+        """(training logs, held-out logs, misfit logs) flown."""
         return (sum(s.logs(len(self.train_levels)) for s in self.train.values()),
-                sum(s.logs(len(self.held_out_levels)) for s in self.held_out.values()))
+                sum(s.logs(len(self.held_out_levels)) for s in self.held_out.values()),
+                sum(s.logs(len(self.train_levels)) for s in self.misfit.values()))
 
 
 _CAL = CalibrationSet
@@ -94,16 +97,16 @@ FULL_CALIBRATION = CalibrationSizes(
                   novel_ms=_CAL(128, 8, ("minsnap:10",), velocity=False),
                   aero=_CAL(128, 9, ("lemniscate:10",), aero=True),
                   policy=_CAL(128, 10, ("lemniscate:10",), controller="policy"),
-                  slow=_CAL(128, 11, ("lemniscate:20", "hover:8")),
-                  motor=_CAL(128, 12, ("lemniscate:10", "hover:8"), motor_idle=0.1)),
+                  slow=_CAL(128, 11, ("lemniscate:20", "hover:8"))),
     held_out=_frozen(test_vel=_CAL(128, 71, ("lemniscate:10",)),
                      test_novel=_CAL(128, 72, ("minsnap:10",), velocity=False)),
     train_levels=("clean", "x1", "x5_white", "x5_vibration", "x20"),
     held_out_levels=("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20"),
-    shards=4, bins=4, min_group=30)
-"""The protocol of the release's table (docs/identify.md, "Calibration by simulation"): 8 training sets of 128 vehicles at
-5 levels (the shipped table's rows: the first 7; ``motor``, an idle offset of 0.1 Ω_max, is not in it yet), 2 held-out
-sets at 7 (other seeds), 4 bins of at least 30 logs."""
+    shards=4, bins=4, min_group=30,
+    misfit=_frozen(motor=_CAL(128, 12, ("lemniscate:10", "hover:8"), motor_idle=0.1)))
+"""The protocol of the release's table (docs/identify.md, "Calibration by simulation"): 7 training sets of 128 vehicles at
+5 levels, 2 held-out sets at 7 (other seeds), 4 bins of at least 30 logs; ``motor`` (an idle offset of 0.1 Ω_max in the
+static motor map) evaluated apart: fitting it widened every log's bands and still left its own logs uncovered."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -168,7 +171,8 @@ TINY = Sizes(
     calibration=CalibrationSizes(
         train=_frozen(train=_CAL(3, 5, ("hover:2",), velocity=False)),
         held_out=_frozen(test=_CAL(2, 71, ("hover:2",), velocity=False)),
-        train_levels=("clean", "x1"), held_out_levels=("clean", "x1"), shards=1, bins=1, min_group=2))
+        train_levels=("clean", "x1"), held_out_levels=("clean", "x1"), shards=1, bins=1, min_group=2,
+        misfit=_frozen(motor=_CAL(1, 12, ("hover:2",), velocity=False, motor_idle=0.1))))
 
 SIZES = {"full": FULL, "tiny": TINY}
 """Per scale, its sizes."""

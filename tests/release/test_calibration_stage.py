@@ -30,7 +30,7 @@ def _fake_posteriors(calls):
 
 def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, monkeypatch):
     import mjxsysid.identify.inference as I
-    from mjxsysid.identify.calibrate import load
+    from mjxsysid.identify.calibrate import for_method, load
     calls = []
     monkeypatch.setattr(I, "log_grounded_posteriors", _fake_posteriors(calls))
     stages = (Stage("policy", lambda r, o: StageResult(), (), (), 1, "stub"), STAGES["posterior_calibration"])
@@ -40,9 +40,8 @@ def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, 
     cal = TINY.calibration
     assert rel.run(["posterior_calibration"]) == ["posterior_calibration"]
     out = rel.stage_dir("posterior_calibration")
-    n_train, n_held = (s.logs(len(cal.train_levels)) for s in cal.train.values()), cal.logs()[1]
-    n_train = sum(n_train)
-    assert sum(calls) == n_train + n_held
+    n_train, n_held, n_misfit = cal.logs()
+    assert n_misfit and sum(calls) == n_train + n_held + n_misfit
     for _, name, _, _, _, f in pieces(cal):                        # a row file per set, with its provenance
         rows = json.loads((out / f).read_text())
         assert f == f"rows/{name}.json" and rows["release"]["device"] == "dev" and rows["rows"]
@@ -55,13 +54,18 @@ def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, 
     assert 0 < nuts < n_train and table["by_method"]["smc_nuts"]["logs"] == nuts   # NUTS's rows: a table of their own
     assert prov["sizes"]["bins"] == cal.bins and set(prov["sizes"]["train"]) == set(cal.train)
     assert set(prov["collected"]) == {f for *_, f in pieces(cal)}
-    assert [c["call"].rsplit(".", 1)[1] for c in prov["calls"]] == ["collect", "collect", "fit_file"]
-    assert set(prov["held_out"]["mean_coverage"]) == set(cal.held_out_levels)
+    assert [c["call"].rsplit(".", 1)[1] for c in prov["calls"]] == ["collect", "collect", "collect", "fit_file"]
+    held = [next(iter(for_method(table, m)["provenance"]["held_out"].values())) for m in ("smc_nuts", "smc")]
+    assert all(h["rows"] for h in held) and sum(h["rows"] for h in held) == n_held   # each sampler's rows, in its table
+    assert set().union(*(h["mean_coverage"] for h in held)) == set(cal.held_out_levels)
+    misfit = json.loads((out / "misfit/evaluation.json").read_text())   # the misfit set: evaluated apart, not fitted
+    assert misfit["rows"] == n_misfit and prov["rows"] == n_train
     ev = json.loads((out / "evaluation.json").read_text())
     assert ev["rows"] == n_held and set(ev["calibrated"]) == set(cal.held_out_levels)
     assert (out / "evaluation.md").read_text().startswith("## Calibrated")
     entry = rel.entry("posterior_calibration")
     assert set(entry["figures"]["mean_coverage"]) == set(cal.held_out_levels)
+    assert set(entry["figures"]["misfit_mean_coverage"]) == set(cal.train_levels)
     assert entry["figures"]["train_logs"] == n_train and entry["calls"][-1]["call"].endswith(".report")
     # a second run (the table lost, one held-out set not finished) collects that set only
     (out / "posterior_calibration.json").unlink()

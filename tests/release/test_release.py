@@ -169,7 +169,7 @@ def test_stage_list_is_the_pipeline():
     from mjxsysid.release.sizes import FULL_CALIBRATION as cal
     from mjxsysid.release.stages.calibration import LOGS_PER_S, pieces
     est = STAGES["posterior_calibration"].estimate_s
-    assert cal.logs() == (6400, 1792) and est == sum(cal.logs()) / LOGS_PER_S
+    assert cal.logs() == (5120, 1792, 1280) and est == sum(cal.logs()) / LOGS_PER_S
     assert all(s.logs(len(lv)) / cal.shards / LOGS_PER_S <= 300 for _, _, s, lv, _, _ in pieces(cal))
 
 

@@ -23,11 +23,12 @@ ROWS = "rows"
 
 
 def pieces(cal: CalibrationSizes) -> list[tuple[str, str, CalibrationSet, tuple[str, ...], str | None, str]]:
-    """The collections of a calibration, in order: (kind 'train' or 'held_out', set name, set,
+    """The collections of a calibration, in order: (kind 'train', 'held_out' or 'misfit', set name, set,
     levels, shard 'i/k' or None, row file relative to the stage folder: rows/<set>.json, or
     rows/<set>.<i>of<k>.json with shards)."""
     out = []
-    for kind, sets, levels in (("train", cal.train, cal.train_levels), ("held_out", cal.held_out, cal.held_out_levels)):
+    for kind, sets, levels in (("train", cal.train, cal.train_levels), ("held_out", cal.held_out, cal.held_out_levels),
+                               ("misfit", cal.misfit, cal.train_levels)):
         for name, s in sets.items():
             for i in range(cal.shards):
                 shard = None if cal.shards == 1 else f"{i}/{cal.shards}"
@@ -97,6 +98,10 @@ def _nuts_table(train: list[Path], path: Path, cal: CalibrationSizes, commit, de
         return None
 
 
+MISFIT = "misfit"
+"""The stage folder's subfolder of the misfit sets' evaluation (:attr:`CalibrationSizes.misfit`)."""
+
+
 @STAGES.add(needs=("policy",), outputs=(TABLE, "evaluation.json", "evaluation.md"), estimate_s=estimate_s(),
             what="calibrate-posterior: collect the training and held-out rows, fit the table, evaluate it "
                  "(resumes by set and shard)")
@@ -107,7 +112,8 @@ def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
     out/posterior_calibration.json with its provenance (the sets, sizes, calls, commit, device,
     wall times), and evaluate it on the held-out rows
     (:func:`mjxsysid.experiments.posterior_calibration.report`: out/evaluation.json, evaluation.md,
-    coverage_width.png, ranks.png)."""
+    coverage_width.png, ranks.png; the mean coverage per level recorded in the provenance of each sampler's
+    table), and on the misfit sets' rows apart (out/misfit/, never recorded in the table)."""
     from mjxsysid.experiments.posterior_calibration import fit_file, report
     from mjxsysid.release.provenance import code_commit, device_name
     cal = rel.sizes.calibration
@@ -124,6 +130,7 @@ def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
             ran.append(p[5])
     train = [out / p[5] for p in todo if p[0] == "train"]
     held = [out / p[5] for p in todo if p[0] == "held_out"]
+    misfit = [out / p[5] for p in todo if p[0] == "misfit"]
     calls.append(call(fit_file, paths=train, out=out / TABLE, bins=cal.bins, min_group=cal.min_group))
     collected = {p[5]: json.loads((out / p[5]).read_text()).get("release", {}) for p in todo}
     table = fit_file(train, out / TABLE, bins=cal.bins, min_group=cal.min_group,
@@ -137,14 +144,17 @@ def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
     if nuts is not None:
         table["by_method"] = nuts["by_method"]
     rows = table["provenance"]["rows"]
-    res = report(held, out / TABLE, out)
-    cov = _mean_coverage(res["calibrated"])
-    table["provenance"]["held_out"] = {"rows": res["rows"], "mean_coverage": cov}
     (out / TABLE).write_text(json.dumps(table, indent=1) + "\n")
-    calls.append(call(report, paths=held, table_path=out / TABLE, out=out))
+    res = report(held, out / TABLE, out, record=True)
+    cov = _mean_coverage(res["calibrated"])
+    calls.append(call(report, paths=held, table_path=out / TABLE, out=out, record=True))
+    apart = {}
+    if misfit:
+        calls.append(call(report, paths=misfit, table_path=out / TABLE, out=out / MISFIT))
+        apart = _mean_coverage(report(misfit, out / TABLE, out / MISFIT)["calibrated"])
     return StageResult(
         calls=tuple(calls),
         config={"sizes": jsonable(cal), "collected_now": ran},
-        figures={"train_logs": rows, "held_out_logs": res["rows"], "mean_coverage": cov,
+        figures={"train_logs": rows, "held_out_logs": res["rows"], "mean_coverage": cov, "misfit_mean_coverage": apart,
                  "mean_coverage_raw": _mean_coverage(res["raw"]),
                  "wall_s_this_call": round(time.time() - t0, 1)})
