@@ -58,7 +58,8 @@ def _line(lv: str, w: str, s: dict) -> str:
     return (f"{lv:13s} {w:18s} τ_m ratio {t['median_ratio']:.3f} error {t['median_error']:.3f} inside {t['coverage_90']:.2f} "
             f"(raw {tr['coverage_90']:.2f}) width {t['median_width']:.3f} (raw {tr['median_width']:.3f}) | roll error "
             f"{r['median_error']:.3f} inside {r['coverage_90']:.2f} | vibration {sum(s['vibration'])}/{len(s['vibration'])} "
-            f"| prepare {s['prepare_s']:.2f} s, posterior {s['posterior_s']:.1f} s")
+            f"| NUTS mixed {s['methods'].count('smc_nuts')}/{len(s['methods'])} | prepare {s['prepare_s']:.2f} s, "
+            f"posterior {s['posterior_s']:.1f} s")
 
 
 def main():
@@ -90,6 +91,7 @@ def main():
             t0 = time.perf_counter()
             posts = log_grounded_posteriors(datas, seeds=[int(i) for i in flown])
             row["ways"][w] = {**score(posts, th[flown]), "vibration": found, "prepare_s": prep,
+                              "methods": [p["method"] for p in posts],
                               "posterior_s": (time.perf_counter() - t0) / len(recs)}
             print(_line(lv, w, row["ways"][w]), flush=True)
         res["levels"].append(row)

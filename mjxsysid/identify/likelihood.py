@@ -44,9 +44,11 @@ the controller saw, so the commands' reaction to the noise no longer correlates 
 The innovations are linear in the model's coefficients once τ_m and the gain are fixed, so their
 sums of squares come from Gram matrices computed once per log on a grid of τ_m × gain
 (:func:`~.logdata._innovation_factors`) and interpolated per candidate, as the windows' sums are; the
-filter's start is profiled out. Gaussian (no heavy tails), and white measurement noise assumed: a
-rotor vibration (a narrow-band, command-dependent component) breaks that assumption, which is why
-the windows, which average it out, stay the default (docs/identify.md, "The rate term").
+filter's start is profiled out. Gaussian (no heavy tails). A rotor vibration (narrow-band measurement
+noise the controller reacts to) would break the white noise model and bias the fit; where the gyro's
+spectrum shows one, the filter runs on the gyro and the regressors whitened by a fixed autoregressive
+filter fitted to that spectrum (:mod:`.vibration`), the measurement noise then the whitened noise
+(:attr:`~.logdata.LogData.kf_rscale`). docs/identify.md, "The rate term", has the measurements.
 """
 from __future__ import annotations
 
@@ -260,8 +262,9 @@ def residual_weights(x, data: LogData) -> np.ndarray:
 
 
 def innovation_series(x, data: LogData) -> np.ndarray:
-    """The gyro's innovations (3, n) under x (21,), in time order (host, float64; the start offset
-    profiled out as in the likelihood): what :func:`residual_weights` reads for the rates."""
+    """The gyro's innovations (3, m) under x (21,), in time order (host, float64; whitened where the log has
+    a vibration, the start offset profiled out, as in the likelihood; m = ``data.kf_n``): what
+    :func:`residual_weights` reads for the rates."""
     rows = getattr(data, "_rows", None)
     if rows is None:
         raise ValueError("this LogData has no log rows (made by prepare() in this process?): cannot form its innovations")

@@ -58,11 +58,11 @@ TAU_GRID = np.exp(np.linspace(np.log(0.0015), np.log(0.35), 64))
 """s: the motor time constants the window features are computed at (log-spaced)."""
 RATES = "windows"
 """The rate term by default: "windows" (the windowed equation error) or "innovations" (a steady-state
-Kalman filter's one-step prediction errors of the gyro, module doc). Measured on 96 MJX flights of the
-oracle (docs/identify.md, "The rate term"): the innovations remove the windows' closed-loop bias under
-white IMU noise (τ_m's median error at × 20: 57 % -> 4 %) but read a rotor vibration as rate signal
-(at × 5 vibration τ_m 95 % off, the authorities 140 %); until their noise model holds a vibration,
-the windows stay the default."""
+Kalman filter's one-step prediction errors of the gyro, a detected rotor vibration whitened: module doc of
+:mod:`.likelihood`). Measured on MJX flights of the oracle (docs/identify.md, "The rate term"): the
+innovations remove the windows' closed-loop bias (τ_m's median error at × 20: 41 % -> 6 %; at × 5
+vibration, whitened, 1.7 %) but their bands are too narrow and NUTS often does not mix on them, so the
+windows, on whose rows the shipped calibration table was fitted, stay the default."""
 KF_LOGIT_GRID = np.linspace(np.log(1e-4 / (1 - 1e-4)), np.log(0.995 / 0.005), 20)
 """logit of the Kalman gains the innovations' statistics are computed at (K from 1e-4, an almost
 open-loop prediction, to 0.995, nearly the next sample's difference); a candidate's K is
