@@ -176,26 +176,28 @@ def _whitener(whiten, a: int):
     return (lambda x: x) if p == 0 else (lambda x: lfilter(whiten[a], [1.0], x, axis=0)[p:])
 
 
-def _fixed_columns(y, q, whiten, gain: float, a: int):
-    """Axis a's innovation columns that do not depend on τ_m (m, 4), m = n − p: the start
-    ψ_k = (1 − K)^k, H A q_a (the gyroscopic product × dt), H A dt (the rate bias), A ỹ_a = A y_a − K H A y_a."""
-    A = _whitener(whiten, a)
-    ya = A(y[:, a])
-    X = gain_filter(np.stack([A(q[:, a]), A(np.full(len(y), DT))], 1), gain)
-    psi = (1.0 - gain) ** np.arange(len(ya))
-    return np.concatenate([psi[:, None], X, (ya - gain * gain_filter(ya, gain))[:, None]], 1)
+def _axis_columns(a: int):
+    """Columns of :func:`_columns`' 12 for axis a: ψ, H f_1..4, H q_a, H 1, ỹ_a."""
+    return [0, 1, 2, 3, 4, 5 + a, 8, 9 + a]
+
+
+def _columns(y, q, f, gain: float):
+    """The innovation columns (m, 12) of every axis at Kalman gain K, from gyro y (m, 3), products q (m, 3)
+    and f (m, 4) (whitened where the log has a vibration): the start ψ_k = (1 − K)^k, H f (4: ∫ s_i² dt per
+    rotor), H q (3: the gyroscopic products × dt), H dt (the rate bias), ỹ = y − K H y (3)."""
+    m = len(y)
+    psi = (1.0 - gain) ** np.arange(m)
+    return np.concatenate([psi[:, None], gain_filter(f, gain), gain_filter(q, gain),
+                           gain_filter(np.full((m, 1), DT), gain), y - gain * gain_filter(y, gain)], 1)
 
 
 def whitened_columns(y, q, f, whiten, gain: float, a: int):
-    """Axis a's innovation columns (m, 8) at Kalman gain K, in the factors' order: ψ, H A f (4: ∫ s_i² dt
-    per rotor), H A q_a, H A dt, A ỹ_a (:func:`_fixed_columns`), from gyro y (n, 3), products q (n, 3) and
-    f (n, 4); ``whiten`` (3, p + 1) the axes' whitening polynomials (:mod:`.vibration`; (3, 1) ones: none)."""
-    F = _fixed_columns(y, q, whiten, gain, a)
-    return np.concatenate([F[:, :1], gain_filter(_whitener(whiten, a)(f), gain), F[:, 1:]], 1)
-
-
-_ORDER = [0, 4, 5, 6, 7, 1, 2, 3]
-"""[ψ, H q, H dt, ỹ, H f (4)] -> the factors' order [ψ, H f (4), H q, H dt, ỹ]."""
+    """Axis a's innovation columns (m, 8) at Kalman gain K, m = n − p: ψ, H A f (4), H A q_a, H A dt, A ỹ_a
+    (:func:`_columns`), from gyro y (n, 3), products q (n, 3) and f (n, 4); ``whiten`` (3, p + 1) the axes'
+    whitening polynomials A (:mod:`.vibration`; (3, 1) ones: none), whose first p rows (the polynomial's
+    start) are dropped."""
+    A = _whitener(whiten, a)
+    return _columns(A(y), A(q), A(f), gain)[:, _axis_columns(a)]
 
 
 def _innovation_factors(imu, u, start: int, n: int, step_f=None, whiten=None) -> np.ndarray:
@@ -213,21 +215,25 @@ def _innovation_factors(imu, u, start: int, n: int, step_f=None, whiten=None) ->
     the filter (:func:`whitened_columns`; None: none, A = 1)."""
     gains = kf_gains()
     whiten = np.ones((3, 1)) if whiten is None else np.asarray(whiten, np.float64)
-    shared = whiten.shape[1] == 1 or bool(np.all(whiten == whiten[:1]))     # one A for the three axes
     y, q = gyro_rows(imu, start, n)
-    fixed = [[_fixed_columns(y, q, whiten, K, a) for a in range(3)] for K in gains]
-    fixed_gram = [[F.T @ F for F in row] for row in fixed]
+    shared = whiten.shape[1] == 1 or bool(np.all(whiten == whiten[:1]))     # one A for the three axes
     out = np.zeros((len(TAU_GRID), len(gains), 3, 7, 7))
-    for gi, tau in enumerate(TAU_GRID):
-        f = step_lag(u, tau, start, n) if step_f is None else step_f(tau)
-        fw = [_whitener(whiten, a)(f) for a in range(1 if shared else 3)]
-        for h, K in enumerate(gains):
-            hf = [gain_filter(x, K) for x in fw]
-            for a in range(3):
-                V, F = hf[0 if shared else a], fixed[h][a]
-                VF = V.T @ F
-                G = np.block([[fixed_gram[h][a], VF.T], [VF, V.T @ V]])[np.ix_(_ORDER, _ORDER)]
-                out[gi, h, a] = G[1:, 1:] - np.outer(G[1:, 0], G[0, 1:]) / max(G[0, 0], 1e-300)
+    lag = (lambda tau: step_lag(u, tau, start, n)) if step_f is None else step_f
+    fs = None if shared else [lag(tau) for tau in TAU_GRID]      # (n, 4) per τ, once for the three axes
+    for axes in ([0, 1, 2],) if shared else ([0], [1], [2]):
+        A = _whitener(whiten, axes[0])
+        yw, qw = A(y), A(q)
+        kcols = [_columns(yw, qw, np.zeros((len(yw), 4)), K) for K in gains]
+        for gi, tau in enumerate(TAU_GRID):
+            fw = A(lag(tau) if fs is None else fs[gi])
+            for h, K in enumerate(gains):
+                X = kcols[h]
+                X[:, 1:5] = gain_filter(fw, K)
+                G = X.T @ X
+                for a in axes:
+                    c = _axis_columns(a)
+                    Ga = G[np.ix_(c, c)]
+                    out[gi, h, a] = Ga[1:, 1:] - np.outer(Ga[1:, 0], Ga[0, 1:]) / max(Ga[0, 0], 1e-300)
     jitter = 1e-12 * np.einsum("...ii->...", out)[..., None, None] * np.eye(7) + 1e-300 * np.eye(7)
     return np.swapaxes(np.linalg.cholesky(out + jitter), -1, -2)
 
