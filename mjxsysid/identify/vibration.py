@@ -24,8 +24,9 @@ BODY_HZ = 15.0
 response); above it, on a simulated clean flight, the rates' spectrum is 1e-3 of the × 1 white noise's
 and falling. The noise's spectrum is estimated above it and continued flat below."""
 ORDER = 16
-"""The whitening filter's order: enough for a resonance whose frequency follows the rotor speeds over a
-flight (a band 40–90 Hz wide at the 500 Hz IMU rate on simulated flights)."""
+"""The whitening filter's order: room for a resonance whose frequency follows the rotor speeds over a flight
+(on simulated × 5 vibration flights the spectrum is above a tenth of its peak over 55–105 Hz). Not tuned:
+the first value tried, τ_m within 2 % on them."""
 PEAK_RATIO = 10.0
 """A vibration is detected on an axis where the spectrum's peak above :data:`BODY_HZ` + 10 Hz is at least
 this many times its 10th percentile above :data:`BODY_HZ` (white noise: 1.7–2.1 on 10 s simulated logs;
