@@ -44,9 +44,11 @@ the controller saw, so the commands' reaction to the noise no longer correlates 
 The innovations are linear in the model's coefficients once τ_m and the gain are fixed, so their
 sums of squares come from Gram matrices computed once per log on a grid of τ_m × gain
 (:func:`~.logdata._innovation_factors`) and interpolated per candidate, as the windows' sums are; the
-filter's start is profiled out. Gaussian (no heavy tails), and white measurement noise assumed: a
-rotor vibration (a narrow-band, command-dependent component) breaks that assumption, which is why
-the windows, which average it out, stay the default (docs/identify.md, "The rate term").
+filter's start is profiled out. Gaussian (no heavy tails). A rotor vibration (narrow-band measurement
+noise the controller reacts to) would break the white noise model and bias the fit; where the gyro's
+spectrum shows one, the filter runs on the gyro and the regressors whitened by a fixed autoregressive
+filter fitted to that spectrum (:mod:`.vibration`), the measurement noise then the whitened noise
+(:attr:`~.logdata.LogData.kf_rscale`). docs/identify.md, "The rate term", has the measurements.
 """
 from __future__ import annotations
 
@@ -59,7 +61,7 @@ import numpy as np
 from mjxsysid import theta as P
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.logspace import CHANNELS, N_NUIS, NUIS_NAMES  # noqa: F401 (the likelihood's names)
-from mjxsysid.identify.logdata import DRAG_MAX, DT, KF_LOGIT_GRID, LogData, gain_filter, gyro_rows, kf_gains, step_lag
+from mjxsysid.identify.logdata import DRAG_MAX, KF_LOGIT_GRID, LogData, gyro_rows, kf_gains, step_lag, whitened_columns
 from mjxsysid.identify.speeds import SPEED_TAU_GRID
 
 NU = 4.0
@@ -132,11 +134,12 @@ def speed_loglik(v, data: LogData):
     return _interp(v[L.LOG_TAU_M], jnp.asarray(_SPEED_LOG_TAU), data.speed_ll)
 
 
-def innovation_variance(log_sigma, log_delta):
+def innovation_variance(log_sigma, log_delta, rscale=1.0):
     """The steady-state filter per gyro axis from the noise σ (3,) and the process noise δ (3,) per
     step (both log): (innovation variance S (3,), logit of the gain K = P / (P + r)), with
-    r = σ² + the resolution², P the predicted state's variance, P = (Q + √(Q² + 4 Q r)) / 2."""
-    r = jnp.exp(2 * log_sigma) + jnp.asarray(RESOLUTION[L.GYRO]) ** 2
+    r = ``rscale`` σ² + the resolution² (``rscale`` (3,): :attr:`~.logdata.LogData.kf_rscale`, 1 for white
+    noise), P the predicted state's variance, P = (Q + √(Q² + 4 Q r)) / 2."""
+    r = rscale * jnp.exp(2 * log_sigma) + jnp.asarray(RESOLUTION[L.GYRO]) ** 2
     q = jnp.exp(2 * log_delta)
     p = 0.5 * (q + jnp.sqrt(q * q + 4 * q * r))
     return p + r, jnp.log(p) - jnp.log(r)
@@ -159,7 +162,7 @@ def innovations(x, data: LogData):
     """The gyro's innovations under x (21,) as the whitened sums they enter through: z (7, 3) with
     Σ_k e_k² = ‖z[:, a]‖² per axis, and the innovation variance S (3,)."""
     v, ls, ld = x[L.X_V], x[L.X_LOG_NOISE_GYRO], x[L.X_LOG_DISCREPANCY_GYRO]
-    s, logit = innovation_variance(ls, ld)
+    s, logit = innovation_variance(ls, ld, data.kf_rscale)
     r = _interp2(v[L.LOG_TAU_M], logit, data)                                  # (3, 7, 7)
     beta = jnp.concatenate([_rate_coefficients(v), -jnp.ones((3, 1))], 1)
     return jnp.einsum("aij,aj->ia", r, beta), s
@@ -259,8 +262,9 @@ def residual_weights(x, data: LogData) -> np.ndarray:
 
 
 def innovation_series(x, data: LogData) -> np.ndarray:
-    """The gyro's innovations (3, n) under x (21,), in time order (host, float64; the start offset
-    profiled out as in the likelihood): what :func:`residual_weights` reads for the rates."""
+    """The gyro's innovations (3, m) under x (21,), in time order (host, float64; whitened where the log has
+    a vibration, the start offset profiled out, as in the likelihood; m = ``data.kf_n``): what
+    :func:`residual_weights` reads for the rates."""
     rows = getattr(data, "_rows", None)
     if rows is None:
         raise ValueError("this LogData has no log rows (made by prepare() in this process?): cannot form its innovations")
@@ -270,16 +274,16 @@ def innovation_series(x, data: LogData) -> np.ndarray:
     tau = float(np.exp(v[L.LOG_TAU_M]))
     step_f = rows.get("step_f")          # the rotor speeds' (:mod:`.speeds`), where used
     f = step_lag(rows["motor"], tau, rows["start"], rows["n"]) if step_f is None else step_f(tau)
-    logit = np.asarray(innovation_variance(x[L.X_LOG_NOISE_GYRO], x[L.X_LOG_DISCREPANCY_GYRO])[1], np.float64)
+    rscale = np.asarray(data.kf_rscale, np.float64)
+    logit = np.asarray(innovation_variance(x[L.X_LOG_NOISE_GYRO], x[L.X_LOG_DISCREPANCY_GYRO], rscale)[1], np.float64)
     coef = np.asarray(_rate_coefficients(jnp.asarray(v, jnp.float32)), np.float64)
     gains = kf_gains(np.clip(logit, KF_LOGIT_GRID[0], KF_LOGIT_GRID[-1]))
-    n = len(y)
+    whiten = rows.get("whiten", np.ones((3, 1)))
     out = []
     for a in range(3):
-        K = gains[a]
-        X = np.concatenate([gain_filter(f, K), gain_filter(q[:, a:a + 1], K), gain_filter(np.full((n, 1), DT), K)], 1)
-        e = y[:, a] - K * gain_filter(y[:, a], K) - X @ coef[a]
-        psi = (1.0 - K) ** np.arange(n)
+        X = whitened_columns(y, q, f, whiten, gains[a], a)          # ψ, H A φ (6), A ỹ
+        e = X[:, 7] - X[:, 1:7] @ coef[a]
+        psi = X[:, 0]
         out.append(e - psi * (psi @ e) / (psi @ psi))
     return np.stack(out)
 

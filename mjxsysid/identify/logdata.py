@@ -16,6 +16,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from mjxsysid.identify.logspace import GYRO, N_CHANNELS
+from mjxsysid.identify.vibration import gyro_whiteners
 from mjxsysid.identify.speeds import (model_features, model_step_integrals, report, speed_features,
                                       speed_step_integrals, speed_term)
 from mjxsysid.logs.speedmap import SKIP_S, first_row, lag_steps, speed_fit
@@ -57,11 +58,11 @@ TAU_GRID = np.exp(np.linspace(np.log(0.0015), np.log(0.35), 64))
 """s: the motor time constants the window features are computed at (log-spaced)."""
 RATES = "windows"
 """The rate term by default: "windows" (the windowed equation error) or "innovations" (a steady-state
-Kalman filter's one-step prediction errors of the gyro, module doc). Measured on 96 MJX flights of the
-oracle (docs/identify.md, "The rate term"): the innovations remove the windows' closed-loop bias under
-white IMU noise (τ_m's median error at × 20: 57 % -> 4 %) but read a rotor vibration as rate signal
-(at × 5 vibration τ_m 95 % off, the authorities 140 %); until their noise model holds a vibration,
-the windows stay the default."""
+Kalman filter's one-step prediction errors of the gyro, a detected rotor vibration whitened: module doc of
+:mod:`.likelihood`). Measured on MJX flights of the oracle (docs/identify.md, "The rate term"): the
+innovations remove the windows' closed-loop bias (τ_m's median error at × 20: 41 % -> 6 %; at × 5
+vibration, whitened, 1.7 %) but their bands are too narrow and NUTS often does not mix on them, so the
+windows, on whose rows the shipped calibration table was fitted, stay the default."""
 KF_LOGIT_GRID = np.linspace(np.log(1e-4 / (1 - 1e-4)), np.log(0.995 / 0.005), 20)
 """logit of the Kalman gains the innovations' statistics are computed at (K from 1e-4, an almost
 open-loop prediction, to 0.995, nearly the next sample's difference); a candidate's K is
@@ -91,7 +92,10 @@ class LogData:
     (:data:`REL_DISCREPANCY` × its measured rate change). The innovations' sufficient statistics
     (:func:`_innovation_factors`): kf_r (G, H, 3, 7, 7) per τ_m, per Kalman gain of
     :data:`KF_LOGIT_GRID` (kf_logit (H,)) and per axis, the upper Cholesky factor of the gain-filtered
-    regressors' Gram matrix with the start offset profiled out; kf_n () the innovations counted.
+    regressors' Gram matrix with the start offset profiled out; kf_n () the innovations counted;
+    kf_rscale (3,) per axis the filter's measurement-noise variance relative to σ² (1; where a rotor
+    vibration was detected and whitened, :mod:`.vibration`, the whitened noise's variance over the second
+    differences' σ²).
     vz (Wa,) m/s the mean velocity along body z over each accelerometer block, for the body drag's
     term (0 where the log carries no velocity: the term then vanishes). Measured rotor speeds
     (:mod:`.speeds`): speed_ll (Gs,) their evidence on τ_m at :data:`~.speeds.SPEED_TAU_GRID`, speed (3,)
@@ -115,6 +119,7 @@ class LogData:
     kf_r: jax.Array
     kf_logit: jax.Array
     kf_n: jax.Array
+    kf_rscale: jax.Array
     vz: jax.Array
     speed_ll: jax.Array
     speed: jax.Array
@@ -164,12 +169,38 @@ def step_lag(u, tau: float, start: int, n: int):
     return _lagged(u, tau, slice(start, start + n))[0] * DT
 
 
+def _whitener(whiten, a: int):
+    """Axis a's whitening A (:mod:`.vibration`) as a function of columns (n, ...) -> (n − p, ...): the
+    polynomial's first p rows (its start) dropped; the identity where ``whiten`` is (3, 1)."""
+    p = whiten.shape[1] - 1
+    return (lambda x: x) if p == 0 else (lambda x: lfilter(whiten[a], [1.0], x, axis=0)[p:])
+
+
 def _axis_columns(a: int):
-    """Columns of :func:`_innovation_factors`' 12 for axis a: ψ, H f_1..4, H q_a, H 1, ỹ_a."""
+    """Columns of :func:`_columns`' 12 for axis a: ψ, H f_1..4, H q_a, H 1, ỹ_a."""
     return [0, 1, 2, 3, 4, 5 + a, 8, 9 + a]
 
 
-def _innovation_factors(imu, u, start: int, n: int, step_f=None) -> np.ndarray:
+def _columns(y, q, f, gain: float):
+    """The innovation columns (m, 12) of every axis at Kalman gain K, from gyro y (m, 3), products q (m, 3)
+    and f (m, 4) (whitened where the log has a vibration): the start ψ_k = (1 − K)^k, H f (4: ∫ s_i² dt per
+    rotor), H q (3: the gyroscopic products × dt), H dt (the rate bias), ỹ = y − K H y (3)."""
+    m = len(y)
+    psi = (1.0 - gain) ** np.arange(m)
+    return np.concatenate([psi[:, None], gain_filter(f, gain), gain_filter(q, gain),
+                           gain_filter(np.full((m, 1), DT), gain), y - gain * gain_filter(y, gain)], 1)
+
+
+def whitened_columns(y, q, f, whiten, gain: float, a: int):
+    """Axis a's innovation columns (m, 8) at Kalman gain K, m = n − p: ψ, H A f (4), H A q_a, H A dt, A ỹ_a
+    (:func:`_columns`), from gyro y (n, 3), products q (n, 3) and f (n, 4); ``whiten`` (3, p + 1) the axes'
+    whitening polynomials A (:mod:`.vibration`; (3, 1) ones: none), whose first p rows (the polynomial's
+    start) are dropped."""
+    A = _whitener(whiten, a)
+    return _columns(A(y), A(q), A(f), gain)[:, _axis_columns(a)]
+
+
+def _innovation_factors(imu, u, start: int, n: int, step_f=None, whiten=None) -> np.ndarray:
     """The innovations' sufficient statistics (G, H, 3, 7, 7), float64.
 
     With x̂ the predicted rate, the steady-state filter x̂_{k+1} = x̂_k + K (y_k − x̂_k) + α_k makes
@@ -179,25 +210,30 @@ def _innovation_factors(imu, u, start: int, n: int, step_f=None) -> np.ndarray:
     axis: the Gram matrix of [ψ, H φ (6), ỹ], the start x̂_0 profiled out (its Schur complement),
     as its upper Cholesky factor R (7, 7), so that Σ e² = ‖R β‖² for β = [c (6), −1]. Float64
     Gram matrices, a float32 factor: the sums of squares are formed without cancellation. ``step_f``:
-    τ -> each step's ∫ s_i² dt (n, 4) from the rotor speeds (None: :func:`step_lag`'s)."""
+    τ -> each step's ∫ s_i² dt (n, 4) from the rotor speeds (None: :func:`step_lag`'s). ``whiten``
+    (3, p + 1): each axis's vibration-whitening polynomial A, applied to y and to every regressor before
+    the filter (:func:`whitened_columns`; None: none, A = 1)."""
     gains = kf_gains()
+    whiten = np.ones((3, 1)) if whiten is None else np.asarray(whiten, np.float64)
     y, q = gyro_rows(imu, start, n)
-    kcols = []
-    for K in gains:
-        psi = (1.0 - K) ** np.arange(n)
-        kcols.append(np.concatenate([psi[:, None], np.zeros((n, 4)), gain_filter(q, K),
-                                     gain_filter(np.full((n, 1), DT), K), y - K * gain_filter(y, K)], 1))
+    shared = whiten.shape[1] == 1 or bool(np.all(whiten == whiten[:1]))     # one A for the three axes
     out = np.zeros((len(TAU_GRID), len(gains), 3, 7, 7))
-    for gi, tau in enumerate(TAU_GRID):
-        f = step_lag(u, tau, start, n) if step_f is None else step_f(tau)
-        for h, K in enumerate(gains):
-            X = kcols[h]
-            X[:, 1:5] = gain_filter(f, K)
-            G = X.T @ X
-            for a in range(3):
-                c = _axis_columns(a)
-                Ga = G[np.ix_(c, c)]
-                out[gi, h, a] = Ga[1:, 1:] - np.outer(Ga[1:, 0], Ga[0, 1:]) / max(Ga[0, 0], 1e-300)
+    lag = (lambda tau: step_lag(u, tau, start, n)) if step_f is None else step_f
+    fs = None if shared else [lag(tau) for tau in TAU_GRID]      # (n, 4) per τ, once for the three axes
+    for axes in ([0, 1, 2],) if shared else ([0], [1], [2]):
+        A = _whitener(whiten, axes[0])
+        yw, qw = A(y), A(q)
+        kcols = [_columns(yw, qw, np.zeros((len(yw), 4)), K) for K in gains]
+        for gi, tau in enumerate(TAU_GRID):
+            fw = A(lag(tau) if fs is None else fs[gi])
+            for h, K in enumerate(gains):
+                X = kcols[h]
+                X[:, 1:5] = gain_filter(fw, K)
+                G = X.T @ X
+                for a in axes:
+                    c = _axis_columns(a)
+                    Ga = G[np.ix_(c, c)]
+                    out[gi, h, a] = Ga[1:, 1:] - np.outer(Ga[1:, 0], Ga[0, 1:]) / max(Ga[0, 0], 1e-300)
     jitter = 1e-12 * np.einsum("...ii->...", out)[..., None, None] * np.eye(7) + 1e-300 * np.eye(7)
     return np.swapaxes(np.linalg.cholesky(out + jitter), -1, -2)
 
@@ -225,13 +261,14 @@ class LogTooShort(ValueError):
 
 
 def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = MAX_WINDOWS,
-            rates: str = RATES, speeds: str = "model") -> LogData:
+            rates: str = RATES, speeds: str = "model", vibration: bool = True) -> LogData:
     """A log's arrays (``imu`` (T, 6) the reading each row's motor command was given, ``motor``
     (T, 4) normalised rotor-speed commands, optional ``native``, ``rotor_speed``) -> :class:`LogData`.
     ``rates``: the rate term (:data:`RATES`). ``speeds``: what the thrust and torque terms read where the
     rotor speeds are used: "model", the fitted command→speed maps' speeds per τ
     (:func:`~.speeds.model_features`: a map per rotor), "shared", one map for the four rotors (a diagnostic),
-    or "raw", the measured samples at every τ (a diagnostic)."""
+    or "raw", the measured samples at every τ (a diagnostic). ``vibration``: whether the innovations whiten a
+    rotor vibration detected in the gyro (:mod:`.vibration`; False, the white-noise filter alone: a diagnostic)."""
     if speeds not in ("model", "shared", "raw"):
         raise ValueError(f"speeds must be 'model', 'shared' or 'raw', got {speeds!r}")
     if rates not in ("innovations", "windows"):
@@ -295,19 +332,35 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
         step_f = functools.partial(speed_step_integrals, s, start, n_kf)
     elif speed["used"]:
         step_f = functools.partial(model_step_integrals, u, speed, start=start, n=n_kf)
-    kf = _innovation_factors(imu, u, start, n_kf, step_f) if rates == "innovations" else np.zeros((1, 1, 3, 7, 7))
+    if rates == "innovations" and vibration:
+        whiten, rscale = innovation_whitening(imu, start, n_kf, n2, s2)
+    else:
+        whiten, rscale = np.ones((3, 1)), np.ones(3)
+    kf = (_innovation_factors(imu, u, start, n_kf, step_f, whiten) if rates == "innovations"
+          else np.zeros((1, 1, 3, 7, 7)))
     data = LogData(f32(np.log(TAU_GRID)), f32(_pad(fg, nw, 1)), f32(_pad(fa, nb, 1)), f32(_pad(dgyro, nw)),
                    f32(_pad(gyq, nw)), f32(_pad(acc, nb)), f32(W * DT), f32(kvar), f32(n2), f32(s2), f32(use),
                    f32(_pad(np.ones(len(k0)), nw)), f32(_pad(np.ones(len(acc)), nb)),
                    f32(_pad(REL_DISCREPANCY * np.abs(dgyro), nw)), f32(kf),
-                   f32(KF_LOGIT_GRID if rates == "innovations" else KF_LOGIT_GRID[:1]), f32(n_kf), f32(_pad(vz, nb)),
+                   f32(KF_LOGIT_GRID if rates == "innovations" else KF_LOGIT_GRID[:1]), f32(n_kf - (whiten.shape[1] - 1)),
+                   f32(rscale), f32(_pad(vz, nb)),
                    f32(speed_ll), f32(speed_sum), rates)
     # the log's rows, for host-side diagnostics of the innovations (residual_weights): not a
     # pytree field, so never passed into a compiled program
     object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf,
-                                       "drag_xy": drag_per_mass_xy(rec, bsteps + 1), "step_f": step_f,
+                                       "drag_xy": drag_per_mass_xy(rec, bsteps + 1), "step_f": step_f, "whiten": whiten,
                                        "speed": report(speed)})
     return data
+
+
+def innovation_whitening(imu, start: int, n: int, n2, s2) -> tuple[np.ndarray, np.ndarray]:
+    """The innovations' vibration whitening of gyro rows [start, start + n) of ``imu`` -> (the axes'
+    polynomials (3, p + 1), (3, 1) ones where no axis has a vibration; the filter's measurement-noise
+    variance relative to σ² per axis (3,)), σ² the second differences' (count ``n2``, sums ``s2``, (4,))."""
+    whiten, eps, found = gyro_whiteners(imu[start:start + n, :3], DT)
+    sig2 = np.asarray(s2, np.float64)[GYRO] / np.maximum(np.asarray(n2, np.float64)[GYRO], 1) / 6.0
+    rscale = np.where(found & (sig2 > 0), eps / np.maximum(sig2, 1e-30), 1.0)
+    return whiten, rscale
 
 
 def has_velocity(rec: dict) -> bool:

@@ -9,7 +9,7 @@ DT = 0.002
 
 
 def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, closed_loop=False, drag=None,
-                  speed_noise=None, motor_delay=0, rotor_gain=None, rotor_offset=None):
+                  speed_noise=None, motor_delay=0, rotor_gain=None, rotor_offset=None, gyro_vibration=0.0):
     """Fly θ (19,) open loop around hover with a rate damper and chirp excitation -> imu, motor.
     ``closed_loop``: instead, a rate P controller on the *measured* (noisy) rates tracking a slow
     sinusoid: the commands react to the gyro's noise, the feedback that biases an equation error.
@@ -19,7 +19,10 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
     noise. ``motor_delay`` (steps): the motors act on each logged command that many steps late (they hold
     the hover command before). ``rotor_gain`` (4,), ``rotor_offset`` (4,) rad/s: each rotor's speed is
     Ω_i = rotor_gain_i · Ω_max · s_i + rotor_offset_i (s_i its command through the lag; default 1 and 0), the
-    thrust η k_T Ω_i², and each rotor's hover command gives the hover speed (the vehicle trimmed)."""
+    thrust η k_T Ω_i², and each rotor's hover command gives the hover speed (the vehicle trimmed).
+    ``gyro_vibration`` (rad/s): the std of a rotor vibration on each gyro axis, as the simulator's
+    (:func:`mjxsysid.sim.quadrotor.vibration_step`): a two-pole resonator driven by white noise, 20 Hz wide,
+    at the rotors' mean speed / 2π aliased into the 250 Hz band."""
     rng = np.random.default_rng(seed)
     t = np.asarray(theta, np.float64)
     eta, tau, wmax = t[P.ETA], t[P.TAU_M], t[P.OMEGA_MAX]
@@ -35,6 +38,8 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
     imu, mot, speed = np.zeros((n, 6)), np.zeros((n, 4)), np.zeros((n, 4))
     imu[0, 5] = P.GRAVITY
     a = np.exp(-DT / tau)
+    vib = np.zeros((2, 3))
+    rv = np.exp(-np.pi * 20.0 * DT)
     for k in range(n):
         tt = k * DT
         if closed_loop:
@@ -60,6 +65,12 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
             if drag is not None:
                 sf -= drag * (0.8 + 0.7 * np.sin(0.9 * (k + 1) * DT))
             meas = w + gyro_noise * rng.standard_normal(3)
+            if gyro_vibration:
+                f = np.mean(gain * s + off) / (2 * np.pi)
+                phi1, phi2 = 2 * rv * np.cos(2 * np.pi * abs((f + 250.0) % 500.0 - 250.0) * DT), -rv * rv
+                g = np.sqrt((1 + phi2) * ((1 - phi2) ** 2 - phi1 ** 2) / (1 - phi2))     # unit variance
+                vib = np.stack([vib[1], phi1 * vib[1] + phi2 * vib[0] + g * rng.standard_normal(3)])
+                meas = meas + gyro_vibration * vib[1]
             imu[k + 1] = np.concatenate([meas,
                                          [acc_noise * rng.standard_normal(), acc_noise * rng.standard_normal(),
                                           sf + acc_noise * rng.standard_normal()]])
