@@ -53,6 +53,10 @@ the time."""
 KEY = "window_check"
 """The calibration table's entry holding the threshold and its provenance."""
 
+SPEED_SKIP = ("tau_m not compared: the posterior takes it from the measured rotor speeds (the least squares "
+              "re-fit it from the windows alone)")
+"""Why a log with rotor speeds is checked on the authorities alone."""
+
 WHY = ("the rate changes depend on the window length: physics the model lacks (e.g. feedback within a "
        "window, another motor model)")
 
@@ -98,17 +102,18 @@ def refits(make_logs, datas, ys, prior, starts: int = 1) -> np.ndarray:
     return ys
 
 
-def statistic(mode_v, fitted: dict, noise_share) -> dict:
+def statistic(mode_v, fitted: dict, noise_share, skip=()) -> dict:
     """The mode's visible coordinates (12,), {factor: re-fitted v (12,)} and the noise's share of each gyro
     axis's signal (3,) (:func:`noise_share`) -> {shift (the statistic), coord, factor (where it is
-    largest), shifts {coord: {factor: log ratio}}, scale {coord: what its shifts are divided by}}."""
+    largest), shifts {coord: {factor: log ratio}}, scale {coord: what its shifts are divided by}}. ``skip``:
+    names of :data:`CHECKED` left out of the statistic (their shifts still reported)."""
     mode_v = np.asarray(mode_v, np.float64)
     share = np.asarray(noise_share, np.float64)
     shifts = {name: {int(k): float(np.asarray(v, np.float64)[j] - mode_v[j]) for k, v in fitted.items()}
               for name, j, _ in CHECKED}
     scale = {name: float(SCALE_FLOOR + (np.mean(share) if axis is None else share[axis])) for name, _, axis in CHECKED}
     best = (0.0, None, None)
-    for name, _, _ in CHECKED:
+    for name in (n for n, _, _ in CHECKED if n not in skip):
         for k, d in shifts[name].items():
             if abs(d) / scale[name] > best[0]:
                 best = (abs(d) / scale[name], name, k)
@@ -138,7 +143,9 @@ def run(make_logs, datas, modes, prior, starts: int = 1) -> list:
             out.append({"shift": None, "why": _not_run(d)})
             continue
         y = np.asarray(modes[i][3])
-        out.append(statistic(y[L.Y_V], fitted[i], noise_share(d, y)))
+        speeds = float(np.asarray(d.speed)[0]) > 0          # τ_m from the measured rotor speeds, not the windows
+        out.append(statistic(y[L.Y_V], fitted[i], noise_share(d, y), skip=("tau_m",) if speeds else ())
+                   | ({"skipped": SPEED_SKIP} if speeds else {}))
     return out
 
 
