@@ -63,7 +63,7 @@ def _model_check_lines(g: dict) -> list[str]:
         return []
     win = chk.get("window") or {}
     lines = ["", "## The model check", "", f"- window length: {win.get('why', 'not run')}"]
-    return lines + [f"- failed: {r}" for r in chk.get("reasons", [])]
+    return lines + [f"- failed: {r}" for r in chk.get("reasons", []) if r != win.get("why")]
 
 
 def _khat(isd: dict) -> str:
