@@ -58,7 +58,8 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
         s = u + d0 * a
         T = eta * kt * (gain * gain * ms + 2 * gain * off * m1 + off * off)
         tq = np.array([arm * d[:, 1] @ T, -arm * d[:, 0] @ T, kap * P.YAW_SIGNS @ T]) + t[P.TAU_EXT]
-        dist = rho_d * dist + torque_noise * np.sqrt(1 - rho_d ** 2) * rng.standard_normal(3)
+        if torque_noise:        # (drawn only then: the other logs keep their noise draws)
+            dist = rho_d * dist + torque_noise * np.sqrt(1 - rho_d ** 2) * rng.standard_normal(3)
         w = w + DT * ((tq - np.cross(w, J * w)) / J + dist)
         if k + 1 < n:
             sf = (eta * kt * (gain * s + off) ** 2).sum() / m
