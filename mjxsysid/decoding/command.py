@@ -56,6 +56,16 @@ def printed_summary(summary: dict) -> dict:
 
 
 
+def _model_check_lines(g: dict) -> list[str]:
+    """summary.md's model check: the window-length test's verdict and every reason a coordinate failed."""
+    chk = (g.get("calibration") or {}).get("model_check")
+    if not chk:
+        return []
+    win = chk.get("window") or {}
+    lines = ["", "## The model check", "", f"- window length: {win.get('why', 'not run')}"]
+    return lines + [f"- failed: {r}" for r in chk.get("reasons", []) if r != win.get("why")]
+
+
 def _khat(isd: dict) -> str:
     """The Pareto k̂ of the decoded proposal's weights as the report prints it."""
     k = isd.get("khat")
@@ -99,7 +109,7 @@ def write_summary_md(summary: dict, path) -> Path:
                   f"used: {', '.join(g.get('channels_used', []))}. A width ratio above 1: the log pins the quantity "
                   f"down more than the policy's latent does; a log-grounded band as wide as the prior: the log cannot "
                   f"see it (docs/identify.md).", ""]
-        lines += gap_markdown(g["gap"])
+        lines += gap_markdown(g["gap"]) + _model_check_lines(g)
     Path(path).write_text("\n".join(lines) + "\n")
     return Path(path)
 

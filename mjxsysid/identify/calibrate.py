@@ -40,6 +40,8 @@ from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
 from mjxsysid.identify.gap import UNSEEN_FRACTION
 from mjxsysid.identify.logspace import N_V, V_NAMES
+from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
+from mjxsysid.identify.windowcheck import WHY as WINDOW_WHY
 
 LEVEL = 0.90
 """The band's nominal coverage."""
@@ -232,8 +234,21 @@ def _check(table: dict, where: str) -> None:
 
 def for_method(table: dict, method: str | None) -> dict:
     """The table for a posterior drawn by ``method`` ('smc', 'smc_nuts'): its own (``table[BY_METHOD]``)
-    where it has one, else ``table`` itself (the pooled table)."""
-    return table.get(BY_METHOD, {}).get(method, table)
+    where it has one, else ``table`` itself (the pooled table); the window check's threshold
+    (:data:`WINDOW_KEY`, one for every sampler: it reads the mode) carried into it."""
+    own = table.get(BY_METHOD, {}).get(method)
+    if own is None:
+        return table
+    return own | ({WINDOW_KEY: table[WINDOW_KEY]} if WINDOW_KEY in table else {})
+
+
+def window_features(check: dict | None) -> dict:
+    """A log's window check (:func:`~.windowcheck.run`'s dict, or None) -> the features
+    :func:`model_check` reads: window_shift (the statistic, None where it did not run), window_shift_at
+    (the coordinate and window factor where it is largest, or why it did not run)."""
+    if not check or check.get("shift") is None:
+        return {"window_shift": None, "window_shift_at": (check or {}).get("why", "not run")}
+    return {"window_shift": float(check["shift"]), "window_shift_at": f"{check['coord']}, {check['factor']}× windows"}
 
 
 def with_method(base: dict, sub: dict, method: str) -> dict:
@@ -252,7 +267,9 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
     rates_ok, acc_ok, reasons [str] (all of them, once each)}: a residual scale over the signal more than ``margin`` decades above the
     calibration set's (an axis the flight hardly excited, or a model that does not fit; a log that fits
     better than any simulated one takes the calibration of its nearest bin), residuals more correlated
-    than 99.5 % of its logs' (the rate axes pooled), rates the motor logging cannot support."""
+    than 99.5 % of its logs' (the rate axes pooled), a fit that moves with the rate windows' length beyond
+    the table's threshold (``window_shift``, :mod:`.windowcheck`; the rate features), rates the motor logging
+    cannot support. ``window``: that test's verdict (ok None where it did not run)."""
     why = {f: [] for f in FEATURE_NAMES}
     for f in FEATURE_NAMES:
         if f not in table["feature_range"] or f not in features:
@@ -273,13 +290,34 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
     if w[a] < wmin[a]:
         why["acc_nsr"].append(f"the accelerometer residuals are more correlated than 99.5 % of the simulated logs' "
                               f"(discount {w[a]:.3f} below {wmin[a]:.3f}): physics the model lacks")
+    win = _window_verdict(features, table)
+    if win["ok"] is False:
+        for f in rates:
+            why[f].append(win["why"])
     if not features["rates_used"]:
         for f in rates:
             why[f].append("the motors were logged too slowly for the rate windows: τ_m, the authorities, ρ and "
                           "τ_ext/J cannot be seen")
     ok = {f: not why[f] for f in FEATURE_NAMES}
     reasons = list(dict.fromkeys(r for f in FEATURE_NAMES for r in why[f]))
-    return {"ok": ok, "why": why, "rates_ok": all(ok[f] for f in rates), "acc_ok": ok["acc_nsr"], "reasons": reasons}
+    return {"ok": ok, "why": why, "rates_ok": all(ok[f] for f in rates), "acc_ok": ok["acc_nsr"], "reasons": reasons,
+            "window": win}
+
+
+def _window_verdict(features: dict, table: dict) -> dict:
+    """The window-length test of :func:`model_check` -> {shift, threshold, ok (None: not run), why}."""
+    entry = table.get(WINDOW_KEY) or {}
+    thr, shift = entry.get("threshold"), features.get("window_shift")
+    if thr is None or shift is None:
+        why = "no threshold in the calibration table" if thr is None else features.get("window_shift_at", "not run")
+        return {"shift": shift, "threshold": thr, "ok": None, "why": f"window check not run: {why}"}
+    at = features.get("window_shift_at", "")
+    if shift <= thr:
+        return {"shift": shift, "threshold": thr, "ok": True,
+                "why": f"window shift {shift:.2f} ({at}) within the threshold {thr:.2f}"}
+    return {"shift": shift, "threshold": thr, "ok": False,
+            "why": f"window shift {shift:.2f} ({at}) above the threshold {thr:.2f} (the {entry.get('quantile', 0.99):g} "
+                   f"quantile over {entry.get('logs', '?')} simulated logs): {WINDOW_WHY}"}
 
 
 def coord_ok(check: dict, j: int) -> bool:

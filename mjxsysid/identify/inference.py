@@ -13,7 +13,8 @@ log, so θ = θ(v, h) with h drawn from the prior.
    least-squares start (at fixed τ_m the rate changes are linear in authority × ρ), from the
    decoded samples and from prior draws, δ re-set from the best fit's residuals between rounds;
    then the correlation discounts w, and a Gauss–Newton precision of the tempered Student-t
-   residuals there (the Laplace proposal, a Student-t).
+   residuals there (the Laplace proposal, a Student-t). From the mode, the fit with longer rate
+   windows: the model check's window-length test (:mod:`.windowcheck`).
 1. **Importance sampling from the decoders.** The decoded samples θ (S, 19) mapped to v are
    fitted by a Gaussian (widened by :data:`~.proposals.PROPOSAL_WIDEN`), the nuisances' proposal centred on
    the log's own noise estimate; N draws are weighted by target / proposal. Reported: the
@@ -42,7 +43,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid.identify import logspace as L
-from mjxsysid.identify.calibrate import SHIPPED, calibrate, for_method, load, log_features
+from mjxsysid.identify.calibrate import SHIPPED, calibrate, for_method, load, log_features, window_features
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, theta_from, visible_from_theta
 from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
 from mjxsysid.identify.posterior_config import PosteriorConfig, resolve
@@ -53,6 +54,7 @@ from mjxsysid.identify.nuts import MAX_DOUBLINGS, RHAT_OK, TARGET_ACCEPTANCE, _n
 from mjxsysid.identify.nuts import refine as nuts_refine
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
 from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc, _smc_logs, _smc_start, rw_scale_update
+from mjxsysid.identify.windowcheck import run as window_check
 from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, target_evals,
                                       _batch_log_target_logs, _y_lo_hi, full_precision, full_x,
                                       log_prior, log_target)
@@ -390,8 +392,10 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
     ld = np.stack([m[1] for m in modes]).astype(np.float32)
     w = np.stack([m[2] for m in modes]).astype(np.float32)
     laps = [m[4] for m in modes]
+    checks = window_check(_Logs, datas, modes, prior, starts)        # the fit at longer rate windows (.windowcheck)
     outs = [{"proposal": "decoded" if qvs[i] is not None else "prior", "mode": modes[i][0], "weights": modes[i][2],
-             "channels_used": np.asarray(d.use), "rates": d.rates} for i, d in enumerate(datas)]
+             "channels_used": np.asarray(d.use), "rates": d.rates, "window_check": checks[i]}
+            for i, d in enumerate(datas)]
     chosen = [None] * nl
     # 1. the decoded ensemble as the proposal, then the Laplace proposal
     if qvs[0] is not None:
@@ -446,7 +450,7 @@ def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> 
     out["rotor_speed"] = getattr(data, "_rows", {}).get("speed")
     xs = np.asarray(full_x(ys, ld))
     v_raw = xs[:, L.X_V]
-    out["features"] = log_features(data, mode)
+    out["features"] = log_features(data, mode) | window_features(out.get("window_check"))
     if out["features"]["velocity_used"]:     # (3,) 1/s: x and y from the accelerometer's x and y, z from its term
         xy = getattr(data, "_rows", {}).get("drag_xy")
         out["drag_per_mass"] = [*(xy.tolist() if xy is not None else [None, None]), drag_at(mode, data)]

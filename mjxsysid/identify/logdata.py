@@ -261,14 +261,17 @@ class LogTooShort(ValueError):
 
 
 def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = MAX_WINDOWS,
-            rates: str = RATES, speeds: str = "model", vibration: bool = True) -> LogData:
+            rates: str = RATES, speeds: str = "model", vibration: bool = True,
+            pad_to: tuple[int, int] | None = None) -> LogData:
     """A log's arrays (``imu`` (T, 6) the reading each row's motor command was given, ``motor``
     (T, 4) normalised rotor-speed commands, optional ``native``, ``rotor_speed``) -> :class:`LogData`.
     ``rates``: the rate term (:data:`RATES`). ``speeds``: what the thrust and torque terms read where the
     rotor speeds are used: "model", the fitted command→speed maps' speeds per τ
     (:func:`~.speeds.model_features`: a map per rotor), "shared", one map for the four rotors (a diagnostic),
     or "raw", the measured samples at every τ (a diagnostic). ``vibration``: whether the innovations whiten a
-    rotor vibration detected in the gyro (:mod:`.vibration`; False, the white-noise filter alone: a diagnostic)."""
+    rotor vibration detected in the gyro (:mod:`.vibration`; False, the white-noise filter alone: a diagnostic).
+    ``pad_to``: (windows, blocks) padded to at least these counts (another log's: one compiled program serves
+    both, :mod:`.windowcheck`)."""
     if speeds not in ("model", "shared", "raw"):
         raise ValueError(f"speeds must be 'model', 'shared' or 'raw', got {speeds!r}")
     if rates not in ("innovations", "windows"):
@@ -326,6 +329,8 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     kvar = np.array([2.0 * ratio / W] * 3 + [ratio / B])
     f32 = lambda a: np.asarray(a, np.float32)  # noqa: E731   host arrays: a reduction sent to another process stays NumPy
     nw, nb = bucket(len(k0)), bucket(len(acc))
+    if pad_to is not None:
+        nw, nb = max(nw, int(pad_to[0])), max(nb, int(pad_to[1]))
     n_kf = int(min(T - 1 - start, round(MAX_RATE_S / DT)))
     step_f = None            # τ -> (n_kf, 4); picklable: a LogData may come from another process
     if raw:
@@ -349,7 +354,9 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     # pytree field, so never passed into a compiled program
     object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf,
                                        "drag_xy": drag_per_mass_xy(rec, bsteps + 1), "step_f": step_f, "whiten": whiten,
-                                       "speed": report(speed)})
+                                       "speed": report(speed), "rec": rec, "rec_args":
+                                       {"max_windows": max_windows, "rates": rates, "speeds": speeds,
+                                        "vibration": vibration}})
     return data
 
 

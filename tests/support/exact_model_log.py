@@ -9,7 +9,8 @@ DT = 0.002
 
 
 def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, closed_loop=False, drag=None,
-                  speed_noise=None, motor_delay=0, rotor_gain=None, rotor_offset=None, gyro_vibration=0.0):
+                  speed_noise=None, motor_delay=0, rotor_gain=None, rotor_offset=None, gyro_vibration=0.0,
+                  torque_noise=0.0):
     """Fly θ (19,) open loop around hover with a rate damper and chirp excitation -> imu, motor.
     ``closed_loop``: instead, a rate P controller on the *measured* (noisy) rates tracking a slow
     sinusoid: the commands react to the gyro's noise, the feedback that biases an equation error.
@@ -22,7 +23,10 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
     thrust η k_T Ω_i², and each rotor's hover command gives the hover speed (the vehicle trimmed).
     ``gyro_vibration`` (rad/s): the std of a rotor vibration on each gyro axis, as the simulator's
     (:func:`mjxsysid.sim.quadrotor.vibration_step`): a two-pole resonator driven by white noise, 20 Hz wide,
-    at the rotors' mean speed / 2π aliased into the 250 Hz band."""
+    at the rotors' mean speed / 2π aliased into the 250 Hz band.
+    ``torque_noise`` (rad/s²): a disturbance's angular acceleration the model lacks, an Ornstein–Uhlenbeck
+    process (0.1 s correlation) of this standard deviation per axis, that a closed loop answers within a
+    rate window."""
     rng = np.random.default_rng(seed)
     t = np.asarray(theta, np.float64)
     eta, tau, wmax = t[P.ETA], t[P.TAU_M], t[P.OMEGA_MAX]
@@ -40,6 +44,7 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
     a = np.exp(-DT / tau)
     vib = np.zeros((2, 3))
     rv = np.exp(-np.pi * 20.0 * DT)
+    dist, rho_d = np.zeros(3), np.exp(-DT / 0.1)
     for k in range(n):
         tt = k * DT
         if closed_loop:
@@ -59,7 +64,9 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
         s = u + d0 * a
         T = eta * kt * (gain * gain * ms + 2 * gain * off * m1 + off * off)
         tq = np.array([arm * d[:, 1] @ T, -arm * d[:, 0] @ T, kap * P.YAW_SIGNS @ T]) + t[P.TAU_EXT]
-        w = w + DT * (tq - np.cross(w, J * w)) / J
+        if torque_noise:        # (drawn only then: the other logs keep their noise draws)
+            dist = rho_d * dist + torque_noise * np.sqrt(1 - rho_d ** 2) * rng.standard_normal(3)
+        w = w + DT * ((tq - np.cross(w, J * w)) / J + dist)
         if k + 1 < n:
             sf = (eta * kt * (gain * s + off) ** 2).sum() / m
             if drag is not None:

@@ -1,0 +1,201 @@
+"""The window-length check's threshold (:mod:`mjxsysid.identify.windowcheck`) from simulated flights.
+
+Flies vehicles of the prior with the lag-aware oracle (MJX) on each flight of ``--references`` at each
+IMU noise level of ``--levels``, finds each log's posterior mode (the library's, no decoded proposal),
+re-fits it with the rate windows 2× and 4× as long, and keeps the statistic. The threshold is its
+``--quantile`` quantile over the logs; ``--held-out SEED`` flies other vehicles (another seed) and counts
+how many the threshold flags; ``--logs`` gives the statistic of real logs.
+
+    python benchmarks/window_check.py --vehicles 6 --out docs/runs/measurements/log-grounded/window-check
+    python benchmarks/window_check.py --vehicles 6 --out ... --write-threshold    # into the shipped table
+    python benchmarks/window_check.py --from DIR/simulated.json --logs ../shared/data/logs/crazyflie/*.bin
+
+Writes OUT/simulated.json (one row per log: vehicle, flight, level, the statistic and its shifts),
+OUT/held_out.json and OUT/logs.json, and prints the threshold and the false-alarm rates.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+LEVELS = "clean,x1,x5_white,x5_vibration,x20"
+REFERENCES = "lemniscate:10,lemniscate:20,minsnap:10,hover:8"
+
+
+def statistics_of(datas, seed: int = 0) -> list[dict]:
+    """The window check of each log (:class:`~mjxsysid.identify.logdata.LogData`) from its mode, as the
+    posterior computes it (:func:`~mjxsysid.identify.windowcheck.run`)."""
+    from mjxsysid.identify.coords import PHYSICAL_PRIOR
+    from mjxsysid.identify.inference import _Logs, _starts
+    from mjxsysid.identify.mode import find_modes
+    from mjxsysid.identify.posterior_config import DEFAULT
+    from mjxsysid.identify.windowcheck import run
+    out = []
+    for i, d in enumerate(datas):
+        st = _starts(d, None, np.random.default_rng(seed + i), PHYSICAL_PRIOR, DEFAULT.starts)
+        t0 = time.perf_counter()
+        modes = find_modes(_Logs([d]), st[None].astype(np.float32), PHYSICAL_PRIOR)
+        t1 = time.perf_counter()
+        res = run(_Logs, [d], modes, PHYSICAL_PRIOR)[0]
+        out.append(res | {"rates_nsr": _rates_nsr(d, modes[0][0]), "mode_s": round(t1 - t0, 2), "check_s": round(time.perf_counter() - t1, 2)})
+    return out
+
+
+def _rates_nsr(data, mode) -> float:
+    from mjxsysid.identify.calibrate import log_features
+    return log_features(data, mode)["rates_nsr"]
+
+
+def simulate(vehicles: int, seed: int, levels, references, log=print, save=None) -> list[dict]:
+    """Rows of simulated logs: {vehicle, flight, level, shift, coord, factor, shifts, ...}; ``save``: called
+    with the rows so far after each flight and level."""
+    import jax
+    from mjxsysid import theta as P
+    from mjxsysid.experiments.posterior_calibration import parse_reference
+    from mjxsysid.identify.logdata import LogTooShort, prepare
+    from mjxsysid.rollout.flight import flight_log, fly_vehicles
+    from mjxsysid.sim import Quadrotor, SimConfig
+    from mjxsysid.uses.imu_noise import LEVELS as NOISE
+    th = np.asarray(P.get_prior("wide_actuators").sample(jax.random.PRNGKey(seed), vehicles))
+    rows = []
+    for ref in references:
+        for lv in levels:
+            sim = Quadrotor(SimConfig(**NOISE[lv]))
+            t0 = time.perf_counter()
+            fl, m, _ = fly_vehicles(th, controller="oracle", sim=sim, seed=seed + 97 * list(NOISE).index(lv),
+                                    **parse_reference(ref))
+            fly_s = time.perf_counter() - t0
+            datas, idx = [], []
+            for i in np.flatnonzero(~np.asarray(m["failed"], bool)):
+                try:
+                    datas.append(prepare(flight_log(fl.frame, i)))
+                    idx.append(int(i))
+                except LogTooShort:
+                    continue
+            for i, r in zip(idx, statistics_of(datas, seed)):
+                rows.append({"vehicle": i, "flight": ref, "level": lv} | r)
+            shifts = [r["shift"] for r in rows[-len(idx):] if r["shift"] is not None] if idx else []
+            mode_s = sum(r["mode_s"] for r in rows[-len(idx):]) if idx else 0.0
+            check_s = sum(r["check_s"] for r in rows[-len(idx):]) if idx else 0.0
+            log(f"{ref} {lv}: {len(idx)} logs (flown in {fly_s:.0f} s, modes {mode_s:.0f} s, checks {check_s:.0f} s), "
+                f"shift max {max(shifts, default=0.0):.2f}", flush=True)
+            if save is not None:
+                save(rows)
+    return rows
+
+
+def rotorpy_rows(levels, seed: int = 0, log=print) -> list[dict]:
+    """The check on RotorPy flights (another simulator, aerodynamics on: :mod:`mjxsysid.experiments.rotorpy_noise`'s
+    vehicles and noise, the shipped policy flying a 10 s lemniscate) -> rows."""
+    from mjxsysid.experiments import rotorpy_noise as R
+    from mjxsysid.identify.logdata import prepare
+    R.import_rotorpy()
+    ctrl = R.PolicyController.load()
+    rng = np.random.default_rng(seed)
+    steps = int(round(R.FULL["seconds"] / R.LOG_DT))
+    white, bias, vib = rng.standard_normal((steps, 6)), rng.standard_normal(6), rng.standard_normal((steps, 6))
+    rows = []
+    for vn, make in R.VEHICLES.items():
+        for lv in levels:
+            rec = R.fly(make(), R.FULL["seconds"], R.NOISE_LEVELS[lv], white, bias, ctrl, vib)
+            r = statistics_of([prepare({"imu": rec["imu"], "motor": rec["motor"]})])[0]
+            rows.append({"vehicle": vn, "flight": "rotorpy lemniscate:10", "level": lv} | r)
+            log(f"rotorpy {vn} {lv}: shift {r['shift']:.2f} ({r['coord']}, {r['factor']}×)", flush=True)
+    return rows
+
+
+def threshold_of(rows, quantile: float) -> float:
+    """The ``quantile`` quantile of the rows' statistic (the rows the check ran on)."""
+    s = np.array([r["shift"] for r in rows if r["shift"] is not None], np.float64)
+    if len(s) == 0:
+        raise ValueError("window check: no simulated log the check ran on")
+    return float(np.quantile(s, quantile, method="higher"))
+
+
+def flagged(rows, thr: float) -> tuple[int, int]:
+    """(logs above the threshold, logs the check ran on)."""
+    s = [r["shift"] for r in rows if r["shift"] is not None]
+    return sum(x > thr for x in s), len(s)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--vehicles", type=int, default=6)
+    ap.add_argument("--seed", type=int, default=5)
+    ap.add_argument("--levels", default=LEVELS)
+    ap.add_argument("--references", default=REFERENCES)
+    ap.add_argument("--quantile", type=float, default=None, help="default: windowcheck.QUANTILE")
+    ap.add_argument("--held-out", type=int, default=None, metavar="SEED", help="fly --held-out-vehicles more at this seed")
+    ap.add_argument("--held-out-vehicles", type=int, default=2)
+    ap.add_argument("--from", dest="from_", default=None, help="read the simulated rows from this simulated.json")
+    ap.add_argument("--logs", nargs="*", default=[], help="real logs to check against the threshold")
+    ap.add_argument("--rotorpy", action="store_true", help="check RotorPy flights too (rotorpy 3.0.0 installed)")
+    ap.add_argument("--out", default="docs/runs/measurements/log-grounded/window-check")
+    ap.add_argument("--write-threshold", action="store_true",
+                    help="write the threshold into the shipped calibration table (mjxsysid/pretrained/posterior_calibration.json)")
+    a = ap.parse_args()
+    from mjxsysid.identify import windowcheck as W
+    q = W.QUANTILE if a.quantile is None else a.quantile
+    out = Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    levels, refs = a.levels.split(","), a.references.split(",")
+    cmd = ("python benchmarks/window_check.py " + f"--vehicles {a.vehicles} --seed {a.seed} --levels {a.levels} "
+           f"--references {a.references}" + (f" --quantile {a.quantile}" if a.quantile is not None else ""))
+    if a.from_:
+        sim = json.loads(Path(a.from_).read_text())
+    else:
+        t0 = time.perf_counter()
+        sim = {"command": cmd, "rows": []}
+
+        def save(rows):
+            (out / "simulated.json").write_text(json.dumps(sim | {"rows": rows}, indent=1) + "\n")
+        sim["rows"] = simulate(a.vehicles, a.seed, levels, refs, save=save)
+        sim["wall_s"] = round(time.perf_counter() - t0, 1)
+        (out / "simulated.json").write_text(json.dumps(sim, indent=1) + "\n")
+    rows = sim["rows"]
+    thr = threshold_of(rows, q)
+    k, n = n_above, n_sim = flagged(rows, thr)
+    print(f"threshold {thr:.3f}: the {q:g} quantile of {n} simulated logs ({k} above it)")
+    for lv in levels:
+        kl, nl = flagged([r for r in rows if r["level"] == lv], thr)
+        print(f"  {lv}: {kl} of {nl} above")
+    if a.held_out is not None:
+        ho = simulate(a.held_out_vehicles, a.held_out, levels, refs)
+        (out / "held_out.json").write_text(json.dumps({"seed": a.held_out, "rows": ho}, indent=1) + "\n")
+        k, n = flagged(ho, thr)
+        print(f"held out (seed {a.held_out}): {k} of {n} logs above the threshold")
+    if a.rotorpy:
+        ro = rotorpy_rows(levels)
+        (out / "rotorpy.json").write_text(json.dumps({"rows": ro}, indent=1) + "\n")
+        k, n = flagged(ro, thr)
+        print(f"RotorPy: {k} of {n} logs above the threshold")
+    if a.logs:
+        from mjxsysid.identify.logdata import prepare
+        from mjxsysid.logs.csvlog import read_any_log
+        res = {}
+        for p in a.logs:
+            try:
+                r = statistics_of([prepare(read_any_log(p))])[0]
+            except Exception as e:      # a real log the posterior refuses: said, not fatal
+                r = {"shift": None, "why": f"{type(e).__name__}: {e}"}
+            res[p] = r
+            s = r["shift"]
+            print(f"{p}: " + (r["why"] if s is None else f"shift {s:.2f} ({r['coord']}, {r['factor']}× windows) "
+                              + ("FLAGGED" if s > thr else "passes")), flush=True)
+        (out / "logs.json").write_text(json.dumps({"threshold": thr, "logs": res}, indent=1) + "\n")
+    if a.write_threshold:
+        from mjxsysid.identify.calibrate import SHIPPED
+        table = json.loads(SHIPPED.read_text())
+        table[W.KEY] = {"threshold": round(thr, 4), "quantile": q, "logs": n_sim, "above": n_above,
+                        "levels": levels, "references": refs, "command": cmd + " --write-threshold",
+                        "rows": str(out / "simulated.json"), "date": time.strftime("%Y-%m-%d")}
+        SHIPPED.write_text(json.dumps(table, indent=1) + "\n")
+        print(f"wrote {W.KEY} into {SHIPPED}")
+
+
+if __name__ == "__main__":
+    main()
