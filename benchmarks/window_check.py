@@ -152,10 +152,10 @@ def main():
         sim = {"command": cmd, "rows": []}
 
         def save(rows):
-            (out / "simulated.json").write_text(json.dumps(sim | {"rows": rows}, indent=1) + "\n")
+            (out / "simulated.json").write_text(json.dumps(sim | {"rows": rows}, separators=(",", ":")) + "\n")
         sim["rows"] = simulate(a.vehicles, a.seed, levels, refs, save=save)
         sim["wall_s"] = round(time.perf_counter() - t0, 1)
-        (out / "simulated.json").write_text(json.dumps(sim, indent=1) + "\n")
+        (out / "simulated.json").write_text(json.dumps(sim, separators=(",", ":")) + "\n")
     rows = sim["rows"]
     thr = threshold_of(rows, q)
     k, n = n_above, n_sim = flagged(rows, thr)
@@ -165,7 +165,7 @@ def main():
         print(f"  {lv}: {kl} of {nl} above")
     if a.held_out is not None:
         ho = simulate(a.held_out_vehicles, a.held_out, levels, refs)
-        (out / "held_out.json").write_text(json.dumps({"seed": a.held_out, "rows": ho}, indent=1) + "\n")
+        (out / "held_out.json").write_text(json.dumps({"seed": a.held_out, "rows": ho}, separators=(",", ":")) + "\n")
         k, n = flagged(ho, thr)
         print(f"held out (seed {a.held_out}): {k} of {n} logs above the threshold")
     if a.rotorpy:
