@@ -94,3 +94,17 @@ def exact_model_log(theta, seconds: float = 4.0, gyro_noise: float = 0.0, acc_no
                     seed: int = 0) -> dict:
     """:func:`synthetic_log` open loop, without drag: {'imu' (T, 6), 'motor' (T, 4)}."""
     return synthetic_log(theta, seconds, gyro_noise, acc_noise, seed)
+
+
+def likelihood_peaks(data, v, x0, span: float = 0.3, points: int = 31) -> tuple[float, float]:
+    """Where the log target of ``data`` peaks along log τ_m and along the roll authority's log, each swept
+    ±``span`` (the authority ±span/3) about the truth's visible coordinates ``v`` (12,) with the linear
+    start ``x0``'s nuisances (σ, δ) -> (τ_m's offset, the roll authority's offset) from the truth, in log."""
+    from mjxsysid.identify.inference import log_target
+    steps = np.linspace(-span, span, points)
+    y = np.concatenate([v, x0[12:16], [0.0]])[None].repeat(2 * points, 0)
+    y[:points, 4] += steps
+    y[points:, 5] += steps / 3
+    lt = np.asarray(log_target(y.astype(np.float32), data, log_delta=x0[16:20]))
+    assert not np.any(np.isnan(lt))          # -inf only outside the prior (J's triangle inequality)
+    return float(steps[np.argmax(lt[:points])]), float(steps[np.argmax(lt[points:])] / 3)
