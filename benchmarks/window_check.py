@@ -50,9 +50,10 @@ def _rates_nsr(data, mode) -> float:
     return log_features(data, mode)["rates_nsr"]
 
 
-def simulate(vehicles: int, seed: int, levels, references, log=print, save=None) -> list[dict]:
+def simulate(vehicles: int, seed: int, levels, references, log=print, save=None, motor_idle: float = 0.0) -> list[dict]:
     """Rows of simulated logs: {vehicle, flight, level, shift, coord, factor, shifts, ...}; ``save``: called
-    with the rows so far after each flight and level."""
+    with the rows so far after each flight and level; ``motor_idle``: the simulator's idle offset
+    (``SimConfig.motor_idle``: a motor map the likelihood lacks)."""
     import jax
     from mjxsysid import theta as P
     from mjxsysid.experiments.posterior_calibration import parse_reference
@@ -64,7 +65,7 @@ def simulate(vehicles: int, seed: int, levels, references, log=print, save=None)
     rows = []
     for ref in references:
         for lv in levels:
-            sim = Quadrotor(SimConfig(**NOISE[lv]))
+            sim = Quadrotor(SimConfig(**NOISE[lv], motor_idle=motor_idle))
             t0 = time.perf_counter()
             fl, m, _ = fly_vehicles(th, controller="oracle", sim=sim, seed=seed + 97 * list(NOISE).index(lv),
                                     **parse_reference(ref))
@@ -108,6 +109,14 @@ def rotorpy_rows(levels, seed: int = 0, log=print) -> list[dict]:
     return rows
 
 
+def _compact(obj) -> str:
+    """``obj`` as compact JSON, floats to 4 significant digits (the rows are provenance, not precision)."""
+    def r(x):
+        return float(f"{x:.4g}") if isinstance(x, float) else {k: r(v) for k, v in x.items()} if isinstance(x, dict) \
+            else [r(v) for v in x] if isinstance(x, list) else x
+    return json.dumps(r(obj), separators=(",", ":")) + "\n"
+
+
 def threshold_of(rows, quantile: float) -> float:
     """The ``quantile`` quantile of the rows' statistic (the rows the check ran on)."""
     s = np.array([r["shift"] for r in rows if r["shift"] is not None], np.float64)
@@ -134,6 +143,10 @@ def main():
     ap.add_argument("--from", dest="from_", default=None, help="read the simulated rows from this simulated.json")
     ap.add_argument("--logs", nargs="*", default=[], help="real logs to check against the threshold")
     ap.add_argument("--rotorpy", action="store_true", help="check RotorPy flights too (rotorpy 3.0.0 installed)")
+    ap.add_argument("--motor-idle", type=float, default=None, metavar="SHARE",
+                    help="check --held-out-vehicles more flown with this idle offset in the motor map (a misfit): "
+                         "OUT/motor_idle.json")
+    ap.add_argument("--misfit-seed", type=int, default=78, help="--motor-idle's vehicles' seed")
     ap.add_argument("--out", default="docs/runs/measurements/log-grounded/window-check")
     ap.add_argument("--write-threshold", action="store_true",
                     help="write the threshold into the shipped calibration table (mjxsysid/pretrained/posterior_calibration.json)")
@@ -152,10 +165,10 @@ def main():
         sim = {"command": cmd, "rows": []}
 
         def save(rows):
-            (out / "simulated.json").write_text(json.dumps(sim | {"rows": rows}, separators=(",", ":")) + "\n")
+            (out / "simulated.json").write_text(_compact(sim | {"rows": rows}))
         sim["rows"] = simulate(a.vehicles, a.seed, levels, refs, save=save)
         sim["wall_s"] = round(time.perf_counter() - t0, 1)
-        (out / "simulated.json").write_text(json.dumps(sim, separators=(",", ":")) + "\n")
+        (out / "simulated.json").write_text(_compact(sim))
     rows = sim["rows"]
     thr = threshold_of(rows, q)
     k, n = n_above, n_sim = flagged(rows, thr)
@@ -165,9 +178,14 @@ def main():
         print(f"  {lv}: {kl} of {nl} above")
     if a.held_out is not None:
         ho = simulate(a.held_out_vehicles, a.held_out, levels, refs)
-        (out / "held_out.json").write_text(json.dumps({"seed": a.held_out, "rows": ho}, separators=(",", ":")) + "\n")
+        (out / "held_out.json").write_text(_compact({"seed": a.held_out, "rows": ho}))
         k, n = flagged(ho, thr)
         print(f"held out (seed {a.held_out}): {k} of {n} logs above the threshold")
+    if a.motor_idle is not None:
+        mi = simulate(a.held_out_vehicles, a.misfit_seed, levels, refs, motor_idle=a.motor_idle)
+        (out / "motor_idle.json").write_text(_compact({"motor_idle": a.motor_idle, "seed": a.misfit_seed, "rows": mi}))
+        k, n = flagged(mi, thr)
+        print(f"motor idle {a.motor_idle:g}: {k} of {n} logs above the threshold")
     if a.rotorpy:
         ro = rotorpy_rows(levels)
         (out / "rotorpy.json").write_text(json.dumps({"rows": ro}, indent=1) + "\n")
