@@ -119,10 +119,8 @@ def _compact(obj) -> str:
 
 def threshold_of(rows, quantile: float) -> float:
     """The ``quantile`` quantile of the rows' statistic (the rows the check ran on)."""
-    s = np.array([r["shift"] for r in rows if r["shift"] is not None], np.float64)
-    if len(s) == 0:
-        raise ValueError("window check: no simulated log the check ran on")
-    return float(np.quantile(s, quantile, method="higher"))
+    from mjxsysid.identify.windowcheck import threshold
+    return threshold([r["shift"] for r in rows], quantile)
 
 
 def flagged(rows, thr: float) -> tuple[int, int]:

@@ -168,8 +168,12 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
     and write it to ``out`` with its provenance (``command`` that made it, default the CLI's; ``provenance``:
     more entries, e.g. a release stage's). ``method`` ('smc_nuts', 'smc'): fit on that sampler's rows only and
     write the table at ``base`` (default the shipped one) with this one as its table for ``method``
-    (:func:`~mjxsysid.identify.calibrate.with_method`)."""
+    (:func:`~mjxsysid.identify.calibrate.with_method`). The window check's threshold
+    (:func:`~mjxsysid.identify.windowcheck.threshold_entry`) is fitted on the rows where enough carry its
+    statistic, else kept from ``base``."""
     from mjxsysid.identify.calibrate import load, with_method
+    from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
+    from mjxsysid.identify.windowcheck import threshold_entry
     rows = read_rows(paths)
     if method is not None:
         n = len(rows)
@@ -184,8 +188,19 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
                            "rows": len(rows), "levels": levels, "commit": git_commit() or "unknown",
                            "fitted_on": platform.node() or "unknown", "fit_seconds": round(time.perf_counter() - t0, 3),
                            "date": time.strftime("%Y-%m-%d"), "note": note, **(provenance or {})}
+    try:
+        base_table = load(base)
+    except FileNotFoundError:
+        if method is not None:
+            raise
+        base_table = {}
     if method is not None:
-        table = with_method(load(base), table, method)
+        table = with_method(base_table, table, method)
+    window = threshold_entry(rows)                   # the window check's threshold: from these rows where they
+    if window is not None:                           # carry its statistic, else the base table's
+        table[WINDOW_KEY] = window | {"command": command or cmd, "date": time.strftime("%Y-%m-%d")}
+    elif WINDOW_KEY in base_table:
+        table[WINDOW_KEY] = base_table[WINDOW_KEY]
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(table, indent=1) + "\n")

@@ -53,6 +53,32 @@ the time."""
 KEY = "window_check"
 """The calibration table's entry holding the threshold and its provenance."""
 
+MIN_LOGS = 200
+"""Simulated logs the statistic ran on that a threshold is fitted from (:func:`threshold_entry`): the 99 %
+quantile of fewer is one log or none."""
+
+
+def threshold(shifts, quantile: float = QUANTILE) -> float:
+    """The ``quantile`` quantile (numpy's "higher": a statistic a log had) of the statistic ``shifts`` (the
+    logs the check ran on)."""
+    s = np.asarray([x for x in shifts if x is not None], np.float64)
+    if len(s) == 0:
+        raise ValueError("window check: no simulated log the check ran on")
+    return float(np.quantile(s, quantile, method="higher"))
+
+
+def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
+    """The table's :data:`KEY` entry from calibration rows (their features' ``window_shift``) -> {threshold,
+    quantile, logs, above, levels}, or None where fewer than :data:`MIN_LOGS` rows carry the statistic (rows
+    collected before the check)."""
+    ran = [r for r in rows if (r.get("features") or {}).get("window_shift") is not None]
+    if len(ran) < MIN_LOGS:
+        return None
+    shifts = [float(r["features"]["window_shift"]) for r in ran]
+    thr = threshold(shifts, quantile)
+    return {"threshold": round(thr, 4), "quantile": quantile, "logs": len(ran), "above": sum(x > thr for x in shifts),
+            "levels": sorted({r["level"] for r in ran})}
+
 SPEED_SKIP = ("tau_m not compared: the posterior takes it from the measured rotor speeds (the least squares "
               "re-fit it from the windows alone)")
 """Why a log with rotor speeds is checked on the authorities alone."""

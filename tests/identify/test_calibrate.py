@@ -264,3 +264,26 @@ def test_the_demo_quotes_the_held_out_coverage_of_its_own_samplers_table():
     for m in ("smc", "smc_nuts"):
         assert f"truth {100 * clean[m]:.0f} % of the time" in _held_out_coverage(m), m
     assert _held_out_coverage("smc") != _held_out_coverage("smc_nuts")
+
+
+def test_the_window_checks_threshold_is_fitted_on_rows_that_carry_its_statistic(tmp_path):
+    """fit_file sets the window check's threshold at the 99 % quantile of the rows' statistic where at least
+    windowcheck.MIN_LOGS carry it (a release's rows); rows collected before the check keep the base table's."""
+    from mjxsysid.identify import windowcheck as W
+    rng = np.random.default_rng(5)
+    base = tmp_path / "base.json"
+    base.write_text(json.dumps(C.load() | {W.KEY: {"threshold": 99.0, "logs": 1}}))
+    old = [r | {"method": "smc_nuts"} for r in _rows(400, rng)]
+    (tmp_path / "old.json").write_text(json.dumps({"rows": old}))
+    kept = pc.fit_file([tmp_path / "old.json"], tmp_path / "kept.json", method="smc_nuts", base=base)
+    assert kept[W.KEY]["threshold"] == 99.0
+    shifts = rng.gamma(2.0, 2.0, 400)
+    new = [r | {"features": r["features"] | {"window_shift": float(s)}} for r, s in zip(old, shifts)]
+    new[0]["features"]["window_shift"] = None                      # a log the check did not run on
+    (tmp_path / "new.json").write_text(json.dumps({"rows": new}))
+    fitted = pc.fit_file([tmp_path / "new.json"], tmp_path / "fitted.json", method="smc_nuts", base=base)
+    entry = C.load(tmp_path / "fitted.json")[W.KEY]
+    assert entry == fitted[W.KEY] and entry["logs"] == 399 and entry["above"] <= 4
+    assert entry["threshold"] == pytest.approx(np.quantile(shifts[1:], 0.99, method="higher"), rel=1e-4)
+    with pytest.raises(ValueError, match="no simulated log"):
+        W.threshold([None])

@@ -53,6 +53,7 @@ def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, 
                for r in json.loads(f.read_text())["rows"])
     assert 0 < nuts < n_train and table["by_method"]["smc_nuts"]["logs"] == nuts   # NUTS's rows: a table of their own
     assert prov["sizes"]["bins"] == cal.bins and set(prov["sizes"]["train"]) == set(cal.train)
+    assert table["window_check"] == load()["window_check"]        # rows without its statistic: the shipped threshold
     assert set(prov["collected"]) == {f for *_, f in pieces(cal)}
     assert [c["call"].rsplit(".", 1)[1] for c in prov["calls"]] == ["collect", "collect", "collect", "fit_file"]
     held = [next(iter(for_method(table, m)["provenance"]["held_out"].values())) for m in ("smc_nuts", "smc")]
