@@ -33,11 +33,11 @@ from mjxsysid.rollout.flight import flight_log
 
 WAYS = {"windows": dict(rates="windows"), "innovations": dict(rates="innovations"),
         "innovations_white": dict(rates="innovations", vibration=False)}
-QUANTITIES = {"tau_m": L.LOG_TAU_M, "roll_auth": L.LOG_AUTH_X}
+QUANTITIES = {"tau_m": L.LOG_TAU_M, "roll_auth": L.LOG_AUTH_X, "a_z": L.LOG_AUTH_Z}
 
 
 def score(posts, truths) -> dict:
-    """τ_m's and the roll authority's median ratio, median error, 90 % coverage and band width (log units),
+    """τ_m's, the roll authority's and A_z's (authority_total[2]) median ratio, median error, 90 % coverage and band width (log units),
     for the raw draws and the calibrated ones (the shipped table, fitted on the windows' rows)."""
     v_true = np.asarray(visible_from_theta(np.asarray(truths, np.float32)), np.float64)
     out = {}
@@ -57,7 +57,8 @@ def _line(lv: str, w: str, s: dict) -> str:
     t, tr, r = s["tau_m"], s["tau_m_raw"], s["roll_auth"]
     return (f"{lv:13s} {w:18s} τ_m ratio {t['median_ratio']:.3f} error {t['median_error']:.3f} inside {t['coverage_90']:.2f} "
             f"(raw {tr['coverage_90']:.2f}) width {t['median_width']:.3f} (raw {tr['median_width']:.3f}) | roll error "
-            f"{r['median_error']:.3f} inside {r['coverage_90']:.2f} | vibration {sum(s['vibration'])}/{len(s['vibration'])} "
+            f"{r['median_error']:.3f} inside {r['coverage_90']:.2f} | A_z raw ratio {s['a_z_raw']['median_ratio']:.3f} "
+            f"inside {s['a_z_raw']['coverage_90']:.2f} | vibration {sum(s['vibration'])}/{len(s['vibration'])} "
             f"| NUTS mixed {s['methods'].count('smc_nuts')}/{len(s['methods'])} | prepare {s['prepare_s']:.2f} s, "
             f"posterior {s['posterior_s']:.1f} s")
 
