@@ -175,6 +175,7 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
     from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
     from mjxsysid.identify.windowcheck import threshold_entry
     rows = read_rows(paths)
+    window = threshold_entry(rows)                   # the window check's threshold reads the mode: every sampler's rows
     if method is not None:
         n = len(rows)
         rows = [r for r in rows if r.get("method") == method]
@@ -196,8 +197,7 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
         base_table = {}
     if method is not None:
         table = with_method(base_table, table, method)
-    window = threshold_entry(rows)                   # the window check's threshold: from these rows where they
-    if window is not None:                           # carry its statistic, else the base table's
+    if window is not None:                           # from these rows where enough carry its statistic, else the base's
         table[WINDOW_KEY] = window | {"command": command or cmd, "date": time.strftime("%Y-%m-%d")}
     elif WINDOW_KEY in base_table:
         table[WINDOW_KEY] = base_table[WINDOW_KEY]
@@ -328,6 +328,11 @@ def table_markdown(res: dict) -> list[str]:
     return lines
 
 
+def mean_coverage(levels: dict) -> dict:
+    """:func:`evaluate`'s result {level: {coverage {coord: c}}} -> {level: the coordinates' mean coverage}."""
+    return {lv: round(float(np.nanmean(list(r["coverage"].values()))), 3) for lv, r in levels.items()}
+
+
 def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     """Evaluate the table at ``table_path`` (default the shipped one) on the rows of ``paths`` (held out)
     against the raw posterior; write ``out``/evaluation.json, evaluation.md, coverage_width.png,
@@ -357,10 +362,9 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     for method in sorted({r.get("method") for r in rows}, key=str):    # each sampler's rows, in its own table
         own = [r for r in rows if r.get("method") == method]
         held = for_method(table, method).setdefault("provenance", {}).setdefault("held_out", {})
-        held[str(out)] = {"rows": len(own), "mean_coverage": {
-            lv: round(float(np.nanmean(list(r["coverage"].values()))), 3) for lv, r in evaluate(own, table).items()}}
+        held[str(out)] = {"rows": len(own), "mean_coverage": mean_coverage(evaluate(own, table))}
     path.write_text(json.dumps(table, indent=1) + "\n")
     return res
 
 
-__all__ = ["collect", "fit_file", "report", "evaluate", "FEATURE_NAMES", "COORD_FEATURE", "log_features"]
+__all__ = ["collect", "fit_file", "report", "evaluate", "mean_coverage", "FEATURE_NAMES", "COORD_FEATURE", "log_features"]

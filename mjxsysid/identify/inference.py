@@ -50,7 +50,7 @@ from mjxsysid.identify.posterior_config import PosteriorConfig, resolve
 from mjxsysid.identify.logdata import LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
                                     _ls_jacobian_logs, find_modes)
-from mjxsysid.identify.nuts import MAX_DOUBLINGS, RHAT_OK, TARGET_ACCEPTANCE, _nuts, _nuts_logs, unmixed_not_seen
+from mjxsysid.identify.nuts import MAX_DOUBLINGS, TARGET_ACCEPTANCE, _nuts, _nuts_logs, unmixed_not_seen
 from mjxsysid.identify.nuts import refine as nuts_refine
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
 from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc, _smc_logs, _smc_start, rw_scale_update
@@ -459,9 +459,8 @@ def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> 
     v, out["calibration"] = _calibrated(v_raw, out["features"], out["weights"], calibration, prior, seed,
                                         out.get("method"))
     if "nuts" in out and out["calibration"].get("applied"):
-        unmixed = not all(r < RHAT_OK for r in out["nuts"]["rhat_v"])
         v = unmixed_not_seen(out["calibration"], out["nuts"], v,
-                             prior.sample_v(np.random.default_rng(seed), len(v)) if unmixed else None)
+                             lambda n: prior.sample_v(np.random.default_rng(seed), n))
     h = prior.sample_h(r_h, samples)
     out.update(v=v, v_raw=v_raw, nuisance=xs[:, L.X_NUIS], theta=np.asarray(theta_from(v, h), np.float32))
     return out

@@ -263,25 +263,26 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
         todo, warmup, thin = again, LONGER[0] * WARMUP, LONGER[1]
 
 
-def unmixed_not_seen(report: dict, nuts: dict, v=None, prior_v=None):
+def unmixed_not_seen(report: dict, nuts: dict, v=None, prior_draws=None):
     """A visible coordinate on which NUTS's chains disagree (split R̂ ≥ :data:`RHAT_OK`) is not
     seen by the log, whatever its band's width: the fit did not converge there (where no chain mixed,
     the posterior keeps the SMC's draws: :func:`refine`, and on a flat ridge, a hover's authorities, the SMC's
-    band is narrow and wrong). With draws ``v`` (S, 12) and ``prior_v`` (S, 12), those coordinates are
-    drawn from the prior, as a failed model check's (a band only where the chains' means, ``chain_spread_v``,
-    lie further apart than it is wide held 4 of 6 hovers' roll authorities, not 6: docs/identify.md).
-    Returns the draws (``v`` itself where none is replaced)."""
+    band is narrow and wrong). With draws ``v`` (S, 12) and ``prior_draws`` (n -> prior draws (n, 12), called
+    only where a coordinate did not mix), those coordinates are drawn from the prior, as a failed model
+    check's (a band only where the chains' means, ``chain_spread_v``, lie further apart than it is wide held
+    4 of 6 hovers' roll authorities, not 6: docs/identify.md). Returns the draws (``v`` itself where none is
+    replaced)."""
     bad = [j for j, r in enumerate(nuts["rhat_v"]) if not r < RHAT_OK]
     spread = nuts.get("chain_spread_v")
     for j in bad:
         report["seen"][j] = False
         report["why"][j] = (f"NUTS's chains disagree on it (split R̂ {nuts['rhat_v'][j]:.2f} ≥ {RHAT_OK}"
                             + (f", their means {spread[j]:.2g} apart" if spread is not None else "")
-                            + "): the fit did not mix" + ("; as broad as the prior" if prior_v is not None else ""))
-    if v is None or prior_v is None or not bad:
+                            + "): the fit did not mix" + ("; as broad as the prior" if prior_draws is not None else ""))
+    if v is None or prior_draws is None or not bad:
         return v
     v = np.array(v, copy=True)
-    v[:, bad] = np.asarray(prior_v, v.dtype)[:, bad]
+    v[:, bad] = np.asarray(prior_draws(len(v)), v.dtype)[:, bad]
     if "factor" in report:
         report["factor"] = np.asarray(report["factor"], np.float64).copy()
         report["factor"][bad] = np.nan

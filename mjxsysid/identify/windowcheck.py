@@ -57,6 +57,13 @@ MIN_LOGS = 200
 """Simulated logs the statistic ran on that a threshold is fitted from (:func:`threshold_entry`): the 99 %
 quantile of fewer is one log or none."""
 
+SPEED_SKIP = ("tau_m not compared: the posterior takes it from the measured rotor speeds (the least squares "
+              "re-fit it from the windows alone)")
+"""Why a log with rotor speeds is checked on the authorities alone."""
+
+WHY = ("the rate changes depend on the window length: physics the model lacks (e.g. feedback within a "
+       "window, another motor model)")
+
 
 def threshold(shifts, quantile: float = QUANTILE) -> float:
     """The ``quantile`` quantile (numpy's "higher": a statistic a log had) of the statistic ``shifts`` (the
@@ -78,13 +85,6 @@ def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
     thr = threshold(shifts, quantile)
     return {"threshold": round(thr, 4), "quantile": quantile, "logs": len(ran), "above": sum(x > thr for x in shifts),
             "levels": sorted({r["level"] for r in ran})}
-
-SPEED_SKIP = ("tau_m not compared: the posterior takes it from the measured rotor speeds (the least squares "
-              "re-fit it from the windows alone)")
-"""Why a log with rotor speeds is checked on the authorities alone."""
-
-WHY = ("the rate changes depend on the window length: physics the model lacks (e.g. feedback within a "
-       "window, another motor model)")
 
 
 def variants(data, factors=WINDOW_FACTORS) -> list:

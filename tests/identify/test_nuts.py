@@ -104,10 +104,12 @@ def test_a_coordinate_whose_chains_disagree_is_drawn_from_the_prior():
     prior_v = PHYSICAL_PRIOR.sample_v(rng, 500)
     report = {"seen": np.ones(12, bool), "why": [""] * 12, "factor": np.ones(12)}
     nuts = {"rhat_v": [1.0] * 5 + [1.3] + [1.0] * 6, "chain_spread_v": [0.0] * 5 + [0.5] + [0.0] * 6}
-    out = S.unmixed_not_seen(report, nuts, v, prior_v)
+    out = S.unmixed_not_seen(report, nuts, v, lambda n: prior_v[:n])
     assert np.array_equal(out[:, 5], prior_v[:, 5]) and np.array_equal(np.delete(out, 5, 1), np.delete(v, 5, 1))
     assert "means 0.5 apart" in report["why"][5]
     assert not report["seen"][5] and np.isnan(report["factor"][5]) and "as broad as the prior" in report["why"][5]
     lo, hi = PHYSICAL_PRIOR.v_bounds()
     assert np.ptp(np.percentile(out[:, 5], [5, 95])) > 0.5 * (hi[5] - lo[5])
-    assert S.unmixed_not_seen(dict(report), {"rhat_v": [1.0] * 12}, v, prior_v) is v
+    def never(n):
+        raise AssertionError("prior drawn though every coordinate mixed")
+    assert S.unmixed_not_seen(dict(report), {"rhat_v": [1.0] * 12}, v, never) is v

@@ -80,11 +80,6 @@ def collect_piece(rel: ReleaseView, out: Path, piece, device: str | None, commit
     return record, True
 
 
-def _mean_coverage(levels: dict) -> dict:
-    import numpy as np
-    return {lv: round(float(np.nanmean(list(r["coverage"].values()))), 3) for lv, r in levels.items()}
-
-
 def _nuts_table(train: list[Path], path: Path, cal: CalibrationSizes, commit, device, command: str) -> dict | None:
     """The table at ``path`` with a table of its own for NUTS-refined posteriors (the rows whose chains mixed,
     :func:`mjxsysid.identify.calibrate.for_method`), written there; None (the pooled table alone) where they
@@ -114,7 +109,7 @@ def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
     (:func:`mjxsysid.experiments.posterior_calibration.report`: out/evaluation.json, evaluation.md,
     coverage_width.png, ranks.png; the mean coverage per level recorded in the provenance of each sampler's
     table), and on the misfit sets' rows apart (out/misfit/, never recorded in the table)."""
-    from mjxsysid.experiments.posterior_calibration import fit_file, report
+    from mjxsysid.experiments.posterior_calibration import fit_file, mean_coverage, report
     from mjxsysid.release.provenance import code_commit, device_name
     cal = rel.sizes.calibration
     entry = rel.entry("posterior_calibration")
@@ -146,15 +141,15 @@ def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
     rows = table["provenance"]["rows"]
     (out / TABLE).write_text(json.dumps(table, indent=1) + "\n")
     res = report(held, out / TABLE, out, record=True)
-    cov = _mean_coverage(res["calibrated"])
+    cov = mean_coverage(res["calibrated"])
     calls.append(call(report, paths=held, table_path=out / TABLE, out=out, record=True))
     apart = {}
     if misfit:
         calls.append(call(report, paths=misfit, table_path=out / TABLE, out=out / MISFIT))
-        apart = _mean_coverage(report(misfit, out / TABLE, out / MISFIT)["calibrated"])
+        apart = mean_coverage(report(misfit, out / TABLE, out / MISFIT)["calibrated"])
     return StageResult(
         calls=tuple(calls),
         config={"sizes": jsonable(cal), "collected_now": ran},
         figures={"train_logs": rows, "held_out_logs": res["rows"], "mean_coverage": cov, "misfit_mean_coverage": apart,
-                 "mean_coverage_raw": _mean_coverage(res["raw"]),
+                 "mean_coverage_raw": mean_coverage(res["raw"]),
                  "wall_s_this_call": round(time.time() - t0, 1)})
