@@ -190,7 +190,7 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
                            "fitted_on": platform.node() or "unknown", "fit_seconds": round(time.perf_counter() - t0, 3),
                            "date": time.strftime("%Y-%m-%d"), "note": note, **(provenance or {})}
     try:
-        base_table = load(base)
+        base_table = load(base, check=method is not None)    # replaced whole: only its window threshold is read
     except FileNotFoundError:
         if method is not None:
             raise

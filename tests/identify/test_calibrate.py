@@ -104,6 +104,12 @@ def test_model_check_flags_a_log_the_calibration_does_not_cover():
     assert not chk["ok"]["rates_nsr_x"] and "rates_nsr_x" in chk["reasons"][0]
     j = {n: i for i, n in enumerate(V_NAMES)}
     assert not C.coord_ok(chk, j["log_authority[0]"]) and C.coord_ok(chk, j["log_authority[1]"])
+    # the yaw authorities are grouped by the gyros' mean, but a yaw axis the flight hardly excited still hides them
+    weak_yaw = dict(good, rates_nsr_z=table["feature_range"]["rates_nsr_z"][1] + 1.0)
+    chk = C.model_check(weak_yaw, [0.5] * 4, table)
+    assert table["coords"][j["log_yaw_authority"]]["feature"] == "rates_nsr"
+    assert not C.coord_ok(chk, j["log_yaw_authority"]) and not C.coord_ok(chk, j["log_authority[2]"])
+    assert C.coord_ok(chk, j["log_authority[0]"]) and C.coord_ok(chk, j["log_motor_time_constant"])
     # fitting better than any simulated log is no misfit
     assert C.model_check(dict(good, acc_nsr=-9.0), [0.5] * 4, table)["acc_ok"]
     corr = C.model_check(good, [1e-4, 0.5, 0.5, 0.5], table)
@@ -287,3 +293,21 @@ def test_the_window_checks_threshold_is_fitted_on_rows_that_carry_its_statistic(
     assert entry["threshold"] == pytest.approx(np.quantile(shifts[1:], 0.99, method="higher"), rel=1e-4)
     with pytest.raises(ValueError, match="no simulated log"):
         W.threshold([None])
+
+
+def test_the_shipped_table_is_what_the_committed_rows_give(tmp_path):
+    """tools/refit_calibration.py rebuilds both samplers' tables from docs/runs' rows: the shipped one is
+    theirs, number for number, and the held-out coverage it records is what its evaluations give."""
+    import importlib.util
+    root = Path(__file__).resolve().parents[2]
+    spec = importlib.util.spec_from_file_location("refit_calibration", root / "tools" / "refit_calibration.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    tool.main(["--table", str(tmp_path / "t.json"), "--evaluations", str(tmp_path / "ev")])
+    new, shipped = json.loads((tmp_path / "t.json").read_text()), C.load()
+    for a, b in ((new, shipped), (new["by_method"]["smc_nuts"], shipped["by_method"]["smc_nuts"])):
+        for key in ("coords", "velocity_coords", "feature_range", "min_weight", "logs"):
+            assert a[key] == b[key], key
+        held = {k.split("/ev/")[-1]: v for k, v in a["provenance"]["held_out"].items()}
+        assert held == {k.split("log-grounded/")[-1]: v for k, v in b["provenance"]["held_out"].items()}
+    assert (tmp_path / "ev" / "nuts-calibration" / "misfit" / "evaluation.json").is_file()
