@@ -10,6 +10,7 @@ def test_compilation_cache(monkeypatch, tmp_path):
 
     from mjxsysid.runtime.startup import compilation_cache
     suite = jax.config.jax_compilation_cache_dir
+    suite_min = jax.config.jax_persistent_cache_min_compile_time_secs
     assert suite
     monkeypatch.setenv("MJXSYSID_JAX_CACHE", str(tmp_path / "c"))
     compilation_cache()
@@ -22,6 +23,7 @@ def test_compilation_cache(monkeypatch, tmp_path):
         monkeypatch.setenv("MJXSYSID_JAX_CACHE", str(tmp_path / "c"))
         compilation_cache()
         assert jax.config.jax_compilation_cache_dir == str(tmp_path / "c")
+        assert jax.config.jax_persistent_cache_min_compile_time_secs == 0.0      # small programs kept too
         # the default: a folder per CPU (a home folder shared by two machines must not mix their programs)
         jax.config.update("jax_compilation_cache_dir", None)
         monkeypatch.delenv("MJXSYSID_JAX_CACHE")
@@ -32,3 +34,4 @@ def test_compilation_cache(monkeypatch, tmp_path):
         assert re.fullmatch(r"cpu-[0-9a-f]{10}", where.name), where
     finally:
         jax.config.update("jax_compilation_cache_dir", suite)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", suite_min)
