@@ -50,7 +50,7 @@ from mjxsysid.identify.posterior_config import PosteriorConfig, resolve
 from mjxsysid.identify.logdata import LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
                                     _ls_jacobian_logs, find_modes)
-from mjxsysid.identify.nuts import MAX_DOUBLINGS, TARGET_ACCEPTANCE, _nuts, _nuts_logs, unmixed_not_seen
+from mjxsysid.identify.nuts import run_chains, unmixed_not_seen
 from mjxsysid.identify.nuts import refine as nuts_refine
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
 from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc, _smc_logs, _smc_start, rw_scale_update
@@ -171,18 +171,17 @@ class _Logs:
     def nuts(self, idx, keys, u0, ld, w, m, chol, prior, warmup, draws):
         """NUTS of the logs ``idx`` (m,) from their starts (:func:`.nuts.start`: keys (m, C, 2), u0
         (m, C, 17), m (m, 17), chol (m, 17, 17)) with their log δ and weights (m, 4) -> the outputs of
-        :func:`.nuts._nuts`, each with a leading axis m."""
+        :func:`.nuts._chains`, each with a leading axis m."""
         idx = list(idx)
         lo, hi = (jnp.asarray(a, jnp.float32) for a in _y_lo_hi(prior))
         args = [np.asarray(keys, np.uint32)] + [np.asarray(a, np.float32) for a in (u0, ld, w, m, chol)]
         if self.stack is None:
             k, u, a, b, mm, c = (jnp.asarray(x[0]) for x in args)  # rows, not coordinates
-            out = _nuts(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior, warmup, draws, TARGET_ACCEPTANCE,
-                        MAX_DOUBLINGS)
+            out = run_chains(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior=prior, warmup=warmup, draws=draws)
             return [np.asarray(o)[None] for o in out]
         p, data = self._sub(idx)
         k, u, a, b, mm, c = (jnp.asarray(_pad_rows(x, len(p))) for x in args)
-        out = _nuts_logs(k, u, data, a, b, lo, hi, mm, c, prior, warmup, draws, TARGET_ACCEPTANCE, MAX_DOUBLINGS)
+        out = run_chains(k, u, data, a, b, lo, hi, mm, c, prior=prior, warmup=warmup, draws=draws, logs=True)
         return [np.asarray(o)[:len(idx)] for o in out]
 
 

@@ -159,17 +159,24 @@ def _chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, 
     return jax.vmap(chain)(keys, u0)
 
 
-_STATIC = ("prior", "warmup", "draws", "target_acceptance", "max_doublings")
-_nuts = jax.jit(_chains, static_argnames=_STATIC)
-
-
-@functools.partial(jax.jit, static_argnames=_STATIC)
-def _nuts_logs(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance,
-               max_doublings):
-    """:func:`_nuts` vmapped over logs (keys, u0, data, log δ, weights, m and chol with a leading log axis)."""
+def _chains_logs(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance,
+                 max_doublings):
+    """:func:`_chains` vmapped over logs (keys, u0, data, log δ, weights, m and chol with a leading log axis)."""
     def one(k, u, d, a, b, mm, c):
         return _chains(k, u, d, a, b, lo, hi, mm, c, prior, warmup, draws, target_acceptance, max_doublings)
     return jax.vmap(one)(keys, u0, data, log_delta, weights, m, chol)
+
+
+def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, warmup: int, draws: int,
+               target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = MAX_DOUBLINGS, logs: bool = False):
+    """:func:`_chains` (``logs``: :func:`_chains_logs`, a leading log axis) compiled through
+    :func:`mjxsysid.runtime.exported.call`: its trace (blackjax's window adaptation and sampler, 3.6 s of a
+    warm ``decode --log``) is kept on disk beside the compilation cache."""
+    from mjxsysid.runtime import exported
+    static = {"prior": prior, "warmup": int(warmup), "draws": int(draws),
+              "target_acceptance": float(target_acceptance), "max_doublings": int(max_doublings)}
+    fn, name = (_chains_logs, "nuts_logs") if logs else (_chains, "nuts")
+    return exported.call(name, fn, static, keys, u0, data, log_delta, weights, lo, hi, m, chol)
 
 
 def _f32(a):
@@ -302,7 +309,7 @@ def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: in
     lo, hi = (np.asarray(a, np.float32) for a in _y_lo_hi(prior))
     keys, u0, m, chol = start(scale_draws, start_y, chains, seed, prior)
     with jax.default_matmul_precision("highest"):       # as the SMC's target (target.full_precision)
-        y, div, n_leap, step = _nuts(jnp.asarray(keys), _f32(u0), data, _f32(log_delta), _f32(weights), _f32(lo), _f32(hi),
-                                     _f32(m), _f32(chol), prior,
-                                     int(warmup), int(draws), float(target_acceptance), int(max_doublings))
+        y, div, n_leap, step = run_chains(jnp.asarray(keys), _f32(u0), data, _f32(log_delta), _f32(weights), _f32(lo),
+                                          _f32(hi), _f32(m), _f32(chol), prior=prior, warmup=warmup, draws=draws,
+                                          target_acceptance=target_acceptance, max_doublings=max_doublings)
     return {"y": np.asarray(y, np.float64), **diagnostics(y, div, n_leap, step)}
