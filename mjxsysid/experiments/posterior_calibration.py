@@ -168,10 +168,11 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
     and write it to ``out`` with its provenance (``command`` that made it, default the CLI's; ``provenance``:
     more entries, e.g. a release stage's). ``method`` ('smc_nuts', 'smc'): fit on that sampler's rows only and
     write the table at ``base`` (default the shipped one) with this one as its table for ``method``
-    (:func:`~mjxsysid.identify.calibrate.with_method`). The window check's threshold
+    (:func:`~mjxsysid.identify.calibrate.with_method`), interpolating between its bins where the method is one
+    of :data:`~mjxsysid.identify.calibrate.INTERPOLATED`. The window check's threshold
     (:func:`~mjxsysid.identify.windowcheck.threshold_entry`) is fitted on the rows where enough carry its
     statistic, else kept from ``base``."""
-    from mjxsysid.identify.calibrate import load, with_method
+    from mjxsysid.identify.calibrate import INTERPOLATED, load, with_method
     from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
     from mjxsysid.identify.windowcheck import threshold_entry
     rows = read_rows(paths)
@@ -182,7 +183,7 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
         if not rows:
             raise ValueError(f"no calibration rows of method {method!r} among the {n} rows of {[str(p) for p in paths]}")
     t0 = time.perf_counter()
-    table = fit(rows, bins=bins, min_group=min_group)
+    table = fit(rows, bins=bins, min_group=min_group, interpolate=method in INTERPOLATED)
     levels = sorted({r["level"] for r in rows})
     cmd = "mjxsysid calibrate-posterior --fit " + " ".join(map(str, paths)) + (f" --method {method}" if method else "")
     table["provenance"] = {"command": command or cmd,
@@ -210,7 +211,7 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
 def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """A row's 90 % band (2, 12) after the ``table`` (None: raw) and a (12,) mask of the coordinates
     the model check and the rate logging let through (the table of the row's ``method`` where it has one)."""
-    from mjxsysid.identify.calibrate import coord_entry, coord_ok, for_method, group_of, model_check, side_factors
+    from mjxsysid.identify.calibrate import coord_entry, coord_ok, for_method, model_check, stretch
     q = np.asarray(row["bands"], np.float64)
     if table is None:
         return q[[0, 2]], np.ones(len(V_NAMES), bool)
@@ -220,8 +221,7 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
     lo, hi = q[0].copy(), q[2].copy()
     for j in range(len(V_NAMES)):
         c = coord_entry(table, j, row["features"])
-        b = group_of(c, row["features"][c["feature"]], q[2, j] - q[0, j])
-        k_lo, k_hi = side_factors(q[:, j], c, b)
+        _, k_lo, k_hi = stretch(q[:, j], c, row["features"][c["feature"]])
         lo[j] = q[1, j] - k_lo * (q[1, j] - q[0, j])
         hi[j] = q[1, j] + k_hi * (q[2, j] - q[1, j])
     return np.stack([lo, hi]), ok

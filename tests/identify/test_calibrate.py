@@ -311,3 +311,32 @@ def test_the_shipped_table_is_what_the_committed_rows_give(tmp_path):
         held = {k.split("/ev/")[-1]: v for k, v in a["provenance"]["held_out"].items()}
         assert held == {k.split("log-grounded/")[-1]: v for k, v in b["provenance"]["held_out"].items()}
     assert (tmp_path / "ev" / "nuts-calibration" / "misfit" / "evaluation.json").is_file()
+
+
+def test_interpolated_table_puts_a_log_between_two_bins_between_their_bands():
+    """A table fitted with interpolation: a log at a bin's centre gets that bin's stretch, one halfway
+    between two centres the mean of the two bins' (each in its own width half), one beyond the outer
+    centres the outer bin's; a table without centres keeps its bins."""
+    rng = np.random.default_rng(4)
+    rows = _rows(1200, rng, bias=0.0, spread=1.0)
+    for r in rows:                                    # errors grow with the feature: each bin's stretch differs
+        s = 10 ** (0.5 * r["features"]["rates_nsr"] + 2)
+        med = np.array(r["truth_v"]) + (np.array(r["bands"][1]) - np.array(r["truth_v"])) * s
+        w = np.array(r["bands"][2]) - np.array(r["bands"][1])
+        r["bands"] = [(med - w).tolist(), med.tolist(), (med + w).tolist()]
+    table = C.fit(rows, interpolate=True)
+    c = table["coords"][1]
+    cen = c["centres"]
+    q = np.array([0.0, 0.05, 0.1])                    # a raw band of width 0.1
+    half = lambda x: int(0.1 > c["width_split"][int(np.searchsorted(c["edges"], x))])   # noqa: E731
+    at = [C.side_factors(q, c, 2 * i + half(x)) for i, x in enumerate(cen)]
+    for i, x in enumerate(cen):
+        assert C.stretch(q, c, x)[1:] == pytest.approx(at[i])
+    mid = C.stretch(q, c, 0.5 * (cen[1] + cen[2]))[1:]
+    assert mid == pytest.approx(0.5 * (np.array(at[1]) + np.array(at[2])))
+    assert C.stretch(q, c, cen[-1] + 5.0)[1:] == pytest.approx(at[-1])
+    assert at[-1][1] > at[0][1]                      # the noisier bins' bands wider
+    plain = C.fit(rows)["coords"][1]
+    assert "centres" not in plain
+    x = 0.5 * (cen[1] + cen[2])
+    assert C.stretch(q, plain, x)[1:] == C.side_factors(q, plain, C.group_of(plain, x, 0.1))
