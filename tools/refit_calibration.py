@@ -11,6 +11,9 @@ one command for what ``mjxsysid calibrate-posterior --fit/--evaluate`` does in s
    (nuts-calibration/test).
 4. The misfit set (nuts-calibration/rows/misfit: an idle offset), evaluated apart, never recorded.
 
+The window check's threshold: the 0.99 quantile of its statistic over the training rows that carry it and the
+check's own 200 simulated logs (window-check/simulated.json).
+
 The notes (where the rows came from) are kept from the table being replaced.
 """
 from __future__ import annotations
@@ -30,6 +33,16 @@ HELD_OUT = [([RUNS / "calibrated/rows" / f"{n}.json.gz" for n in ("test", "test_
             ([RUNS / "calibrated/rows/fam.json.gz"], RUNS / "calibrated/families"),
             ([NUTS_ROWS / "held_out"], RUNS / "nuts-calibration/test")]
 MISFIT = ([NUTS_ROWS / "misfit"], RUNS / "nuts-calibration/misfit")
+WINDOW_SET = RUNS / "window-check/simulated.json"
+"""The window check's own simulated logs (benchmarks/window_check.py: 200 logs, hovers and slow figure-eights
+among them, which the calibration rows carrying the statistic lack): pooled with those rows for its threshold."""
+
+
+def window_rows(path: Path = WINDOW_SET) -> list[dict]:
+    """The window check's simulated logs at ``path`` as calibration rows ({level, flight, features: {window_shift}})."""
+    rows = json.loads(path.read_text())["rows"]
+    return [{"level": r["level"], "flight": r["flight"], "features": {"window_shift": float(r["shift"])}}
+            for r in rows if r.get("shift") is not None]
 
 
 def _notes(path: Path) -> tuple[str, str]:
@@ -59,7 +72,7 @@ def main(argv=None) -> None:
         return folder if a.evaluations is None else a.evaluations / folder.relative_to(RUNS)
     fit_file(SMC_ROWS, a.table, smc_note, command="python tools/refit_calibration.py (step 1)")
     fit_file([NUTS_ROWS / "train"], a.table, a.nuts_note or nuts_note, method="smc_nuts", base=a.table,
-             command="python tools/refit_calibration.py (step 2)")
+             command="python tools/refit_calibration.py (step 2)", window_rows=window_rows())
     print(f"fitted both tables in {time.perf_counter() - t0:.1f} s -> {a.table}", flush=True)
     for paths, folder in HELD_OUT:
         res = report(paths, a.table, out(folder), record=True)

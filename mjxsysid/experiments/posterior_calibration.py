@@ -163,7 +163,8 @@ def read_rows(paths) -> list[dict]:
 
 
 def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: int = 30, command: str | None = None,
-             provenance: dict | None = None, method: str | None = None, base: Path | None = None) -> dict:
+             provenance: dict | None = None, method: str | None = None, base: Path | None = None,
+             window_rows: list[dict] | None = None) -> dict:
     """Fit the table on the rows of ``paths`` (``bins``, ``min_group``: :func:`~mjxsysid.identify.calibrate.fit`'s)
     and write it to ``out`` with its provenance (``command`` that made it, default the CLI's; ``provenance``:
     more entries, e.g. a release stage's). ``method`` ('smc_nuts', 'smc'): fit on that sampler's rows only and
@@ -171,12 +172,13 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
     (:func:`~mjxsysid.identify.calibrate.with_method`), interpolating between its bins where the method is one
     of :data:`~mjxsysid.identify.calibrate.INTERPOLATED`. The window check's threshold
     (:func:`~mjxsysid.identify.windowcheck.threshold_entry`) is fitted on the rows where enough carry its
-    statistic, else kept from ``base``."""
+    statistic (with ``window_rows``: more simulated logs' statistics, rows of ``{level, features: {window_shift}}``),
+    else kept from ``base``."""
     from mjxsysid.identify.calibrate import INTERPOLATED, load, with_method
     from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
     from mjxsysid.identify.windowcheck import threshold_entry
     rows = read_rows(paths)
-    window = threshold_entry(rows)                   # the window check's threshold reads the mode: every sampler's rows
+    window = threshold_entry(rows + list(window_rows or []))   # it reads the mode: every sampler's rows
     if method is not None:
         n = len(rows)
         rows = [r for r in rows if r.get("method") == method]
