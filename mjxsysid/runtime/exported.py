@@ -46,9 +46,21 @@ def _key(name: str, static: dict, args) -> str:
 
 
 def folder() -> Path | None:
-    """Where exported programs are kept: ``<compilation cache>/exported``, None while that cache is off."""
+    """Where exported programs are kept: ``<compilation cache>/exported``; None while that cache is off, or
+    where JAX cannot serialize them (its serializer needs the ``flatbuffers`` package)."""
     where = jax.config.jax_compilation_cache_dir
-    return Path(where) / FOLDER if where else None
+    return Path(where) / FOLDER if where and can_serialize() else None
+
+
+@functools.lru_cache(maxsize=1)
+def can_serialize() -> bool:
+    """Whether ``jax.export`` can write a program: its serializer imports ``flatbuffers`` (a dependency of
+    this package; a machine without it, such as a bare GPU host, compiles as usual)."""
+    try:
+        import flatbuffers  # noqa: F401
+    except ImportError:
+        return False
+    return True
 
 
 def call(name: str, fn, static: dict, *args):
@@ -85,4 +97,4 @@ def _runner(path: str):
     return jax.jit(jax.export.deserialize(bytearray(Path(path).read_bytes())).call)
 
 
-__all__ = ["call", "folder", "source_hash", "FOLDER"]
+__all__ = ["call", "can_serialize", "folder", "source_hash", "FOLDER"]

@@ -1,0 +1,52 @@
+"""Traced programs kept on disk (runtime/exported.py): the same results as jit, one file per key, loaded
+by a later call, registered pytrees flattened on the way, and plain jit where nothing can be written."""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from mjxsysid.runtime import exported
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass
+class _Pair:
+    a: jax.Array
+    b: jax.Array
+
+
+def _f(x, p, *, n):
+    def body(c, _):
+        return jnp.sin(c) * p.a + p.b, None
+    return jax.lax.scan(body, x, None, length=n)[0], jnp.sum(x)
+
+
+def test_exported_program_is_written_once_and_gives_jits_results(tmp_path, monkeypatch):
+    monkeypatch.setattr(exported, "folder", lambda: tmp_path)
+    x, p = jnp.arange(3.0), _Pair(jnp.float32(0.5), jnp.ones(3))
+    want = jax.jit(_f, static_argnames="n")(x, p, n=4)
+    got = exported.call("f", _f, {"n": 4}, x, p)
+    files = sorted(tmp_path.glob("f-*.bin"))
+    assert len(files) == 1
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
+    exported._runner.cache_clear()                    # a later process: loaded from the file, not traced
+    again = exported.call("f", _f, {"n": 4}, x, p)
+    np.testing.assert_array_equal(again[0], want[0])
+    assert sorted(tmp_path.glob("f-*.bin")) == files
+    exported.call("f", _f, {"n": 5}, x, p)            # another static: another program
+    exported.call("f", _f, {"n": 4}, jnp.arange(4.0), _Pair(jnp.float32(0.5), jnp.ones(4)))   # other shapes
+    assert len(list(tmp_path.glob("f-*.bin"))) == 3
+
+
+def test_without_a_place_to_write_it_is_plain_jit(monkeypatch):
+    monkeypatch.setattr(exported, "can_serialize", lambda: False)
+    assert jax.config.jax_compilation_cache_dir and exported.folder() is None    # the suite's cache is on
+    x, p = jnp.arange(3.0), _Pair(jnp.float32(0.5), jnp.ones(3))
+    got = exported.call("g", _f, {"n": 2}, x, p)
+    np.testing.assert_array_equal(got[0], jax.jit(_f, static_argnames="n")(x, p, n=2)[0])
+    assert not list((Path(jax.config.jax_compilation_cache_dir) / exported.FOLDER).glob("g-*"))
