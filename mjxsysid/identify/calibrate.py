@@ -361,7 +361,11 @@ def group_of(coord: dict, x: float, width: float) -> int:
     """A log's group in a coordinate's table entry: its feature ``x``'s bin i, then whether its raw
     90 % band (``width``, log units) is wider than that bin's median -> 2 i or 2 i + 1. A narrow raw
     band of a log that shows little (a clean hover) is calibrated apart from a noisy, well-excited one."""
-    i = int(np.searchsorted(coord["edges"], x))
+    return _group_in(coord, int(np.searchsorted(coord["edges"], x)), width)
+
+
+def _group_in(coord: dict, i: int, width: float) -> int:
+    """The group of bin ``i`` a raw band of ``width`` falls in: 2 i, or 2 i + 1 above the bin's median width."""
     return 2 * i + int(width > coord["width_split"][i])
 
 
@@ -390,8 +394,8 @@ def stretch(q, coord: dict, x: float) -> tuple[int, float, float]:
     if i < 0 or i >= len(cen) - 1:
         return (b, *side_factors(q, coord, b))
     t = (x - cen[i]) / max(cen[i + 1] - cen[i], 1e-12)
-    a = side_factors(q, coord, 2 * i + int(width > coord["width_split"][i]))
-    c = side_factors(q, coord, 2 * (i + 1) + int(width > coord["width_split"][i + 1]))
+    a = side_factors(q, coord, _group_in(coord, i, width))
+    c = side_factors(q, coord, _group_in(coord, i + 1, width))
     return b, (1 - t) * a[0] + t * c[0], (1 - t) * a[1] + t * c[1]
 
 

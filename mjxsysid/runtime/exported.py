@@ -37,8 +37,8 @@ def source_hash() -> str:
     return h.hexdigest()
 
 
-def _key(name: str, static: dict, args) -> str:
-    leaves, tree = jax.tree.flatten(args)
+def _key(name: str, static: dict, leaves, tree) -> str:
+    """The file key of ``name`` called with ``static`` on the flat ``leaves`` of the arguments' pytree ``tree``."""
     avals = [(tuple(x.shape), str(x.dtype)) for x in leaves]
     cfg = (jax.default_backend(), str(jax.config.jax_default_matmul_precision), bool(jax.config.jax_enable_x64))
     text = repr((source_hash(), cfg, name, sorted((k, repr(v)) for k, v in static.items()), str(tree), avals))
@@ -73,7 +73,7 @@ def call(name: str, fn, static: dict, *args):
     where = folder()
     if where is None:
         return jitted(*leaves)
-    path = where / f"{name}-{_key(name, static, args)}.bin"
+    path = where / f"{name}-{_key(name, static, leaves, tree)}.bin"
     if not path.is_file():
         exp = jax.export.export(jitted)(*leaves)
         where.mkdir(parents=True, exist_ok=True)

@@ -57,4 +57,3 @@ def compilation_cache() -> None:
     # every program: most of a command's compile in small ones (a 10 s log's decode: 95 builds of 0.2-0.7 s), which a
     # 1 s threshold left to be compiled again on every run (decode --log warm 26.2 -> 20.9 s, the demo 36.7 -> 30-32 s)
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)

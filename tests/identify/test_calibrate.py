@@ -310,6 +310,8 @@ def test_the_shipped_table_is_what_the_committed_rows_give(tmp_path):
             assert a[key] == b[key], key
         held = {k.split("/ev/")[-1]: v for k, v in a["provenance"]["held_out"].items()}
         assert held == {k.split("log-grounded/")[-1]: v for k, v in b["provenance"]["held_out"].items()}
+    assert new["window_check"]["threshold"] == shipped["window_check"]["threshold"]    # the pooled statistic's
+    assert new["window_check"]["logs"] > 200
     assert (tmp_path / "ev" / "nuts-calibration" / "misfit" / "evaluation.json").is_file()
 
 
