@@ -33,6 +33,7 @@ def statistics_of(datas, seed: int = 0) -> list[dict]:
     from mjxsysid.identify.inference import _Logs, _starts
     from mjxsysid.identify.mode import find_modes
     from mjxsysid.identify.posterior_config import DEFAULT
+    from mjxsysid.identify import idlecheck
     from mjxsysid.identify.windowcheck import run
     out = []
     for i, d in enumerate(datas):
@@ -41,7 +42,10 @@ def statistics_of(datas, seed: int = 0) -> list[dict]:
         modes = find_modes(_Logs([d]), st[None].astype(np.float32), PHYSICAL_PRIOR)
         t1 = time.perf_counter()
         res = run(_Logs, [d], modes, PHYSICAL_PRIOR)[0]
-        out.append(res | {"rates_nsr": _rates_nsr(d, modes[0][0]), "mode_s": round(t1 - t0, 2), "check_s": round(time.perf_counter() - t1, 2)})
+        t2 = time.perf_counter()
+        idle = idlecheck.features(idlecheck.run(_Logs, [d], modes)[0])
+        out.append(res | idle | {"rates_nsr": _rates_nsr(d, modes[0][0]), "mode_s": round(t1 - t0, 2),
+                                 "check_s": round(t2 - t1, 2), "idle_s": round(time.perf_counter() - t2, 2)})
     return out
 
 

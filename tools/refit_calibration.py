@@ -11,8 +11,8 @@ one command for what ``mjxsysid calibrate-posterior --fit/--evaluate`` does in s
    (nuts-calibration/test).
 4. The misfit set (nuts-calibration/rows/misfit: an idle offset), evaluated apart, never recorded.
 
-The window check's threshold: the 0.99 quantile of its statistic over the training rows that carry it and the
-check's own 200 simulated logs (window-check/simulated.json).
+The window check's and the motor-map check's thresholds: the 0.99 quantile of each statistic over the training
+rows that carry it and the checks' own 200 simulated logs (window-check/simulated.json).
 
 The notes (where the rows came from) are kept from the table being replaced.
 """
@@ -39,10 +39,11 @@ among them, which the calibration rows carrying the statistic lack): pooled with
 
 
 def window_rows(path: Path = WINDOW_SET) -> list[dict]:
-    """The window check's simulated logs at ``path`` as calibration rows ({level, flight, features: {window_shift}})."""
+    """The checks' simulated logs at ``path`` as calibration rows ({level, flight, features: {window_shift,
+    idle_gain}}, each None where that check did not run)."""
     rows = json.loads(path.read_text())["rows"]
-    return [{"level": r["level"], "flight": r["flight"], "features": {"window_shift": float(r["shift"])}}
-            for r in rows if r.get("shift") is not None]
+    return [{"level": r["level"], "flight": r["flight"],
+             "features": {"window_shift": r.get("shift"), "idle_gain": r.get("idle_gain")}} for r in rows]
 
 
 def _notes(path: Path) -> tuple[str, str]:

@@ -57,13 +57,14 @@ def printed_summary(summary: dict) -> dict:
 
 
 def _model_check_lines(g: dict) -> list[str]:
-    """summary.md's model check: the window-length test's verdict and every reason a coordinate failed."""
+    """summary.md's model check: the window-length and motor-map tests' verdicts and every reason a coordinate failed."""
     chk = (g.get("calibration") or {}).get("model_check")
     if not chk:
         return []
-    win = chk.get("window") or {}
-    lines = ["", "## The model check", "", f"- window length: {win.get('why', 'not run')}"]
-    return lines + [f"- failed: {r}" for r in chk.get("reasons", []) if r != win.get("why")]
+    win, idle = chk.get("window") or {}, chk.get("idle") or {}
+    lines = ["", "## The model check", "", f"- window length: {win.get('why', 'not run')}",
+             f"- motor map: {idle.get('why', 'not run')}"]
+    return lines + [f"- failed: {r}" for r in chk.get("reasons", []) if r not in (win.get("why"), idle.get("why"))]
 
 
 def _khat(isd: dict) -> str:

@@ -170,15 +170,15 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
     more entries, e.g. a release stage's). ``method`` ('smc_nuts', 'smc'): fit on that sampler's rows only and
     write the table at ``base`` (default the shipped one) with this one as its table for ``method``
     (:func:`~mjxsysid.identify.calibrate.with_method`), interpolating between its bins where the method is one
-    of :data:`~mjxsysid.identify.calibrate.INTERPOLATED`. The window check's threshold
-    (:func:`~mjxsysid.identify.windowcheck.threshold_entry`) is fitted on the rows where enough carry its
-    statistic (with ``window_rows``: more simulated logs' statistics, rows of ``{level, features: {window_shift}}``),
-    else kept from ``base``."""
+    of :data:`~mjxsysid.identify.calibrate.INTERPOLATED`. The window check's and the motor-map check's thresholds
+    (:func:`~mjxsysid.identify.windowcheck.threshold_entry`, :func:`~mjxsysid.identify.idlecheck.threshold_entry`)
+    are fitted on the rows where enough carry their statistic (with ``window_rows``: more simulated logs'
+    statistics, rows of ``{level, features: {window_shift, idle_gain}}``), else kept from ``base``."""
+    from mjxsysid.identify import idlecheck, windowcheck
     from mjxsysid.identify.calibrate import INTERPOLATED, load, with_method
-    from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
-    from mjxsysid.identify.windowcheck import threshold_entry
     rows = read_rows(paths)
-    window = threshold_entry(rows + list(window_rows or []))   # it reads the mode: every sampler's rows
+    pooled = rows + list(window_rows or [])          # the checks read the mode: every sampler's rows
+    checks = {m.KEY: m.threshold_entry(pooled) for m in (windowcheck, idlecheck)}
     if method is not None:
         n = len(rows)
         rows = [r for r in rows if r.get("method") == method]
@@ -200,10 +200,11 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
         base_table = {}
     if method is not None:
         table = with_method(base_table, table, method)
-    if window is not None:                           # from these rows where enough carry its statistic, else the base's
-        table[WINDOW_KEY] = window | {"command": command or cmd, "date": time.strftime("%Y-%m-%d")}
-    elif WINDOW_KEY in base_table:
-        table[WINDOW_KEY] = base_table[WINDOW_KEY]
+    for key, entry in checks.items():                # from these rows where enough carry its statistic, else the base's
+        if entry is not None:
+            table[key] = entry | {"command": command or cmd, "date": time.strftime("%Y-%m-%d")}
+        elif key in base_table:
+            table[key] = base_table[key]
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(table, indent=1) + "\n")

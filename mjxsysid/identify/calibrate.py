@@ -43,6 +43,7 @@ from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
 from mjxsysid.identify.gap import UNSEEN_FRACTION
 from mjxsysid.identify.logspace import N_V, V_NAMES
+from mjxsysid.identify import idlecheck
 from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
 from mjxsysid.identify.windowcheck import WHY as WINDOW_WHY
 
@@ -266,12 +267,16 @@ def _check(table: dict, where: str) -> None:
 
 def for_method(table: dict, method: str | None) -> dict:
     """The table for a posterior drawn by ``method`` ('smc', 'smc_nuts'): its own (``table[BY_METHOD]``)
-    where it has one, else ``table`` itself (the pooled table); the window check's threshold
-    (:data:`WINDOW_KEY`, one for every sampler: it reads the mode) carried into it."""
+    where it has one, else ``table`` itself (the pooled table); the window check's and the motor-map check's
+    thresholds (:data:`CHECK_KEYS`, one for every sampler: they read the mode) carried into it."""
     own = table.get(BY_METHOD, {}).get(method)
     if own is None:
         return table
-    return own | ({WINDOW_KEY: table[WINDOW_KEY]} if WINDOW_KEY in table else {})
+    return own | {k: table[k] for k in CHECK_KEYS if k in table}
+
+
+CHECK_KEYS = (WINDOW_KEY, idlecheck.KEY)
+"""The table's entries that hold a model check's threshold (:mod:`.windowcheck`, :mod:`.idlecheck`)."""
 
 
 def window_features(check: dict | None) -> dict:
@@ -301,7 +306,9 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
     better than any simulated one takes the calibration of its nearest bin), residuals more correlated
     than 99.5 % of its logs' (the rate axes pooled), a fit that moves with the rate windows' length beyond
     the table's threshold (``window_shift``, :mod:`.windowcheck`; the rate features), rates the motor logging
-    cannot support. ``window``: that test's verdict (ok None where it did not run)."""
+    cannot support, a log that fits better with an idle offset in the motor map beyond the table's threshold
+    (``idle_gain``, :mod:`.idlecheck`; every feature). ``window``, ``idle``: those tests' verdicts (ok None where
+    they did not run)."""
     why = {f: [] for f in FEATURE_NAMES}
     for f in FEATURE_NAMES:
         if f not in table["feature_range"] or f not in features:
@@ -326,6 +333,10 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
     if win["ok"] is False:
         for f in rates:
             why[f].append(win["why"])
+    idle = idlecheck.verdict(features, table)
+    if idle["ok"] is False:
+        for f in FEATURE_NAMES:
+            why[f].append(idle["why"])
     if not features["rates_used"]:
         for f in rates:
             why[f].append("the motors were logged too slowly for the rate windows: τ_m, the authorities, ρ and "
@@ -333,7 +344,7 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
     ok = {f: not why[f] for f in FEATURE_NAMES}
     reasons = list(dict.fromkeys(r for f in FEATURE_NAMES for r in why[f]))
     return {"ok": ok, "why": why, "rates_ok": all(ok[f] for f in rates), "acc_ok": ok["acc_nsr"], "reasons": reasons,
-            "window": win}
+            "window": win, "idle": idle}
 
 
 def _window_verdict(features: dict, table: dict) -> dict:

@@ -14,7 +14,8 @@ log, so θ = θ(v, h) with h drawn from the prior.
    decoded samples and from prior draws, δ re-set from the best fit's residuals between rounds;
    then the correlation discounts w, and a Gauss–Newton precision of the tempered Student-t
    residuals there (the Laplace proposal, a Student-t). From the mode, the fit with longer rate
-   windows: the model check's window-length test (:mod:`.windowcheck`).
+   windows: the model check's window-length test (:mod:`.windowcheck`); with an idle offset in the motor
+   map: its motor-map test (:mod:`.idlecheck`).
 1. **Importance sampling from the decoders.** The decoded samples θ (S, 19) mapped to v are
    fitted by a Gaussian (widened by :data:`~.proposals.PROPOSAL_WIDEN`), the nuisances' proposal centred on
    the log's own noise estimate; N draws are weighted by target / proposal. Reported: the
@@ -42,6 +43,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from mjxsysid.identify import idlecheck
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import SHIPPED, calibrate, for_method, load, log_features, window_features
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, theta_from, visible_from_theta
@@ -392,8 +394,9 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
     w = np.stack([m[2] for m in modes]).astype(np.float32)
     laps = [m[4] for m in modes]
     checks = window_check(_Logs, datas, modes, prior, starts)        # the fit at longer rate windows (.windowcheck)
+    idles = idlecheck.run(_Logs, datas, modes, starts)                # the fit with an idle offset (.idlecheck)
     outs = [{"proposal": "decoded" if qvs[i] is not None else "prior", "mode": modes[i][0], "weights": modes[i][2],
-             "channels_used": np.asarray(d.use), "rates": d.rates, "window_check": checks[i]}
+             "channels_used": np.asarray(d.use), "rates": d.rates, "window_check": checks[i], "idle_check": idles[i]}
             for i, d in enumerate(datas)]
     chosen = [None] * nl
     # 1. the decoded ensemble as the proposal, then the Laplace proposal
@@ -449,7 +452,8 @@ def _finish(out: dict, ys, data, ld, prior, calibration, seed, r_h, samples) -> 
     out["rotor_speed"] = getattr(data, "_rows", {}).get("speed")
     xs = np.asarray(full_x(ys, ld))
     v_raw = xs[:, L.X_V]
-    out["features"] = log_features(data, mode) | window_features(out.get("window_check"))
+    out["features"] = (log_features(data, mode) | window_features(out.get("window_check"))
+                       | idlecheck.features(out.get("idle_check")))
     if out["features"]["velocity_used"]:     # (3,) 1/s: x and y from the accelerometer's x and y, z from its term
         xy = getattr(data, "_rows", {}).get("drag_xy")
         out["drag_per_mass"] = [*(xy.tolist() if xy is not None else [None, None]), drag_at(mode, data)]

@@ -24,7 +24,7 @@ from mjxsysid.identify.inference import log_grounded_posterior
 
 DIAGNOSTIC_KEYS = ("method", "proposal", "decoded_is", "laplace_is", "smc_stages", "smc_acceptance",
                    "smc_acceptance_min", "smc_tempering", "nuts", "features", "weights", "channels_used", "rates", "mode",
-                   "drag_per_mass", "rotor_speed", "window_check")
+                   "drag_per_mass", "rotor_speed", "window_check", "idle_check")
 
 
 @dataclasses.dataclass(frozen=True)

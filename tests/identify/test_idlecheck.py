@@ -1,0 +1,77 @@
+"""The model check's motor-map test (mjxsysid.identify.idlecheck): a log whose motors idle at a share of
+their full speed fits better with that idle offset and fails the check; the same vehicle without one
+does not. The logs are the exact forward model's (tests/support/exact_model_log.py), 6 s: the shapes of
+tests/identify/test_windowcheck.py's, so the mode's compiled least squares serves both."""
+import numpy as np
+import pytest
+
+from mjxsysid import theta as P
+from mjxsysid.identify import calibrate as C
+from mjxsysid.identify import idlecheck as I
+from mjxsysid.identify import logspace as L
+from mjxsysid.identify.coords import PHYSICAL_PRIOR
+from mjxsysid.identify.inference import _Logs, _starts
+from mjxsysid.identify.logdata import prepare
+from mjxsysid.identify.mode import find_modes
+from support.exact_model_log import synthetic_log
+
+IDLE = 0.1
+
+
+def _check(rec) -> dict:
+    """The motor-map check of a log's arrays from its mode, as the posterior computes it."""
+    d = prepare(rec)
+    st = _starts(d, None, np.random.default_rng(0), PHYSICAL_PRIOR, 12)
+    modes = find_modes(_Logs([d]), st[None].astype(np.float32), PHYSICAL_PRIOR)
+    return I.run(_Logs, [d], modes)[0]
+
+
+def _idle_log(theta, idle, **kw):
+    """The vehicle's log with its motors at Ω_max (idle + (1 − idle) s): the simulator's ``motor_idle``."""
+    wmax = float(np.asarray(theta)[P.OMEGA_MAX])
+    return synthetic_log(theta, rotor_gain=np.full(4, 1.0 - idle), rotor_offset=np.full(4, idle * wmax), **kw)
+
+
+def test_mapped_commands_and_the_equivalent_vehicle():
+    u = np.array([[0.0, 0.5, 1.0, 1.2]])
+    assert np.allclose(I.mapped(u, 0.1), [[0.1, 0.55, 1.0, 1.0]])
+    assert np.allclose(I.mapped(u, -0.1), [[0.0, 0.45, 1.0, 1.0]])
+    y = np.linspace(-1, 1, L.N_Y).astype(np.float32)
+    e = I.equivalent(y, 0.5, 0.1)
+    s = 0.1 + 0.9 * 0.5
+    # the same thrust at the mean command: T/W ∝ 1 / s², and the same torque per command differential
+    assert np.exp(e[L.LOG_TW]) * s ** 2 == pytest.approx(np.exp(y[L.LOG_TW]) * 0.5 ** 2, rel=1e-5)
+    assert np.exp(e[L.LOG_AUTH_X]) * s * 0.9 == pytest.approx(np.exp(y[L.LOG_AUTH_X]) * 0.5, rel=1e-5)
+    assert e[L.LOG_TAU_M] == y[L.LOG_TAU_M] and e[L.LOG_AUTH_Z] == y[L.LOG_AUTH_Z]
+    assert np.allclose(I.equivalent(e, 0.5, 0.1, inverse=True), y, atol=1e-6)
+
+
+def test_an_idling_motor_fails_the_check_and_the_same_vehicle_without_idle_passes():
+    table = C.load()
+    thr = table[I.KEY]["threshold"]
+    th = P.paper_hardware()
+    fits = _check(synthetic_log(th, seconds=6.0, closed_loop=True, gyro_noise=0.01))
+    idles = _check(_idle_log(th, IDLE, seconds=6.0, closed_loop=True, gyro_noise=0.01))
+    assert fits["gain"] < thr < idles["gain"], (fits["gain"], thr, idles["gain"])
+    assert idles["idle"] == IDLE
+    tw = idles["thrust_to_weight"]
+    assert tw[IDLE] < tw[0.0]                       # without the idle, thrust-to-weight comes out high
+    feats = {f: -1.0 for f in C.FEATURE_NAMES} | {"rates_used": True}
+    bad = C.model_check(feats | I.features(idles), [1.0] * 4, table)
+    assert bad["idle"]["ok"] is False and not any(bad["ok"].values())
+    assert "idle offset" in bad["why"]["acc_nsr"][0] and f"{IDLE:+.2f}" in bad["why"]["acc_nsr"][0]
+    good = C.model_check(feats | I.features(fits), [1.0] * 4, table)
+    assert good["idle"]["ok"] is True and all(good["ok"].values())
+
+
+def test_the_check_says_when_it_did_not_run():
+    table = C.load()
+    feats = {f: -1.0 for f in C.FEATURE_NAMES} | {"rates_used": True}
+    none = C.model_check(feats | I.features(None), [1.0] * 4, table)
+    assert none["idle"]["ok"] is None and "not run" in none["idle"]["why"] and all(none["ok"].values())
+    no_threshold = {k: v for k, v in table.items() if k != I.KEY}
+    chk = C.model_check(feats | {"idle_gain": 1e6, "idle_at": "x"}, [1.0] * 4, no_threshold)
+    assert chk["idle"]["ok"] is None and "no threshold" in chk["idle"]["why"]
+    assert C.for_method(table, "smc_nuts")[I.KEY] == table[I.KEY]
+    d = prepare(synthetic_log(P.paper_hardware(), seconds=6.0, speed_noise=5.0))
+    assert I.checkable(d) == I.SPEED_SKIP
