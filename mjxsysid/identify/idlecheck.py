@@ -23,8 +23,6 @@ idle offset included.
 """
 from __future__ import annotations
 
-import functools
-
 import jax
 import jax.numpy as jnp
 import numpy as np
