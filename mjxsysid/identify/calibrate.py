@@ -348,19 +348,10 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
 
 
 def _window_verdict(features: dict, table: dict) -> dict:
-    """The window-length test of :func:`model_check` -> {shift, threshold, ok (None: not run), why}."""
-    entry = table.get(WINDOW_KEY) or {}
-    thr, shift = entry.get("threshold"), features.get("window_shift")
-    if thr is None or shift is None:
-        why = "no threshold in the calibration table" if thr is None else features.get("window_shift_at", "not run")
-        return {"shift": shift, "threshold": thr, "ok": None, "why": f"window check not run: {why}"}
-    at = features.get("window_shift_at", "")
-    if shift <= thr:
-        return {"shift": shift, "threshold": thr, "ok": True,
-                "why": f"window shift {shift:.2f} ({at}) within the threshold {thr:.2f}"}
-    return {"shift": shift, "threshold": thr, "ok": False,
-            "why": f"window shift {shift:.2f} ({at}) above the threshold {thr:.2f} (the {entry.get('quantile', 0.99):g} "
-                   f"quantile over {entry.get('logs', '?')} simulated logs): {WINDOW_WHY}"}
+    """The window-length test of :func:`model_check` -> {value (the shift), threshold, ok (None: not run), why}."""
+    from mjxsysid.identify.thresholds import verdict
+    return verdict(features.get("window_shift"), features.get("window_shift_at", ""), table.get(WINDOW_KEY),
+                   "window check", "window shift", ".2f", WINDOW_WHY)
 
 
 def coord_ok(check: dict, j: int) -> bool:

@@ -180,26 +180,13 @@ def features(check: dict | None) -> dict:
 def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
     """The table's :data:`KEY` entry from rows carrying the statistic (``features.idle_gain``) -> {threshold,
     quantile, logs, above, levels}, or None where fewer than :data:`MIN_LOGS` carry it."""
-    ran = [r for r in rows if (r.get("features") or {}).get("idle_gain") is not None]
-    if len(ran) < MIN_LOGS:
-        return None
-    gains = np.asarray([float(r["features"]["idle_gain"]) for r in ran])
-    thr = float(np.quantile(gains, quantile, method="higher"))
-    return {"threshold": round(thr, 4), "quantile": quantile, "logs": len(ran), "above": int(np.sum(gains > thr)),
-            "levels": sorted({r["level"] for r in ran})}
+    from mjxsysid.identify.thresholds import entry
+    return entry(rows, "idle_gain", quantile, MIN_LOGS)
 
 
 def verdict(feats: dict, table: dict) -> dict:
-    """The check's verdict for a log's features against the table's threshold -> {gain, threshold, ok (None:
+    """The check's verdict for a log's features against the table's threshold -> {value, threshold, ok (None:
     not run), why}."""
-    entry = table.get(KEY) or {}
-    thr, gain = entry.get("threshold"), feats.get("idle_gain")
-    if thr is None or gain is None:
-        why = "no threshold in the calibration table" if thr is None else feats.get("idle_at", "not run")
-        return {"gain": gain, "threshold": thr, "ok": None, "why": f"motor-map check not run: {why}"}
-    at = feats.get("idle_at", "")
-    if gain <= thr:
-        return {"gain": gain, "threshold": thr, "ok": True, "why": f"idle gain {gain:.1f} ({at}) within {thr:.1f}"}
-    return {"gain": gain, "threshold": thr, "ok": False,
-            "why": f"idle gain {gain:.1f} ({at}) above the threshold {thr:.1f} (the {entry.get('quantile', QUANTILE):g} "
-                   f"quantile over {entry.get('logs', '?')} simulated logs): {WHY}"}
+    from mjxsysid.identify.thresholds import verdict as _verdict
+    return _verdict(feats.get("idle_gain"), feats.get("idle_at", ""), table.get(KEY), "motor-map check", "idle gain",
+                    ".1f", WHY)

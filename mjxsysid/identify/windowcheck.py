@@ -78,13 +78,8 @@ def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
     """The table's :data:`KEY` entry from calibration rows (their features' ``window_shift``) -> {threshold,
     quantile, logs, above, levels}, or None where fewer than :data:`MIN_LOGS` rows carry the statistic (rows
     collected before the check)."""
-    ran = [r for r in rows if (r.get("features") or {}).get("window_shift") is not None]
-    if len(ran) < MIN_LOGS:
-        return None
-    shifts = [float(r["features"]["window_shift"]) for r in ran]
-    thr = threshold(shifts, quantile)
-    return {"threshold": round(thr, 4), "quantile": quantile, "logs": len(ran), "above": sum(x > thr for x in shifts),
-            "levels": sorted({r["level"] for r in ran})}
+    from mjxsysid.identify.thresholds import entry
+    return entry(rows, "window_shift", quantile, MIN_LOGS)
 
 
 def variants(data, factors=WINDOW_FACTORS) -> list:
