@@ -214,6 +214,7 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
 def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """A row's 90 % band (2, 12) after the ``table`` (None: raw) and a (12,) mask of the coordinates
     the model check and the rate logging let through (the table of the row's ``method`` where it has one)."""
+    from mjxsysid.identify import idlecheck
     from mjxsysid.identify.calibrate import coord_entry, coord_ok, for_method, model_check, stretch
     q = np.asarray(row["bands"], np.float64)
     if table is None:
@@ -227,6 +228,7 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
         _, k_lo, k_hi = stretch(q[:, j], c, row["features"][c["feature"]])
         lo[j] = q[1, j] - k_lo * (q[1, j] - q[0, j])
         hi[j] = q[1, j] + k_hi * (q[2, j] - q[1, j])
+        ok[j] &= not idlecheck.fails(check["idle"], row["features"], j, lo[j], q[1, j], hi[j])
     return np.stack([lo, hi]), ok
 
 

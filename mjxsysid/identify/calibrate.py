@@ -307,8 +307,8 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
     than 99.5 % of its logs' (the rate axes pooled), a fit that moves with the rate windows' length beyond
     the table's threshold (``window_shift``, :mod:`.windowcheck`; the rate features), rates the motor logging
     cannot support, a log that fits better with an idle offset in the motor map beyond the table's threshold
-    (``idle_gain``, :mod:`.idlecheck`; every feature). ``window``, ``idle``: those tests' verdicts (ok None where
-    they did not run)."""
+    (``idle_gain``, :mod:`.idlecheck`: per coordinate, in :func:`calibrate`, by where the idle moves it; among
+    ``reasons``). ``window``, ``idle``: those tests' verdicts (ok None where they did not run)."""
     why = {f: [] for f in FEATURE_NAMES}
     for f in FEATURE_NAMES:
         if f not in table["feature_range"] or f not in features:
@@ -334,15 +334,12 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
         for f in rates:
             why[f].append(win["why"])
     idle = idlecheck.verdict(features, table)
-    if idle["ok"] is False:
-        for f in FEATURE_NAMES:
-            why[f].append(idle["why"])
     if not features["rates_used"]:
         for f in rates:
             why[f].append("the motors were logged too slowly for the rate windows: τ_m, the authorities, ρ and "
                           "τ_ext/J cannot be seen")
     ok = {f: not why[f] for f in FEATURE_NAMES}
-    reasons = list(dict.fromkeys(r for f in FEATURE_NAMES for r in why[f]))
+    reasons = list(dict.fromkeys([r for f in FEATURE_NAMES for r in why[f]] + ([idle["why"]] if idle["ok"] is False else [])))
     return {"ok": ok, "why": why, "rates_ok": all(ok[f] for f in rates), "acc_ok": ok["acc_nsr"], "reasons": reasons,
             "window": win, "idle": idle}
 
@@ -441,6 +438,12 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             why[j] = "model check failed: " + "; ".join(check["why"][FEATURE_NAMES[CHECK_FEATURE[j]]])
             continue
         bins[j], k_lo, k_hi = stretch(q[:, j], c, features[c["feature"]])
+        lo_j, hi_j = q[1, j] - k_lo * (q[1, j] - q[0, j]), q[1, j] + k_hi * (q[2, j] - q[1, j])
+        if idlecheck.fails(check["idle"], features, j, lo_j, q[1, j], hi_j):
+            out[:, j] = prior_v[:, j]
+            factor[j] = np.nan
+            why[j] = "model check failed: " + check["idle"]["why"] + _idle_moves(features, j)
+            continue
         factor[j] = (k_lo * (q[1, j] - q[0, j]) + k_hi * (q[2, j] - q[1, j])) / max(q[2, j] - q[0, j], 1e-12)
         d = v[:, j] - q[1, j]
         out[:, j] = q[1, j] + np.where(d < 0, k_lo, k_hi) * d
@@ -466,3 +469,11 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
         why[j] = (f"calibrated band {width[j] / pw[j]:.2g} of the prior's range, model check passed" if seen[j]
                   else f"calibrated band {width[j] / pw[j]:.2g} of the prior's range (≥ {UNSEEN_FRACTION}): the log does not pin it") + note
     return out.astype(np.float32), {"factor": factor, "bin": bins, "check": check, "seen": seen, "why": why}
+
+
+def _idle_moves(features: dict, j: int) -> str:
+    """What the motor-map check says of coordinate j: how far the best idle moves it (log units), beyond its band."""
+    shift = features.get("idle_shift")
+    if shift is None:
+        return ""
+    return f"; under that idle {V_NAMES[j]} moves by {float(shift[j]):+.3f} (log units), outside its calibrated band"

@@ -15,8 +15,10 @@ cannot tell them apart, and the posterior is sharp and wrong: an idle of 0.1 Ω_
   channel's discounted for its residuals' correlation as the likelihood's are (w):
   ``gain = SS(0) − min_ι SS(ι)`` (0 where none does). Under the model it stays near 0; the threshold is
   its :data:`QUANTILE` quantile over simulated logs without idle (``benchmarks/window_check.py``, stored
-  in the calibration table under :data:`KEY`). A log above it fails every feature of the model check
-  (:func:`~.calibrate.model_check`): thrust-to-weight and the authorities depend on the map.
+  in the calibration table under :data:`KEY`). On a log above it, each visible coordinate whose value
+  re-fitted under the best idle lies outside its calibrated band is not seen (:func:`fails`): the band
+  assumed a map the log contradicts, and under the one it prefers the quantity lies elsewhere. A log
+  without the shifts (rows collected before them) fails whole.
 
 A log whose rotor speeds were measured is not checked: :mod:`.speeds` fits its command→speed map,
 idle offset included.
@@ -80,21 +82,20 @@ def variant(data, iota: float):
     return prepare(rec, pad_to=pad, **rows["rec_args"])
 
 
-def _residual_ss(z, data, ld, ls, w):
-    """The least squares' objective at z (13,), each channel's standardised residuals' squares × its
-    correlation discount w (4,) (:func:`~.likelihood.residual_weights`: the evidence the tempered likelihood
-    gives them, not the count of correlated residuals)."""
-    from mjxsysid.identify.mode import _ls_residuals
-    r = _ls_residuals(z, (data, ld, ls))
-    nw = data.dgyro.shape[0]
-    rg = r[:3 * nw].reshape(nw, 3)
-    return jnp.sum(rg * rg * w[L.GYRO]) + w[L.ACC_Z] * jnp.sum(r[3 * nw:-1] ** 2) + r[-1] ** 2
-
-
-@jax.jit
-def _ss_logs(z, data, ld, ls, w):
-    """:func:`_residual_ss` of every log (leading axis) -> (L,)."""
-    return jax.vmap(_residual_ss)(z, data, ld, ls, w)
+def _residual_ss(z, data, ld, ls, w) -> float:
+    """The least squares' objective at z (13,) (:func:`~.mode._ls_residuals`' standardised residuals), each
+    channel's squares × its correlation discount w (4,) (:func:`~.likelihood.residual_weights`: the evidence the
+    tempered likelihood gives them, not the count of correlated residuals). On the host, from the compiled
+    residuals the mode already built (:data:`~.likelihood.residuals_jit`): the check compiles nothing new."""
+    from mjxsysid.identify.likelihood import residuals_jit
+    from mjxsysid.identify.target import ACC_BIAS_SD
+    z = np.asarray(z, np.float32)
+    x = np.asarray(L.x_from_y(L.y_from_z(z, np.asarray(ls, np.float32)), np.asarray(ld, np.float32)), np.float32)
+    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in residuals_jit(jnp.asarray(x), data))
+    use, w = np.asarray(data.use, np.float64), np.asarray(w, np.float64)
+    sg_ = (rg * use[L.GYRO] / sg) ** 2
+    sa_ = (ra * use[L.ACC_Z] / sa) ** 2
+    return float(np.sum(sg_ * w[L.GYRO]) + w[L.ACC_Z] * np.sum(sa_) + (z[L.Z_BIAS] / ACC_BIAS_SD) ** 2)
 
 
 def _fit_and_ss(make_logs, datas, ys, lds, lss, ws, starts: int):
@@ -104,8 +105,7 @@ def _fit_and_ss(make_logs, datas, ys, lds, lss, ws, starts: int):
     k = 1 if len(datas) == 1 else starts
     z0 = np.repeat(L.z_from_y(np.asarray(ys, np.float32))[:, None], k, 1)
     z = np.asarray(logs.fit(z0, lds, lss))[:, 0]
-    stack = jax.tree.map(lambda *a: jnp.asarray(np.stack(a)), *datas)
-    ss = np.asarray(_ss_logs(jnp.asarray(z), stack, jnp.asarray(lds), jnp.asarray(lss), jnp.asarray(ws)), np.float64)
+    ss = np.array([_residual_ss(zi, d, a, b, c) for zi, d, a, b, c in zip(z, datas, lds, lss, ws)])
     return z, ss
 
 
@@ -144,37 +144,38 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
         um = np.array([float(np.mean(datas[i]._rows["motor"])) for i in g])
         base = [datas[i] for i in g]
         z0, ss0 = _fit_and_ss(make_logs, base, ys, lds, lss, ws, starts)
-        tw0 = z0[:, L.LOG_TW].copy()
-        ss, tw = {}, {}
+        ss, zs = {}, {}
         for iota in GRID:
             var = [variant(d, iota) for d in base]
             y_i = np.stack([equivalent(y, u, iota) for y, u in zip(ys, um)])
-            z_i, ss[iota] = _fit_and_ss(make_logs, var, y_i, lds, lss, ws, starts)
-            tw[iota] = z_i[:, L.LOG_TW]
-            back = np.stack([equivalent(L.y_from_z(z, ls), u, iota, inverse=True) for z, ls, u in zip(z_i, lss, um)])
+            zs[iota], ss[iota] = _fit_and_ss(make_logs, var, y_i, lds, lss, ws, starts)
+            back = np.stack([equivalent(L.y_from_z(z, ls), u, iota, inverse=True) for z, ls, u in zip(zs[iota], lss, um)])
             zb, ssb = _fit_and_ss(make_logs, base, back, lds, lss, ws, starts)
             better = ssb < ss0
-            ss0, tw0 = np.where(better, ssb, ss0), np.where(better, zb[:, L.LOG_TW], tw0)
+            ss0, z0 = np.where(better, ssb, ss0), np.where(better[:, None], zb, z0)
         for j, i in enumerate(g):
             gains = {iota: float(ss0[j] - ss[iota][j]) for iota in GRID}
             best = max(gains, key=gains.get)
             gain = max(gains[best], 0.0)
+            shift = np.asarray(zs[best][j][L.Z_V], np.float64) - np.asarray(z0[j][L.Z_V], np.float64)
             out[i] = {"gain": gain, "idle": best if gain > 0 else None, "gains": gains,
-                      "thrust_to_weight": {0.0: float(np.exp(tw0[j])), best: float(np.exp(tw[best][j]))}}
+                      "thrust_to_weight": {0.0: float(np.exp(z0[j][L.LOG_TW])), best: float(np.exp(zs[best][j][L.LOG_TW]))},
+                      "shift": shift.tolist()}
     return out
 
 
 def features(check: dict | None) -> dict:
     """A log's check (:func:`run`'s dict, or None) -> the model check's features: idle_gain (the statistic,
-    None where it did not run), idle_at (the best idle and thrust-to-weight under it, or why it did not run)."""
+    None where it did not run), idle_at (the best idle and thrust-to-weight under it, or why it did not run),
+    idle_shift (12,: the visible coordinates re-fitted under the best idle less those without, log units)."""
     if not check or check.get("gain") is None:
-        return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run")}
+        return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_shift": None}
     at = "no idle fits better"
     if check.get("idle") is not None:
         tw = check["thrust_to_weight"]
         at = (f"idle {check['idle']:+.2f} Ω_max: thrust-to-weight {tw[check['idle']]:.3g} against "
               f"{tw[0.0]:.3g} without")
-    return {"idle_gain": float(check["gain"]), "idle_at": at}
+    return {"idle_gain": float(check["gain"]), "idle_at": at, "idle_shift": check.get("shift")}
 
 
 def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
@@ -190,3 +191,16 @@ def verdict(feats: dict, table: dict) -> dict:
     from mjxsysid.identify.thresholds import verdict as _verdict
     return _verdict(feats.get("idle_gain"), feats.get("idle_at", ""), table.get(KEY), "motor-map check", "idle gain",
                     ".1f", WHY)
+
+
+def fails(verdict_: dict, feats: dict, j: int, lo: float, median: float, hi: float) -> bool:
+    """Does visible coordinate j fail the check on a log: flagged (``verdict_``: :func:`verdict`'s), and its
+    value re-fitted under the best idle (``median`` + ``feats["idle_shift"][j]``) outside its calibrated band
+    [lo, hi] (log units)? A flagged log without the shifts fails every coordinate."""
+    if verdict_.get("ok") is not False:
+        return False
+    shift = feats.get("idle_shift")
+    if shift is None:
+        return True
+    v = median + float(shift[j])
+    return not lo <= v <= hi

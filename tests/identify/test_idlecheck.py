@@ -58,10 +58,31 @@ def test_an_idling_motor_fails_the_check_and_the_same_vehicle_without_idle_passe
     assert tw[IDLE] < tw[0.0]                       # without the idle, thrust-to-weight comes out high
     feats = {f: -1.0 for f in C.FEATURE_NAMES} | {"rates_used": True}
     bad = C.model_check(feats | I.features(idles), [1.0] * 4, table)
-    assert bad["idle"]["ok"] is False and not any(bad["ok"].values())
-    assert "idle offset" in bad["why"]["acc_nsr"][0] and f"{IDLE:+.2f}" in bad["why"]["acc_nsr"][0]
+    assert bad["idle"]["ok"] is False and "idle offset" in bad["reasons"][-1] and f"{IDLE:+.2f}" in bad["reasons"][-1]
     good = C.model_check(feats | I.features(fits), [1.0] * 4, table)
     assert good["idle"]["ok"] is True and all(good["ok"].values())
+    # per coordinate: thrust-to-weight re-fitted under the idle lies outside a ±5 % band about the no-idle value
+    shift = idles["shift"][L.LOG_TW]
+    assert shift == pytest.approx(np.log(tw[IDLE] / tw[0.0]), abs=1e-4) and shift < -0.05
+    f_bad = feats | I.features(idles)
+    assert I.fails(bad["idle"], f_bad, L.LOG_TW, -0.05, 0.0, 0.05)
+    assert not I.fails(bad["idle"], f_bad, L.LOG_TW, shift - 0.01, 0.0, 0.05)      # a band that holds it
+    assert not I.fails(good["idle"], feats | I.features(fits), L.LOG_TW, -0.05, 0.0, 0.05)
+    assert I.fails(bad["idle"], f_bad | {"idle_shift": None}, L.LOG_TW, -1.0, 0.0, 1.0)   # rows without shifts: whole
+
+
+def test_calibrate_draws_a_moved_coordinate_from_the_prior_and_keeps_the_others():
+    table = C.load()
+    rng = np.random.default_rng(0)
+    v = np.asarray(PHYSICAL_PRIOR.sample_v(rng, 1), np.float64)[0] + 0.01 * rng.standard_normal((400, L.N_V))
+    feats = {f: -1.0 for f in C.FEATURE_NAMES} | {"rates_used": True, "velocity_used": False, "rotor_speed_used": False}
+    shift = np.zeros(L.N_V)
+    shift[L.LOG_TW] = -0.3                      # the idle moves thrust-to-weight far, nothing else
+    flagged = feats | {"idle_gain": 1e3, "idle_at": "idle +0.10 Ω_max", "idle_shift": shift.tolist()}
+    _, rep = C.calibrate(v, flagged, [1.0] * 4, C.for_method(table, "smc_nuts"))
+    assert np.isnan(rep["factor"][L.LOG_TW]) and "idle offset" in rep["why"][L.LOG_TW]
+    assert "moves by -0.300" in rep["why"][L.LOG_TW]
+    assert np.isfinite(rep["factor"][L.LOG_AUTH_X]) and "idle" not in rep["why"][L.LOG_AUTH_X]
 
 
 def test_the_check_says_when_it_did_not_run():
