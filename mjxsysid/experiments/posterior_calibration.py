@@ -228,7 +228,11 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
         _, k_lo, k_hi = stretch(q[:, j], c, row["features"][c["feature"]])
         lo[j] = q[1, j] - k_lo * (q[1, j] - q[0, j])
         hi[j] = q[1, j] + k_hi * (q[2, j] - q[1, j])
-        ok[j] &= not idlecheck.fails(check["idle"], row["features"], j, lo[j], q[1, j], hi[j])
+        s = idlecheck.widening(check["idle"], row["features"], j)
+        if s is None:
+            ok[j] = False
+        else:
+            lo[j], hi[j] = lo[j] + min(s, 0.0), hi[j] + max(s, 0.0)
     return np.stack([lo, hi]), ok
 
 

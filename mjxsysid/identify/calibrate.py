@@ -438,12 +438,16 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             why[j] = "model check failed: " + "; ".join(check["why"][FEATURE_NAMES[CHECK_FEATURE[j]]])
             continue
         bins[j], k_lo, k_hi = stretch(q[:, j], c, features[c["feature"]])
-        lo_j, hi_j = q[1, j] - k_lo * (q[1, j] - q[0, j]), q[1, j] + k_hi * (q[2, j] - q[1, j])
-        if idlecheck.fails(check["idle"], features, j, lo_j, q[1, j], hi_j):
+        s = idlecheck.widening(check["idle"], features, j)
+        if s is None:
             out[:, j] = prior_v[:, j]
             factor[j] = np.nan
-            why[j] = "model check failed: " + check["idle"]["why"] + _idle_moves(features, j)
+            why[j] = "model check failed: " + check["idle"]["why"]
             continue
+        if s > 0:       # the band's side toward the value under the best idle reaches it (idlecheck)
+            k_hi += s / max(q[2, j] - q[1, j], 1e-12)
+        elif s < 0:
+            k_lo += -s / max(q[1, j] - q[0, j], 1e-12)
         factor[j] = (k_lo * (q[1, j] - q[0, j]) + k_hi * (q[2, j] - q[1, j])) / max(q[2, j] - q[0, j], 1e-12)
         d = v[:, j] - q[1, j]
         out[:, j] = q[1, j] + np.where(d < 0, k_lo, k_hi) * d
@@ -461,19 +465,17 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
         if why[j]:
             continue
         note = f"; {SPEED_WHY}" if speed_tau and j == L.LOG_TAU_M else ""
+        s = idlecheck.widening(check["idle"], features, j)
+        if s:
+            note += (f"; widened by {abs(s):.3g} (log units) {'up' if s > 0 else 'down'} to hold the value under the "
+                     f"idle offset the log prefers (the motor-map check)")
         if at_bound[j] and width[j] < UNSEEN_FRACTION * pw[j]:
             why[j] = ("the band lies against the prior's bound: the log asks for a vehicle beyond the physical "
                       "prior, a sign the model does not fit this log (motor model, units, rotor order)")
             continue
         seen[j] = width[j] < UNSEEN_FRACTION * pw[j]
-        why[j] = (f"calibrated band {width[j] / pw[j]:.2g} of the prior's range, model check passed" if seen[j]
+        passed = "model check passed" if not s else "the motor-map check flagged the log"
+        why[j] = (f"calibrated band {width[j] / pw[j]:.2g} of the prior's range, {passed}" if seen[j]
                   else f"calibrated band {width[j] / pw[j]:.2g} of the prior's range (≥ {UNSEEN_FRACTION}): the log does not pin it") + note
     return out.astype(np.float32), {"factor": factor, "bin": bins, "check": check, "seen": seen, "why": why}
 
-
-def _idle_moves(features: dict, j: int) -> str:
-    """What the motor-map check says of coordinate j: how far the best idle moves it (log units), beyond its band."""
-    shift = features.get("idle_shift")
-    if shift is None:
-        return ""
-    return f"; under that idle {V_NAMES[j]} moves by {float(shift[j]):+.3f} (log units), outside its calibrated band"

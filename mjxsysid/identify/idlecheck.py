@@ -15,10 +15,11 @@ cannot tell them apart, and the posterior is sharp and wrong: an idle of 0.1 Ω_
   channel's discounted for its residuals' correlation as the likelihood's are (w):
   ``gain = SS(0) − min_ι SS(ι)`` (0 where none does). Under the model it stays near 0; the threshold is
   its :data:`QUANTILE` quantile over simulated logs without idle (``benchmarks/window_check.py``, stored
-  in the calibration table under :data:`KEY`). On a log above it, each visible coordinate whose value
-  re-fitted under the best idle lies outside its calibrated band is not seen (:func:`fails`): the band
-  assumed a map the log contradicts, and under the one it prefers the quantity lies elsewhere. A log
-  without the shifts (rows collected before them) fails whole.
+  in the calibration table under :data:`KEY`). On a log above it, each visible coordinate's calibrated
+  band is widened on one side by how far the best idle moves it (:func:`widening`): the band then holds the
+  quantity under the map the likelihood assumes and under the one the log prefers. A band widened past
+  the "seen" rule's width is reported as not seen. A flagged log without the shifts (rows collected
+  before them) fails whole.
 
 A log whose rotor speeds were measured is not checked: :mod:`.speeds` fits its command→speed map,
 idle offset included.
@@ -193,14 +194,13 @@ def verdict(feats: dict, table: dict) -> dict:
                     ".1f", WHY)
 
 
-def fails(verdict_: dict, feats: dict, j: int, lo: float, median: float, hi: float) -> bool:
-    """Does visible coordinate j fail the check on a log: flagged (``verdict_``: :func:`verdict`'s), and its
-    value re-fitted under the best idle (``median`` + ``feats["idle_shift"][j]``) outside its calibrated band
-    [lo, hi] (log units)? A flagged log without the shifts fails every coordinate."""
+
+def widening(verdict_: dict, feats: dict, j: int) -> float | None:
+    """How visible coordinate j's calibrated band is widened on a log (log units, signed: the side it is
+    widened on): 0 unless the log is flagged (``verdict_``: :func:`verdict`'s); on a flagged log its shift
+    under the best idle (``feats["idle_shift"][j]``), so that the band holds the value under either map; None
+    where a flagged log carries no shifts (rows collected before them): every coordinate fails."""
     if verdict_.get("ok") is not False:
-        return False
+        return 0.0
     shift = feats.get("idle_shift")
-    if shift is None:
-        return True
-    v = median + float(shift[j])
-    return not lo <= v <= hi
+    return None if shift is None else float(shift[j])

@@ -61,28 +61,34 @@ def test_an_idling_motor_fails_the_check_and_the_same_vehicle_without_idle_passe
     assert bad["idle"]["ok"] is False and "idle offset" in bad["reasons"][-1] and f"{IDLE:+.2f}" in bad["reasons"][-1]
     good = C.model_check(feats | I.features(fits), [1.0] * 4, table)
     assert good["idle"]["ok"] is True and all(good["ok"].values())
-    # per coordinate: thrust-to-weight re-fitted under the idle lies outside a ±5 % band about the no-idle value
+    # thrust-to-weight re-fitted under the idle: lower, by the shift the bands are widened with
     shift = idles["shift"][L.LOG_TW]
     assert shift == pytest.approx(np.log(tw[IDLE] / tw[0.0]), abs=1e-4) and shift < -0.05
     f_bad = feats | I.features(idles)
-    assert I.fails(bad["idle"], f_bad, L.LOG_TW, -0.05, 0.0, 0.05)
-    assert not I.fails(bad["idle"], f_bad, L.LOG_TW, shift - 0.01, 0.0, 0.05)      # a band that holds it
-    assert not I.fails(good["idle"], feats | I.features(fits), L.LOG_TW, -0.05, 0.0, 0.05)
-    assert I.fails(bad["idle"], f_bad | {"idle_shift": None}, L.LOG_TW, -1.0, 0.0, 1.0)   # rows without shifts: whole
+    assert I.widening(bad["idle"], f_bad, L.LOG_TW) == shift
+    assert I.widening(good["idle"], feats | I.features(fits), L.LOG_TW) == 0.0
+    assert I.widening(bad["idle"], f_bad | {"idle_shift": None}, L.LOG_TW) is None     # rows without shifts
 
 
-def test_calibrate_draws_a_moved_coordinate_from_the_prior_and_keeps_the_others():
-    table = C.load()
+def test_calibrate_widens_a_flagged_logs_bands_toward_the_value_under_the_idle():
+    table = C.for_method(C.load(), "smc_nuts")
     rng = np.random.default_rng(0)
-    v = np.asarray(PHYSICAL_PRIOR.sample_v(rng, 1), np.float64)[0] + 0.01 * rng.standard_normal((400, L.N_V))
+    v = np.asarray(PHYSICAL_PRIOR.sample_v(rng, 1), np.float64)[0] + 0.01 * rng.standard_normal((4000, L.N_V))
     feats = {f: -1.0 for f in C.FEATURE_NAMES} | {"rates_used": True, "velocity_used": False, "rotor_speed_used": False}
     shift = np.zeros(L.N_V)
-    shift[L.LOG_TW] = -0.3                      # the idle moves thrust-to-weight far, nothing else
+    shift[L.LOG_TW] = -0.3                      # the idle moves thrust-to-weight down, nothing else
     flagged = feats | {"idle_gain": 1e3, "idle_at": "idle +0.10 Ω_max", "idle_shift": shift.tolist()}
-    _, rep = C.calibrate(v, flagged, [1.0] * 4, C.for_method(table, "smc_nuts"))
-    assert np.isnan(rep["factor"][L.LOG_TW]) and "idle offset" in rep["why"][L.LOG_TW]
-    assert "moves by -0.300" in rep["why"][L.LOG_TW]
-    assert np.isfinite(rep["factor"][L.LOG_AUTH_X]) and "idle" not in rep["why"][L.LOG_AUTH_X]
+    passed = feats | {"idle_gain": 0.0, "idle_at": "no idle fits better", "idle_shift": shift.tolist()}
+    out_f, rep_f = C.calibrate(v, flagged, [1.0] * 4, table)
+    out_p, rep_p = C.calibrate(v, passed, [1.0] * 4, table)
+    lo_f, hi_f = np.percentile(out_f[:, L.LOG_TW], [5, 95])
+    lo_p, hi_p = np.percentile(out_p[:, L.LOG_TW], [5, 95])
+    assert lo_f == pytest.approx(lo_p - 0.3, abs=0.02) and hi_f == pytest.approx(hi_p, abs=0.01)
+    assert rep_f["factor"][L.LOG_TW] > rep_p["factor"][L.LOG_TW] and "widened by 0.3 (log units) down" in rep_f["why"][L.LOG_TW]
+    assert rep_f["factor"][L.LOG_AUTH_X] == pytest.approx(rep_p["factor"][L.LOG_AUTH_X])     # not moved: not widened
+    assert "idle offset" in rep_f["check"]["reasons"][-1]
+    lost = C.calibrate(v, flagged | {"idle_shift": None}, [1.0] * 4, table)[1]     # no shifts: nothing seen
+    assert not lost["seen"].any() and "idle offset" in lost["why"][L.LOG_AUTH_X]
 
 
 def test_the_check_says_when_it_did_not_run():
