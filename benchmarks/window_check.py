@@ -1,4 +1,5 @@
-"""The window-length check's threshold (:mod:`mjxsysid.identify.windowcheck`) from simulated flights.
+"""The window-length check's and the motor-map check's thresholds (:mod:`mjxsysid.identify.windowcheck`,
+:mod:`mjxsysid.identify.idlecheck`) from simulated flights.
 
 Flies vehicles of the prior with the lag-aware oracle (MJX) on each flight of ``--references`` at each
 IMU noise level of ``--levels``, finds each log's posterior mode (the library's, no decoded proposal),
@@ -208,13 +209,18 @@ def main():
                               + ("FLAGGED" if s > thr else "passes")), flush=True)
         (out / "logs.json").write_text(json.dumps({"threshold": thr, "logs": res}, indent=1) + "\n")
     if a.write_threshold:
+        from mjxsysid.identify import idlecheck as I
         from mjxsysid.identify.calibrate import SHIPPED
         table = json.loads(SHIPPED.read_text())
         table[W.KEY] = {"threshold": round(thr, 4), "quantile": q, "logs": n_sim, "above": n_above,
                         "levels": levels, "references": refs, "command": cmd + " --write-threshold",
                         "rows": str(out / "simulated.json"), "date": time.strftime("%Y-%m-%d")}
+        idle = I.threshold_entry([{"level": r["level"], "features": {"idle_gain": r.get("idle_gain")}} for r in rows])
+        if idle is not None:
+            table[I.KEY] = idle | {"references": refs, "command": cmd + " --write-threshold",
+                                   "rows": str(out / "simulated.json"), "date": time.strftime("%Y-%m-%d")}
         SHIPPED.write_text(json.dumps(table, indent=1) + "\n")
-        print(f"wrote {W.KEY} into {SHIPPED}")
+        print(f"wrote {W.KEY}" + (f" and {I.KEY}" if idle is not None else "") + f" into {SHIPPED}")
 
 
 if __name__ == "__main__":

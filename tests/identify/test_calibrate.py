@@ -295,6 +295,27 @@ def test_the_window_checks_threshold_is_fitted_on_rows_that_carry_its_statistic(
         W.threshold([None])
 
 
+def test_the_motor_map_checks_threshold_is_fitted_beside_the_window_checks(tmp_path):
+    """fit_file fits the motor-map check's threshold from the rows and the pooled simulated logs that carry
+    its statistic, and keeps the base table's where fewer than idlecheck.MIN_LOGS do."""
+    from mjxsysid.identify import idlecheck as I
+    rng = np.random.default_rng(6)
+    base = tmp_path / "base.json"
+    base.write_text(json.dumps(C.load() | {I.KEY: {"threshold": 77.0, "logs": 1}}))
+    rows = [r | {"method": "smc_nuts"} for r in _rows(400, rng)]
+    (tmp_path / "rows.json").write_text(json.dumps({"rows": rows}))
+    kept = pc.fit_file([tmp_path / "rows.json"], tmp_path / "kept.json", method="smc_nuts", base=base,
+                       window_rows=[{"level": "x1", "features": {"idle_gain": 1.0}}] * 10)
+    assert kept[I.KEY]["threshold"] == 77.0
+    gains = rng.exponential(1.0, 300)
+    pooled = [{"level": "clean", "features": {"window_shift": None, "idle_gain": float(g)}} for g in gains]
+    fitted = pc.fit_file([tmp_path / "rows.json"], tmp_path / "fitted.json", method="smc_nuts", base=base,
+                         window_rows=pooled)
+    assert fitted[I.KEY]["logs"] == 300 and fitted[I.KEY]["above"] <= 3
+    assert fitted[I.KEY]["threshold"] == pytest.approx(np.quantile(gains, 0.99, method="higher"), rel=1e-4)
+    assert C.load(tmp_path / "fitted.json")[I.KEY] == fitted[I.KEY]
+
+
 def test_the_shipped_table_is_what_the_committed_rows_give(tmp_path):
     """tools/refit_calibration.py rebuilds both samplers' tables from docs/runs' rows: the shipped one is
     theirs, number for number, and the held-out coverage it records is what its evaluations give."""
