@@ -466,6 +466,8 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             continue
         note = f"; {SPEED_WHY}" if speed_tau and j == L.LOG_TAU_M else ""
         s = idlecheck.widening(check["idle"], features, j)
+        if j == L.LOG_TW and idlecheck.blind(check["idle"], features):
+            note += "; " + idlecheck.BLIND_WHY.format(grid=", ".join(f"{g:+g}" for g in idlecheck.GRID))
         if s:
             note += (f"; widened by {abs(s):.3g} (log units) {'up' if s > 0 else 'down'} to hold the value under the "
                      f"idle offset the log prefers (the motor-map check)")

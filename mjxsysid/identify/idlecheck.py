@@ -161,22 +161,24 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
             shift = np.asarray(zs[best][j][L.Z_V], np.float64) - np.asarray(z0[j][L.Z_V], np.float64)
             out[i] = {"gain": gain, "idle": best if gain > 0 else None, "gains": gains,
                       "thrust_to_weight": {0.0: float(np.exp(z0[j][L.LOG_TW])), best: float(np.exp(zs[best][j][L.LOG_TW]))},
-                      "shift": shift.tolist()}
+                      "shift": shift.tolist(), "power": float(max(abs(x) for x in gains.values()))}
     return out
 
 
 def features(check: dict | None) -> dict:
     """A log's check (:func:`run`'s dict, or None) -> the model check's features: idle_gain (the statistic,
     None where it did not run), idle_at (the best idle and thrust-to-weight under it, or why it did not run),
-    idle_shift (12,: the visible coordinates re-fitted under the best idle less those without, log units)."""
+    idle_shift (12,: the visible coordinates re-fitted under the best idle less those without, log units),
+    idle_power (the largest change of the fit any idle of the grid makes, either way: :func:`blind`)."""
     if not check or check.get("gain") is None:
-        return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_shift": None}
+        return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_shift": None, "idle_power": None}
     at = "no idle fits better"
     if check.get("idle") is not None:
         tw = check["thrust_to_weight"]
         at = (f"idle {check['idle']:+.2f} Ω_max: thrust-to-weight {tw[check['idle']]:.3g} against "
               f"{tw[0.0]:.3g} without")
-    return {"idle_gain": float(check["gain"]), "idle_at": at, "idle_shift": check.get("shift")}
+    return {"idle_gain": float(check["gain"]), "idle_at": at, "idle_shift": check.get("shift"),
+            "idle_power": check.get("power")}
 
 
 def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
@@ -204,3 +206,17 @@ def widening(verdict_: dict, feats: dict, j: int) -> float | None:
         return 0.0
     shift = feats.get("idle_shift")
     return None if shift is None else float(shift[j])
+
+
+BLIND_WHY = ("thrust-to-weight assumes thrust ∝ command²: this flight's collective varied too little to test it "
+             "(no idle offset of {grid} Ω_max changes the fit by more than the motor-map check's threshold), and an "
+             "idle would move thrust-to-weight without changing the fit")
+"""What the report adds to thrust-to-weight on a log the check cannot test (:func:`blind`)."""
+
+
+def blind(verdict_: dict, feats: dict) -> bool:
+    """Is the check blind on a log: it ran and passed, and no idle of :data:`GRID` changes the fit by more than
+    the threshold either way (``idle_power``; a hover: its collective barely moves, so an idle and
+    thrust-to-weight trade off exactly)?"""
+    power = feats.get("idle_power")
+    return verdict_.get("ok") is True and power is not None and power <= verdict_["threshold"]

@@ -102,3 +102,23 @@ def test_the_check_says_when_it_did_not_run():
     assert C.for_method(table, "smc_nuts")[I.KEY] == table[I.KEY]
     d = prepare(synthetic_log(P.paper_hardware(), seconds=6.0, speed_noise=5.0))
     assert I.checkable(d) == I.SPEED_SKIP
+
+
+def test_a_flight_that_cannot_test_the_map_says_so_on_thrust_to_weight():
+    """A log whose fit no idle of the grid moves beyond the threshold (a hover) passes the check blind: its
+    thrust-to-weight says it rests on the assumed map; a log the check can test says nothing of the kind."""
+    table = C.for_method(C.load(), "smc_nuts")
+    thr = table[I.KEY]["threshold"]
+    rng = np.random.default_rng(1)
+    v = np.asarray(PHYSICAL_PRIOR.sample_v(rng, 1), np.float64)[0] + 0.01 * rng.standard_normal((400, L.N_V))
+    feats = {f: -1.0 for f in C.FEATURE_NAMES} | {"rates_used": True, "velocity_used": False, "rotor_speed_used": False,
+                                                  "idle_gain": 0.0, "idle_at": "no idle fits better",
+                                                  "idle_shift": [0.0] * L.N_V}
+    hover = feats | {"idle_power": 0.5 * thr}
+    figure8 = feats | {"idle_power": 100 * thr}
+    assert I.blind(C.model_check(hover, [1.0] * 4, table)["idle"], hover)
+    assert not I.blind(C.model_check(figure8, [1.0] * 4, table)["idle"], figure8)
+    why_h = C.calibrate(v, hover, [1.0] * 4, table)[1]["why"]
+    why_f = C.calibrate(v, figure8, [1.0] * 4, table)[1]["why"]
+    assert "collective varied too little" in why_h[L.LOG_TW] and "collective" not in why_f[L.LOG_TW]
+    assert "collective" not in why_h[L.LOG_AUTH_X]
