@@ -79,6 +79,9 @@ def variant(data, iota: float):
     rows = data._rows
     rec = dict(rows["rec"])
     rec["motor"] = mapped(rec["motor"], iota)
+    if (rec.get("native") or {}).get("motor") is not None:     # a slowly logged motor: prepare reads its samples
+        t_nat, u_nat = rec["native"]["motor"]
+        rec["native"] = dict(rec["native"]) | {"motor": (t_nat, mapped(u_nat, iota))}
     pad = (int(data.wmask.shape[0]), int(data.bmask.shape[0]))
     return prepare(rec, pad_to=pad, **rows["rec_args"])
 
@@ -123,8 +126,8 @@ def checkable(data) -> str | None:
 def run(make_logs, datas, modes, starts: int = 1) -> list:
     """The check of every log of ``datas`` from its mode (``modes``: :func:`~.mode.find_modes`' tuples) ->
     per log {gain (the statistic), idle (the best ι of :data:`GRID`, None where none gains), gains {ι: SS(0) −
-    SS(ι)}, thrust_to_weight {0: at no idle, ι: at the best idle}}, or {gain: None, why} where it cannot
-    run. Logs of one shape are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``:
+    SS(ι)}, thrust_to_weight {0: at no idle, ι: at the best idle}, shift (12,: v under the best idle less v
+    without, log units), power (the largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one shape are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``:
     the starts per log its batched fit was compiled for)."""
     out = [None] * len(datas)
     idx = []
