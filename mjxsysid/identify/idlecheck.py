@@ -48,8 +48,8 @@ SCALED = (L.LOG_AUTH_X, L.LOG_AUTH_Y, L.LOG_YAW)
 """The coordinates a command differential drives (roll, pitch and yaw authority): scaled by
 :func:`equivalent` as thrust-to-weight is."""
 
-WHY = ("the motor map: an idle offset in the command→speed map fits the log better; thrust-to-weight and "
-       "the authorities depend on it")
+WHY = ("an idle offset in the command→speed map fits the log better; thrust-to-weight and the authorities "
+       "depend on it, so their bands are widened toward their values under it")
 
 SPEED_SKIP = "not run: the measured rotor speeds fit the command→speed map, idle offset included"
 

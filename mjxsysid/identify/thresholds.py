@@ -25,7 +25,7 @@ def verdict(value, at: str, table_entry: dict | None, name: str, label: str, fmt
     e = table_entry or {}
     thr = e.get("threshold")
     if thr is None or value is None:
-        said = "no threshold in the calibration table" if thr is None else at or "not run"
+        said = "no threshold in the calibration table" if thr is None else (at or "").removeprefix("not run: ") or "?"
         return {"value": value, "threshold": thr, "ok": None, "why": f"{name} not run: {said}"}
     if value <= thr:
         return {"value": value, "threshold": thr, "ok": True,
