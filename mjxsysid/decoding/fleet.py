@@ -44,11 +44,16 @@ def fleet_row(name: str, summary: dict | None, error: str | None = None) -> dict
             "posterior": (summary or {}).get("_posterior")}
 
 
+WIDENED = "the motor-map check"
+"""What a quantity's reason says where the motor-map check widened its band (:mod:`mjxsysid.identify.idlecheck`)."""
+
+
 def _cell(q: str, v: dict | None) -> str:
     if not v or not v["seen"]:
         return "–"
     k = 1e3 if q == "motor_time_constant" else 1.0
-    return f"{k * v['median']:.3g} ({k * v['q05']:.3g}–{k * v['q95']:.3g})"
+    mark = "*" if WIDENED in v.get("why", "") else ""
+    return f"{k * v['median']:.3g} ({k * v['q05']:.3g}–{k * v['q95']:.3g}){mark}"
 
 
 def fleet_markdown(rows: list[dict]) -> str:
@@ -67,7 +72,8 @@ def fleet_markdown(rows: list[dict]) -> str:
             cells = " | ".join(_cell(q, qs.get(q)) for q in SHORT)
             lines.append(f"| {r['log']} | {cells} | {unseen} of {len(qs)} |")
     lines += ["", "Median (5–95 %) of the log-grounded posterior, calibrated; '–': not seen by this log "
-              "(its summary.json says why). τ_m in ms, the authorities in rad/s²."]
+              "(its summary.json says why); '*': widened to hold its value under the idle offset the log's "
+              "motor map prefers (the motor-map check). τ_m in ms, the authorities in rad/s²."]
     return "\n".join(lines) + "\n"
 
 

@@ -35,6 +35,10 @@ def test_the_fleet_table_shows_what_each_log_saw_and_why_one_was_refused():
     line_a = next(ln for ln in md.splitlines() if ln.startswith("| a.ulg"))
     assert "2 (1.9–2.1)" in line_a and "| – |" in line_a and "1 of 2" in line_a
     assert "refused: never armed" in md and "| c.csv |" in md and "decoder-only |" in md
+    assert "2 (1.9–2.1) |" in line_a                                   # not widened: no mark
+    widened = dict(seen, seen_why="calibrated band 0.1 of the prior's range, the motor-map check flagged the log")
+    md = fleet_markdown([fleet_row("d.bin", summary | {"_log_grounded": {"gap": {"thrust_to_weight": widened}}})])
+    assert "2 (1.9–2.1)* |" in md and "'*': widened" in md
 
 
 def test_the_truth_headline_counts_only_what_the_log_saw():
