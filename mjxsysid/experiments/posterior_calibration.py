@@ -193,7 +193,7 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
                            "fitted_on": platform.node() or "unknown", "fit_seconds": round(time.perf_counter() - t0, 3),
                            "date": time.strftime("%Y-%m-%d"), "note": note, **(provenance or {})}
     try:
-        base_table = load(base, check=method is not None)    # replaced whole: only its window threshold is read
+        base_table = load(base, check=method is not None)    # replaced whole: only its checks' thresholds are read
     except FileNotFoundError:
         if method is not None:
             raise
@@ -214,8 +214,7 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
 def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """A row's 90 % band (2, 12) after the ``table`` (None: raw) and a (12,) mask of the coordinates
     the model check and the rate logging let through (the table of the row's ``method`` where it has one)."""
-    from mjxsysid.identify import idlecheck
-    from mjxsysid.identify.calibrate import coord_entry, coord_ok, for_method, model_check, stretch
+    from mjxsysid.identify.calibrate import checked_stretch, coord_entry, coord_ok, for_method, model_check
     q = np.asarray(row["bands"], np.float64)
     if table is None:
         return q[[0, 2]], np.ones(len(V_NAMES), bool)
@@ -225,14 +224,10 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
     lo, hi = q[0].copy(), q[2].copy()
     for j in range(len(V_NAMES)):
         c = coord_entry(table, j, row["features"])
-        _, k_lo, k_hi = stretch(q[:, j], c, row["features"][c["feature"]])
+        _, k_lo, k_hi, idle_ok = checked_stretch(q[:, j], c, row["features"], check, j)
+        ok[j] &= idle_ok
         lo[j] = q[1, j] - k_lo * (q[1, j] - q[0, j])
         hi[j] = q[1, j] + k_hi * (q[2, j] - q[1, j])
-        s = idlecheck.widening(check["idle"], row["features"], j)
-        if s is None:
-            ok[j] = False
-        else:
-            lo[j], hi[j] = lo[j] + min(s, 0.0), hi[j] + max(s, 0.0)
     return np.stack([lo, hi]), ok
 
 

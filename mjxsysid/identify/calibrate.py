@@ -39,11 +39,11 @@ from pathlib import Path
 
 import numpy as np
 
+from mjxsysid.identify import idlecheck, thresholds
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
 from mjxsysid.identify.gap import UNSEEN_FRACTION
 from mjxsysid.identify.logspace import N_V, V_NAMES
-from mjxsysid.identify import idlecheck
 from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
 from mjxsysid.identify.windowcheck import WHY as WINDOW_WHY
 
@@ -265,6 +265,10 @@ def _check(table: dict, where: str) -> None:
                          f"(`mjxsysid calibrate-posterior --fit ROWS...`)")
 
 
+CHECK_KEYS = (WINDOW_KEY, idlecheck.KEY)
+"""The table's entries that hold a model check's threshold (:mod:`.windowcheck`, :mod:`.idlecheck`)."""
+
+
 def for_method(table: dict, method: str | None) -> dict:
     """The table for a posterior drawn by ``method`` ('smc', 'smc_nuts'): its own (``table[BY_METHOD]``)
     where it has one, else ``table`` itself (the pooled table); the window check's and the motor-map check's
@@ -273,10 +277,6 @@ def for_method(table: dict, method: str | None) -> dict:
     if own is None:
         return table
     return own | {k: table[k] for k in CHECK_KEYS if k in table}
-
-
-CHECK_KEYS = (WINDOW_KEY, idlecheck.KEY)
-"""The table's entries that hold a model check's threshold (:mod:`.windowcheck`, :mod:`.idlecheck`)."""
 
 
 def window_features(check: dict | None) -> dict:
@@ -346,8 +346,7 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
 
 def _window_verdict(features: dict, table: dict) -> dict:
     """The window-length test of :func:`model_check` -> {value (the shift), threshold, ok (None: not run), why}."""
-    from mjxsysid.identify.thresholds import verdict
-    return verdict(features.get("window_shift"), features.get("window_shift_at", ""), table.get(WINDOW_KEY),
+    return thresholds.verdict(features.get("window_shift"), features.get("window_shift_at", ""), table.get(WINDOW_KEY),
                    "window check", "window shift", ".2f", WINDOW_WHY)
 
 
@@ -398,6 +397,23 @@ def stretch(q, coord: dict, x: float) -> tuple[int, float, float]:
     return b, (1 - t) * a[0] + t * c[0], (1 - t) * a[1] + t * c[1]
 
 
+def checked_stretch(q, coord: dict, features: dict, check: dict, j: int) -> tuple[int, float, float, bool]:
+    """:func:`stretch` of visible coordinate j on a log whose :func:`model_check` is ``check``, with the
+    motor-map check's widening (:func:`~.idlecheck.widening`) added to the side it moves the coordinate to ->
+    (group, stretch below, stretch above, ok); ok False where that check fails the coordinate whole (a flagged
+    log without the shifts; the stretch then unwidened). What :func:`calibrate` applies and the calibration's
+    evaluation measures."""
+    b, k_lo, k_hi = stretch(q, coord, features[coord["feature"]])
+    s = idlecheck.widening(check["idle"], features, j)
+    if s is None:
+        return b, k_lo, k_hi, False
+    if s > 0:
+        k_hi += s / max(q[2] - q[1], 1e-12)
+    elif s < 0:
+        k_lo += -s / max(q[1] - q[0], 1e-12)
+    return b, k_lo, k_hi, True
+
+
 def side_factors(q, coord: dict, b: int) -> tuple[float, float]:
     """A coordinate's raw 5/50/95 % quantiles q (3,) and its table entry in bin ``b`` -> the stretch
     below and above the median, (a·w + b_floor) / w on each side, at least :data:`MIN_SIDE`."""
@@ -437,17 +453,12 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             factor[j] = np.nan
             why[j] = "model check failed: " + "; ".join(check["why"][FEATURE_NAMES[CHECK_FEATURE[j]]])
             continue
-        bins[j], k_lo, k_hi = stretch(q[:, j], c, features[c["feature"]])
-        s = idlecheck.widening(check["idle"], features, j)
-        if s is None:
+        bins[j], k_lo, k_hi, idle_ok = checked_stretch(q[:, j], c, features, check, j)
+        if not idle_ok:
             out[:, j] = prior_v[:, j]
             factor[j] = np.nan
             why[j] = "model check failed: " + check["idle"]["why"]
             continue
-        if s > 0:       # the band's side toward the value under the best idle reaches it (idlecheck)
-            k_hi += s / max(q[2, j] - q[1, j], 1e-12)
-        elif s < 0:
-            k_lo += -s / max(q[1, j] - q[0, j], 1e-12)
         factor[j] = (k_lo * (q[1, j] - q[0, j]) + k_hi * (q[2, j] - q[1, j])) / max(q[2, j] - q[0, j], 1e-12)
         d = v[:, j] - q[1, j]
         out[:, j] = q[1, j] + np.where(d < 0, k_lo, k_hi) * d
@@ -465,9 +476,10 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
         if why[j]:
             continue
         note = f"; {SPEED_WHY}" if speed_tau and j == L.LOG_TAU_M else ""
-        s = idlecheck.widening(check["idle"], features, j)
+        flagged = check["idle"]["ok"] is False
         if j == L.LOG_TW and idlecheck.blind(check["idle"], features):
             note += "; " + idlecheck.BLIND_WHY.format(grid=", ".join(f"{g:+g}" for g in idlecheck.GRID))
+        s = idlecheck.widening(check["idle"], features, j) if flagged else 0.0
         if s:
             note += (f"; widened by {abs(s):.3g} (log units) {'up' if s > 0 else 'down'} to hold the value under the "
                      f"idle offset the log prefers (the motor-map check)")
@@ -476,8 +488,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
                       "prior, a sign the model does not fit this log (motor model, units, rotor order)")
             continue
         seen[j] = width[j] < UNSEEN_FRACTION * pw[j]
-        passed = "model check passed" if not s else "the motor-map check flagged the log"
+        passed = "the motor-map check flagged the log" if flagged else "model check passed"
         why[j] = (f"calibrated band {width[j] / pw[j]:.2g} of the prior's range, {passed}" if seen[j]
                   else f"calibrated band {width[j] / pw[j]:.2g} of the prior's range (≥ {UNSEEN_FRACTION}): the log does not pin it") + note
     return out.astype(np.float32), {"factor": factor, "bin": bins, "check": check, "seen": seen, "why": why}
-

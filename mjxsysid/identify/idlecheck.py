@@ -27,10 +27,10 @@ idle offset included.
 from __future__ import annotations
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid.identify import logspace as L
+from mjxsysid.identify import thresholds
 
 GRID = (-0.1, 0.05, 0.1, 0.2)
 """The idle offsets (shares of Ω_max) the log is re-fitted under."""
@@ -92,14 +92,13 @@ def _residual_ss(z, data, ld, ls, w) -> float:
     tempered likelihood gives them, not the count of correlated residuals). On the host, from the compiled
     residuals the mode already built (:data:`~.likelihood.residuals_jit`): the check compiles nothing new."""
     from mjxsysid.identify.likelihood import residuals_jit
-    from mjxsysid.identify.target import ACC_BIAS_SD
+    from mjxsysid.identify.mode import standardised
     z = np.asarray(z, np.float32)
-    x = np.asarray(L.x_from_y(L.y_from_z(z, np.asarray(ls, np.float32)), np.asarray(ld, np.float32)), np.float32)
-    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in residuals_jit(jnp.asarray(x), data))
-    use, w = np.asarray(data.use, np.float64), np.asarray(w, np.float64)
-    sg_ = (rg * use[L.GYRO] / sg) ** 2
-    sa_ = (ra * use[L.ACC_Z] / sa) ** 2
-    return float(np.sum(sg_ * w[L.GYRO]) + w[L.ACC_Z] * np.sum(sa_) + (z[L.Z_BIAS] / ACC_BIAS_SD) ** 2)
+    x = L.x_from_y(L.y_from_z(z, np.asarray(ls, np.float32)), np.asarray(ld, np.float32))
+    res = (np.asarray(a, np.float64) for a in residuals_jit(x, data))
+    g, a, b = standardised(*res, np.asarray(data.use, np.float64), float(z[L.Z_BIAS]))
+    w = np.asarray(w, np.float64)
+    return float(np.sum(g ** 2 * w[L.GYRO]) + w[L.ACC_Z] * np.sum(a ** 2) + b ** 2)
 
 
 def _fit_and_ss(make_logs, datas, ys, lds, lss, ws, starts: int):
@@ -127,7 +126,8 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
     """The check of every log of ``datas`` from its mode (``modes``: :func:`~.mode.find_modes`' tuples) ->
     per log {gain (the statistic), idle (the best ι of :data:`GRID`, None where none gains), gains {ι: SS(0) −
     SS(ι)}, thrust_to_weight {0: at no idle, ι: at the best idle}, shift (12,: v under the best idle less v
-    without, log units), power (the largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one shape are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``:
+    without, log units), power (the largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one
+    shape are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``:
     the starts per log its batched fit was compiled for)."""
     out = [None] * len(datas)
     idx = []
@@ -187,17 +187,14 @@ def features(check: dict | None) -> dict:
 def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
     """The table's :data:`KEY` entry from rows carrying the statistic (``features.idle_gain``) -> {threshold,
     quantile, logs, above, levels}, or None where fewer than :data:`MIN_LOGS` carry it."""
-    from mjxsysid.identify.thresholds import entry
-    return entry(rows, "idle_gain", quantile, MIN_LOGS)
+    return thresholds.entry(rows, "idle_gain", quantile, MIN_LOGS)
 
 
 def verdict(feats: dict, table: dict) -> dict:
     """The check's verdict for a log's features against the table's threshold -> {value, threshold, ok (None:
     not run), why}."""
-    from mjxsysid.identify.thresholds import verdict as _verdict
-    return _verdict(feats.get("idle_gain"), feats.get("idle_at", ""), table.get(KEY), "motor-map check", "idle gain",
-                    ".1f", WHY)
-
+    return thresholds.verdict(feats.get("idle_gain"), feats.get("idle_at", ""), table.get(KEY), "motor-map check",
+                              "idle gain", ".1f", WHY)
 
 
 def widening(verdict_: dict, feats: dict, j: int) -> float | None:

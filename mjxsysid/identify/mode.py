@@ -34,13 +34,20 @@ def _project(x, prior):
     return x.astype(np.float32)
 
 
+def standardised(rg, sg, ra, sa, use, bias):
+    """The least squares' residuals from :func:`~.likelihood.residuals`' (rates (R, 3) and their scales, acc_z
+    (Wa,) and its scale), the channels' use (4,) and the accelerometer bias () -> (rates (R, 3), acc_z (Wa,),
+    the bias's prior term ()), each over its scale. Arithmetic only: NumPy's arrays in, NumPy's out
+    (:mod:`.idlecheck` on the host), JAX's in a trace."""
+    return rg * (use[L.GYRO] / sg), ra * (use[L.ACC_Z] / sa), bias / ACC_BIAS_SD
+
+
 def _ls_residuals(z, args):
     """Standardised residuals for the least-squares stage: z (13,) = [v, bias], σ fixed in ``args``."""
     data, ld, ls = args
     x = L.x_from_y(L.y_from_z(z, ls), ld)
-    rg, sg, ra, sa = residuals(x, data)
-    u = data.use
-    return jnp.concatenate([(rg * (u[L.GYRO] / sg)).ravel(), ra * (u[L.ACC_Z] / sa), z[L.Z_BIAS, None] / ACC_BIAS_SD])
+    g, a, b = standardised(*residuals(x, data), data.use, z[L.Z_BIAS])
+    return jnp.concatenate([g.ravel(), a, b[None]])
 
 
 @functools.partial(jax.jit, static_argnames=("max_steps", "normal"))

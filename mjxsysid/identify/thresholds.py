@@ -5,6 +5,15 @@ from __future__ import annotations
 import numpy as np
 
 
+def quantile_of(values, quantile: float, name: str) -> float:
+    """The ``quantile`` quantile (numpy's "higher": a statistic a log had) of the statistic ``values`` (None: a
+    log the check did not run on, left out); ValueError naming the check ``name`` where none ran."""
+    s = np.asarray([x for x in values if x is not None], np.float64)
+    if len(s) == 0:
+        raise ValueError(f"{name}: no simulated log the check ran on")
+    return float(np.quantile(s, quantile, method="higher"))
+
+
 def entry(rows, feature: str, quantile: float, min_logs: int) -> dict | None:
     """The table's entry from calibration rows whose ``features[feature]`` holds the statistic -> {threshold
     (the ``quantile`` quantile, numpy's "higher"), quantile, logs, above, levels}, or None where fewer than
@@ -13,7 +22,7 @@ def entry(rows, feature: str, quantile: float, min_logs: int) -> dict | None:
     if len(ran) < min_logs:
         return None
     s = np.asarray([float(r["features"][feature]) for r in ran], np.float64)
-    thr = float(np.quantile(s, quantile, method="higher"))
+    thr = quantile_of(s, quantile, feature)
     return {"threshold": round(thr, 4), "quantile": quantile, "logs": len(ran), "above": int(np.sum(s > thr)),
             "levels": sorted({r["level"] for r in ran})}
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from mjxsysid.identify import logspace as L
+from mjxsysid.identify import thresholds
 
 WINDOW_FACTORS = (2, 4)
 """The other window lengths, as multiples of the default's (:data:`~.logdata.WINDOW_STEPS`)."""
@@ -68,18 +69,14 @@ WHY = ("the rate changes depend on the window length: physics the model lacks (e
 def threshold(shifts, quantile: float = QUANTILE) -> float:
     """The ``quantile`` quantile (numpy's "higher": a statistic a log had) of the statistic ``shifts`` (the
     logs the check ran on)."""
-    s = np.asarray([x for x in shifts if x is not None], np.float64)
-    if len(s) == 0:
-        raise ValueError("window check: no simulated log the check ran on")
-    return float(np.quantile(s, quantile, method="higher"))
+    return thresholds.quantile_of(shifts, quantile, "window check")
 
 
 def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
     """The table's :data:`KEY` entry from calibration rows (their features' ``window_shift``) -> {threshold,
     quantile, logs, above, levels}, or None where fewer than :data:`MIN_LOGS` rows carry the statistic (rows
     collected before the check)."""
-    from mjxsysid.identify.thresholds import entry
-    return entry(rows, "window_shift", quantile, MIN_LOGS)
+    return thresholds.entry(rows, "window_shift", quantile, MIN_LOGS)
 
 
 def variants(data, factors=WINDOW_FACTORS) -> list:

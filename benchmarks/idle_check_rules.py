@@ -1,0 +1,103 @@
+"""The motor-map check (:mod:`mjxsysid.identify.idlecheck`) on the committed simulated logs: how many it flags
+or is blind on, and what four rules for a flagged log's bands give, from the rows alone (no flight, no posterior).
+
+    python benchmarks/idle_check_rules.py
+
+The sets: ``docs/runs/measurements/log-grounded/idle-check`` (CPU: idle 0.1; no idle with rotor aerodynamics;
+the Crazyflie-like √u map) and the GPU misfit rows (idle 0.1; collected before the shifts were kept, so only
+"none" and "drop every coordinate" apply there). The rules, on a flagged log:
+
+- none: the check ignored;
+- drop all: every coordinate not seen (a flagged log without shifts, the check's first version);
+- drop moved: a coordinate whose value under the best idle lies outside its calibrated band is not seen;
+- widen (shipped): each band widened on one side to hold that value (:func:`~mjxsysid.identify.calibrate.checked_stretch`).
+
+Coverage is over the coordinates each rule leaves seen (:func:`~mjxsysid.experiments.posterior_calibration.calibrated_bands`).
+"""
+from __future__ import annotations
+
+import gzip
+import json
+from pathlib import Path
+
+import numpy as np
+
+RUNS = Path("docs/runs/measurements/log-grounded")
+SETS = {"CPU, idle 0.1 (seed 78)": RUNS / "idle-check/cpu_idle.json.gz",
+        "CPU, no idle, aero (seed 79)": RUNS / "idle-check/cpu_aero.json.gz",
+        "CPU, √u map, idle −0.115 (seed 80)": RUNS / "idle-check/cpu_kappa0.json.gz",
+        "GPU misfit, idle 0.1": RUNS / "nuts-calibration/rows/misfit/motor.0of4.json.gz"}
+
+
+def _rows(path: Path) -> list[dict]:
+    return json.loads(gzip.decompress(path.read_bytes()))["rows"]
+
+
+def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarray]:
+    """A row's calibrated band (2, 12) and seen mask (12,) under ``rule`` (module doc)."""
+    from mjxsysid.experiments.posterior_calibration import calibrated_bands
+    f = row["features"]
+    if rule == "none":
+        return calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)
+    if rule == "drop all":
+        return calibrated_bands(row | {"features": f | {"idle_shift": None}}, table)
+    if rule == "widen":
+        return calibrated_bands(row, table)
+    band, ok = calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)      # drop moved
+    flagged = (f.get("idle_gain") or 0.0) > table["idle_check"]["threshold"]
+    if flagged and f.get("idle_shift") is not None:
+        v = np.asarray(row["bands"], np.float64)[1] + np.asarray(f["idle_shift"], np.float64)
+        ok = ok & (band[0] <= v) & (v <= band[1])
+    elif flagged:
+        ok = np.zeros_like(ok)
+    return band, ok
+
+
+def summary(rows: list[dict], table: dict, rule: str) -> dict:
+    """{coverage (over the seen coordinates), seen (share), tw (thrust-to-weight inside, where seen), tw_seen}."""
+    ins, seen = [], []
+    for r in rows:
+        band, ok = rule_bands(r, table, rule)
+        tv = np.asarray(r["truth_v"], np.float64)
+        ins.append((band[0] <= tv) & (tv <= band[1]))
+        seen.append(ok)
+    ins, seen = np.array(ins), np.array(seen)
+    cov = float((ins & seen).sum() / max(seen.sum(), 1))
+    tw_seen = float(seen[:, 0].mean())
+    return {"coverage": round(cov, 3), "seen": round(float(seen.mean()), 2),
+            "tw": round(float((ins[:, 0] & seen[:, 0]).sum() / max(seen[:, 0].sum(), 1)), 2), "tw_seen": round(tw_seen, 2)}
+
+
+def blind_counts(thr: float) -> dict:
+    """The window check's 200 simulated logs without idle (``benchmarks/window_check.py``): per flight, how many
+    the motor-map check is blind on (``idle_power`` at most the threshold, :func:`~mjxsysid.identify.idlecheck.blind`)."""
+    rows = json.loads((RUNS / "window-check/simulated.json").read_text())["rows"]
+    return {fl: f"{sum(r['idle_power'] <= thr for r in rows if r['flight'] == fl)} of "
+                f"{sum(r['flight'] == fl for r in rows)}" for fl in sorted({r["flight"] for r in rows})}
+
+
+def main() -> None:
+    from mjxsysid.identify.calibrate import for_method, load
+    base = load()
+    thr = base["idle_check"]["threshold"]
+    print(f"blind (no idle moves the fit beyond {thr:g}), 200 simulated logs without idle: {blind_counts(thr)}")
+    for name, path in SETS.items():
+        rows = _rows(path)
+        gains = [r["features"].get("idle_gain") for r in rows]
+        flights = sorted({r.get("flight", "?").split(" ")[0] for r in rows})
+        flags = {fl: f"{sum((g or 0) > thr for g, r in zip(gains, rows) if r.get('flight', '?').startswith(fl))} of "
+                     f"{sum(r.get('flight', '?').startswith(fl) for r in rows)}" for fl in flights}
+        print(f"{name}: {len(rows)} logs, flagged at {thr:g}: {flags}")
+        shifts = all(r["features"].get("idle_shift") is not None for r in rows)
+        for rule in ("none", "drop all", "drop moved", "widen") if shifts else ("none", "drop all"):
+            t = {m: for_method(base, m) for m in ("smc", "smc_nuts")}
+            rs = {m: [r for r in rows if r.get("method") == m] for m in t}
+            parts = [summary(rs[m], t[m], rule) | {"n": len(rs[m])} for m in t if rs[m]]
+            n = sum(p["n"] for p in parts)
+            avg = {k: round(sum(p[k] * p["n"] for p in parts) / n, 3) for k in ("coverage", "seen", "tw", "tw_seen")}
+            print(f"  {rule:>10}: inside {avg['coverage']:.2f} of the seen, {100 * avg['seen']:.0f} % seen; "
+                  f"thrust-to-weight {avg['tw']:.2f} where seen ({100 * avg['tw_seen']:.0f} % seen)")
+
+
+if __name__ == "__main__":
+    main()
