@@ -10,7 +10,10 @@ the Crazyflie-like √u map) and the GPU misfit rows (idle 0.1; collected before
 - none: the check ignored;
 - drop all: every coordinate not seen (a flagged log without shifts, the check's first version);
 - drop moved: a coordinate whose value under the best idle lies outside its calibrated band is not seen;
-- widen (shipped): each band widened on one side to hold that value (:func:`~mjxsysid.identify.calibrate.checked_stretch`).
+- widen idle: each band widened on one side to hold that value;
+- widen span (shipped): each band widened to hold its values under every plausible map, linear or curved
+  (``idle_span``, :func:`~mjxsysid.identify.calibrate.checked_stretch`); rows collected before the span get
+  "widen idle".
 
 Coverage is over the coordinates each rule leaves seen (:func:`~mjxsysid.experiments.posterior_calibration.calibrated_bands`).
 """
@@ -41,8 +44,10 @@ def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarra
         return calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)
     if rule == "drop all":
         return calibrated_bands(row | {"features": f | {"idle_shift": None}}, table)
-    if rule == "widen":
+    if rule == "widen span":
         return calibrated_bands(row, table)
+    if rule == "widen idle":
+        return calibrated_bands(row | {"features": f | {"idle_span": None}}, table)
     band, ok = calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)      # drop moved
     flagged = (f.get("idle_gain") or 0.0) > table["idle_check"]["threshold"]
     if flagged and f.get("idle_shift") is not None:
@@ -54,10 +59,13 @@ def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarra
 
 
 def summary(rows: list[dict], table: dict, rule: str) -> dict:
-    """{coverage (over the seen coordinates), seen (share), tw (thrust-to-weight inside, where seen), tw_seen}."""
-    ins, seen = [], []
+    """{coverage (over the seen coordinates), seen (share), tw (thrust-to-weight inside, where seen), tw_seen,
+    tw_width (the median of thrust-to-weight's band, ± % of its centre, where seen)}."""
+    ins, seen, tw_w = [], [], []
     for r in rows:
         band, ok = rule_bands(r, table, rule)
+        if ok[0]:
+            tw_w.append(100 * np.expm1((band[1, 0] - band[0, 0]) / 2))
         tv = np.asarray(r["truth_v"], np.float64)
         ins.append((band[0] <= tv) & (tv <= band[1]))
         seen.append(ok)
@@ -65,7 +73,8 @@ def summary(rows: list[dict], table: dict, rule: str) -> dict:
     cov = float((ins & seen).sum() / max(seen.sum(), 1))
     tw_seen = float(seen[:, 0].mean())
     return {"coverage": round(cov, 3), "seen": round(float(seen.mean()), 2),
-            "tw": round(float((ins[:, 0] & seen[:, 0]).sum() / max(seen[:, 0].sum(), 1)), 2), "tw_seen": round(tw_seen, 2)}
+            "tw": round(float((ins[:, 0] & seen[:, 0]).sum() / max(seen[:, 0].sum(), 1)), 2), "tw_seen": round(tw_seen, 2),
+            "tw_width": round(float(np.median(tw_w)) if tw_w else float("nan"), 1)}
 
 
 def blind_counts(thr: float) -> dict:
@@ -89,14 +98,17 @@ def main() -> None:
                      f"{sum(r.get('flight', '?').startswith(fl) for r in rows)}" for fl in flights}
         print(f"{name}: {len(rows)} logs, flagged at {thr:g}: {flags}")
         shifts = all(r["features"].get("idle_shift") is not None for r in rows)
-        for rule in ("none", "drop all", "drop moved", "widen") if shifts else ("none", "drop all"):
+        rules = ("none", "drop all", "drop moved", "widen idle", "widen span") if shifts else ("none", "drop all")
+        for rule in rules:
             t = {m: for_method(base, m) for m in ("smc", "smc_nuts")}
             rs = {m: [r for r in rows if r.get("method") == m] for m in t}
             parts = [summary(rs[m], t[m], rule) | {"n": len(rs[m])} for m in t if rs[m]]
             n = sum(p["n"] for p in parts)
-            avg = {k: round(sum(p[k] * p["n"] for p in parts) / n, 3) for k in ("coverage", "seen", "tw", "tw_seen")}
+            avg = {k: round(sum(p[k] * p["n"] for p in parts) / n, 3)
+                   for k in ("coverage", "seen", "tw", "tw_seen", "tw_width")}
             print(f"  {rule:>10}: inside {avg['coverage']:.2f} of the seen, {100 * avg['seen']:.0f} % seen; "
-                  f"thrust-to-weight {avg['tw']:.2f} where seen ({100 * avg['tw_seen']:.0f} % seen)")
+                  f"thrust-to-weight {avg['tw']:.2f} where seen ({100 * avg['tw_seen']:.0f} % seen, "
+                  f"median band ±{avg['tw_width']:.0f} %)")
 
 
 if __name__ == "__main__":

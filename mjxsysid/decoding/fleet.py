@@ -72,8 +72,8 @@ def fleet_markdown(rows: list[dict]) -> str:
             cells = " | ".join(_cell(q, qs.get(q)) for q in SHORT)
             lines.append(f"| {r['log']} | {cells} | {unseen} of {len(qs)} |")
     lines += ["", "Median (5–95 %) of the log-grounded posterior, calibrated; '–': not seen by this log "
-              "(its summary.json says why); '*': widened to hold its value under the idle offset the log's "
-              "motor map prefers (the motor-map check). τ_m in ms, the authorities in rad/s²."]
+              "(its summary.json says why); '*': widened to hold its value under every command→speed map "
+              "that fits the log about as well as the best (the motor-map check). τ_m in ms, the authorities in rad/s²."]
     return "\n".join(lines) + "\n"
 
 

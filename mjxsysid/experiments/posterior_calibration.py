@@ -224,10 +224,10 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
     lo, hi = q[0].copy(), q[2].copy()
     for j in range(len(V_NAMES)):
         c = coord_entry(table, j, row["features"])
-        _, k_lo, k_hi, idle_ok = checked_stretch(q[:, j], c, row["features"], check, j)
+        _, k_lo, k_hi, shift, idle_ok = checked_stretch(q[:, j], c, row["features"], check, j)
         ok[j] &= idle_ok
-        lo[j] = q[1, j] - k_lo * (q[1, j] - q[0, j])
-        hi[j] = q[1, j] + k_hi * (q[2, j] - q[1, j])
+        lo[j] = q[1, j] + shift - k_lo * (q[1, j] - q[0, j])
+        hi[j] = q[1, j] + shift + k_hi * (q[2, j] - q[1, j])
     return np.stack([lo, hi]), ok
 
 

@@ -306,8 +306,8 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
     better than any simulated one takes the calibration of its nearest bin), residuals more correlated
     than 99.5 % of its logs' (the rate axes pooled), a fit that moves with the rate windows' length beyond
     the table's threshold (``window_shift``, :mod:`.windowcheck`; the rate features), rates the motor logging
-    cannot support, a log that fits better with an idle offset in the motor map beyond the table's threshold
-    (``idle_gain``, :mod:`.idlecheck`: per coordinate, in :func:`calibrate`, by where the idle moves it; among
+    cannot support, a log that fits better under another command→speed map beyond the table's threshold
+    (``idle_gain``, :mod:`.idlecheck`: per coordinate, in :func:`calibrate`, by where the plausible maps move it; among
     ``reasons``). ``window``, ``idle``: those tests' verdicts (ok None where they did not run)."""
     why = {f: [] for f in FEATURE_NAMES}
     for f in FEATURE_NAMES:
@@ -397,21 +397,20 @@ def stretch(q, coord: dict, x: float) -> tuple[int, float, float]:
     return b, (1 - t) * a[0] + t * c[0], (1 - t) * a[1] + t * c[1]
 
 
-def checked_stretch(q, coord: dict, features: dict, check: dict, j: int) -> tuple[int, float, float, bool]:
+def checked_stretch(q, coord: dict, features: dict, check: dict, j: int) -> tuple[int, float, float, float, bool]:
     """:func:`stretch` of visible coordinate j on a log whose :func:`model_check` is ``check``, with the
-    motor-map check's widening (:func:`~.idlecheck.widening`) added to the side it moves the coordinate to ->
-    (group, stretch below, stretch above, ok); ok False where that check fails the coordinate whole (a flagged
-    log without the shifts; the stretch then unwidened). What :func:`calibrate` applies and the calibration's
-    evaluation measures."""
+    motor-map check's move of the band's edges (:func:`~.idlecheck.widening`: (a, b), a ≤ b) -> (group,
+    stretch below, stretch above, shift, ok): the draws become median + shift + stretch × (draw − median),
+    the shift (a + b) / 2 and each side's stretch widened by (b − a) / 2, so the band's edges move by a and b;
+    ok False where that check fails the coordinate whole (a flagged log without the shifts; the stretch then
+    as the table's). What :func:`calibrate` applies and the calibration's evaluation measures."""
     b, k_lo, k_hi = stretch(q, coord, features[coord["feature"]])
     s = idlecheck.widening(check["idle"], features, j)
     if s is None:
-        return b, k_lo, k_hi, False
-    if s > 0:
-        k_hi += s / max(q[2] - q[1], 1e-12)
-    elif s < 0:
-        k_lo += -s / max(q[1] - q[0], 1e-12)
-    return b, k_lo, k_hi, True
+        return b, k_lo, k_hi, 0.0, False
+    half = (s[1] - s[0]) / 2.0
+    return (b, k_lo + half / max(q[1] - q[0], 1e-12), k_hi + half / max(q[2] - q[1], 1e-12),
+            (s[0] + s[1]) / 2.0, True)
 
 
 def side_factors(q, coord: dict, b: int) -> tuple[float, float]:
@@ -453,7 +452,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             factor[j] = np.nan
             why[j] = "model check failed: " + "; ".join(check["why"][FEATURE_NAMES[CHECK_FEATURE[j]]])
             continue
-        bins[j], k_lo, k_hi, idle_ok = checked_stretch(q[:, j], c, features, check, j)
+        bins[j], k_lo, k_hi, shift, idle_ok = checked_stretch(q[:, j], c, features, check, j)
         if not idle_ok:
             out[:, j] = prior_v[:, j]
             factor[j] = np.nan
@@ -461,7 +460,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             continue
         factor[j] = (k_lo * (q[1, j] - q[0, j]) + k_hi * (q[2, j] - q[1, j])) / max(q[2, j] - q[0, j], 1e-12)
         d = v[:, j] - q[1, j]
-        out[:, j] = q[1, j] + np.where(d < 0, k_lo, k_hi) * d
+        out[:, j] = q[1, j] + shift + np.where(d < 0, k_lo, k_hi) * d
     out = np.clip(out, lo, hi)
     valid = np.asarray(prior.v_valid(out.astype(np.float32)))
     if not valid.all():
@@ -479,10 +478,10 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
         flagged = check["idle"]["ok"] is False
         if j == L.LOG_TW and idlecheck.blind(check["idle"], features):
             note += "; " + idlecheck.BLIND_WHY.format(grid=", ".join(f"{g:+g}" for g in idlecheck.GRID))
-        s = idlecheck.widening(check["idle"], features, j) if flagged else 0.0
-        if s:
-            note += (f"; widened by {abs(s):.3g} (log units) {'up' if s > 0 else 'down'} to hold the value under the "
-                     f"idle offset the log prefers (the motor-map check)")
+        s = idlecheck.widening(check["idle"], features, j) if flagged else (0.0, 0.0)
+        if any(s):
+            note += (f"; its edges moved by {s[0]:+.3g} and {s[1]:+.3g} (log units) to hold its value under every "
+                     f"command→speed map that fits the log about as well as the best (the motor-map check)")
         if at_bound[j] and width[j] < UNSEEN_FRACTION * pw[j]:
             why[j] = ("the band lies against the prior's bound: the log asks for a vehicle beyond the physical "
                       "prior, a sign the model does not fit this log (motor model, units, rotor order)")

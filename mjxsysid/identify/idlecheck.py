@@ -1,25 +1,29 @@
-"""The motor-map check: does the log fit better with an idle offset in the command→speed map?
+"""The motor-map check: does the log fit better under another command→speed map?
 
-The likelihood's rotors spin at the command times Ω_max (:mod:`.likelihood`): thrust ∝ u². A motor that
-idles, Ω = Ω_max (ι + (1 − ι) u), makes thrust ∝ (ι + (1 − ι) u)². At one command level the two differ by
-a factor the fit takes into thrust-to-weight and the authorities, so a log flown about one level (a hover)
-cannot tell them apart, and the posterior is sharp and wrong: an idle of 0.1 Ω_max put thrust-to-weight
-15–25 % high, and simulated logs with it held the truth 0.10–0.22 of the time (the calibration's
-``misfit`` set). A flight whose commands move shows the curvature:
+The likelihood's rotors spin at the command times Ω_max (:mod:`.likelihood`): thrust ∝ u². Real motors
+idle (Ω = Ω_max (ι + (1 − ι) u)) or follow a curved map (the Crazyflie's Ω ∝ √u): the simulator's family
+is Ω = Ω_max (ι + (1 − ι) √(κ u² + (1 − κ) u)) (:func:`mapped`). At one command level any of them differs
+from u² by a factor the fit takes into thrust-to-weight and the authorities, so a log flown about one level
+(a hover) cannot tell them apart, and the posterior is sharp and wrong: an idle of 0.1 Ω_max put
+thrust-to-weight 15–25 % high, and a √u map 2–3 times. A flight whose commands move shows the map:
 
-- the log is reduced again with its commands mapped through each idle of :data:`GRID` (the same shapes:
-  the mode's compiled least squares serves them), and the visible coordinates re-fitted from the mode
-  moved to the equivalent vehicle at the log's mean command (:func:`equivalent`), σ and δ held at the
-  mode's; the map without idle is re-fitted from each of those optima too (its best, not a local one);
-- the statistic is how much the best idle lowers the standardised residuals' sum of squares, each
-  channel's discounted for its residuals' correlation as the likelihood's are (w):
-  ``gain = SS(0) − min_ι SS(ι)`` (0 where none does). Under the model it stays near 0; the threshold is
-  its :data:`QUANTILE` quantile over simulated logs without idle (``benchmarks/window_check.py``, stored
-  in the calibration table under :data:`KEY`). On a log above it, each visible coordinate's calibrated
-  band is widened on one side by how far the best idle moves it (:func:`widening`): the band then holds the
-  quantity under the map the likelihood assumes and under the one the log prefers. A band widened past
-  the "seen" rule's width is reported as not seen. A flagged log without the shifts (rows collected
-  before them) fails whole.
+- the log is reduced again with its commands mapped through each map of :data:`MAPS` (linear ones with the
+  idles of :data:`GRID`, the curved ones of :data:`CURVED`; the same shapes: the mode's compiled least
+  squares serves them), and the visible coordinates re-fitted from the mode moved to the equivalent
+  vehicle at the log's mean command (:func:`equivalent`), σ and δ held at the mode's; the linear map is
+  re-fitted from each of those optima too (its best, not a local one);
+- the statistic is how much the best map lowers the standardised residuals' sum of squares, each channel's
+  discounted for its residuals' correlation as the likelihood's are (w): ``gain = SS(0, 1) − min SS(ι, κ)``
+  (0 where none does). Under the model it stays near 0; the threshold is its :data:`QUANTILE` quantile over
+  simulated logs with the linear map (``benchmarks/window_check.py``, stored in the calibration table
+  under :data:`KEY`).
+- The log shows the map only about the commands it flew; thrust-to-weight and Ω_max are its value at full
+  command, an extrapolation each map makes differently. Every map whose sum of squares lies within
+  :data:`SPAN_TOL` of the best is plausible, the linear map too where the gain is within it. On a log above
+  the threshold, each visible coordinate's calibrated band becomes the union of its bands under the plausible
+  maps: moved and widened by the span of their shifts (:func:`widening`; ``idle_span``). A band widened past
+  the "seen" rule's width is reported as not seen. A flagged log without the span (rows collected before
+  it) is widened toward the best map's shift alone; one without either fails whole.
 
 A log whose rotor speeds were measured is not checked: :mod:`.speeds` fits its command→speed map,
 idle offset included.
@@ -33,7 +37,17 @@ from mjxsysid.identify import logspace as L
 from mjxsysid.identify import thresholds
 
 GRID = (-0.1, 0.05, 0.1, 0.2)
-"""The idle offsets (shares of Ω_max) the log is re-fitted under."""
+"""The idle offsets (shares of Ω_max) of the linear maps (κ 1) the log is re-fitted under."""
+
+CURVED = ((-0.1, 0.5), (0.0, 0.5), (0.1, 0.5), (-0.1, 0.0), (0.0, 0.0), (0.1, 0.0))
+"""The curved maps (ι, κ) the log is re-fitted under."""
+
+MAPS = tuple((iota, 1.0) for iota in GRID) + CURVED
+"""Every map (ι, κ) of the check (:func:`mapped`), beside the likelihood's own (0, 1)."""
+
+SPAN_TOL = 4.61
+"""A map is plausible where its sum of squares lies within this of the best map's: χ²'s 0.90 quantile with two
+degrees of freedom (the map's ι and κ), the likelihood-ratio set at the bands' level."""
 
 QUANTILE = 0.99
 """The threshold's quantile of the statistic over simulated logs without idle."""
@@ -48,40 +62,49 @@ SCALED = (L.LOG_AUTH_X, L.LOG_AUTH_Y, L.LOG_YAW)
 """The coordinates a command differential drives (roll, pitch and yaw authority): scaled by
 :func:`equivalent` as thrust-to-weight is."""
 
-WHY = ("an idle offset in the command→speed map fits the log better; thrust-to-weight and the authorities "
+WHY = ("another command→speed map fits the log better; thrust-to-weight and the authorities "
        "depend on it, so their bands are widened toward their values under it")
 
 SPEED_SKIP = "not run: the measured rotor speeds fit the command→speed map, idle offset included"
 
 
-def mapped(u, iota: float) -> np.ndarray:
-    """Commands u (T, 4) in [0, 1] -> the speeds' share of Ω_max under idle ``iota``: max(0, ι + (1 − ι) u)."""
-    return np.maximum(iota + (1.0 - iota) * np.clip(np.asarray(u, np.float64), 0.0, 1.0), 0.0)
+def mapped(u, iota: float, kappa: float = 1.0) -> np.ndarray:
+    """Commands u (T, 4) in [0, 1] -> the speeds' share of Ω_max under idle ``iota`` and curvature ``kappa``:
+    max(0, ι + (1 − ι) √(κ u² + (1 − κ) u)), the simulator's map (:func:`mjxsysid.sim.quadrotor.commanded_speed`)."""
+    u = np.clip(np.asarray(u, np.float64), 0.0, 1.0)
+    shape = u if kappa == 1.0 else np.sqrt(kappa * u * u + (1.0 - kappa) * u)
+    return np.maximum(iota + (1.0 - iota) * shape, 0.0)
 
 
-def equivalent(y, u_mean: float, iota: float, inverse: bool = False) -> np.ndarray:
-    """The vehicle y (..., 17) fitted without idle, moved to the one with idle ``iota`` that has the same
-    thrust and the same torque per command differential at the mean command ``u_mean``: thrust-to-weight ×
-    (u / s)², the authorities × u / (s (1 − ι)), s = ι + (1 − ι) u. ``inverse``: back."""
-    s = iota + (1.0 - iota) * u_mean
+def _slope(u: float, iota: float, kappa: float) -> float:
+    """d mapped / du at the command u (0, 1]: (1 − ι) (2 κ u + 1 − κ) / (2 √(κ u² + (1 − κ) u))."""
+    return (1.0 - iota) * (2.0 * kappa * u + 1.0 - kappa) / (2.0 * np.sqrt(kappa * u * u + (1.0 - kappa) * u))
+
+
+def equivalent(y, u_mean: float, iota: float, inverse: bool = False, kappa: float = 1.0) -> np.ndarray:
+    """The vehicle y (..., 17) fitted with the linear map, moved to the one under the map (``iota``, ``kappa``)
+    that has the same thrust and the same torque per command differential at the mean command ``u_mean``:
+    thrust-to-weight × (u / s)², the authorities × u / (s s'), s the map at u (:func:`mapped`) and s' its
+    slope there (1 − ι where κ is 1). ``inverse``: back."""
+    s = float(mapped(u_mean, iota, kappa))
     k = -1.0 if inverse else 1.0
     out = np.array(y, np.float32, copy=True)
     out[..., L.LOG_TW] += k * 2.0 * np.log(u_mean / s)
     for j in SCALED:
-        out[..., j] += k * np.log(u_mean / (s * (1.0 - iota)))
+        out[..., j] += k * np.log(u_mean / (s * _slope(u_mean, iota, kappa)))
     return out
 
 
-def variant(data, iota: float):
+def variant(data, iota: float, kappa: float = 1.0):
     """The log of ``data`` (prepared in this process: it keeps the log's arrays) reduced again with its
-    commands mapped through idle ``iota`` (:func:`mapped`), padded to its shapes."""
+    commands mapped through idle ``iota`` and curvature ``kappa`` (:func:`mapped`), padded to its shapes."""
     from mjxsysid.identify.logdata import prepare
     rows = data._rows
     rec = dict(rows["rec"])
-    rec["motor"] = mapped(rec["motor"], iota)
+    rec["motor"] = mapped(rec["motor"], iota, kappa)
     if (rec.get("native") or {}).get("motor") is not None:     # a slowly logged motor: prepare reads its samples
         t_nat, u_nat = rec["native"]["motor"]
-        rec["native"] = dict(rec["native"]) | {"motor": (t_nat, mapped(u_nat, iota))}
+        rec["native"] = dict(rec["native"]) | {"motor": (t_nat, mapped(u_nat, iota, kappa))}
     pad = (int(data.wmask.shape[0]), int(data.bmask.shape[0]))
     return prepare(rec, pad_to=pad, **rows["rec_args"])
 
@@ -124,11 +147,14 @@ def checkable(data) -> str | None:
 
 def run(make_logs, datas, modes, starts: int = 1) -> list:
     """The check of every log of ``datas`` from its mode (``modes``: :func:`~.mode.find_modes`' tuples) ->
-    per log {gain (the statistic), idle (the best ι of :data:`GRID`, None where none gains), gains {ι: SS(0) −
-    SS(ι)}, thrust_to_weight {0: at no idle, ι: at the best idle}, shift (12,: v under the best idle less v
-    without, log units), power (the largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one
-    shape are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``:
-    the starts per log its batched fit was compiled for)."""
+    per log {gain (the statistic), map (the best (ι, κ) of :data:`MAPS`, None where none gains), gains {(ι, κ):
+    SS(linear) − SS(ι, κ)}, thrust_to_weight {None: under the linear map, (ι, κ): under the best}, shift (12,:
+    v under the best map less v under the linear one, log units), span (2, 12: the least and the largest
+    shift over the plausible maps, :data:`SPAN_TOL`; 0, the linear map's, among them where it is plausible
+    too), plausible [(ι, κ), ...], power (the
+    largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one shape are re-fitted together
+    (``make_logs``: :class:`~.inference._Logs`; ``starts``: the starts per log its batched fit was compiled
+    for)."""
     out = [None] * len(datas)
     idx = []
     for i, d in enumerate(datas):
@@ -149,74 +175,94 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
         base = [datas[i] for i in g]
         z0, ss0 = _fit_and_ss(make_logs, base, ys, lds, lss, ws, starts)
         ss, zs = {}, {}
-        for iota in GRID:
-            var = [variant(d, iota) for d in base]
-            y_i = np.stack([equivalent(y, u, iota) for y, u in zip(ys, um)])
-            zs[iota], ss[iota] = _fit_and_ss(make_logs, var, y_i, lds, lss, ws, starts)
-            back = np.stack([equivalent(L.y_from_z(z, ls), u, iota, inverse=True) for z, ls, u in zip(zs[iota], lss, um)])
+        for iota, kappa in MAPS:
+            var = [variant(d, iota, kappa) for d in base]
+            y_m = np.stack([equivalent(y, u, iota, kappa=kappa) for y, u in zip(ys, um)])
+            zs[iota, kappa], ss[iota, kappa] = _fit_and_ss(make_logs, var, y_m, lds, lss, ws, starts)
+            back = np.stack([equivalent(L.y_from_z(z, ls), u, iota, inverse=True, kappa=kappa)
+                             for z, ls, u in zip(zs[iota, kappa], lss, um)])
             zb, ssb = _fit_and_ss(make_logs, base, back, lds, lss, ws, starts)
             better = ssb < ss0
             ss0, z0 = np.where(better, ssb, ss0), np.where(better[:, None], zb, z0)
         for j, i in enumerate(g):
-            gains = {iota: float(ss0[j] - ss[iota][j]) for iota in GRID}
+            gains = {m: float(ss0[j] - ss[m][j]) for m in MAPS}
             best = max(gains, key=gains.get)
             gain = max(gains[best], 0.0)
-            shift = np.asarray(zs[best][j][L.Z_V], np.float64) - np.asarray(z0[j][L.Z_V], np.float64)
-            out[i] = {"gain": gain, "idle": best if gain > 0 else None, "gains": gains,
-                      "thrust_to_weight": {0.0: float(np.exp(z0[j][L.LOG_TW])), best: float(np.exp(zs[best][j][L.LOG_TW]))},
-                      "shift": shift.tolist(), "power": float(max(abs(x) for x in gains.values()))}
+            shifts = {m: np.asarray(zs[m][j][L.Z_V], np.float64) - np.asarray(z0[j][L.Z_V], np.float64) for m in MAPS}
+            plausible = [m for m in MAPS if gains[m] >= gain - SPAN_TOL]
+            linear = [np.zeros(L.N_V)] if gain <= SPAN_TOL or not plausible else []     # the likelihood's own map
+            moved = np.stack(linear + [shifts[m] for m in plausible])
+            out[i] = {"gain": gain, "map": best if gain > 0 else None, "gains": gains,
+                      "thrust_to_weight": {None: float(np.exp(z0[j][L.LOG_TW])), best: float(np.exp(zs[best][j][L.LOG_TW]))},
+                      "shift": shifts[best].tolist(), "span": [moved.min(0).tolist(), moved.max(0).tolist()],
+                      "plausible": plausible, "power": float(max(abs(x) for x in gains.values()))}
     return out
+
+
+def describe(m) -> str:
+    """A map (ι, κ) in words: 'idle +0.10 Ω_max' for a linear one, 'idle −0.10 Ω_max, κ 0 (curved)' else."""
+    return f"idle {m[0]:+.2f} Ω_max" + ("" if m[1] == 1.0 else f", κ {m[1]:g} (curved)")
 
 
 def features(check: dict | None) -> dict:
     """A log's check (:func:`run`'s dict, or None) -> the model check's features: idle_gain (the statistic,
-    None where it did not run), idle_at (the best idle and thrust-to-weight under it, or why it did not run),
-    idle_shift (12,: the visible coordinates re-fitted under the best idle less those without, log units),
-    idle_power (the largest change of the fit any idle of the grid makes, either way: :func:`blind`)."""
+    None where it did not run), idle_at (the best map and thrust-to-weight under it, or why it did not run),
+    idle_shift (12,: the visible coordinates re-fitted under the best map less those under the linear one, log
+    units), idle_span (2, 12: the least and the largest shift over the plausible maps), idle_power (the largest
+    change of the fit any map of :data:`MAPS` makes, either way: :func:`blind`)."""
     if not check or check.get("gain") is None:
-        return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_shift": None, "idle_power": None}
-    at = "no idle fits better"
-    if check.get("idle") is not None:
+        return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_shift": None,
+                "idle_span": None, "idle_power": None}
+    at = "no other map fits better"
+    if check.get("map") is not None:
         tw = check["thrust_to_weight"]
-        at = (f"idle {check['idle']:+.2f} Ω_max: thrust-to-weight {tw[check['idle']]:.3g} against "
-              f"{tw[0.0]:.3g} without")
+        at = f"{describe(check['map'])}: thrust-to-weight {tw[check['map']]:.3g} against {tw[None]:.3g} under the linear map"
     return {"idle_gain": float(check["gain"]), "idle_at": at, "idle_shift": check.get("shift"),
-            "idle_power": check.get("power")}
+            "idle_span": check.get("span"), "idle_power": check.get("power")}
 
 
 def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
-    """The table's :data:`KEY` entry from rows carrying the statistic (``features.idle_gain``) -> {threshold,
-    quantile, logs, above, levels}, or None where fewer than :data:`MIN_LOGS` carry it."""
-    return thresholds.entry(rows, "idle_gain", quantile, MIN_LOGS)
+    """The table's :data:`KEY` entry from rows carrying the statistic over :data:`MAPS` (``features.idle_gain``
+    beside ``idle_span``: rows with the gain alone carry the linear maps' statistic, collected before the curved
+    maps, and are left out) -> {threshold, quantile, logs, above, levels}, or None where fewer than
+    :data:`MIN_LOGS` carry it."""
+    current = [r for r in rows if (r.get("features") or {}).get("idle_span") is not None]
+    return thresholds.entry(current, "idle_gain", quantile, MIN_LOGS)
 
 
 def verdict(feats: dict, table: dict) -> dict:
     """The check's verdict for a log's features against the table's threshold -> {value, threshold, ok (None:
     not run), why}."""
     return thresholds.verdict(feats.get("idle_gain"), feats.get("idle_at", ""), table.get(KEY), "motor-map check",
-                              "idle gain", ".1f", WHY)
+                              "map gain", ".1f", WHY)
 
 
-def widening(verdict_: dict, feats: dict, j: int) -> float | None:
-    """How visible coordinate j's calibrated band is widened on a log (log units, signed: the side it is
-    widened on): 0 unless the log is flagged (``verdict_``: :func:`verdict`'s); on a flagged log its shift
-    under the best idle (``feats["idle_shift"][j]``), so that the band holds the value under either map; None
-    where a flagged log carries no shifts (rows collected before them): every coordinate fails."""
+def widening(verdict_: dict, feats: dict, j: int) -> tuple[float, float] | None:
+    """How visible coordinate j's calibrated band moves on a log (log units: (its lower edge's move, its upper
+    edge's move)): none unless the log is flagged (``verdict_``: :func:`verdict`'s); on a flagged log, by the
+    span of its shifts over the plausible maps (``feats["idle_span"]``), so that the band is the union of the
+    bands under each (the linear map's among them only where it is plausible); where a row carries no span,
+    toward the best map's shift (``idle_shift``), the linear map kept; None where it carries neither (rows
+    collected before them): every coordinate fails."""
     if verdict_.get("ok") is not False:
-        return 0.0
-    shift = feats.get("idle_shift")
-    return None if shift is None else float(shift[j])
+        return 0.0, 0.0
+    span, shift = feats.get("idle_span"), feats.get("idle_shift")
+    if span is not None:
+        return float(span[0][j]), float(span[1][j])
+    if shift is None:
+        return None
+    return min(float(shift[j]), 0.0), max(float(shift[j]), 0.0)
 
 
 BLIND_WHY = ("thrust-to-weight assumes thrust ∝ command²: this flight's collective varied too little to test it "
-             "(no idle offset of {grid} Ω_max changes the fit by more than the motor-map check's threshold), and an "
-             "idle would move thrust-to-weight without changing the fit")
+             "(no other command→speed map, idle offsets {grid} Ω_max or curved, changes the fit by more than the "
+             "motor-map check's threshold), and another map would move thrust-to-weight without changing the fit")
 """What the report adds to thrust-to-weight on a log the check cannot test (:func:`blind`)."""
 
 
 def blind(verdict_: dict, feats: dict) -> bool:
-    """Is the check blind on a log: it ran and passed, and no idle of :data:`GRID` changes the fit by more than
-    the threshold either way (``idle_power``; a hover: its collective barely moves, so an idle and
+    """Is the check blind on a log: it ran and passed, and no map of :data:`MAPS` changes the fit by more than
+    the threshold either way (``idle_power``; a hover: its collective barely moves, so the map and
     thrust-to-weight trade off exactly)?"""
     power = feats.get("idle_power")
     return verdict_.get("ok") is True and power is not None and power <= verdict_["threshold"]

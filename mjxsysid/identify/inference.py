@@ -14,8 +14,8 @@ log, so θ = θ(v, h) with h drawn from the prior.
    decoded samples and from prior draws, δ re-set from the best fit's residuals between rounds;
    then the correlation discounts w, and a Gauss–Newton precision of the tempered Student-t
    residuals there (the Laplace proposal, a Student-t). From the mode, the fit with longer rate
-   windows: the model check's window-length test (:mod:`.windowcheck`); with an idle offset in the motor
-   map: its motor-map test (:mod:`.idlecheck`).
+   windows: the model check's window-length test (:mod:`.windowcheck`); under other command→speed maps
+   (idle offsets, curved): its motor-map test (:mod:`.idlecheck`).
 1. **Importance sampling from the decoders.** The decoded samples θ (S, 19) mapped to v are
    fitted by a Gaussian (widened by :data:`~.proposals.PROPOSAL_WIDEN`), the nuisances' proposal centred on
    the log's own noise estimate; N draws are weighted by target / proposal. Reported: the
@@ -394,7 +394,7 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
     w = np.stack([m[2] for m in modes]).astype(np.float32)
     laps = [m[4] for m in modes]
     checks = window_check(_Logs, datas, modes, prior, starts)        # the fit at longer rate windows (.windowcheck)
-    idles = idlecheck.run(_Logs, datas, modes, starts)                # the fit with an idle offset (.idlecheck)
+    idles = idlecheck.run(_Logs, datas, modes, starts)                # the fit under other motor maps (.idlecheck)
     outs = [{"proposal": "decoded" if qvs[i] is not None else "prior", "mode": modes[i][0], "weights": modes[i][2],
              "channels_used": np.asarray(d.use), "rates": d.rates, "window_check": checks[i], "idle_check": idles[i]}
             for i, d in enumerate(datas)]

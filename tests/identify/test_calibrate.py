@@ -297,7 +297,8 @@ def test_the_window_checks_threshold_is_fitted_on_rows_that_carry_its_statistic(
 
 def test_the_motor_map_checks_threshold_is_fitted_beside_the_window_checks(tmp_path):
     """fit_file fits the motor-map check's threshold from the rows and the pooled simulated logs that carry
-    its statistic, and keeps the base table's where fewer than idlecheck.MIN_LOGS do."""
+    its statistic (rows with the linear maps' alone, collected before the curved maps, left out), and keeps
+    the base table's where fewer than idlecheck.MIN_LOGS do."""
     from mjxsysid.identify import idlecheck as I
     rng = np.random.default_rng(6)
     base = tmp_path / "base.json"
@@ -308,9 +309,12 @@ def test_the_motor_map_checks_threshold_is_fitted_beside_the_window_checks(tmp_p
                        window_rows=[{"level": "x1", "features": {"idle_gain": 1.0}}] * 10)
     assert kept[I.KEY]["threshold"] == 77.0
     gains = rng.exponential(1.0, 300)
-    pooled = [{"level": "clean", "features": {"window_shift": None, "idle_gain": float(g)}} for g in gains]
+    span = [[0.0] * 12, [0.0] * 12]
+    pooled = [{"level": "clean", "features": {"window_shift": None, "idle_gain": float(g), "idle_span": span}}
+              for g in gains]
+    old = [{"level": "x1", "features": {"idle_gain": 1e3, "idle_span": None}}] * 30    # the linear maps' statistic
     fitted = pc.fit_file([tmp_path / "rows.json"], tmp_path / "fitted.json", method="smc_nuts", base=base,
-                         window_rows=pooled)
+                         window_rows=pooled + old)
     assert fitted[I.KEY]["logs"] == 300 and fitted[I.KEY]["above"] <= 3
     assert fitted[I.KEY]["threshold"] == pytest.approx(np.quantile(gains, 0.99, method="higher"), rel=1e-4)
     assert C.load(tmp_path / "fitted.json")[I.KEY] == fitted[I.KEY]

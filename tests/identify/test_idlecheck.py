@@ -9,7 +9,7 @@ from mjxsysid import theta as P
 from mjxsysid.identify import calibrate as C
 from mjxsysid.identify import idlecheck as I
 from mjxsysid.identify import logspace as L
-from mjxsysid.identify.coords import PHYSICAL_PRIOR
+from mjxsysid.identify.coords import PHYSICAL_PRIOR, visible_from_theta
 from mjxsysid.identify.inference import _Logs, _starts
 from mjxsysid.identify.logdata import prepare
 from mjxsysid.identify.mode import find_modes
@@ -44,6 +44,16 @@ def test_mapped_commands_and_the_equivalent_vehicle():
     assert np.exp(e[L.LOG_AUTH_X]) * s * 0.9 == pytest.approx(np.exp(y[L.LOG_AUTH_X]) * 0.5, rel=1e-5)
     assert e[L.LOG_TAU_M] == y[L.LOG_TAU_M] and e[L.LOG_AUTH_Z] == y[L.LOG_AUTH_Z]
     assert np.allclose(I.equivalent(e, 0.5, 0.1, inverse=True), y, atol=1e-6)
+    # the simulator's map, curved: the same share of Ω_max, and the torque per differential by its slope
+    from mjxsysid.sim.quadrotor import SimConfig, commanded_speed
+    cfg = SimConfig(motor_idle=-0.1, motor_kappa=0.3)
+    uu = np.linspace(0.0, 1.0, 41)[:, None].repeat(4, 1)
+    assert np.allclose(I.mapped(uu, -0.1, 0.3), np.asarray(commanded_speed(uu, 1.0, cfg)), atol=1e-6)
+    s, h = float(I.mapped(0.5, -0.1, 0.3)), 1e-4
+    slope = float(I.mapped(0.5 + h, -0.1, 0.3) - I.mapped(0.5 - h, -0.1, 0.3)) / (2 * h)
+    e = I.equivalent(y, 0.5, -0.1, kappa=0.3)
+    assert np.exp(e[L.LOG_TW]) * s ** 2 == pytest.approx(np.exp(y[L.LOG_TW]) * 0.5 ** 2, rel=1e-5)
+    assert np.exp(e[L.LOG_AUTH_X]) * s * slope == pytest.approx(np.exp(y[L.LOG_AUTH_X]) * 0.5, rel=1e-4)
 
 
 def test_an_idling_motor_fails_the_check_and_the_same_vehicle_without_idle_passes():
@@ -53,21 +63,24 @@ def test_an_idling_motor_fails_the_check_and_the_same_vehicle_without_idle_passe
     fits = _check(synthetic_log(th, seconds=6.0, closed_loop=True, gyro_noise=0.01))
     idles = _check(_idle_log(th, IDLE, seconds=6.0, closed_loop=True, gyro_noise=0.01))
     assert fits["gain"] < thr < idles["gain"], (fits["gain"], thr, idles["gain"])
-    assert idles["idle"] == IDLE
+    assert idles["map"] == (IDLE, 1.0)
     tw = idles["thrust_to_weight"]
-    assert tw[IDLE] < tw[0.0]                       # without the idle, thrust-to-weight comes out high
+    assert tw[IDLE, 1.0] < tw[None]                 # without the idle, thrust-to-weight comes out high
     feats = {f: -1.0 for f in C.FEATURE_NAMES} | {"rates_used": True}
     bad = C.model_check(feats | I.features(idles), [1.0] * 4, table)
-    assert bad["idle"]["ok"] is False and "idle offset" in bad["reasons"][-1] and f"{IDLE:+.2f}" in bad["reasons"][-1]
+    assert bad["idle"]["ok"] is False and "command→speed map" in bad["reasons"][-1] and f"{IDLE:+.2f}" in bad["reasons"][-1]
     good = C.model_check(feats | I.features(fits), [1.0] * 4, table)
     assert good["idle"]["ok"] is True and all(good["ok"].values())
     # thrust-to-weight re-fitted under the idle: lower, by the shift the bands are widened with
     shift = idles["shift"][L.LOG_TW]
-    assert shift == pytest.approx(np.log(tw[IDLE] / tw[0.0]), abs=1e-4) and shift < -0.05
+    assert shift == pytest.approx(np.log(tw[IDLE, 1.0] / tw[None]), abs=1e-4) and shift < -0.05
     f_bad = feats | I.features(idles)
-    assert I.widening(bad["idle"], f_bad, L.LOG_TW) == shift
-    assert I.widening(good["idle"], feats | I.features(fits), L.LOG_TW) == 0.0
-    assert I.widening(bad["idle"], f_bad | {"idle_shift": None}, L.LOG_TW) is None     # rows without shifts
+    low, high = I.widening(bad["idle"], f_bad, L.LOG_TW)          # the span of the plausible maps holds the idle's
+    assert low <= shift <= high and (IDLE, 1.0) in idles["plausible"], idles["plausible"]
+    assert high < 0.0 and idles["gain"] > I.SPAN_TOL              # the linear map is not plausible: its value left out
+    assert I.widening(bad["idle"], f_bad | {"idle_span": None}, L.LOG_TW) == (shift, 0.0)     # rows without a span
+    assert I.widening(good["idle"], feats | I.features(fits), L.LOG_TW) == (0.0, 0.0)
+    assert I.widening(bad["idle"], f_bad | {"idle_shift": None, "idle_span": None}, L.LOG_TW) is None
 
 
 def test_calibrate_widens_a_flagged_logs_bands_toward_the_value_under_the_idle():
@@ -77,18 +90,30 @@ def test_calibrate_widens_a_flagged_logs_bands_toward_the_value_under_the_idle()
     feats = {f: -1.0 for f in C.FEATURE_NAMES} | {"rates_used": True, "velocity_used": False, "rotor_speed_used": False}
     shift = np.zeros(L.N_V)
     shift[L.LOG_TW] = -0.3                      # the idle moves thrust-to-weight down, nothing else
-    flagged = feats | {"idle_gain": 1e3, "idle_at": "idle +0.10 Ω_max", "idle_shift": shift.tolist()}
-    passed = feats | {"idle_gain": 0.0, "idle_at": "no idle fits better", "idle_shift": shift.tolist()}
+    flagged = feats | {"idle_gain": 1e3, "idle_at": "idle +0.10 Ω_max", "idle_shift": shift.tolist(), "idle_span": None}
+    passed = feats | {"idle_gain": 0.0, "idle_at": "no other map fits better", "idle_shift": shift.tolist()}
     out_f, rep_f = C.calibrate(v, flagged, [1.0] * 4, table)
     out_p, rep_p = C.calibrate(v, passed, [1.0] * 4, table)
     lo_f, hi_f = np.percentile(out_f[:, L.LOG_TW], [5, 95])
     lo_p, hi_p = np.percentile(out_p[:, L.LOG_TW], [5, 95])
     assert lo_f == pytest.approx(lo_p - 0.3, abs=0.02) and hi_f == pytest.approx(hi_p, abs=0.01)
-    assert rep_f["factor"][L.LOG_TW] > rep_p["factor"][L.LOG_TW] and "widened by 0.3 (log units) down" in rep_f["why"][L.LOG_TW]
+    assert rep_f["factor"][L.LOG_TW] > rep_p["factor"][L.LOG_TW] and "edges moved by -0.3 and +0" in rep_f["why"][L.LOG_TW]
     assert rep_f["factor"][L.LOG_AUTH_X] == pytest.approx(rep_p["factor"][L.LOG_AUTH_X])     # not moved: not widened
-    assert "idle offset" in rep_f["check"]["reasons"][-1]
+    assert "command→speed map" in rep_f["check"]["reasons"][-1]
+    span = [np.minimum(shift, 0).tolist(), np.maximum(shift, 0).tolist()]
+    span[1][L.LOG_AUTH_X] = 0.2                 # a curved map moves the roll authority up: widened up, not down
+    out_s, rep_s = C.calibrate(v, flagged | {"idle_span": span}, [1.0] * 4, table)
+    assert np.percentile(out_s[:, L.LOG_TW], 5) == pytest.approx(lo_f, abs=0.01)
+    lo_a, hi_a = np.percentile(out_s[:, L.LOG_AUTH_X], [5, 95])
+    assert hi_a - np.percentile(out_p[:, L.LOG_AUTH_X], 95) == pytest.approx(0.2, abs=0.02)
+    assert lo_a == pytest.approx(np.percentile(out_p[:, L.LOG_AUTH_X], 5), abs=0.01) and "+0.2" in rep_s["why"][L.LOG_AUTH_X]
+    moved = np.zeros((2, L.N_V))
+    moved[:, L.LOG_TW] = -0.5, -0.2                             # the linear map rejected: the band moves down whole
+    out_m = C.calibrate(v, flagged | {"idle_span": [m.tolist() for m in moved]}, [1.0] * 4, table)[0]
+    assert np.percentile(out_m[:, L.LOG_TW], 5) == pytest.approx(lo_p - 0.5, abs=0.02)
+    assert np.percentile(out_m[:, L.LOG_TW], 95) == pytest.approx(hi_p - 0.2, abs=0.02)
     lost = C.calibrate(v, flagged | {"idle_shift": None}, [1.0] * 4, table)[1]     # no shifts: nothing seen
-    assert not lost["seen"].any() and "idle offset" in lost["why"][L.LOG_AUTH_X]
+    assert not lost["seen"].any() and "command→speed map" in lost["why"][L.LOG_AUTH_X]
 
 
 def test_the_check_says_when_it_did_not_run():
@@ -112,7 +137,7 @@ def test_a_flight_that_cannot_test_the_map_says_so_on_thrust_to_weight():
     rng = np.random.default_rng(1)
     v = np.asarray(PHYSICAL_PRIOR.sample_v(rng, 1), np.float64)[0] + 0.01 * rng.standard_normal((400, L.N_V))
     feats = {f: -1.0 for f in C.FEATURE_NAMES} | {"rates_used": True, "velocity_used": False, "rotor_speed_used": False,
-                                                  "idle_gain": 0.0, "idle_at": "no idle fits better",
+                                                  "idle_gain": 0.0, "idle_at": "no other map fits better",
                                                   "idle_shift": [0.0] * L.N_V}
     hover = feats | {"idle_power": 0.5 * thr}
     figure8 = feats | {"idle_power": 100 * thr}
@@ -122,3 +147,18 @@ def test_a_flight_that_cannot_test_the_map_says_so_on_thrust_to_weight():
     why_f = C.calibrate(v, figure8, [1.0] * 4, table)[1]["why"]
     assert "collective varied too little" in why_h[L.LOG_TW] and "collective" not in why_f[L.LOG_TW]
     assert "collective" not in why_h[L.LOG_AUTH_X]
+
+
+def test_a_curved_map_is_flagged_and_the_span_of_plausible_maps_holds_the_truth():
+    """The Crazyflie's kind of map, Ω ∝ √u less a dead band: the check flags it, a curved map fits best and
+    re-fits thrust-to-weight near the truth, and the widened band reaches the truth."""
+    th = P.paper_hardware()
+    true_tw = float(np.asarray(visible_from_theta(th))[L.LOG_TW])
+    c = _check(synthetic_log(th, seconds=6.0, closed_loop=True, gyro_noise=0.01,
+                             motor_map=lambda u: I.mapped(u, -0.1, 0.0)))
+    assert c["gain"] > C.load()[I.KEY]["threshold"] and c["map"][1] < 1.0, (c["gain"], c["map"])
+    fit0 = np.log(c["thrust_to_weight"][None])
+    assert fit0 - true_tw > 0.5                                       # the linear map's thrust-to-weight: far too high
+    assert abs(np.log(c["thrust_to_weight"][c["map"]]) - true_tw) < 0.15, c["thrust_to_weight"]
+    low, high = I.widening({"ok": False}, I.features(c), L.LOG_TW)
+    assert fit0 + low <= true_tw and (-0.1, 0.0) in c["plausible"] and "(curved)" in I.features(c)["idle_at"]

@@ -10,7 +10,7 @@ DT = 0.002
 
 def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, closed_loop=False, drag=None,
                   speed_noise=None, motor_delay=0, rotor_gain=None, rotor_offset=None, gyro_vibration=0.0,
-                  torque_noise=0.0):
+                  torque_noise=0.0, motor_map=None):
     """Fly θ (19,) open loop around hover with a rate damper and chirp excitation -> imu, motor.
     ``closed_loop``: instead, a rate P controller on the *measured* (noisy) rates tracking a slow
     sinusoid: the commands react to the gyro's noise, the feedback that biases an equation error.
@@ -26,7 +26,9 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
     at the rotors' mean speed / 2π aliased into the 250 Hz band.
     ``torque_noise`` (rad/s²): a disturbance's angular acceleration the model lacks, an Ornstein–Uhlenbeck
     process (0.1 s correlation) of this standard deviation per axis, that a closed loop answers within a
-    rate window."""
+    rate window. ``motor_map``: a command→speed share map (a callable on (4,) commands in [0, 1], increasing):
+    the rotors lag toward Ω_max · motor_map(u) instead of Ω_max · u (the simulator's ``motor_idle`` and
+    ``motor_kappa``), the hover command its inverse at the hover speed; the log keeps the commands."""
     rng = np.random.default_rng(seed)
     t = np.asarray(theta, np.float64)
     eta, tau, wmax = t[P.ETA], t[P.TAU_M], t[P.OMEGA_MAX]
@@ -37,8 +39,15 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
     gain = wmax * (np.ones(4) if rotor_gain is None else np.asarray(rotor_gain, np.float64))
     off = np.zeros(4) if rotor_offset is None else np.asarray(rotor_offset, np.float64)
     hover = (np.sqrt(m * P.GRAVITY / (4 * kt * eta)) - off) / gain
-    w, meas = np.zeros(3), np.zeros(3)
     s = hover.copy()
+    if motor_map is not None:               # the command whose mapped share is the hover speed's (bisection)
+        lo_u, hi_u = np.zeros(4), np.ones(4)
+        for _ in range(60):
+            mid = 0.5 * (lo_u + hi_u)
+            below = motor_map(mid) < hover
+            lo_u, hi_u = np.where(below, mid, lo_u), np.where(below, hi_u, mid)
+        hover = 0.5 * (lo_u + hi_u)
+    w, meas = np.zeros(3), np.zeros(3)
     imu, mot, speed = np.zeros((n, 6)), np.zeros((n, 4)), np.zeros((n, 4))
     imu[0, 5] = P.GRAVITY
     a = np.exp(-DT / tau)
@@ -57,6 +66,8 @@ def synthetic_log(theta, seconds=6.0, gyro_noise=0.0, acc_noise=0.0, seed=0, clo
                              + P.YAW_SIGNS * cmd[2]), 0, 1)
         mot[k] = u
         u = mot[k - motor_delay] if k >= motor_delay else hover
+        if motor_map is not None:
+            u = motor_map(u)
         speed[k] = gain * s + off
         d0 = s - u
         ms = u * u + 2 * u * d0 * tau / DT * (1 - a) + d0 * d0 * tau / (2 * DT) * (1 - a * a)
