@@ -10,10 +10,11 @@ the Crazyflie-like √u map) and the GPU misfit rows (idle 0.1; collected before
 - none: the check ignored;
 - drop all: every coordinate not seen (a flagged log without shifts, the check's first version);
 - drop moved: a coordinate whose value under the best idle lies outside its calibrated band is not seen;
-- widen idle: each band widened on one side to hold that value;
-- widen span (shipped): each band widened to hold its values under every plausible map, linear or curved
-  (``idle_span``, :func:`~mjxsysid.identify.calibrate.checked_stretch`); rows collected before the span get
-  "widen idle".
+- widen best: each band widened on one side to hold its value under the best map (linear or curved);
+- widen span, linear kept: the band the union of the bands under every plausible map and the linear one;
+- widen span (shipped): the union of the bands under every plausible map, the linear one among them only
+  where it is plausible (``idle_span``, :func:`~mjxsysid.identify.calibrate.checked_stretch`); rows collected
+  before the span get "widen best".
 
 Coverage is over the coordinates each rule leaves seen (:func:`~mjxsysid.experiments.posterior_calibration.calibrated_bands`).
 """
@@ -43,11 +44,15 @@ def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarra
     if rule == "none":
         return calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)
     if rule == "drop all":
-        return calibrated_bands(row | {"features": f | {"idle_shift": None}}, table)
+        return calibrated_bands(row | {"features": f | {"idle_shift": None, "idle_span": None}}, table)
     if rule == "widen span":
         return calibrated_bands(row, table)
-    if rule == "widen idle":
+    if rule == "widen best":
         return calibrated_bands(row | {"features": f | {"idle_span": None}}, table)
+    if rule == "widen span, linear kept":
+        span = f.get("idle_span")
+        keep = None if span is None else [np.minimum(span[0], 0).tolist(), np.maximum(span[1], 0).tolist()]
+        return calibrated_bands(row | {"features": f | {"idle_span": keep}}, table)
     band, ok = calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)      # drop moved
     flagged = (f.get("idle_gain") or 0.0) > table["idle_check"]["threshold"]
     if flagged and f.get("idle_shift") is not None:
@@ -98,7 +103,8 @@ def main() -> None:
                      f"{sum(r.get('flight', '?').startswith(fl) for r in rows)}" for fl in flights}
         print(f"{name}: {len(rows)} logs, flagged at {thr:g}: {flags}")
         shifts = all(r["features"].get("idle_shift") is not None for r in rows)
-        rules = ("none", "drop all", "drop moved", "widen idle", "widen span") if shifts else ("none", "drop all")
+        rules = (("none", "drop all", "drop moved", "widen best", "widen span, linear kept", "widen span") if shifts
+                 else ("none", "drop all"))
         for rule in rules:
             t = {m: for_method(base, m) for m in ("smc", "smc_nuts")}
             rs = {m: [r for r in rows if r.get("method") == m] for m in t}
@@ -106,7 +112,7 @@ def main() -> None:
             n = sum(p["n"] for p in parts)
             avg = {k: round(sum(p[k] * p["n"] for p in parts) / n, 3)
                    for k in ("coverage", "seen", "tw", "tw_seen", "tw_width")}
-            print(f"  {rule:>10}: inside {avg['coverage']:.2f} of the seen, {100 * avg['seen']:.0f} % seen; "
+            print(f"  {rule:>23}: inside {avg['coverage']:.2f} of the seen, {100 * avg['seen']:.0f} % seen; "
                   f"thrust-to-weight {avg['tw']:.2f} where seen ({100 * avg['tw_seen']:.0f} % seen, "
                   f"median band ±{avg['tw_width']:.0f} %)")
 

@@ -43,12 +43,8 @@ def fleet_row(name: str, summary: dict | None, error: str | None = None) -> dict
                                         for q, g in gap.items()},
             "posterior": (summary or {}).get("_posterior")}
 
-
-WIDENED = "the motor-map check"
-"""What a quantity's reason says where the motor-map check widened its band (:mod:`mjxsysid.identify.idlecheck`)."""
-
-
 def _cell(q: str, v: dict | None) -> str:
+    from mjxsysid.identify.idlecheck import WIDENED
     if not v or not v["seen"]:
         return "–"
     k = 1e3 if q == "motor_time_constant" else 1.0

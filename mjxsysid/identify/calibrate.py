@@ -480,8 +480,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             note += "; " + idlecheck.BLIND_WHY.format(grid=", ".join(f"{g:+g}" for g in idlecheck.GRID))
         s = idlecheck.widening(check["idle"], features, j) if flagged else (0.0, 0.0)
         if any(s):
-            note += (f"; its edges moved by {s[0]:+.3g} and {s[1]:+.3g} (log units) to hold its value under every "
-                     f"command→speed map that fits the log about as well as the best (the motor-map check)")
+            note += f"; its edges moved by {s[0]:+.3g} and {s[1]:+.3g} (log units) {idlecheck.WIDENED} (the motor-map check)"
         if at_bound[j] and width[j] < UNSEEN_FRACTION * pw[j]:
             why[j] = ("the band lies against the prior's bound: the log asks for a vehicle beyond the physical "
                       "prior, a sign the model does not fit this log (motor model, units, rotor order)")

@@ -65,6 +65,9 @@ SCALED = (L.LOG_AUTH_X, L.LOG_AUTH_Y, L.LOG_YAW)
 WHY = ("another command→speed map fits the log better; thrust-to-weight and the authorities "
        "depend on it, so their bands are widened toward their values under it")
 
+WIDENED = "to hold its value under every command→speed map that fits the log about as well as the best"
+"""What a band's reason says where the check moved its edges (:func:`widening`; fleet tables mark it)."""
+
 SPEED_SKIP = "not run: the measured rotor speeds fit the command→speed map, idle offset included"
 
 

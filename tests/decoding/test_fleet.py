@@ -36,7 +36,12 @@ def test_the_fleet_table_shows_what_each_log_saw_and_why_one_was_refused():
     assert "2 (1.9–2.1)" in line_a and "| – |" in line_a and "1 of 2" in line_a
     assert "refused: never armed" in md and "| c.csv |" in md and "decoder-only |" in md
     assert "2 (1.9–2.1) |" in line_a                                   # not widened: no mark
-    widened = dict(seen, seen_why="calibrated band 0.1 of the prior's range, the motor-map check flagged the log")
+    from mjxsysid.identify.idlecheck import BLIND_WHY, WIDENED
+    widened = dict(seen, seen_why=f"calibrated band 0.1 of the prior's range, the motor-map check flagged the log; "
+                                  f"its edges moved by -0.1 and +0 (log units) {WIDENED} (the motor-map check)")
+    blind = dict(seen, seen_why="calibrated band 0.1 of the prior's range, model check passed; " + BLIND_WHY)
+    md_blind = fleet_markdown([fleet_row("e.ulg", summary | {"_log_grounded": {"gap": {"thrust_to_weight": blind}}})])
+    assert "2 (1.9–2.1) |" in md_blind                                  # a blind check widens nothing: no mark
     md = fleet_markdown([fleet_row("d.bin", summary | {"_log_grounded": {"gap": {"thrust_to_weight": widened}}})])
     assert "2 (1.9–2.1)* |" in md and "'*': widened" in md
 
