@@ -20,8 +20,8 @@ thrust-to-weight 15–25 % high, and a √u map 2–3 times. A flight whose comm
 - The log shows the map only about the commands it flew; thrust-to-weight and Ω_max are its value at full
   command, an extrapolation each map makes differently. Every map whose sum of squares lies within
   :data:`SPAN_TOL` of the best is plausible, the linear map too where the gain is within it. On a log above
-  the threshold, each visible coordinate's calibrated band becomes the union of its bands under the plausible
-  maps: moved and widened by the span of their shifts (:func:`widening`; ``idle_span``). A band widened past
+  the threshold, each visible coordinate's calibrated band becomes the union of the band moved to its value
+  under each plausible map (:func:`widening`; ``idle_span``, their least and largest). A band widened past
   the "seen" rule's width is reported as not seen. A flagged log without the span (rows collected before
   it) is widened toward the best map's shift alone; one without either fails whole.
 
@@ -153,8 +153,8 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
     per log {gain (the statistic), map (the best (ι, κ) of :data:`MAPS`, None where none gains), gains {(ι, κ):
     SS(linear) − SS(ι, κ)}, thrust_to_weight {None: under the linear map, (ι, κ): under the best}, shift (12,:
     v under the best map less v under the linear one, log units), span (2, 12: the least and the largest
-    shift over the plausible maps, :data:`SPAN_TOL`; 0, the linear map's, among them where it is plausible
-    too), plausible [(ι, κ), ...], power (the
+    value of v over the plausible maps of :data:`MAPS`, :data:`SPAN_TOL`; None where none is), plausible
+    [(ι, κ), ...], power (the
     largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one shape are re-fitted together
     (``make_logs``: :class:`~.inference._Logs`; ``starts``: the starts per log its batched fit was compiled
     for)."""
@@ -193,11 +193,11 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
             gain = max(gains[best], 0.0)
             shifts = {m: np.asarray(zs[m][j][L.Z_V], np.float64) - np.asarray(z0[j][L.Z_V], np.float64) for m in MAPS}
             plausible = [m for m in MAPS if gains[m] >= gain - SPAN_TOL]
-            linear = [np.zeros(L.N_V)] if gain <= SPAN_TOL or not plausible else []     # the likelihood's own map
-            moved = np.stack(linear + [shifts[m] for m in plausible])
+            values = np.stack([np.asarray(zs[m][j][L.Z_V], np.float64) for m in plausible] or [np.full(L.N_V, np.nan)])
             out[i] = {"gain": gain, "map": best if gain > 0 else None, "gains": gains,
                       "thrust_to_weight": {None: float(np.exp(z0[j][L.LOG_TW])), best: float(np.exp(zs[best][j][L.LOG_TW]))},
-                      "shift": shifts[best].tolist(), "span": [moved.min(0).tolist(), moved.max(0).tolist()],
+                      "shift": shifts[best].tolist(),
+                      "span": None if not plausible else [values.min(0).tolist(), values.max(0).tolist()],
                       "plausible": plausible, "power": float(max(abs(x) for x in gains.values()))}
     return out
 
@@ -211,7 +211,8 @@ def features(check: dict | None) -> dict:
     """A log's check (:func:`run`'s dict, or None) -> the model check's features: idle_gain (the statistic,
     None where it did not run), idle_at (the best map and thrust-to-weight under it, or why it did not run),
     idle_shift (12,: the visible coordinates re-fitted under the best map less those under the linear one, log
-    units), idle_span (2, 12: the least and the largest shift over the plausible maps), idle_power (the largest
+    units), idle_span (2, 12: the least and the largest value of the visible coordinates over the plausible
+    maps), idle_power (the largest
     change of the fit any map of :data:`MAPS` makes, either way: :func:`blind`)."""
     if not check or check.get("gain") is None:
         return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_shift": None,
@@ -240,18 +241,22 @@ def verdict(feats: dict, table: dict) -> dict:
                               "map gain", ".1f", WHY)
 
 
-def widening(verdict_: dict, feats: dict, j: int) -> tuple[float, float] | None:
-    """How visible coordinate j's calibrated band moves on a log (log units: (its lower edge's move, its upper
-    edge's move)): none unless the log is flagged (``verdict_``: :func:`verdict`'s); on a flagged log, by the
-    span of its shifts over the plausible maps (``feats["idle_span"]``), so that the band is the union of the
-    bands under each (the linear map's among them only where it is plausible); where a row carries no span,
-    toward the best map's shift (``idle_shift``), the linear map kept; None where it carries neither (rows
-    collected before them): every coordinate fails."""
+def widening(verdict_: dict, feats: dict, j: int, median: float) -> tuple[float, float] | None:
+    """How visible coordinate j's calibrated band moves on a log whose posterior median is ``median`` (log
+    units: (its lower edge's move, its upper edge's move)): none unless the log is flagged (``verdict_``:
+    :func:`verdict`'s); on a flagged log, the band becomes the union of the calibrated band moved to each
+    plausible map's value (``feats["idle_span"]``: their least and largest) and, where the linear map is
+    plausible too (the gain within :data:`SPAN_TOL`), the band itself; where a row carries no span, the band is
+    widened toward the best map's shift (``idle_shift``); None where it carries neither (rows collected before
+    them): every coordinate fails."""
     if verdict_.get("ok") is not False:
         return 0.0, 0.0
     span, shift = feats.get("idle_span"), feats.get("idle_shift")
     if span is not None:
-        return float(span[0][j]), float(span[1][j])
+        lo, hi = float(span[0][j]) - median, float(span[1][j]) - median
+        if (feats.get("idle_gain") or 0.0) <= SPAN_TOL:
+            lo, hi = min(lo, 0.0), max(hi, 0.0)
+        return lo, hi
     if shift is None:
         return None
     return min(float(shift[j]), 0.0), max(float(shift[j]), 0.0)
