@@ -40,11 +40,11 @@ among them, which the calibration rows carrying the statistic lack): pooled with
 
 def window_rows(path: Path = WINDOW_SET) -> list[dict]:
     """The checks' simulated logs at ``path`` as calibration rows ({level, flight, features: {window_shift,
-    idle_gain, idle_span}}, each None where that check did not run)."""
+    idle_gain, idle_maps}}, each None where that check did not run)."""
     rows = json.loads(path.read_text())["rows"]
     return [{"level": r["level"], "flight": r["flight"],
              "features": {"window_shift": r.get("shift"), "idle_gain": r.get("idle_gain"),
-                          "idle_span": r.get("idle_span")}} for r in rows]
+                          "idle_maps": r.get("idle_maps")}} for r in rows]
 
 
 def _notes(path: Path) -> tuple[str, str]:

@@ -154,10 +154,9 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
     SS(linear) − SS(ι, κ)}, thrust_to_weight {None: under the linear map, (ι, κ): under the best}, shift (12,:
     v under the best map less v under the linear one, log units), span (2, 12: the least and the largest
     value of v over the plausible maps of :data:`MAPS`, :data:`SPAN_TOL`; None where none is), plausible
-    [(ι, κ), ...], power (the
-    largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one shape are re-fitted together
-    (``make_logs``: :class:`~.inference._Logs`; ``starts``: the starts per log its batched fit was compiled
-    for)."""
+    [(ι, κ), ...], power (the largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one shape
+    are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``: the starts per log its
+    batched fit was compiled for)."""
     out = [None] * len(datas)
     idx = []
     for i, d in enumerate(datas):
@@ -212,25 +211,25 @@ def features(check: dict | None) -> dict:
     None where it did not run), idle_at (the best map and thrust-to-weight under it, or why it did not run),
     idle_shift (12,: the visible coordinates re-fitted under the best map less those under the linear one, log
     units), idle_span (2, 12: the least and the largest value of the visible coordinates over the plausible
-    maps), idle_power (the largest
-    change of the fit any map of :data:`MAPS` makes, either way: :func:`blind`)."""
+    maps), idle_power (the largest change of the fit any map of :data:`MAPS` makes, either way: :func:`blind`),
+    idle_maps (how many maps the statistic is the best of: its version, :func:`threshold_entry`)."""
     if not check or check.get("gain") is None:
         return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_shift": None,
-                "idle_span": None, "idle_power": None}
+                "idle_span": None, "idle_power": None, "idle_maps": None}
     at = "no other map fits better"
     if check.get("map") is not None:
         tw = check["thrust_to_weight"]
         at = f"{describe(check['map'])}: thrust-to-weight {tw[check['map']]:.3g} against {tw[None]:.3g} under the linear map"
     return {"idle_gain": float(check["gain"]), "idle_at": at, "idle_shift": check.get("shift"),
-            "idle_span": check.get("span"), "idle_power": check.get("power")}
+            "idle_span": check.get("span"), "idle_power": check.get("power"), "idle_maps": len(check["gains"])}
 
 
 def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
     """The table's :data:`KEY` entry from rows carrying the statistic over :data:`MAPS` (``features.idle_gain``
-    beside ``idle_span``: rows with the gain alone carry the linear maps' statistic, collected before the curved
+    with ``idle_maps`` as many: rows without it carry the linear maps' statistic, collected before the curved
     maps, and are left out) -> {threshold, quantile, logs, above, levels}, or None where fewer than
     :data:`MIN_LOGS` carry it."""
-    current = [r for r in rows if (r.get("features") or {}).get("idle_span") is not None]
+    current = [r for r in rows if (r.get("features") or {}).get("idle_maps") == len(MAPS)]
     return thresholds.entry(current, "idle_gain", quantile, MIN_LOGS)
 
 

@@ -309,10 +309,9 @@ def test_the_motor_map_checks_threshold_is_fitted_beside_the_window_checks(tmp_p
                        window_rows=[{"level": "x1", "features": {"idle_gain": 1.0}}] * 10)
     assert kept[I.KEY]["threshold"] == 77.0
     gains = rng.exponential(1.0, 300)
-    span = [[0.0] * 12, [0.0] * 12]
-    pooled = [{"level": "clean", "features": {"window_shift": None, "idle_gain": float(g), "idle_span": span}}
+    pooled = [{"level": "clean", "features": {"window_shift": None, "idle_gain": float(g), "idle_maps": len(I.MAPS)}}
               for g in gains]
-    old = [{"level": "x1", "features": {"idle_gain": 1e3, "idle_span": None}}] * 30    # the linear maps' statistic
+    old = [{"level": "x1", "features": {"idle_gain": 1e3}}] * 30          # the linear maps' statistic: left out
     fitted = pc.fit_file([tmp_path / "rows.json"], tmp_path / "fitted.json", method="smc_nuts", base=base,
                          window_rows=pooled + old)
     assert fitted[I.KEY]["logs"] == 300 and fitted[I.KEY]["above"] <= 3
