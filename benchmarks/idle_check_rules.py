@@ -50,8 +50,8 @@ def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarra
     if rule == "widen best":
         return calibrated_bands(row | {"features": f | {"idle_span": None}}, table)
     if rule == "widen span, linear kept":
-        span, med = f.get("idle_span"), np.asarray(row["bands"], np.float64)[1]
-        keep = None if span is None else [np.minimum(span[0], med).tolist(), np.maximum(span[1], med).tolist()]
+        span = f.get("idle_span")
+        keep = None if span is None else [np.minimum(span[0], 0).tolist(), np.maximum(span[1], 0).tolist()]
         return calibrated_bands(row | {"features": f | {"idle_span": keep}}, table)
     band, ok = calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)      # drop moved
     flagged = (f.get("idle_gain") or 0.0) > table["idle_check"]["threshold"]

@@ -20,8 +20,9 @@ thrust-to-weight 15–25 % high, and a √u map 2–3 times. A flight whose comm
 - The log shows the map only about the commands it flew; thrust-to-weight and Ω_max are its value at full
   command, an extrapolation each map makes differently. Every map whose sum of squares lies within
   :data:`SPAN_TOL` of the best is plausible, the linear map too where the gain is within it. On a log above
-  the threshold, each visible coordinate's calibrated band becomes the union of the band moved to its value
-  under each plausible map (:func:`widening`; ``idle_span``, their least and largest). A band widened past
+  the threshold, each visible coordinate's calibrated band becomes the union of the band moved by its shift
+  under each plausible map (:func:`widening`; ``idle_span``, their least and largest; a shift is from the
+  linear map re-fitted from the mode, where the posterior sits). A band widened past
   the "seen" rule's width is reported as not seen. A flagged log without the span (rows collected before
   it) is widened toward the best map's shift alone; one without either fails whole.
 
@@ -151,9 +152,11 @@ def checkable(data) -> str | None:
 def run(make_logs, datas, modes, starts: int = 1) -> list:
     """The check of every log of ``datas`` from its mode (``modes``: :func:`~.mode.find_modes`' tuples) ->
     per log {gain (the statistic), map (the best (ι, κ) of :data:`MAPS`, None where none gains), gains {(ι, κ):
-    SS(linear) − SS(ι, κ)}, thrust_to_weight {None: under the linear map, (ι, κ): under the best}, shift (12,:
-    v under the best map less v under the linear one, log units), span (2, 12: the least and the largest
-    value of v over the plausible maps of :data:`MAPS`, :data:`SPAN_TOL`; None where none is), plausible
+    SS(linear) − SS(ι, κ)}, thrust_to_weight {None: under the linear map from the mode, (ι, κ): under the best}, shift (12,:
+    v under the best map less v under the linear one re-fitted from the mode, log units: the optimum the
+    posterior sits at, where the best of the linear map's re-fits, which the statistic takes, may lie
+    elsewhere), span (2, 12: the least and the largest shift over the plausible maps of :data:`MAPS`,
+    :data:`SPAN_TOL`; 0 where none is), plausible
     [(ι, κ), ...], power (the largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one shape
     are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``: the starts per log its
     batched fit was compiled for)."""
@@ -176,6 +179,7 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
         um = np.array([float(np.mean(datas[i]._rows["motor"])) for i in g])
         base = [datas[i] for i in g]
         z0, ss0 = _fit_and_ss(make_logs, base, ys, lds, lss, ws, starts)
+        z_mode = z0                                  # the linear map re-fitted from the mode: the shifts' origin
         ss, zs = {}, {}
         for iota, kappa in MAPS:
             var = [variant(d, iota, kappa) for d in base]
@@ -190,13 +194,14 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
             gains = {m: float(ss0[j] - ss[m][j]) for m in MAPS}
             best = max(gains, key=gains.get)
             gain = max(gains[best], 0.0)
-            shifts = {m: np.asarray(zs[m][j][L.Z_V], np.float64) - np.asarray(z0[j][L.Z_V], np.float64) for m in MAPS}
+            shifts = {m: np.asarray(zs[m][j][L.Z_V], np.float64) - np.asarray(z_mode[j][L.Z_V], np.float64) for m in MAPS}
             plausible = [m for m in MAPS if gains[m] >= gain - SPAN_TOL]
-            values = np.stack([np.asarray(zs[m][j][L.Z_V], np.float64) for m in plausible] or [np.full(L.N_V, np.nan)])
+            moved = np.stack([shifts[m] for m in plausible] or [np.zeros(L.N_V)])
             out[i] = {"gain": gain, "map": best if gain > 0 else None, "gains": gains,
-                      "thrust_to_weight": {None: float(np.exp(z0[j][L.LOG_TW])), best: float(np.exp(zs[best][j][L.LOG_TW]))},
+                      "thrust_to_weight": {None: float(np.exp(z_mode[j][L.LOG_TW])),
+                                           best: float(np.exp(zs[best][j][L.LOG_TW]))},
                       "shift": shifts[best].tolist(),
-                      "span": None if not plausible else [values.min(0).tolist(), values.max(0).tolist()],
+                      "span": [moved.min(0).tolist(), moved.max(0).tolist()],
                       "plausible": plausible, "power": float(max(abs(x) for x in gains.values()))}
     return out
 
@@ -210,8 +215,7 @@ def features(check: dict | None) -> dict:
     """A log's check (:func:`run`'s dict, or None) -> the model check's features: idle_gain (the statistic,
     None where it did not run), idle_at (the best map and thrust-to-weight under it, or why it did not run),
     idle_shift (12,: the visible coordinates re-fitted under the best map less those under the linear one, log
-    units), idle_span (2, 12: the least and the largest value of the visible coordinates over the plausible
-    maps), idle_power (the largest change of the fit any map of :data:`MAPS` makes, either way: :func:`blind`),
+    units), idle_span (2, 12: the least and the largest such shift over the plausible maps), idle_power (the largest change of the fit any map of :data:`MAPS` makes, either way: :func:`blind`),
     idle_maps (how many maps the statistic is the best of: its version, :func:`threshold_entry`)."""
     if not check or check.get("gain") is None:
         return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_shift": None,
@@ -240,19 +244,18 @@ def verdict(feats: dict, table: dict) -> dict:
                               "map gain", ".1f", WHY)
 
 
-def widening(verdict_: dict, feats: dict, j: int, median: float) -> tuple[float, float] | None:
-    """How visible coordinate j's calibrated band moves on a log whose posterior median is ``median`` (log
-    units: (its lower edge's move, its upper edge's move)): none unless the log is flagged (``verdict_``:
-    :func:`verdict`'s); on a flagged log, the band becomes the union of the calibrated band moved to each
-    plausible map's value (``feats["idle_span"]``: their least and largest) and, where the linear map is
-    plausible too (the gain within :data:`SPAN_TOL`), the band itself; where a row carries no span, the band is
-    widened toward the best map's shift (``idle_shift``); None where it carries neither (rows collected before
-    them): every coordinate fails."""
+def widening(verdict_: dict, feats: dict, j: int) -> tuple[float, float] | None:
+    """How visible coordinate j's calibrated band moves on a log (log units: (its lower edge's move, its upper
+    edge's move)): none unless the log is flagged (``verdict_``: :func:`verdict`'s); on a flagged log, the band
+    becomes the union of the band moved by each plausible map's shift (``feats["idle_span"]``: the least and
+    the largest) and, where the linear map is plausible too (the gain within :data:`SPAN_TOL`), the band
+    itself; where a row carries no span, the band is widened toward the best map's shift (``idle_shift``);
+    None where it carries neither (rows collected before them): every coordinate fails."""
     if verdict_.get("ok") is not False:
         return 0.0, 0.0
     span, shift = feats.get("idle_span"), feats.get("idle_shift")
     if span is not None:
-        lo, hi = float(span[0][j]) - median, float(span[1][j]) - median
+        lo, hi = float(span[0][j]), float(span[1][j])
         if (feats.get("idle_gain") or 0.0) <= SPAN_TOL:
             lo, hi = min(lo, 0.0), max(hi, 0.0)
         return lo, hi

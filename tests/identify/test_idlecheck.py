@@ -75,15 +75,12 @@ def test_an_idling_motor_fails_the_check_and_the_same_vehicle_without_idle_passe
     shift = idles["shift"][L.LOG_TW]
     assert shift == pytest.approx(np.log(tw[IDLE, 1.0] / tw[None]), abs=1e-4) and shift < -0.05
     f_bad = feats | I.features(idles)
-    m0 = float(np.log(tw[None]))                                   # the band's median: the linear map's value
-    low, high = I.widening(bad["idle"], f_bad, L.LOG_TW, m0)       # the span of the plausible maps holds the idle's
+    low, high = I.widening(bad["idle"], f_bad, L.LOG_TW)           # the span of the plausible maps holds the idle's
     assert low - 1e-5 <= shift <= high + 1e-5 and (IDLE, 1.0) in idles["plausible"], idles["plausible"]
     assert high < 0.0 and idles["gain"] > I.SPAN_TOL              # the linear map is not plausible: its value left out
-    assert low == pytest.approx(min(idles["span"][0][L.LOG_TW] - m0, 0.0) if idles["gain"] <= I.SPAN_TOL else
-                                idles["span"][0][L.LOG_TW] - m0)
-    assert I.widening(bad["idle"], f_bad | {"idle_span": None}, L.LOG_TW, m0) == (shift, 0.0)     # rows without a span
-    assert I.widening(good["idle"], feats | I.features(fits), L.LOG_TW, m0) == (0.0, 0.0)
-    assert I.widening(bad["idle"], f_bad | {"idle_shift": None, "idle_span": None}, L.LOG_TW, m0) is None
+    assert I.widening(bad["idle"], f_bad | {"idle_span": None}, L.LOG_TW) == (shift, 0.0)     # rows without a span
+    assert I.widening(good["idle"], feats | I.features(fits), L.LOG_TW) == (0.0, 0.0)
+    assert I.widening(bad["idle"], f_bad | {"idle_shift": None, "idle_span": None}, L.LOG_TW) is None
 
 
 def test_calibrate_widens_a_flagged_logs_bands_toward_the_value_under_the_idle():
@@ -103,16 +100,15 @@ def test_calibrate_widens_a_flagged_logs_bands_toward_the_value_under_the_idle()
     assert rep_f["factor"][L.LOG_TW] > rep_p["factor"][L.LOG_TW] and "edges moved by -0.3 and +0" in rep_f["why"][L.LOG_TW]
     assert rep_f["factor"][L.LOG_AUTH_X] == pytest.approx(rep_p["factor"][L.LOG_AUTH_X])     # not moved: not widened
     assert "command→speed map" in rep_f["check"]["reasons"][-1]
-    med = np.median(v, 0)
-    span = np.stack([med + np.minimum(shift, 0), med + np.maximum(shift, 0)])       # the plausible maps' values
+    span = np.stack([np.minimum(shift, 0), np.maximum(shift, 0)])       # the plausible maps' shifts
     span[1, L.LOG_AUTH_X] += 0.2                # a curved map moves the roll authority up: widened up, not down
     out_s, rep_s = C.calibrate(v, flagged | {"idle_span": span.tolist()}, [1.0] * 4, table)
     assert np.percentile(out_s[:, L.LOG_TW], 5) == pytest.approx(lo_f, abs=0.01)
     lo_a, hi_a = np.percentile(out_s[:, L.LOG_AUTH_X], [5, 95])
     assert hi_a - np.percentile(out_p[:, L.LOG_AUTH_X], 95) == pytest.approx(0.2, abs=0.02)
     assert lo_a == pytest.approx(np.percentile(out_p[:, L.LOG_AUTH_X], 5), abs=0.01) and "+0.2" in rep_s["why"][L.LOG_AUTH_X]
-    moved = np.stack([med, med])
-    moved[:, L.LOG_TW] += -0.5, -0.2                            # the linear map rejected: the band moves down whole
+    moved = np.zeros((2, L.N_V))
+    moved[:, L.LOG_TW] = -0.5, -0.2                            # the linear map rejected: the band moves down whole
     out_m = C.calibrate(v, flagged | {"idle_span": moved.tolist()}, [1.0] * 4, table)[0]
     assert np.percentile(out_m[:, L.LOG_TW], 5) == pytest.approx(lo_p - 0.5, abs=0.02)
     assert np.percentile(out_m[:, L.LOG_TW], 95) == pytest.approx(hi_p - 0.2, abs=0.02)
@@ -164,5 +160,5 @@ def test_a_curved_map_is_flagged_and_the_span_of_plausible_maps_holds_the_truth(
     fit0 = np.log(c["thrust_to_weight"][None])
     assert fit0 - true_tw > 0.5                                       # the linear map's thrust-to-weight: far too high
     assert abs(np.log(c["thrust_to_weight"][c["map"]]) - true_tw) < 0.15, c["thrust_to_weight"]
-    low, high = I.widening({"ok": False}, I.features(c), L.LOG_TW, fit0)
+    low, high = I.widening({"ok": False}, I.features(c), L.LOG_TW)
     assert fit0 + low <= true_tw and (-0.1, 0.0) in c["plausible"] and "(curved)" in I.features(c)["idle_at"]
