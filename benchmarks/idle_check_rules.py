@@ -1,5 +1,5 @@
 """The motor-map check (:mod:`mjxsysid.identify.idlecheck`) on the committed simulated logs: how many it flags
-or is blind on, and what four rules for a flagged log's bands give, from the rows alone (no flight, no posterior).
+or is blind on, and what rules for a flagged log's bands give, from the rows alone (no flight, no posterior).
 
     python benchmarks/idle_check_rules.py
 
@@ -9,12 +9,13 @@ the Crazyflie-like √u map) and the GPU misfit rows (idle 0.1; collected before
 
 - none: the check ignored;
 - drop all: every coordinate not seen (a flagged log without shifts, the check's first version);
-- drop moved: a coordinate whose value under the best idle lies outside its calibrated band is not seen;
-- widen best: each band widened on one side to hold its value under the best map (linear or curved);
-- widen span, linear kept: the band the union of the bands under every plausible map and the linear one;
-- widen span (shipped): the union of the bands under every plausible map, the linear one among them only
-  where it is plausible (``idle_span``, :func:`~mjxsysid.identify.calibrate.checked_stretch`); rows collected
-  before the span get "widen best".
+- drop moved: a coordinate whose value under the best map lies outside its calibrated band is not seen;
+- widen best: each band widened on one side by its shift under the best map (the check's second version);
+- widen span, shifts only: the union of the band moved by each plausible map's shift;
+- widen span, values only: the union of the band moved to each plausible map's value, every coordinate;
+- widen span (shipped): values for the coordinates the map acts on, shifts for the others
+  (:func:`~mjxsysid.identify.idlecheck.widening`, :func:`~mjxsysid.identify.calibrate.checked_stretch`);
+- widen span, linear kept: the shipped band joined with the unwidened one.
 
 Coverage is over the coordinates each rule leaves seen (:func:`~mjxsysid.experiments.posterior_calibration.calibrated_bands`).
 """
@@ -49,10 +50,19 @@ def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarra
         return calibrated_bands(row, table)
     if rule == "widen best":
         return calibrated_bands(row | {"features": f | {"idle_span": None}}, table)
+    if rule == "widen span, shifts only":
+        return calibrated_bands(row | {"features": f | {"idle_origin": None}}, table)
+    if rule == "widen span, values only":
+        from mjxsysid.identify import idlecheck
+        mapped, idlecheck.MAPPED = idlecheck.MAPPED, tuple(range(len(row["truth_v"])))
+        try:
+            return calibrated_bands(row, table)
+        finally:
+            idlecheck.MAPPED = mapped
     if rule == "widen span, linear kept":
-        span = f.get("idle_span")
-        keep = None if span is None else [np.minimum(span[0], 0).tolist(), np.maximum(span[1], 0).tolist()]
-        return calibrated_bands(row | {"features": f | {"idle_span": keep}}, table)
+        band, ok = calibrated_bands(row, table)
+        b0 = calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)[0]
+        return np.stack([np.minimum(band[0], b0[0]), np.maximum(band[1], b0[1])]), ok
     band, ok = calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)      # drop moved
     flagged = (f.get("idle_gain") or 0.0) > table["idle_check"]["threshold"]
     if flagged and f.get("idle_shift") is not None:
@@ -103,7 +113,8 @@ def main() -> None:
                      f"{sum(r.get('flight', '?').startswith(fl) for r in rows)}" for fl in flights}
         print(f"{name}: {len(rows)} logs, flagged at {thr:g}: {flags}")
         shifts = all(r["features"].get("idle_shift") is not None for r in rows)
-        rules = (("none", "drop all", "drop moved", "widen best", "widen span, linear kept", "widen span") if shifts
+        rules = (("none", "drop all", "drop moved", "widen best", "widen span, linear kept", "widen span, shifts only",
+                  "widen span, values only", "widen span") if shifts
                  else ("none", "drop all"))
         for rule in rules:
             t = {m: for_method(base, m) for m in ("smc", "smc_nuts")}

@@ -405,7 +405,7 @@ def checked_stretch(q, coord: dict, features: dict, check: dict, j: int) -> tupl
     ok False where that check fails the coordinate whole (a flagged log without the shifts; the stretch then
     as the table's). What :func:`calibrate` applies and the calibration's evaluation measures."""
     b, k_lo, k_hi = stretch(q, coord, features[coord["feature"]])
-    s = idlecheck.widening(check["idle"], features, j)
+    s = idlecheck.widening(check["idle"], features, j, float(q[1]))
     if s is None:
         return b, k_lo, k_hi, 0.0, False
     half = (s[1] - s[0]) / 2.0
@@ -478,7 +478,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
         flagged = check["idle"]["ok"] is False
         if j == L.LOG_TW and idlecheck.blind(check["idle"], features):
             note += "; " + idlecheck.BLIND_WHY.format(grid=", ".join(f"{g:+g}" for g in idlecheck.GRID))
-        s = idlecheck.widening(check["idle"], features, j) if flagged else (0.0, 0.0)
+        s = idlecheck.widening(check["idle"], features, j, float(q[1, j])) if flagged else (0.0, 0.0)
         if any(s):
             note += f"; its edges moved by {s[0]:+.3g} and {s[1]:+.3g} (log units) {idlecheck.WIDENED} (the motor-map check)"
         if at_bound[j] and width[j] < UNSEEN_FRACTION * pw[j]:

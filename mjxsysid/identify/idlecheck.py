@@ -20,9 +20,9 @@ thrust-to-weight 15–25 % high, and a √u map 2–3 times. A flight whose comm
 - The log shows the map only about the commands it flew; thrust-to-weight and Ω_max are its value at full
   command, an extrapolation each map makes differently. Every map whose sum of squares lies within
   :data:`SPAN_TOL` of the best is plausible, the linear map too where the gain is within it. On a log above
-  the threshold, each visible coordinate's calibrated band becomes the union of the band moved by its shift
-  under each plausible map (:func:`widening`; ``idle_span``, their least and largest; a shift is from the
-  linear map re-fitted from the mode, where the posterior sits). A band widened past
+  the threshold, each visible coordinate's calibrated band becomes the union of the band moved to each
+  plausible map (:func:`widening`; ``idle_span``): thrust-to-weight and the authorities to their values
+  under it, the others by their shifts. A band widened past
   the "seen" rule's width is reported as not seen. A flagged log without the span (rows collected before
   it) is widened toward the best map's shift alone; one without either fails whole.
 
@@ -62,6 +62,10 @@ MIN_LOGS = 200
 SCALED = (L.LOG_AUTH_X, L.LOG_AUTH_Y, L.LOG_YAW)
 """The coordinates a command differential drives (roll, pitch and yaw authority): scaled by
 :func:`equivalent` as thrust-to-weight is."""
+
+MAPPED = (L.LOG_TW,) + SCALED
+"""The coordinates the map acts on: on a flagged log their bands move to their values under the plausible
+maps (:func:`widening`)."""
 
 WHY = ("another command→speed map fits the log better; thrust-to-weight and the authorities "
        "depend on it, so their bands are widened toward their values under it")
@@ -156,7 +160,7 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
     v under the best map less v under the linear one re-fitted from the mode, log units: the optimum the
     posterior sits at, where the best of the linear map's re-fits, which the statistic takes, may lie
     elsewhere), span (2, 12: the least and the largest shift over the plausible maps of :data:`MAPS`,
-    :data:`SPAN_TOL`; 0 where none is), plausible
+    :data:`SPAN_TOL`; 0 where none is), origin (12,: v under the linear map re-fitted from the mode), plausible
     [(ι, κ), ...], power (the largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one shape
     are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``: the starts per log its
     batched fit was compiled for)."""
@@ -202,6 +206,7 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
                                            best: float(np.exp(zs[best][j][L.LOG_TW]))},
                       "shift": shifts[best].tolist(),
                       "span": [moved.min(0).tolist(), moved.max(0).tolist()],
+                      "origin": np.asarray(z_mode[j][L.Z_V], np.float64).tolist(),
                       "plausible": plausible, "power": float(max(abs(x) for x in gains.values()))}
     return out
 
@@ -215,17 +220,19 @@ def features(check: dict | None) -> dict:
     """A log's check (:func:`run`'s dict, or None) -> the model check's features: idle_gain (the statistic,
     None where it did not run), idle_at (the best map and thrust-to-weight under it, or why it did not run),
     idle_shift (12,: the visible coordinates re-fitted under the best map less those under the linear one, log
-    units), idle_span (2, 12: the least and the largest such shift over the plausible maps), idle_power (the largest change of the fit any map of :data:`MAPS` makes, either way: :func:`blind`),
+    units), idle_span (2, 12: the least and the largest such shift over the plausible maps), idle_origin (12,:
+    the linear map's re-fit from the mode, the shifts' origin), idle_power (the largest change of the fit any map of :data:`MAPS` makes, either way: :func:`blind`),
     idle_maps (how many maps the statistic is the best of: its version, :func:`threshold_entry`)."""
     if not check or check.get("gain") is None:
         return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_shift": None,
-                "idle_span": None, "idle_power": None, "idle_maps": None}
+                "idle_span": None, "idle_origin": None, "idle_power": None, "idle_maps": None}
     at = "no other map fits better"
     if check.get("map") is not None:
         tw = check["thrust_to_weight"]
         at = f"{describe(check['map'])}: thrust-to-weight {tw[check['map']]:.3g} against {tw[None]:.3g} under the linear map"
     return {"idle_gain": float(check["gain"]), "idle_at": at, "idle_shift": check.get("shift"),
-            "idle_span": check.get("span"), "idle_power": check.get("power"), "idle_maps": len(check["gains"])}
+            "idle_span": check.get("span"), "idle_origin": check.get("origin"), "idle_power": check.get("power"),
+            "idle_maps": len(check["gains"])}
 
 
 def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
@@ -244,18 +251,24 @@ def verdict(feats: dict, table: dict) -> dict:
                               "map gain", ".1f", WHY)
 
 
-def widening(verdict_: dict, feats: dict, j: int) -> tuple[float, float] | None:
-    """How visible coordinate j's calibrated band moves on a log (log units: (its lower edge's move, its upper
-    edge's move)): none unless the log is flagged (``verdict_``: :func:`verdict`'s); on a flagged log, the band
-    becomes the union of the band moved by each plausible map's shift (``feats["idle_span"]``: the least and
-    the largest) and, where the linear map is plausible too (the gain within :data:`SPAN_TOL`), the band
-    itself; where a row carries no span, the band is widened toward the best map's shift (``idle_shift``);
-    None where it carries neither (rows collected before them): every coordinate fails."""
+def widening(verdict_: dict, feats: dict, j: int, median: float) -> tuple[float, float] | None:
+    """How visible coordinate j's calibrated band moves on a log whose posterior median there is ``median``
+    (log units: (its lower edge's move, its upper edge's move)): none unless the log is flagged (``verdict_``:
+    :func:`verdict`'s). On a flagged log the band becomes the union of the band moved to each plausible map
+    (``feats["idle_span"]``: the least and the largest shift) and, where the linear map is plausible too (the
+    gain within :data:`SPAN_TOL`), the band itself. A coordinate the map acts on (:data:`MAPPED`) moves to its
+    value under the map (``idle_origin`` + shift: a map that fits re-fits it where the posterior would sit,
+    while under the linear map, which does not, the re-fit and the posterior part by up to 0.16); another
+    moves by the shift alone (its re-fits follow the map, not the data). Where a row carries no span, the band
+    is widened toward the best map's shift (``idle_shift``); None where it carries neither (rows collected
+    before them): every coordinate fails."""
     if verdict_.get("ok") is not False:
         return 0.0, 0.0
-    span, shift = feats.get("idle_span"), feats.get("idle_shift")
+    span, shift, origin = feats.get("idle_span"), feats.get("idle_shift"), feats.get("idle_origin")
     if span is not None:
         lo, hi = float(span[0][j]), float(span[1][j])
+        if origin is not None and j in MAPPED:
+            lo, hi = lo + float(origin[j]) - median, hi + float(origin[j]) - median
         if (feats.get("idle_gain") or 0.0) <= SPAN_TOL:
             lo, hi = min(lo, 0.0), max(hi, 0.0)
         return lo, hi

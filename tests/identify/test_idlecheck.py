@@ -75,12 +75,16 @@ def test_an_idling_motor_fails_the_check_and_the_same_vehicle_without_idle_passe
     shift = idles["shift"][L.LOG_TW]
     assert shift == pytest.approx(np.log(tw[IDLE, 1.0] / tw[None]), abs=1e-4) and shift < -0.05
     f_bad = feats | I.features(idles)
-    low, high = I.widening(bad["idle"], f_bad, L.LOG_TW)           # the span of the plausible maps holds the idle's
+    m0 = float(np.log(tw[None]))                                   # a posterior at the linear map's re-fit
+    low, high = I.widening(bad["idle"], f_bad, L.LOG_TW, m0)       # the span of the plausible maps holds the idle's
     assert low - 1e-5 <= shift <= high + 1e-5 and (IDLE, 1.0) in idles["plausible"], idles["plausible"]
     assert high < 0.0 and idles["gain"] > I.SPAN_TOL              # the linear map is not plausible: its value left out
-    assert I.widening(bad["idle"], f_bad | {"idle_span": None}, L.LOG_TW) == (shift, 0.0)     # rows without a span
-    assert I.widening(good["idle"], feats | I.features(fits), L.LOG_TW) == (0.0, 0.0)
-    assert I.widening(bad["idle"], f_bad | {"idle_shift": None, "idle_span": None}, L.LOG_TW) is None
+    assert I.widening(bad["idle"], f_bad, L.LOG_TW, m0 + 0.1) == pytest.approx((low - 0.1, high - 0.1))  # to the values
+    assert I.widening(bad["idle"], f_bad, L.LOG_TAU_M, 0.3) == pytest.approx(tuple(idles["span"][k][L.LOG_TAU_M]
+                                                                                 for k in (0, 1)))  # by the shifts
+    assert I.widening(bad["idle"], f_bad | {"idle_span": None}, L.LOG_TW, m0) == (shift, 0.0)     # rows without a span
+    assert I.widening(good["idle"], feats | I.features(fits), L.LOG_TW, m0) == (0.0, 0.0)
+    assert I.widening(bad["idle"], f_bad | {"idle_shift": None, "idle_span": None}, L.LOG_TW, m0) is None
 
 
 def test_calibrate_widens_a_flagged_logs_bands_toward_the_value_under_the_idle():
@@ -160,5 +164,5 @@ def test_a_curved_map_is_flagged_and_the_span_of_plausible_maps_holds_the_truth(
     fit0 = np.log(c["thrust_to_weight"][None])
     assert fit0 - true_tw > 0.5                                       # the linear map's thrust-to-weight: far too high
     assert abs(np.log(c["thrust_to_weight"][c["map"]]) - true_tw) < 0.15, c["thrust_to_weight"]
-    low, high = I.widening({"ok": False}, I.features(c), L.LOG_TW)
+    low, high = I.widening({"ok": False}, I.features(c), L.LOG_TW, fit0)
     assert fit0 + low <= true_tw and (-0.1, 0.0) in c["plausible"] and "(curved)" in I.features(c)["idle_at"]
