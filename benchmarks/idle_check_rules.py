@@ -104,7 +104,7 @@ def main() -> None:
     from mjxsysid.identify.calibrate import for_method, load
     base = load()
     thr = base["idle_check"]["threshold"]
-    print(f"blind (no idle moves the fit beyond {thr:g}), 200 simulated logs without idle: {blind_counts(thr)}")
+    print(f"blind (no map moves the fit beyond {thr:g}), 200 simulated logs without idle: {blind_counts(thr)}")
     for name, path in SETS.items():
         rows = _rows(path)
         gains = [r["features"].get("idle_gain") for r in rows]
