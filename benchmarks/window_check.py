@@ -27,6 +27,10 @@ LEVELS = "clean,x1,x5_white,x5_vibration,x20"
 REFERENCES = "lemniscate:10,lemniscate:20,minsnap:10,hover:8"
 
 
+LEAN = ("idle_shift", "idle_span", "idle_origin")
+"""The motor-map check's features the rows leave out: the threshold reads the statistic, not the shifts."""
+
+
 def statistics_of(datas, seed: int = 0) -> list[dict]:
     """The window check of each log (:class:`~mjxsysid.identify.logdata.LogData`) from its mode, as the
     posterior computes it (:func:`~mjxsysid.identify.windowcheck.run`)."""
@@ -44,7 +48,7 @@ def statistics_of(datas, seed: int = 0) -> list[dict]:
         t1 = time.perf_counter()
         res = run(_Logs, [d], modes, PHYSICAL_PRIOR)[0]
         t2 = time.perf_counter()
-        idle = idlecheck.features(idlecheck.run(_Logs, [d], modes)[0])
+        idle = {k: v for k, v in idlecheck.features(idlecheck.run(_Logs, [d], modes)[0]).items() if k not in LEAN}
         out.append(res | idle | {"rates_nsr": _rates_nsr(d, modes[0][0]), "mode_s": round(t1 - t0, 2),
                                  "check_s": round(t2 - t1, 2), "idle_s": round(time.perf_counter() - t2, 2)})
     return out
