@@ -67,8 +67,8 @@ MAPPED = (L.LOG_TW,) + SCALED
 """The coordinates the map acts on: on a flagged log their bands move to their values under the plausible
 maps (:func:`widening`)."""
 
-WHY = ("another command→speed map fits the log better; thrust-to-weight and the authorities "
-       "depend on it, so their bands are widened toward their values under it")
+WHY = ("another command→speed map fits the log better; thrust-to-weight and the authorities depend on it, so "
+       "each band moves to hold its value under every map that fits about as well")
 
 WIDENED = "to hold its value under every command→speed map that fits the log about as well as the best"
 """What a band's reason says where the check moved its edges (:func:`widening`; fleet tables mark it)."""
