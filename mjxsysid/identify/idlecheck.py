@@ -157,9 +157,9 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
     """The check of every log of ``datas`` from its mode (``modes``: :func:`~.mode.find_modes`' tuples) ->
     per log {gain (the statistic), map (the best (ι, κ) of :data:`MAPS`, None where none gains), gains {(ι, κ):
     SS(linear) − SS(ι, κ)}, thrust_to_weight {None: under the linear map from the mode, (ι, κ): under the best}, shift (12,:
-    v under the best map less v under the linear one re-fitted from the mode, log units: the optimum the
-    posterior sits at, where the best of the linear map's re-fits, which the statistic takes, may lie
-    elsewhere), span (2, 12: the least and the largest shift over the plausible maps of :data:`MAPS`,
+    v under the best map less v under the linear one re-fitted from the mode, log units; the statistic takes
+    the best of the linear map's re-fits instead), span (2, 12: the least and the largest shift over the
+    plausible maps of :data:`MAPS`,
     :data:`SPAN_TOL`; 0 where none is), origin (12,: v under the linear map re-fitted from the mode), plausible
     [(ι, κ), ...], power (the largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one shape
     are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``: the starts per log its
