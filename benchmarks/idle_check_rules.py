@@ -74,8 +74,9 @@ def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarra
 
 
 def summary(rows: list[dict], table: dict, rule: str) -> dict:
-    """{coverage (over the seen coordinates), seen (share), tw (thrust-to-weight inside, where seen), tw_seen,
-    tw_width (the median of thrust-to-weight's band, ± % of its centre, where seen)}."""
+    """{inside_by_coord, seen_by_coord (12,: counts), coverage (over the seen coordinates), seen (share), tw
+    (thrust-to-weight inside, where seen), tw_seen, tw_width (the median of thrust-to-weight's band, ± % of its
+    centre, where seen)}."""
     ins, seen, tw_w = [], [], []
     for r in rows:
         band, ok = rule_bands(r, table, rule)
@@ -87,7 +88,8 @@ def summary(rows: list[dict], table: dict, rule: str) -> dict:
     ins, seen = np.array(ins), np.array(seen)
     cov = float((ins & seen).sum() / max(seen.sum(), 1))
     tw_seen = float(seen[:, 0].mean())
-    return {"coverage": round(cov, 3), "seen": round(float(seen.mean()), 2),
+    return {"inside_by_coord": (ins & seen).sum(0), "seen_by_coord": seen.sum(0),
+            "coverage": round(cov, 3), "seen": round(float(seen.mean()), 2),
             "tw": round(float((ins[:, 0] & seen[:, 0]).sum() / max(seen[:, 0].sum(), 1)), 2), "tw_seen": round(tw_seen, 2),
             "tw_width": round(float(np.median(tw_w)) if tw_w else float("nan"), 1)}
 
@@ -126,6 +128,10 @@ def main() -> None:
             print(f"  {rule:>23}: inside {avg['coverage']:.2f} of the seen, {100 * avg['seen']:.0f} % seen; "
                   f"thrust-to-weight {avg['tw']:.2f} where seen ({100 * avg['tw_seen']:.0f} % seen, "
                   f"median band ±{avg['tw_width']:.0f} %)")
+            if rule.startswith("widen span"):           # per coordinate: inside of seen
+                from mjxsysid.experiments.posterior_calibration import V_NAMES
+                ins, seen = sum(p["inside_by_coord"] for p in parts), sum(p["seen_by_coord"] for p in parts)
+                print(" " * 27 + " ".join(f"{v}:{i}/{k}" for v, i, k in zip(V_NAMES, ins, seen)))
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ how many the threshold flags; ``--logs`` gives the statistic of real logs.
     python benchmarks/window_check.py --vehicles 6 --out docs/runs/measurements/log-grounded/window-check
     python benchmarks/window_check.py --vehicles 6 --out ... --write-threshold    # into the shipped table
     python benchmarks/window_check.py --from DIR/simulated.json --logs ../shared/data/logs/crazyflie/*.bin
+    python benchmarks/window_check.py --shipped     # both checks' flags under the shipped thresholds, no flight
 
 Writes OUT/simulated.json (one row per log: vehicle, flight, level, the statistic and its shifts),
 OUT/held_out.json and OUT/logs.json, and prints the threshold and the false-alarm rates.
@@ -138,6 +139,40 @@ def flagged(rows, thr: float) -> tuple[int, int]:
     return sum(x > thr for x in s), len(s)
 
 
+HELD_OUT_ROWS = Path("docs/runs/measurements/log-grounded/nuts-calibration/rows/held_out")
+"""The calibration's held-out rows: those collected with the window check carry its statistic."""
+
+
+def shipped_flags(out: Path) -> None:
+    """Both checks' flags under the shipped table's thresholds, from the files a run wrote into ``out``
+    (simulated, held_out, motor_idle, rotorpy, logs) and the calibration's held-out rows: per set, per flight."""
+    import gzip
+    from mjxsysid.identify import idlecheck as I
+    from mjxsysid.identify import windowcheck as W
+    from mjxsysid.identify.calibrate import load
+    table = load()
+    t_w, t_i = table[W.KEY]["threshold"], table[I.KEY]["threshold"]
+    print(f"shipped thresholds: window check {t_w:g}, motor-map check {t_i:g}")
+
+    def show(name, rows):
+        for fl in sorted({r.get("flight", "?") for r in rows}):
+            rs = [r for r in rows if r.get("flight", "?") == fl]
+            w = [r["shift"] for r in rs if r.get("shift") is not None]
+            g = [r["idle_gain"] for r in rs if r.get("idle_gain") is not None]
+            print(f"  {name} {fl}: window {sum(x > t_w for x in w)} of {len(w)}; motor map {sum(x > t_i for x in g)} "
+                  f"of {len(g)} (largest {max(g, default=0.0):.1f})")
+    for name in ("simulated", "held_out", "motor_idle", "rotorpy"):
+        if (out / f"{name}.json").is_file():
+            show(name, json.loads((out / f"{name}.json").read_text())["rows"])
+    if (out / "logs.json").is_file():
+        for p, r in json.loads((out / "logs.json").read_text())["logs"].items():
+            print(f"  {Path(p).name}: window {r.get('shift')}, motor map {r.get('idle_gain')}")
+    cal = [r for f in sorted(HELD_OUT_ROWS.glob("*.json.gz")) for r in json.loads(gzip.decompress(f.read_bytes()))["rows"]]
+    w = [(r["features"]["window_shift"], r["level"]) for r in cal if r["features"].get("window_shift") is not None]
+    print(f"  calibration's held-out rows: window {sum(x > t_w for x, _ in w)} of {len(w)} "
+          f"({sorted({lv for x, lv in w if x > t_w})})")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--vehicles", type=int, default=6)
@@ -155,9 +190,13 @@ def main():
                          "OUT/motor_idle.json")
     ap.add_argument("--misfit-seed", type=int, default=78, help="--motor-idle's vehicles' seed")
     ap.add_argument("--out", default="docs/runs/measurements/log-grounded/window-check")
+    ap.add_argument("--shipped", action="store_true",
+                    help="fly nothing: both checks' flags under the shipped thresholds from the files in --out")
     ap.add_argument("--write-threshold", action="store_true",
                     help="write the threshold into the shipped calibration table (mjxsysid/pretrained/posterior_calibration.json)")
     a = ap.parse_args()
+    if a.shipped:
+        return shipped_flags(Path(a.out))
     from mjxsysid.identify import windowcheck as W
     q = W.QUANTILE if a.quantile is None else a.quantile
     out = Path(a.out)
@@ -219,7 +258,8 @@ def main():
         table[W.KEY] = {"threshold": round(thr, 4), "quantile": q, "logs": n_sim, "above": n_above,
                         "levels": levels, "references": refs, "command": cmd + " --write-threshold",
                         "rows": str(out / "simulated.json"), "date": time.strftime("%Y-%m-%d")}
-        idle = I.threshold_entry([{"level": r["level"], "features": {"idle_gain": r.get("idle_gain")}} for r in rows])
+        idle = I.threshold_entry([{"level": r["level"], "features": {k: r.get(k) for k in ("idle_gain", "idle_maps")}}
+                                  for r in rows])
         if idle is not None:
             table[I.KEY] = idle | {"references": refs, "command": cmd + " --write-threshold",
                                    "rows": str(out / "simulated.json"), "date": time.strftime("%Y-%m-%d")}

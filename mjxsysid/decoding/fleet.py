@@ -43,6 +43,7 @@ def fleet_row(name: str, summary: dict | None, error: str | None = None) -> dict
                                         for q, g in gap.items()},
             "posterior": (summary or {}).get("_posterior")}
 
+
 def _cell(q: str, v: dict | None) -> str:
     from mjxsysid.identify.idlecheck import WIDENED
     if not v or not v["seen"]:

@@ -351,8 +351,8 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     raw, cal = evaluate(rows, None), evaluate(rows, table)
     flights = evaluate(rows, table, by="flight")
     vel = evaluate(rows, table, by="velocity")
-    shipped = table_path is not None and Path(table_path).resolve() == Path(SHIPPED).resolve()
-    named = "mjxsysid/pretrained/" + Path(SHIPPED).name if shipped else str(table_path)   # not this machine's path
+    shipped = table_path is not None and Path(table_path).resolve() == SHIPPED.resolve()
+    named = str(SHIPPED.relative_to(SHIPPED.parents[2])) if shipped else str(table_path)   # not this machine's path
     res = {"rows": len(rows), "table": named, "raw": raw, "calibrated": cal, "calibrated_by_flight": flights,
            "calibrated_by_velocity": vel}
     (out / "evaluation.json").write_text(json.dumps(res, indent=1) + "\n")

@@ -347,7 +347,7 @@ def model_check(features: dict, weights, table: dict, margin: float = 0.5) -> di
 def _window_verdict(features: dict, table: dict) -> dict:
     """The window-length test of :func:`model_check` -> {value (the shift), threshold, ok (None: not run), why}."""
     return thresholds.verdict(features.get("window_shift"), features.get("window_shift_at", ""), table.get(WINDOW_KEY),
-                   "window check", "window shift", ".2f", WINDOW_WHY)
+                              "window check", "window shift", ".2f", WINDOW_WHY)
 
 
 def coord_ok(check: dict, j: int) -> bool:
