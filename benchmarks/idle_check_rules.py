@@ -21,7 +21,6 @@ Coverage is over the coordinates each rule leaves seen (:func:`~mjxsysid.experim
 """
 from __future__ import annotations
 
-import gzip
 import json
 from pathlib import Path
 
@@ -31,11 +30,12 @@ RUNS = Path("docs/runs/measurements/log-grounded")
 SETS = {"CPU, idle 0.1 (seed 78)": RUNS / "idle-check/cpu_idle.json.gz",
         "CPU, no idle, aero (seed 79)": RUNS / "idle-check/cpu_aero.json.gz",
         "CPU, √u map, idle −0.115 (seed 80)": RUNS / "idle-check/cpu_kappa0.json.gz",
-        "GPU misfit, idle 0.1": RUNS / "nuts-calibration/rows/misfit/motor.0of4.json.gz"}
+        "GPU misfit, idle 0.1": RUNS / "nuts-calibration/rows/misfit/motor.0of4.json.xz"}
 
 
 def _rows(path: Path) -> list[dict]:
-    return json.loads(gzip.decompress(path.read_bytes()))["rows"]
+    from mjxsysid.experiments.posterior_calibration import read_rows
+    return read_rows([path])
 
 
 def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarray]:

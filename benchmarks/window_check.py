@@ -146,7 +146,7 @@ HELD_OUT_ROWS = Path("docs/runs/measurements/log-grounded/nuts-calibration/rows/
 def shipped_flags(out: Path) -> None:
     """Both checks' flags under the shipped table's thresholds, from the files a run wrote into ``out``
     (simulated, held_out, motor_idle, rotorpy, logs) and the calibration's held-out rows: per set, per flight."""
-    import gzip
+    from mjxsysid.experiments.posterior_calibration import read_rows
     from mjxsysid.identify import idlecheck as I
     from mjxsysid.identify import windowcheck as W
     from mjxsysid.identify.calibrate import load
@@ -167,7 +167,7 @@ def shipped_flags(out: Path) -> None:
     if (out / "logs.json").is_file():
         for p, r in json.loads((out / "logs.json").read_text())["logs"].items():
             print(f"  {Path(p).name}: window {r.get('shift')}, motor map {r.get('idle_gain')}")
-    cal = [r for f in sorted(HELD_OUT_ROWS.glob("*.json.gz")) for r in json.loads(gzip.decompress(f.read_bytes()))["rows"]]
+    cal = read_rows([HELD_OUT_ROWS])
     w = [(r["features"]["window_shift"], r["level"]) for r in cal if r["features"].get("window_shift") is not None]
     print(f"  calibration's held-out rows: window {sum(x > t_w for x, _ in w)} of {len(w)} "
           f"({sorted({lv for x, lv in w if x > t_w})})")

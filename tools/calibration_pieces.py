@@ -7,7 +7,14 @@ set of compiles), each written as OUT/rows/<set>.<i>of<k>.json with the stage's 
         rows/vel_ms.1of4.json,rows/novel_ms.1of4.json
     python tools/calibration_pieces.py --todo docs/runs/measurements/log-grounded/nuts-calibration/rows
 
-``--todo DIR``: the pieces not yet in DIR (its train/ and held_out/ folders, .json or .json.gz), with their logs.
+    python tools/calibration_pieces.py --land FILES_OR_FOLDERS    # the device's rows into the committed folders
+
+``--land``: each piece's rows (plain, .partial, gzipped or xz) written compact into :data:`ROWS` (features
+rounded to 4 decimals, xz): train/, held_out/ (:data:`HELD_OUT`) or misfit/ (:data:`MISFIT`) by its set; a
+piece cut by the deadline says so (``partial``). The same piece in another form there is replaced.
+
+``--todo DIR``: the pieces not yet in DIR (its train/, held_out/ and misfit/ folders, plain or compressed), with
+their logs.
 Never point a JAX cache at OUT: the device returns a limited number of files.
 """
 from __future__ import annotations
@@ -18,6 +25,12 @@ import time
 from pathlib import Path
 
 T0 = time.perf_counter()
+ROWS = Path("docs/runs/measurements/log-grounded/nuts-calibration/rows")
+"""The committed rows of NUTS's table (:mod:`tools.refit_calibration`)."""
+HELD_OUT = {"test_vel", "test_novel"}
+"""The sets held out from fitting."""
+MISFIT = {"motor"}
+"""The sets flown with another command→speed map: evaluated apart."""
 MIN_LEFT_S = 200.0
 """No piece starts with less time left: its batch of logs is cut as a whole by the device call's limit and
 returns no rows (pieces of 160–224 logs took 133–259 s on one H200; 2026-11-29, two pieces started with about
@@ -25,16 +38,15 @@ returns no rows (pieces of 160–224 logs took 133–259 s on one H200; 2026-11-
 
 
 def todo(folder: Path) -> list[tuple[str, int]]:
-    """The pieces (row file, logs) of FULL_CALIBRATION not in ``folder`` (a complete piece's file, gzipped or
-    not, in its train/ or held_out/ subfolder; a file marked ``partial`` is not complete)."""
-    import gzip
+    """The pieces (row file, logs) of FULL_CALIBRATION not in ``folder`` (a complete piece's file, plain or
+    compressed, in one of its subfolders; a file marked ``partial`` is not complete)."""
+    from mjxsysid.experiments.posterior_calibration import ROW_SUFFIXES, read_json
     from mjxsysid.release.sizes import FULL_CALIBRATION
     from mjxsysid.release.stages.calibration import pieces
 
     def complete(p: Path) -> bool:
-        text = gzip.decompress(p.read_bytes()).decode() if p.suffix == ".gz" else p.read_text()
-        return "partial" not in p.name and "partial" not in json.loads(text)
-    have = {p.name.split(".json")[0] for p in folder.rglob("*.json*") if complete(p)}
+        return "partial" not in p.name and "partial" not in read_json(p)
+    have = {p.name.split(".json")[0] for p in folder.rglob("*.json*") if p.name.endswith(ROW_SUFFIXES) and complete(p)}
     out = []
     for kind, name, s, levels, shard, f in pieces(FULL_CALIBRATION):
         if Path(f).name.split(".json")[0] not in have:
@@ -73,7 +85,56 @@ def collect_pieces(out: Path, deadline_s: float, want: list[str]) -> None:
               flush=True)
 
 
+def _rounded(x):
+    if isinstance(x, float):
+        return round(x, 4)
+    if isinstance(x, list):
+        return [_rounded(v) for v in x]
+    if isinstance(x, dict):
+        return {k: _rounded(v) for k, v in x.items()}
+    return x
+
+
+def land(sources: list[Path], rows: Path = ROWS) -> list[Path]:
+    """Write each piece's row file among ``sources`` (files, or folders searched for ``<set>.<i>of<k>.json*``)
+    compact into ``rows``/<train|held_out|misfit>/<piece>.json.xz, replacing that piece's other forms there;
+    the paths written."""
+    import lzma
+    from mjxsysid.experiments.posterior_calibration import read_json
+    files = [f for p in sources for f in (sorted(p.rglob("*.json*")) if p.is_dir() else [p])
+             if "of" in f.name and f.name.split(".json")[1] in ("", ".partial", ".gz", ".xz")]
+    written = []
+    for f in files:
+        d = json.loads(f.read_text()) if f.name.endswith(".partial") else read_json(f)
+        if not d.get("rows"):
+            print(f"skipped {f}: no rows", flush=True)
+            continue
+        for r in d["rows"]:
+            r["features"] = _rounded(r["features"])
+        if f.name.endswith(".partial"):
+            d["partial"] = f"the first {len(d['rows'])} logs of the piece: the device call's limit cut the rest"
+        name = f.name.split(".json")[0]
+        set_ = name.split(".")[0]
+        dest = rows / ("held_out" if set_ in HELD_OUT else "misfit" if set_ in MISFIT else "train") / (name + ".json.xz")
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        text = json.dumps(d, separators=(",", ":")).encode()
+        for old in dest.parent.glob(name + ".json*"):
+            if old != dest and old.resolve() != f.resolve():
+                old.unlink()
+        dest.write_bytes(lzma.compress(text, preset=9 | lzma.PRESET_EXTREME))
+        if f.resolve() != dest.resolve() and f.resolve().parent == dest.parent.resolve():
+            f.unlink()                                # the same piece in another form, in place
+        written.append(dest)
+        print(f"{f} -> {dest}: {len(d['rows'])} rows{' (partial)' if 'partial' in d else ''}", flush=True)
+    return written
+
+
 def main(argv: list[str]) -> None:
+    if argv[:1] == ["--land"]:
+        if len(argv) < 2:
+            raise SystemExit(__doc__)
+        land([Path(a) for a in argv[1:]])
+        return
     if argv[:1] == ["--todo"]:
         left = todo(Path(argv[1]))
         for f, n in left:

@@ -148,15 +148,35 @@ def row(post: dict, theta_true, level: str, vehicle: int, seconds: float) -> dic
             "features": post["features"], "weights": np.round(np.asarray(post["weights"], np.float64), 5).tolist()}
 
 
-def read_rows(paths) -> list[dict]:
-    """Rows of ``collect`` files, plain or gzipped (folders are searched for *.json and *.json.gz)."""
+ROW_SUFFIXES = (".json", ".json.gz", ".json.xz")
+"""The row files' forms: plain, gzipped, or xz-compressed (the committed rows: a third smaller than gzip's)."""
+
+
+def read_json(path) -> dict:
+    """A JSON file, plain or compressed by its suffix (.gz: gzip, .xz: xz)."""
     import gzip
+    import lzma
+    path = Path(path)
+    raw = path.read_bytes()
+    if path.suffix == ".gz":
+        raw = gzip.decompress(raw)
+    elif path.suffix == ".xz":
+        raw = lzma.decompress(raw)
+    return json.loads(raw)
+
+
+def row_files(folder) -> list[Path]:
+    """The row files in ``folder`` (:data:`ROW_SUFFIXES`), sorted."""
+    return sorted(f for f in Path(folder).iterdir() if f.name.endswith(ROW_SUFFIXES))
+
+
+def read_rows(paths) -> list[dict]:
+    """Rows of ``collect`` files (folders are searched for :data:`ROW_SUFFIXES`: plain, gzipped or xz)."""
     rows = []
     for p in paths:
         p = Path(p)
-        for f in (sorted([*p.glob("*.json"), *p.glob("*.json.gz")]) if p.is_dir() else [p]):
-            text = gzip.decompress(f.read_bytes()).decode() if f.suffix == ".gz" else f.read_text()
-            rows += json.loads(text)["rows"]
+        for f in (row_files(p) if p.is_dir() else [p]):
+            rows += read_json(f)["rows"]
     if not rows:
         raise ValueError(f"no calibration rows in {[str(p) for p in paths]}")
     return rows

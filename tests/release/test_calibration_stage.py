@@ -103,3 +103,33 @@ def test_a_piece_cut_by_its_time_budget_stays_partial(tmp_path, monkeypatch):
     _, ran = collect_piece(rel, tmp_path, piece, "dev", "c0ffee")
     done = json.loads((tmp_path / piece[5]).read_text())
     assert ran and done["rows"] and "cut_by_budget" not in done and done["release"]["commit"] == "c0ffee"
+
+
+def test_landed_rows_are_compact_and_read_back(tmp_path):
+    """tools/calibration_pieces.py --land: a device piece (plain, and one cut by the deadline) lands as xz in the
+    set's folder, its features rounded, the piece's gzipped form replaced; read_rows reads all forms alike and
+    --todo counts a partial piece as still to collect."""
+    import gzip
+    import importlib.util
+    from pathlib import Path
+    from mjxsysid.experiments.posterior_calibration import read_rows
+    spec = importlib.util.spec_from_file_location("pieces", Path(__file__).parents[2] / "tools/calibration_pieces.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    src, rows = tmp_path / "device", tmp_path / "rows"
+    src.mkdir()
+    row = {"level": "x1", "truth_v": [0.1] * 12, "features": {"rates_nsr": -1.234567891, "idle_span": [[0.123456789]]}}
+    (src / "vel_lem.1of4.json").write_text(json.dumps({"rows": [row] * 3}))
+    (src / "test_vel.0of4.json.partial").write_text(json.dumps({"rows": [row]}))
+    (rows / "train").mkdir(parents=True)
+    (rows / "train/vel_lem.1of4.json.gz").write_bytes(gzip.compress(b'{"rows": []}'))
+    out = tool.land([src], rows)
+    assert sorted(p.relative_to(rows).as_posix() for p in out) == ["held_out/test_vel.0of4.json.xz",
+                                                                    "train/vel_lem.1of4.json.xz"]
+    assert [p.name for p in (rows / "train").iterdir()] == ["vel_lem.1of4.json.xz"]
+    got = read_rows([rows / "train"])
+    assert len(got) == 3 and got[0]["features"] == {"rates_nsr": -1.2346, "idle_span": [[0.1235]]}
+    from mjxsysid.experiments.posterior_calibration import read_json
+    assert read_json(rows / "held_out/test_vel.0of4.json.xz")["partial"].startswith("the first 1 logs")
+    left = [Path(f).name for f, _ in tool.todo(rows)]
+    assert "test_vel.0of4.json" in left and "vel_lem.1of4.json" not in left
