@@ -2,9 +2,12 @@
 sets (``FULL_CALIBRATION``, :func:`mjxsysid.release.stages.calibration.pieces`) collected in one process (one
 set of compiles), each written as OUT/rows/<set>.<i>of<k>.json with the stage's ``release`` section, or as
 ``.partial`` where the deadline cut it. A device call is 10 minutes: about 600 logs a call on one H200.
+A piece whose ``.partial`` file is in OUT/rows/ already resumes: only the logs it lacks are identified
+(``--resume-from DIR`` puts the partial pieces landed in DIR there first, so a piece longer than a call
+finishes over several).
 
     PYTHONPATH=$PWD/.site:$PWD MJXSYSID_COMMIT=<sha> python tools/calibration_pieces.py $OUT 550 \\
-        rows/vel_ms.1of4.json,rows/novel_ms.1of4.json
+        rows/vel_ms.1of4.json,rows/novel_ms.1of4.json [--resume-from .carry/resume]
     python tools/calibration_pieces.py --todo docs/runs/measurements/log-grounded/nuts-calibration/rows
 
     python tools/calibration_pieces.py --land FILES_OR_FOLDERS    # the device's rows into the committed folders
@@ -54,10 +57,31 @@ def todo(folder: Path) -> list[tuple[str, int]]:
     return out
 
 
-def collect_pieces(out: Path, deadline_s: float, want: list[str]) -> None:
+def resume_into(out: Path, want: list[str], folder: Path) -> list[str]:
+    """Write each piece of ``want`` that ``folder`` holds as partial (a ``.partial`` file, or one marked
+    ``partial``: :func:`land`'s, any form) to ``out``/<piece>.partial, which collect_piece resumes; the pieces."""
+    from mjxsysid.experiments.posterior_calibration import ROW_SUFFIXES, read_json
+    found = []
+    for f in want:
+        name = Path(f).name.split(".json")[0]
+        for p in sorted(folder.rglob(name + ".json*")):
+            d = json.loads(p.read_text()) if p.name.endswith(".partial") else (
+                read_json(p) if p.name.endswith(ROW_SUFFIXES) else None)
+            if d is not None and (p.name.endswith(".partial") or "partial" in d):
+                d.pop("partial", None)
+                (out / (f + ".partial")).parent.mkdir(parents=True, exist_ok=True)
+                (out / (f + ".partial")).write_text(json.dumps(d, separators=(",", ":")) + "\n")
+                print(f"{f}: resuming at {len(d['rows'])} rows from {p}", flush=True)
+                found.append(f)
+                break
+    return found
+
+
+def collect_pieces(out: Path, deadline_s: float, want: list[str], resume_from: Path | None = None) -> None:
     """Collect the pieces ``want`` (row files of :func:`~mjxsysid.release.stages.calibration.pieces`) into
     ``out`` (:func:`~mjxsysid.release.stages.calibration.collect_piece`, the shipped policy where a set flies
-    one) until ``deadline_s`` seconds after start."""
+    one) until ``deadline_s`` seconds after start; ``resume_from``: a folder whose partial pieces are resumed
+    (:func:`resume_into`)."""
     import types
     from mjxsysid.release.provenance import code_commit, device_name
     from mjxsysid.release.sizes import FULL_CALIBRATION
@@ -67,6 +91,8 @@ def collect_pieces(out: Path, deadline_s: float, want: list[str]) -> None:
     unknown = [w for w in want if w not in table]
     if unknown:
         raise SystemExit(f"unknown pieces {unknown}; known: {sorted(table)}")
+    if resume_from is not None:
+        resume_into(out, want, resume_from)
     rel = types.SimpleNamespace(policy_path=None, log=lambda m: print(m, flush=True))
     device, commit = device_name(), code_commit()
     for f in want:
@@ -141,9 +167,13 @@ def main(argv: list[str]) -> None:
             print(f"{f}  {n} logs")
         print(f"{len(left)} pieces, {sum(n for _, n in left)} logs")
         return
+    resume = None
+    if "--resume-from" in argv:
+        k = argv.index("--resume-from")
+        resume, argv = Path(argv[k + 1]), argv[:k] + argv[k + 2:]
     if len(argv) != 3:
         raise SystemExit(__doc__)
-    collect_pieces(Path(argv[0]), float(argv[1]), argv[2].split(","))
+    collect_pieces(Path(argv[0]), float(argv[1]), argv[2].split(","), resume)
 
 
 if __name__ == "__main__":

@@ -66,7 +66,7 @@ def parse_reference(spec: str) -> dict:
 def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_LEVELS, seed: int = 5,
             shard: str | None = None, out: Path, time_budget_s: float | None = None,
             references=REFERENCES, controller: str = "oracle", aero: bool = False, velocity: bool = True,
-            policy=None, motor_idle: float = 0.0, motor_kappa: float = 1.0) -> dict:
+            policy=None, motor_idle: float = 0.0, motor_kappa: float = 1.0, resume: bool = False) -> dict:
     """Fly every level, then identify; write ``out`` (JSON: rows) after every log, or every batch of logs
     identified together on an accelerator (the levels interleaved: a stopped run keeps a balanced set of
     what it finished); ``time_budget_s``: start no new batch after this long (the result then says
@@ -77,7 +77,9 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     ``velocity``: False drops the logs' body velocity (a log without a state estimate); ``policy``: the
     weights controller 'policy' flies (a path; None: the shipped policy); ``motor_idle``, ``motor_kappa``: the
     simulator's static motor map (``SimConfig.motor_idle``, ``motor_kappa``: an idle offset and a curvature the
-    likelihood lacks; 0 and 1: the map θ describes)."""
+    likelihood lacks; 0 and 1: the map θ describes); ``resume``: keep the rows of the file already at ``out`` (a
+    run the budget or the machine cut, the same settings: ValueError naming those that differ) and identify only
+    the logs it lacks (the flights are seeded, so a resumed file holds the logs one run would)."""
     from mjxsysid.identify.inference import LOG_BATCH, log_grounded_posteriors
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
@@ -102,6 +104,9 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
            "references": list(references), "controller": controller, "aero": aero, "velocity": velocity,
            "motor_idle": motor_idle, "motor_kappa": motor_kappa, "rows": []}
+    if resume and out.is_file():
+        res["rows"] = resumed_rows(out, res)
+    done = {(r["vehicle"], r["level"], r["flight"]) for r in res["rows"]}
     tag = {"motor": [motor_idle, motor_kappa]} if motor.motor_map else {}
     t_start = time.perf_counter()
     step = 1 if jax.default_backend() == "cpu" else LOG_BATCH      # logs identified together (batched on a GPU)
@@ -115,6 +120,8 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
         flight = ((ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if aero else "")
                   + (f" motor {motor_idle:g}/{motor_kappa:g}" if motor.motor_map else ""))
         for i in np.flatnonzero(~np.asarray(m["failed"], bool)):
+            if (int(index[i]), lv, flight) in done:
+                continue
             rec = flight_log(fl.frame, i)
             if not velocity:
                 rec.pop("velocity_body")
@@ -138,6 +145,22 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
         out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     return res
+
+
+RESUME_KEYS = ("prior", "vehicles", "seed", "shard", "levels", "references", "controller", "aero", "velocity",
+               "motor_idle", "motor_kappa")
+"""The settings a resumed row file must share with the run (:func:`collect`'s ``resume``)."""
+
+
+def resumed_rows(path: Path, settings: dict) -> list[dict]:
+    """The rows of the row file at ``path`` (plain or compressed, :func:`read_json`) collected with ``settings``
+    (:data:`RESUME_KEYS`; a key the file lacks is taken as this run's default, written before it existed);
+    ValueError naming the file and the settings that differ."""
+    prev = read_json(path)
+    bad = [f"{k} {prev[k]!r} (this run {settings[k]!r})" for k in RESUME_KEYS if k in prev and prev[k] != settings[k]]
+    if bad:
+        raise ValueError(f"cannot resume {path}: it was collected with other settings: {', '.join(bad)}")
+    return list(prev["rows"])
 
 
 def row(post: dict, theta_true, level: str, vehicle: int, seconds: float) -> dict:

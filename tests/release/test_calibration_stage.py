@@ -68,14 +68,17 @@ def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, 
     assert set(entry["figures"]["mean_coverage"]) == set(cal.held_out_levels)
     assert set(entry["figures"]["misfit_mean_coverage"]) == set(cal.train_levels)
     assert entry["figures"]["train_logs"] == n_train and entry["calls"][-1]["call"].endswith(".report")
-    # a second run (the table lost, one held-out set not finished) collects that set only
+    # a second run (the table lost, one held-out set cut halfway) collects the rest of that set only
     (out / "posterior_calibration.json").unlink()
     held = next(f for kind, *_, f in pieces(cal) if kind == "held_out")
-    (out / held).rename(out / (held + ".partial"))
+    cut = json.loads((out / held).read_text())
+    kept = len(cut["rows"]) // 2
+    (out / (held + ".partial")).write_text(json.dumps(cut | {"rows": cut["rows"][:kept], "cut_by_budget": True}))
+    (out / held).unlink()
     calls.clear()
     rel = Release(tmp_path / "rel", stages=stages, log=None, device=lambda: "dev", commit=lambda: "c0ffee")
     assert rel.status("posterior_calibration") == "incomplete"
-    assert rel.run() == ["posterior_calibration"] and sum(calls) == n_held
+    assert rel.run() == ["posterior_calibration"] and sum(calls) == len(cut["rows"]) - kept    # resumed
     assert rel.entry("posterior_calibration")["config"]["collected_now"] == [held]
     assert load(out / "posterior_calibration.json")["provenance"]["rows"] == n_train
     # the shipped tree: the table with a release section, the evaluation under docs/runs/release/calibration/
@@ -133,3 +136,55 @@ def test_landed_rows_are_compact_and_read_back(tmp_path):
     assert read_json(rows / "held_out/test_vel.0of4.json.xz")["partial"].startswith("the first 1 logs")
     left = [Path(f).name for f, _ in tool.todo(rows)]
     assert "test_vel.0of4.json" in left and "vel_lem.1of4.json" not in left
+
+
+def test_a_cut_piece_resumes_with_the_logs_it_lacks(tmp_path, monkeypatch):
+    """collect_piece on a .partial file identifies only the logs it lacks and keeps the rest; a file of other
+    settings is refused by name."""
+    import types
+    import pytest
+    import mjxsysid.identify.inference as I
+    from mjxsysid.experiments.posterior_calibration import collect
+    from mjxsysid.release.stages.calibration import collect_piece
+    calls = []
+    monkeypatch.setattr(I, "log_grounded_posteriors", _fake_posteriors(calls))
+    rel = types.SimpleNamespace(policy_path=None, log=lambda m: None)
+    piece = pieces(TINY.calibration)[0]
+    collect_piece(rel, tmp_path / "full", piece, "dev", "c0ffee")
+    full = json.loads((tmp_path / "full" / piece[5]).read_text())
+    n = len(full["rows"])
+    assert n >= 2
+    part = tmp_path / "cut" / (piece[5] + ".partial")
+    part.parent.mkdir(parents=True)
+    part.write_text(json.dumps(full | {"rows": full["rows"][: n // 2], "cut_by_budget": True}))
+    calls.clear()
+    collect_piece(rel, tmp_path / "cut", piece, "dev", "c0ffee")
+    done = json.loads((tmp_path / "cut" / piece[5]).read_text())
+    key = lambda r: (r["vehicle"], r["level"], r["flight"])     # noqa: E731
+    assert sum(calls) == n - n // 2 and sorted(map(key, done["rows"])) == sorted(map(key, full["rows"]))
+    assert done["rows"][: n // 2] == full["rows"][: n // 2] and done["release"]["resumed_rows"] == n // 2
+    other = tmp_path / "other.json"
+    other.write_text(json.dumps(full | {"seed": full["seed"] + 1}))
+    with pytest.raises(ValueError, match=r"cannot resume .*other.json.*seed"):
+        collect(out=other, resume=True, vehicles=full["vehicles"], seed=full["seed"], levels=tuple(full["levels"]),
+                references=tuple(full["references"]))
+
+
+def test_a_landed_partial_piece_is_put_back_to_resume(tmp_path):
+    """tools/calibration_pieces.py --resume-from: a piece landed as partial goes back as OUT/<piece>.partial
+    (plain, without the note), which collect_piece resumes; a complete piece is not touched."""
+    import importlib.util
+    from pathlib import Path
+    spec = importlib.util.spec_from_file_location("pieces", Path(__file__).parents[2] / "tools/calibration_pieces.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    src, rows, out = tmp_path / "device", tmp_path / "rows", tmp_path / "out"
+    src.mkdir()
+    row = {"level": "x1", "vehicle": 3, "flight": "lemniscate:10", "features": {"rates_nsr": -1.0}}
+    (src / "slow.1of4.json.partial").write_text(json.dumps({"seed": 7, "rows": [row] * 2}))
+    (src / "aero.0of4.json").write_text(json.dumps({"seed": 7, "rows": [row]}))
+    tool.land([src], rows)
+    got = tool.resume_into(out, ["rows/slow.1of4.json", "rows/aero.0of4.json"], rows)
+    back = json.loads((out / "rows/slow.1of4.json.partial").read_text())
+    assert got == ["rows/slow.1of4.json"] and back == {"seed": 7, "rows": [row] * 2}
+    assert not (out / "rows/aero.0of4.json.partial").exists()

@@ -56,10 +56,11 @@ def _kwargs(rel: ReleaseView, s: CalibrationSet, levels, shard) -> dict:
 def collect_piece(rel: ReleaseView, out: Path, piece, device: str | None, commit: str | None,
                   time_budget_s: float | None = None) -> tuple[dict, bool]:
     """Collect one piece's rows into its file (written under a .partial name, renamed when complete,
-    with a ``release`` section: wall time, device, commit, end time); a complete file is kept;
-    ``time_budget_s``: collect's (a piece it cuts stays .partial, its rows kept).
+    with a ``release`` section: wall time, device, commit, end time, the rows resumed); a complete file is kept;
+    ``time_budget_s``: collect's (a piece it cuts stays .partial, its rows kept, and the next call resumes it:
+    it identifies only the logs the .partial file lacks).
     Returns (the call's record, whether it ran)."""
-    from mjxsysid.experiments.posterior_calibration import collect
+    from mjxsysid.experiments.posterior_calibration import collect, read_json
     _, name, s, levels, shard, f = piece
     kw = _kwargs(rel, s, levels, shard)
     dst = out / f
@@ -72,8 +73,13 @@ def collect_piece(rel: ReleaseView, out: Path, piece, device: str | None, commit
     rel.log(f"[release] posterior_calibration: collecting {name}" + (f" shard {shard}" if shard else "")
             + f" ({s.logs(len(levels)) // (1 if shard is None else int(shard.split('/')[1]))} logs) → {f}")
     t0 = time.time()
-    res = collect(out=tmp, time_budget_s=time_budget_s, **kw)
-    res["release"] = {"wall_s": round(time.time() - t0, 1), "device": device, "commit": commit, "ended": now()}
+    resumed = 0
+    if tmp.is_file():
+        resumed = len(read_json(tmp)["rows"])
+        rel.log(f"[release] posterior_calibration: {f} resumed at {resumed} rows")
+    res = collect(out=tmp, time_budget_s=time_budget_s, resume=True, **kw)
+    res["release"] = {"wall_s": round(time.time() - t0, 1), "device": device, "commit": commit, "ended": now(),
+                      "resumed_rows": resumed}
     tmp.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     if not res.get("cut_by_budget"):
         os.replace(tmp, dst)
