@@ -17,7 +17,8 @@ def add_decode(sub) -> None:
     dc.add_argument("--vehicle", type=Path, default=None, help="vehicle JSON (default: the paper vehicle)")
     dc.add_argument("--log", type=Path, nargs="+", default=None,
                     help="decode a recorded flight instead: a CSV (the contract: docs/decoding.md), a PX4 ULog "
-                         "(docs/px4.md), a Crazyflie uSD log, a Betaflight blackbox, an ArduPilot DataFlash log or a ROS bag (docs/logs.md); "
+                         "(docs/px4.md), a Crazyflie uSD log, a Betaflight blackbox, an ArduPilot DataFlash log, a ROS bag or a PX4 CSV "
+                         "table of data-driven-dynamics (docs/logs.md); "
                          "several files or a folder: each into OUT/NAME and one table, OUT/fleet.md")
     dc.add_argument("--same-vehicle", action="store_true",
                     help="with several logs: they are flights of one vehicle; fleet.md names the quantities whose "

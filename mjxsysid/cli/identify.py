@@ -35,8 +35,8 @@ def add_calibrate_posterior(sub) -> None:
                     help="--collect: fly with an idle offset in the static motor map, a share of the maximum rotor "
                          "speed (SimConfig.motor_idle; default 0)")
     cp.add_argument("--motor-kappa", type=float, default=1.0, metavar="K",
-                    help="--collect: the static motor map's curvature (SimConfig.motor_kappa; 1 linear, the "
-                         "default; 0 a square root)")
+                    help="--collect: the static motor map's curvature (SimConfig.motor_kappa, 0–2; 1 linear, the "
+                         "default; 0 a square root; 2 a square)")
     cp.add_argument("--no-velocity", action="store_true",
                     help="--collect: drop the logs' body velocity (logs without a state estimate: the drag unmodelled)")
     cp.add_argument("--flights", default="lemniscate:10",

@@ -2,4 +2,5 @@
 
 :mod:`~mjxsysid.logs.formats` detects a format by content; readers: :mod:`~mjxsysid.logs.csvlog` (the CSV
 contract), :mod:`~mjxsysid.logs.ulog` (PX4), :mod:`~mjxsysid.logs.crazyflie`, :mod:`~mjxsysid.logs.blackbox`,
-:mod:`~mjxsysid.logs.dataflash` (ArduPilot), :mod:`~mjxsysid.logs.rosbag`; checks: :mod:`~mjxsysid.logs.checks`."""
+:mod:`~mjxsysid.logs.dataflash` (ArduPilot), :mod:`~mjxsysid.logs.rosbag`, :mod:`~mjxsysid.logs.px4csv`
+(data-driven-dynamics' PX4 tables); checks: :mod:`~mjxsysid.logs.checks`."""

@@ -116,7 +116,8 @@ def read_log(path) -> dict:
 
 def read_any_log(path, segment=None) -> dict:
     """A flight log of any known format, detected by its content (:mod:`mjxsysid.logs.formats`): a PX4
-    ULog, a Crazyflie uSD log, a Betaflight blackbox, an ArduPilot DataFlash log or a ROS bag is
+    ULog, a Crazyflie uSD log, a Betaflight blackbox, an ArduPilot DataFlash log, a ROS bag or a PX4 CSV table of
+    data-driven-dynamics is
     read by its reader (cut at its airborne segment, or ``segment`` 't0:t1'), anything else as the
     CSV of :func:`read_log`, cut at its airborne segment (:func:`~mjxsysid.logs.segment.airborne_segment`
     on the motor commands: ground time, spin-up and landing) or at ``segment`` (rows with

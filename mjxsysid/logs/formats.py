@@ -24,6 +24,7 @@ FORMATS = (
     ("Betaflight blackbox", "mjxsysid.logs.blackbox", "blackbox"),
     ("ArduPilot DataFlash", "mjxsysid.logs.dataflash", "ardupilot"),
     ("ROS bag", "mjxsysid.logs.rosbag", "rosbag"),
+    ("PX4 CSV (data-driven-dynamics)", "mjxsysid.logs.px4csv", None),
 )
 HEAD_BYTES = 4096
 

@@ -318,3 +318,27 @@ def write_rosbag(path, t, imu, a_cmd, omega_cmd, motor, *, quat=None, vel=None, 
     t, imu, _, omega_cmd, motor, *est = _flight(t, imu, a_cmd, omega_cmd, motor, quat, vel)
     ts = typestore_with_mavros(storage is None)
     return write_bag(path, ts, flight_messages(ts, t, imu, omega_cmd, motor, *est), storage)
+
+
+# ---- data-driven-dynamics' PX4 tables (mjxsysid.logs.px4csv)
+
+def write_px4csv(path, t, imu, a_cmd, omega_cmd, motor, *, quat=None, vel=None, landed_s: float = 0.0) -> Path:
+    """A flight as a data-driven-dynamics table (an unnamed index column first, as the project writes them):
+    timestamp µs, u0..u3 PWM through PX4's thrust model with THR_MDL_FAC 0 (pwm = 1000 + 1000 Ω_cmd²) in PX4's
+    quad-X order, ang_vel and acc_b FRD, their angular acceleration (ang_acc_b), given ``quat`` and ``vel`` the
+    NED velocity and the FRD→NED attitude, and ``landed`` 1 over the first ``landed_s`` seconds. It carries no
+    setpoints: ``a_cmd`` and ``omega_cmd`` are not written. -> ``path``."""
+    t, imu, _, _, motor, *est = _flight(t, imu, a_cmd, omega_cmd, motor, quat, vel)
+    pwm = (1000.0 + 1000.0 * np.clip(motor, 0, 1) ** 2)[:, list(PX4_QUADX_ORDER)]
+    g = imu * np.tile(FRD, 2)
+    cols = {"timestamp": np.round(t * 1e6), **{f"u{k}": pwm[:, k] for k in range(4)}}
+    if est:
+        q, v = est
+        v_ned, q_ned = v * FRD, _frd_to_ned(q)
+        cols |= {"vx": v_ned[:, 0], "vy": v_ned[:, 1], "vz": v_ned[:, 2], **{f"q{k}": q_ned[:, k] for k in range(4)}}
+    dw = np.gradient(g[:, :3], t, axis=0)
+    cols |= {**{f"ang_vel_{a}": g[:, i] for i, a in enumerate("xyz")}, **{f"acc_b_{a}": g[:, 3 + i] for i, a in enumerate("xyz")},
+             **{f"ang_acc_b_{a}": dw[:, i] for i, a in enumerate("xyz")}, "landed": (t - t[0] < landed_s).astype(float)}
+    table = np.column_stack([np.arange(len(t), dtype=float)] + list(cols.values()))
+    np.savetxt(path, table, delimiter=",", header="," + ",".join(cols), comments="", fmt="%.10g")
+    return Path(path)

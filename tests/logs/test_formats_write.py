@@ -70,6 +70,34 @@ def test_dataflash_round_trip(flight, tmp_path):
     _close(r, want, {"imu": 1e-5, "motor": 3e-3, "omega_cmd": 1e-5, "a_cmd": 1e-4, "velocity_body": 1e-4})
 
 
+def test_px4csv_round_trip(flight, tmp_path):
+    """data-driven-dynamics' table: µs stamps, PWM through PX4's THR_MDL_FAC 0 (√u) in quad-X order, FRD, the NED
+    velocity rotated by the FRD attitude; no setpoints (filled from the IMU and said); the landed rows left out."""
+    r, want = _read_back(W.write_px4csv, tmp_path / "flight.csv", flight)
+    s = r["source"]
+    assert s["format"] == "PX4 CSV (data-driven-dynamics)" and s["missing"] == ["a_cmd", "omega_cmd"]
+    _close(r, want, {"imu": 1e-8, "motor": 1e-8, "velocity_body": 1e-8})
+    np.testing.assert_allclose(r["omega_cmd"], r["imu"][:, :3])
+    W.write_px4csv(tmp_path / "landed.csv", flight["t"], flight["imu"], flight["a_cmd"], flight["omega_cmd"],
+                   flight["motor"], landed_s=1.0)
+    r = read_any_log(tmp_path / "landed.csv")
+    assert r["t"][0] >= flight["t"][0] + 1.0 and "the landed column" in r["source"]["segment"]["why"]
+
+
+def test_px4csv_says_what_is_wrong(flight, tmp_path):
+    """A table without a required column, or with a cell that is not a number, is refused by name."""
+    from mjxsysid.logs import px4csv
+    path = W.write_px4csv(tmp_path / "f.csv", flight["t"], flight["imu"], flight["a_cmd"], flight["omega_cmd"],
+                          flight["motor"])
+    lines = path.read_text().splitlines()
+    (tmp_path / "bad.csv").write_text("\n".join([lines[0], lines[1], lines[2].replace(",", ",x", 3)] + lines[3:]))
+    with pytest.raises(ValueError, match="bad.csv: .*(not a number|does not read as numbers)"):
+        px4csv.read(tmp_path / "bad.csv")
+    (tmp_path / "nogyro.csv").write_text("\n".join([lines[0].replace("ang_vel_x", "w_x")] + lines[1:]))
+    with pytest.raises(ValueError, match=r"nogyro.csv: .*\['ang_vel_x'\]"):
+        px4csv.read(tmp_path / "nogyro.csv")
+
+
 @pytest.mark.parametrize("ros2", [False, True])
 def test_rosbag_round_trip(flight, tmp_path, ros2):
     """float64 mavros topics (stamped at 1.6e9 s: 0.2 µs apart), PWM µs; no thrust setpoint in m/s² (filled
