@@ -4,7 +4,7 @@ or is blind on, and what rules for a flagged log's bands give, from the rows alo
     python benchmarks/idle_check_rules.py
 
 The sets: ``docs/runs/measurements/log-grounded/idle-check`` (CPU: idle 0.1; no idle with rotor aerodynamics;
-the Crazyflie-like √u map) and the GPU misfit rows (idle 0.1; collected before the shifts were kept, so only
+the Crazyflie-like √u map; Gazebo-classic's u² read through PX4's thrust model) and the GPU misfit rows (idle 0.1; collected before the shifts were kept, so only
 "none" and "drop every coordinate" apply there). The rules, on a flagged log:
 
 - none: the check ignored;
@@ -30,6 +30,7 @@ RUNS = Path("docs/runs/measurements/log-grounded")
 SETS = {"CPU, idle 0.1 (seed 78)": RUNS / "idle-check/cpu_idle.json.gz",
         "CPU, no idle, aero (seed 79)": RUNS / "idle-check/cpu_aero.json.gz",
         "CPU, √u map, idle −0.115 (seed 80)": RUNS / "idle-check/cpu_kappa0.json.gz",
+        "CPU, u² map, idle 0.09 (seed 81)": RUNS / "idle-check/cpu_convex.json.gz",
         "GPU misfit, idle 0.1": RUNS / "nuts-calibration/rows/misfit/motor.0of4.json.xz"}
 
 

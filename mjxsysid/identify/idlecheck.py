@@ -1,8 +1,10 @@
 """The motor-map check: does the log fit better under another command→speed map?
 
 The likelihood's rotors spin at the command times Ω_max (:mod:`.likelihood`): thrust ∝ u². Real motors
-idle (Ω = Ω_max (ι + (1 − ι) u)) or follow a curved map (the Crazyflie's Ω ∝ √u): the simulator's family
-is Ω = Ω_max (ι + (1 − ι) √(κ u² + (1 − κ) u)) (:func:`mapped`). At one command level any of them differs
+idle (Ω = Ω_max (ι + (1 − ι) u)) or follow a curved map, concave (Ω ∝ √u) or convex (a reader's thrust model
+that is not the motors': PX4's THR_MDL_FAC 0 on motors whose speed is linear in the command reads as Ω ∝ u²):
+the simulator's family is Ω = Ω_max (ι + (1 − ι) s(u)), s = √(κ u² + (1 − κ) u) for κ ≤ 1 and
+u √(2 − κ + (κ − 1) u²) beyond (:func:`mapped`). At one command level any of them differs
 from u² by a factor the fit takes into thrust-to-weight and the authorities, so a log flown about one level
 (a hover) cannot tell them apart, and the posterior is sharp and wrong: an idle of 0.1 Ω_max put
 thrust-to-weight 15–25 % high, and a √u map 2–3 times. A flight whose commands move shows the map:
@@ -40,11 +42,18 @@ from mjxsysid.identify import thresholds
 GRID = (-0.1, 0.05, 0.1, 0.2)
 """The idle offsets (shares of Ω_max) of the linear maps (κ 1) the log is re-fitted under."""
 
-CURVED = ((-0.1, 0.5), (0.0, 0.5), (0.1, 0.5), (-0.1, 0.0), (0.0, 0.0), (0.1, 0.0))
-"""The curved maps (ι, κ) the log is re-fitted under."""
+CURVED = tuple((iota, kappa) for kappa in (0.5, 0.0, 1.5, 2.0) for iota in (-0.1, 0.0, 0.1))
+"""The curved maps (ι, κ) the log is re-fitted under: concave (κ 0.5 and 0: √u) and convex (κ 2: u², the speed of
+an ESC linear in its command read through a thrust model that takes thrust as linear in it, as PX4's THR_MDL_FAC 0
+does: Gazebo-classic's motors; κ 1.5: between, as a Crazyflie's thrust, quadratic and linear in its PWM, read as
+linear)."""
 
 MAPS = tuple((iota, 1.0) for iota in GRID) + CURVED
 """Every map (ι, κ) of the check (:func:`mapped`), beside the likelihood's own (0, 1)."""
+
+MIN_SPEED = 0.05
+"""A map whose speed at the log's mean command is below this share of Ω_max (a dead band the log flew above)
+cannot carry the log: it is not re-fitted (its gain None, never plausible)."""
 
 SPAN_TOL = 4.61
 """A map is plausible where its sum of squares lies within this of the best map's: χ²'s 0.90 quantile with two
@@ -78,14 +87,20 @@ SPEED_SKIP = "not run: the measured rotor speeds fit the command→speed map, id
 
 def mapped(u, iota: float, kappa: float = 1.0) -> np.ndarray:
     """Commands u (T, 4) in [0, 1] -> the speeds' share of Ω_max under idle ``iota`` and curvature ``kappa``:
-    max(0, ι + (1 − ι) √(κ u² + (1 − κ) u)), the simulator's map (:func:`mjxsysid.sim.quadrotor.commanded_speed`)."""
+    max(0, ι + (1 − ι) s), s = √(κ u² + (1 − κ) u) for κ ≤ 1 (concave: √u at 0), u √(2 − κ + (κ − 1) u²) for
+    κ > 1 (convex: u² at 2), the simulator's map (:func:`mjxsysid.sim.quadrotor.commanded_speed`)."""
     u = np.clip(np.asarray(u, np.float64), 0.0, 1.0)
-    shape = u if kappa == 1.0 else np.sqrt(kappa * u * u + (1.0 - kappa) * u)
+    shape = (u if kappa == 1.0 else np.sqrt(kappa * u * u + (1.0 - kappa) * u) if kappa < 1.0
+             else u * np.sqrt(2.0 - kappa + (kappa - 1.0) * u * u))
     return np.maximum(iota + (1.0 - iota) * shape, 0.0)
 
 
 def _slope(u: float, iota: float, kappa: float) -> float:
-    """d mapped / du at the command u (0, 1]: (1 − ι) (2 κ u + 1 − κ) / (2 √(κ u² + (1 − κ) u))."""
+    """d mapped / du at the command u (0, 1]: (1 − ι) (2 κ u + 1 − κ) / (2 √(κ u² + (1 − κ) u)) for κ ≤ 1,
+    (1 − ι) (2 − κ + 2 (κ − 1) u²) / √(2 − κ + (κ − 1) u²) beyond."""
+    if kappa > 1.0:
+        r = 2.0 - kappa + (kappa - 1.0) * u * u
+        return (1.0 - iota) * (r + (kappa - 1.0) * u * u) / np.sqrt(r)
     return (1.0 - iota) * (2.0 * kappa * u + 1.0 - kappa) / (2.0 * np.sqrt(kappa * u * u + (1.0 - kappa) * u))
 
 
@@ -155,7 +170,8 @@ def checkable(data) -> str | None:
 
 def run(make_logs, datas, modes, starts: int = 1) -> list:
     """The check of every log of ``datas`` from its mode (``modes``: :func:`~.mode.find_modes`' tuples) ->
-    per log {gain (the statistic), map (the best (ι, κ) of :data:`MAPS`, None where none gains), gains {(ι, κ):
+    per log {gain (the statistic), map (the best (ι, κ) of :data:`MAPS`, None where none gains), gains {(ι, κ) (None
+    where the map cannot carry the log, :data:`MIN_SPEED`):
     SS(linear) − SS(ι, κ)}, thrust_to_weight {None: under the linear map from the mode, (ι, κ): under the best}, shift (12,:
     v under the best map less v under the linear one re-fitted from the mode, log units; the statistic takes
     the best of the linear map's re-fits instead), span (2, 12: the least and the largest shift over the
@@ -186,13 +202,15 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
         z_mode = z0                                  # the linear map re-fitted from the mode: the shifts' origin
         ss, zs = {}, {}
         for iota, kappa in MAPS:
+            fits = mapped(um, iota, kappa) >= MIN_SPEED      # the map carries each log at its mean command
             var = [variant(d, iota, kappa) for d in base]
-            y_m = np.stack([equivalent(y, u, iota, kappa=kappa) for y, u in zip(ys, um)])
+            y_m = np.stack([equivalent(y, u, iota, kappa=kappa) if f else y for y, u, f in zip(ys, um, fits)])
             zs[iota, kappa], ss[iota, kappa] = _fit_and_ss(make_logs, var, y_m, lds, lss, ws, starts)
-            back = np.stack([equivalent(L.y_from_z(z, ls), u, iota, inverse=True, kappa=kappa)
-                             for z, ls, u in zip(zs[iota, kappa], lss, um)])
+            ss[iota, kappa] = np.where(fits, ss[iota, kappa], np.inf)
+            back = np.stack([equivalent(L.y_from_z(z, ls), u, iota, inverse=True, kappa=kappa) if f else y
+                             for z, ls, u, f, y in zip(zs[iota, kappa], lss, um, fits, ys)])
             zb, ssb = _fit_and_ss(make_logs, base, back, lds, lss, ws, starts)
-            better = ssb < ss0
+            better = fits & (ssb < ss0)
             ss0, z0 = np.where(better, ssb, ss0), np.where(better[:, None], zb, z0)
         for j, i in enumerate(g):
             gains = {m: float(ss0[j] - ss[m][j]) for m in MAPS}
@@ -201,13 +219,15 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
             shifts = {m: np.asarray(zs[m][j][L.Z_V], np.float64) - np.asarray(z_mode[j][L.Z_V], np.float64) for m in MAPS}
             plausible = [m for m in MAPS if gains[m] >= gain - SPAN_TOL]
             moved = np.stack([shifts[m] for m in plausible] or [np.zeros(L.N_V)])
-            out[i] = {"gain": gain, "map": best if gain > 0 else None, "gains": gains,
+            finite = [x for x in gains.values() if np.isfinite(x)]
+            out[i] = {"gain": gain, "map": best if gain > 0 else None,
+                      "gains": {m: (x if np.isfinite(x) else None) for m, x in gains.items()},
                       "thrust_to_weight": {None: float(np.exp(z_mode[j][L.LOG_TW])),
                                            best: float(np.exp(zs[best][j][L.LOG_TW]))},
                       "shift": shifts[best].tolist(),
                       "span": [moved.min(0).tolist(), moved.max(0).tolist()],
                       "origin": np.asarray(z_mode[j][L.Z_V], np.float64).tolist(),
-                      "plausible": plausible, "power": float(max(abs(x) for x in gains.values()))}
+                      "plausible": plausible, "power": float(max((abs(x) for x in finite), default=0.0))}
     return out
 
 

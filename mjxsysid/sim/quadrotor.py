@@ -56,9 +56,10 @@ class SimConfig:
     grows with the rotor speed (rotor drag and induced inflow), a parasitic drag quadratic in the
     airspeed, and translational lift; off by default (the physics θ describes). motor_idle, motor_kappa:
     another static motor map, the steady-state rotor speed of a command u being
-    Ω_max (idle + (1 − idle) √(κ u² + (1 − κ) u)) (:func:`commanded_speed`): an idle offset (a share of
-    Ω_max; negative: a dead band) and a curvature (κ 1: linear, 0: √u); off (0 and 1) by default (the
-    map θ describes, Ω_max u). randomize_imu: the noise, bias and vibration settings are maxima, each
+    Ω_max (idle + (1 − idle) s(u)) (:func:`commanded_speed`): an idle offset (a share of Ω_max; negative: a
+    dead band) and a curvature κ ∈ [0, 2]: s = √(κ u² + (1 − κ) u) up to κ 1 (0: √u, 1: linear), beyond it
+    s = u √(2 − κ + (κ − 1) u²) (2: u², the speed of an ESC linear in its command read through a thrust model
+    linear in it, PX4's THR_MDL_FAC 0); off (0 and 1) by default (the map θ describes, Ω_max u). randomize_imu: the noise, bias and vibration settings are maxima, each
     flight drawing its levels uniform in [0, 1] × them; imu_clean_fraction: with it, that share of
     flights has a clean IMU (both levels 0).
     """
@@ -100,8 +101,8 @@ class SimConfig:
             raise ValueError("SimConfig.imu_clean_fraction needs randomize_imu (it is a share of the per-flight draws)")
         if not -1.0 < self.motor_idle < 1.0:
             raise ValueError(f"SimConfig.motor_idle must be in (-1, 1) (a share of Ω_max), got {self.motor_idle}")
-        if not 0.0 <= self.motor_kappa <= 1.0:
-            raise ValueError(f"SimConfig.motor_kappa must be in [0, 1], got {self.motor_kappa}")
+        if not 0.0 <= self.motor_kappa <= 2.0:
+            raise ValueError(f"SimConfig.motor_kappa must be in [0, 2], got {self.motor_kappa}")
         if not 0 < self.vibration_bandwidth_hz < 0.5 / self.dt:
             raise ValueError(f"SimConfig.vibration_bandwidth_hz must be in (0, {0.5 / self.dt:g}) Hz "
                              f"(the IMU's Nyquist band), got {self.vibration_bandwidth_hz}")
@@ -223,14 +224,15 @@ def mean_square_speed(omega0, omega_cmd, tau_m, h, exp=jnp.exp):
 
 def commanded_speed(cmd, omega_max, config: "SimConfig"):
     """The steady-state rotor speed (rad/s) of the normalised command ``cmd`` (..., 4), clipped to [0, 1],
-    at ``omega_max`` (rad/s, broadcast): Ω_max u by default; with ``config.motor_map``, Indiflight's
-    Ω_max max(0, idle + (1 − idle) √(κ u² + (1 − κ) u)) (idle ``motor_idle``, κ ``motor_kappa``): it is
-    Ω_max at u = 1 and idle Ω_max at u = 0."""
+    at ``omega_max`` (rad/s, broadcast): Ω_max u by default; with ``config.motor_map``,
+    Ω_max max(0, idle + (1 − idle) s(u)) (idle ``motor_idle``, κ ``motor_kappa``; s: Indiflight's
+    √(κ u² + (1 − κ) u) for κ ≤ 1, u √(2 − κ + (κ − 1) u²) beyond): it is Ω_max at u = 1 and idle Ω_max at u = 0."""
     u = jnp.clip(jnp.asarray(cmd, jnp.float32), 0.0, 1.0)
     if not config.motor_map:  # a Python branch: off, the default map to the bit
         return u * omega_max
     idle, kappa = config.motor_idle, config.motor_kappa
-    shape = u if kappa == 1.0 else jnp.sqrt(kappa * u * u + (1.0 - kappa) * u)
+    shape = (u if kappa == 1.0 else jnp.sqrt(kappa * u * u + (1.0 - kappa) * u) if kappa < 1.0
+             else u * jnp.sqrt(2.0 - kappa + (kappa - 1.0) * u * u))
     return jnp.maximum(idle + (1.0 - idle) * shape, 0.0) * omega_max
 
 

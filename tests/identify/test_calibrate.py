@@ -193,7 +193,7 @@ def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_
     assert all(r["motor"] == [0.1, 1.0] for r in res["rows"]) and res["motor_idle"] == 0.1
     assert "motor" not in pc.collect(vehicles=1, levels=("clean",), references=("hover:2",), out=out)["rows"][0]
     with pytest.raises(ValueError, match="motor_kappa"):
-        pc.collect(vehicles=1, levels=("clean",), references=("hover:2",), out=out, motor_kappa=2.0)
+        pc.collect(vehicles=1, levels=("clean",), references=("hover:2",), out=out, motor_kappa=2.5)
 
 
 def test_a_band_side_never_collapses_to_its_median():

@@ -46,14 +46,19 @@ def test_mapped_commands_and_the_equivalent_vehicle():
     assert np.allclose(I.equivalent(e, 0.5, 0.1, inverse=True), y, atol=1e-6)
     # the simulator's map, curved: the same share of Ω_max, and the torque per differential by its slope
     from mjxsysid.sim.quadrotor import SimConfig, commanded_speed
-    cfg = SimConfig(motor_idle=-0.1, motor_kappa=0.3)
     uu = np.linspace(0.0, 1.0, 41)[:, None].repeat(4, 1)
-    assert np.allclose(I.mapped(uu, -0.1, 0.3), np.asarray(commanded_speed(uu, 1.0, cfg)), atol=1e-6)
-    s, h = float(I.mapped(0.5, -0.1, 0.3)), 1e-4
-    slope = float(I.mapped(0.5 + h, -0.1, 0.3) - I.mapped(0.5 - h, -0.1, 0.3)) / (2 * h)
-    e = I.equivalent(y, 0.5, -0.1, kappa=0.3)
-    assert np.exp(e[L.LOG_TW]) * s ** 2 == pytest.approx(np.exp(y[L.LOG_TW]) * 0.5 ** 2, rel=1e-5)
-    assert np.exp(e[L.LOG_AUTH_X]) * s * slope == pytest.approx(np.exp(y[L.LOG_AUTH_X]) * 0.5, rel=1e-4)
+    for kappa in (0.3, 1.6, 2.0):                      # concave, and convex (u² at κ 2)
+        cfg = SimConfig(motor_idle=-0.1, motor_kappa=kappa)
+        assert np.allclose(I.mapped(uu, -0.1, kappa), np.asarray(commanded_speed(uu, 1.0, cfg)), atol=1e-6)
+        s, h = float(I.mapped(0.5, -0.1, kappa)), 1e-4
+        slope = float(I.mapped(0.5 + h, -0.1, kappa) - I.mapped(0.5 - h, -0.1, kappa)) / (2 * h)
+        assert I._slope(0.5, -0.1, kappa) == pytest.approx(slope, rel=1e-6)
+        e = I.equivalent(y, 0.5, -0.1, kappa=kappa)
+        assert np.exp(e[L.LOG_TW]) * s ** 2 == pytest.approx(np.exp(y[L.LOG_TW]) * 0.5 ** 2, rel=1e-5)
+        assert np.exp(e[L.LOG_AUTH_X]) * s * slope == pytest.approx(np.exp(y[L.LOG_AUTH_X]) * 0.5, rel=1e-4)
+    assert np.allclose(I.mapped(uu, 0.0, 2.0), uu ** 2)
+    with pytest.raises(ValueError, match="motor_kappa must be in \\[0, 2\\]"):
+        SimConfig(motor_kappa=2.5)
 
 
 def test_an_idling_motor_fails_the_check_and_the_same_vehicle_without_idle_passes():
@@ -166,3 +171,17 @@ def test_a_curved_map_is_flagged_and_the_span_of_plausible_maps_holds_the_truth(
     assert abs(np.log(c["thrust_to_weight"][c["map"]]) - true_tw) < 0.15, c["thrust_to_weight"]
     low, high = I.widening({"ok": False}, I.features(c), L.LOG_TW, fit0)
     assert fit0 + low <= true_tw and (-0.1, 0.0) in c["plausible"] and "(curved)" in I.features(c)["idle_at"]
+
+
+def test_a_convex_map_is_flagged_and_refitted_near_the_truth():
+    """Gazebo-classic's motors read through PX4's thrust model with THR_MDL_FAC 0: the rotor speed linear in
+    the ESC's command u = s² from 0.09 Ω_max (Ω = 100 + 1000 u rad/s of 1100), while the log's commands say
+    √u. The check flags it, the convex map κ 2 fits best, and thrust-to-weight under it lies near the truth
+    (the linear map's is 25 % low)."""
+    th = P.paper_hardware()
+    true_tw = float(np.asarray(visible_from_theta(th))[L.LOG_TW])
+    c = _check(synthetic_log(th, seconds=6.0, closed_loop=True, gyro_noise=0.01,
+                             motor_map=lambda s: 0.0909 + 0.9091 * np.clip(s, 0, 1) ** 2))
+    assert c["gain"] > C.load()[I.KEY]["threshold"] and c["map"][1] == 2.0, (c["gain"], c["map"])
+    assert np.log(c["thrust_to_weight"][None]) - true_tw < -0.15
+    assert abs(np.log(c["thrust_to_weight"][c["map"]]) - true_tw) < 0.1, c["thrust_to_weight"]

@@ -81,6 +81,17 @@ def test_map_settings_are_checked():
     with pytest.raises(ValueError, match="motor_idle"):
         SimConfig(motor_idle=1.0)
     with pytest.raises(ValueError, match="motor_kappa"):
-        SimConfig(motor_kappa=1.5)
+        SimConfig(motor_kappa=2.5)
     with pytest.raises(ValueError, match="motor_kappa"):
         SimConfig(motor_kappa=float("nan"))
+
+
+def test_a_convex_map_is_the_square_at_kappa_2_and_between_below():
+    """κ > 1: s = u √(2 − κ + (κ − 1) u²): u² at κ 2 (an ESC linear in its command read as thrust-linear), u at 1,
+    monotone and Ω_max at full command in between."""
+    u = jnp.linspace(0.0, 1.0, 21)
+    s2 = commanded_speed(u, 1.0, SimConfig(motor_idle=0.1, motor_kappa=2.0))
+    np.testing.assert_allclose(s2, 0.1 + 0.9 * u ** 2, atol=1e-6)
+    s15 = np.asarray(commanded_speed(u, 1.0, SimConfig(motor_kappa=1.5)))
+    assert np.all(np.diff(s15) > 0) and s15[-1] == pytest.approx(1.0) and np.all(s15 <= np.asarray(u) + 1e-7)
+    assert np.all(s15 >= np.asarray(u) ** 2 - 1e-7)
