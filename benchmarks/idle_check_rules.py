@@ -21,7 +21,6 @@ Coverage is over the coordinates each rule leaves seen (:func:`~mjxsysid.experim
 """
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -98,7 +97,8 @@ def summary(rows: list[dict], table: dict, rule: str) -> dict:
 def blind_counts(thr: float) -> dict:
     """The window check's 200 simulated logs without idle (``benchmarks/window_check.py``): per flight, how many
     the motor-map check is blind on (``idle_power`` at most the threshold, :func:`~mjxsysid.identify.idlecheck.blind`)."""
-    rows = json.loads((RUNS / "window-check/simulated.json").read_text())["rows"]
+    from mjxsysid.experiments.posterior_calibration import read_json
+    rows = read_json(RUNS / "window-check/simulated.json.gz")["rows"]
     return {fl: f"{sum(r['idle_power'] <= thr for r in rows if r['flight'] == fl)} of "
                 f"{sum(r['flight'] == fl for r in rows)}" for fl in sorted({r["flight"] for r in rows})}
 

@@ -9,11 +9,11 @@ how many the threshold flags; ``--logs`` gives the statistic of real logs.
 
     python benchmarks/window_check.py --vehicles 6 --out docs/runs/measurements/log-grounded/window-check
     python benchmarks/window_check.py --vehicles 6 --out ... --write-threshold    # into the shipped table
-    python benchmarks/window_check.py --from DIR/simulated.json --logs ../shared/data/logs/crazyflie/*.bin
+    python benchmarks/window_check.py --from DIR/simulated.json.gz --logs ../shared/data/logs/crazyflie/*.bin
     python benchmarks/window_check.py --shipped     # both checks' flags under the shipped thresholds, no flight
 
-Writes OUT/simulated.json (one row per log: vehicle, flight, level, the statistic and its shifts),
-OUT/held_out.json and OUT/logs.json, and prints the threshold and the false-alarm rates.
+Writes OUT/simulated.json.gz (one row per log: vehicle, flight, level, the statistic and its shifts),
+OUT/held_out.json.gz, OUT/motor_idle.json.gz, OUT/rotorpy.json and OUT/logs.json, and prints the threshold and the false-alarm rates.
 """
 from __future__ import annotations
 
@@ -127,6 +127,24 @@ def _compact(obj) -> str:
     return json.dumps(r(obj), separators=(",", ":")) + "\n"
 
 
+def write_rows(out: Path, name: str, obj) -> Path:
+    """``obj`` compact (:func:`_compact`) and gzipped at ``out``/<name>.json.gz (a plain <name>.json there removed)."""
+    import gzip
+    (out / f"{name}.json").unlink(missing_ok=True)
+    path = out / f"{name}.json.gz"
+    path.write_bytes(gzip.compress(_compact(obj).encode(), 9, mtime=0))
+    return path
+
+
+def read_rows_file(out: Path, name: str) -> dict | None:
+    """``out``/<name>.json.gz (or a plain <name>.json), or None where neither is."""
+    from mjxsysid.experiments.posterior_calibration import read_json
+    for path in (out / f"{name}.json.gz", out / f"{name}.json"):
+        if path.is_file():
+            return read_json(path)
+    return None
+
+
 def threshold_of(rows, quantile: float) -> float:
     """The ``quantile`` quantile of the rows' statistic (the rows the check ran on)."""
     from mjxsysid.identify.windowcheck import threshold
@@ -162,8 +180,8 @@ def shipped_flags(out: Path) -> None:
             print(f"  {name} {fl}: window {sum(x > t_w for x in w)} of {len(w)}; motor map {sum(x > t_i for x in g)} "
                   f"of {len(g)} (largest {max(g, default=0.0):.1f})")
     for name in ("simulated", "held_out", "motor_idle", "rotorpy"):
-        if (out / f"{name}.json").is_file():
-            show(name, json.loads((out / f"{name}.json").read_text())["rows"])
+        if (d := read_rows_file(out, name)) is not None:
+            show(name, d["rows"])
     if (out / "logs.json").is_file():
         for p, r in json.loads((out / "logs.json").read_text())["logs"].items():
             print(f"  {Path(p).name}: window {r.get('shift')}, motor map {r.get('idle_gain')}")
@@ -182,7 +200,7 @@ def main():
     ap.add_argument("--quantile", type=float, default=None, help="default: windowcheck.QUANTILE")
     ap.add_argument("--held-out", type=int, default=None, metavar="SEED", help="fly --held-out-vehicles more at this seed")
     ap.add_argument("--held-out-vehicles", type=int, default=2)
-    ap.add_argument("--from", dest="from_", default=None, help="read the simulated rows from this simulated.json")
+    ap.add_argument("--from", dest="from_", default=None, help="read the simulated rows from this simulated.json.gz")
     ap.add_argument("--logs", nargs="*", default=[], help="real logs to check against the threshold")
     ap.add_argument("--rotorpy", action="store_true", help="check RotorPy flights too (rotorpy 3.0.0 installed)")
     ap.add_argument("--motor-idle", type=float, default=None, metavar="SHARE",
@@ -205,16 +223,17 @@ def main():
     cmd = ("python benchmarks/window_check.py " + f"--vehicles {a.vehicles} --seed {a.seed} --levels {a.levels} "
            f"--references {a.references}" + (f" --quantile {a.quantile}" if a.quantile is not None else ""))
     if a.from_:
-        sim = json.loads(Path(a.from_).read_text())
+        from mjxsysid.experiments.posterior_calibration import read_json
+        sim = read_json(a.from_)
     else:
         t0 = time.perf_counter()
         sim = {"command": cmd, "rows": []}
 
         def save(rows):
-            (out / "simulated.json").write_text(_compact(sim | {"rows": rows}))
+            write_rows(out, "simulated", sim | {"rows": rows})
         sim["rows"] = simulate(a.vehicles, a.seed, levels, refs, save=save)
         sim["wall_s"] = round(time.perf_counter() - t0, 1)
-        (out / "simulated.json").write_text(_compact(sim))
+        write_rows(out, "simulated", sim)
     rows = sim["rows"]
     thr = threshold_of(rows, q)
     k, n = n_above, n_sim = flagged(rows, thr)
@@ -224,12 +243,12 @@ def main():
         print(f"  {lv}: {kl} of {nl} above")
     if a.held_out is not None:
         ho = simulate(a.held_out_vehicles, a.held_out, levels, refs)
-        (out / "held_out.json").write_text(_compact({"seed": a.held_out, "rows": ho}))
+        write_rows(out, "held_out", {"seed": a.held_out, "rows": ho})
         k, n = flagged(ho, thr)
         print(f"held out (seed {a.held_out}): {k} of {n} logs above the threshold")
     if a.motor_idle is not None:
         mi = simulate(a.held_out_vehicles, a.misfit_seed, levels, refs, motor_idle=a.motor_idle)
-        (out / "motor_idle.json").write_text(_compact({"motor_idle": a.motor_idle, "seed": a.misfit_seed, "rows": mi}))
+        write_rows(out, "motor_idle", {"motor_idle": a.motor_idle, "seed": a.misfit_seed, "rows": mi})
         k, n = flagged(mi, thr)
         print(f"motor idle {a.motor_idle:g}: {k} of {n} logs above the threshold")
     if a.rotorpy:
@@ -257,12 +276,12 @@ def main():
         table = json.loads(SHIPPED.read_text())
         table[W.KEY] = {"threshold": round(thr, 4), "quantile": q, "logs": n_sim, "above": n_above,
                         "levels": levels, "references": refs, "command": cmd + " --write-threshold",
-                        "rows": str(out / "simulated.json"), "date": time.strftime("%Y-%m-%d")}
+                        "rows": str(out / "simulated.json.gz"), "date": time.strftime("%Y-%m-%d")}
         idle = I.threshold_entry([{"level": r["level"], "features": {k: r.get(k) for k in ("idle_gain", "idle_maps")}}
                                   for r in rows])
         if idle is not None:
             table[I.KEY] = idle | {"references": refs, "command": cmd + " --write-threshold",
-                                   "rows": str(out / "simulated.json"), "date": time.strftime("%Y-%m-%d")}
+                                   "rows": str(out / "simulated.json.gz"), "date": time.strftime("%Y-%m-%d")}
         SHIPPED.write_text(json.dumps(table, indent=1) + "\n")
         print(f"wrote {W.KEY}" + (f" and {I.KEY}" if idle is not None else "") + f" into {SHIPPED}")
 

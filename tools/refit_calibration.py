@@ -12,7 +12,7 @@ one command for what ``mjxsysid calibrate-posterior --fit/--evaluate`` does in s
 4. The misfit set (nuts-calibration/rows/misfit: an idle offset), evaluated apart, never recorded.
 
 The window check's and the motor-map check's thresholds: the 0.99 quantile of each statistic over the training
-rows that carry it and the checks' own 200 simulated logs (window-check/simulated.json).
+rows that carry it and the checks' own 200 simulated logs (window-check/simulated.json.gz).
 
 The notes (where the rows came from) are kept from the table being replaced.
 """
@@ -33,7 +33,7 @@ HELD_OUT = [([RUNS / "calibrated/rows" / f"{n}.json.gz" for n in ("test", "test_
             ([RUNS / "calibrated/rows/fam.json.gz"], RUNS / "calibrated/families"),
             ([NUTS_ROWS / "held_out"], RUNS / "nuts-calibration/test")]
 MISFIT = ([NUTS_ROWS / "misfit"], RUNS / "nuts-calibration/misfit")
-WINDOW_SET = RUNS / "window-check/simulated.json"
+WINDOW_SET = RUNS / "window-check/simulated.json.gz"
 """The window check's own simulated logs (benchmarks/window_check.py: 200 logs, hovers and slow figure-eights
 among them, which the calibration rows carrying the statistic lack): pooled with those rows for its threshold."""
 
@@ -41,7 +41,8 @@ among them, which the calibration rows carrying the statistic lack): pooled with
 def window_rows(path: Path = WINDOW_SET) -> list[dict]:
     """The checks' simulated logs at ``path`` as calibration rows ({level, flight, features: {window_shift,
     idle_gain, idle_maps}}, each None where that check did not run)."""
-    rows = json.loads(path.read_text())["rows"]
+    from mjxsysid.experiments.posterior_calibration import read_json
+    rows = read_json(path)["rows"]
     return [{"level": r["level"], "flight": r["flight"],
              "features": {"window_shift": r.get("shift"), "idle_gain": r.get("idle_gain"),
                           "idle_maps": r.get("idle_maps")}} for r in rows]

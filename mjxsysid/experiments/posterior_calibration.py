@@ -79,7 +79,8 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     simulator's static motor map (``SimConfig.motor_idle``, ``motor_kappa``: an idle offset and a curvature the
     likelihood lacks; 0 and 1: the map θ describes); ``resume``: keep the rows of the file already at ``out`` (a
     run the budget or the machine cut, the same settings: ValueError naming those that differ) and identify only
-    the logs it lacks (the flights are seeded, so a resumed file holds the logs one run would)."""
+    the logs it lacks (the flights are seeded, so a resumed file holds the logs one run would). The result's
+    ``skipped`` counts the logs the set lacks and why: flights that failed (crashed or diverged), logs too short."""
     from mjxsysid.identify.inference import LOG_BATCH, log_grounded_posteriors
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
@@ -111,6 +112,8 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     t_start = time.perf_counter()
     step = 1 if jax.default_backend() == "cpu" else LOG_BATCH      # logs identified together (batched on a GPU)
     logs = []                                                       # (data, vehicle index, level, flight name)
+    skipped = {"flight failed": 0, "log too short": 0}
+    res["skipped"] = skipped                                        # logs the set lacks, and why
     for ref, lv in ((r, lv) for r in references for lv in levels):
         if lv not in LEVELS:
             raise ValueError(f"unknown noise level {lv!r}; known: {sorted(LEVELS)}")
@@ -119,7 +122,9 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
         fl, m, _ = fly_vehicles(th, controller=controller, sim=sim, seed=s, policy=pol, **parse_reference(ref))
         flight = ((ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if aero else "")
                   + (f" motor {motor_idle:g}/{motor_kappa:g}" if motor.motor_map else ""))
-        for i in np.flatnonzero(~np.asarray(m["failed"], bool)):
+        failed = np.asarray(m["failed"], bool)
+        skipped["flight failed"] += int(failed.sum())
+        for i in np.flatnonzero(~failed):
             if (int(index[i]), lv, flight) in done:
                 continue
             rec = flight_log(fl.frame, i)
@@ -128,7 +133,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
             try:
                 logs.append((prepare(rec), int(i), lv, flight))
             except LogTooShort:
-                continue
+                skipped["log too short"] += 1
     # every flight's levels interleaved: a batch mixes them, so a run stopped by its budget keeps a balanced set
     order = sorted(range(len(logs)), key=lambda k: (logs[k][1], k))
     for c in progress(range(0, len(order), step), desc="calibration rows"):

@@ -184,6 +184,7 @@ def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_
     assert sorted(levels) == ["clean", "clean", "x1", "x1"] and calls == [3, 1]
     assert levels[:2] == ["clean", "x1"]                        # the first batch mixes the levels
     assert json.loads(out.read_text())["rows"] == res["rows"]
+    assert res["skipped"] == {"flight failed": 0, "log too short": 0}
     calls.clear()
     res = pc.collect(vehicles=2, levels=("clean", "x1"), references=("hover:2",), out=out, time_budget_s=0.0)
     assert res["rows"] == [] and calls == [] and json.loads(out.read_text())["rows"] == []
