@@ -123,10 +123,21 @@ def read_any_log(path, segment=None) -> dict:
     on the motor commands: ground time, spin-up and landing) or at ``segment`` (rows with
     t0 ≤ t ≤ t1, t in the log's own clock), with ``native``, ``resampled`` and ``source`` as a
     reader's (every column group's rate measured from its samples: :func:`~mjxsysid.logs.checks.rates.measure_columns`)."""
-    from mjxsysid.logs.formats import detect, reader
+    from mjxsysid.logs.formats import FORMATS, HEAD_BYTES, detect, reader
     fmt = detect(path)
     if fmt != "CSV":
         return reader(fmt)(path, segment)
+    with open(path, "rb") as f:
+        head = f.read(HEAD_BYTES)
+    if not head:
+        raise ValueError(f"{path}: empty file (0 bytes): no flight log in it")
+    try:
+        head.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        if e.start < len(head) - 4:                     # not a multi-byte character cut at the head's end
+            raise ValueError(f"{path}: not a flight log mjxsysid reads: a binary file whose content matches none of "
+                             f"{', '.join(n for n, *_ in FORMATS)}, and not a text CSV (docs/logs.md lists the "
+                             f"formats; a damaged or truncated log of one of them may not be recognised)") from None
     return cut_csv(read_log(path), path, segment)
 
 

@@ -46,3 +46,13 @@ def test_the_gazebo_iris_thrust_to_weight_is_inside_through_the_motor_map_check(
     assert f["idle_gain"] > 20 and "κ 2" in f["idle_at"], f["idle_at"]
     lo, hi = np.percentile(C.log_quantities(post["theta"])[:, 0], [5, 95])
     assert lo <= TWR <= hi and hi / lo < 1.4, (lo, hi)
+
+
+def test_a_file_of_no_known_format_is_refused_by_what_it_is(tmp_path):
+    """An empty file, and a binary file no reader claims, are named as such (not as a broken CSV)."""
+    (tmp_path / "empty.ulg").write_bytes(b"")
+    with pytest.raises(ValueError, match=r"empty.ulg: empty file \(0 bytes\)"):
+        read_any_log(tmp_path / "empty.ulg")
+    (tmp_path / "noise.bin").write_bytes(np.random.default_rng(0).integers(0, 256, 5000, dtype=np.uint8).tobytes())
+    with pytest.raises(ValueError, match=r"noise.bin: not a flight log mjxsysid reads: .*PX4 ULog.*not a text CSV"):
+        read_any_log(tmp_path / "noise.bin")
