@@ -33,14 +33,24 @@ def expand_logs(paths) -> list[Path]:
     return out
 
 
+MAPPED = ("thrust_to_weight", "authority_total[0]", "authority_total[1]", "yaw_authority_total")
+"""The fleet quantities a command→speed map acts on (:data:`mjxsysid.identify.idlecheck.MAPPED`)."""
+
+
 def fleet_row(name: str, summary: dict | None, error: str | None = None) -> dict:
-    """One log's row: {log, quantities {name: {median, q05, q95, seen}}, error}."""
+    """One log's row: {log, quantities {name: {median, q05, q95, seen}}, motor_map (the best command→speed map
+    where the motor-map check flagged the log, else None), posterior}, or {log, error}."""
     if error is not None:
         return {"log": name, "error": error}
-    gap = (summary or {}).get("_log_grounded", {}).get("gap", {})
+    grounded = (summary or {}).get("_log_grounded", {})
+    gap = grounded.get("gap", {})
+    cal = grounded.get("calibration") or {}
+    flagged = ((cal.get("model_check") or {}).get("idle") or {}).get("ok") is False
+    at = (cal.get("features") or {}).get("idle_at") or ""
     return {"log": name, "quantities": {q: {"median": g["log_median"], "q05": g["log_q05"], "q95": g["log_q95"],
                                             "seen": g["seen_by_log"], "why": g.get("seen_why", "")}
                                         for q, g in gap.items()},
+            "motor_map": at.split(":")[0] if flagged and at else None,
             "posterior": (summary or {}).get("_posterior")}
 
 
@@ -86,7 +96,8 @@ def disagreements(rows: list[dict]) -> list[dict]:
                 va, vb = a["quantities"].get(q), b["quantities"].get(q)
                 if va and vb and va["seen"] and vb["seen"] and (va["q95"] < vb["q05"] or vb["q95"] < va["q05"]):
                     out.append({"quantity": q, "logs": (a["log"], b["log"]),
-                                "bands": ((va["q05"], va["q95"]), (vb["q05"], vb["q95"]))})
+                                "bands": ((va["q05"], va["q95"]), (vb["q05"], vb["q95"])),
+                                "motor_maps": (a.get("motor_map"), b.get("motor_map"))})
     return out
 
 
@@ -96,11 +107,23 @@ def disagreements_markdown(found: list[dict]) -> str:
     if not found:
         return head + "Every quantity two logs saw has overlapping 90 % bands.\n"
     lines = [f"- **{SHORT[d['quantity']]}**: {d['logs'][0]} {_band(d['quantity'], d['bands'][0])} against "
-             f"{d['logs'][1]} {_band(d['quantity'], d['bands'][1])}" for d in found]
-    return (head + f"{len(found)} pairs of bands exclude each other: for each, at least one log's model does not "
+             f"{d['logs'][1]} {_band(d['quantity'], d['bands'][1])}" + _maps_part(d) for d in found]
+    n = len(found)
+    return (head + (f"{n} pairs of bands exclude each other" if n > 1 else "1 pair of bands excludes each other")
+            + ": for each, at least one log's model does not "
             "hold (a flight that hardly excites that axis, a motor map, aerodynamics), though each passed its "
             "checks. Where one flight excites that axis far more than the others, its band is the likelier "
             "(docs/logs.md, a Crazyflie's three flights).\n\n" + "\n".join(lines) + "\n")
+
+
+def _maps_part(d: dict) -> str:
+    """What a pair's line adds where the motor-map check moved both bands to different maps and the quantity
+    rests on the map: the flights show the command→speed map differently."""
+    a, b = d.get("motor_maps") or (None, None)
+    if d["quantity"] not in MAPPED or not a or not b or a == b:
+        return ""
+    return (f": their command→speed maps differ ({a} against {b}); the quantity is its value at full command "
+            f"under the map, so the flights part on the map, which each shows about the commands it flew")
 
 
 def _band(q: str, b) -> str:
