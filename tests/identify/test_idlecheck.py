@@ -185,3 +185,19 @@ def test_a_convex_map_is_flagged_and_refitted_near_the_truth():
     assert c["gain"] > C.load()[I.KEY]["threshold"] and c["map"][1] == 2.0, (c["gain"], c["map"])
     assert np.log(c["thrust_to_weight"][None]) - true_tw < -0.15
     assert abs(np.log(c["thrust_to_weight"][c["map"]]) - true_tw) < 0.1, c["thrust_to_weight"]
+
+
+def test_the_variants_reduced_on_threads_are_the_ones_reduced_one_by_one(monkeypatch):
+    """idlecheck._variants: every (map, log) pair, in order, equal to variant() called one by one, also when the
+    pairs come a few at a time."""
+    import jax
+    logs = [prepare(synthetic_log(P.paper_hardware(), seconds=6.0, seed=s)) for s in (0, 1)]
+    maps = I.MAPS[:3] + I.MAPS[-2:]
+    monkeypatch.setattr(I, "VARIANTS_AT_ONCE", 4)                       # two maps × two logs per round
+    got = list(I._variants(logs, maps))
+    assert [m for m, _ in got] == list(maps)
+    for m, vs in got:
+        for d, v in zip(logs, vs):
+            want = I.variant(d, *m)
+            for a, b in zip(jax.tree.leaves(v), jax.tree.leaves(want)):
+                np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
