@@ -14,7 +14,8 @@ finishes over several).
 
 ``--land``: each piece's rows (plain, .partial, gzipped or xz) written compact into :data:`ROWS` (features
 rounded to 4 decimals, xz): train/, held_out/ (:data:`HELD_OUT`) or misfit/ (:data:`MISFIT`) by its set; a
-piece cut by the deadline says so (``partial``). The same piece in another form there is replaced.
+piece cut by the deadline says so (``partial``). The same piece in another form there is replaced, but
+never a whole piece by a partial one.
 
 ``--todo DIR``: the pieces not yet in DIR (its train/, held_out/ and misfit/ folders, plain or compressed), with
 their logs.
@@ -126,7 +127,7 @@ def land(sources: list[Path], rows: Path = ROWS) -> list[Path]:
     compact into ``rows``/<train|held_out|misfit>/<piece>.json.xz, replacing that piece's other forms there;
     the paths written."""
     import lzma
-    from mjxsysid.experiments.posterior_calibration import read_json
+    from mjxsysid.experiments.posterior_calibration import ROW_SUFFIXES, read_json
     files = [f for p in sources for f in (sorted(p.rglob("*.json*")) if p.is_dir() else [p])
              if "of" in f.name and f.name.split(".json")[1] in ("", ".partial", ".gz", ".xz")]
     written = []
@@ -143,6 +144,11 @@ def land(sources: list[Path], rows: Path = ROWS) -> list[Path]:
         set_ = name.split(".")[0]
         dest = rows / ("held_out" if set_ in HELD_OUT else "misfit" if set_ in MISFIT else "train") / (name + ".json.xz")
         dest.parent.mkdir(parents=True, exist_ok=True)
+        have = [o for o in dest.parent.glob(name + ".json*") if o.resolve() != f.resolve()
+                and o.name.endswith(ROW_SUFFIXES) and "partial" not in read_json(o)]
+        if "partial" in d and have:
+            print(f"skipped {f}: partial, and {have[0]} holds the whole piece", flush=True)
+            continue
         text = json.dumps(d, separators=(",", ":")).encode()
         for old in dest.parent.glob(name + ".json*"):
             if old != dest and old.resolve() != f.resolve():

@@ -134,6 +134,9 @@ def test_landed_rows_are_compact_and_read_back(tmp_path):
     assert len(got) == 3 and got[0]["features"] == {"rates_nsr": -1.2346, "idle_span": [[0.1235]]}
     from mjxsysid.experiments.posterior_calibration import read_json
     assert read_json(rows / "held_out/test_vel.0of4.json.xz")["partial"].startswith("the first 1 logs")
+    (src / "vel_lem.1of4.json.partial").write_text(json.dumps({"rows": [row]}))       # an older, cut copy
+    tool.land([src / "vel_lem.1of4.json.partial"], rows)
+    assert len(read_rows([rows / "train"])) == 3                       # the whole piece is kept
     left = [Path(f).name for f, _ in tool.todo(rows)]
     assert "test_vel.0of4.json" in left and "vel_lem.1of4.json" not in left
 
