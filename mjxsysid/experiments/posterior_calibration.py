@@ -177,7 +177,7 @@ def row(post: dict, theta_true, level: str, vehicle: int, seconds: float) -> dic
 
 
 ROW_SUFFIXES = (".json", ".json.gz", ".json.xz")
-"""The row files' forms: plain, gzipped, or xz-compressed (the committed rows: a third smaller than gzip's)."""
+"""The row files' forms: plain, gzipped, or xz-compressed (the committed rows: a fifth smaller than gzip's)."""
 
 
 def read_json(path) -> dict:
