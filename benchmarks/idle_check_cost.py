@@ -1,5 +1,6 @@
 """The motor-map check's cost per log (:func:`mjxsysid.identify.idlecheck.run`): its maps
-(:data:`~mjxsysid.identify.idlecheck.MAPS`) against the four linear ones alone, on the same logs in one run (alternated, the best of ``--repeats``).
+(:data:`~mjxsysid.identify.idlecheck.MAPS`) against the four linear ones alone, on the same logs in one run
+(alternated, the best of ``--repeats``).
 
     python benchmarks/idle_check_cost.py --vehicles 8
 

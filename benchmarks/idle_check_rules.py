@@ -4,8 +4,8 @@ or is blind on, and what rules for a flagged log's bands give, from the rows alo
     python benchmarks/idle_check_rules.py
 
 The sets: ``docs/runs/measurements/log-grounded/idle-check`` (CPU: idle 0.1; no idle with rotor aerodynamics;
-the Crazyflie-like √u map; Gazebo-classic's u² read through PX4's thrust model) and the GPU misfit rows (idle 0.1; collected before the shifts were kept, so only
-"none" and "drop every coordinate" apply there). The rules, on a flagged log:
+the Crazyflie-like √u map; Gazebo-classic's u² read through PX4's thrust model) and the GPU misfit rows
+(idle 0.1; collected before the shifts were kept, so only "none" and "drop every coordinate" apply there). The rules, on a flagged log:
 
 - none: the check ignored;
 - drop all: every coordinate not seen (a flagged log without shifts, the check's first version);

@@ -13,7 +13,8 @@ how many the threshold flags; ``--logs`` gives the statistic of real logs.
     python benchmarks/window_check.py --shipped     # both checks' flags under the shipped thresholds, no flight
 
 Writes OUT/simulated.json.gz (one row per log: vehicle, flight, level, the statistic and its shifts),
-OUT/held_out.json.gz, OUT/motor_idle.json.gz, OUT/rotorpy.json and OUT/logs.json, and prints the threshold and the false-alarm rates.
+OUT/held_out.json.gz, OUT/motor_idle.json.gz, OUT/rotorpy.json and OUT/logs.json, and prints the threshold
+and the false-alarm rates.
 """
 from __future__ import annotations
 

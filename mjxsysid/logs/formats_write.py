@@ -337,7 +337,8 @@ def write_px4csv(path, t, imu, a_cmd, omega_cmd, motor, *, quat=None, vel=None, 
         v_ned, q_ned = v * FRD, _frd_to_ned(q)
         cols |= {"vx": v_ned[:, 0], "vy": v_ned[:, 1], "vz": v_ned[:, 2], **{f"q{k}": q_ned[:, k] for k in range(4)}}
     dw = np.gradient(g[:, :3], t, axis=0)
-    cols |= {**{f"ang_vel_{a}": g[:, i] for i, a in enumerate("xyz")}, **{f"acc_b_{a}": g[:, 3 + i] for i, a in enumerate("xyz")},
+    cols |= {**{f"ang_vel_{a}": g[:, i] for i, a in enumerate("xyz")},
+             **{f"acc_b_{a}": g[:, 3 + i] for i, a in enumerate("xyz")},
              **{f"ang_acc_b_{a}": dw[:, i] for i, a in enumerate("xyz")}, "landed": (t - t[0] < landed_s).astype(float)}
     table = np.column_stack([np.arange(len(t), dtype=float)] + list(cols.values()))
     np.savetxt(path, table, delimiter=",", header="," + ",".join(cols), comments="", fmt="%.10g")
