@@ -33,10 +33,6 @@ def expand_logs(paths) -> list[Path]:
     return out
 
 
-MAPPED = ("thrust_to_weight", "authority_total[0]", "authority_total[1]", "yaw_authority_total")
-"""The fleet quantities a command→speed map acts on (:data:`mjxsysid.identify.idlecheck.MAPPED`)."""
-
-
 def fleet_row(name: str, summary: dict | None, error: str | None = None) -> dict:
     """One log's row: {log, quantities {name: {median, q05, q95, seen}}, motor_map (the best command→speed map
     where the motor-map check flagged the log, else None), posterior}, or {log, error}."""
@@ -46,11 +42,11 @@ def fleet_row(name: str, summary: dict | None, error: str | None = None) -> dict
     gap = grounded.get("gap", {})
     cal = grounded.get("calibration") or {}
     flagged = ((cal.get("model_check") or {}).get("idle") or {}).get("ok") is False
-    at = (cal.get("features") or {}).get("idle_at") or ""
+    best = (cal.get("features") or {}).get("idle_map")
     return {"log": name, "quantities": {q: {"median": g["log_median"], "q05": g["log_q05"], "q95": g["log_q95"],
                                             "seen": g["seen_by_log"], "why": g.get("seen_why", "")}
                                         for q, g in gap.items()},
-            "motor_map": at.split(":")[0] if flagged and at else None,
+            "motor_map": _describe(best) if flagged and best else None,
             "posterior": (summary or {}).get("_posterior")}
 
 
@@ -116,11 +112,24 @@ def disagreements_markdown(found: list[dict]) -> str:
             "(docs/logs.md, a Crazyflie's three flights).\n\n" + "\n".join(lines) + "\n")
 
 
+def _describe(m) -> str:
+    from mjxsysid.identify.idlecheck import describe
+    return describe(tuple(m))
+
+
+def _mapped_quantities() -> set[str]:
+    """The log quantities made of a coordinate the command→speed map acts on
+    (:data:`~mjxsysid.identify.idlecheck.MAPPED`)."""
+    from mjxsysid.identify.idlecheck import MAPPED
+    from mjxsysid.identify.logspace import LOG_NAMES, V_OF_QUANTITY
+    return {n for n, js in zip(LOG_NAMES, V_OF_QUANTITY) if set(js) & set(MAPPED)}
+
+
 def _maps_part(d: dict) -> str:
     """What a pair's line adds where the motor-map check moved both bands to different maps and the quantity
     rests on the map: the flights show the command→speed map differently."""
     a, b = d.get("motor_maps") or (None, None)
-    if d["quantity"] not in MAPPED or not a or not b or a == b:
+    if not a or not b or a == b or d["quantity"] not in _mapped_quantities():
         return ""
     return (f": their command→speed maps differ ({a} against {b}); the quantity is its value at full command "
             f"under the map, so the flights part on the map, which each shows about the commands it flew")

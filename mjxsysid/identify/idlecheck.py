@@ -257,18 +257,21 @@ def describe(m) -> str:
 def features(check: dict | None) -> dict:
     """A log's check (:func:`run`'s dict, or None) -> the model check's features: idle_gain (the statistic,
     None where it did not run), idle_at (the best map and thrust-to-weight under it, or why it did not run),
+    idle_map ([ι, κ] of the best map, None where none fits better or it did not run),
     idle_shift (12,: the visible coordinates re-fitted under the best map less those under the linear one, log
     units), idle_span (2, 12: the least and the largest such shift over the plausible maps), idle_origin (12,:
     the linear map's re-fit from the mode, the shifts' origin), idle_power (the largest change of the fit any map of :data:`MAPS` makes, either way: :func:`blind`),
     idle_maps (how many maps the statistic is the best of: its version, :func:`threshold_entry`)."""
     if not check or check.get("gain") is None:
-        return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_shift": None,
+        return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_map": None, "idle_shift": None,
                 "idle_span": None, "idle_origin": None, "idle_power": None, "idle_maps": None}
     at = "no other map fits better"
     if check.get("map") is not None:
         tw = check["thrust_to_weight"]
         at = f"{describe(check['map'])}: thrust-to-weight {tw[check['map']]:.3g} against {tw[None]:.3g} under the linear map"
-    return {"idle_gain": float(check["gain"]), "idle_at": at, "idle_shift": check.get("shift"),
+    best = check.get("map")
+    return {"idle_gain": float(check["gain"]), "idle_at": at, "idle_map": None if best is None else list(best),
+            "idle_shift": check.get("shift"),
             "idle_span": check.get("span"), "idle_origin": check.get("origin"), "idle_power": check.get("power"),
             "idle_maps": len(check["gains"])}
 

@@ -82,19 +82,19 @@ def test_a_pair_moved_to_different_motor_maps_says_so():
     names both maps; a quantity the map does not act on, or a pair on one map, adds nothing."""
     from mjxsysid.decoding.fleet import disagreements, disagreements_markdown
 
-    def row(name, tw, tau, at):
-        cal = {"model_check": {"idle": {"ok": False}}, "features": {"idle_at": at + ": thrust-to-weight 2 against 1.7"}}
+    def row(name, tw, tau, m):
+        cal = {"model_check": {"idle": {"ok": False}}, "features": {"idle_map": m}}
         gap = {"thrust_to_weight": {"log_median": sum(tw) / 2, "log_q05": tw[0], "log_q95": tw[1], "seen_by_log": True},
                "motor_time_constant": {"log_median": sum(tau) / 2, "log_q05": tau[0], "log_q95": tau[1],
                                        "seen_by_log": True}}
         return fleet_row(name, {"_log_grounded": {"gap": gap, "calibration": cal}})
-    a = row("log15", (1.56, 1.88), (0.01, 0.02), "idle +0.10 Ω_max, κ 1.5 (curved)")
-    b = row("log16", (1.95, 2.48), (0.03, 0.04), "idle +0.10 Ω_max, κ 2 (curved)")
+    a = row("log15", (1.56, 1.88), (0.01, 0.02), [0.1, 1.5])
+    b = row("log16", (1.95, 2.48), (0.03, 0.04), [0.1, 2.0])
     assert a["motor_map"] == "idle +0.10 Ω_max, κ 1.5 (curved)"
     md = disagreements_markdown(disagreements([a, b]))
     tw = next(ln for ln in md.splitlines() if ln.startswith("- **T/W**"))
     tau = next(ln for ln in md.splitlines() if ln.startswith("- **τ_m"))
     assert "κ 1.5 (curved) against idle +0.10 Ω_max, κ 2" in tw and "maps differ" not in tau
-    same = row("log17", (2.6, 2.9), (0.01, 0.02), "idle +0.10 Ω_max, κ 1.5 (curved)")
+    same = row("log17", (2.6, 2.9), (0.01, 0.02), [0.1, 1.5])
     assert "maps differ" not in disagreements_markdown(disagreements([a, same]))
     assert fleet_row("x", {"_log_grounded": {"gap": {}}})["motor_map"] is None

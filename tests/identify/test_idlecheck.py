@@ -171,6 +171,7 @@ def test_a_curved_map_is_flagged_and_the_span_of_plausible_maps_holds_the_truth(
     assert abs(np.log(c["thrust_to_weight"][c["map"]]) - true_tw) < 0.15, c["thrust_to_weight"]
     low, high = I.widening({"ok": False}, I.features(c), L.LOG_TW, fit0)
     assert fit0 + low <= true_tw and (-0.1, 0.0) in c["plausible"] and "(curved)" in I.features(c)["idle_at"]
+    assert I.features(c)["idle_map"] == list(c["map"]) and I.features(None)["idle_map"] is None
 
 
 def test_a_convex_map_is_flagged_and_refitted_near_the_truth():
