@@ -212,18 +212,18 @@ def read_rows(paths) -> list[dict]:
 
 def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: int = 30, command: str | None = None,
              provenance: dict | None = None, method: str | None = None, base: Path | None = None,
-             window_rows: list[dict] | None = None) -> dict:
+             window_rows: list[dict] | None = None, window_logs: int | None = None) -> dict:
     """Fit the table on the rows of ``paths`` (``bins``, ``min_group``: :func:`~mjxsysid.identify.calibrate.fit`'s)
     and write it to ``out`` with its provenance (``command`` that made it, default the CLI's; ``provenance``:
     more entries, e.g. a release stage's). ``method`` ('smc_nuts', 'smc'): fit on that sampler's rows only and
     write the table at ``base`` (default the shipped one) with this one as its table for ``method``
-    (:func:`~mjxsysid.identify.calibrate.with_method`), interpolating between its bins where the method is one
-    of :data:`~mjxsysid.identify.calibrate.INTERPOLATED`. The window check's and the motor-map check's thresholds
+    (:func:`~mjxsysid.identify.calibrate.with_method`), in windows where the method has an entry in
+    :data:`~mjxsysid.identify.calibrate.WINDOWED` (``window_logs``: its logs a window instead). The window check's and the motor-map check's thresholds
     (:func:`~mjxsysid.identify.windowcheck.threshold_entry`, :func:`~mjxsysid.identify.idlecheck.threshold_entry`)
     are fitted on the rows where enough carry their statistic (with ``window_rows``: more simulated logs'
     statistics, rows of ``{level, features: {window_shift, idle_gain}}``), else kept from ``base``."""
     from mjxsysid.identify import idlecheck, windowcheck
-    from mjxsysid.identify.calibrate import INTERPOLATED, load, with_method
+    from mjxsysid.identify.calibrate import WINDOWED, load, with_method
     rows = read_rows(paths)
     pooled = rows + list(window_rows or [])          # the checks read the mode: every sampler's rows
     checks = {m.KEY: m.threshold_entry(pooled) for m in (windowcheck, idlecheck)}
@@ -233,7 +233,10 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
         if not rows:
             raise ValueError(f"no calibration rows of method {method!r} among the {n} rows of {[str(p) for p in paths]}")
     t0 = time.perf_counter()
-    table = fit(rows, bins=bins, min_group=min_group, interpolate=method in INTERPOLATED)
+    windows = WINDOWED.get(method)
+    if windows is not None and window_logs is not None:
+        windows = windows | {"logs": window_logs}
+    table = fit(rows, bins=bins, min_group=min_group, windows=windows)
     levels = sorted({r["level"] for r in rows})
     cmd = "mjxsysid calibrate-posterior --fit " + " ".join(map(str, paths)) + (f" --method {method}" if method else "")
     table["provenance"] = {"command": command or cmd,

@@ -8,17 +8,19 @@ with the posterior's own half-width as the scale):
 
 - the score of a log i in coordinate j is how far the truth lies beyond its median on each side,
   against the raw band's extent on that side w (v_med − q05 below, q95 − v_med above; v: the
-  log-space coordinates of :mod:`.coords`): each side is calibrated to 95 %, so a median biased to
-  one side moves the band, not only widens it;
+  log-space coordinates of :mod:`.coords`): each side is calibrated on its own (to 95 % in a table of
+  bins; in a table of windows, each side misses its truths' share of the 10 %), so a median biased to one
+  side moves the band, not only widens it;
 - logs are grouped by what they show: the residual scale relative to the signal of the channels
   that inform j (:func:`log_features`), in :data:`BINS` quantile bins of the calibration set, each
   split at its median raw band width (:func:`group_of`);
 - in each coordinate and group, the calibrated half-width is a·w + b: for each floor b of a grid the
   scale a is the split-conformal quantile of max(e − b, 0) / w at level ⌈(n + 1) 0.95⌉ / n, and the
   pair with the narrowest median band is kept (the floor b absorbs a bias the width does not see);
-- NUTS's table interpolates the stretch linearly in the feature between its bins' centres
-  (:data:`INTERPOLATED`, :func:`stretch`): a log between two noise levels of the calibration set gets a
-  band between theirs;
+- NUTS's table is fitted in overlapping **windows** instead of bins (:data:`WINDOWED`, :func:`_fit_windows`):
+  at 16 quantiles of the feature, the 300 calibration logs nearest in it; each side's tail gets the share of
+  the 10 % miss that the truths on that side hold, and :func:`stretch` interpolates linearly between the
+  windows' centres, so a log between two noise levels of the calibration set gets a band between theirs;
 - the samples are stretched about their median by (a·w + b) / w on each side, so the draws, the
   bands and θ stay one object.
 
@@ -91,13 +93,16 @@ RATE_COORDS = np.arange(N_V) != L.LOG_TW
 """The coordinates the rate windows inform, every one but thrust-to-weight (not seen when the motors
 were logged too slowly)."""
 
-INTERPOLATED = ("smc_nuts",)
-"""The samplers whose tables interpolate between their bins (:func:`stretch`; fitted so by
-:func:`~mjxsysid.experiments.posterior_calibration.fit_file`). NUTS's: on a two-fold split of its 2,240
-training rows, cells within 0.85–0.95 75 → 76 of 120; on its 1,084 mixed held-out logs 50 → 49 of 84, the worst cell
-0.71 → 0.84 (thrust-to-weight at × 10, a level never fitted, which fell behind a quantile edge among × 5 logs)
-at widths +0–3 %. The SMC's: 89 → 82 of 120 on its split, 63 → 51 of 84 held out, widths up to 1.29×: kept in
-bins. Chosen after seeing NUTS's held-out × 10 cell (docs/identify.md gives both)."""
+WINDOWED = {"smc_nuts": {"windows": 16, "logs": 300, "relative": 0.3, "least": 0.1}}
+"""The samplers whose tables are fitted in windows (:func:`fit` ``windows``; by
+:func:`~mjxsysid.experiments.posterior_calibration.fit_file`): ``windows`` quantiles of the feature, each
+fitted on its ``logs`` nearest calibration logs, each side at least ``relative`` × the other side's extent and
+``least`` × the raw side (:func:`side_factors`). NUTS's, chosen on a three-fold split of its 3,970 training
+rows (cells within 0.85–0.95 of 180): the bins 114 (3 under 0.85); windows with both tails at 95 % and the
+bins' guard (each side ≥ half the raw one) 134 (9 under), since a clean log's raw band is often more than
+twice too wide; the shares and this guard 157 (9 under, the worst 0.825). 12 or 20 windows, 400 logs, a
+relative 0.5 or least 0.2: 145–155. The SMC's table stays in bins with :data:`MIN_SIDE` (on its split, 140
+→ 136 of 180 with this guard)."""
 
 BOUND_FRACTION = 0.01
 """A narrow band within this share of the prior's range from one of its bounds is not seen: the log asks
@@ -178,14 +183,14 @@ def fit_scale_floor(err, half, level: float = LEVEL) -> tuple[float, float]:
 
 
 def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: int = 30,
-        interpolate: bool = False) -> dict:
+        windows: dict | None = None) -> dict:
     """Calibration rows (one per simulated log: ``truth_v`` (12,), ``bands`` (3, 12) from
     :func:`raw_bands`, ``features`` from :func:`log_features`) -> the calibration table: per
-    coordinate, the feature's bin edges and (a, b) per bin; the features' ranges and the residual
+    coordinate, the feature's groups and (a, b) per group and side; the features' ranges and the residual
     correlation the set covers (the model check's limits). Logs whose rates were not used are left
-    out of the rate coordinates; a bin of fewer than ``min_group`` logs (tied features) takes the pooled
-    fit. ``interpolate``: the bins' centres are kept, and :func:`stretch` interpolates between them.
-    ValueError if a coordinate has fewer than ``min_group`` × ``bins`` logs."""
+    out of the rate coordinates. ``windows`` None: ``bins`` quantile bins, a bin of fewer than ``min_group``
+    logs (tied features) taking the pooled fit (:func:`_fit_bins`); else a :data:`WINDOWED` entry
+    (:func:`_fit_windows`). ValueError if a coordinate has too few logs for either."""
     if not rows:
         raise ValueError("posterior calibration: no rows to fit")
     truth = np.array([r["truth_v"] for r in rows], np.float64)
@@ -194,15 +199,22 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
     used = np.array([r["features"]["rates_used"] for r in rows], bool)
     vel = np.array([bool(r["features"].get("velocity_used", False)) for r in rows], bool)
     weights = np.array([r.get("weights", [1.0] * L.N_CHANNELS) for r in rows], np.float64)
-    strata = vel.sum() >= min_group * bins           # enough logs with velocity for a stratum of their own
+    need = min_group * bins if windows is None else windows["logs"]
+
+    def one(j: int, keep) -> dict:
+        if keep.sum() < need:
+            raise ValueError(f"posterior calibration: {int(keep.sum())} logs for {V_NAMES[j]}; need {need} ("
+                             + (f"{bins} bins of {min_group})" if windows is None else "one window)"))
+        args = (j, truth[keep], bands[keep], feats[keep, COORD_FEATURE[j]], level)
+        return _fit_bins(*args, bins, min_group) if windows is None else _fit_windows(*args, **windows)
+    strata = vel.sum() >= need                       # enough logs with velocity for a stratum of their own
     table, vel_table = [], {}
     for j in range(N_V):
         keep = used if RATE_COORDS[j] else np.ones(len(rows), bool)
         if strata and j in VELOCITY_COORDS:
-            vel_table[str(j)] = _fit_coord(j, truth[keep & vel], bands[keep & vel], feats[keep & vel], level, bins,
-                                           min_group, interpolate)
+            vel_table[str(j)] = one(j, keep & vel)
             keep = keep & ~vel
-        table.append(_fit_coord(j, truth[keep], bands[keep], feats[keep], level, bins, min_group, interpolate))
+        table.append(one(j, keep))
     rng = {f: [float(np.min(feats[:, i])), float(np.max(feats[:, i]))] for i, f in enumerate(FEATURE_NAMES)}
     min_weight = np.full(L.N_CHANNELS, np.quantile(weights[used][:, L.GYRO], 0.005))
     min_weight[L.ACC_Z] = np.quantile(weights[:, L.ACC_Z], 0.005)
@@ -210,31 +222,68 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
             "min_weight": min_weight.tolist(), "logs": len(rows)}
 
 
-def _fit_coord(j: int, truth, bands, feats, level: float, bins: int, min_group: int, interpolate: bool) -> dict:
-    """Coordinate j's table entry from its logs' truths (n, 12), raw bands (n, 3, 12) and features (n, F)."""
-    if len(truth) < min_group * bins:
-        raise ValueError(f"posterior calibration: {len(truth)} logs for {V_NAMES[j]}; need "
-                         f"{min_group * bins} ({bins} bins of {min_group})")
-    side_level = 1 - (1 - level) / 2
-    x = feats[:, COORD_FEATURE[j]]
+def _sides(d, below, above, level: float, shares: bool) -> tuple[tuple[float, float], tuple[float, float]]:
+    """One group's truths beyond the median d (n,) (> 0 above) and raw extents below and above (n,) -> the
+    (a, b) of :func:`fit_scale_floor` below and above. Each side misses half of 1 − ``level``, or with
+    ``shares`` the share of it that the truths on that side hold: a group whose truths all lie below
+    misses its 10 % below, instead of holding 95 % there and every truth above."""
+    p_hi = float(np.mean(d > 0)) if shares else 0.5
+    cap = len(d) / (len(d) + 1.0)                    # the largest score: a side no truth lies on gets 0
+    lv_lo, lv_hi = (min(1 - (1 - level) * p, cap) for p in (1 - p_hi, p_hi))
+    return (fit_scale_floor(np.maximum(-d, 0), below, lv_lo), fit_scale_floor(np.maximum(d, 0), above, lv_hi))
+
+
+def _entry(j: int, x, sides: list, guard: tuple[float, float], **entry) -> dict:
+    """Coordinate j's table entry from its feature values x (n,), each group's :func:`_sides` and ``guard``
+    (relative, least: :func:`side_factors`)."""
+    return {"name": V_NAMES[j], "feature": FEATURE_NAMES[COORD_FEATURE[j]], **entry, "feature_max": float(np.max(x)),
+            "scale_below": [lo[0] for lo, _ in sides], "floor_below": [lo[1] for lo, _ in sides],
+            "scale_above": [hi[0] for _, hi in sides], "floor_above": [hi[1] for _, hi in sides],
+            "guard": list(guard)}
+
+
+def _fit_bins(j: int, truth, bands, x, level: float, bins: int, min_group: int) -> dict:
+    """Coordinate j's entry from its logs' truths (n, 12), raw bands (n, 3, 12) and feature x (n,): ``bins``
+    quantile bins of x, each split at its median raw width (:func:`group_of`), both tails at 95 %, guarded
+    by :data:`MIN_SIDE`."""
     edges = np.quantile(x, np.linspace(0, 1, bins + 1)[1:-1])
     k = np.searchsorted(edges, x)
     width = bands[:, 2, j] - bands[:, 0, j]
     split = [float(np.median(width[k == i])) if (k == i).any() else 0.0 for i in range(bins)]
     entry = {"edges": edges.tolist(), "width_split": split}
     grp = np.array([group_of(entry, xi, wi) for xi, wi in zip(x, width)])
-    entry["feature_max"] = float(np.max(x))
-    if interpolate:
-        entry["centres"] = [float(np.median(x[k == i])) if (k == i).any() else None for i in range(bins)]
-    d = truth[:, j] - bands[:, 1, j]          # > 0: the truth above the median
+    d = truth[:, j] - bands[:, 1, j]
     below, above = bands[:, 1, j] - bands[:, 0, j], bands[:, 2, j] - bands[:, 1, j]
     groups = [grp == i if (grp == i).sum() >= min_group else k == i // 2 for i in range(2 * bins)]
-    lo = [fit_scale_floor(np.maximum(-d[g], 0), below[g], side_level) for g in groups]
-    hi = [fit_scale_floor(np.maximum(d[g], 0), above[g], side_level) for g in groups]
-    return {"name": V_NAMES[j], "feature": FEATURE_NAMES[COORD_FEATURE[j]], **entry,
-            "scale_below": [a for a, _ in lo], "floor_below": [b for _, b in lo],
-            "scale_above": [a for a, _ in hi], "floor_above": [b for _, b in hi],
-            "logs": [int((grp == i).sum()) for i in range(2 * bins)]}
+    sides = [_sides(d[g], below[g], above[g], level, shares=False) for g in groups]
+    return _entry(j, x, sides, (0.0, MIN_SIDE), **entry, logs=[int((grp == i).sum()) for i in range(2 * bins)])
+
+
+def _fit_windows(j: int, truth, bands, x, level: float, windows: int, logs: int, relative: float,
+                 least: float) -> dict:
+    """Coordinate j's entry from its logs' truths (n, 12), raw bands (n, 3, 12) and feature x (n,) in
+    ``windows`` windows: at the quantiles (i + ½) / windows of x, the ``logs`` logs nearest in x's rank, split at
+    their median raw width into two groups, each side's tail given its truths' share of the miss
+    (:func:`_sides`). The windows' centres (their median x) are what :func:`stretch` interpolates between;
+    ``edges`` (midway between centres) only name a log's group."""
+    n = len(x)
+    order = np.argsort(x, kind="stable")
+    width = bands[:, 2, j] - bands[:, 0, j]
+    d = truth[:, j] - bands[:, 1, j]
+    below, above = bands[:, 1, j] - bands[:, 0, j], bands[:, 2, j] - bands[:, 1, j]
+    centres, split, sides, counts = [], [], [], []
+    for q in (np.arange(windows) + 0.5) / windows:
+        start = min(max(int(q * n) - logs // 2, 0), n - logs)
+        idx = order[start:start + logs]
+        centres.append(float(np.median(x[idx])))
+        split.append(float(np.median(width[idx])))
+        for g in (idx[width[idx] <= split[-1]], idx[width[idx] > split[-1]]):
+            g = g if len(g) else idx                 # tied widths: the window whole
+            sides.append(_sides(d[g], below[g], above[g], level, shares=True))
+            counts.append(len(g))
+    centres = np.maximum.accumulate(centres)
+    return _entry(j, x, sides, (relative, least), edges=((centres[1:] + centres[:-1]) / 2).tolist(),
+                  width_split=split, centres=centres.tolist(), logs=counts)
 
 
 def load(path=None, check: bool = True) -> dict:
@@ -368,8 +417,8 @@ def _group_in(coord: dict, i: int, width: float) -> int:
 
 
 MIN_SIDE = 0.5
-"""The least a side of a band is stretched (:func:`side_factors`): the calibration may move a band and
-widen it, and narrow each side at most to half the raw posterior's. A group of calibration logs whose
+"""The least a side of a band is stretched in a table of bins (:func:`side_factors`'s guard (0, MIN_SIDE)):
+the calibration may move a band and widen it, and narrow each side at most to half the raw posterior's. A group of calibration logs whose
 truths all lay on one side of the median fits a zero extent on the other (the shipped table: the yaw-axis
 authority's upper side in 6 of 8 bins), and a log biased the other way (a real flight) then gets a band
 that ends at its median. On the held-out rows this costs little: the SMC's 2,941 test rows 0.884 -> 0.886
@@ -379,14 +428,14 @@ never narrowing: 0.939 at 28 % more)."""
 
 def stretch(q, coord: dict, x: float) -> tuple[int, float, float]:
     """A coordinate's raw 5/50/95 % quantiles q (3,), its table entry and the log's feature ``x`` -> (group,
-    stretch below, stretch above). Between two bins' centres (the median feature of each bin's calibration
-    logs) the stretches are interpolated linearly in the feature, each bin's taken in its own width half;
-    beyond the outer centres, the outer bin's: a log between two noise levels of the calibration set gets
-    a band between theirs, not the one whose quantile edge it happened to fall behind."""
+    stretch below, stretch above). In a table of windows (:func:`_fit_windows`), between two windows' centres
+    the stretches are interpolated linearly in the feature, each window's taken in its own width half; beyond
+    the outer centres, the outer window's: a log between two noise levels of the calibration set gets a band
+    between theirs. In a table of bins, its group's."""
     width = q[2] - q[0]
     b = group_of(coord, x, width)
     cen = coord.get("centres")
-    if cen is None or any(c is None for c in cen):
+    if cen is None:
         return (b, *side_factors(q, coord, b))
     i = int(np.searchsorted(cen, x)) - 1                 # x between cen[i] and cen[i + 1]
     if i < 0 or i >= len(cen) - 1:
@@ -414,11 +463,16 @@ def checked_stretch(q, coord: dict, features: dict, check: dict, j: int) -> tupl
 
 
 def side_factors(q, coord: dict, b: int) -> tuple[float, float]:
-    """A coordinate's raw 5/50/95 % quantiles q (3,) and its table entry in bin ``b`` -> the stretch
-    below and above the median, (a·w + b_floor) / w on each side, at least :data:`MIN_SIDE`."""
+    """A coordinate's raw 5/50/95 % quantiles q (3,) and its table entry in group ``b`` -> the stretch
+    below and above the median: (a·w + b_floor) / w on each side, guarded by the entry's ``guard``
+    (relative, least): each side at least ``least`` × its raw extent, then each extent at least ``relative`` ×
+    the other side's. A group whose truths all lay on one side fits a zero extent on the other; a log
+    biased the other way (a real flight) would get a band that ends at its median."""
+    relative, least = coord["guard"]
     below, above = max(q[1] - q[0], 1e-12), max(q[2] - q[1], 1e-12)
-    return (max((coord["scale_below"][b] * below + coord["floor_below"][b]) / below, MIN_SIDE),
-            max((coord["scale_above"][b] * above + coord["floor_above"][b]) / above, MIN_SIDE))
+    lo = max(coord["scale_below"][b] * below + coord["floor_below"][b], least * below)
+    hi = max(coord["scale_above"][b] * above + coord["floor_above"][b], least * above)
+    return max(lo, relative * hi) / below, max(hi, relative * lo) / above
 
 
 SPEED_WHY = ("τ_m from command to measured rotor speed: its raw band, not stretched by the table (fitted on "

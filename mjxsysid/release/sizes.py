@@ -72,7 +72,8 @@ class CalibrationSizes:
     flown at ``train_levels`` and ``held_out_levels`` (:data:`mjxsysid.uses.imu_noise.LEVELS`), and
     ``misfit`` sets flown at ``train_levels``: a misspecification the table is not fitted on, evaluated apart;
     each set collected in ``shards`` pieces (every shards-th vehicle: a piece resumes on its own);
-    the table's ``bins`` and ``min_group`` (:func:`mjxsysid.identify.calibrate.fit`)."""
+    the table's ``bins`` and ``min_group`` (:func:`mjxsysid.identify.calibrate.fit`), and the logs of a window of
+    the tables fitted in windows (:data:`mjxsysid.identify.calibrate.WINDOWED`: NUTS's)."""
     train: Mapping[str, CalibrationSet]
     held_out: Mapping[str, CalibrationSet]
     train_levels: tuple[str, ...]
@@ -81,6 +82,7 @@ class CalibrationSizes:
     bins: int
     min_group: int
     misfit: Mapping[str, CalibrationSet] = dataclasses.field(default_factory=_frozen)
+    window_logs: int = 300
 
     def logs(self) -> tuple[int, int, int]:
         """(training logs, held-out logs, misfit logs) flown."""
@@ -105,7 +107,7 @@ FULL_CALIBRATION = CalibrationSizes(
     shards=4, bins=4, min_group=30,
     misfit=_frozen(motor=_CAL(128, 12, ("lemniscate:10", "hover:8"), motor_idle=0.1)))
 """The protocol of the release's table (docs/identify.md, "Calibration by simulation"): 7 training sets of 128 vehicles at
-5 levels, 2 held-out sets at 7 (other seeds), 4 bins of at least 30 logs; ``motor`` (an idle offset of 0.1 Ω_max in the
+5 levels, 2 held-out sets at 7 (other seeds), 4 bins of at least 30 logs (the SMC's table), windows of 300 (NUTS's); ``motor`` (an idle offset of 0.1 Ω_max in the
 static motor map) evaluated apart: fitting it widened every log's bands and still left its own logs uncovered."""
 
 
@@ -172,7 +174,7 @@ TINY = Sizes(
         train=_frozen(train=_CAL(3, 5, ("hover:2",), velocity=False)),
         held_out=_frozen(test=_CAL(2, 71, ("hover:2",), velocity=False)),
         train_levels=("clean", "x1"), held_out_levels=("clean", "x1"), shards=1, bins=1, min_group=2,
-        misfit=_frozen(motor=_CAL(1, 12, ("hover:2",), velocity=False, motor_idle=0.1))))
+        misfit=_frozen(motor=_CAL(1, 12, ("hover:2",), velocity=False, motor_idle=0.1)), window_logs=2))
 
 SIZES = {"full": FULL, "tiny": TINY}
 """Per scale, its sizes."""

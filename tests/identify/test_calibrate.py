@@ -198,17 +198,45 @@ def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_
 
 
 def test_a_band_side_never_collapses_to_its_median():
-    """Calibration logs whose truths all lay below the median fit a zero upper extent; applied, the
-    upper side keeps half the raw one (MIN_SIDE), so a log biased the other way is not cut at its median."""
+    """Calibration logs whose truths all lay below the median fit a zero upper extent; applied, the upper
+    side keeps half the raw one in a table of bins (MIN_SIDE), and in a table of windows at least 0.3 of the
+    lower side's extent and 0.1 of its raw one, so a log biased the other way is not cut at its median."""
     rng = np.random.default_rng(3)
     rows = _rows(400, rng, bias=1.5, spread=0.3)               # medians above the truth: errors below only
-    tab = C.fit(rows, bins=2)
-    j = 5
-    c = tab["coords"][j]
-    assert min(c["scale_above"]) == 0.0 and min(c["floor_above"]) == 0.0      # the fit's collapsed side
     q = np.array([0.9, 1.0, 1.1])
+    c = C.fit(rows, bins=2)["coords"][5]
+    assert min(c["scale_above"]) == 0.0 and min(c["floor_above"]) == 0.0      # the fit's collapsed side
     k_lo, k_hi = C.side_factors(q, c, int(np.argmin(c["scale_above"])))
     assert k_hi == C.MIN_SIDE == 0.5 and k_lo > 1.0
+    w = C.fit(rows, windows=WINDOWS)["coords"][5]
+    assert max(w["scale_above"]) == 0.0 and max(w["floor_above"]) == 0.0
+    k_lo, k_hi = C.side_factors(q, w, 0)
+    assert k_lo > 1.0 and k_hi == pytest.approx(0.3 * k_lo)
+
+
+WINDOWS = {"windows": 4, "logs": 200, "relative": 0.3, "least": 0.1}
+
+
+def test_windows_give_each_tail_its_truths_share_of_the_miss():
+    """Raw bands three times too wide around medians biased above every truth: a table of bins calibrates
+    each side to 95 % (every truth above the upper edge is none, so it holds 0.95, and MIN_SIDE keeps the
+    upper side at half the raw one); a table of windows gives the lower tail the whole 10 % miss and may
+    narrow below half the raw band: 0.86-0.94 on fresh logs, and narrower."""
+    def rows(n, seed):
+        rs = _rows(n, np.random.default_rng(seed), bias=0.0, spread=0.0)
+        g = np.random.default_rng(seed + 100)
+        for r in rs:                                           # error −(0.3 + |N(0, 0.1)|) w: below the median
+            w = np.array(r["bands"][2]) - np.array(r["bands"][1])
+            med = np.array(r["truth_v"]) + (0.3 + np.abs(0.1 * g.standard_normal(N_V))) * w
+            r["bands"] = [(med - w).tolist(), med.tolist(), (med + w).tolist()]
+        return rs
+    fit_rows, fresh = rows(1200, 0), rows(3000, 1)
+    bins, win = C.fit(fit_rows), C.fit(fit_rows, windows=C.WINDOWED["smc_nuts"])
+    assert all(v == 1.0 for v in pc.evaluate(fresh, None)["synthetic"]["coverage"].values())
+    cb, cw = pc.evaluate(fresh, bins)["synthetic"], pc.evaluate(fresh, win)["synthetic"]
+    assert all(c >= 0.94 for c in cb["coverage"].values()), cb["coverage"]
+    assert all(0.86 <= c <= 0.94 for c in cw["coverage"].values()), cw["coverage"]
+    assert all(cw["median_width"][k] < 0.9 * cb["median_width"][k] for k in cw["median_width"])
 
 
 NUTS_ROWS = RUNS.parent.parent / "nuts-calibration" / "rows"
@@ -340,29 +368,30 @@ def test_the_shipped_table_is_what_the_committed_rows_give(tmp_path):
     assert (tmp_path / "ev" / "nuts-calibration" / "misfit" / "evaluation.json").is_file()
 
 
-def test_interpolated_table_puts_a_log_between_two_bins_between_their_bands():
-    """A table fitted with interpolation: a log at a bin's centre gets that bin's stretch, one halfway
-    between two centres the mean of the two bins' (each in its own width half), one beyond the outer
-    centres the outer bin's; a table without centres keeps its bins."""
+def test_a_table_of_windows_puts_a_log_between_two_windows_between_their_bands():
+    """A table fitted in windows: a log at a window's centre gets that window's stretch, one halfway
+    between two centres the mean of the two windows' (each in its own width half), one beyond the outer
+    centres the outer window's; a table of bins has no centres and keeps its bins."""
     rng = np.random.default_rng(4)
     rows = _rows(1200, rng, bias=0.0, spread=1.0)
-    for r in rows:                                    # errors grow with the feature: each bin's stretch differs
+    for r in rows:                                    # errors grow with the feature: each window's stretch differs
         s = 10 ** (0.5 * r["features"]["rates_nsr"] + 2)
         med = np.array(r["truth_v"]) + (np.array(r["bands"][1]) - np.array(r["truth_v"])) * s
         w = np.array(r["bands"][2]) - np.array(r["bands"][1])
         r["bands"] = [(med - w).tolist(), med.tolist(), (med + w).tolist()]
-    table = C.fit(rows, interpolate=True)
+    table = C.fit(rows, windows=WINDOWS | {"windows": 8})
     c = table["coords"][1]
     cen = c["centres"]
+    assert len(cen) == 8 and np.all(np.diff(cen) > 0)
     q = np.array([0.0, 0.05, 0.1])                    # a raw band of width 0.1
-    half = lambda x: int(0.1 > c["width_split"][int(np.searchsorted(c["edges"], x))])   # noqa: E731
-    at = [C.side_factors(q, c, 2 * i + half(x)) for i, x in enumerate(cen)]
+    half = lambda i: int(0.1 > c["width_split"][i])   # noqa: E731
+    at = [C.side_factors(q, c, 2 * i + half(i)) for i in range(len(cen))]
     for i, x in enumerate(cen):
         assert C.stretch(q, c, x)[1:] == pytest.approx(at[i])
     mid = C.stretch(q, c, 0.5 * (cen[1] + cen[2]))[1:]
     assert mid == pytest.approx(0.5 * (np.array(at[1]) + np.array(at[2])))
     assert C.stretch(q, c, cen[-1] + 5.0)[1:] == pytest.approx(at[-1])
-    assert at[-1][1] > at[0][1]                      # the noisier bins' bands wider
+    assert at[-1][1] > at[0][1]                      # the noisier windows' bands wider
     plain = C.fit(rows)["coords"][1]
     assert "centres" not in plain
     x = 0.5 * (cen[1] + cen[2])

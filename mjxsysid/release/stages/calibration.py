@@ -89,10 +89,11 @@ def collect_piece(rel: ReleaseView, out: Path, piece, device: str | None, commit
 def _nuts_table(train: list[Path], path: Path, cal: CalibrationSizes, commit, device, command: str) -> dict | None:
     """The table at ``path`` with a table of its own for NUTS-refined posteriors (the rows whose chains mixed,
     :func:`mjxsysid.identify.calibrate.for_method`), written there; None (the pooled table alone) where they
-    are too few for the sizes' bins."""
+    are too few for the sizes' window."""
     from mjxsysid.experiments.posterior_calibration import fit_file
     try:
         return fit_file(train, path, bins=cal.bins, min_group=cal.min_group, method="smc_nuts", base=path,
+                        window_logs=cal.window_logs,
                         command=command + " (NUTS's table: the rows whose chains mixed)",
                         provenance={"commit": commit, "device": device})
     except ValueError:
