@@ -6,7 +6,7 @@
   raw 5/50/95 % bands in the visible coordinates v, the features, the residual discounts. Sharded
   (``shard`` 'i/k': every k-th vehicle from the i-th) so that processes share a GPU; several flights
   (a lemniscate, a slower one, min-snap, hover: excitation from strong to none).
-- ``fit``: rows -> the calibration table (:func:`~mjxsysid.identify.calibrate.fit`) with provenance.
+- ``fit``: rows -> the calibration table (:func:`~mjxsysid.identify.calibration_fit.fit`) with provenance.
 - ``evaluate``: a table applied to rows it never saw -> coverage and median width per coordinate
   and level, the oracle width (the 90 % quantile of the median's error), the share of logs holding
   fewer than half of their truths, a coverage-against-width figure and SBC-style rank histograms.
@@ -20,14 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from mjxsysid.identify.calibrate import (
-    BINS,
-    COORD_FEATURE,
-    FEATURE_NAMES,
-    fit,
-    log_features,
-    raw_bands,
-)
+from mjxsysid.identify.calibrate import BINS, COORD_FEATURE, FEATURE_NAMES, log_features, raw_bands
+from mjxsysid.identify.calibration_fit import fit
 from mjxsysid.experiments.common import git_commit
 from mjxsysid.identify.coords import V_NAMES, visible_from_theta
 from mjxsysid.runtime.progress import progress
@@ -213,17 +207,18 @@ def read_rows(paths) -> list[dict]:
 def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: int = 30, command: str | None = None,
              provenance: dict | None = None, method: str | None = None, base: Path | None = None,
              window_rows: list[dict] | None = None, window_logs: int | None = None) -> dict:
-    """Fit the table on the rows of ``paths`` (``bins``, ``min_group``: :func:`~mjxsysid.identify.calibrate.fit`'s)
+    """Fit the table on the rows of ``paths`` (``bins``, ``min_group``: :func:`~mjxsysid.identify.calibration_fit.fit`'s)
     and write it to ``out`` with its provenance (``command`` that made it, default the CLI's; ``provenance``:
     more entries, e.g. a release stage's). ``method`` ('smc_nuts', 'smc'): fit on that sampler's rows only and
     write the table at ``base`` (default the shipped one) with this one as its table for ``method``
     (:func:`~mjxsysid.identify.calibrate.with_method`), in windows where the method has an entry in
-    :data:`~mjxsysid.identify.calibrate.WINDOWED` (``window_logs``: its logs a window instead). The window check's and the motor-map check's thresholds
+    :data:`~mjxsysid.identify.calibration_fit.WINDOWED` (``window_logs``: its logs a window instead). The window check's and the motor-map check's thresholds
     (:func:`~mjxsysid.identify.windowcheck.threshold_entry`, :func:`~mjxsysid.identify.idlecheck.threshold_entry`)
     are fitted on the rows where enough carry their statistic (with ``window_rows``: more simulated logs'
     statistics, rows of ``{level, features: {window_shift, idle_gain}}``), else kept from ``base``."""
     from mjxsysid.identify import idlecheck, windowcheck
-    from mjxsysid.identify.calibrate import WINDOWED, load, with_method
+    from mjxsysid.identify.calibrate import load, with_method
+    from mjxsysid.identify.calibration_fit import WINDOWED
     rows = read_rows(paths)
     pooled = rows + list(window_rows or [])          # the checks read the mode: every sampler's rows
     checks = {m.KEY: m.threshold_entry(pooled) for m in (windowcheck, idlecheck)}

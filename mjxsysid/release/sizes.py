@@ -72,8 +72,8 @@ class CalibrationSizes:
     flown at ``train_levels`` and ``held_out_levels`` (:data:`mjxsysid.uses.imu_noise.LEVELS`), and
     ``misfit`` sets flown at ``train_levels``: a misspecification the table is not fitted on, evaluated apart;
     each set collected in ``shards`` pieces (every shards-th vehicle: a piece resumes on its own);
-    the table's ``bins`` and ``min_group`` (:func:`mjxsysid.identify.calibrate.fit`), and the logs of a window of
-    the tables fitted in windows (:data:`mjxsysid.identify.calibrate.WINDOWED`: NUTS's)."""
+    the table's ``bins`` and ``min_group`` (:func:`mjxsysid.identify.calibration_fit.fit`), and the logs of a window of
+    the tables fitted in windows (:data:`mjxsysid.identify.calibration_fit.WINDOWED`: NUTS's)."""
     train: Mapping[str, CalibrationSet]
     held_out: Mapping[str, CalibrationSet]
     train_levels: tuple[str, ...]

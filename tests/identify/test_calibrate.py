@@ -10,6 +10,7 @@ import pytest
 
 from mjxsysid.experiments import posterior_calibration as pc
 from mjxsysid.identify import calibrate as C
+from mjxsysid.identify import calibration_fit as F
 from mjxsysid.identify.coords import N_V, PHYSICAL_PRIOR, V_NAMES
 from mjxsysid.identify.inference import _calibrated
 
@@ -33,14 +34,14 @@ def _rows(n, rng, bias=0.0, spread=1.0):
 
 def test_conformal_quantile_is_the_finite_sample_order_statistic():
     s = np.arange(1, 20, dtype=float)        # n = 19: ⌈20 · 0.9⌉ = 18th smallest
-    assert C.conformal_quantile(s, 0.9) == 18.0
-    assert C.conformal_quantile(s[:5], 0.9) == np.inf
+    assert F.conformal_quantile(s, 0.9) == 18.0
+    assert F.conformal_quantile(s[:5], 0.9) == np.inf
 
 
 def test_fit_reaches_its_coverage_on_fresh_logs_and_moves_a_biased_median():
     rng = np.random.default_rng(0)
     # the raw bands hold ~0.5 of the truths (error sd 1.5 w) and are biased by 2 w: too narrow and off-centre
-    table = C.fit(_rows(1200, rng, bias=2.0, spread=1.5), min_group=30)
+    table = F.fit(_rows(1200, rng, bias=2.0, spread=1.5), min_group=30)
     fresh = _rows(3000, np.random.default_rng(1), bias=2.0, spread=1.5)
     raw, cal = pc.evaluate(fresh, None)["synthetic"], pc.evaluate(fresh, table)["synthetic"]
     assert max(raw["coverage"].values()) < 0.5
@@ -132,7 +133,7 @@ def test_the_shipped_table_holds_its_coverage_on_held_out_logs():
 
 def test_fit_refuses_too_few_logs_and_load_names_the_command(tmp_path):
     with pytest.raises(ValueError, match="need"):
-        C.fit(_rows(20, np.random.default_rng(4)))
+        F.fit(_rows(20, np.random.default_rng(4)))
     with pytest.raises(FileNotFoundError, match="calibrate-posterior"):
         C.load(tmp_path / "none.json")
     bad = tmp_path / "bad.json"
@@ -204,11 +205,11 @@ def test_a_band_side_never_collapses_to_its_median():
     rng = np.random.default_rng(3)
     rows = _rows(400, rng, bias=1.5, spread=0.3)               # medians above the truth: errors below only
     q = np.array([0.9, 1.0, 1.1])
-    c = C.fit(rows, bins=2)["coords"][5]
+    c = F.fit(rows, bins=2)["coords"][5]
     assert min(c["scale_above"]) == 0.0 and min(c["floor_above"]) == 0.0      # the fit's collapsed side
     k_lo, k_hi = C.side_factors(q, c, int(np.argmin(c["scale_above"])))
     assert k_hi == C.MIN_SIDE == 0.5 and k_lo > 1.0
-    w = C.fit(rows, windows=WINDOWS)["coords"][5]
+    w = F.fit(rows, windows=WINDOWS)["coords"][5]
     assert max(w["scale_above"]) == 0.0 and max(w["floor_above"]) == 0.0
     k_lo, k_hi = C.side_factors(q, w, 0)
     assert k_lo > 1.0 and k_hi == pytest.approx(0.3 * k_lo)
@@ -231,7 +232,7 @@ def test_windows_give_each_tail_its_truths_share_of_the_miss():
             r["bands"] = [(med - w).tolist(), med.tolist(), (med + w).tolist()]
         return rs
     fit_rows, fresh = rows(1200, 0), rows(3000, 1)
-    bins, win = C.fit(fit_rows), C.fit(fit_rows, windows=C.WINDOWED["smc_nuts"])
+    bins, win = F.fit(fit_rows), F.fit(fit_rows, windows=F.WINDOWED["smc_nuts"])
     assert all(v == 1.0 for v in pc.evaluate(fresh, None)["synthetic"]["coverage"].values())
     cb, cw = pc.evaluate(fresh, bins)["synthetic"], pc.evaluate(fresh, win)["synthetic"]
     assert all(c >= 0.94 for c in cb["coverage"].values()), cb["coverage"]
@@ -379,7 +380,7 @@ def test_a_table_of_windows_puts_a_log_between_two_windows_between_their_bands()
         med = np.array(r["truth_v"]) + (np.array(r["bands"][1]) - np.array(r["truth_v"])) * s
         w = np.array(r["bands"][2]) - np.array(r["bands"][1])
         r["bands"] = [(med - w).tolist(), med.tolist(), (med + w).tolist()]
-    table = C.fit(rows, windows=WINDOWS | {"windows": 8})
+    table = F.fit(rows, windows=WINDOWS | {"windows": 8})
     c = table["coords"][1]
     cen = c["centres"]
     assert len(cen) == 8 and np.all(np.diff(cen) > 0)
@@ -392,7 +393,7 @@ def test_a_table_of_windows_puts_a_log_between_two_windows_between_their_bands()
     assert mid == pytest.approx(0.5 * (np.array(at[1]) + np.array(at[2])))
     assert C.stretch(q, c, cen[-1] + 5.0)[1:] == pytest.approx(at[-1])
     assert at[-1][1] > at[0][1]                      # the noisier windows' bands wider
-    plain = C.fit(rows)["coords"][1]
+    plain = F.fit(rows)["coords"][1]
     assert "centres" not in plain
     x = 0.5 * (cen[1] + cen[2])
     assert C.stretch(q, plain, x)[1:] == C.side_factors(q, plain, C.group_of(plain, x, 0.1))

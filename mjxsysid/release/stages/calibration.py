@@ -110,7 +110,7 @@ MISFIT = "misfit"
 def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
     """Collect every set's rows (:func:`collect_piece`; a complete row file is kept, so a call cut
     off resumes at the piece it was collecting), fit the table on the training rows
-    (:func:`mjxsysid.identify.calibrate.fit` at the sizes' bins and min_group) into
+    (:func:`mjxsysid.identify.calibration_fit.fit` at the sizes' bins and min_group) into
     out/posterior_calibration.json with its provenance (the sets, sizes, calls, commit, device,
     wall times), and evaluate it on the held-out rows
     (:func:`mjxsysid.experiments.posterior_calibration.report`: out/evaluation.json, evaluation.md,
@@ -138,7 +138,7 @@ def posterior_calibration(rel: ReleaseView, out: Path) -> StageResult:
     table = fit_file(train, out / TABLE, bins=cal.bins, min_group=cal.min_group,
                      command=f"mjxsysid release --out {rel.out.name} --stages posterior_calibration", provenance={
                          "what": "the log-grounded posterior's calibration table, fitted on simulated logs "
-                                 "(identify.calibrate.fit)",
+                                 "(identify.calibration_fit.fit)",
                          "commit": commit, "device": device, "scale": rel.options.scale, "sizes": jsonable(cal),
                          "calls": list(calls), "collected": collected,
                          "collect_wall_s": round(sum(v.get("wall_s") or 0 for v in collected.values()), 1)})
