@@ -1,7 +1,11 @@
-"""The posterior calibration's rows on the device machine, piece by piece: pieces of the release stage's
-sets (``FULL_CALIBRATION``, :func:`mjxsysid.release.stages.calibration.pieces`) collected in one process (one
-set of compiles), each written as OUT/rows/<set>.<i>of<k>.json with the stage's ``release`` section, or as
-``.partial`` where the deadline cut it. A device call is 10 minutes: about 600 logs a call on one H200.
+"""The posterior calibration's rows on the device machine, piece by piece: pieces of the release stage's sets
+(``FULL_CALIBRATION``, :func:`mjxsysid.release.stages.calibration.pieces`) collected in one process (one set of
+compiles), each written as OUT/rows/<set>.<i>of<k>.json with the stage's ``release`` section, or as ``.partial``
+where the deadline cut it. A device call is 10 minutes: about 600 logs a call on one H200. The slow and motor
+sets (a 20 s lemniscate and a hover; 320 logs a piece) are slower: two processes on `nvidia-h200-x2` compiled
+for 193-203 s each, then 64 resumed logs took about 260 s; a fresh piece's first batch (256, or 160 logs) did
+not finish within one call there (2026-11-29). Run a fresh one alone on one GPU, or with a smaller
+``inference.LOG_BATCH``.
 A piece whose ``.partial`` file is in OUT/rows/ already resumes: only the logs it lacks are identified
 (``--resume-from DIR`` puts the partial pieces landed in DIR there first, so a piece longer than a call
 finishes over several).
