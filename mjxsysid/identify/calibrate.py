@@ -330,7 +330,9 @@ def side_factors(q, coord: dict, b: int) -> tuple[float, float]:
     below, above = max(q[1] - q[0], 1e-12), max(q[2] - q[1], 1e-12)
     lo = max(coord["scale_below"][b] * below + coord["floor_below"][b], least * below)
     hi = max(coord["scale_above"][b] * above + coord["floor_above"][b], least * above)
-    return max(lo, relative * hi) / below, max(hi, relative * lo) / above
+    if relative > 0:                                  # a table of bins has none (its groups' extents may be inf)
+        lo, hi = max(lo, relative * hi), max(hi, relative * lo)
+    return lo / below, hi / above
 
 
 SPEED_WHY = ("τ_m from command to measured rotor speed: its raw band, not stretched by the table (fitted on "

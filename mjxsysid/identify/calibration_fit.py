@@ -14,12 +14,12 @@ WINDOWED = {"smc_nuts": {"windows": 16, "logs": 300, "relative": 0.3, "least": 0
 """The samplers whose tables are fitted in windows (:func:`fit` ``windows``; by
 :func:`~mjxsysid.experiments.posterior_calibration.fit_file`): ``windows`` quantiles of the feature, each
 fitted on its ``logs`` nearest calibration logs, each side at least ``relative`` × the other side's extent and
-``least`` × the raw side (:func:`~.calibrate.side_factors`). NUTS's, chosen on a three-fold split of its 3,970 training
-rows (cells within 0.85–0.95 of 180): the bins 114 (3 under 0.85); windows with both tails at 95 % and the
-bins' guard (each side ≥ half the raw one) 134 (9 under), since a clean log's raw band is often more than
-twice too wide; the shares and this guard 157 (9 under, the worst 0.825). 12 or 20 windows, 400 logs, a
-relative 0.5 or least 0.2: 145–155. The SMC's table stays in bins with :data:`MIN_SIDE` (on its split, 140
-→ 136 of 180 with this guard)."""
+``least`` × the raw side (:func:`~.calibrate.side_factors`). NUTS's, chosen on a three-fold split of its 3,970
+training rows (cells within 0.85–0.95, of 180): the interpolated bins 114 (3 under 0.85); this 157 (9 under,
+the worst 0.825); 12 or 20 windows, 400 logs, a relative 0.5 or least 0.2: 145–155. Both parts count (the same
+split on 4,027 rows): windows with both tails at 95 % and the bins' :data:`MIN_SIDE` 121, with the shares 136,
+with this guard 136, with both 156. The SMC's table stays in bins with :data:`MIN_SIDE` (on its split, 140 →
+136 of 180 with this guard)."""
 
 B_GRID_QUANTILES = np.linspace(0.0, 0.95, 20)
 """The floors b tried: these quantiles of the group's errors (0 included)."""
@@ -90,11 +90,14 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
 
 def _sides(d, below, above, level: float, shares: bool) -> tuple[tuple[float, float], tuple[float, float]]:
     """One group's truths beyond the median d (n,) (> 0 above) and raw extents below and above (n,) -> the
-    (a, b) of :func:`fit_scale_floor` below and above. Each side misses half of 1 − ``level``, or with
-    ``shares`` the share of it that the truths on that side hold: a group whose truths all lie below
-    misses its 10 % below, instead of holding 95 % there and every truth above."""
-    p_hi = float(np.mean(d > 0)) if shares else 0.5
-    cap = len(d) / (len(d) + 1.0)                    # the largest score: a side no truth lies on gets 0
+    (a, b) of :func:`fit_scale_floor` below and above. Each side misses half of 1 − ``level`` (inf where the
+    group is too small for that), or with ``shares`` the share of it that the truths on that side hold: a group
+    whose truths all lie below misses its 10 % below, instead of holding 95 % there and every truth above."""
+    if not shares:
+        lv = 1 - (1 - level) / 2
+        return fit_scale_floor(np.maximum(-d, 0), below, lv), fit_scale_floor(np.maximum(d, 0), above, lv)
+    p_hi = float(np.mean(d > 0))
+    cap = len(d) / (len(d) + 1.0)    # a side few truths lie on: its largest score, not inf (0 where none does)
     lv_lo, lv_hi = (min(1 - (1 - level) * p, cap) for p in (1 - p_hi, p_hi))
     return (fit_scale_floor(np.maximum(-d, 0), below, lv_lo), fit_scale_floor(np.maximum(d, 0), above, lv_hi))
 
@@ -108,18 +111,23 @@ def _entry(j: int, x, sides: list, guard: tuple[float, float], **entry) -> dict:
             "floor_above": floor_above, "guard": list(guard)}
 
 
+def _errors(truth, bands, j: int) -> tuple:
+    """Coordinate j's raw 90 % width, the truth beyond the median (> 0 above) and the raw extents below and
+    above, each (n,), from the logs' truths (n, 12) and raw bands (n, 3, 12)."""
+    q = bands[:, :, j]
+    return q[:, 2] - q[:, 0], truth[:, j] - q[:, 1], q[:, 1] - q[:, 0], q[:, 2] - q[:, 1]
+
+
 def _fit_bins(j: int, truth, bands, x, level: float, bins: int, min_group: int) -> dict:
     """Coordinate j's entry from its logs' truths (n, 12), raw bands (n, 3, 12) and feature x (n,): ``bins``
     quantile bins of x, each split at its median raw width (:func:`group_of`), both tails at 95 %, guarded
     by :data:`MIN_SIDE`."""
     edges = np.quantile(x, np.linspace(0, 1, bins + 1)[1:-1])
     k = np.searchsorted(edges, x)
-    width = bands[:, 2, j] - bands[:, 0, j]
+    width, d, below, above = _errors(truth, bands, j)
     split = [float(np.median(width[k == i])) if (k == i).any() else 0.0 for i in range(bins)]
     entry = {"edges": edges.tolist(), "width_split": split}
     grp = np.array([group_of(entry, xi, wi) for xi, wi in zip(x, width)])
-    d = truth[:, j] - bands[:, 1, j]
-    below, above = bands[:, 1, j] - bands[:, 0, j], bands[:, 2, j] - bands[:, 1, j]
     groups = [grp == i if (grp == i).sum() >= min_group else k == i // 2 for i in range(2 * bins)]
     sides = [_sides(d[g], below[g], above[g], level, shares=False) for g in groups]
     return _entry(j, x, sides, (0.0, MIN_SIDE), **entry, logs=[int((grp == i).sum()) for i in range(2 * bins)])
@@ -134,9 +142,7 @@ def _fit_windows(j: int, truth, bands, x, level: float, windows: int, logs: int,
     ``edges`` (midway between centres) only name a log's group."""
     n = len(x)
     order = np.argsort(x, kind="stable")
-    width = bands[:, 2, j] - bands[:, 0, j]
-    d = truth[:, j] - bands[:, 1, j]
-    below, above = bands[:, 1, j] - bands[:, 0, j], bands[:, 2, j] - bands[:, 1, j]
+    width, d, below, above = _errors(truth, bands, j)
     centres, split, sides, counts = [], [], [], []
     for q in (np.arange(windows) + 0.5) / windows:
         start = min(max(int(q * n) - logs // 2, 0), n - logs)
