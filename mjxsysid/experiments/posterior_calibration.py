@@ -320,14 +320,17 @@ def rank_histograms(rows: list[dict], table: dict | None, path: Path) -> None:
     pos = []
     for r in rows:
         b, _ = calibrated_bands(r, table)
-        pos.append((np.asarray(r["truth_v"]) - b[0]) / np.maximum(b[1] - b[0], 1e-12))
+        finite = np.isfinite(b[0]) & np.isfinite(b[1])       # a group too small for its level: an infinite band
+        width = np.where(finite, np.maximum(b[1] - b[0], 1e-12), 1.0)
+        pos.append(np.where(finite, (np.asarray(r["truth_v"]) - np.where(finite, b[0], 0.0)) / width, np.nan))
     pos = np.clip(np.array(pos), -0.25, 1.25)
     fig, axes = plt.subplots(2, 6, figsize=(14, 4.6), sharey=True)
     edges = np.linspace(-0.25, 1.25, 13)
     for j, ax in enumerate(axes.flat):
-        ax.hist(pos[:, j], edges, color="tab:blue", edgecolor="white")
+        x = pos[np.isfinite(pos[:, j]), j]
+        ax.hist(x, edges, color="tab:blue", edgecolor="white")
         ax.axvspan(0, 1, color="0.92", zorder=-1)
-        ax.axhline(len(pos) * 0.9 / 8, color="k", lw=0.8, ls="--")
+        ax.axhline(len(x) * 0.9 / 8, color="k", lw=0.8, ls="--")
         ax.set_title(SHORT[j], fontsize=9)
         ax.tick_params(labelsize=7)
     fig.suptitle("truth's position in its 90 % band (grey: inside; dashed: the calibrated height; the "

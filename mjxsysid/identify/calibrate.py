@@ -343,17 +343,17 @@ SPEED_WHY = ("τ_m from command to measured rotor speed: its raw band, not stret
 def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PHYSICAL_PRIOR, rng=0) -> tuple:
     """Raw posterior draws v (S, 12) of one log -> (calibrated draws (S, 12), report). Each
     coordinate is stretched about its median by (a·w + b) / w (the table's scale and floor for
-    the log's feature bin); a coordinate whose channels fail :func:`model_check` is drawn from the
+    the log's group, :func:`group_of`); a coordinate whose channels fail :func:`model_check` is drawn from the
     prior instead. On a log whose τ_m comes from measured rotor speeds (``rotor_speed_used``), τ_m's
     draws stay raw (factor 1, :data:`SPEED_WHY`) and pass no model check of the rate channels. Draws outside the prior's support are replaced by resampled valid ones.
-    report: {factor (12,) the band's width over the raw one, bin (12,), check, seen (12,) bool, why (12,) str}."""
+    report: {factor (12,) the band's width over the raw one, group (12,) the table's group, check, seen (12,) bool, why (12,) str}."""
     v = np.asarray(v, np.float64)
     q = raw_bands(v)
     check = model_check(features, weights, table)
     lo, hi = prior.v_bounds()
     pw = hi - lo
     out = v.copy()
-    factor, bins, seen, why = np.ones(N_V), np.zeros(N_V, int), np.zeros(N_V, bool), [""] * N_V
+    factor, groups, seen, why = np.ones(N_V), np.zeros(N_V, int), np.zeros(N_V, bool), [""] * N_V
     gen = np.random.default_rng(rng)
     prior_v = prior.sample_v(gen, len(v)).astype(np.float64)
     speed_tau = bool(features.get("rotor_speed_used"))
@@ -366,7 +366,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             factor[j] = np.nan
             why[j] = "model check failed: " + "; ".join(check["why"][FEATURE_NAMES[CHECK_FEATURE[j]]])
             continue
-        bins[j], k_lo, k_hi, shift, idle_ok = checked_stretch(q[:, j], c, features, check, j)
+        groups[j], k_lo, k_hi, shift, idle_ok = checked_stretch(q[:, j], c, features, check, j)
         if not idle_ok:
             out[:, j] = prior_v[:, j]
             factor[j] = np.nan
@@ -403,4 +403,4 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
         passed = "the motor-map check flagged the log" if flagged else "model check passed"
         why[j] = (f"calibrated band {width[j] / pw[j]:.2g} of the prior's range, {passed}" if seen[j]
                   else f"calibrated band {width[j] / pw[j]:.2g} of the prior's range (≥ {UNSEEN_FRACTION}): the log does not pin it") + note
-    return out.astype(np.float32), {"factor": factor, "bin": bins, "check": check, "seen": seen, "why": why}
+    return out.astype(np.float32), {"factor": factor, "group": groups, "check": check, "seen": seen, "why": why}

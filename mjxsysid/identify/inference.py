@@ -244,7 +244,7 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     ``calibration``: "shipped" (default: the table fitted on simulated logs,
     :mod:`.calibrate`), a table (dict) or a path to one, or None for the raw posterior. The draws
     ``v`` / ``theta`` are the calibrated ones; ``v_raw`` the raw ones; ``features`` what the log
-    shows; ``calibration`` the report (scale factor and bin per coordinate, the model check,
+    shows; ``calibration`` the report (scale factor and group per coordinate, the model check,
     ``seen`` (12,) and ``why`` (12,) per visible coordinate, ``table`` the file it came from)."""
     dec = None if decoded_theta is None else [decoded_theta]
     return log_grounded_posteriors([rec_or_data], dec, seeds=[seed], prior=prior, config=config, batch=1, workers=1,
@@ -292,11 +292,7 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     batch = (1 if jax.default_backend() == "cpu" else LOG_BATCH) if batch is None else int(batch)
     if batch < 1:
         raise ValueError(f"log_grounded_posteriors: batch must be ≥ 1, got {batch}")
-    groups: dict = {}
-    for i, (d, q) in enumerate(zip(datas, qvs)):
-        key = (d.rates, q is None, tuple(np.shape(a) for a in jax.tree.leaves(d)))
-        groups.setdefault(key, []).append(i)
-    chunks = [idx[c:c + batch] for idx in groups.values() for c in range(0, len(idx), batch)]
+    chunks = log_chunks(datas, [q is None for q in qvs], batch)
     out = [None] * n
     for chunk in progress(chunks, desc=desc or "log-grounded posteriors", enabled=False if len(chunks) < 2 else None):
         res = _posterior_batch([datas[i] for i in chunk], [dec[i] for i in chunk], [qvs[i] for i in chunk],
@@ -304,6 +300,17 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
         for i, r in zip(chunk, res):
             out[i] = r
     return out
+
+
+def log_chunks(datas: list[LogData], plain: list[bool], batch: int) -> list[list[int]]:
+    """The logs' indices evaluated together: logs of one shape (rates and every array's shape) and one
+    kind of proposal (``plain``: no decoded ensemble), ``batch`` at a time, in order within a group.
+    -> chunks of indices covering 0…len(datas)-1 once."""
+    groups: dict = {}
+    for i, (d, q) in enumerate(zip(datas, plain)):
+        key = (d.rates, bool(q), tuple(np.shape(a) for a in jax.tree.leaves(d)))
+        groups.setdefault(key, []).append(i)
+    return [idx[c:c + batch] for idx in groups.values() for c in range(0, len(idx), batch)]
 
 
 def _prepare_one(x, rates: str, i: int):

@@ -83,7 +83,7 @@ class LogPosterior:
 
     @property
     def calibration(self) -> dict:
-        """What the calibration did: the table, the band's width factor and bin per visible coordinate,
+        """What the calibration did: the table, the band's width factor and group per visible coordinate,
         the model check, seen and why (:func:`~.calibrate.calibrate`)."""
         return self.result.get("calibration", {})
 

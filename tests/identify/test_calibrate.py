@@ -68,7 +68,7 @@ def test_the_shipped_table_is_applied_by_default():
     lo, hi = PHYSICAL_PRIOR.v_bounds()
     checked = 0
     for j, c in enumerate(table["coords"]):           # each band is the table's a·w + b on each side
-        k_lo, k_hi = C.side_factors(q_raw[:, j], c, rep["bin"][j])
+        k_lo, k_hi = C.side_factors(q_raw[:, j], c, rep["group"][j])
         want = k_lo * (q_raw[1, j] - q_raw[0, j]) + k_hi * (q_raw[2, j] - q_raw[1, j])
         if want < 0.2 * (hi[j] - lo[j]):              # wider ones are clipped at the prior's bounds
             assert q_cal[2, j] - q_cal[0, j] == pytest.approx(want, rel=0.05), V_NAMES[j]
