@@ -21,8 +21,9 @@ def add_decode(sub) -> None:
                          "table of data-driven-dynamics (docs/logs.md); "
                          "several files or a folder: each into OUT/NAME and one table, OUT/fleet.md")
     dc.add_argument("--same-vehicle", action="store_true",
-                    help="with several logs: they are flights of one vehicle; fleet.md names the quantities whose "
-                         "bands exclude each other from one log to another")
+                    help="with several logs: they are flights of one vehicle; a command→speed map one flight "
+                         "shows holds for all (each flagged flight's bands hold its value under every such map), "
+                         "and fleet.md names the quantities whose bands exclude each other from one log to another")
     dc.add_argument("--segment", default=None, metavar="T0:T1",
                     help="with --log: decode only this part, in seconds (a ULog: since its start; default its armed, "
                          "airborne segment; a CSV: its t column)")
@@ -114,26 +115,33 @@ def _decode_fleet(args, logs, truth, window) -> int:
     from mjxsysid.logs.checks.findings import LogError
     from mjxsysid.runtime.progress import progress
     from mjxsysid.decoding import run_decode
-    from mjxsysid.decoding.fleet import disagreements, disagreements_markdown, fleet_markdown, fleet_row
+    from mjxsysid.decoding.fleet import (disagreements, disagreements_markdown, fleet_markdown, fleet_row,
+                                         lacks_shared, shared_maps, shared_maps_markdown)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    rows = []
-    for log in progress(logs, desc="logs"):
+
+    def one(log, maps=None) -> dict:
         try:
             summary = run_decode(out / log.stem, theta=None, log=log, reference=args.reference, period=args.period,
                                  duration=args.duration, samples=args.samples, rate=args.rate, policy=policy_ref(args),
                                  decoders=args.decoders, seed=args.seed, video=args.video, window=window, truth=truth,
                                  echo=lambda m: echo(m, file=sys.stderr), segment=args.segment,
                                  decoder_only=args.decoder_only, rates=args.rates,
-                                 refine=False if args.no_refine else None)
-            rows.append(fleet_row(log.name, summary))
+                                 refine=False if args.no_refine else None, shared_maps=maps)
+            return fleet_row(log.name, summary)
         except (ValueError, LogError, ImportError, OSError) as e:
-            rows.append(fleet_row(log.name, None, str(e).splitlines()[0]))
+            return fleet_row(log.name, None, str(e).splitlines()[0])
+    rows = [one(log) for log in progress(logs, desc="logs")]
+    maps, again = (shared_maps(rows) if args.same_vehicle else ()), []
+    redo = [i for i, r in enumerate(rows) if lacks_shared(r, maps)]
+    for i in progress(redo, desc="logs, with the vehicle's motor maps"):     # the map is the vehicle's (fleet.py)
+        rows[i] = one(logs[i], maps)
+        again.append(logs[i].name)
     (out / "fleet.json").write_text(jsonout.dumps(rows, indent=1) + "\n")
     table = fleet_markdown(rows)
     if args.same_vehicle:
         found = disagreements(rows)
-        table += "\n" + disagreements_markdown(found)
+        table += shared_maps_markdown(maps, again) + "\n" + disagreements_markdown(found)
         if found:
             echo(f"warning: {len(found)} pairs of bands exclude each other across these flights of one vehicle "
                  "(fleet.md)", file=sys.stderr)

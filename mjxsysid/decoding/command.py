@@ -118,7 +118,7 @@ def write_summary_md(summary: dict, path) -> Path:
 def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0, duration=None,
                samples=100, rate=10.0, weights=None, seed=0, video=False, ghosts=4, echo=print,
                policy="mjxsysid", decoders=None, window="flight", truth=None, warn=warn, segment=None,
-               decoder_only=False, rates=None, refine=None) -> dict:
+               decoder_only=False, rates=None, refine=None, shared_maps=None) -> dict:
     """Fly θ (or replay ``log``) with a frozen latent policy (``policy``, ``weights``: see
     :func:`~mjxsysid.policy.interface.resolve_policy`; default the shipped one), decode at
     ``rate`` Hz with that policy's decoders (or those in ``decoders``), write out/decoded.npz,
@@ -137,7 +137,8 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     (:func:`ground_in_log`: summary.json's top-level entries the log-grounded posterior's, the
     decoders' under ``_decoder_only``, the information gap under ``_log_grounded``; also
     marginals_decoder_only.png and information_gap.png); ``rates`` and ``refine``: its likelihood's rate
-    term and whether an SMC's draws are refined by NUTS (default both the library's).
+    term and whether an SMC's draws are refined by NUTS (default both the library's); ``shared_maps``: the
+    command→speed maps other flights of this vehicle showed (:class:`~mjxsysid.identify.PosteriorConfig`'s).
 
     A log is checked for physical plausibility before any decoding
     (:mod:`mjxsysid.logs.checks`): a log that cannot be right raises ``LogError`` (a
@@ -209,7 +210,7 @@ def run_decode(out, *, theta=None, log=None, reference="lemniscate", period=10.0
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     if log is not None and not decoder_only:
         st.start("log-grounded posterior")
-        ground_in_log(dec, summary, rec, truth, seed=seed, rates=rates, refine=refine)
+        ground_in_log(dec, summary, rec, truth, seed=seed, rates=rates, refine=refine, shared_maps=shared_maps)
     np.savez_compressed(out / "decoded.npz", **dec)
     jsonout.write_json(out / "summary.json", summary)
     write_summary_md(summary, out / "summary.md")

@@ -35,7 +35,8 @@ def expand_logs(paths) -> list[Path]:
 
 def fleet_row(name: str, summary: dict | None, error: str | None = None) -> dict:
     """One log's row: {log, quantities {name: {median, q05, q95, seen}}, motor_map (the best command→speed map
-    where the motor-map check flagged the log, else None), posterior}, or {log, error}."""
+    where the motor-map check flagged the log, else None), maps ([[ι, κ], ...]: the maps its bands hold their
+    values under where flagged, else []), posterior}, or {log, error}."""
     if error is not None:
         return {"log": name, "error": error}
     grounded = (summary or {}).get("_log_grounded", {})
@@ -43,11 +44,40 @@ def fleet_row(name: str, summary: dict | None, error: str | None = None) -> dict
     cal = grounded.get("calibration") or {}
     flagged = ((cal.get("model_check") or {}).get("idle") or {}).get("ok") is False
     best = (cal.get("features") or {}).get("idle_map")
+    maps = (cal.get("features") or {}).get("idle_plausible") or []
     return {"log": name, "quantities": {q: {"median": g["log_median"], "q05": g["log_q05"], "q95": g["log_q95"],
                                             "seen": g["seen_by_log"], "why": g.get("seen_why", "")}
                                         for q, g in gap.items()},
             "motor_map": _describe(best) if flagged and best else None,
+            "maps": [list(m) for m in maps] if flagged else [],
             "posterior": (summary or {}).get("_posterior")}
+
+
+def shared_maps(rows: list[dict]) -> tuple:
+    """Flights of one vehicle (``decode --same-vehicle``): the command→speed maps any flagged flight's bands
+    hold (their ``maps``), in :data:`~mjxsysid.identify.idlecheck.MAPS`'s order. The map is the vehicle's, so
+    a map one flight shows is plausible for every flight: each flagged flight's bands hold their values
+    under all of them (:func:`~mjxsysid.identify.idlecheck.run`'s ``shared``)."""
+    from mjxsysid.identify.idlecheck import MAPS
+    seen = {tuple(float(x) for x in m) for r in rows for m in r.get("maps") or []}
+    return tuple(m for m in MAPS if m in seen)
+
+
+def lacks_shared(row: dict, maps: tuple) -> bool:
+    """Does a flagged flight's row lack some of the vehicle's ``maps`` (:func:`shared_maps`): it is decoded
+    again with them."""
+    own = {tuple(float(x) for x in m) for m in row.get("maps") or []}
+    return bool(own) and not set(maps) <= own
+
+
+def shared_maps_markdown(maps: tuple, again: list[str]) -> str:
+    """fleet.md's line on the maps the flights of one vehicle share (:func:`shared_maps`)."""
+    if not maps:
+        return ""
+    names = "; ".join(_describe(m) for m in maps)
+    redo = (f" Decoded again with them: {', '.join(again)}." if again else "")
+    return (f"\nThe command→speed maps these flights showed (the motor-map check): {names}. The map is the "
+            f"vehicle's, so each flagged flight's bands hold their values under every one of them.{redo}\n")
 
 
 def _cell(q: str, v: dict | None) -> str:

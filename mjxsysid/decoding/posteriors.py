@@ -101,7 +101,7 @@ def decode_posterior(zhat_t, times, truth=None, *, decoder, regression, rate: fl
 
 
 def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int = 0, rates: str | None = None,
-                  refine: bool | None = None) -> dict:
+                  refine: bool | None = None, shared_maps=None) -> dict:
     """Make the log-grounded posterior (:mod:`mjxsysid.identify`) of a log's arrays ``rec`` the
     posterior of record, the decoded samples (the window's at the end of the flight, else the
     instant ones) as its proposal. In place: ``dec["samples_log_grounded"]`` (S, 19); ``summary``'s
@@ -113,14 +113,16 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
     the measured rotor speeds' use (``rotor_speed``: rotor_speed_used, why, the command→speed fit)
     and the information gap. ``rates``: the likelihood's rate term (default
     :data:`~mjxsysid.identify.logdata.RATES`); ``refine``: whether an SMC's draws are refined by NUTS
-    (default: the posterior config's, :data:`~mjxsysid.identify.posterior_config.DEFAULT`). Returns ``summary``."""
+    (default: the posterior config's, :data:`~mjxsysid.identify.posterior_config.DEFAULT`); ``shared_maps``: the
+    command→speed maps other flights of the vehicle showed (:class:`~mjxsysid.identify.PosteriorConfig`'s).
+    Returns ``summary``."""
     from mjxsysid.identify import logspace as L
     from mjxsysid.identify.gap import information_gap, joint_summary, log_summary, seen_by_name
     from mjxsysid.identify.inference import log_grounded_posterior
     from mjxsysid.identify.logdata import LogTooShort
     final = dec["samples_window"][-1] if "samples_window" in dec else dec["samples"][-1]
     try:
-        post = log_grounded_posterior(rec, final, seed=seed, rates=rates, refine=refine)
+        post = log_grounded_posterior(rec, final, seed=seed, rates=rates, refine=refine, shared_maps=shared_maps)
     except LogTooShort as e:       # a log too short for the likelihood's windows: the decoders alone, said so
         summary["_log_grounded"] = {"skipped": str(e)}
         summary["_posterior"] = "decoder-only"

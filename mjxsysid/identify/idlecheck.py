@@ -187,7 +187,7 @@ def checkable(data) -> str | None:
     return None
 
 
-def run(make_logs, datas, modes, starts: int = 1) -> list:
+def run(make_logs, datas, modes, starts: int = 1, shared=()) -> list:
     """The check of every log of ``datas`` from its mode (``modes``: :func:`~.mode.find_modes`' tuples) ->
     per log {gain (the statistic), map (the best (ι, κ) of :data:`MAPS`, None where none gains), gains {(ι, κ) (None
     where the map cannot carry the log, :data:`MIN_SPEED`):
@@ -196,9 +196,12 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
     the best of the linear map's re-fits instead), span (2, 12: the least and the largest shift over the
     plausible maps of :data:`MAPS`,
     :data:`SPAN_TOL`; 0 where none is), origin (12,: v under the linear map re-fitted from the mode), plausible
-    [(ι, κ), ...], power (the largest |gain|)}, or {gain: None, why} where it cannot run. Logs of one shape
-    are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``: the starts per log its
-    batched fit was compiled for)."""
+    [(ι, κ), ...], shared [(ι, κ), ...] (the maps of ``shared`` the log's own fit did not find plausible, in the
+    span too), power (the largest |gain|)}, or {gain: None, why} where it cannot run. ``shared``: maps other
+    flights of the vehicle showed (:data:`~.posterior_config.PosteriorConfig.shared_maps`): a map the vehicle
+    has is plausible for each of its flights, whatever one flight's fit says, where it carries the log. Logs of
+    one shape are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``: the starts per log
+    its batched fit was compiled for)."""
     out = [None] * len(datas)
     idx = []
     for i, d in enumerate(datas):
@@ -236,7 +239,8 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
             gain = max(gains[best], 0.0)
             shifts = {m: np.asarray(zs[m][j][L.Z_V], np.float64) - np.asarray(z_mode[j][L.Z_V], np.float64) for m in MAPS}
             plausible = [m for m in MAPS if gains[m] >= gain - SPAN_TOL]
-            moved = np.stack([shifts[m] for m in plausible] or [np.zeros(L.N_V)])
+            extra = [tuple(m) for m in shared if tuple(m) not in plausible and np.isfinite(gains[tuple(m)])]
+            moved = np.stack([shifts[m] for m in plausible + extra] or [np.zeros(L.N_V)])
             finite = [x for x in gains.values() if np.isfinite(x)]
             out[i] = {"gain": gain, "map": best if gain > 0 else None,
                       "gains": {m: (x if np.isfinite(x) else None) for m, x in gains.items()},
@@ -245,7 +249,8 @@ def run(make_logs, datas, modes, starts: int = 1) -> list:
                       "shift": shifts[best].tolist(),
                       "span": [moved.min(0).tolist(), moved.max(0).tolist()],
                       "origin": np.asarray(z_mode[j][L.Z_V], np.float64).tolist(),
-                      "plausible": plausible, "power": float(max((abs(x) for x in finite), default=0.0))}
+                      "plausible": plausible, "shared": extra,
+                      "power": float(max((abs(x) for x in finite), default=0.0))}
     return out
 
 
@@ -261,10 +266,11 @@ def features(check: dict | None) -> dict:
     idle_shift (12,: the visible coordinates re-fitted under the best map less those under the linear one, log
     units), idle_span (2, 12: the least and the largest such shift over the plausible maps), idle_origin (12,:
     the linear map's re-fit from the mode, the shifts' origin), idle_power (the largest change of the fit any map of :data:`MAPS` makes, either way: :func:`blind`),
-    idle_maps (how many maps the statistic is the best of: its version, :func:`threshold_entry`)."""
+    idle_maps (how many maps the statistic is the best of: its version, :func:`threshold_entry`), idle_plausible
+    ([[ι, κ], ...]: the maps the span covers, the shared ones after the log's own)."""
     if not check or check.get("gain") is None:
         return {"idle_gain": None, "idle_at": (check or {}).get("why", "not run"), "idle_map": None, "idle_shift": None,
-                "idle_span": None, "idle_origin": None, "idle_power": None, "idle_maps": None}
+                "idle_span": None, "idle_origin": None, "idle_power": None, "idle_maps": None, "idle_plausible": None}
     at = "no other map fits better"
     if check.get("map") is not None:
         tw = check["thrust_to_weight"]
@@ -273,7 +279,8 @@ def features(check: dict | None) -> dict:
     return {"idle_gain": float(check["gain"]), "idle_at": at, "idle_map": None if best is None else list(best),
             "idle_shift": check.get("shift"),
             "idle_span": check.get("span"), "idle_origin": check.get("origin"), "idle_power": check.get("power"),
-            "idle_maps": len(check["gains"])}
+            "idle_maps": len(check["gains"]),
+            "idle_plausible": [list(m) for m in list(check.get("plausible", [])) + list(check.get("shared", []))]}
 
 
 def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:

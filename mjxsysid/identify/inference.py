@@ -283,7 +283,7 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     c = resolve(config, **settings)
     cfg = dict(prior=prior, samples=c.samples, draws=c.draws, particles=c.particles, n_mcmc=c.n_mcmc,
                max_stages=c.max_stages, starts=c.starts, force_smc=c.force_smc, refine=bool(c.refine),
-               calibration=c.calibration)
+               calibration=c.calibration, shared_maps=c.shared_maps)
     rates = c.rates
     if workers is None:
         workers = 1 if jax.default_backend() == "cpu" else min(16, os.cpu_count() or 1)
@@ -386,7 +386,7 @@ def refine_posterior(rec_or_data, post: dict, *, seed: int = 0, prior: PhysicalP
 
 
 def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particles, n_mcmc, max_stages, starts,
-                     force_smc, refine, calibration) -> list[dict]:
+                     force_smc, refine, calibration, shared_maps=()) -> list[dict]:
     """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc)."""
     nl = len(datas)
     logs = _Logs(datas)
@@ -401,7 +401,7 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
     w = np.stack([m[2] for m in modes]).astype(np.float32)
     laps = [m[4] for m in modes]
     checks = window_check(_Logs, datas, modes, prior, starts)        # the fit at longer rate windows (.windowcheck)
-    idles = idlecheck.run(_Logs, datas, modes, starts)                # the fit under other motor maps (.idlecheck)
+    idles = idlecheck.run(_Logs, datas, modes, starts, shared_maps)   # the fit under other motor maps (.idlecheck)
     outs = [{"proposal": "decoded" if qvs[i] is not None else "prior", "mode": modes[i][0], "weights": modes[i][2],
              "channels_used": np.asarray(d.use), "rates": d.rates, "window_check": checks[i], "idle_check": idles[i]}
             for i, d in enumerate(datas)]

@@ -27,7 +27,9 @@ class PosteriorConfig:
     starting points. force_smc: run the SMC even where importance sampling passes. refine: the SMC's
     draws refined by NUTS (:mod:`.nuts`). rates: the likelihood's rate term, "windows" or
     "innovations". calibration: "shipped" (the table fitted on simulated logs), a table (dict) or a
-    path to one, or None for the raw posterior."""
+    path to one, or None for the raw posterior. shared_maps: command→speed maps (ι, κ) of
+    :data:`~.idlecheck.MAPS` that other flights of this vehicle showed (``decode --same-vehicle``): where the
+    motor-map check flags the log, its bands hold their values under these too (:func:`~.idlecheck.run`)."""
     samples: int = 1000
     draws: int = 4096
     particles: int = 2048
@@ -38,6 +40,7 @@ class PosteriorConfig:
     refine: bool = True
     rates: str = RATES
     calibration: Any = "shipped"
+    shared_maps: tuple = ()
 
     def __post_init__(self):
         for name in ("samples", "draws", "particles", "n_mcmc", "max_stages", "starts"):
@@ -47,6 +50,12 @@ class PosteriorConfig:
             object.__setattr__(self, name, int(v))          # a NumPy integer stored as an int
         if self.rates not in ("windows", "innovations"):
             raise ValueError(f"PosteriorConfig.rates must be 'windows' or 'innovations', got {self.rates!r}")
+        from mjxsysid.identify.idlecheck import MAPS
+        maps = tuple(tuple(float(x) for x in m) for m in self.shared_maps)
+        bad = [m for m in maps if m not in MAPS]
+        if bad:
+            raise ValueError(f"PosteriorConfig.shared_maps: {bad} not among the motor-map check's maps (idlecheck.MAPS)")
+        object.__setattr__(self, "shared_maps", maps)
         c = self.calibration
         if not (c is None or c == "shipped" or isinstance(c, (dict, str, Path))):
             raise ValueError(f"PosteriorConfig.calibration must be 'shipped', a table (dict), a path or None, "

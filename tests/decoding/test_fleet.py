@@ -98,3 +98,61 @@ def test_a_pair_moved_to_different_motor_maps_says_so():
     same = row("log17", (2.6, 2.9), (0.01, 0.02), [0.1, 1.5])
     assert "maps differ" not in disagreements_markdown(disagreements([a, same]))
     assert fleet_row("x", {"_log_grounded": {"gap": {}}})["motor_map"] is None
+
+
+def _flagged_row(name, tw, maps):
+    cal = {"model_check": {"idle": {"ok": False}}, "features": {"idle_map": maps[0], "idle_plausible": maps}}
+    gap = {"thrust_to_weight": {"log_median": sum(tw) / 2, "log_q05": tw[0], "log_q95": tw[1], "seen_by_log": True}}
+    return {"_log_grounded": {"gap": gap, "calibration": cal}, "_posterior": "log-grounded"}
+
+
+def test_flights_of_one_vehicle_share_the_motor_maps_they_showed():
+    """``--same-vehicle``: the maps any flagged flight's bands hold are the vehicle's, in MAPS's order; a flagged
+    flight lacking one is decoded again with them; a flight the check passed has no maps and is not."""
+    from mjxsysid.decoding.fleet import lacks_shared, shared_maps, shared_maps_markdown
+    a = fleet_row("log15", _flagged_row("log15", (1.56, 1.91), [[0.1, 1.5], [0.0, 1.5]]))
+    b = fleet_row("log16", _flagged_row("log16", (1.97, 2.48), [[0.1, 2.0]]))
+    passed = fleet_row("log10", {"_log_grounded": {"gap": {}, "calibration": {"model_check": {"idle": {"ok": True}},
+                                                                              "features": {"idle_plausible": []}}}})
+    maps = shared_maps([a, b, passed, {"log": "x", "error": "refused"}])
+    assert maps == ((0.0, 1.5), (0.1, 1.5), (0.1, 2.0))
+    assert lacks_shared(a, maps) and lacks_shared(b, maps) and not lacks_shared(passed, maps)
+    assert not lacks_shared(a, ((0.1, 1.5),)) and shared_maps([passed]) == ()
+    md = shared_maps_markdown(maps, ["log16.bin"])
+    assert "κ 2 (curved)" in md and "log16.bin" in md and shared_maps_markdown((), []) == ""
+
+
+def test_same_vehicle_decodes_a_flagged_flight_again_with_the_vehicles_maps(tmp_path, monkeypatch):
+    """The CLI's two passes (nothing decoded: run_decode faked): each log once, then each flagged flight whose
+    maps lack another flight's again with all of them; fleet.md says which, and the pair that excluded each
+    other under their own maps overlaps."""
+    import json
+    import mjxsysid.decoding as D
+    from mjxsysid.cli import main
+    calls = []
+    own = {"log15": [[0.1, 1.5]], "log16": [[0.1, 2.0]]}
+    bands = {"log15": (1.56, 1.91), "log16": (1.97, 2.48)}
+
+    def fake_run_decode(out, *, log, shared_maps=None, **kw):
+        calls.append((log.stem, shared_maps))
+        maps = own[log.stem] + [list(m) for m in shared_maps or () if list(m) not in own[log.stem]]
+        lo, hi = bands[log.stem]
+        if shared_maps:
+            lo, hi = min(lo, 1.67), max(hi, 1.99)        # the band holds the values under the other map too
+        return _flagged_row(log.stem, (lo, hi), maps)
+    monkeypatch.setattr(D, "run_decode", fake_run_decode)
+    logs = []
+    for n in own:
+        (tmp_path / f"{n}.bin").write_bytes(b"x")
+        logs.append(str(tmp_path / f"{n}.bin"))
+    out = tmp_path / "o"
+    assert main(["decode", "--log", *logs, "--same-vehicle", "--out", str(out)]) == 0
+    assert calls[:2] == [("log15", None), ("log16", None)]
+    assert sorted(c[0] for c in calls[2:]) == ["log15", "log16"]
+    assert all(c[1] == ((0.1, 1.5), (0.1, 2.0)) for c in calls[2:])
+    md = (out / "fleet.md").read_text()
+    assert "Decoded again with them: log15.bin, log16.bin" in md and "overlapping 90 % bands" in md
+    assert json.loads((out / "fleet.json").read_text())[1]["maps"] == [[0.1, 2.0], [0.1, 1.5]]
+    calls.clear()
+    assert main(["decode", "--log", *logs, "--out", str(tmp_path / "p")]) == 0       # not one vehicle: one pass
+    assert [c[1] for c in calls] == [None, None]

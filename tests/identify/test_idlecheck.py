@@ -18,12 +18,15 @@ from support.exact_model_log import synthetic_log
 IDLE = 0.1
 
 
-def _check(rec) -> dict:
-    """The motor-map check of a log's arrays from its mode, as the posterior computes it."""
+def _check(rec, shared=None):
+    """The motor-map check of a log's arrays from its mode, as the posterior computes it; with ``shared``
+    (maps other flights showed) also the check with them: (check, check with them)."""
     d = prepare(rec)
     st = _starts(d, None, np.random.default_rng(0), PHYSICAL_PRIOR, 12)
     modes = find_modes(_Logs([d]), st[None].astype(np.float32), PHYSICAL_PRIOR)
-    return I.run(_Logs, [d], modes)[0]
+    if shared is None:
+        return I.run(_Logs, [d], modes)[0]
+    return I.run(_Logs, [d], modes)[0], I.run(_Logs, [d], modes, shared=shared)[0]
 
 
 def _idle_log(theta, idle, **kw):
@@ -66,7 +69,8 @@ def test_an_idling_motor_fails_the_check_and_the_same_vehicle_without_idle_passe
     thr = table[I.KEY]["threshold"]
     th = P.paper_hardware()
     fits = _check(synthetic_log(th, seconds=6.0, closed_loop=True, gyro_noise=0.01))
-    idles = _check(_idle_log(th, IDLE, seconds=6.0, closed_loop=True, gyro_noise=0.01))
+    other = (-0.1, 0.5)                             # a concave map another flight of the vehicle showed
+    idles, shared = _check(_idle_log(th, IDLE, seconds=6.0, closed_loop=True, gyro_noise=0.01), (other, (IDLE, 1.0)))
     assert fits["gain"] < thr < idles["gain"], (fits["gain"], thr, idles["gain"])
     assert idles["map"] == (IDLE, 1.0)
     tw = idles["thrust_to_weight"]
@@ -90,6 +94,17 @@ def test_an_idling_motor_fails_the_check_and_the_same_vehicle_without_idle_passe
     assert I.widening(bad["idle"], f_bad | {"idle_span": None}, L.LOG_TW, m0) == (shift, 0.0)     # rows without a span
     assert I.widening(good["idle"], feats | I.features(fits), L.LOG_TW, m0) == (0.0, 0.0)
     assert I.widening(bad["idle"], f_bad | {"idle_shift": None, "idle_span": None}, L.LOG_TW, m0) is None
+    # a map the vehicle's other flights showed: in the span, though this log's own fit rejects it
+    assert other not in idles["plausible"] and shared["shared"] == [other] and shared["plausible"] == idles["plausible"]
+    assert I.features(shared)["idle_plausible"] == [list(m) for m in idles["plausible"]] + [list(other)]
+    assert I.features(idles)["idle_plausible"] == [list(m) for m in idles["plausible"]]
+    lo_s, hi_s = np.array(shared["span"])
+    assert np.all(lo_s <= np.array(idles["span"][0]) + 1e-9) and np.all(hi_s >= np.array(idles["span"][1]) - 1e-9)
+    assert max(abs(lo_s - np.array(idles["span"][0])).max(), abs(hi_s - np.array(idles["span"][1])).max()) > 0.01
+    from mjxsysid.identify import PosteriorConfig
+    assert PosteriorConfig(shared_maps=[[0.1, 2]]).shared_maps == ((0.1, 2.0),)
+    with pytest.raises(ValueError, match="shared_maps.*not among"):
+        PosteriorConfig(shared_maps=[(0.3, 1.0)])
 
 
 def test_calibrate_widens_a_flagged_logs_bands_toward_the_value_under_the_idle():
