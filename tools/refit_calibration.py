@@ -4,9 +4,9 @@ one command for what ``mjxsysid calibrate-posterior --fit/--evaluate`` does in s
     python tools/refit_calibration.py            # writes mjxsysid/pretrained/posterior_calibration.json
     python tools/refit_calibration.py --table /tmp/t.json --evaluations /tmp/ev   # a trial, nothing shipped
 
-1. The SMC's (pooled) table on docs/runs/measurements/log-grounded/calibrated/rows/cal*.json.gz.
+1. The SMC's (pooled) table on docs/runs/measurements/log-grounded/calibrated/rows/cal*.json.xz.
 2. NUTS's table (``--method smc_nuts``) on nuts-calibration/rows/train, added to it.
-3. Held out, each sampler's coverage recorded in its own table's provenance: calibrated/rows/test*.json.gz
+3. Held out, each sampler's coverage recorded in its own table's provenance: calibrated/rows/test*.json.xz
    (calibrated/test), the held-out families (calibrated/families), nuts-calibration/rows/held_out
    (nuts-calibration/test).
 4. The misfit set (nuts-calibration/rows/misfit: an idle offset), evaluated apart, never recorded.
@@ -26,11 +26,11 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 RUNS = Path("docs/runs/measurements/log-grounded")
-SMC_ROWS = [RUNS / "calibrated/rows" / f"{n}.json.gz" for n in ("cal", "cal_velocity", "cal_aero")]
+SMC_ROWS = [RUNS / "calibrated/rows" / f"{n}.json.xz" for n in ("cal", "cal_velocity", "cal_aero")]
 NUTS_ROWS = RUNS / "nuts-calibration/rows"
-HELD_OUT = [([RUNS / "calibrated/rows" / f"{n}.json.gz" for n in ("test", "test_velocity", "test_aero")],
+HELD_OUT = [([RUNS / "calibrated/rows" / f"{n}.json.xz" for n in ("test", "test_velocity", "test_aero")],
              RUNS / "calibrated/test"),
-            ([RUNS / "calibrated/rows/fam.json.gz"], RUNS / "calibrated/families"),
+            ([RUNS / "calibrated/rows/fam.json.xz"], RUNS / "calibrated/families"),
             ([NUTS_ROWS / "held_out"], RUNS / "nuts-calibration/test")]
 MISFIT = ([NUTS_ROWS / "misfit"], RUNS / "nuts-calibration/misfit")
 WINDOW_SET = RUNS / "window-check/simulated.json.gz"

@@ -122,7 +122,7 @@ def test_the_shipped_table_holds_its_coverage_on_held_out_logs():
     figure-eight to hover, flown by the oracle or the policy): the mean coverage of every noisy level within
     0.85-0.95, clean logs 0.8 (the raw posterior: 0.67); the worst cell is the thrust-to-weight at × 20 (a
     20-fold accelerometer bias; docs/identify.md)."""
-    rows = pc.read_rows([RUNS / "test.json.gz"])
+    rows = pc.read_rows([RUNS / "test.json.xz"])
     res = pc.evaluate(rows, C.load())
     for lv, r in res.items():
         cov = [c for c in r["coverage"].values() if np.isfinite(c)]
