@@ -28,7 +28,7 @@ import sys
 from mjxsysid.cli import (decoders, decoding, experiment, flights, identify, logs, policy, probe, profile, release, tune,
                           uses)
 from mjxsysid.runtime.startup import compilation_cache, start_processes
-from mjxsysid.runtime.xla_flags import use_fast_cpu_compile
+from mjxsysid.runtime.xla_flags import QUICK_FIRST_RUN, use_fast_cpu_compile, use_xla_flags
 
 COMMANDS = (
     flights.add_demo,
@@ -70,6 +70,8 @@ def main(argv=None) -> int:
     # CPU, same results to float rounding) unless XLA_FLAGS sets the flag itself; XLA reads it when
     # JAX starts its backend, so a process that already computed keeps its flags
     use_fast_cpu_compile()
+    if args.command == "demo":                  # a first run: compiling is most of it (xla_flags.QUICK_FIRST_RUN)
+        use_xla_flags(QUICK_FIRST_RUN)
     from mjxsysid.runtime.progress import set_quiet
     set_quiet(True if args.quiet else None)
     try:

@@ -9,6 +9,11 @@ FAST_CPU_COMPILE = ("--xla_cpu_use_fusion_emitters=false",)
 """XLA:CPU's older elemental IR emitters instead of its MLIR fusion emitters: about 40 % less
 compile CPU for this project's programs at the same results (benchmarks/xla_cpu_flags.py)."""
 
+QUICK_FIRST_RUN = ("--xla_backend_optimization_level=1",)
+"""LLVM at level 1 instead of XLA's default: for a command whose first run is mostly compiling (the demo:
+compiling 34.1 -> 28.6 s, running 19.6 -> 21.7 s, cold wall 53.6 -> 50.2 s on 2 cores, BENCHMARKS.md).
+Programs that run long (training, experiments) keep the default: level 1 runs a flight 25-50 % slower."""
+
 ONE_EIGEN_THREAD = ("--xla_cpu_multi_thread_eigen=false",)
 """XLA:CPU's operations on one thread: for several processes sharing the cores (the test tier's
 xdist workers), whose per-process pools of one thread per core only contend with each other."""

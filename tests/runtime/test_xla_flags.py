@@ -60,3 +60,19 @@ def test_flags_a_newer_jaxlib_removed_are_not_added(monkeypatch):
     monkeypatch.setenv("XLA_FLAGS", "")
     use_fast_cpu_compile()
     assert "fusion_emitters" not in os.environ["XLA_FLAGS"]
+
+
+def test_the_demo_alone_compiles_with_llvm_at_level_1(monkeypatch):
+    """`mjxsysid demo` (a first run, mostly compiling) adds QUICK_FIRST_RUN to XLA_FLAGS before anything
+    computes; another command does not (nothing is flown here: the handlers are replaced)."""
+    import mjxsysid.cli.flights as F
+    from mjxsysid.cli import main
+    from mjxsysid.runtime.xla_flags import QUICK_FIRST_RUN
+    seen = []
+    monkeypatch.setattr(F, "cmd_demo", lambda args: seen.append(os.environ["XLA_FLAGS"]) or 0)
+    monkeypatch.setattr(F, "cmd_fly", lambda args: seen.append(os.environ["XLA_FLAGS"]) or 0)
+    monkeypatch.setenv("XLA_FLAGS", "")
+    assert main(["fly", "--out", "x"]) == 0
+    assert not set(QUICK_FIRST_RUN) & set(seen[-1].split())
+    assert main(["demo"]) == 0
+    assert set(QUICK_FIRST_RUN) <= set(seen[-1].split())
