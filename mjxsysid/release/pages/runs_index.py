@@ -44,6 +44,8 @@ MEASUREMENTS = {
     "probe-loop": "probe → retrain → evaluate → probe again, against the fair controls",
     "probe-loop-accumulate": "`mjxsysid experiment probe-loop --variant accumulate`, training seeds 0 and 1",
     "probe-loop-seeds": "the probe loop's round-2 policy and control retrained with training seed 1",
+    "real-logs": "`decode --log` of the real samples in ../shared/data/logs (the logs themselves are not shipped): "
+                 "`crazyflie-same-vehicle/`, a Crazyflie's three flights decoded as one vehicle (`--same-vehicle`)",
     "rotorpy-noise": "sim-to-sim: the shipped policy in RotorPy under IMU noise, each flight decoded",
     "speed-table": "wall time against quality of policy-training configurations, over its run folders",
     "stress-prior-oracle": "where the oracle still flies: the stress prior's edges one at a time",
