@@ -256,24 +256,35 @@ def test_the_identify_room_is_callable_and_gives_a_posterior_object():
         mjxsysid.identify(3.0)
 
 
-def test_logs_batched_give_each_logs_posterior():
-    """Several logs at once (vmapped over logs, three padded to four) give each log the posterior it gets
-    alone: the same method, bands within a fifth of their width (NUTS's trajectories part under float
-    rounding: the same chains, not the same draws)."""
+def _batched_against_alone(refine: bool) -> None:
+    """Three logs vmapped together (padded to four) against each alone: the same method, bands within a fifth
+    of their width (NUTS's trajectories part under float rounding: the same chains, not the same draws)."""
     from mjxsysid.identify.inference import log_grounded_posteriors
     base = P.paper_hardware().copy()
     slow = base * np.where(np.arange(19) == P.TAU_M, 1.5, 1.0).astype(np.float32)
     recs = [synthetic_log(t, seconds=3.0, gyro_noise=0.05, acc_noise=0.5, seed=k)
             for k, t in enumerate((base, slow, base))]
-    kw = dict(samples=400, particles=256, draws=512, calibration=None, force_smc=True, refine=True)
+    kw = dict(samples=400, particles=256, draws=512, calibration=None, force_smc=True, refine=refine)
     alone = [log_grounded_posterior(r, seed=7 + k, **kw) for k, r in enumerate(recs)]
     together = log_grounded_posteriors(recs, seeds=[7, 8, 9], batch=4, **kw)   # three logs padded to four
     for a, b in zip(alone, together):
-        assert a["method"] == b["method"] == "smc_nuts"
+        assert a["method"] == b["method"] == ("smc_nuts" if refine else "smc")
         qa, qb = (np.percentile(x["v"], [5, 50, 95], 0) for x in (a, b))
         assert np.all(np.abs(qa - qb) <= 0.2 * (qa[2] - qa[0]) + 1e-5), np.abs(qa - qb) / (qa[2] - qa[0])
     with pytest.raises(ValueError, match="one of each per log"):
         log_grounded_posteriors(recs, seeds=[1, 2])
+
+
+def test_logs_batched_give_each_logs_posterior():
+    """Several logs at once (vmapped over logs, three padded to four) give each log the SMC's posterior it
+    gets alone (NUTS's refinement batched too: the slow test below)."""
+    _batched_against_alone(refine=False)
+
+
+@pytest.mark.slow
+def test_logs_batched_give_each_logs_posterior_refined_by_nuts():
+    """The same with NUTS's chains batched over the logs."""
+    _batched_against_alone(refine=True)
 
 
 def test_logs_are_evaluated_together_only_with_logs_of_their_shape_and_proposal():

@@ -72,9 +72,11 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch):
     with pytest.raises(ValueError, match="SMC posterior without NUTS"):
         inference.refine_posterior(data, post, seed=1)
     monkeypatch.setattr(S, "converged", lambda diag: (False, "forced"))   # chains that never mix
+    assert min(S.LONGER) > 1
+    monkeypatch.setattr(S, "LONGER", (1, 1))   # the longer try as long as the first: nothing compiled again
     kept = log_grounded_posterior(data, None, force_smc=True, refine=True, seed=1, calibration=None, particles=256,
                                   samples=400)
-    assert kept["method"] == "smc" and kept["nuts"]["thin"] > 1 and "SMC" in kept["nuts"]["kept"]
+    assert kept["method"] == "smc" and kept["nuts"]["warmup"] == S.WARMUP and "SMC" in kept["nuts"]["kept"]
     np.testing.assert_array_equal(kept["v_raw"], smc["v_raw"])      # the SMC's own draws, after the longer try
     y = np.concatenate([post["v_raw"], post["nuisance"][:, :4], post["nuisance"][:, 8:]], 1)
     mode = post["mode"]
