@@ -14,7 +14,9 @@ the Crazyflie-like √u map; Gazebo-classic's u² read through PX4's thrust mode
 - widen span, shifts only: the union of the band moved by each plausible map's shift;
 - widen span, values only: the union of the band moved to each plausible map's value, every coordinate;
 - widen span (shipped): values for the coordinates the map acts on, shifts for the others
-  (:func:`~mjxsysid.identify.idlecheck.widening`, :func:`~mjxsysid.identify.calibrate.checked_stretch`);
+  (:func:`~mjxsysid.identify.idlecheck.widening`, :func:`~mjxsysid.identify.calibrate.checked_stretch`); a log
+  the check passed keeps its band joined with its plausible maps' (the other rules leave a passed log's band
+  as the table gives it);
 - widen span, linear kept: the shipped band joined with the unwidened one.
 
 Coverage is over the coordinates each rule leaves seen (:func:`~mjxsysid.experiments.posterior_calibration.calibrated_bands`).
@@ -43,7 +45,7 @@ def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarra
     from mjxsysid.experiments.posterior_calibration import calibrated_bands
     f = row["features"]
     if rule == "none":
-        return calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)
+        return calibrated_bands(row | {"features": f | {"idle_gain": 0.0, "idle_span": None}}, table)
     if rule == "drop all":
         return calibrated_bands(row | {"features": f | {"idle_shift": None, "idle_span": None}}, table)
     if rule == "widen span":
@@ -61,9 +63,9 @@ def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarra
             idlecheck.MAPPED = mapped
     if rule == "widen span, linear kept":
         band, ok = calibrated_bands(row, table)
-        b0 = calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)[0]
+        b0 = calibrated_bands(row | {"features": f | {"idle_gain": 0.0, "idle_span": None}}, table)[0]
         return np.stack([np.minimum(band[0], b0[0]), np.maximum(band[1], b0[1])]), ok
-    band, ok = calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)      # drop moved
+    band, ok = calibrated_bands(row | {"features": f | {"idle_gain": 0.0, "idle_span": None}}, table)  # drop moved
     flagged = (f.get("idle_gain") or 0.0) > table["idle_check"]["threshold"]
     if flagged and f.get("idle_shift") is not None:
         v = np.asarray(row["bands"], np.float64)[1] + np.asarray(f["idle_shift"], np.float64)
