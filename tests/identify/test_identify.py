@@ -158,10 +158,10 @@ def test_posterior_covers_the_truth_hidden_directions_broad_and_the_proposal_onl
 
 
 def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
-    """jMAVSim's Iris (PX4's sample log, motors logged at 10 Hz): thrust-to-weight 2.04 inside; the table's
-    band within ±20 % (1.83–2.27), widened to hold its value under the command→speed maps this flight cannot
-    reject (the motor-map check passed it; 1.23–3.81); τ_m 5 ms inside; the rates are not used (10 Hz commands
-    cannot explain them), so the roll authority stays as broad as the prior — and the gap says it was not seen."""
+    """jMAVSim's Iris (PX4's sample log, motors logged at 10 Hz): thrust-to-weight 2.04 inside a band
+    within ±20 % (with the defaults, 1.80–2.26: its accelerometer residual takes NUTS's table without
+    velocity, whose top bins hold the × 20 logs' bias; ±6.5 % under the SMC's); τ_m 5 ms inside; the rates are not used (10 Hz commands cannot explain them), so
+    the roll authority stays as broad as the prior — and the gap says it was not seen."""
     pytest.importorskip("pyulog")
     from mjxsysid.identify.gap import information_gap
     from mjxsysid.logs.ulog import read_ulog
@@ -170,14 +170,7 @@ def test_px4_sample_thrust_to_weight_inside_and_what_10_hz_motors_cannot_show():
     assert list(post["channels_used"]) == [0, 0, 0, 1]
     q = C.log_quantities(post["theta"])
     lo, hi = np.percentile(q, [5, 95], 0)
-    truth = 16 / (0.8 * P.GRAVITY)
-    from mjxsysid.identify import calibrate as K
-    from mjxsysid.identify.idlecheck import WIDENED
-    assert lo[0] <= truth <= hi[0] and WIDENED in post["calibration"]["why"][0], (lo[0], hi[0])
-    table = K.for_method(K.load(), post["method"])          # the table's band, before the maps' widening
-    v0 = K.calibrate(post["v_raw"], post["features"] | {"idle_span": None}, post["weights"], table)[0]
-    lo0, hi0 = np.exp(np.percentile(v0[:, 0], [5, 95]))
-    assert lo0 <= truth <= hi0 and hi0 / lo0 < 1.45 and lo[0] <= lo0 * 1.01 and hi0 <= hi[0] * 1.01, (lo0, hi0)
+    assert lo[0] <= 16 / (0.8 * P.GRAVITY) <= hi[0] and hi[0] / lo[0] < 1.45, (lo[0], hi[0])
     assert lo[1] <= 0.005 <= hi[1]
     gap = information_gap(post["theta"], post["theta"])
     assert not gap["authority_total[0]"]["seen_by_log"] and gap["thrust_to_weight"]["seen_by_log"]
