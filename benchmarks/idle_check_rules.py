@@ -5,7 +5,7 @@ or is blind on, and what rules for a flagged log's bands give, from the rows alo
 
 The sets: ``docs/runs/measurements/log-grounded/idle-check`` (CPU: idle 0.1; no idle with rotor aerodynamics;
 the Crazyflie-like √u map; Gazebo-classic's u² read through PX4's thrust model) and the GPU misfit rows
-(idle 0.1; collected before the shifts were kept, so only "none" and "drop every coordinate" apply there). The rules, on a flagged log:
+(idle 0.1, every piece in rows/misfit). The rules, on a flagged log:
 
 - none: the check ignored;
 - drop all: every coordinate not seen (a flagged log without shifts, the check's first version);
@@ -14,9 +14,7 @@ the Crazyflie-like √u map; Gazebo-classic's u² read through PX4's thrust mode
 - widen span, shifts only: the union of the band moved by each plausible map's shift;
 - widen span, values only: the union of the band moved to each plausible map's value, every coordinate;
 - widen span (shipped): values for the coordinates the map acts on, shifts for the others
-  (:func:`~mjxsysid.identify.idlecheck.widening`, :func:`~mjxsysid.identify.calibrate.checked_stretch`); a log
-  the check passed keeps its band joined with its plausible maps' (the other rules leave a passed log's band
-  as the table gives it);
+  (:func:`~mjxsysid.identify.idlecheck.widening`, :func:`~mjxsysid.identify.calibrate.checked_stretch`);
 - widen span, linear kept: the shipped band joined with the unwidened one.
 
 Coverage is over the coordinates each rule leaves seen (:func:`~mjxsysid.experiments.posterior_calibration.calibrated_bands`).
@@ -32,12 +30,12 @@ SETS = {"CPU, idle 0.1 (seed 78)": RUNS / "idle-check/cpu_idle.json.gz",
         "CPU, no idle, aero (seed 79)": RUNS / "idle-check/cpu_aero.json.gz",
         "CPU, √u map, idle −0.115 (seed 80)": RUNS / "idle-check/cpu_kappa0.json.gz",
         "CPU, u² map, idle 0.09 (seed 81)": RUNS / "idle-check/cpu_convex.json.gz",
-        "GPU misfit, idle 0.1": RUNS / "nuts-calibration/rows/misfit/motor.0of4.json.xz"}
+        "GPU misfit, idle 0.1": RUNS / "nuts-calibration/rows/misfit"}
 
 
 def _rows(path: Path) -> list[dict]:
     from mjxsysid.experiments.posterior_calibration import read_rows
-    return read_rows([path])
+    return read_rows(sorted(path.glob("*.json*")) if path.is_dir() else [path])
 
 
 def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarray]:
@@ -45,7 +43,7 @@ def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarra
     from mjxsysid.experiments.posterior_calibration import calibrated_bands
     f = row["features"]
     if rule == "none":
-        return calibrated_bands(row | {"features": f | {"idle_gain": 0.0, "idle_span": None}}, table)
+        return calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)
     if rule == "drop all":
         return calibrated_bands(row | {"features": f | {"idle_shift": None, "idle_span": None}}, table)
     if rule == "widen span":
@@ -63,9 +61,9 @@ def rule_bands(row: dict, table: dict, rule: str) -> tuple[np.ndarray, np.ndarra
             idlecheck.MAPPED = mapped
     if rule == "widen span, linear kept":
         band, ok = calibrated_bands(row, table)
-        b0 = calibrated_bands(row | {"features": f | {"idle_gain": 0.0, "idle_span": None}}, table)[0]
+        b0 = calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)[0]
         return np.stack([np.minimum(band[0], b0[0]), np.maximum(band[1], b0[1])]), ok
-    band, ok = calibrated_bands(row | {"features": f | {"idle_gain": 0.0, "idle_span": None}}, table)  # drop moved
+    band, ok = calibrated_bands(row | {"features": f | {"idle_gain": 0.0}}, table)      # drop moved
     flagged = (f.get("idle_gain") or 0.0) > table["idle_check"]["threshold"]
     if flagged and f.get("idle_shift") is not None:
         v = np.asarray(row["bands"], np.float64)[1] + np.asarray(f["idle_shift"], np.float64)

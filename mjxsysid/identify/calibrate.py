@@ -392,8 +392,8 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
         flagged = check["idle"]["ok"] is False
         if j == L.LOG_TW and idlecheck.blind(check["idle"], features):
             note += "; " + idlecheck.BLIND_WHY.format(grid=", ".join(f"{g:+g}" for g in idlecheck.GRID))
-        s = idlecheck.widening(check["idle"], features, j, float(q[1, j]))
-        if max(abs(s[0]), abs(s[1])) >= idlecheck.NOTED_MOVE:
+        s = idlecheck.widening(check["idle"], features, j, float(q[1, j])) if flagged else (0.0, 0.0)
+        if any(s):
             note += f"; its edges moved by {s[0]:+.3g} and {s[1]:+.3g} (log units) {idlecheck.WIDENED} (the motor-map check)"
         if at_bound[j] and width[j] < UNSEEN_FRACTION * pw[j]:
             why[j] = ("the band lies against the prior's bound: the log asks for a vehicle beyond the physical "

@@ -79,10 +79,6 @@ maps (:func:`widening`)."""
 WHY = ("another command→speed map fits the log better; thrust-to-weight and the authorities depend on it, so "
        "each band moves to hold its value under every map that fits about as well")
 
-NOTED_MOVE = 0.005
-"""A band's edge moved by the check (log units) less than this is not mentioned in its reason (a well-excited
-flight's plausible maps all lie next to the linear one)."""
-
 WIDENED = "to hold its value under every command→speed map that fits the log about as well as the best"
 """What a band's reason says where the check moved its edges (:func:`widening`; fleet tables mark it)."""
 
@@ -305,30 +301,18 @@ def verdict(feats: dict, table: dict) -> dict:
 
 def widening(verdict_: dict, feats: dict, j: int, median: float) -> tuple[float, float] | None:
     """How visible coordinate j's calibrated band moves on a log whose posterior median there is ``median``
-    (log units: (its lower edge's move, its upper edge's move)), by :func:`verdict`'s ``verdict_``:
-
-    - flagged: the band becomes the union of the band moved to each plausible map (``feats["idle_span"]``: the
-      least and the largest shift) and, where the linear map is plausible too (the gain within
-      :data:`SPAN_TOL`), the band itself. Where a row carries no span, the band is widened toward the best
-      map's shift (``idle_shift``); None where it carries neither (rows collected before them): every
-      coordinate fails.
-    - passed: the band itself joined with the band moved by each plausible map's shift (the linear map fits,
-      so its re-fit sits where the posterior does). A flight that cannot tell the maps apart (a hover: its
-      collective barely moves) fits several about as well, and the quantities they act on differ between
-      them; a well-excited flight rejects every other map (the training lemniscates with a span: the median
-      move 0). No plausible map: no move.
-    - not run: no move.
-
-    On a flagged log, a coordinate the map acts on (:data:`MAPPED`) moves to its value under the map
-    (``idle_origin`` + shift: a map that fits re-fits it where the posterior would sit, while under the linear
-    map, which does not, the re-fit and the posterior part by up to 0.16); another moves by the shift alone
-    (its re-fits follow the map, not the data)."""
-    ok = verdict_.get("ok")
-    if ok is None:
+    (log units: (its lower edge's move, its upper edge's move)): none unless the log is flagged (``verdict_``:
+    :func:`verdict`'s). On a flagged log the band becomes the union of the band moved to each plausible map
+    (``feats["idle_span"]``: the least and the largest shift) and, where the linear map is plausible too (the
+    gain within :data:`SPAN_TOL`), the band itself. A coordinate the map acts on (:data:`MAPPED`) moves to its
+    value under the map (``idle_origin`` + shift: a map that fits re-fits it where the posterior would sit,
+    while under the linear map, which does not, the re-fit and the posterior part by up to 0.16); another
+    moves by the shift alone (its re-fits follow the map, not the data). Where a row carries no span, the band
+    is widened toward the best map's shift (``idle_shift``); None where it carries neither (rows collected
+    before them): every coordinate fails."""
+    if verdict_.get("ok") is not False:
         return 0.0, 0.0
     span, shift, origin = feats.get("idle_span"), feats.get("idle_shift"), feats.get("idle_origin")
-    if ok:
-        return (0.0, 0.0) if span is None else (min(float(span[0][j]), 0.0), max(float(span[1][j]), 0.0))
     if span is not None:
         lo, hi = float(span[0][j]), float(span[1][j])
         if origin is not None and j in MAPPED:
@@ -341,9 +325,9 @@ def widening(verdict_: dict, feats: dict, j: int, median: float) -> tuple[float,
     return min(float(shift[j]), 0.0), max(float(shift[j]), 0.0)
 
 
-BLIND_WHY = ("this flight's collective varied too little to test thrust ∝ command² (no other command→speed map, "
-             "idle offsets {grid} Ω_max or curved, changes the fit by more than the motor-map check's threshold): "
-             "another map moves thrust-to-weight without changing the fit")
+BLIND_WHY = ("thrust-to-weight assumes thrust ∝ command²: this flight's collective varied too little to test it "
+             "(no other command→speed map, idle offsets {grid} Ω_max or curved, changes the fit by more than the "
+             "motor-map check's threshold), and another map would move thrust-to-weight without changing the fit")
 """What the report adds to thrust-to-weight on a log the check cannot test (:func:`blind`)."""
 
 
