@@ -50,12 +50,14 @@ class PosteriorConfig:
             object.__setattr__(self, name, int(v))          # a NumPy integer stored as an int
         if self.rates not in ("windows", "innovations"):
             raise ValueError(f"PosteriorConfig.rates must be 'windows' or 'innovations', got {self.rates!r}")
-        from mjxsysid.identify.idlecheck import MAPS
-        maps = tuple(tuple(float(x) for x in m) for m in self.shared_maps)
-        bad = [m for m in maps if m not in MAPS]
-        if bad:
-            raise ValueError(f"PosteriorConfig.shared_maps: {bad} not among the motor-map check's maps (idlecheck.MAPS)")
-        object.__setattr__(self, "shared_maps", maps)
+        if self.shared_maps:
+            from mjxsysid.identify.idlecheck import MAPS
+            maps = tuple(tuple(float(x) for x in m) for m in self.shared_maps)
+            bad = [m for m in maps if m not in MAPS]
+            if bad:
+                raise ValueError(f"PosteriorConfig.shared_maps: {bad} not among the motor-map check's maps "
+                                 "(idlecheck.MAPS)")
+            object.__setattr__(self, "shared_maps", maps)
         c = self.calibration
         if not (c is None or c == "shipped" or isinstance(c, (dict, str, Path))):
             raise ValueError(f"PosteriorConfig.calibration must be 'shipped', a table (dict), a path or None, "

@@ -11,7 +11,8 @@ compile CPU for this project's programs at the same results (benchmarks/xla_cpu_
 
 QUICK_FIRST_RUN = ("--xla_backend_optimization_level=1",)
 """LLVM at level 1 instead of XLA's default: for a command whose first run is mostly compiling (the demo:
-compiling 34.1 -> 28.6 s, running 19.6 -> 21.7 s, cold wall 53.6 -> 50.2 s on 2 cores, BENCHMARKS.md).
+cold 51 -> 47 s, warm 25 -> 26 s on 2 cores; under `mjxsysid profile` compiling 34.1 -> 28.6 s, running
+19.6 -> 21.7 s: BENCHMARKS.md).
 Programs that run long (training, experiments) keep the default: level 1 runs a flight 25-50 % slower."""
 
 ONE_EIGEN_THREAD = ("--xla_cpu_multi_thread_eigen=false",)

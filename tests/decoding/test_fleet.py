@@ -83,11 +83,7 @@ def test_a_pair_moved_to_different_motor_maps_says_so():
     from mjxsysid.decoding.fleet import disagreements, disagreements_markdown
 
     def row(name, tw, tau, m):
-        cal = {"model_check": {"idle": {"ok": False}}, "features": {"idle_map": m}}
-        gap = {"thrust_to_weight": {"log_median": sum(tw) / 2, "log_q05": tw[0], "log_q95": tw[1], "seen_by_log": True},
-               "motor_time_constant": {"log_median": sum(tau) / 2, "log_q05": tau[0], "log_q95": tau[1],
-                                       "seen_by_log": True}}
-        return fleet_row(name, {"_log_grounded": {"gap": gap, "calibration": cal}})
+        return fleet_row(name, _flagged_summary(tw, [m], tau))
     a = row("log15", (1.56, 1.88), (0.01, 0.02), [0.1, 1.5])
     b = row("log16", (1.95, 2.48), (0.03, 0.04), [0.1, 2.0])
     assert a["motor_map"] == "idle +0.10 Ω_max, κ 1.5 (curved)"
@@ -100,9 +96,13 @@ def test_a_pair_moved_to_different_motor_maps_says_so():
     assert fleet_row("x", {"_log_grounded": {"gap": {}}})["motor_map"] is None
 
 
-def _flagged_row(name, tw, maps):
+def _flagged_summary(tw, maps, tau=None):
+    """A summary.json of a log the motor-map check flagged: thrust-to-weight's band ``tw`` (and τ_m's ``tau``),
+    the best map first of ``maps``, all of them plausible."""
+    def band(b):
+        return {"log_median": sum(b) / 2, "log_q05": b[0], "log_q95": b[1], "seen_by_log": True}
     cal = {"model_check": {"idle": {"ok": False}}, "features": {"idle_map": maps[0], "idle_plausible": maps}}
-    gap = {"thrust_to_weight": {"log_median": sum(tw) / 2, "log_q05": tw[0], "log_q95": tw[1], "seen_by_log": True}}
+    gap = {"thrust_to_weight": band(tw)} | ({"motor_time_constant": band(tau)} if tau else {})
     return {"_log_grounded": {"gap": gap, "calibration": cal}, "_posterior": "log-grounded"}
 
 
@@ -110,8 +110,8 @@ def test_flights_of_one_vehicle_share_the_motor_maps_they_showed():
     """``--same-vehicle``: the maps any flagged flight's bands hold are the vehicle's, in MAPS's order; a flagged
     flight lacking one is decoded again with them; a flight the check passed has no maps and is not."""
     from mjxsysid.decoding.fleet import lacks_shared, shared_maps, shared_maps_markdown
-    a = fleet_row("log15", _flagged_row("log15", (1.56, 1.91), [[0.1, 1.5], [0.0, 1.5]]))
-    b = fleet_row("log16", _flagged_row("log16", (1.97, 2.48), [[0.1, 2.0]]))
+    a = fleet_row("log15", _flagged_summary((1.56, 1.91), [[0.1, 1.5], [0.0, 1.5]]))
+    b = fleet_row("log16", _flagged_summary((1.97, 2.48), [[0.1, 2.0]]))
     passed = fleet_row("log10", {"_log_grounded": {"gap": {}, "calibration": {"model_check": {"idle": {"ok": True}},
                                                                               "features": {"idle_plausible": []}}}})
     maps = shared_maps([a, b, passed, {"log": "x", "error": "refused"}])
@@ -139,7 +139,7 @@ def test_same_vehicle_decodes_a_flagged_flight_again_with_the_vehicles_maps(tmp_
         lo, hi = bands[log.stem]
         if shared_maps:
             lo, hi = min(lo, 1.67), max(hi, 1.99)        # the band holds the values under the other map too
-        return _flagged_row(log.stem, (lo, hi), maps)
+        return _flagged_summary((lo, hi), maps)
     monkeypatch.setattr(D, "run_decode", fake_run_decode)
     logs = []
     for n in own:
