@@ -77,23 +77,10 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     ``skipped`` counts the logs the set lacks and why: flights that failed (crashed or diverged), logs too short."""
     from mjxsysid.identify.inference import LOG_BATCH, log_grounded_posteriors
     from mjxsysid.identify.logdata import LogTooShort, prepare
-    from mjxsysid.rollout.flight import flight_log, fly_vehicles
-    from mjxsysid.sim import Quadrotor, SimConfig
-    from mjxsysid.uses.imu_noise import LEVELS
+    from mjxsysid.sim import SimConfig
     import jax
 
-    from mjxsysid import theta as P
-
     motor = SimConfig(motor_idle=motor_idle, motor_kappa=motor_kappa)    # checks them before any flight
-    pr = P.get_prior(prior)
-    pol = None
-    if controller == "policy":
-        from mjxsysid.policy.interface import resolve_policy
-        pol = resolve_policy("mjxsysid", policy)
-    th_all = (pr.vehicles(vehicles) if prior in P.HELDOUT_FAMILIES
-              else np.asarray(pr.sample(jax.random.PRNGKey(seed), vehicles)))
-    index = _shard(vehicles, shard)
-    th = th_all[index]
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
@@ -105,29 +92,17 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     tag = {"motor": [motor_idle, motor_kappa]} if motor.motor_map else {}
     t_start = time.perf_counter()
     step = 1 if jax.default_backend() == "cpu" else LOG_BATCH      # logs identified together (batched on a GPU)
-    logs = []                                                       # (data, vehicle index, level, flight name)
+    logs = []                                                       # (data, vehicle, θ, level, flight name)
     skipped = {"flight failed": 0, "log too short": 0}
     res["skipped"] = skipped                                        # logs the set lacks, and why
-    for ref, lv in ((r, lv) for r in references for lv in levels):
-        if lv not in LEVELS:
-            raise ValueError(f"unknown noise level {lv!r}; known: {sorted(LEVELS)}")
-        s = seed + 1000 * (0 if shard is None else int(shard.split("/")[0])) + 97 * list(LEVELS).index(lv)
-        sim = Quadrotor(SimConfig(**LEVELS[lv], aero=aero, motor_idle=motor_idle, motor_kappa=motor_kappa))
-        fl, m, _ = fly_vehicles(th, controller=controller, sim=sim, seed=s, policy=pol, **parse_reference(ref))
-        flight = ((ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if aero else "")
-                  + (f" motor {motor_idle:g}/{motor_kappa:g}" if motor.motor_map else ""))
-        failed = np.asarray(m["failed"], bool)
-        skipped["flight failed"] += int(failed.sum())
-        for i in np.flatnonzero(~failed):
-            if (int(index[i]), lv, flight) in done:
-                continue
-            rec = flight_log(fl.frame, i)
-            if not velocity:
-                rec.pop("velocity_body")
-            try:
-                logs.append((prepare(rec), int(i), lv, flight))
-            except LogTooShort:
-                skipped["log too short"] += 1
+    settings = {k: res[k] for k in RESUME_KEYS}
+    for rec, vehicle, th, lv, flight in flights(settings, policy=policy, skipped=skipped):
+        if (vehicle, lv, flight) in done:
+            continue
+        try:
+            logs.append((prepare(rec), vehicle, th, lv, flight))
+        except LogTooShort:
+            skipped["log too short"] += 1
     # every flight's levels interleaved: a batch mixes them, so a run stopped by its budget keeps a balanced set
     order = sorted(range(len(logs)), key=lambda k: (logs[k][1], k))
     for c in progress(range(0, len(order), step), desc="calibration rows"):
@@ -136,14 +111,56 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
             break
         chunk = [logs[k] for k in order[c:c + step]]
         t0 = time.perf_counter()
-        posts = log_grounded_posteriors([d for d, *_ in chunk], seeds=[int(index[i]) for _, i, _, _ in chunk],
-                                        calibration=None)
+        posts = log_grounded_posteriors([d for d, *_ in chunk], seeds=[v for _, v, *_ in chunk], calibration=None)
         sec = (time.perf_counter() - t0) / len(chunk)
-        for (_, i, lv, flight), post in zip(chunk, posts):
-            res["rows"].append(row(post, th[i], lv, int(index[i]), sec) | {"flight": flight, "aero": aero} | tag)
+        for (_, vehicle, th, lv, flight), post in zip(chunk, posts):
+            res["rows"].append(row(post, th, lv, vehicle, sec) | {"flight": flight, "aero": aero} | tag)
         out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     return res
+
+
+def flights(settings: dict, *, policy=None, skipped: dict | None = None):
+    """The seeded flights of a calibration set's ``settings`` (a row file's :data:`RESUME_KEYS`; ``policy``: the
+    weights controller 'policy' flies, None the shipped policy) -> yields (log record, vehicle index, true θ (19,),
+    level, flight name) per flight that did not fail, references × levels in order; ``skipped["flight failed"]``
+    counts the others. A row file's flights are flown again exactly (the logs its rows came from)."""
+    from mjxsysid.rollout.flight import flight_log, fly_vehicles
+    from mjxsysid.sim import Quadrotor, SimConfig
+    from mjxsysid.uses.imu_noise import LEVELS
+    import jax
+
+    from mjxsysid import theta as P
+
+    st = {"controller": "oracle", "aero": False, "velocity": True, "motor_idle": 0.0, "motor_kappa": 1.0} | settings
+    prior, vehicles, seed, shard = st["prior"], st["vehicles"], st["seed"], st["shard"]
+    idle, kappa, controller = st["motor_idle"], st["motor_kappa"], st["controller"]
+    motor_map = SimConfig(motor_idle=idle, motor_kappa=kappa).motor_map
+    pr = P.get_prior(prior)
+    pol = None
+    if controller == "policy":
+        from mjxsysid.policy.interface import resolve_policy
+        pol = resolve_policy("mjxsysid", policy)
+    th_all = (pr.vehicles(vehicles) if prior in P.HELDOUT_FAMILIES
+              else np.asarray(pr.sample(jax.random.PRNGKey(seed), vehicles)))
+    index = _shard(vehicles, shard)
+    th = th_all[index]
+    for ref, lv in ((r, lv) for r in st["references"] for lv in st["levels"]):
+        if lv not in LEVELS:
+            raise ValueError(f"unknown noise level {lv!r}; known: {sorted(LEVELS)}")
+        s = seed + 1000 * (0 if shard is None else int(shard.split("/")[0])) + 97 * list(LEVELS).index(lv)
+        sim = Quadrotor(SimConfig(**LEVELS[lv], aero=st["aero"], motor_idle=idle, motor_kappa=kappa))
+        fl, m, _ = fly_vehicles(th, controller=controller, sim=sim, seed=s, policy=pol, **parse_reference(ref))
+        flight = ((ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if st["aero"] else "")
+                  + (f" motor {idle:g}/{kappa:g}" if motor_map else ""))
+        failed = np.asarray(m["failed"], bool)
+        if skipped is not None:
+            skipped["flight failed"] = skipped.get("flight failed", 0) + int(failed.sum())
+        for i in np.flatnonzero(~failed):
+            rec = flight_log(fl.frame, i)
+            if not st["velocity"]:
+                rec.pop("velocity_body")
+            yield rec, int(index[i]), th[i], lv, flight
 
 
 RESUME_KEYS = ("prior", "vehicles", "seed", "shard", "levels", "references", "controller", "aero", "velocity",
@@ -192,6 +209,12 @@ def row_files(folder) -> list[Path]:
     return sorted(f for f in Path(folder).iterdir() if f.name.endswith(ROW_SUFFIXES))
 
 
+VIBRATION_LEVEL = "x5_vibration"
+"""The level whose logs carry a rotor vibration: a row collected before the rows carried the detector's
+``vibration`` feature takes it from its level (the detector agrees with the level on every simulated log
+checked, benchmarks/vibration_detector.py)."""
+
+
 def read_rows(paths) -> list[dict]:
     """Rows of ``collect`` files (folders are searched for :data:`ROW_SUFFIXES`: plain, gzipped or xz)."""
     rows = []
@@ -199,6 +222,8 @@ def read_rows(paths) -> list[dict]:
         p = Path(p)
         for f in (row_files(p) if p.is_dir() else [p]):
             rows += read_json(f)["rows"]
+    for r in rows:
+        r["features"].setdefault("vibration", r.get("level") == VIBRATION_LEVEL)
     if not rows:
         raise ValueError(f"no calibration rows in {[str(p) for p in paths]}")
     return rows

@@ -45,6 +45,7 @@ from mjxsysid.identify import idlecheck, thresholds
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
 from mjxsysid.identify.gap import UNSEEN_FRACTION
+from mjxsysid.identify.logdata import vibrating
 from mjxsysid.identify.logspace import N_V
 from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
 from mjxsysid.identify.windowcheck import WHY as WINDOW_WHY
@@ -89,6 +90,13 @@ VELOCITY_COORDS = (L.LOG_TW,)
 """The coordinates a log's velocity changes (thrust-to-weight: the drag's term in the accelerometer's):
 calibrated apart on logs that carry velocity (``velocity_coords`` of the table)."""
 
+VIBRATION_COORDS = tuple(range(N_V))
+"""The coordinates calibrated apart on logs whose gyro shows a rotor vibration (``vibration_coords`` of the
+table; the feature ``vibration``, :func:`~.logdata.vibrating`). Every coordinate: chosen on three-fold splits
+of the training rows (cells within 0.85–0.95 of 180, none / the rate coordinates / every one apart: NUTS's
+windows 156 / 157 / 157, the SMC's bins 133 / 135 / 137; benchmarks/calibration_strata.py), then held out
+once (docs/identify.md, "Vibrating logs")."""
+
 RATE_COORDS = np.arange(N_V) != L.LOG_TW
 """The coordinates the rate windows inform, every one but thrust-to-weight (not seen when the motors
 were logged too slowly)."""
@@ -109,7 +117,8 @@ def log_features(data, mode) -> dict:
     ``mode`` (21,: v (12), log σ (4), log δ (4), bias) -> {rates_nsr (the mean of the axes'), acc_nsr,
     rates_nsr_x/y/z: log10 of the channels' residual scale √(k σ² + δ²) over their signal (the rate
     windows' RMS measured rate change; the accelerometer blocks' mean), rates_used (bool), windows (int),
-    velocity_used (bool: the log's velocity entered the drag's term), rotor_speed_used (bool: τ_m from
+    velocity_used (bool: the log's velocity entered the drag's term), vibration (bool: a rotor vibration was
+    detected in the gyro, :func:`~.logdata.vibrating`), rotor_speed_used (bool: τ_m from
     the measured rotor speeds, :mod:`.speeds`)}."""
     mode = np.asarray(mode, np.float64)
     sig, dl = np.exp(mode[L.X_LOG_NOISE]), np.exp(mode[L.X_LOG_DISCREPANCY])
@@ -124,18 +133,21 @@ def log_features(data, mode) -> dict:
             **{f: float(a) for f, a in zip(_AXES, axes)},
             "rates_used": bool(np.any(np.asarray(data.use)[L.GYRO] > 0)), "windows": int(wm.sum()),
             "velocity_used": bool(np.any(np.asarray(data.vz)[bm] != 0)),
+            "vibration": vibrating(data),
             "rotor_speed_used": bool(np.asarray(data.speed)[0] > 0)}
 
 
 def coord_entry(table: dict, j: int, features: dict) -> dict:
-    """Coordinate j's table entry for a log with ``features``: the velocity stratum's for a log that
-    carries velocity and whose feature lies within that stratum's logs' range (where the table has
-    one), else the coordinate's. A log with velocity whose residual stays above every simulated log's
-    with velocity has physics the drag's term did not explain: the logs without velocity, whose
-    residual holds the drag, are its nearer calibration."""
-    vel = table.get("velocity_coords", {}).get(str(j))
-    if vel is not None and features.get("velocity_used") and features[vel["feature"]] <= vel["feature_max"]:
-        return vel
+    """Coordinate j's table entry for a log with ``features``: the vibration stratum's for a log whose gyro
+    shows a rotor vibration, else the velocity stratum's for a log that carries velocity, each where the
+    table has one and the log's feature lies within that stratum's logs' range; else the coordinate's. A log
+    with velocity whose residual stays above every simulated log's with velocity has physics the drag's term
+    did not explain: the logs without velocity, whose residual holds the drag, are its nearer calibration.
+    A vibrating log noisier than every simulated one falls back the same way."""
+    for key, flag in (("vibration_coords", "vibration"), ("velocity_coords", "velocity_used")):
+        c = table.get(key, {}).get(str(j))
+        if c is not None and features.get(flag) and features[c["feature"]] <= c["feature_max"]:
+            return c
     return table["coords"][j]
 
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import (BINS, COORD_FEATURE, FEATURE_NAMES, LEVEL, MIN_SIDE, RATE_COORDS,
-                                         VELOCITY_COORDS, group_of)
+                                         VELOCITY_COORDS, VIBRATION_COORDS, group_of)
 from mjxsysid.identify.logspace import N_V, V_NAMES
 
 WINDOWED = {"smc_nuts": {"windows": 16, "logs": 300, "relative": 0.3, "least": 0.1}}
@@ -49,14 +49,17 @@ def fit_scale_floor(err, half, level: float = LEVEL) -> tuple[float, float]:
 
 
 def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: int = 30,
-        windows: dict | None = None) -> dict:
+        windows: dict | None = None, vibration: tuple = VIBRATION_COORDS) -> dict:
     """Calibration rows (one per simulated log: ``truth_v`` (12,), ``bands`` (3, 12) from
     :func:`~.calibrate.raw_bands`, ``features`` from :func:`~.calibrate.log_features`) -> the calibration table: per
     coordinate, the feature's groups and (a, b) per group and side; the features' ranges and the residual
     correlation the set covers (the model check's limits). Logs whose rates were not used are left
     out of the rate coordinates. ``windows`` None: ``bins`` quantile bins, a bin of fewer than ``min_group``
     logs (tied features) taking the pooled fit (:func:`_fit_bins`); else a :data:`WINDOWED` entry
-    (:func:`_fit_windows`). ValueError if a coordinate has too few logs for either."""
+    (:func:`_fit_windows`). The coordinates in ``vibration`` are fitted apart on the logs whose gyro shows a
+    rotor vibration (``features["vibration"]``) where there are enough of them (``vibration_coords``), and
+    thrust-to-weight on the remaining logs with velocity (``velocity_coords``). ValueError if a coordinate has
+    too few logs for either."""
     if not rows:
         raise ValueError("posterior calibration: no rows to fit")
     truth = np.array([r["truth_v"] for r in rows], np.float64)
@@ -64,6 +67,7 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
     feats = np.array([[r["features"][f] for f in FEATURE_NAMES] for r in rows], np.float64)
     used = np.array([r["features"]["rates_used"] for r in rows], bool)
     vel = np.array([bool(r["features"].get("velocity_used", False)) for r in rows], bool)
+    vib = np.array([bool(r["features"].get("vibration", False)) for r in rows], bool)
     weights = np.array([r.get("weights", [1.0] * L.N_CHANNELS) for r in rows], np.float64)
     need = min_group * bins if windows is None else windows["logs"]
 
@@ -74,9 +78,12 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
         args = (j, truth[keep], bands[keep], feats[keep, COORD_FEATURE[j]], level)
         return _fit_bins(*args, bins, min_group) if windows is None else _fit_windows(*args, **windows)
     strata = vel.sum() >= need                       # enough logs with velocity for a stratum of their own
-    table, vel_table = [], {}
+    table, vel_table, vib_table = [], {}, {}
     for j in range(N_V):
         keep = used if RATE_COORDS[j] else np.ones(len(rows), bool)
+        if (keep & vib).sum() >= need and j in vibration:
+            vib_table[str(j)] = one(j, keep & vib)
+            keep = keep & ~vib
         if strata and j in VELOCITY_COORDS:
             vel_table[str(j)] = one(j, keep & vel)
             keep = keep & ~vel
@@ -84,7 +91,8 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
     rng = {f: [float(np.min(feats[:, i])), float(np.max(feats[:, i]))] for i, f in enumerate(FEATURE_NAMES)}
     min_weight = np.full(L.N_CHANNELS, np.quantile(weights[used][:, L.GYRO], 0.005))
     min_weight[L.ACC_Z] = np.quantile(weights[:, L.ACC_Z], 0.005)
-    return {"level": level, "coords": table, "velocity_coords": vel_table, "feature_range": rng,
+    return {"level": level, "coords": table, "velocity_coords": vel_table, "vibration_coords": vib_table,
+            "feature_range": rng,
             "min_weight": min_weight.tolist(), "logs": len(rows)}
 
 

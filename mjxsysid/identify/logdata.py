@@ -16,7 +16,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from mjxsysid.identify.logspace import GYRO, N_CHANNELS
-from mjxsysid.identify.vibration import gyro_whiteners
+from mjxsysid.identify.vibration import detected_axes, gyro_whiteners
 from mjxsysid.identify.speeds import (model_features, model_step_integrals, report, speed_features,
                                       speed_step_integrals, speed_term)
 from mjxsysid.logs.speedmap import SKIP_S, first_row, lag_steps, speed_fit
@@ -354,6 +354,8 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     # pytree field, so never passed into a compiled program
     object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf,
                                        "drag_xy": drag_per_mass_xy(rec, bsteps + 1), "step_f": step_f, "whiten": whiten,
+                                       "vibration": detected_axes(imu[start:start + n_kf, :3], DT,
+                                                                  0.5 * native_rate_hz(rec, "imu")),
                                        "speed": report(speed), "rec": rec, "rec_args":
                                        {"max_windows": max_windows, "rates": rates, "speeds": speeds,
                                         "vibration": vibration}})
@@ -368,6 +370,12 @@ def innovation_whitening(imu, start: int, n: int, n2, s2) -> tuple[np.ndarray, n
     sig2 = np.asarray(s2, np.float64)[GYRO] / np.maximum(np.asarray(n2, np.float64)[GYRO], 1) / 6.0
     rscale = np.where(found & (sig2 > 0), eps / np.maximum(sig2, 1e-30), 1.0)
     return whiten, rscale
+
+
+def vibrating(data: LogData) -> bool:
+    """Whether a prepared log's gyro shows a rotor vibration on any axis (:func:`~.vibration.detected_axes`,
+    whichever rate term reads it); False for a LogData not prepared in this process."""
+    return bool(np.any(getattr(data, "_rows", {}).get("vibration", False)))
 
 
 def has_velocity(rec: dict) -> bool:
@@ -413,7 +421,13 @@ def _pad(a, n: int, axis: int = 0):
 def motor_rate_hz(rec: dict) -> float:
     """The rate (Hz) the motor commands were logged at: their native samples' if the log says it
     was resampled (``rec["native"]["motor"]``), else 500."""
-    nat = (rec.get("native") or {}).get("motor")
+    return native_rate_hz(rec, "motor")
+
+
+def native_rate_hz(rec: dict, name: str) -> float:
+    """The rate (Hz) column ``name`` ("motor", "imu") was logged at: its native samples' where the log
+    carries them (``rec["native"][name]``), else 500."""
+    nat = (rec.get("native") or {}).get(name)
     if nat is None or len(nat[0]) < 3:
         return 1.0 / DT
     return float(1.0 / max(np.median(np.diff(np.asarray(nat[0], np.float64))), 1e-9))

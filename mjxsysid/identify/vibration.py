@@ -42,11 +42,12 @@ SEGMENT = 256
 """Samples per Welch segment (0.5 s at 500 Hz: 2 Hz bins)."""
 
 
-def noise_spectrum(y: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, bool]:
+def noise_spectrum(y: np.ndarray, dt: float, max_hz: float | None = None) -> tuple[np.ndarray, np.ndarray, bool]:
     """The noise's one-sided spectral density of gyro axis samples y (n,) at spacing ``dt`` s ->
     (frequencies (F,) Hz, density (F,), whether a vibration peak is detected (:data:`PEAK_RATIO`)): the
     Welch estimate above :data:`BODY_HZ`, its level there (the median of the next 10 Hz) below, at least
-    :data:`FLOOR` × its peak."""
+    :data:`FLOOR` × its peak. ``max_hz``: the detection looks below it only (the gyro's native Nyquist
+    frequency, where a log was resampled: above it lie the resampling's images, not the rotors)."""
     f, p = welch(np.asarray(y, np.float64), fs=1.0 / dt, nperseg=min(SEGMENT, len(y)), detrend="linear")
     band = f >= BODY_HZ
     if band.sum() < 4 or not np.all(np.isfinite(p)):
@@ -55,8 +56,19 @@ def noise_spectrum(y: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray, bo
     q = np.where(band, p, low)
     upper = f >= BODY_HZ + 10.0
     peak = float(p[upper].max())
-    detected = bool(peak > PEAK_RATIO * max(float(np.percentile(p[band], 10)), 1e-30) and peak > RISE * low)
+    seen = band & (f <= (np.inf if max_hz is None else max_hz))
+    look = seen & upper
+    if look.sum() < 4:                  # a gyro logged too slowly to show a rotor's frequency
+        return f, np.maximum(q, FLOOR * peak), False
+    top = float(p[look].max())          # the peak below max_hz (``peak`` without it)
+    detected = bool(top > PEAK_RATIO * max(float(np.percentile(p[seen], 10)), 1e-30) and top > RISE * low)
     return f, np.maximum(q, FLOOR * peak), detected
+
+
+def detected_axes(gyro: np.ndarray, dt: float, max_hz: float | None = None) -> np.ndarray:
+    """Whether each axis of ``gyro`` (n, 3) shows a rotor vibration below ``max_hz`` (:func:`noise_spectrum`)
+    -> (3,) bool."""
+    return np.array([noise_spectrum(gyro[:, a], dt, max_hz)[2] for a in range(3)], bool)
 
 
 def whitening_filter(density: np.ndarray, order: int = ORDER) -> tuple[np.ndarray, float]:

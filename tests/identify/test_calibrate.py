@@ -51,6 +51,38 @@ def test_fit_reaches_its_coverage_on_fresh_logs_and_moves_a_biased_median():
     assert np.mean(c["scale_below"]) > 2.0 > np.mean(c["scale_above"])
 
 
+def test_vibrating_logs_are_calibrated_apart():
+    """Logs whose gyro vibrates have errors three times their raw bands' (the others: within them), at the
+    same features: one pooled table over-covers the calm and under-covers the vibrating; fitted apart, each
+    holds 0.86-0.94. A vibrating log noisier than every one the stratum saw takes the pooled entry."""
+    def rows(n, seed):
+        rng = np.random.default_rng(seed)
+        calm, vib = _rows(n, rng, spread=0.6), _rows(n, rng, spread=1.8)
+        for r in calm + vib:
+            r["features"]["vibration"] = r in vib
+        return calm + vib
+    fresh = rows(1500, 1)
+    calm, vib = fresh[:1500], fresh[1500:]
+    pooled, apart = F.fit(rows(1200, 0), vibration=()), F.fit(rows(1200, 0))
+    assert pooled["vibration_coords"] == {} and sorted(apart["vibration_coords"]) == sorted(map(str, range(N_V)))
+    cov = lambda rs, t: np.array(list(pc.evaluate(rs, t)["synthetic"]["coverage"].values()))  # noqa: E731
+    assert np.all(cov(calm, pooled) > 0.95) and np.all(cov(vib, pooled) < 0.85)
+    for part in (calm, vib):
+        assert np.all((cov(part, apart) >= 0.86) & (cov(part, apart) <= 0.94)), cov(part, apart)
+    entry = apart["vibration_coords"]["1"]
+    feats = dict(vib[0]["features"])
+    assert C.coord_entry(apart, 1, feats) is entry
+    assert C.coord_entry(apart, 1, feats | {"vibration": False}) is apart["coords"][1]
+    assert C.coord_entry(apart, 1, feats | {"rates_nsr": entry["feature_max"] + 1}) is apart["coords"][1]
+
+
+def test_rows_without_the_vibration_feature_take_it_from_their_level(tmp_path):
+    rows = [{"level": lv, "features": {"rates_nsr": -3.0}} for lv in ("x5_white", "x5_vibration")]
+    rows.append({"level": "x1", "features": {"rates_nsr": -3.0, "vibration": True}})     # the detector's, kept
+    (tmp_path / "r.json").write_text(json.dumps({"rows": rows}))
+    assert [r["features"]["vibration"] for r in pc.read_rows([tmp_path / "r.json"])] == [False, True, True]
+
+
 def test_the_shipped_table_is_applied_by_default():
     from mjxsysid.identify.posterior_config import PosteriorConfig
     assert PosteriorConfig().calibration == "shipped"
@@ -58,8 +90,8 @@ def test_the_shipped_table_is_applied_by_default():
     assert table["logs"] >= 500 and len(table["coords"]) == N_V
     rng = np.random.default_rng(2)
     v = PHYSICAL_PRIOR.sample_v(rng, 1)[0] + 0.01 * rng.standard_normal((4000, N_V)).astype(np.float32)
-    feats = {"rates_nsr": -2.0, "acc_nsr": -1.4, "rates_nsr_x": -2.0, "rates_nsr_y": -2.0, "rates_nsr_z": -2.0,
-             "rates_used": True, "windows": 89}
+    feats = {"rates_nsr": -3.0, "acc_nsr": -1.4, "rates_nsr_x": -3.0, "rates_nsr_y": -3.0, "rates_nsr_z": -3.0,
+             "rates_used": True, "windows": 89}   # near a clean log's (the SMC's clean rows: median −3.45)
     raw, rep0 = _calibrated(v, feats, [0.5] * 4, None, PHYSICAL_PRIOR, 0)
     cal, rep = _calibrated(v, feats, [0.5] * 4, "shipped", PHYSICAL_PRIOR, 0)
     assert rep0["applied"] is False and np.array_equal(raw, v)
@@ -360,7 +392,7 @@ def test_the_shipped_table_is_what_the_committed_rows_give(tmp_path):
     tool.main(["--table", str(tmp_path / "t.json"), "--evaluations", str(tmp_path / "ev")])
     new, shipped = json.loads((tmp_path / "t.json").read_text()), C.load()
     for a, b in ((new, shipped), (new["by_method"]["smc_nuts"], shipped["by_method"]["smc_nuts"])):
-        for key in ("coords", "velocity_coords", "feature_range", "min_weight", "logs"):
+        for key in ("coords", "velocity_coords", "vibration_coords", "feature_range", "min_weight", "logs"):
             assert a[key] == b[key], key
         held = {k.split("/ev/")[-1]: v for k, v in a["provenance"]["held_out"].items()}
         assert held == {k.split("log-grounded/")[-1]: v for k, v in b["provenance"]["held_out"].items()}

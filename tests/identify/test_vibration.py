@@ -38,6 +38,16 @@ def test_a_vibration_is_detected_and_white_noise_or_a_clean_flight_is_not():
         assert np.all(found == expect), (expect, found)
         assert poly.shape == ((3, V.ORDER + 1) if expect else (3, 1))
         assert np.all(np.isfinite(eps) == expect)
+        assert np.all(V.detected_axes(y, 0.002) == expect)
+    # a gyro logged at 100 or 20 Hz: the 90 Hz peak lies above its Nyquist frequency (the resampling's images)
+    assert np.all(V.detected_axes(body + 0.01 * vib, 0.002, max_hz=250.0))
+    assert not np.any(V.detected_axes(body + 0.01 * vib, 0.002, max_hz=50.0))
+    assert not np.any(V.detected_axes(body + 0.01 * vib, 0.002, max_hz=10.0))
+    # the feature every log carries, whichever rate term reads the gyro
+    theta = P.paper_hardware().copy()
+    for vibration, expect in ((0.0, False), (0.2, True)):
+        rec = synthetic_log(theta, seconds=10.0, gyro_noise=0.005, gyro_vibration=vibration, seed=1, closed_loop=True)
+        assert LD.vibrating(LD.prepare(rec)) is expect
 
 
 def test_innovations_unbiased_under_a_vibration_in_closed_loop():

@@ -131,7 +131,7 @@ def test_landed_rows_are_compact_and_read_back(tmp_path):
                                                                     "train/vel_lem.1of4.json.xz"]
     assert [p.name for p in (rows / "train").iterdir()] == ["vel_lem.1of4.json.xz"]
     got = read_rows([rows / "train"])
-    assert len(got) == 3 and got[0]["features"] == {"rates_nsr": -1.2346, "idle_span": [[0.1235]]}
+    assert len(got) == 3 and got[0]["features"] == {"rates_nsr": -1.2346, "idle_span": [[0.1235]], "vibration": False}
     from mjxsysid.experiments.posterior_calibration import read_json
     assert read_json(rows / "held_out/test_vel.0of4.json.xz")["partial"].startswith("the first 1 logs")
     (src / "vel_lem.1of4.json.partial").write_text(json.dumps({"rows": [row]}))       # an older, cut copy

@@ -1,0 +1,88 @@
+"""Which coordinates should a vibrating log's calibration be fitted apart for? A three-fold split by vehicle of
+NUTS's training rows (the shipped windows, :data:`~mjxsysid.identify.calibration_fit.WINDOWED`): each variant's
+table fitted on two folds, its coverage counted on the third, per level and coordinate (5 levels × 12 × 3 folds).
+The held-out rows are not read: the variant is chosen here, then evaluated once (tools/refit_calibration.py).
+``--method smc --rows docs/runs/measurements/log-grounded/calibrated/rows/cal*.json.xz``: the SMC's table, in bins.
+
+    python benchmarks/calibration_strata.py [--out docs/runs/measurements/log-grounded/vibration-stratum]
+
+Variants: none (one table for every log), the rate coordinates apart (thrust-to-weight pooled), every
+coordinate apart (:data:`~mjxsysid.identify.calibrate.VIBRATION_COORDS`, shipped). Writes OUT/strata_METHOD.md and
+OUT/strata_METHOD.json.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROWS = Path("docs/runs/measurements/log-grounded/nuts-calibration/rows/train")
+BAND = (0.85, 0.95)
+"""The target band of a cell's 90 % coverage."""
+
+
+def folds(rows: list[dict], k: int = 3):
+    """(train, test) pairs split k ways by vehicle index (a vehicle's logs at every level fall in one fold)."""
+    for f in range(k):
+        yield [r for r in rows if r["vehicle"] % k != f], [r for r in rows if r["vehicle"] % k == f]
+
+
+def score(evals: list[dict]) -> dict:
+    """Per-level evaluations (:func:`~mjxsysid.experiments.posterior_calibration.evaluate`, one per fold) ->
+    cells within :data:`BAND`, over, under (cells without a seen log left out) and the worst coverage."""
+    cov = np.array([v for e in evals for c in e.values() for v in c["coverage"].values()], np.float64)
+    cov = cov[np.isfinite(cov)]
+    return {"cells": int(np.sum((cov >= BAND[0]) & (cov <= BAND[1]))), "of": int(cov.size),
+            "over": int(np.sum(cov > BAND[1])), "under": int(np.sum(cov < BAND[0])), "worst": float(cov.min())}
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rows", nargs="+", default=[str(ROWS)])
+    ap.add_argument("--method", default="smc_nuts", help="the sampler whose rows and fit (windows or bins) are split")
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args(argv)
+    from mjxsysid.experiments.posterior_calibration import evaluate, read_rows
+    from mjxsysid.identify.calibrate import VIBRATION_COORDS
+    from mjxsysid.identify.calibration_fit import WINDOWED, fit
+    from mjxsysid.identify.logspace import N_V
+    t0 = time.perf_counter()
+    rows = [r for r in read_rows(a.rows) if r.get("method") == a.method]
+    variants = {"none": (), "rate coordinates apart": tuple(range(1, N_V)), "every coordinate apart": VIBRATION_COORDS}
+    out = {"rows": len(rows), "vibrating": int(sum(r["features"]["vibration"] for r in rows)), "variants": {}}
+    for name, coords in variants.items():
+        evals, vib_width = [], []
+        for train, test in folds(rows):
+            table = fit(train, windows=WINDOWED.get(a.method), vibration=coords)
+            e = evaluate(test, table)
+            evals.append(e)
+            vib_width.append(list(e["x5_vibration"]["median_width"].values()))
+        out["variants"][name] = score(evals) | {"vibration_width": np.mean(vib_width, 0).tolist(),
+                                                "tw_width_pct": {lv: float(np.mean([e[lv]["tw_width_pct"] for e in evals]))
+                                                                 for lv in evals[0]}}
+    base = np.array(out["variants"]["none"]["vibration_width"])
+    lines = [f"# Vibrating logs calibrated apart: a three-fold split of {out['rows']} training rows of `{a.method}`", "",
+             f"{out['vibrating']} of the rows vibrate. Cells: level × coordinate × fold, coverage within "
+             f"{BAND[0]}–{BAND[1]}. `python benchmarks/calibration_strata.py --method {a.method}` "
+             f"({time.perf_counter() - t0:.0f} s).", "",
+             "| variant | cells | over | under | the worst | × 5 vibration's widths / none's (median) | T/W width, clean / × 5 vibration |",
+             "|---|---|---|---|---|---|---|"]
+    for name, v in out["variants"].items():
+        ratio = float(np.median(np.array(v["vibration_width"]) / np.maximum(base, 1e-12)))
+        tw = v["tw_width_pct"]
+        lines.append(f"| {name} | {v['cells']} of {v['of']} | {v['over']} | {v['under']} | {v['worst']:.3f} | "
+                     f"{ratio:.2f} | ±{tw['clean']:.1f} / ±{tw['x5_vibration']:.1f} % |")
+    print("\n".join(lines))
+    if a.out:
+        dst = Path(a.out)
+        dst.mkdir(parents=True, exist_ok=True)
+        (dst / f"strata_{a.method}.json").write_text(json.dumps(out, indent=1) + "\n")
+        (dst / f"strata_{a.method}.md").write_text("\n".join(lines) + "\n")
+    return out
+
+
+if __name__ == "__main__":
+    main()
