@@ -75,7 +75,7 @@ def main():
                    "jax": jax.__version__}
             rows.append(row)
             print(json.dumps(row), flush=True)
-    print(f"\n| controller | " + " | ".join(f"{n} envs" for n in args.envs) + " |")
+    print("\n| controller | " + " | ".join(f"{n} envs" for n in args.envs) + " |")
     print("|---|" + "---|" * len(args.envs))
     for name in ctrls:
         cells = [f"{r['env_steps_per_s'] / 1e6:.2f} M/s ({r['ratio_to_k_theta']:.2f}×)"

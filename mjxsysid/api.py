@@ -131,7 +131,7 @@ def fly(vehicle=None, controller: str = "policy", *, reference: str = "lemniscat
 def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None, weights=None,
            decoders=None, seed: int = 0, truth=None, index: int = 0, allow_mismatch: bool = False,
            window="flight", decoder_only: bool = False, segment=None, rates: str | None = None,
-           refine: bool | None = None) -> dict:
+           refine: bool | None = None, shared_maps=None) -> dict:
     """Decode a policy's latent into a distribution of vehicles, as ``mjxsysid decode``.
 
     ``flight_or_log``: a :class:`FlightResult` of :func:`fly` with ``controller="policy"``
@@ -158,14 +158,16 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
     ``summary["_decoder_only"]``, the information gap under ``summary["_log_grounded"]["gap"]``,
     and ``samples_log_grounded`` (S, 19) is returned too; ``rates`` its likelihood's rate term
     (``"windows"``, the default, or ``"innovations"``: docs/identify.md); ``refine=False`` keeps the
-    SMC's draws where it falls back to its SMC (default: refined by NUTS).
+    SMC's draws where it falls back to its SMC (default: refined by NUTS). ``shared_maps``: command→speed maps
+    other flights of the same vehicle showed ((idle, κ) pairs of :data:`mjxsysid.identify.idlecheck.MAPS`, as
+    ``decode --same-vehicle`` passes them; ``summary["_log_grounded"]`` reports them under the motor-map check).
 
     A log is checked first, as by :func:`check_log`: one that cannot be right raises
     :class:`LogError`; warnings and a flight outside the decoders' training prior are printed
     (stderr) and kept in ``summary["_checks"]``."""
     if rates not in (None, "windows", "innovations"):
         raise ValueError(f"rates must be 'windows' or 'innovations', got {rates!r}")
-    for name, given in (("rates", rates), ("refine", refine)):
+    for name, given in (("rates", rates), ("refine", refine), ("shared_maps", shared_maps)):
         if given is not None and (decoder_only or not isinstance(flight_or_log, (str, Path))):
             raise ValueError(f"{name} applies to the log-grounded posterior of a log path (not decoder_only)")
     if not rate > 0:
@@ -215,7 +217,7 @@ def decode(flight_or_log, *, samples: int = 100, rate: float = 10.0, policy=None
                             seed=seed, window=window, seq_decoder=seq)
     post["summary"]["_checks"] = checks_summary(checks)
     if isinstance(flight_or_log, (str, Path)) and not decoder_only:
-        ground_in_log(post, post["summary"], rec, th, seed=seed, rates=rates, refine=refine)
+        ground_in_log(post, post["summary"], rec, th, seed=seed, rates=rates, refine=refine, shared_maps=shared_maps)
     return post
 
 

@@ -91,7 +91,7 @@ def test_adaptation_problem_is_real(prior_lemniscate):
     theta, mo, mn = prior_lemniscate
     prior = theta[1:]
     mo, mn = ({k: np.asarray(v)[1:] for k, v in m.items()} for m in (mo, mn))
-    so, sn = summarize(mo), summarize(mn)
+    so = summarize(mo)
     assert so["success_rate"] == 1.0
     assert so["pos_rmse_m"]["mean"] < 0.05
     ok = ~np.asarray(mn["failed"])

@@ -27,7 +27,7 @@ def deriv(x, theta, omega_cmd, force_world):
     eta = theta[11:15]
     tau_m = theta[15]
     tau_ext = theta[16:19]
-    p, v, q, w, rot_speed = x[0:3], x[3:6], x[6:10], x[10:13], x[13:17]
+    v, q, w, rot_speed = x[3:6], x[6:10], x[10:13], x[13:17]   # the position x[0:3] does not enter
     R = rotmat(q / np.linalg.norm(q))
     f = eta * kt * rot_speed**2  # per-rotor thrust
     rx, ry = (l * ARM_DIR).T  # rotor i at (rx, ry, 0) body: r × (0, 0, f) = (ry f, −rx f, 0)

@@ -176,7 +176,7 @@ def evaluate_policy(path=None, *, n: int = 1000, seed: int = 0, steps: int = 100
     for c in ("oracle", "nominal"):
         cl[c] = {k: np.asarray(v) for k, v in fly_vehicles(theta, controller=c, reference="lemniscate", sim=sim)[1].items()}
     out["lemniscate"] = {k: summarize(v) for k, v in cl.items()}
-    po, _oo = out["lemniscate"]["policy"], out["lemniscate"]["oracle"]
+    po = out["lemniscate"]["policy"]
     if po["pos_rmse_m"]["mean"] is not None:
         both = ~cl["policy"]["failed"] & ~cl["oracle"]["failed"]
         out["lemniscate"]["rmse_ratio_policy_over_oracle"] = float(
