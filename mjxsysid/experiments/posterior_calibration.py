@@ -243,6 +243,7 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
     statistics, rows of ``{level, features: {window_shift, idle_gain}}``), else kept from ``base``."""
     from mjxsysid.identify import idlecheck, windowcheck
     from mjxsysid.identify.calibrate import load, with_method
+    from mjxsysid.identify.calibrate import VIBRATION_COORDS
     from mjxsysid.identify.calibration_fit import WINDOWED
     rows = read_rows(paths)
     pooled = rows + list(window_rows or [])          # the checks read the mode: every sampler's rows
@@ -256,7 +257,7 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
     windows = WINDOWED.get(method)
     if windows is not None and window_logs is not None:
         windows = windows | {"logs": window_logs}
-    table = fit(rows, bins=bins, min_group=min_group, windows=windows)
+    table = fit(rows, bins=bins, min_group=min_group, windows=windows, vibration=VIBRATION_COORDS[method or "smc"])
     levels = sorted({r["level"] for r in rows})
     cmd = "mjxsysid calibrate-posterior --fit " + " ".join(map(str, paths)) + (f" --method {method}" if method else "")
     table["provenance"] = {"command": command or cmd,

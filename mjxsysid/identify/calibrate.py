@@ -90,16 +90,17 @@ VELOCITY_COORDS = (L.LOG_TW,)
 """The coordinates a log's velocity changes (thrust-to-weight: the drag's term in the accelerometer's):
 calibrated apart on logs that carry velocity (``velocity_coords`` of the table)."""
 
-VIBRATION_COORDS = tuple(range(N_V))
-"""The coordinates calibrated apart on logs whose gyro shows a rotor vibration (``vibration_coords`` of the
-table; the feature ``vibration``, :func:`~.logdata.vibrating`). Every coordinate: chosen on three-fold splits
-of the training rows (cells within 0.85–0.95 of 180, none / the rate coordinates / every one apart: NUTS's
-windows 156 / 157 / 157, the SMC's bins 133 / 135 / 137; benchmarks/calibration_strata.py), then held out
-once (docs/identify.md, "Vibrating logs")."""
-
 RATE_COORDS = np.arange(N_V) != L.LOG_TW
 """The coordinates the rate windows inform, every one but thrust-to-weight (not seen when the motors
 were logged too slowly)."""
+
+VIBRATION_COORDS = {"smc_nuts": tuple(range(N_V)), "smc": tuple(int(j) for j in np.flatnonzero(RATE_COORDS))}
+"""Per sampler, the coordinates calibrated apart on logs whose gyro shows a rotor vibration (``vibration_coords``
+of its table; the feature ``vibration``, :func:`~.logdata.vibrating`); the pooled table is the SMC's. Chosen on
+three-fold splits of the training rows (cells within 0.85–0.95 of 180, none / the rate coordinates / every one
+apart): NUTS's windows 156 / 157 / 158, the SMC's bins 133 / 135 / 137 (benchmarks/calibration_strata.py). The
+SMC's takes the rate coordinates: held out, every coordinate apart moved its thrust-to-weight at × 10 from 0.92
+to 0.80 and doubled its width at × 5 white (docs/identify.md, "Vibrating logs apart", both ways)."""
 
 BOUND_FRACTION = 0.01
 """A narrow band within this share of the prior's range from one of its bounds is not seen: the log asks
