@@ -152,7 +152,8 @@ def ground_in_log(dec: dict, summary: dict, rec: dict, truth=None, *, seed: int 
                              {"value": None, "why": "the log carries no velocity: the drag's share of the specific "
                                                     "force is left to the calibration"})
     diag["calibration"] = ({"applied": True, "table": cal["table"], "features": post["features"],
-                            "model_check": cal["check"], "width_factor": dict(zip(L.V_NAMES, cal["factor"].tolist()))}
+                            "model_check": cal["check"], "width_factor": dict(zip(L.V_NAMES, cal["factor"].tolist())),
+                            "calibrated_on": dict(zip(L.V_NAMES, cal["stratum"]))}
                            if cal.get("applied") else {"applied": False, "why": cal["why"]})
     diag["gap"] = gap
     # the measured rotor speeds: used (τ_m from command to speed, the thrust and torque from the speeds) or why not

@@ -138,18 +138,29 @@ def log_features(data, mode) -> dict:
             "rotor_speed_used": bool(np.asarray(data.speed)[0] > 0)}
 
 
-def coord_entry(table: dict, j: int, features: dict) -> dict:
-    """Coordinate j's table entry for a log with ``features``: the vibration stratum's for a log whose gyro
-    shows a rotor vibration, else the velocity stratum's for a log that carries velocity, each where the
-    table has one and the log's feature lies within that stratum's logs' range; else the coordinate's. A log
-    with velocity whose residual stays above every simulated log's with velocity has physics the drag's term
-    did not explain: the logs without velocity, whose residual holds the drag, are its nearer calibration.
-    A vibrating log noisier than every simulated one falls back the same way."""
-    for key, flag in (("vibration_coords", "vibration"), ("velocity_coords", "velocity_used")):
+STRATA = (("vibration_coords", "vibration", "vibrating simulated logs"),
+          ("velocity_coords", "velocity_used", "simulated logs with velocity"))
+"""The table's strata, in the order a log is matched to them: (the table's key, the log's feature, the name the
+report gives); a log in neither takes the coordinate's entry fitted on the rest ("the other simulated logs")."""
+
+
+def coord_stratum(table: dict, j: int, features: dict) -> tuple[str, dict]:
+    """Coordinate j's stratum name and table entry for a log with ``features``: the vibration stratum's for a
+    log whose gyro shows a rotor vibration, else the velocity stratum's for a log that carries velocity, each
+    where the table has one and the log's feature lies within that stratum's logs' range; else the coordinate's.
+    A log with velocity whose residual stays above every simulated log's with velocity has physics the drag's
+    term did not explain: the logs without velocity, whose residual holds the drag, are its nearer
+    calibration. A vibrating log noisier than every simulated one falls back the same way."""
+    for key, flag, name in STRATA:
         c = table.get(key, {}).get(str(j))
         if c is not None and features.get(flag) and features[c["feature"]] <= c["feature_max"]:
-            return c
-    return table["coords"][j]
+            return name, c
+    return "the other simulated logs", table["coords"][j]
+
+
+def coord_entry(table: dict, j: int, features: dict) -> dict:
+    """Coordinate j's table entry for a log with ``features`` (:func:`coord_stratum`)."""
+    return coord_stratum(table, j, features)[1]
 
 
 def raw_bands(v) -> np.ndarray:
@@ -359,7 +370,8 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
     the log's group, :func:`group_of`); a coordinate whose channels fail :func:`model_check` is drawn from the
     prior instead. On a log whose τ_m comes from measured rotor speeds (``rotor_speed_used``), τ_m's
     draws stay raw (factor 1, :data:`SPEED_WHY`) and pass no model check of the rate channels. Draws outside the prior's support are replaced by resampled valid ones.
-    report: {factor (12,) the band's width over the raw one, group (12,) the table's group, check, seen (12,) bool, why (12,) str}."""
+    report: {factor (12,) the band's width over the raw one, group (12,) the table's group, stratum (12,) str
+    the logs it was calibrated on (:func:`coord_stratum`; "" where it was not), check, seen (12,) bool, why (12,) str}."""
     v = np.asarray(v, np.float64)
     q = raw_bands(v)
     check = model_check(features, weights, table)
@@ -367,11 +379,12 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
     pw = hi - lo
     out = v.copy()
     factor, groups, seen, why = np.ones(N_V), np.zeros(N_V, int), np.zeros(N_V, bool), [""] * N_V
+    strata = [""] * N_V
     gen = np.random.default_rng(rng)
     prior_v = prior.sample_v(gen, len(v)).astype(np.float64)
     speed_tau = bool(features.get("rotor_speed_used"))
     for j in range(N_V):
-        c = coord_entry(table, j, features)
+        strata[j], c = coord_stratum(table, j, features)
         if speed_tau and j == L.LOG_TAU_M:       # τ_m from command to measured speed: the raw band (see SPEED_WHY)
             continue
         if not coord_ok(check, j):
@@ -401,7 +414,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
     for j in range(N_V):
         if why[j]:
             continue
-        note = f"; {SPEED_WHY}" if speed_tau and j == L.LOG_TAU_M else ""
+        note = f"; {SPEED_WHY}" if speed_tau and j == L.LOG_TAU_M else f"; calibrated on {strata[j]}"
         flagged = check["idle"]["ok"] is False
         if j == L.LOG_TW and idlecheck.blind(check["idle"], features):
             note += "; " + idlecheck.BLIND_WHY.format(grid=", ".join(f"{g:+g}" for g in idlecheck.GRID))
@@ -416,4 +429,5 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
         passed = "the motor-map check flagged the log" if flagged else "model check passed"
         why[j] = (f"calibrated band {width[j] / pw[j]:.2g} of the prior's range, {passed}" if seen[j]
                   else f"calibrated band {width[j] / pw[j]:.2g} of the prior's range (≥ {UNSEEN_FRACTION}): the log does not pin it") + note
-    return out.astype(np.float32), {"factor": factor, "group": groups, "check": check, "seen": seen, "why": why}
+    return out.astype(np.float32), {"factor": factor, "group": groups, "stratum": strata, "check": check, "seen": seen,
+                                    "why": why}

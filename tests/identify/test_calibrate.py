@@ -74,6 +74,11 @@ def test_vibrating_logs_are_calibrated_apart():
     assert C.coord_entry(apart, 1, feats) is entry
     assert C.coord_entry(apart, 1, feats | {"vibration": False}) is apart["coords"][1]
     assert C.coord_entry(apart, 1, feats | {"rates_nsr": entry["feature_max"] + 1}) is apart["coords"][1]
+    # the report names the logs each band was calibrated on
+    v = np.array(vib[0]["bands"][1]) + 0.01 * np.random.default_rng(3).standard_normal((2000, N_V))
+    for flag, name in ((True, "vibrating simulated logs"), (False, "the other simulated logs")):
+        _, rep = C.calibrate(v, feats | {"vibration": flag}, [0.5] * 4, apart)
+        assert rep["stratum"][1] == name and f"calibrated on {name}" in rep["why"][1], rep["why"][1]
 
 
 def test_rows_without_the_vibration_feature_take_it_from_their_level(tmp_path):
