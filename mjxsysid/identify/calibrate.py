@@ -384,7 +384,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
     prior_v = prior.sample_v(gen, len(v)).astype(np.float64)
     speed_tau = bool(features.get("rotor_speed_used"))
     for j in range(N_V):
-        strata[j], c = coord_stratum(table, j, features)
+        stratum, c = coord_stratum(table, j, features)
         if speed_tau and j == L.LOG_TAU_M:       # τ_m from command to measured speed: the raw band (see SPEED_WHY)
             continue
         if not coord_ok(check, j):
@@ -398,6 +398,7 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
             factor[j] = np.nan
             why[j] = "model check failed: " + check["idle"]["why"]
             continue
+        strata[j] = stratum
         factor[j] = (k_lo * (q[1, j] - q[0, j]) + k_hi * (q[2, j] - q[1, j])) / max(q[2, j] - q[0, j], 1e-12)
         d = v[:, j] - q[1, j]
         out[:, j] = q[1, j] + shift + np.where(d < 0, k_lo, k_hi) * d
