@@ -31,7 +31,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--bins", type=int, default=2)
     a = ap.parse_args(argv)
     from mjxsysid.experiments.posterior_calibration import evaluate, read_rows
-    from mjxsysid.identify.calibrate import fit, load
+    from mjxsysid.identify.calibrate import load
+    from mjxsysid.identify.calibration_fit import fit
     rows = read_rows(a.rows)
     shipped = load()
     evals = {"raw": [], "shipped": [], "refit": []}
