@@ -1,6 +1,7 @@
 """The innovations' vibration whitening (mjxsysid.identify.vibration): detection, the filter, and the
 closed-loop bias it removes."""
 import numpy as np
+import pytest
 from scipy.signal import lfilter
 
 from mjxsysid import theta as P
@@ -48,6 +49,10 @@ def test_a_vibration_is_detected_and_white_noise_or_a_clean_flight_is_not():
     for vibration, expect in ((0.0, False), (0.2, True)):
         rec = synthetic_log(theta, seconds=10.0, gyro_noise=0.005, gyro_vibration=vibration, seed=1, closed_loop=True)
         assert LD.vibrating(LD.prepare(rec)) is expect
+    # a gyro its log says was resampled from 20 Hz shows no rotor (its Nyquist frequency, 10 Hz, is below 25 Hz)
+    t = np.arange(len(rec["imu"])) * LD.DT
+    rec["native"] = {"imu": (t[::25], np.asarray(rec["imu"])[::25])}
+    assert LD.native_rate_hz(rec, "imu") == pytest.approx(20.0) and LD.vibrating(LD.prepare(rec)) is False
 
 
 def test_innovations_unbiased_under_a_vibration_in_closed_loop():
