@@ -175,3 +175,16 @@ def test_read_log_fast_path_equals_the_careful_parser_and_memory_limit(paper_fli
     with pytest.raises(ValueError, match=r"needs about .* GB of memory to decode, .* available: split the log") as e:
         read_log(clean)
     assert "\n" not in str(e.value)
+
+
+def test_summary_md_says_a_vibrating_log_was_calibrated_on_vibrating_logs():
+    from mjxsysid.decoding.command import _model_check_lines
+    on = {"log_thrust_to_weight": "simulated logs with velocity", "log_motor_time_constant": "vibrating simulated logs",
+          "log_yaw_authority": ""}
+    g = {"calibration": {"model_check": {"window": {"why": "w"}, "idle": {"why": "i"}, "reasons": []},
+                         "features": {"vibration": True}, "calibrated_on": on}}
+    lines = _model_check_lines(g)
+    assert lines[-1] == ("- rotor vibration: a narrow-band peak in the gyro; calibrated on vibrating simulated logs: "
+                         "log_motor_time_constant")
+    g["calibration"]["features"]["vibration"] = False
+    assert not any("vibration" in ln for ln in _model_check_lines(g))
