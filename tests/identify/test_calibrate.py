@@ -434,3 +434,17 @@ def test_a_table_of_windows_puts_a_log_between_two_windows_between_their_bands()
     assert "centres" not in plain
     x = 0.5 * (cen[1] + cen[2])
     assert C.stretch(q, plain, x)[1:] == C.side_factors(q, plain, C.group_of(plain, x, 0.1))
+
+
+def test_hovers_do_not_set_the_motor_map_checks_threshold():
+    """A hover's collective stands still, so an IMU bias fits an idle offset: its gains do not set the threshold."""
+    from mjxsysid.identify import idlecheck as I
+    rng = np.random.default_rng(5)
+    row = lambda flight, g: {"level": "x1", "flight": flight,                     # noqa: E731
+                             "features": {"idle_gain": float(g), "idle_maps": len(I.MAPS)}}
+    moving = [row("lemniscate:10", g) for g in rng.exponential(1.0, 300)]
+    hovers = [row("hover:8", g) for g in 10 + rng.exponential(10.0, 100)]
+    entry = I.threshold_entry(moving + hovers)
+    assert entry["logs"] == 300
+    assert entry["threshold"] == pytest.approx(I.threshold_entry(moving)["threshold"])
+    assert entry["threshold"] < 10 < I.thresholds.entry(moving + hovers, "idle_gain", I.QUANTILE, I.MIN_LOGS)["threshold"]
