@@ -7,8 +7,8 @@ The held-out rows are not read: the variant is chosen here, then evaluated once 
     python benchmarks/calibration_strata.py [--out docs/runs/measurements/log-grounded/vibration-stratum]
 
 Variants: none (one table for every log), the rate coordinates apart (thrust-to-weight pooled), every
-coordinate apart (:data:`~mjxsysid.identify.calibrate.VIBRATION_COORDS` says which each sampler ships). Writes OUT/strata_METHOD.md and
-OUT/strata_METHOD.json.
+coordinate apart (:data:`~mjxsysid.identify.calibrate.VIBRATION_COORDS` says which each sampler ships). Writes
+OUT/strata_METHOD.md and OUT/strata_METHOD.json.
 """
 from __future__ import annotations
 
