@@ -448,3 +448,17 @@ def test_hovers_do_not_set_the_motor_map_checks_threshold():
     assert entry["logs"] == 300
     assert entry["threshold"] == pytest.approx(I.threshold_entry(moving)["threshold"])
     assert entry["threshold"] < 10 < I.thresholds.entry(moving + hovers, "idle_gain", I.QUANTILE, I.MIN_LOGS)["threshold"]
+
+
+
+def test_acc_noise_is_the_accelerometers_white_noise_over_its_signal():
+    """σ from the z channel's second differences (variance 6 σ²) over the blocks' mean specific force."""
+    from types import SimpleNamespace
+    from mjxsysid.identify.logspace import ACC_Z, N_CHANNELS
+    rng = np.random.default_rng(0)
+    y = 9.81 + 0.05 * rng.standard_normal(20000)
+    d2 = np.diff(y, 2)
+    s2, n2 = np.zeros(N_CHANNELS), np.zeros(N_CHANNELS)
+    s2[ACC_Z], n2[ACC_Z] = np.sum(d2 ** 2), len(d2)
+    data = SimpleNamespace(s2=s2, n2=n2, acc=np.array([9.81, 9.81, 0.0]), bmask=np.array([1, 1, 0]))
+    assert C.acc_noise(data) == pytest.approx(np.log10(0.05 / 9.81), abs=0.01)
