@@ -30,6 +30,16 @@ def write_json(path: Path, res: dict) -> None:
     print(f"wrote {path}", file=sys.stderr)
 
 
+def write_results(folder, stem: str, res: dict, lines: list[str]) -> None:
+    """A benchmark's result as FOLDER/STEM.json (valid JSON: :func:`mjxsysid.runtime.jsonout.write_json`) and
+    FOLDER/STEM.md (its table ``lines``), creating the folder."""
+    from mjxsysid.runtime.jsonout import write_json as write_valid_json
+    dst = Path(folder)
+    dst.mkdir(parents=True, exist_ok=True)
+    write_valid_json(dst / f"{stem}.json", res, indent=1)
+    (dst / f"{stem}.md").write_text("\n".join(lines) + "\n")
+
+
 def config_overrides(pairs: list[str]) -> dict:
     """``KEY=VALUE`` strings (``--set``) -> a dict of TrainConfig overrides, values read as JSON
     (``true``, ``2``, ``0.1``) or else kept as strings."""

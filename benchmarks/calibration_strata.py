@@ -13,11 +13,12 @@ OUT/strata_METHOD.md and OUT/strata_METHOD.json.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+from _bench import write_results
 
 ROWS = Path("docs/runs/measurements/log-grounded/nuts-calibration/rows/train")
 BAND = (0.85, 0.95)
@@ -76,10 +77,7 @@ def main(argv=None) -> dict:
                      f"{ratio:.2f} | ±{tw['clean']:.1f} / ±{tw['x5_vibration']:.1f} % |")
     print("\n".join(lines))
     if a.out:
-        dst = Path(a.out)
-        dst.mkdir(parents=True, exist_ok=True)
-        (dst / f"strata_{a.method}.json").write_text(json.dumps(out, indent=1) + "\n")
-        (dst / f"strata_{a.method}.md").write_text("\n".join(lines) + "\n")
+        write_results(a.out, f"strata_{a.method}", out, lines)
     return out
 
 

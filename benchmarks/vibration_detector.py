@@ -12,11 +12,12 @@ Writes OUT/detector.json and OUT/detector.md. CPU: about a minute per piece of 3
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+from _bench import write_results
 
 
 def detect(rec: dict) -> bool:
@@ -67,10 +68,7 @@ def main(argv=None) -> dict:
     print("\n".join(lines))
     summary = {"files": res, "agree": agree, "logs": total}
     if a.out:
-        dst = Path(a.out)
-        dst.mkdir(parents=True, exist_ok=True)
-        (dst / "detector.json").write_text(json.dumps(summary, indent=1) + "\n")
-        (dst / "detector.md").write_text("\n".join(lines) + "\n")
+        write_results(a.out, "detector", summary, lines)
     return summary
 
 

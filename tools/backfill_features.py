@@ -7,7 +7,7 @@ keeps what it had.
     python tools/backfill_features.py acc_noise ROWS.json.xz [...]
 
 Features: ``acc_noise`` (:func:`mjxsysid.identify.calibrate.acc_noise`), ``vibration``
-(:func:`mjxsysid.identify.logdata.vibrating`). About 3 logs a second per process on 2 CPU cores.
+(:func:`mjxsysid.identify.logdata.vibrating`). About 8 logs a second per process, two processes on 2 CPU cores.
 """
 from __future__ import annotations
 

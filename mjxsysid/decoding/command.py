@@ -65,7 +65,8 @@ def _model_check_lines(g: dict) -> list[str]:
     lines = ["", "## The model check", "", f"- window length: {win.get('why', 'not run')}",
              f"- motor map: {idle.get('why', 'not run')}"]
     if (g["calibration"].get("features") or {}).get("vibration"):
-        on = [k for k, v in (g["calibration"].get("calibrated_on") or {}).items() if v == "vibrating simulated logs"]
+        from mjxsysid.identify.calibrate import VIBRATING
+        on = [k for k, v in (g["calibration"].get("calibrated_on") or {}).items() if v == VIBRATING]
         lines.append("- rotor vibration: a narrow-band peak in the gyro; calibrated on vibrating simulated logs: "
                      + (", ".join(on) if on else "none of the bands (each failed a check or was left raw)"))
     return lines + [f"- failed: {r}" for r in chk.get("reasons", []) if r not in (win.get("why"), idle.get("why"))]

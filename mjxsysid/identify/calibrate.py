@@ -117,7 +117,8 @@ def acc_noise(data) -> float:
     """log10 of the accelerometer's white noise over its signal, from the log alone: σ from its z channel's second
     differences (their variance is 6 σ², ``data.s2`` / ``data.n2``) over the blocks' mean specific force. The
     model's residual (``acc_nsr``) holds the drag's misfit at every noise level when the log carries no velocity;
-    this does not (simulated logs without velocity, median: clean −6.4, × 1 −2.0, × 5 −1.3, × 20 −0.7). Recorded,
+    this does not (simulated logs without velocity, median: clean −6.6, × 1 −2.0, × 5 −1.3, × 20 −0.7;
+    benchmarks/calibration_by_flight.py). Recorded,
     not yet a calibration feature: grouping thrust-to-weight without velocity by it (docs/identify.md) left the
     held-out min-snap flights' band too narrow."""
     s2, n2 = float(np.asarray(data.s2)[L.ACC_Z]), float(np.asarray(data.n2)[L.ACC_Z])
@@ -150,7 +151,10 @@ def log_features(data, mode) -> dict:
             "rotor_speed_used": bool(np.asarray(data.speed)[0] > 0)}
 
 
-STRATA = (("vibration_coords", "vibration", "vibrating simulated logs"),
+VIBRATING = "vibrating simulated logs"
+"""The report's name for the vibration stratum (``calibrated_on``, each band's ``why``)."""
+
+STRATA = (("vibration_coords", "vibration", VIBRATING),
           ("velocity_coords", "velocity_used", "simulated logs with velocity"))
 """The table's strata, in the order a log is matched to them: (the table's key, the log's feature, the name the
 report gives); a log in neither takes the coordinate's entry fitted on the rest ("the other simulated logs")."""

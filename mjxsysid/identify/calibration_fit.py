@@ -7,7 +7,7 @@ import numpy as np
 
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import (BINS, COORD_FEATURE, FEATURE_NAMES, LEVEL, MIN_SIDE, RATE_COORDS,
-                                         VELOCITY_COORDS, VIBRATION_COORDS, group_of)
+                                         VELOCITY_COORDS, group_of)
 from mjxsysid.identify.logspace import N_V, V_NAMES
 
 WINDOWED = {"smc_nuts": {"windows": 16, "logs": 300, "relative": 0.3, "least": 0.1}}
@@ -49,7 +49,7 @@ def fit_scale_floor(err, half, level: float = LEVEL) -> tuple[float, float]:
 
 
 def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: int = 30,
-        windows: dict | None = None, vibration: tuple = VIBRATION_COORDS["smc_nuts"]) -> dict:
+        windows: dict | None = None, vibration: tuple = ()) -> dict:
     """Calibration rows (one per simulated log: ``truth_v`` (12,), ``bands`` (3, 12) from
     :func:`~.calibrate.raw_bands`, ``features`` from :func:`~.calibrate.log_features`) -> the calibration table: per
     coordinate, the feature's groups and (a, b) per group and side; the features' ranges and the residual

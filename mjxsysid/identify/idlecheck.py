@@ -64,8 +64,8 @@ QUANTILE = 0.99
 
 STILL_FLIGHTS = ("hover",)
 """Flights (the rows' ``flight`` name) that do not set the threshold: a hover holds its collective still, so an
-IMU bias fits an idle offset as well (the training rows' hovers at × 1: a 99th percentile of 19.9 against
-4.8 for the slow figure-eight's worst level). With them the threshold was 6.331 (968 logs); without, 4.687
+IMU bias fits an idle offset as well (hovers at × 1: a 99th percentile of 18.4 against 4.8 for the slow
+figure-eight's worst level; benchmarks/calibration_by_flight.py). With them the threshold was 6.331 (968 logs); without, 4.687
 (530), which flags 14 of 438 linear-map hovers (their bands widen) and 26 of 27 u² logs instead of 20
 (docs/identify.md, "The motor-map check", both ways)."""
 

@@ -337,8 +337,9 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
         step_f = functools.partial(speed_step_integrals, s, start, n_kf)
     elif speed["used"]:
         step_f = functools.partial(model_step_integrals, u, speed, start=start, n=n_kf)
+    nyquist = 0.5 * native_rate_hz(rec, "imu")     # above it a resampled gyro holds images, not rotors
     if rates == "innovations" and vibration:
-        whiten, rscale = innovation_whitening(imu, start, n_kf, n2, s2)
+        whiten, rscale = innovation_whitening(imu, start, n_kf, n2, s2, nyquist)
     else:
         whiten, rscale = np.ones((3, 1)), np.ones(3)
     kf = (_innovation_factors(imu, u, start, n_kf, step_f, whiten) if rates == "innovations"
@@ -354,19 +355,19 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     # pytree field, so never passed into a compiled program
     object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf,
                                        "drag_xy": drag_per_mass_xy(rec, bsteps + 1), "step_f": step_f, "whiten": whiten,
-                                       "vibration": detected_axes(imu[start:start + n_kf, :3], DT,
-                                                                  0.5 * native_rate_hz(rec, "imu")),
+                                       "vibration": detected_axes(imu[start:start + n_kf, :3], DT, nyquist),
                                        "speed": report(speed), "rec": rec, "rec_args":
                                        {"max_windows": max_windows, "rates": rates, "speeds": speeds,
                                         "vibration": vibration}})
     return data
 
 
-def innovation_whitening(imu, start: int, n: int, n2, s2) -> tuple[np.ndarray, np.ndarray]:
+def innovation_whitening(imu, start: int, n: int, n2, s2, max_hz: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The innovations' vibration whitening of gyro rows [start, start + n) of ``imu`` -> (the axes'
     polynomials (3, p + 1), (3, 1) ones where no axis has a vibration; the filter's measurement-noise
-    variance relative to σ² per axis (3,)), σ² the second differences' (count ``n2``, sums ``s2``, (4,))."""
-    whiten, eps, found = gyro_whiteners(imu[start:start + n, :3], DT)
+    variance relative to σ² per axis (3,)), σ² the second differences' (count ``n2``, sums ``s2``, (4,)); a vibration
+    looked for below ``max_hz`` only (:func:`~.vibration.noise_spectrum`)."""
+    whiten, eps, found = gyro_whiteners(imu[start:start + n, :3], DT, max_hz=max_hz)
     sig2 = np.asarray(s2, np.float64)[GYRO] / np.maximum(np.asarray(n2, np.float64)[GYRO], 1) / 6.0
     rscale = np.where(found & (sig2 > 0), eps / np.maximum(sig2, 1e-30), 1.0)
     return whiten, rscale

@@ -84,16 +84,18 @@ def whitening_filter(density: np.ndarray, order: int = ORDER) -> tuple[np.ndarra
     return np.concatenate([[1.0], a]), max(err, 1e-12)
 
 
-def gyro_whiteners(gyro: np.ndarray, dt: float, order: int = ORDER) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def gyro_whiteners(gyro: np.ndarray, dt: float, order: int = ORDER,
+                   max_hz: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per gyro axis of ``gyro`` (n, 3): the whitening polynomial (3, order + 1), the variance of the
     whitened noise ε = A n (3,) in the gyro's units squared, and whether a vibration was detected (3,).
-    Axes without a detected vibration get A = 1 and NaN; if none has one, the polynomials are (3, 1)."""
+    Axes without a detected vibration below ``max_hz`` get A = 1 and NaN; if none has one, the polynomials are
+    (3, 1)."""
     out = np.zeros((3, order + 1))
     out[:, 0] = 1.0
     eps = np.full(3, np.nan)
     found = np.zeros(3, bool)
     for a in range(3):
-        f, dens, found[a] = noise_spectrum(gyro[:, a], dt)
+        f, dens, found[a] = noise_spectrum(gyro[:, a], dt, max_hz)
         if found[a]:
             out[a], err = whitening_filter(dens, order)
             eps[a] = err * float(np.sum(dens) * (f[1] - f[0]))      # the noise's variance × the error's share

@@ -63,7 +63,7 @@ def test_vibrating_logs_are_calibrated_apart():
         return calm + vib
     fresh = rows(1500, 1)
     calm, vib = fresh[:1500], fresh[1500:]
-    pooled, apart = F.fit(rows(1200, 0), vibration=()), F.fit(rows(1200, 0))
+    pooled, apart = F.fit(rows(1200, 0)), F.fit(rows(1200, 0), vibration=tuple(range(N_V)))
     assert pooled["vibration_coords"] == {} and sorted(apart["vibration_coords"]) == sorted(map(str, range(N_V)))
     cov = lambda rs, t: np.array(list(pc.evaluate(rs, t)["synthetic"]["coverage"].values()))  # noqa: E731
     assert np.all(cov(calm, pooled) > 0.95) and np.all(cov(vib, pooled) < 0.85)

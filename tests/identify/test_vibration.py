@@ -53,6 +53,7 @@ def test_a_vibration_is_detected_and_white_noise_or_a_clean_flight_is_not():
     t = np.arange(len(rec["imu"])) * LD.DT
     rec["native"] = {"imu": (t[::25], np.asarray(rec["imu"])[::25])}
     assert LD.native_rate_hz(rec, "imu") == pytest.approx(20.0) and LD.vibrating(LD.prepare(rec)) is False
+    assert np.all(np.asarray(LD.prepare(rec, rates="innovations").kf_rscale) == 1.0)     # nor whitened
 
 
 def test_innovations_unbiased_under_a_vibration_in_closed_loop():

@@ -1,0 +1,144 @@
+"""Where NUTS's calibration holds and where it does not, by flight: the figures docs/identify.md quotes for the
+over-covering held-out cells, the slow flights and hovers, the motor-map threshold's hovers and thrust-to-weight
+without velocity, from the committed rows alone (no flight).
+
+    python benchmarks/calibration_by_flight.py [--out docs/runs/measurements/log-grounded/calibration-by-flight]
+
+1. A three-fold split of NUTS's training rows (:mod:`benchmarks.calibration_strata`'s folds, the shipped
+   protocol): mean and least coverage per flight; the slow flights (20 s figure-eight, hover) fitted apart by
+   their name, which no log shows; the cells of the logs like the held-out sets' (the oracle's figure-eights with
+   velocity, min-snap flights without) against the rest.
+2. The motor-map check's statistic: its 99th percentile per flight and level over the rows carrying it, and the
+   logs the shipped threshold flags.
+3. Logs without velocity: the median of ``acc_nsr`` and ``acc_noise`` per level, and thrust-to-weight's 90 %
+   error quantile per flight and level (training and held-out rows).
+"""
+from __future__ import annotations
+
+import argparse
+import collections
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from _bench import write_results
+from calibration_strata import folds, score
+
+RUNS = Path("docs/runs/measurements/log-grounded")
+ROWS = RUNS / "nuts-calibration/rows"
+SLOW = ("hover", "lemniscate:20")
+"""The flights that excite the rates least (their name's prefix)."""
+
+
+def held_out_like(r: dict) -> bool:
+    """A training row like the held-out sets' logs: the oracle's 10 s figure-eight with velocity, or its min-snap
+    flight without."""
+    vel = bool(r["features"].get("velocity_used"))
+    return (r.get("flight") == "lemniscate:10" and vel) or (r.get("flight") == "minsnap:10" and not vel)
+
+
+def _by_flight(evals: list[dict]) -> dict:
+    """Per-flight evaluations of the folds -> {flight: (logs, mean coverage, least coordinate's)}."""
+    acc, n = collections.defaultdict(list), collections.Counter()
+    for e in evals:
+        for k, c in e.items():
+            acc[k].append(list(c["coverage"].values()))
+            n[k] += c["logs"]
+    return {k: (n[k], float(np.nanmean(v)), float(np.nanmin(np.nanmean(v, 0)))) for k, v in acc.items()}
+
+
+def split(rows: list[dict]) -> dict:
+    """Section 1 (the table on two folds, counted on the third)."""
+    from mjxsysid.experiments.posterior_calibration import evaluate
+    from mjxsysid.identify.calibrate import VIBRATION_COORDS
+    from mjxsysid.identify.calibration_fit import WINDOWED, fit
+    win, vib = WINDOWED["smc_nuts"], VIBRATION_COORDS["smc_nuts"]
+    slow = lambda r: str(r.get("flight", "")).startswith(SLOW)              # noqa: E731
+    # the slow rows' own table: too few of them with velocity or vibration for strata of their own
+    plain = lambda rs: [dict(r, features=dict(r["features"], velocity_used=False, vibration=False)) for r in rs]  # noqa: E731
+    pooled, apart, like, rest = [], [], [], []
+    for train, test in folds(rows):
+        table = fit(train, windows=win, vibration=vib)
+        pooled.append(evaluate(test, table, by="flight"))
+        like.append(evaluate([r for r in test if held_out_like(r)], table))
+        rest.append(evaluate([r for r in test if not held_out_like(r)], table))
+        t_slow = fit(plain([r for r in train if slow(r)]), windows=win | {"logs": 150})
+        t_fast = fit([r for r in train if not slow(r)], windows=win, vibration=vib)
+        apart.append(evaluate(plain([r for r in test if slow(r)]), t_slow, by="flight")
+                     | evaluate([r for r in test if not slow(r)], t_fast, by="flight"))
+    return {"pooled": _by_flight(pooled), "slow_apart": _by_flight(apart),
+            "held_out_like": score(like), "rest": score(rest)}
+
+
+def idle_gains(rows: list[dict]) -> dict:
+    """Section 2: per flight and level (rows with every map's statistic), the statistic's 99th percentile and how
+    many logs the shipped threshold flags."""
+    from mjxsysid.identify.calibrate import load
+    from mjxsysid.identify.idlecheck import KEY, MAPS
+    threshold = load()[KEY]["threshold"]
+    g = collections.defaultdict(list)
+    for r in rows:
+        f = r["features"]
+        if f.get("idle_maps") == len(MAPS) and f.get("idle_gain") is not None:
+            g[f"{r.get('flight')}, {r['level']}"].append(f["idle_gain"])
+    return {k: (len(v), float(np.quantile(v, 0.99)), int(np.sum(np.array(v) > threshold))) for k, v in sorted(g.items())}
+
+
+def no_velocity(train: list[dict], held: list[dict]) -> dict:
+    """Section 3: features and thrust-to-weight errors of the logs without velocity."""
+    out = {"features": {}, "tw_error_q90": {}}
+    feats = collections.defaultdict(list)
+    for r in train + held:
+        if not r["features"].get("velocity_used") and "acc_noise" in r["features"]:
+            feats[r["level"]].append((r["features"]["acc_nsr"], r["features"]["acc_noise"]))
+    out["features"] = {lv: tuple(np.median(v, 0).round(2).tolist()) for lv, v in sorted(feats.items())}
+    err = collections.defaultdict(list)
+    for name, rs in (("training", train), ("held out", held)):
+        for r in rs:
+            if not r["features"].get("velocity_used") and r.get("method") == "smc_nuts":
+                err[f"{name} {r.get('flight')}, {r['level']}"].append(abs(r["truth_v"][0] - r["bands"][1][0]))
+    out["tw_error_q90"] = {k: (len(v), float(np.quantile(v, 0.9))) for k, v in sorted(err.items())}
+    return out
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=None)
+    a = ap.parse_args(argv)
+    from mjxsysid.experiments.posterior_calibration import read_rows
+    t0 = time.perf_counter()
+    train = read_rows([ROWS / "train"])
+    held = read_rows([ROWS / "held_out"])
+    mixed = [r for r in train if r.get("method") == "smc_nuts"]
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
+    from refit_calibration import window_rows
+    res = {"split": split(mixed), "idle_gain_q99": idle_gains(train + window_rows()),
+           "no_velocity": no_velocity(train, held)}
+    lines = [f"# NUTS's calibration by flight ({len(mixed)} mixed training rows, {len(held)} held out)", "",
+             f"`python benchmarks/calibration_by_flight.py` ({time.perf_counter() - t0:.0f} s, no flight).", "",
+             "## 1. Three-fold split: coverage per flight (mean, least coordinate)", "",
+             "| flight | logs | shipped protocol | slow flights fitted apart by name |", "|---|---|---|---|"]
+    for k, (n, m, lo) in res["split"]["pooled"].items():
+        _, m2, lo2 = res["split"]["slow_apart"].get(k, (0, np.nan, np.nan))
+        lines.append(f"| {k} | {n} | {m:.3f} ({lo:.2f}) | {m2:.3f} ({lo2:.2f}) |")
+    for name in ("held_out_like", "rest"):
+        s = res["split"][name]
+        lines.append(f"\n{name.replace('_', '-')}: {s['cells']} of {s['of']} cells within 0.85–0.95, {s['over']} over, "
+                     f"{s['under']} under.")
+    lines += ["", "## 2. The motor-map check's statistic (linear-map logs)", "",
+              "| flight, level | logs | 99th percentile | flagged at the shipped threshold |", "|---|---|---|---|"]
+    lines += [f"| {k} | {n} | {q:.2f} | {c} |" for k, (n, q, c) in res["idle_gain_q99"].items()]
+    lines += ["", "## 3. Logs without velocity", "", "| level | acc_nsr | acc_noise |", "|---|---|---|"]
+    lines += [f"| {lv} | {x:.2f} | {y:.2f} |" for lv, (x, y) in res["no_velocity"]["features"].items()]
+    lines += ["", "| rows, flight, level | logs | T/W error, 90 % quantile (log) |", "|---|---|---|"]
+    lines += [f"| {k} | {n} | {q:.4f} |" for k, (n, q) in res["no_velocity"]["tw_error_q90"].items()]
+    print("\n".join(lines))
+    if a.out:
+        write_results(a.out, "results", res, lines)
+    return res
+
+
+if __name__ == "__main__":
+    main()
