@@ -180,11 +180,16 @@ def resumed_rows(path: Path, settings: dict) -> list[dict]:
 
 
 def row(post: dict, theta_true, level: str, vehicle: int, seconds: float) -> dict:
-    """One calibration row of a raw posterior ``post`` and the true θ (19,)."""
+    """One calibration row of a raw posterior ``post`` and the true θ (19,); ``rhat_v`` (12,): NUTS's split R̂ per
+    visible coordinate where NUTS ran (a coordinate at :data:`~mjxsysid.identify.nuts.RHAT_OK` or above is not
+    seen: :func:`calibrated_bands`, as ``decode --log`` reports it)."""
     tv = np.asarray(visible_from_theta(np.asarray(theta_true, np.float32)[None]), np.float64)[0]
-    return {"level": level, "vehicle": vehicle, "seconds": round(seconds, 3), "method": post["method"],
-            "truth_v": np.round(tv, 4).tolist(), "bands": np.round(raw_bands(post["v_raw"]), 4).tolist(),
-            "features": post["features"], "weights": np.round(np.asarray(post["weights"], np.float64), 5).tolist()}
+    out = {"level": level, "vehicle": vehicle, "seconds": round(seconds, 3), "method": post["method"],
+           "truth_v": np.round(tv, 4).tolist(), "bands": np.round(raw_bands(post["v_raw"]), 4).tolist(),
+           "features": post["features"], "weights": np.round(np.asarray(post["weights"], np.float64), 5).tolist()}
+    if (post.get("nuts") or {}).get("rhat_v") is not None:
+        out["rhat_v"] = np.round(np.asarray(post["nuts"]["rhat_v"], np.float64), 4).tolist()
+    return out
 
 
 ROW_SUFFIXES = (".json", ".json.gz", ".json.xz")
@@ -284,7 +289,9 @@ def fit_file(paths, out: Path, note: str = "", *, bins: int = BINS, min_group: i
 
 def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndarray]:
     """A row's 90 % band (2, 12) after the ``table`` (None: raw) and a (12,) mask of the coordinates
-    the model check and the rate logging let through (the table of the row's ``method`` where it has one)."""
+    the model check and the rate logging let through, and NUTS's chains mixed on where the row records their
+    R̂ (``rhat_v``; :func:`~mjxsysid.identify.nuts.unmixed_not_seen`) (the table of the row's ``method`` where it
+    has one)."""
     from mjxsysid.identify.calibrate import checked_stretch, coord_entry, coord_ok, for_method, model_check
     q = np.asarray(row["bands"], np.float64)
     if table is None:
@@ -299,6 +306,9 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
         ok[j] &= idle_ok
         lo[j] = q[1, j] + shift - k_lo * (q[1, j] - q[0, j])
         hi[j] = q[1, j] + shift + k_hi * (q[2, j] - q[1, j])
+    if row.get("rhat_v") is not None:
+        from mjxsysid.identify.nuts import RHAT_OK
+        ok &= np.asarray(row["rhat_v"], np.float64) < RHAT_OK
     return np.stack([lo, hi]), ok
 
 

@@ -462,3 +462,21 @@ def test_acc_noise_is_the_accelerometers_white_noise_over_its_signal():
     s2[ACC_Z], n2[ACC_Z] = np.sum(d2 ** 2), len(d2)
     data = SimpleNamespace(s2=s2, n2=n2, acc=np.array([9.81, 9.81, 0.0]), bmask=np.array([1, 1, 0]))
     assert C.acc_noise(data) == pytest.approx(np.log10(0.05 / 9.81), abs=0.01)
+
+
+def test_a_row_whose_chains_did_not_mix_on_a_coordinate_is_not_seen_there():
+    """A row that records NUTS's split R̂ (``rhat_v``) is evaluated as ``decode --log`` reports it: a coordinate
+    at RHAT_OK or above is not seen (drawn from the prior), whatever its band; the others keep theirs."""
+    from mjxsysid.identify.nuts import RHAT_OK
+    r = _rows(1, np.random.default_rng(3))[0] | {"method": "smc_nuts"}
+    table = C.load()
+    band, ok = pc.calibrated_bands(r, table)
+    rhat = [1.0] * N_V
+    rhat[4] = RHAT_OK + 0.5
+    band2, ok2 = pc.calibrated_bands(r | {"rhat_v": rhat}, table)
+    np.testing.assert_array_equal(band, band2)
+    assert ok[4] and not ok2[4]
+    np.testing.assert_array_equal(np.delete(ok, 4), np.delete(ok2, 4))
+    post = {"method": "smc_nuts", "v_raw": np.zeros((64, N_V)), "features": r["features"], "weights": [0.5] * 4,
+            "nuts": {"rhat_v": rhat}}
+    assert pc.row(post, np.ones(19), "x1", 0, 1.0)["rhat_v"][4] == pytest.approx(RHAT_OK + 0.5)
