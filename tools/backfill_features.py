@@ -6,7 +6,8 @@ keeps what it had.
 
     python tools/backfill_features.py acc_noise ROWS.json.xz [...]
 
-Features: ``acc_noise`` (:func:`mjxsysid.identify.calibrate.acc_noise`), ``vibration``
+Features: ``acc_noise`` (:func:`mjxsysid.identify.calibrate.acc_noise`), ``drag_signal``
+(:func:`mjxsysid.identify.calibrate.drag_signal`), ``vibration``
 (:func:`mjxsysid.identify.logdata.vibrating`). About 8 logs a second per process, two processes on 2 CPU cores.
 """
 from __future__ import annotations
@@ -20,10 +21,11 @@ from pathlib import Path
 
 def features_of(rec: dict, names: list[str]) -> dict:
     """The named features of one log record."""
-    from mjxsysid.identify.calibrate import acc_noise
+    from mjxsysid.identify.calibrate import acc_noise, drag_signal
     from mjxsysid.identify.logdata import prepare, vibrating
     data = prepare(rec)
-    known = {"acc_noise": lambda: round(acc_noise(data), 4), "vibration": lambda: vibrating(data)}
+    known = {"acc_noise": lambda: round(acc_noise(data), 4), "vibration": lambda: vibrating(data),
+             "drag_signal": lambda: round(drag_signal(data), 4)}
     bad = [n for n in names if n not in known]
     if bad:
         raise ValueError(f"unknown features {bad}; known: {sorted(known)}")

@@ -47,6 +47,7 @@ from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
 from mjxsysid.identify.gap import UNSEEN_FRACTION
 from mjxsysid.identify.logdata import vibrating
 from mjxsysid.identify.logspace import N_V
+from mjxsysid.theta import GRAVITY as P_GRAVITY
 from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
 from mjxsysid.identify.windowcheck import WHY as WINDOW_WHY
 
@@ -126,13 +127,36 @@ def acc_noise(data) -> float:
     return float(np.log10(max(np.sqrt(s2 / max(n2, 1.0) / 6.0), 1e-12) / asig))
 
 
+def drag_signal(data) -> float | None:
+    """log10 of the body drag the log shows, whether or not it carries velocity: the RMS over the accelerometer's
+    0.5 s blocks (:data:`~.logdata.ACC_BLOCK_STEPS`) of its x and y readings about their means (both axes
+    pooled), over g (the
+    body-frame x and y specific force is −(drag/m)·v: a faster flight's is larger; the means take out a constant
+    bias, the blocks the white noise). None for a reduction without its readings (built without
+    :func:`~.logdata.prepare`). Without velocity the drag along z is unmodelled: on simulated clean logs this
+    follows thrust-to-weight's error (correlation 0.63 with its log), from × 1 on the noise sets it (0.0). Recorded,
+    not a calibration feature: grouping thrust-to-weight without velocity by it left the held-out rows as
+    grouping by :func:`acc_noise` did (docs/identify.md)."""
+    imu = getattr(data, "_rows", {}).get("imu")
+    if imu is None:
+        return None
+    from mjxsysid.identify.logdata import ACC_BLOCK_STEPS
+    a = np.asarray(imu, np.float64)[:, 3:5]
+    nb = len(a) // ACC_BLOCK_STEPS
+    if nb < 2:
+        return None
+    b = a[: nb * ACC_BLOCK_STEPS].reshape(nb, ACC_BLOCK_STEPS, 2).mean(1)
+    return float(np.log10(max(np.sqrt(np.mean((b - b.mean(0)) ** 2)), 1e-12) / P_GRAVITY))
+
+
 def log_features(data, mode) -> dict:
     """What a log shows, from its reduction ``data`` (:class:`~.logdata.LogData`) and the posterior's
     ``mode`` (21,: v (12), log σ (4), log δ (4), bias) -> {rates_nsr (the mean of the axes'), acc_nsr,
     rates_nsr_x/y/z: log10 of the channels' residual scale √(k σ² + δ²) over their signal (the rate
     windows' RMS measured rate change; the accelerometer blocks' mean), rates_used (bool), windows (int),
     velocity_used (bool: the log's velocity entered the drag's term), vibration (bool: a rotor vibration was
-    detected in the gyro, :func:`~.logdata.vibrating`), acc_noise (:func:`acc_noise`), rotor_speed_used (bool: τ_m from
+    detected in the gyro, :func:`~.logdata.vibrating`), acc_noise (:func:`acc_noise`), drag_signal
+    (:func:`drag_signal`), rotor_speed_used (bool: τ_m from
     the measured rotor speeds, :mod:`.speeds`)}."""
     mode = np.asarray(mode, np.float64)
     sig, dl = np.exp(mode[L.X_LOG_NOISE]), np.exp(mode[L.X_LOG_DISCREPANCY])
@@ -147,7 +171,7 @@ def log_features(data, mode) -> dict:
             **{f: float(a) for f, a in zip(_AXES, axes)},
             "rates_used": bool(np.any(np.asarray(data.use)[L.GYRO] > 0)), "windows": int(wm.sum()),
             "velocity_used": bool(np.any(np.asarray(data.vz)[bm] != 0)),
-            "vibration": vibrating(data), "acc_noise": acc_noise(data),
+            "vibration": vibrating(data), "acc_noise": acc_noise(data), "drag_signal": drag_signal(data),
             "rotor_speed_used": bool(np.asarray(data.speed)[0] > 0)}
 
 

@@ -464,6 +464,22 @@ def test_acc_noise_is_the_accelerometers_white_noise_over_its_signal():
     assert C.acc_noise(data) == pytest.approx(np.log10(0.05 / 9.81), abs=0.01)
 
 
+def test_drag_signal_is_the_block_mean_horizontal_specific_force_about_its_mean():
+    """A slow 0.6 m/s² sine on the accelerometer's x (a drag that varies over the flight) over a constant bias
+    and white noise: the feature is the two axes' pooled RMS over g (the sine's 0.6/√2 over √2: y holds none), the
+    bias and the noise taken out; None without the readings."""
+    from types import SimpleNamespace
+    rng = np.random.default_rng(1)
+    t = np.arange(50000) * 0.002
+    imu = np.zeros((len(t), 6))
+    imu[:, 3] = 0.3 + 0.6 * np.sin(2 * np.pi * t / 20.0) + 0.5 * rng.standard_normal(len(t))
+    imu[:, 4] = -0.2 + 0.5 * rng.standard_normal(len(t))
+    imu[:, 5] = 9.81
+    got = C.drag_signal(SimpleNamespace(_rows={"imu": imu}))
+    assert got == pytest.approx(np.log10(0.6 / 2 / 9.81), abs=0.03)
+    assert C.drag_signal(SimpleNamespace()) is None
+
+
 def test_a_row_whose_chains_did_not_mix_on_a_coordinate_is_not_seen_there():
     """A row that records NUTS's split R̂ (``rhat_v``) is evaluated as ``decode --log`` reports it: a coordinate
     at RHAT_OK or above is not seen (drawn from the prior), whatever its band; the others keep theirs."""
