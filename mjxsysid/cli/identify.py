@@ -42,6 +42,9 @@ def add_calibrate_posterior(sub) -> None:
     cp.add_argument("--flights", default="lemniscate:10",
                     help="--collect: the flights, comma-separated: lemniscate:PERIOD, minsnap:SECONDS, hover:SECONDS "
                          "(default lemniscate:10)")
+    cp.add_argument("--paths", type=int, default=1, metavar="K",
+                    help="--collect: fly each flight's vehicles in K groups, each drawing its own path (min-snap: one "
+                         "path per group; default 1, every vehicle the same path at a level)")
     cp.add_argument("--shard", default=None, metavar="I/K", help="--collect: every K-th vehicle from the I-th")
     cp.add_argument("--time-budget", type=positive, default=None, metavar="S",
                     help="--collect: start no new flight after S seconds (rows so far are kept)")
@@ -67,7 +70,8 @@ def cmd_calibrate_posterior(args) -> int:
         res = pc.collect(prior=args.prior, vehicles=args.vehicles, levels=tuple(args.levels.split(",")),
                          seed=args.seed, shard=args.shard, out=args.collect, time_budget_s=args.time_budget,
                          references=tuple(args.flights.split(",")), controller=args.controller, aero=args.aero,
-                         velocity=not args.no_velocity, motor_idle=args.motor_idle, motor_kappa=args.motor_kappa)
+                         velocity=not args.no_velocity, motor_idle=args.motor_idle, motor_kappa=args.motor_kappa,
+                         paths=args.paths)
         echo(f"{len(res['rows'])} rows -> {args.collect}")
     elif args.fit:
         out = args.out or SHIPPED

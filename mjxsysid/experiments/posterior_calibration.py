@@ -60,7 +60,7 @@ def parse_reference(spec: str) -> dict:
 def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_LEVELS, seed: int = 5,
             shard: str | None = None, out: Path, time_budget_s: float | None = None,
             references=REFERENCES, controller: str = "oracle", aero: bool = False, velocity: bool = True,
-            policy=None, motor_idle: float = 0.0, motor_kappa: float = 1.0, resume: bool = False) -> dict:
+            policy=None, motor_idle: float = 0.0, motor_kappa: float = 1.0, paths: int = 1, resume: bool = False) -> dict:
     """Fly every level, then identify; write ``out`` (JSON: rows) after every log, or every batch of logs
     identified together on an accelerator (the levels interleaved: a stopped run keeps a balanced set of
     what it finished); ``time_budget_s``: start no new batch after this long (the result then says
@@ -71,7 +71,8 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     ``velocity``: False drops the logs' body velocity (a log without a state estimate); ``policy``: the
     weights controller 'policy' flies (a path; None: the shipped policy); ``motor_idle``, ``motor_kappa``: the
     simulator's static motor map (``SimConfig.motor_idle``, ``motor_kappa``: an idle offset and a curvature the
-    likelihood lacks; 0 and 1: the map θ describes); ``resume``: keep the rows of the file already at ``out`` (a
+    likelihood lacks; 0 and 1: the map θ describes); ``paths``: path draws per flight and level (:func:`flights`);
+    ``resume``: keep the rows of the file already at ``out`` (a
     run the budget or the machine cut, the same settings: ValueError naming those that differ) and identify only
     the logs it lacks (the flights are seeded, so a resumed file holds the logs one run would). The result's
     ``skipped`` counts the logs the set lacks and why: flights that failed (crashed or diverged), logs too short."""
@@ -81,11 +82,13 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     import jax
 
     motor = SimConfig(motor_idle=motor_idle, motor_kappa=motor_kappa)    # checks them before any flight
+    if int(paths) != paths or paths < 1:
+        raise ValueError(f"paths must be a whole number >= 1, got {paths!r}")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
            "references": list(references), "controller": controller, "aero": aero, "velocity": velocity,
-           "motor_idle": motor_idle, "motor_kappa": motor_kappa, "rows": []}
+           "motor_idle": motor_idle, "motor_kappa": motor_kappa, "paths": int(paths), "rows": []}
     if resume and out.is_file():
         res["rows"] = resumed_rows(out, res)
     done = {(r["vehicle"], r["level"], r["flight"]) for r in res["rows"]}
@@ -124,7 +127,10 @@ def flights(settings: dict, *, policy=None, skipped: dict | None = None):
     """The seeded flights of a calibration set's ``settings`` (a row file's :data:`RESUME_KEYS`; ``policy``: the
     weights controller 'policy' flies, None the shipped policy) -> yields (log record, vehicle index, true θ (19,),
     level, flight name) per flight that did not fail, references × levels in order; ``skipped["flight failed"]``
-    counts the others. A row file's flights are flown again exactly (the logs its rows came from)."""
+    counts the others. A row file's flights are flown again exactly (the logs its rows came from). ``paths`` (default
+    1): the vehicles of each flight and level are flown in this many groups, each with its own seed (a random
+    reference such as min-snap draws one path per group: with one, every vehicle of a piece flies the same path at
+    a level, and the set samples few drag exposures; docs/identify.md)."""
     from mjxsysid.rollout.flight import flight_log, fly_vehicles
     from mjxsysid.sim import Quadrotor, SimConfig
     from mjxsysid.uses.imu_noise import LEVELS
@@ -132,7 +138,8 @@ def flights(settings: dict, *, policy=None, skipped: dict | None = None):
 
     from mjxsysid import theta as P
 
-    st = {"controller": "oracle", "aero": False, "velocity": True, "motor_idle": 0.0, "motor_kappa": 1.0} | settings
+    st = {"controller": "oracle", "aero": False, "velocity": True, "motor_idle": 0.0, "motor_kappa": 1.0,
+          "paths": 1} | settings
     prior, vehicles, seed, shard = st["prior"], st["vehicles"], st["seed"], st["shard"]
     idle, kappa, controller = st["motor_idle"], st["motor_kappa"], st["controller"]
     motor_map = SimConfig(motor_idle=idle, motor_kappa=kappa).motor_map
@@ -150,21 +157,28 @@ def flights(settings: dict, *, policy=None, skipped: dict | None = None):
             raise ValueError(f"unknown noise level {lv!r}; known: {sorted(LEVELS)}")
         s = seed + 1000 * (0 if shard is None else int(shard.split("/")[0])) + 97 * list(LEVELS).index(lv)
         sim = Quadrotor(SimConfig(**LEVELS[lv], aero=st["aero"], motor_idle=idle, motor_kappa=kappa))
-        fl, m, _ = fly_vehicles(th, controller=controller, sim=sim, seed=s, policy=pol, **parse_reference(ref))
         flight = ((ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if st["aero"] else "")
                   + (f" motor {idle:g}/{kappa:g}" if motor_map else ""))
-        failed = np.asarray(m["failed"], bool)
-        if skipped is not None:
-            skipped["flight failed"] = skipped.get("flight failed", 0) + int(failed.sum())
-        for i in np.flatnonzero(~failed):
-            rec = flight_log(fl.frame, i)
-            if not st["velocity"]:
-                rec.pop("velocity_body")
-            yield rec, int(index[i]), th[i], lv, flight
+        for g, part in enumerate(np.array_split(np.arange(len(th)), st["paths"])):
+            if not len(part):
+                continue
+            fl, m, _ = fly_vehicles(th[part], controller=controller, sim=sim, seed=s + PATH_SEED_STEP * g, policy=pol,
+                                    **parse_reference(ref))
+            failed = np.asarray(m["failed"], bool)
+            if skipped is not None:
+                skipped["flight failed"] = skipped.get("flight failed", 0) + int(failed.sum())
+            for i in np.flatnonzero(~failed):
+                rec = flight_log(fl.frame, i)
+                if not st["velocity"]:
+                    rec.pop("velocity_body")
+                yield rec, int(index[part[i]]), th[part[i]], lv, flight
 
+
+PATH_SEED_STEP = 7919
+"""The seed step between a flight's path draws (:func:`flights`' ``paths``)."""
 
 RESUME_KEYS = ("prior", "vehicles", "seed", "shard", "levels", "references", "controller", "aero", "velocity",
-               "motor_idle", "motor_kappa")
+               "motor_idle", "motor_kappa", "paths")
 """The settings a resumed row file must share with the run (:func:`collect`'s ``resume``)."""
 
 
@@ -172,7 +186,7 @@ def resumed_rows(path: Path, settings: dict) -> list[dict]:
     """The rows of the row file at ``path`` (plain or compressed, :func:`read_json`) collected with ``settings``
     (:data:`RESUME_KEYS`; a key the file lacks is taken as this run's default, written before it existed);
     ValueError naming the file and the settings that differ."""
-    prev = read_json(path)
+    prev = {"paths": 1} | read_json(path)            # a file written before ``paths`` flew one path
     bad = [f"{k} {prev[k]!r} (this run {settings[k]!r})" for k in RESUME_KEYS if k in prev and prev[k] != settings[k]]
     if bad:
         raise ValueError(f"cannot resume {path}: it was collected with other settings: {', '.join(bad)}")

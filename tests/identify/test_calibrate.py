@@ -496,3 +496,32 @@ def test_a_row_whose_chains_did_not_mix_on_a_coordinate_is_not_seen_there():
     post = {"method": "smc_nuts", "v_raw": np.zeros((64, N_V)), "features": r["features"], "weights": [0.5] * 4,
             "nuts": {"rhat_v": rhat}}
     assert pc.row(post, np.ones(19), "x1", 0, 1.0)["rhat_v"][4] == pytest.approx(RHAT_OK + 0.5)
+
+
+def test_paths_fly_each_group_of_vehicles_on_its_own_seeded_path(tmp_path, monkeypatch):
+    """``paths`` K splits each flight's vehicles into K groups flown with their own seeds (a min-snap path per
+    group); 1, the default and what a file without the setting means, flies them together as before; the
+    vehicles keep their indices, and a file of one path does not resume with another."""
+    import mjxsysid.rollout.flight as F
+    seen = []
+    real = F.fly_vehicles
+
+    def spy(th, **kw):
+        seen.append((len(th), kw["seed"]))
+        return real(th, **kw)
+    monkeypatch.setattr(F, "fly_vehicles", spy)
+    st = {"prior": "wide_actuators", "vehicles": 4, "seed": 3, "shard": None, "levels": ["clean"],
+          "references": ["hover:1"]}
+    one = [v for _, v, *_ in pc.flights(st)]
+    assert seen == [(4, 3 + 97 * 0)] and one == [0, 1, 2, 3]
+    seen.clear()
+    two = [v for _, v, *_ in pc.flights(st | {"paths": 2})]
+    assert seen == [(2, 3), (2, 3 + pc.PATH_SEED_STEP)] and two == [0, 1, 2, 3]
+    out = tmp_path / "rows.json"
+    out.write_text(json.dumps(st | {"controller": "oracle", "aero": False, "velocity": True, "motor_idle": 0.0,
+                                    "motor_kappa": 1.0, "rows": []}))
+    with pytest.raises(ValueError, match="paths 1"):
+        pc.resumed_rows(out, st | {"controller": "oracle", "aero": False, "velocity": True, "motor_idle": 0.0,
+                                   "motor_kappa": 1.0, "paths": 2})
+    with pytest.raises(ValueError, match="paths"):
+        pc.collect(vehicles=1, levels=("clean",), references=("hover:1",), out=out, paths=0)
