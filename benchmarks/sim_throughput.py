@@ -22,8 +22,6 @@ import platform
 import time
 
 import jax
-import jax.numpy as jnp
-import numpy as np
 
 
 def timed(fn, *args, repeats=3):

@@ -5,7 +5,6 @@ the same loop without it does not.
 The logs are the exact forward model's (tests/support/exact_model_log.py), 6 s: one window bucket, so the
 mode's compiled least squares serves every test here (and the Crazyflie's log16, of the same shapes)."""
 import numpy as np
-import pytest
 
 from mjxsysid import theta as P
 from mjxsysid.identify import calibrate as C
