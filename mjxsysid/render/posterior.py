@@ -91,7 +91,7 @@ def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior
         x = samples[:, j]
         log = P.LOG_MASK[j] and np.all(x > 0)
         bins = np.geomspace(x.min(), x.max(), 30) if log and x.min() < x.max() else 30
-        ax.hist(x, bins=bins, color="tab:blue", alpha=0.7)
+        ax.hist(x, bins=bins, color="tab:blue", alpha=0.7, histtype="stepfilled")
         if log:
             ax.set_xscale("log")
             # three labelled ticks over the samples' range (log axes' minor labels overlap)
