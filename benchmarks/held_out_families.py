@@ -6,8 +6,8 @@ the default sampler, the SMC refined by NUTS, calibrated by the shipped table. T
 
 ``collect`` flies every family's vehicles (the lag-aware oracle, the 10 s figure-eight with its body velocity,
 a seed the calibration never used) at every noise level, the held-out × 2 and × 10 included, and identifies
-all of them in batches of :data:`~mjxsysid.identify.inference.LOG_BATCH` (the families mixed: one batch's NUTS
-costs about the same for 50 logs as for 256). Rows as ``calibrate-posterior --collect`` writes them, each with
+all of them in batches of :data:`~mjxsysid.identify.inference.LOG_BATCH` (the families mixed: each NUTS step of a
+batch waits for its slowest chain, so fewer, fuller batches cost less). Rows as ``calibrate-posterior --collect`` writes them, each with
 its family (``prior``), written after every batch; a file already at OUT is resumed. ``report``: truth
 inside each calibrated band (the coordinates each log saw; the table of each row's sampler), per family and
 level, against the issue's target (mean coverage 0.85–0.95).
