@@ -7,16 +7,16 @@ the default sampler, the SMC refined by NUTS, calibrated by the shipped table. T
 ``collect`` flies every family's vehicles (the lag-aware oracle, the 10 s figure-eight with its body velocity,
 a seed the calibration never used) at every noise level, the held-out × 2 and × 10 included, and identifies
 all of them in batches of :data:`~mjxsysid.identify.inference.LOG_BATCH` (the families mixed: each NUTS step of a
-batch waits for its slowest chain, so fewer, fuller batches cost less). Rows as ``calibrate-posterior --collect`` writes them, each with
-its family (``prior``), written after every batch; a file already at OUT is resumed. ``report``: truth
+batch waits for its slowest chain, so fewer, fuller batches cost less): ``calibrate-posterior --collect``'s rows,
+each naming its family (``prior``), written after every batch; a file already at OUT is resumed. The committed
+rows came from this script's first version, which seeded each posterior 4711 + the vehicle index (now the
+vehicle index, as every collection). ``report``: truth
 inside each calibrated band (the coordinates each log saw; the table of each row's sampler), per family and
 level, against the issue's target (mean coverage 0.85–0.95).
 """
 from __future__ import annotations
 
 import argparse
-import json
-import time
 from pathlib import Path
 
 import numpy as np
@@ -28,42 +28,12 @@ TARGET = (0.85, 0.95)
 
 
 def collect(out: Path, vehicles: int, shard: str | None, families=None, budget_s: float | None = None) -> dict:
-    """Fly and identify every family's vehicles (module doc) -> the row file's content, written to ``out``."""
-    from mjxsysid.experiments.posterior_calibration import RESUME_KEYS, flights, read_json, row
-    from mjxsysid.identify.inference import LOG_BATCH, log_grounded_posteriors
-    from mjxsysid.identify.logdata import LogTooShort, prepare
+    """Fly and identify every family's vehicles (module doc; :func:`~mjxsysid.experiments.posterior_calibration.collect`
+    with the families as its priors) -> the row file's content, written to ``out``."""
+    from mjxsysid.experiments.posterior_calibration import collect as collect_rows
     from mjxsysid.theta import HELDOUT_FAMILIES
-    t0 = time.perf_counter()
-    families = list(families or HELDOUT_FAMILIES)
-    res = read_json(out) if out.is_file() else {"families": families, "vehicles": vehicles, "seed": SEED,
-                                                "shard": shard, "levels": list(LEVELS), "rows": []}
-    done = {(r["prior"], r["vehicle"], r["level"]) for r in res["rows"]}
-    logs = []
-    for fam in families:
-        st = {"prior": fam, "vehicles": vehicles, "seed": SEED, "shard": shard, "levels": list(LEVELS),
-              "references": ["lemniscate:10"]}
-        for rec, v, th, lv, flight in flights({k: st[k] for k in RESUME_KEYS if k in st}):
-            if (fam, v, lv) not in done:
-                try:
-                    logs.append((prepare(rec), fam, v, th, lv, flight))
-                except LogTooShort:
-                    pass
-    print(f"{len(logs)} logs to identify ({len(done)} resumed), flown in {time.perf_counter() - t0:.0f} s", flush=True)
-    for c in range(0, len(logs), LOG_BATCH):
-        if budget_s is not None and time.perf_counter() - t0 > budget_s:
-            res["cut_by_budget"] = True
-            break
-        chunk = logs[c:c + LOG_BATCH]
-        t = time.perf_counter()
-        posts = log_grounded_posteriors([d for d, *_ in chunk], seeds=[SEED + v for _, _, v, *_ in chunk],
-                                        calibration=None)
-        sec = (time.perf_counter() - t) / len(chunk)
-        for (_, fam, v, th, lv, flight), post in zip(chunk, posts):
-            res["rows"].append(row(post, th, lv, v, sec) | {"flight": flight, "prior": fam})
-        out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
-        print(f"{len(chunk)} logs in {time.perf_counter() - t:.0f} s", flush=True)
-    out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
-    return res
+    return collect_rows(prior=list(families or HELDOUT_FAMILIES), vehicles=vehicles, levels=LEVELS, seed=SEED,
+                        shard=shard, out=out, time_budget_s=budget_s, references=("lemniscate:10",), resume=True)
 
 
 def report(paths: list[Path], out: Path | None) -> dict:

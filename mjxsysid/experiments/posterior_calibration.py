@@ -61,7 +61,8 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
             shard: str | None = None, out: Path, time_budget_s: float | None = None,
             references=REFERENCES, controller: str = "oracle", aero: bool = False, velocity: bool = True,
             policy=None, motor_idle: float = 0.0, motor_kappa: float = 1.0, paths: int = 1, resume: bool = False) -> dict:
-    """Fly every level, then identify; write ``out`` (JSON: rows) after every log, or every batch of logs
+    """Fly every level, then identify; ``prior``: a prior or held-out family, or a list of them flown alike and
+    identified together (each row then names its ``prior``); write ``out`` (JSON: rows) after every log, or every batch of logs
     identified together on an accelerator (the levels interleaved: a stopped run keeps a balanced set of
     what it finished); ``time_budget_s``: start no new batch after this long (the result then says
     ``cut_by_budget``); ``references``: the flights
@@ -91,21 +92,25 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
            "motor_idle": motor_idle, "motor_kappa": motor_kappa, "paths": int(paths), "rows": []}
     if resume and out.is_file():
         res["rows"] = resumed_rows(out, res)
-    done = {(r["vehicle"], r["level"], r["flight"]) for r in res["rows"]}
+    priors = [prior] if isinstance(prior, str) else list(prior)
+    if isinstance(prior, (list, tuple)):
+        res["prior"] = priors
+    done = {(r.get("prior", priors[0]), r["vehicle"], r["level"], r["flight"]) for r in res["rows"]}
     tag = {"motor": [motor_idle, motor_kappa]} if motor.motor_map else {}
     t_start = time.perf_counter()
     step = 1 if jax.default_backend() == "cpu" else LOG_BATCH      # logs identified together (batched on a GPU)
-    logs = []                                                       # (data, vehicle, θ, level, flight name)
+    logs = []                                                       # (data, vehicle, θ, level, flight name, prior)
     skipped = {"flight failed": 0, "log too short": 0}
     res["skipped"] = skipped                                        # logs the set lacks, and why
     settings = {k: res[k] for k in RESUME_KEYS}
-    for rec, vehicle, th, lv, flight in flights(settings, policy=policy, skipped=skipped):
-        if (vehicle, lv, flight) in done:
-            continue
-        try:
-            logs.append((prepare(rec), vehicle, th, lv, flight))
-        except LogTooShort:
-            skipped["log too short"] += 1
+    for p in priors:
+        for rec, vehicle, th, lv, flight in flights(settings | {"prior": p}, policy=policy, skipped=skipped):
+            if (p, vehicle, lv, flight) in done:
+                continue
+            try:
+                logs.append((prepare(rec), vehicle, th, lv, flight, p))
+            except LogTooShort:
+                skipped["log too short"] += 1
     # every flight's levels interleaved: a batch mixes them, so a run stopped by its budget keeps a balanced set
     order = sorted(range(len(logs)), key=lambda k: (logs[k][1], k))
     for c in progress(range(0, len(order), step), desc="calibration rows"):
@@ -116,8 +121,9 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
         t0 = time.perf_counter()
         posts = log_grounded_posteriors([d for d, *_ in chunk], seeds=[v for _, v, *_ in chunk], calibration=None)
         sec = (time.perf_counter() - t0) / len(chunk)
-        for (_, vehicle, th, lv, flight), post in zip(chunk, posts):
-            res["rows"].append(row(post, th, lv, vehicle, sec) | {"flight": flight, "aero": aero} | tag)
+        for (_, vehicle, th, lv, flight, p), post in zip(chunk, posts):
+            res["rows"].append(row(post, th, lv, vehicle, sec) | {"flight": flight, "aero": aero} | tag
+                               | ({"prior": p} if len(priors) > 1 else {}))
         out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     out.write_text(json.dumps(res, separators=(",", ":")) + "\n")
     return res

@@ -233,6 +233,18 @@ def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_
     assert "motor" not in pc.collect(vehicles=1, levels=("clean",), references=("hover:2",), out=out)["rows"][0]
     with pytest.raises(ValueError, match="motor_kappa"):
         pc.collect(vehicles=1, levels=("clean",), references=("hover:2",), out=out, motor_kappa=2.5)
+    # several priors (the held-out families): flown alike, identified in one batch, each row naming its prior;
+    # resumed, nothing is identified again
+    calls.clear()
+    fam = tmp_path / "fam.json"
+    res = pc.collect(prior=["weak_motor", "yaw_torque"], vehicles=1, levels=("clean",), references=("hover:2",),
+                     out=fam)
+    assert sorted(r["prior"] for r in res["rows"]) == ["weak_motor", "yaw_torque"] and calls == [2]
+    assert res["prior"] == ["weak_motor", "yaw_torque"]
+    calls.clear()
+    again = pc.collect(prior=["weak_motor", "yaw_torque"], vehicles=1, levels=("clean",), references=("hover:2",),
+                       out=fam, resume=True)
+    assert calls == [] and again["rows"] == res["rows"]
 
 
 def test_a_band_side_never_collapses_to_its_median():
