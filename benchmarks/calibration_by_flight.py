@@ -12,6 +12,9 @@ without velocity, from the committed rows alone (no flight).
    logs the shipped threshold flags.
 3. Logs without velocity: the median of ``acc_nsr`` and ``acc_noise`` per level, and thrust-to-weight's 90 %
    error quantile per flight and level (training and held-out rows).
+4. Min-snap paths without velocity: a piece flies one path a level (``MinSnap.random``'s seed is the flight's),
+   so per row file and level, thrust-to-weight's 90 % error quantile and the median ``drag_signal``; and per
+   level, the correlation of ``drag_signal`` with log |error| over every log without velocity that carries it.
 """
 from __future__ import annotations
 
@@ -103,6 +106,24 @@ def no_velocity(train: list[dict], held: list[dict]) -> dict:
     return out
 
 
+def minsnap_paths() -> dict:
+    """Section 4 (NUTS's mixed rows without velocity)."""
+    from mjxsysid.experiments.posterior_calibration import read_rows
+    per_path, pairs = {}, collections.defaultdict(list)
+    files = sorted((ROWS / "train").glob("novel_*")) + sorted((ROWS / "held_out").glob("test_novel*"))
+    for f in files:
+        for r in read_rows([f]):
+            if r.get("method") != "smc_nuts" or r["features"].get("drag_signal") is None:
+                continue
+            e = abs(r["truth_v"][0] - r["bands"][1][0])
+            pairs[r["level"]].append((r["features"]["drag_signal"], np.log10(e + 1e-5)))
+            if "minsnap" in str(r.get("flight")):
+                per_path.setdefault(f"{f.name.split('.json')[0]}, {r['level']}", []).append((e, r["features"]["drag_signal"]))
+    return {"paths": {k: (len(v), float(np.quantile([e for e, _ in v], 0.9)), float(np.median([d for _, d in v])))
+                      for k, v in per_path.items()},
+            "correlation": {lv: (len(v), float(np.corrcoef(np.array(v).T)[0, 1])) for lv, v in sorted(pairs.items())}}
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None)
@@ -115,7 +136,7 @@ def main(argv=None) -> dict:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
     from refit_calibration import window_rows
     res = {"split": split(mixed), "idle_gain_q99": idle_gains(train + window_rows()),
-           "no_velocity": no_velocity(train, held)}
+           "no_velocity": no_velocity(train, held), "minsnap_paths": minsnap_paths()}
     lines = [f"# NUTS's calibration by flight ({len(mixed)} mixed training rows, {len(held)} held out)", "",
              f"`python benchmarks/calibration_by_flight.py` ({time.perf_counter() - t0:.0f} s, no flight).", "",
              "## 1. Three-fold split: coverage per flight (mean, least coordinate)", "",
@@ -134,6 +155,11 @@ def main(argv=None) -> dict:
     lines += [f"| {lv} | {x:.2f} | {y:.2f} |" for lv, (x, y) in res["no_velocity"]["features"].items()]
     lines += ["", "| rows, flight, level | logs | T/W error, 90 % quantile (log) |", "|---|---|---|"]
     lines += [f"| {k} | {n} | {q:.4f} |" for k, (n, q) in res["no_velocity"]["tw_error_q90"].items()]
+    lines += ["", "## 4. Min-snap paths without velocity (one path per row file and level)", "",
+              "| row file, level | logs | T/W error, 90 % quantile (log) | drag_signal, median |", "|---|---|---|---|"]
+    lines += [f"| {k} | {n} | {q:.4f} | {d:.2f} |" for k, (n, q, d) in res["minsnap_paths"]["paths"].items()]
+    lines += ["", "| level | logs | correlation of drag_signal with log T/W error |", "|---|---|---|"]
+    lines += [f"| {lv} | {n} | {c:.2f} |" for lv, (n, c) in res["minsnap_paths"]["correlation"].items()]
     print("\n".join(lines))
     if a.out:
         write_results(a.out, "results", res, lines)

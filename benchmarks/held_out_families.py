@@ -39,27 +39,18 @@ def collect(out: Path, vehicles: int, shard: str | None, families=None, budget_s
 def report(paths: list[Path], out: Path | None) -> dict:
     """Coverage of the calibrated bands per family and level (module doc); writes OUT/families.md (the rows are
     the record: the table is theirs)."""
-    from mjxsysid.experiments.posterior_calibration import calibrated_bands, read_json
+    from mjxsysid.experiments.posterior_calibration import evaluate, read_json
     from mjxsysid.identify.calibrate import load
-    from mjxsysid.identify.logspace import V_NAMES
     rows = [r for p in paths for r in read_json(p)["rows"]]
     table = load()
     res = {"rows": len(rows), "cells": {}}
-    fams = sorted({r["prior"] for r in rows})
-    for fam in fams + ["all"]:
-        for lv in LEVELS:
-            rs = [r for r in rows if (fam == "all" or r["prior"] == fam) and r["level"] == lv]
-            if not rs:
-                continue
-            band, ok = map(np.array, zip(*(calibrated_bands(r, table) for r in rs)))
-            tv = np.array([r["truth_v"] for r in rs])
-            inside = (band[:, 0] <= tv) & (tv <= band[:, 1])
-            cov = np.where(ok.any(0), (inside & ok).sum(0) / np.maximum(ok.sum(0), 1), np.nan)
-            res["cells"][f"{fam} {lv}"] = {"logs": len(rs), "mixed": sum(r["method"] == "smc_nuts" for r in rs),
-                                           "seen": round(float(ok.mean()), 3),
-                                           "mean": round(float(np.nanmean(cov)), 3),
-                                           "coverage": dict(zip(V_NAMES, np.round(cov, 3).tolist())),
-                                           "tw_width_pct": round(float(np.median(100 * np.expm1((band[:, 1, 0] - band[:, 0, 0]) / 2))), 2)}
+    for fam in sorted({r["prior"] for r in rows}) + ["all"]:
+        rs = [r for r in rows if fam == "all" or r["prior"] == fam]
+        for lv, c in evaluate(rs, table).items():
+            res["cells"][f"{fam} {lv}"] = {"logs": c["logs"], "coverage": c["coverage"], "tw_width_pct": c["tw_width_pct"],
+                                           "mixed": sum(r["method"] == "smc_nuts" for r in rs if r["level"] == lv),
+                                           "seen": float(np.mean(list(c["seen_share"].values()))),
+                                           "mean": float(np.nanmean(list(c["coverage"].values())))}
     met = [k for k, c in res["cells"].items() if not k.startswith("all") and TARGET[0] <= c["mean"] <= TARGET[1]]
     n = sum(not k.startswith("all") for k in res["cells"])
     pooled = [k for k, c in res["cells"].items() if k.startswith("all") and TARGET[0] <= c["mean"] <= TARGET[1]]

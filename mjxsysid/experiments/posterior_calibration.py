@@ -87,14 +87,12 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
         raise ValueError(f"paths must be a whole number >= 1, got {paths!r}")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    res = {"prior": prior, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
+    priors = [prior] if isinstance(prior, str) else list(prior)
+    res = {"prior": prior if isinstance(prior, str) else priors, "vehicles": vehicles, "seed": seed, "shard": shard, "levels": list(levels),
            "references": list(references), "controller": controller, "aero": aero, "velocity": velocity,
            "motor_idle": motor_idle, "motor_kappa": motor_kappa, "paths": int(paths), "rows": []}
     if resume and out.is_file():
         res["rows"] = resumed_rows(out, res)
-    priors = [prior] if isinstance(prior, str) else list(prior)
-    if isinstance(prior, (list, tuple)):
-        res["prior"] = priors
     done = {(r.get("prior", priors[0]), r["vehicle"], r["level"], r["flight"]) for r in res["rows"]}
     tag = {"motor": [motor_idle, motor_kappa]} if motor.motor_map else {}
     t_start = time.perf_counter()

@@ -45,11 +45,11 @@ from mjxsysid.identify import idlecheck, thresholds
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
 from mjxsysid.identify.gap import UNSEEN_FRACTION
-from mjxsysid.identify.logdata import vibrating
+from mjxsysid.identify.logdata import ACC_BLOCK_STEPS, vibrating
 from mjxsysid.identify.logspace import N_V
-from mjxsysid.theta import GRAVITY as P_GRAVITY
 from mjxsysid.identify.windowcheck import KEY as WINDOW_KEY
 from mjxsysid.identify.windowcheck import WHY as WINDOW_WHY
+from mjxsysid.theta import GRAVITY
 
 LEVEL = 0.90
 """The band's nominal coverage."""
@@ -133,20 +133,20 @@ def drag_signal(data) -> float | None:
     pooled), over g (the
     body-frame x and y specific force is −(drag/m)·v: a faster flight's is larger; the means take out a constant
     bias, the blocks the white noise). None for a reduction without its readings (built without
-    :func:`~.logdata.prepare`). Without velocity the drag along z is unmodelled: on simulated clean logs this
-    follows thrust-to-weight's error (correlation 0.63 with its log), from × 1 on the noise sets it (0.0). Recorded,
+    :func:`~.logdata.prepare`). Without velocity the drag along z is unmodelled: on simulated logs this follows
+    thrust-to-weight's error weakly (correlation with its log 0.42 clean, 0.11–0.25 from × 1 to × 5, none at × 20;
+    benchmarks/calibration_by_flight.py, section 4). Recorded,
     not a calibration feature: grouping thrust-to-weight without velocity by it left the held-out rows as
     grouping by :func:`acc_noise` did (docs/identify.md)."""
     imu = getattr(data, "_rows", {}).get("imu")
     if imu is None:
         return None
-    from mjxsysid.identify.logdata import ACC_BLOCK_STEPS
     a = np.asarray(imu, np.float64)[:, 3:5]
     nb = len(a) // ACC_BLOCK_STEPS
     if nb < 2:
         return None
     b = a[: nb * ACC_BLOCK_STEPS].reshape(nb, ACC_BLOCK_STEPS, 2).mean(1)
-    return float(np.log10(max(np.sqrt(np.mean((b - b.mean(0)) ** 2)), 1e-12) / P_GRAVITY))
+    return float(np.log10(max(np.sqrt(np.mean((b - b.mean(0)) ** 2)), 1e-12) / GRAVITY))
 
 
 def log_features(data, mode) -> dict:

@@ -242,8 +242,8 @@ def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_
     assert sorted(r["prior"] for r in res["rows"]) == ["weak_motor", "yaw_torque"] and calls == [2]
     assert res["prior"] == ["weak_motor", "yaw_torque"]
     calls.clear()
-    again = pc.collect(prior=["weak_motor", "yaw_torque"], vehicles=1, levels=("clean",), references=("hover:2",),
-                       out=fam, resume=True)
+    again = pc.collect(prior=("weak_motor", "yaw_torque"), vehicles=1, levels=("clean",), references=("hover:2",),
+                       out=fam, resume=True)                    # a tuple resumes the list the file holds
     assert calls == [] and again["rows"] == res["rows"]
 
 
