@@ -51,7 +51,9 @@ class CalibrationSet:
     each flying ``flights`` ('lemniscate:PERIOD', 'minsnap:SECONDS', 'hover:SECONDS') at every
     level; ``controller`` 'oracle' or 'policy' (the release's); ``aero``: rotor aerodynamics on;
     ``velocity``: the logs keep their body velocity; ``motor_idle``, ``motor_kappa``: the simulator's
-    static motor map (``SimConfig``'s; 0 and 1: the map θ describes)."""
+    static motor map (``SimConfig``'s; 0 and 1: the map θ describes); ``paths``: each flight and level's vehicles
+    flown in this many groups, each drawing its own path where the reference is random (min-snap;
+    :func:`mjxsysid.experiments.posterior_calibration.flights`)."""
     vehicles: int
     seed: int
     flights: tuple[str, ...]
@@ -60,6 +62,7 @@ class CalibrationSet:
     velocity: bool = True
     motor_idle: float = 0.0
     motor_kappa: float = 1.0
+    paths: int = 1
 
     def logs(self, levels: int) -> int:
         """The logs it flies at ``levels`` levels (before failed flights are dropped)."""
@@ -92,16 +95,19 @@ class CalibrationSizes:
 
 
 _CAL = CalibrationSet
+MINSNAP_PATHS = 4
+"""Path draws per shard and level of the min-snap sets without velocity (thrust-to-weight's error there moves with
+the path's drag exposure; one draw gave the training set 20 paths, four give it 80: docs/identify.md)."""
 FULL_CALIBRATION = CalibrationSizes(
     train=_frozen(vel_lem=_CAL(128, 5, ("lemniscate:10",)),
                   novel_lem=_CAL(128, 6, ("lemniscate:10",), velocity=False),
                   vel_ms=_CAL(128, 7, ("minsnap:10",)),
-                  novel_ms=_CAL(128, 8, ("minsnap:10",), velocity=False),
+                  novel_ms=_CAL(128, 8, ("minsnap:10",), velocity=False, paths=MINSNAP_PATHS),
                   aero=_CAL(128, 9, ("lemniscate:10",), aero=True),
                   policy=_CAL(128, 10, ("lemniscate:10",), controller="policy"),
                   slow=_CAL(128, 11, ("lemniscate:20", "hover:8"))),
     held_out=_frozen(test_vel=_CAL(128, 71, ("lemniscate:10",)),
-                     test_novel=_CAL(128, 72, ("minsnap:10",), velocity=False)),
+                     test_novel=_CAL(128, 72, ("minsnap:10",), velocity=False, paths=MINSNAP_PATHS)),
     train_levels=("clean", "x1", "x5_white", "x5_vibration", "x20"),
     held_out_levels=("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20"),
     shards=4, bins=4, min_group=30,

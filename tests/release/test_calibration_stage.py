@@ -42,9 +42,10 @@ def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, 
     out = rel.stage_dir("posterior_calibration")
     n_train, n_held, n_misfit = cal.logs()
     assert n_misfit and sum(calls) == n_train + n_held + n_misfit
-    for _, name, _, _, _, f in pieces(cal):                        # a row file per set, with its provenance
+    for _, name, s, _, _, f in pieces(cal):                        # a row file per set, with its provenance
         rows = json.loads((out / f).read_text())
         assert f == f"rows/{name}.json" and rows["release"]["device"] == "dev" and rows["rows"]
+        assert rows["paths"] == s.paths
     assert not list(out.rglob("*.partial"))
     table = load(out / "posterior_calibration.json")
     prov = table["provenance"]
@@ -89,6 +90,20 @@ def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, 
     assert shipped["provenance"]["release"]["commit"] == "c0ffee" and shipped["coords"] == table["coords"]
     for f in ("evaluation.json", "evaluation.md", "ranks.png", "coverage_width.png"):
         assert (tmp_path / "tree/docs/runs/release/calibration" / f).is_file(), f
+
+
+def test_the_min_snap_sets_without_velocity_fly_several_paths():
+    """The full calibration's min-snap sets without velocity ask collect for MINSNAP_PATHS path draws a shard and
+    level; the other sets for one (their row files as recorded)."""
+    import types
+    from mjxsysid.release.sizes import FULL_CALIBRATION, MINSNAP_PATHS
+    from mjxsysid.release.stages.calibration import _kwargs
+    rel = types.SimpleNamespace(policy_path=None)
+    kw = {name: _kwargs(rel, s, lv, sh) for _, name, s, lv, sh, _ in pieces(FULL_CALIBRATION)}
+    assert MINSNAP_PATHS > 1
+    assert kw["novel_ms"]["paths"] == kw["test_novel"]["paths"] == MINSNAP_PATHS
+    assert not kw["novel_ms"]["velocity"] and kw["novel_ms"]["references"] == ("minsnap:10",)
+    assert all("paths" not in kw[n] for n in ("vel_lem", "vel_ms", "slow", "test_vel", "motor"))
 
 
 def test_a_piece_cut_by_its_time_budget_stays_partial(tmp_path, monkeypatch):

@@ -50,6 +50,8 @@ def _kwargs(rel: ReleaseView, s: CalibrationSet, levels, shard) -> dict:
         kw["policy"] = rel.policy_path
     if (s.motor_idle, s.motor_kappa) != (0.0, 1.0):          # the other sets' calls as they were recorded
         kw |= {"motor_idle": s.motor_idle, "motor_kappa": s.motor_kappa}
+    if s.paths != 1:
+        kw["paths"] = s.paths
     return kw
 
 
