@@ -31,7 +31,9 @@ def collect(out: Path, vehicles: int, shard: str | None, families=None, budget_s
     """Fly and identify every family's vehicles (module doc; :func:`~mjxsysid.experiments.posterior_calibration.collect`
     with the families as its priors) -> the row file's content, written to ``out``."""
     from mjxsysid.experiments.posterior_calibration import collect as collect_rows
+    from mjxsysid.runtime.startup import compilation_cache
     from mjxsysid.theta import HELDOUT_FAMILIES
+    compilation_cache()                               # MJXSYSID_JAX_CACHE: a later call loads what this one compiled
     return collect_rows(prior=list(families or HELDOUT_FAMILIES), vehicles=vehicles, levels=LEVELS, seed=SEED,
                         shard=shard, out=out, time_budget_s=budget_s, references=("lemniscate:10",), resume=True)
 

@@ -92,6 +92,8 @@ def collect_pieces(out: Path, deadline_s: float, want: list[str], resume_from: P
     from mjxsysid.release.sizes import FULL_CALIBRATION
     from mjxsysid.release.stages.calibration import collect_piece, pieces
     from mjxsysid.runtime.profiling import compile_profile
+    from mjxsysid.runtime.startup import compilation_cache
+    compilation_cache()                               # MJXSYSID_JAX_CACHE: a later call loads what this one compiled
     table = {p[5]: p for p in pieces(FULL_CALIBRATION)}
     unknown = [w for w in want if w not in table]
     if unknown:

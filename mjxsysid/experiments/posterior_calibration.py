@@ -102,7 +102,8 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     res["skipped"] = skipped                                        # logs the set lacks, and why
     settings = {k: res[k] for k in RESUME_KEYS}
     for p in priors:
-        for rec, vehicle, th, lv, flight in flights(settings | {"prior": p}, policy=policy, skipped=skipped):
+        for rec, vehicle, th, lv, flight in progress(flights(settings | {"prior": p}, policy=policy, skipped=skipped),
+                                                     desc="flying", unit="log"):
             if (p, vehicle, lv, flight) in done:
                 continue
             try:

@@ -93,17 +93,17 @@ def test_calibration_stage_collects_fits_evaluates_and_resumes_by_set(tmp_path, 
 
 
 def test_the_min_snap_sets_without_velocity_fly_several_paths():
-    """The full calibration's min-snap sets without velocity ask collect for MINSNAP_PATHS path draws a shard and
-    level; the other sets for one (their row files as recorded)."""
+    """The full calibration's min-snap training set without velocity asks collect for MINSNAP_PATHS path draws a
+    shard and level; the other sets for one (their row files as recorded)."""
     import types
     from mjxsysid.release.sizes import FULL_CALIBRATION, MINSNAP_PATHS
     from mjxsysid.release.stages.calibration import _kwargs
     rel = types.SimpleNamespace(policy_path=None)
     kw = {name: _kwargs(rel, s, lv, sh) for _, name, s, lv, sh, _ in pieces(FULL_CALIBRATION)}
     assert MINSNAP_PATHS > 1
-    assert kw["novel_ms"]["paths"] == kw["test_novel"]["paths"] == MINSNAP_PATHS
+    assert kw["novel_ms"]["paths"] == MINSNAP_PATHS
     assert not kw["novel_ms"]["velocity"] and kw["novel_ms"]["references"] == ("minsnap:10",)
-    assert all("paths" not in kw[n] for n in ("vel_lem", "vel_ms", "slow", "test_vel", "motor"))
+    assert all("paths" not in kw[n] for n in ("vel_lem", "vel_ms", "slow", "test_vel", "test_novel", "motor"))
 
 
 def test_a_piece_cut_by_its_time_budget_stays_partial(tmp_path, monkeypatch):
