@@ -12,8 +12,9 @@ without velocity, from the committed rows alone (no flight).
    logs the shipped threshold flags.
 3. Logs without velocity: the median of ``acc_nsr`` and ``acc_noise`` per level, and thrust-to-weight's 90 %
    error quantile per flight and level (training and held-out rows).
-4. Min-snap paths without velocity: a piece flies one path a level (``MinSnap.random``'s seed is the flight's),
-   so per row file and level, thrust-to-weight's 90 % error quantile and the median ``drag_signal``; and per
+4. Min-snap paths without velocity: a piece flies ``paths`` path draws a level (``MinSnap.random``'s seed is the
+   flight's; :func:`~mjxsysid.experiments.posterior_calibration.path_of`), so per row file, level and path,
+   thrust-to-weight's 90 % error quantile and the median ``drag_signal``; and per
    level, the correlation of ``drag_signal`` with log |error| over every log without velocity that carries it.
 """
 from __future__ import annotations
@@ -108,17 +109,19 @@ def no_velocity(train: list[dict], held: list[dict]) -> dict:
 
 def minsnap_paths() -> dict:
     """Section 4 (NUTS's mixed rows without velocity)."""
-    from mjxsysid.experiments.posterior_calibration import read_rows
+    from mjxsysid.experiments.posterior_calibration import path_of, read_json
     per_path, pairs = {}, collections.defaultdict(list)
     files = sorted((ROWS / "train").glob("novel_*")) + sorted((ROWS / "held_out").glob("test_novel*"))
     for f in files:
-        for r in read_rows([f]):
+        settings = read_json(f)
+        for r in settings["rows"]:
             if r.get("method") != "smc_nuts" or r["features"].get("drag_signal") is None:
                 continue
             e = abs(r["truth_v"][0] - r["bands"][1][0])
             pairs[r["level"]].append((r["features"]["drag_signal"], np.log10(e + 1e-5)))
             if "minsnap" in str(r.get("flight")):
-                per_path.setdefault(f"{f.name.split('.json')[0]}, {r['level']}", []).append((e, r["features"]["drag_signal"]))
+                key = f"{f.name.split('.json')[0]}, {r['level']}, path {path_of(settings, r['vehicle'])}"
+                per_path.setdefault(key, []).append((e, r["features"]["drag_signal"]))
     return {"paths": {k: (len(v), float(np.quantile([e for e, _ in v], 0.9)), float(np.median([d for _, d in v])))
                       for k, v in per_path.items()},
             "correlation": {lv: (len(v), float(np.corrcoef(np.array(v).T)[0, 1])) for lv, v in sorted(pairs.items())}}
@@ -155,8 +158,8 @@ def main(argv=None) -> dict:
     lines += [f"| {lv} | {x:.2f} | {y:.2f} |" for lv, (x, y) in res["no_velocity"]["features"].items()]
     lines += ["", "| rows, flight, level | logs | T/W error, 90 % quantile (log) |", "|---|---|---|"]
     lines += [f"| {k} | {n} | {q:.4f} |" for k, (n, q) in res["no_velocity"]["tw_error_q90"].items()]
-    lines += ["", "## 4. Min-snap paths without velocity (one path per row file and level)", "",
-              "| row file, level | logs | T/W error, 90 % quantile (log) | drag_signal, median |", "|---|---|---|---|"]
+    lines += ["", "## 4. Min-snap paths without velocity (a row file's path draws per level)", "",
+              "| row file, level, path | logs | T/W error, 90 % quantile (log) | drag_signal, median |", "|---|---|---|---|"]
     lines += [f"| {k} | {n} | {q:.4f} | {d:.2f} |" for k, (n, q, d) in res["minsnap_paths"]["paths"].items()]
     lines += ["", "| level | logs | correlation of drag_signal with log T/W error |", "|---|---|---|"]
     lines += [f"| {lv} | {n} | {c:.2f} |" for lv, (n, c) in res["minsnap_paths"]["correlation"].items()]

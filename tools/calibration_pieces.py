@@ -23,7 +23,9 @@ never a whole piece by a partial one.
 
 ``--todo DIR``: the pieces not yet in DIR (its train/, held_out/ and misfit/ folders, plain or compressed), with
 their logs.
-Never point a JAX cache at OUT: the device returns a limited number of files.
+Never point a JAX cache at OUT: the device returns a limited number of files. The tool turns JAX's persistent
+cache on (``MJXSYSID_JAX_CACHE``, e.g. /tmp/jaxcache): a call that tars it into one file of OUT (5.4 MB xz for the
+min-snap pieces) and a next call that carries and unpacks it compile 24 s instead of 114 s a piece (2026-11-30).
 """
 from __future__ import annotations
 

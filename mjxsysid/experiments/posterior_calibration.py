@@ -164,7 +164,7 @@ def flights(settings: dict, *, policy=None, skipped: dict | None = None):
         sim = Quadrotor(SimConfig(**LEVELS[lv], aero=st["aero"], motor_idle=idle, motor_kappa=kappa))
         flight = ((ref if controller == "oracle" else f"{ref} ({controller})") + (" aero" if st["aero"] else "")
                   + (f" motor {idle:g}/{kappa:g}" if motor_map else ""))
-        for g, part in enumerate(np.array_split(np.arange(len(th)), st["paths"])):
+        for g, part in enumerate(path_groups(len(th), st["paths"])):
             if not len(part):
                 continue
             fl, m, _ = fly_vehicles(th[part], controller=controller, sim=sim, seed=s + PATH_SEED_STEP * g, policy=pol,
@@ -181,6 +181,19 @@ def flights(settings: dict, *, policy=None, skipped: dict | None = None):
 
 PATH_SEED_STEP = 7919
 """The seed step between a flight's path draws (:func:`flights`' ``paths``)."""
+
+
+def path_groups(n: int, paths: int) -> list[np.ndarray]:
+    """A piece's ``n`` vehicles (positions in its shard) in ``paths`` groups, each flying its own path draw."""
+    return np.array_split(np.arange(n), paths)
+
+
+def path_of(settings: dict, vehicle: int) -> int:
+    """The path draw (0 … paths − 1) that ``vehicle`` flew in the row file with ``settings`` (its ``vehicles``,
+    ``shard``, ``paths``: one where the file predates the setting)."""
+    index = _shard(settings["vehicles"], settings.get("shard"))
+    pos = int(np.flatnonzero(index == vehicle)[0])
+    return next(g for g, part in enumerate(path_groups(len(index), settings.get("paths", 1))) if pos in part)
 
 RESUME_KEYS = ("prior", "vehicles", "seed", "shard", "levels", "references", "controller", "aero", "velocity",
                "motor_idle", "motor_kappa", "paths")

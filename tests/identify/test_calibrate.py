@@ -537,6 +537,11 @@ def test_paths_fly_each_group_of_vehicles_on_its_own_seeded_path(tmp_path, monke
                                    "motor_kappa": 1.0, "paths": 2})
     with pytest.raises(ValueError, match="paths"):
         pc.collect(vehicles=1, levels=("clean",), references=("hover:1",), out=out, paths=0)
+    # path_of names the draw each vehicle flew, as flights grouped them (a shard's vehicles, the file's paths)
+    assert [pc.path_of(st | {"paths": 2}, v) for v in range(4)] == [0, 0, 1, 1]
+    assert [pc.path_of(st, v) for v in range(4)] == [0, 0, 0, 0]                  # a file without the setting
+    sharded = {"vehicles": 128, "shard": "1/4", "paths": 4}                      # the release's novel_ms piece
+    assert [pc.path_of(sharded, v) for v in (1, 29, 33, 125)] == [0, 0, 1, 3]
 
 
 def test_the_shipped_table_holds_the_held_out_families_under_the_default_sampler():

@@ -32,12 +32,13 @@ def test_no_module_over_500_lines():
     assert long == {}
 
 
-def test_docs_runs_stays_under_12_mb():
+def test_docs_runs_stays_under_12_5_mb():
     """docs/runs/ holds the run files the docs quote (superseded ones leave the tree, git keeps them):
-    the clone stays light. 12 MB: the rows the shipped calibration tables and the window check's threshold
-    were fitted on are their provenance."""
+    the clone stays light. 12.5 MB: the rows the shipped calibration tables and the window check's threshold
+    were fitted on are their provenance (NUTS's min-snap rows without velocity, 80 paths, carry R̂ and the
+    motor-map check's features: 190 KB)."""
     size = sum(p.stat().st_size for p in (ROOT / "docs" / "runs").rglob("*") if p.is_file())
-    assert size < 12e6, f"docs/runs/ holds {size / 1e6:.1f} MB"
+    assert size < 12.5e6, f"docs/runs/ holds {size / 1e6:.1f} MB"
 
 
 PER_ALGORITHM = {"networks.py", "train.py", "controller.py"}
