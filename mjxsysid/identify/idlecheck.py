@@ -67,7 +67,8 @@ STILL_FLIGHTS = ("hover",)
 IMU bias fits an idle offset as well (hovers at × 1: a 99th percentile of 18.4 against 4.8 for the slow
 figure-eight's worst level; benchmarks/calibration_by_flight.py). With them the threshold was 6.331 (968 logs); without, 4.687
 (530), which flags 14 of 438 linear-map hovers (their bands widen) and 26 of 27 u² logs instead of 20
-(docs/identify.md, "The motor-map check", both ways)."""
+(docs/identify.md, "The motor-map check", both ways); 5.166 on the 1,170 logs with the min-snap set's 80 paths (13 hovers
+and 26 of 27 u² logs)."""
 
 KEY = "idle_check"
 """The calibration table's entry holding the threshold and its provenance."""
