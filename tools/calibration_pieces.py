@@ -25,7 +25,8 @@ never a whole piece by a partial one.
 their logs.
 Never point a JAX cache at OUT: the device returns a limited number of files. The tool turns JAX's persistent
 cache on (``MJXSYSID_JAX_CACHE``, e.g. /tmp/jaxcache): a call that tars it into one file of OUT (5.4 MB xz for the
-min-snap pieces) and a next call that carries and unpacks it compile 24 s instead of 114 s a piece (2026-11-30).
+min-snap pieces) and a next call that carries and unpacks it compile 24 s instead of 114 s a piece (2026-11-30):
+``tools/gpu_pieces.sh`` does both, one process a GPU.
 """
 from __future__ import annotations
 
