@@ -9,6 +9,10 @@ The held-out rows are not read: the variant is chosen here, then evaluated once 
 Variants: none (one table for every log), the rate coordinates apart (thrust-to-weight pooled), every
 coordinate apart (:data:`~mjxsysid.identify.calibrate.VIBRATION_COORDS` says which each sampler ships). Writes
 OUT/strata_METHOD.md and OUT/strata_METHOD.json.
+
+    python benchmarks/calibration_strata.py --window-logs 150 200 300 400
+
+The windows' size instead (NUTS's table, every coordinate apart as shipped): each size's cells on the same split.
 """
 from __future__ import annotations
 
@@ -40,12 +44,32 @@ def score(evals: list[dict]) -> dict:
             "over": int(np.sum(cov > BAND[1])), "under": int(np.sum(cov < BAND[0])), "worst": float(cov.min())}
 
 
+def window_sizes(paths, sizes) -> dict:
+    """NUTS's table in windows of each of ``sizes`` logs (the shipped strata), scored on the three-fold split."""
+    from mjxsysid.experiments.posterior_calibration import evaluate, read_rows
+    from mjxsysid.identify.calibrate import VIBRATION_COORDS
+    from mjxsysid.identify.calibration_fit import WINDOWED, fit
+    rows = [r for r in read_rows(paths) if r.get("method") == "smc_nuts"]
+    out = {}
+    for n in sizes:
+        w = dict(WINDOWED["smc_nuts"], logs=int(n))
+        out[n] = score([evaluate(test, fit(train, windows=w, vibration=VIBRATION_COORDS["smc_nuts"]))
+                        for train, test in folds(rows)])
+        print(f"{n} logs a window: {out[n]['cells']} of {out[n]['of']} cells, {out[n]['over']} over, "
+              f"{out[n]['under']} under, the worst {out[n]['worst']:.3f}", flush=True)
+    return out
+
+
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rows", nargs="+", default=[str(ROWS)])
     ap.add_argument("--method", default="smc_nuts", help="the sampler whose rows and fit (windows or bins) are split")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--window-logs", type=int, nargs="+", default=None,
+                    help="compare these window sizes (logs a window) instead of the strata")
     a = ap.parse_args(argv)
+    if a.window_logs:
+        return window_sizes(a.rows, a.window_logs)
     from mjxsysid.experiments.posterior_calibration import evaluate, read_rows
     from mjxsysid.identify.calibration_fit import WINDOWED, fit
     from mjxsysid.identify.logspace import N_V
