@@ -15,7 +15,8 @@ from mjxsysid.release.stages.registry import STAGES, ReleaseView, StageResult
 LOGS_PER_S = 1.1
 """Rows collected per second on one H200 (the log-grounded posterior with NUTS refinement,
 docs/identify.md): the stage's GPU estimate. Pieces of 160–320 logs, padded to a power of two: 1.0–1.3
-logs/s warm (2026-11-29; 1.5 in batches of 256)."""
+logs/s warm (2026-11-29; 1.5 in batches of 256). On `nvidia-h200-x2`, one process a GPU, pieces of 160 logs flown
+on four paths: 0.31 logs/s a GPU cold, 0.39 with the compilation cache carried (2026-11-30, BENCHMARKS.md)."""
 TABLE = "posterior_calibration.json"
 """The fitted table in the stage folder (shipped as mjxsysid/pretrained/posterior_calibration.json)."""
 ROWS = "rows"
