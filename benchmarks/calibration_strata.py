@@ -44,17 +44,23 @@ def score(evals: list[dict]) -> dict:
             "over": int(np.sum(cov > BAND[1])), "under": int(np.sum(cov < BAND[0])), "worst": float(cov.min())}
 
 
+def split_evals(rows: list[dict], windows: dict | None, vibration: tuple) -> list[dict]:
+    """Per fold: the table fitted on the other two (``windows``, ``vibration``: :func:`~mjxsysid.identify.
+    calibration_fit.fit`'s) evaluated per level on this one."""
+    from mjxsysid.experiments.posterior_calibration import evaluate
+    from mjxsysid.identify.calibration_fit import fit
+    return [evaluate(test, fit(train, windows=windows, vibration=vibration)) for train, test in folds(rows)]
+
+
 def window_sizes(paths, sizes) -> dict:
     """NUTS's table in windows of each of ``sizes`` logs (the shipped strata), scored on the three-fold split."""
-    from mjxsysid.experiments.posterior_calibration import evaluate, read_rows
+    from mjxsysid.experiments.posterior_calibration import read_rows
     from mjxsysid.identify.calibrate import VIBRATION_COORDS
-    from mjxsysid.identify.calibration_fit import WINDOWED, fit
+    from mjxsysid.identify.calibration_fit import WINDOWED
     rows = [r for r in read_rows(paths) if r.get("method") == "smc_nuts"]
     out = {}
     for n in sizes:
-        w = dict(WINDOWED["smc_nuts"], logs=int(n))
-        out[n] = score([evaluate(test, fit(train, windows=w, vibration=VIBRATION_COORDS["smc_nuts"]))
-                        for train, test in folds(rows)])
+        out[n] = score(split_evals(rows, dict(WINDOWED["smc_nuts"], logs=int(n)), VIBRATION_COORDS["smc_nuts"]))
         print(f"{n} logs a window: {out[n]['cells']} of {out[n]['of']} cells, {out[n]['over']} over, "
               f"{out[n]['under']} under, the worst {out[n]['worst']:.3f}", flush=True)
     return out
@@ -70,20 +76,16 @@ def main(argv=None) -> dict:
     a = ap.parse_args(argv)
     if a.window_logs:
         return window_sizes(a.rows, a.window_logs)
-    from mjxsysid.experiments.posterior_calibration import evaluate, read_rows
-    from mjxsysid.identify.calibration_fit import WINDOWED, fit
+    from mjxsysid.experiments.posterior_calibration import read_rows
+    from mjxsysid.identify.calibration_fit import WINDOWED
     from mjxsysid.identify.logspace import N_V
     t0 = time.perf_counter()
     rows = [r for r in read_rows(a.rows) if r.get("method") == a.method]
     variants = {"none": (), "rate coordinates apart": tuple(range(1, N_V)), "every coordinate apart": tuple(range(N_V))}
     out = {"rows": len(rows), "vibrating": int(sum(r["features"]["vibration"] for r in rows)), "variants": {}}
     for name, coords in variants.items():
-        evals, vib_width = [], []
-        for train, test in folds(rows):
-            table = fit(train, windows=WINDOWED.get(a.method), vibration=coords)
-            e = evaluate(test, table)
-            evals.append(e)
-            vib_width.append(list(e["x5_vibration"]["median_width"].values()))
+        evals = split_evals(rows, WINDOWED.get(a.method), coords)
+        vib_width = [list(e["x5_vibration"]["median_width"].values()) for e in evals]
         out["variants"][name] = score(evals) | {"vibration_width": np.mean(vib_width, 0).tolist(),
                                                 "tw_width_pct": {lv: float(np.mean([e[lv]["tw_width_pct"] for e in evals]))
                                                                  for lv in evals[0]}}

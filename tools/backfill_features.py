@@ -25,7 +25,7 @@ def features_of(rec: dict, names: list[str]) -> dict:
     from mjxsysid.identify.logdata import prepare, vibrating
     data = prepare(rec)
     known = {"acc_noise": lambda: round(acc_noise(data), 4), "vibration": lambda: vibrating(data),
-             "drag_signal": lambda: round(drag_signal(data), 4)}
+             "drag_signal": lambda: None if (d := drag_signal(data)) is None else round(d, 4)}
     bad = [n for n in names if n not in known]
     if bad:
         raise ValueError(f"unknown features {bad}; known: {sorted(known)}")

@@ -195,6 +195,7 @@ def path_of(settings: dict, vehicle: int) -> int:
     pos = int(np.flatnonzero(index == vehicle)[0])
     return next(g for g, part in enumerate(path_groups(len(index), settings.get("paths", 1))) if pos in part)
 
+
 RESUME_KEYS = ("prior", "vehicles", "seed", "shard", "levels", "references", "controller", "aero", "velocity",
                "motor_idle", "motor_kappa", "paths")
 """The settings a resumed row file must share with the run (:func:`collect`'s ``resume``)."""
@@ -339,8 +340,8 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
         lo[j] = q[1, j] + shift - k_lo * (q[1, j] - q[0, j])
         hi[j] = q[1, j] + shift + k_hi * (q[2, j] - q[1, j])
     if row.get("rhat_v") is not None:
-        from mjxsysid.identify.nuts import RHAT_OK
-        ok &= np.asarray(row["rhat_v"], np.float64) < RHAT_OK
+        from mjxsysid.identify.nuts import mixed_coords
+        ok &= mixed_coords(row["rhat_v"])
     return np.stack([lo, hi]), ok
 
 

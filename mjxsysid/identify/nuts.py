@@ -270,6 +270,12 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
         todo, warmup, thin = again, LONGER[0] * WARMUP, LONGER[1]
 
 
+def mixed_coords(rhat_v) -> np.ndarray:
+    """Whether NUTS's chains mixed on each visible coordinate, from its split R̂ (12,) -> (12,) bool: R̂ below
+    :data:`RHAT_OK` (NaN: not mixed)."""
+    return np.asarray(rhat_v, np.float64) < RHAT_OK
+
+
 def unmixed_not_seen(report: dict, nuts: dict, v=None, prior_draws=None):
     """A visible coordinate on which NUTS's chains disagree (split R̂ ≥ :data:`RHAT_OK`) is not
     seen by the log, whatever its band's width: the fit did not converge there (where no chain mixed,
@@ -279,7 +285,7 @@ def unmixed_not_seen(report: dict, nuts: dict, v=None, prior_draws=None):
     check's (a band only where the chains' means, ``chain_spread_v``, lie further apart than it is wide held
     4 of 6 hovers' roll authorities, not 6: docs/identify.md). Returns the draws (``v`` itself where none is
     replaced)."""
-    bad = [j for j, r in enumerate(nuts["rhat_v"]) if not r < RHAT_OK]
+    bad = [int(j) for j in np.flatnonzero(~mixed_coords(nuts["rhat_v"]))]
     spread = nuts.get("chain_spread_v")
     for j in bad:
         report["seen"][j] = False
