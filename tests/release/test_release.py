@@ -165,12 +165,15 @@ def test_stage_list_is_the_pipeline():
         if s.name != "posterior_calibration":                           # resumes by piece (below)
             assert 0 < s.estimate_s <= 600, s.name                      # each fits a 10-minute GPU call
     assert sum(s.estimate_s for s in STAGES if s.name != "posterior_calibration") <= 45 * 60
-    # the calibration's ≈ 8,200 logs at 1.1 logs/s: over an hour, in pieces that each fit a call
+    # the calibration's ≈ 8,200 logs at 0.5 logs/s: hours, in pieces that fit a call or resume over several
     from mjxsysid.release.sizes import FULL_CALIBRATION as cal
     from mjxsysid.release.stages.calibration import LOGS_PER_S, pieces
     est = STAGES["posterior_calibration"].estimate_s
     assert cal.logs() == (5120, 1792, 1280) and est == sum(cal.logs()) / LOGS_PER_S
-    assert all(s.logs(len(lv)) / cal.shards / LOGS_PER_S <= 300 for _, _, s, lv, _, _ in pieces(cal))
+    per_piece = [s.logs(len(lv)) / cal.shards for _, _, s, lv, _, _ in pieces(cal)]
+    one_flight = [n for n, (_, _, s, *_) in zip(per_piece, pieces(cal)) if len(s.flights) == 1]
+    assert one_flight and all(n / LOGS_PER_S <= 480 for n in one_flight)     # within a call, flying besides
+    assert max(per_piece) / LOGS_PER_S > 600                                 # the two-flight pieces resume
 
 
 def _cli(capsys, *args):
