@@ -159,29 +159,30 @@ def _variants(base, maps):
                 yield m, done[j * len(base):(j + 1) * len(base)]
 
 
-def _residual_ss(z, data, ld, ls, w) -> float:
-    """The least squares' objective at z (13,) (:func:`~.mode._ls_residuals`' standardised residuals), each
+def _residual_ss(res, z, use, w) -> float:
+    """The least squares' objective from a log's residuals ``res`` (:func:`~.likelihood.residuals`' four arrays)
+    at z (13,) (:func:`~.mode._ls_residuals`' standardised residuals; ``use`` (4,) the channels the log uses), each
     channel's squares × its correlation discount w (4,) (:func:`~.likelihood.residual_weights`: the evidence the
-    tempered likelihood gives them, not the count of correlated residuals). On the host, from the compiled
-    residuals the mode already built (:data:`~.likelihood.residuals_jit`): the check compiles nothing new."""
-    from mjxsysid.identify.likelihood import residuals_jit
+    tempered likelihood gives them, not the count of correlated residuals); on the host, in float64."""
     from mjxsysid.identify.mode import standardised
-    z = np.asarray(z, np.float32)
-    x = L.x_from_y(L.y_from_z(z, np.asarray(ls, np.float32)), np.asarray(ld, np.float32))
-    res = (np.asarray(a, np.float64) for a in residuals_jit(x, data))
-    g, a, b = standardised(*res, np.asarray(data.use, np.float64), float(z[L.Z_BIAS]))
+    g, a, b = standardised(*(np.asarray(r, np.float64) for r in res), np.asarray(use, np.float64),
+                           float(np.asarray(z)[L.Z_BIAS]))
     w = np.asarray(w, np.float64)
     return float(np.sum(g ** 2 * w[L.GYRO]) + w[L.ACC_Z] * np.sum(a ** 2) + b ** 2)
 
 
 def _fit_and_ss(make_logs, datas, ys, lds, lss, ws, starts: int):
     """Logs of one shape re-fitted from ys (m, 17), δ and σ held -> (z (m, 13), SS (m,)); ``ws`` (m, 4) the
-    correlation discounts."""
+    correlation discounts. The residuals come from the programs the mode already built (one call for the logs
+    together, :meth:`~.inference._Logs.residuals`): the check compiles nothing new."""
     logs = make_logs(datas)
     k = 1 if len(datas) == 1 else starts
     z0 = np.repeat(L.z_from_y(np.asarray(ys, np.float32))[:, None], k, 1)
     z = np.asarray(logs.fit(z0, lds, lss))[:, 0]
-    ss = np.array([_residual_ss(zi, d, a, b, c) for zi, d, a, b, c in zip(z, datas, lds, lss, ws)])
+    x = np.stack([L.x_from_y(L.y_from_z(zi, np.asarray(b, np.float32)), np.asarray(a, np.float32))
+                  for zi, a, b in zip(z, lds, lss)]).astype(np.float32)
+    res = logs.residuals(x)
+    ss = np.array([_residual_ss([r[i] for r in res], z[i], d.use, ws[i]) for i, d in enumerate(datas)])
     return z, ss
 
 

@@ -47,7 +47,7 @@ from mjxsysid.identify import idlecheck
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import SHIPPED, calibrate, for_method, load, log_features, window_features
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, theta_from, visible_from_theta
-from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
+from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start, residuals_jit, residuals_logs
 from mjxsysid.identify.posterior_config import PosteriorConfig, resolve
 from mjxsysid.identify.logdata import LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
@@ -142,6 +142,15 @@ class _Logs:
         p, data = self._sub(range(len(self)))
         z, ld, ls = (_pad_rows(np.asarray(a, np.float32), len(p)) for a in (z, ld, ls))
         return np.asarray(_fit_ls_logs(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls)))[:len(self)]
+
+    def residuals(self, x):
+        """:func:`~.likelihood.residuals` of every log at x (L, 21) -> its four arrays (rates (L, R, 3), their
+        scales, acc_z (L, Wa), its scale (L,)), as NumPy arrays."""
+        if self.stack is None:
+            return [np.asarray(a)[None] for a in residuals_jit(jnp.asarray(x[0], jnp.float32), self.datas[0])]
+        p, data = self._sub(range(len(self)))
+        x = _pad_rows(np.asarray(x, np.float32), len(p))
+        return [np.asarray(a)[:len(self)] for a in residuals_logs(jnp.asarray(x), data)]
 
     def jacobians(self, z, ld, ls, w):
         """The tempered residuals' Jacobians at z (L, 13) -> (L, R, 13)."""

@@ -220,6 +220,10 @@ def _drag_at(x, data: LogData):
 residuals_jit = jax.jit(residuals)
 """:func:`residuals` compiled (once per log bucket): what host-side callers use."""
 
+residuals_logs = jax.jit(jax.vmap(residuals))
+""":func:`residuals` of logs of one shape at once: x (L, 21) and the logs' stacked data -> its four arrays,
+each with a leading log axis (one device call for a batch, where one a log waited on the device each time)."""
+
 
 def log_likelihood(x, data: LogData, weights=None):
     """log p(log | v, nuisances) for one parameter vector x (12 + 9,) = [v, log σ (4), log δ (4),

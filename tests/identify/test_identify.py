@@ -256,10 +256,23 @@ def test_the_identify_room_is_callable_and_gives_a_posterior_object():
         mjxsysid.identify(3.0)
 
 
-def _batched_against_alone(refine: bool) -> None:
+def _batched_against_alone(refine: bool, monkeypatch=None) -> None:
     """Three logs vmapped together (padded to four) against each alone: the same method, bands within a fifth
-    of their width (NUTS's trajectories part under float rounding: the same chains, not the same draws)."""
-    from mjxsysid.identify.inference import log_grounded_posteriors
+    of their width (NUTS's trajectories part under float rounding: the same chains, not the same draws).
+    ``monkeypatch``: also the motor-map check's residuals, computed for the logs together
+    (``_Logs.residuals``), against each log's own."""
+    from mjxsysid.identify.inference import _Logs, log_grounded_posteriors
+    from mjxsysid.identify.likelihood import residuals_jit
+    seen = []
+    if monkeypatch is not None:
+        together_residuals = _Logs.residuals
+
+        def spy(self, x):
+            out = together_residuals(self, x)
+            if len(self) > 1:
+                seen.append((list(self.datas), np.array(x), out))
+            return out
+        monkeypatch.setattr(_Logs, "residuals", spy)
     base = P.paper_hardware().copy()
     slow = base * np.where(np.arange(19) == P.TAU_M, 1.5, 1.0).astype(np.float32)
     recs = [synthetic_log(t, seconds=3.0, gyro_noise=0.05, acc_noise=0.5, seed=k)
@@ -273,12 +286,20 @@ def _batched_against_alone(refine: bool) -> None:
         assert np.all(np.abs(qa - qb) <= 0.2 * (qa[2] - qa[0]) + 1e-5), np.abs(qa - qb) / (qa[2] - qa[0])
     with pytest.raises(ValueError, match="one of each per log"):
         log_grounded_posteriors(recs, seeds=[1, 2])
+    if monkeypatch is not None:                     # 33 calls for the logs together: the first and the last
+        assert len(seen) >= 2
+        for datas, x, out in (seen[0], seen[-1]):
+            assert len(datas) == 3 and all(len(o) == 3 for o in out)
+            for i, d in enumerate(datas):
+                for got, want in zip(out, residuals_jit(jax.numpy.asarray(x[i]), d)):
+                    np.testing.assert_allclose(got[i], np.asarray(want), rtol=1e-5, atol=1e-6)
 
 
-def test_logs_batched_give_each_logs_posterior():
+def test_logs_batched_give_each_logs_posterior(monkeypatch):
     """Several logs at once (vmapped over logs, three padded to four) give each log the SMC's posterior it
-    gets alone (NUTS's refinement batched too: the slow test below)."""
-    _batched_against_alone(refine=False)
+    gets alone (NUTS's refinement batched too: the slow test below), and the motor-map check's residuals of
+    the logs together are each log's own."""
+    _batched_against_alone(refine=False, monkeypatch=monkeypatch)
 
 
 @pytest.mark.slow

@@ -217,3 +217,4 @@ def test_the_variants_reduced_on_threads_are_the_ones_reduced_one_by_one(monkeyp
             want = I.variant(d, *m)
             for a, b in zip(jax.tree.leaves(v), jax.tree.leaves(want)):
                 np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
