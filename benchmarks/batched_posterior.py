@@ -16,6 +16,7 @@ how far another seed's bands lie (the sampler's own Monte Carlo spread).
 
     python benchmarks/batched_posterior.py --vehicles 1000 --levels clean,x1,x5_white,x20 \
         --sequential 16 --out docs/runs/measurements/log-grounded/batched/h200.json
+    python benchmarks/batched_posterior.py --vehicles 256 --levels x1 --sequential 0    # the phases alone
 """
 from __future__ import annotations
 
@@ -69,10 +70,13 @@ PHASES: dict = {}
 
 
 def timed_phases():
-    """Accumulate the wall time of the batched posterior's phases in :data:`PHASES` (the mode, the
-    targets, the SMC, each log's finish), printed as the run goes."""
+    """Accumulate the wall time of the batched posterior's phases in :data:`PHASES` (the mode, the model checks
+    (``window_check``, the motor-map check's ``run``), the targets, the SMC, NUTS, each log's finish; and the
+    batched calls inside them: ``fit``, ``residuals``, ``rate_logliks``), printed as the run goes. Phases nest:
+    ``fit`` is counted inside the mode and the checks too."""
     import functools
 
+    from mjxsysid.identify import idlecheck
     from mjxsysid.identify import inference as I
 
     def wrap(owner, name):
@@ -85,9 +89,10 @@ def timed_phases():
             PHASES[name] = PHASES.get(name, 0.0) + time.perf_counter() - t
             return out
         setattr(owner, name, run)
-    for name in ("find_modes", "_finish", "_prepare_all"):
+    for name in ("find_modes", "_finish", "_prepare_all", "window_check"):
         wrap(I, name)
-    for name in ("targets", "smc", "nuts", "fit", "jacobians"):
+    wrap(idlecheck, "run")
+    for name in ("targets", "smc", "nuts", "fit", "jacobians", "residuals", "rate_logliks"):
         wrap(I._Logs, name)
 
 
@@ -133,15 +138,18 @@ def main():
     phases = {k: round(v, 1) for k, v in PHASES.items()}
     say(f"warm: {n} logs in {warm_s:.0f} s")
     m = min(a.sequential, n)
-    t0 = time.perf_counter()
-    log_grounded_posteriors(recs[:1], seeds=seeds[:1], batch=1, workers=1)
-    seq_first = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    seq = log_grounded_posteriors(recs[:m], seeds=seeds[:m], batch=1, workers=1)
-    seq_s = (time.perf_counter() - t0) / max(m, 1)
-    say(f"one at a time: {seq_s:.1f} s a log")
-    other = log_grounded_posteriors(recs[:m], seeds=[s + 10_000 for s in seeds[:m]], batch=1, workers=1)
-    dev, noise = shifts(seq, posts[:m]), shifts(seq, other)
+    seq_first = seq_s = float("nan")
+    dev = noise = {}
+    if m:                                          # --sequential 0: the batched run alone
+        t0 = time.perf_counter()
+        log_grounded_posteriors(recs[:1], seeds=seeds[:1], batch=1, workers=1)
+        seq_first = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        seq = log_grounded_posteriors(recs[:m], seeds=seeds[:m], batch=1, workers=1)
+        seq_s = (time.perf_counter() - t0) / m
+        say(f"one at a time: {seq_s:.1f} s a log")
+        other = log_grounded_posteriors(recs[:m], seeds=[s + 10_000 for s in seeds[:m]], batch=1, workers=1)
+        dev, noise = shifts(seq, posts[:m]), shifts(seq, other)
     ins = inside(posts, truth)
     res = {
         "device": str(jax.devices()[0]), "backend": jax.default_backend(), "jax": jax.__version__,

@@ -47,7 +47,8 @@ from mjxsysid.identify import idlecheck
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.calibrate import SHIPPED, calibrate, for_method, load, log_features, window_features
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, theta_from, visible_from_theta
-from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start, residuals_jit, residuals_logs
+from mjxsysid.identify.likelihood import (N_NUIS, _rate_loglik_jit, drag_at, linear_start, rate_loglik_logs,
+                                          residuals_jit, residuals_logs)
 from mjxsysid.identify.posterior_config import PosteriorConfig, resolve
 from mjxsysid.identify.logdata import LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
@@ -147,10 +148,20 @@ class _Logs:
         """:func:`~.likelihood.residuals` of every log at x (L, 21) -> its four arrays (rates (L, R, 3), their
         scales, acc_z (L, Wa), its scale (L,)), as NumPy arrays."""
         if self.stack is None:
-            return [np.asarray(a)[None] for a in residuals_jit(jnp.asarray(x[0], jnp.float32), self.datas[0])]
+            x0 = x[0]  # rows, not coordinates
+            return [np.asarray(a)[None] for a in residuals_jit(jnp.asarray(x0, jnp.float32), self.datas[0])]
         p, data = self._sub(range(len(self)))
         x = _pad_rows(np.asarray(x, np.float32), len(p))
         return [np.asarray(a)[:len(self)] for a in residuals_logs(jnp.asarray(x), data)]
+
+    def rate_logliks(self, xs):
+        """The innovations' log-likelihood per gyro axis of every log at its xs (L, D, 21) -> (L, D, 3)."""
+        if self.stack is None:
+            xs0 = xs[0]  # rows, not coordinates
+            return np.asarray(_rate_loglik_jit(jnp.asarray(xs0, jnp.float32), self.datas[0]))[None]
+        p, data = self._sub(range(len(self)))
+        xs = _pad_rows(np.asarray(xs, np.float32), len(p))
+        return np.asarray(rate_loglik_logs(jnp.asarray(xs), data))[:len(self)]
 
     def jacobians(self, z, ld, ls, w):
         """The tempered residuals' Jacobians at z (L, 13) -> (L, R, 13)."""

@@ -295,15 +295,30 @@ def innovation_series(x, data: LogData) -> np.ndarray:
 def best_log_delta(x, data: LogData, grid: np.ndarray) -> np.ndarray:
     """Per gyro axis (3,), the process noise log δ of ``grid`` (D,) that maximises the innovations'
     likelihood at the other coordinates of x (21,) (the empirical-Bayes δ of the inference)."""
-    xs = np.repeat(np.asarray(x, np.float32)[None], len(grid), 0)
-    xs[:, L.X_LOG_DISCREPANCY_GYRO] = np.asarray(grid, np.float32)[:, None]
-    ll = np.asarray(_rate_loglik_jit(jnp.asarray(xs), data), np.float64)       # (D, 3)
+    return log_delta_of(grid, _rate_loglik_jit(jnp.asarray(delta_grid_x(x, grid)), data))
+
+
+def _rate_loglik(xs, data):
+    """The innovations' log-likelihood per gyro axis of each x of xs (D, 21) -> (D, 3)."""
+    return jax.vmap(lambda x: _innovation_loglik(*innovations(x, data), data.kf_n))(xs)
+
+
+_rate_loglik_jit = jax.jit(_rate_loglik)
+rate_loglik_logs = jax.jit(jax.vmap(_rate_loglik))
+""":func:`_rate_loglik` of logs of one shape at once: xs (L, D, 21) and the logs' stacked data -> (L, D, 3)."""
+
+
+def log_delta_of(grid, ll) -> np.ndarray:
+    """The gyro's log δ per axis (3,) of ``grid`` (D,) with the largest innovations' log-likelihood ``ll`` (D, 3)."""
+    ll = np.asarray(ll, np.float64)
     return np.asarray(grid, np.float64)[np.argmax(np.where(np.isfinite(ll), ll, -np.inf), 0)]
 
 
-@jax.jit
-def _rate_loglik_jit(xs, data):
-    return jax.vmap(lambda x: _innovation_loglik(*innovations(x, data), data.kf_n))(xs)
+def delta_grid_x(x, grid) -> np.ndarray:
+    """x (21,) repeated over the gyro's log δ of ``grid`` (D,) -> (D, 21), float32."""
+    xs = np.repeat(np.asarray(x, np.float32)[None], len(grid), 0)
+    xs[:, L.X_LOG_DISCREPANCY_GYRO] = np.asarray(grid, np.float32)[:, None]
+    return xs
 
 
 def noise_estimate(data: LogData) -> np.ndarray:

@@ -12,7 +12,8 @@ import numpy as np
 
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
-from mjxsysid.identify.likelihood import NU, best_log_delta, noise_information, rate_rows, residual_weights, residuals, residuals_jit
+from mjxsysid.identify.likelihood import (NU, best_log_delta, delta_grid_x, log_delta_of, noise_information, rate_rows,
+                                          residual_weights, residuals)
 from mjxsysid.identify.logdata import LogData
 from mjxsysid.identify.proposals import StudentT
 from mjxsysid.identify.target import ACC_BIAS_SD, N_Y, NUIS_BOUNDS, _nuis_lo_hi, _y_lo_hi, full_x
@@ -108,23 +109,38 @@ def _ls_jacobian_logs(z, data, ld, ls, w):
     return jax.vmap(lambda q, d, a, b, c: _ls_jacobian(q, (d, a, b), c))(z, data, ld, ls, w)
 
 
-def _discrepancy(y, data):
-    """δ per channel (4,) at y (17,): what the residuals' mean square leaves beyond the scale they
-    have without a discrepancy (noise, resolution, the windows' floor; at least 1e-6)."""
-    rg, sg, ra, sa = (np.asarray(a, np.float64) for a in residuals_jit(full_x(y, np.full(L.N_CHANNELS, -30.0)), data))
-    bv = np.asarray(data.bmask) > 0
-    ms_acc = np.mean(ra[bv] ** 2) - sa ** 2
-    if data.rates == "innovations":     # the process noise that makes the innovations most likely
-        out = np.log(np.sqrt(np.maximum(np.array([1e-12] * 3 + [ms_acc]), 1e-12)))
-        out[L.GYRO] = best_log_delta(full_x(y, out), data, _DELTA_GRID)
-        return out.astype(np.float32)
-    wv = np.asarray(data.wmask) > 0
-    ms = np.array([np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)] + [ms_acc])
-    return np.log(np.sqrt(np.maximum(ms, 1e-12))).astype(np.float32)
+def _discrepancies(logs, ys) -> np.ndarray:
+    """δ per channel of every log of ``logs`` (:class:`~.inference._Logs`) at its y (L, 17) -> (L, 4) log δ,
+    float32: what the residuals' mean square leaves beyond the scale they have without a discrepancy (noise,
+    resolution, the windows' floor; at least 1e-6); the gyro's of an innovations log the grid's δ the
+    innovations' likelihood prefers (:data:`_DELTA_GRID`). The residuals and the likelihoods of the logs come
+    from one call each (on a GPU, one a log waited on the device each time)."""
+    datas = logs.datas
+    res = logs.residuals(np.stack([full_x(y, np.full(L.N_CHANNELS, -30.0)) for y in ys]).astype(np.float32))
+    out = np.zeros((len(datas), L.N_CHANNELS))
+    for i, d in enumerate(datas):
+        rg, sg, ra, sa = (np.asarray(a[i], np.float64) for a in res)
+        bv = np.asarray(d.bmask) > 0
+        ms_acc = np.mean(ra[bv] ** 2) - sa ** 2
+        if d.rates == "innovations":    # the gyro's δ: the process noise that makes the innovations most likely
+            ms = np.array([1e-12] * 3 + [ms_acc])
+        else:
+            wv = np.asarray(d.wmask) > 0
+            ms = np.array([np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)] + [ms_acc])
+        out[i] = np.log(np.sqrt(np.maximum(ms, 1e-12)))
+    inn = [i for i, d in enumerate(datas) if d.rates == "innovations"]
+    if inn and len(inn) == len(datas):
+        ll = logs.rate_logliks(np.stack([delta_grid_x(full_x(ys[i], out[i]), _DELTA_GRID) for i in inn]))
+        for i in inn:
+            out[i, L.GYRO] = log_delta_of(_DELTA_GRID, ll[i])
+    else:                               # innovations logs among others (not one shape): one at a time
+        for i in inn:
+            out[i, L.GYRO] = best_log_delta(full_x(ys[i], out[i]), datas[i], _DELTA_GRID)
+    return out.astype(np.float32)
 
 
 _DELTA_GRID = np.linspace(NUIS_BOUNDS[2], NUIS_BOUNDS[3], 64)
-"""log δ the innovations' process noise is chosen from at the mode (:func:`_discrepancy`)."""
+"""log δ the innovations' process noise is chosen from at the mode (:func:`_discrepancies`)."""
 
 
 def find_modes(logs, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3) -> list:
@@ -144,8 +160,7 @@ def find_modes(logs, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int 
         fits = L.y_from_x(fits)
         lt = logs.targets(fits, ld, None, prior)
         best = fits[rows, np.argmax(np.where(np.isfinite(lt), lt, -np.inf), 1)]
-        ld = np.stack([np.clip(_discrepancy(best[i], d), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
-                       for i, d in enumerate(logs.datas)]).astype(np.float32)
+        ld = np.clip(_discrepancies(logs, best), NUIS_BOUNDS[2], NUIS_BOUNDS[3]).astype(np.float32)
         ys = fits       # every start refitted under the new δ: the same rows each round, one compiled fit
     w = np.stack([residual_weights(full_x(best[i], ld[i]), d) for i, d in enumerate(logs.datas)])
     jac = _with_speed_rows(np.asarray(logs.jacobians(L.z_from_y(best), ld, best[:, L.Y_LOG_NOISE], w)), logs.datas)

@@ -105,15 +105,14 @@ def refits(make_logs, datas, ys, prior, starts: int = 1) -> np.ndarray:
     before each of :data:`ROUNDS` fits -> y (m, 17). ``make_logs``: datas -> the posterior's
     batched evaluator (:class:`~.inference._Logs`); ``starts``: the starts per log its batched fit was
     compiled for (the mode's; one where the logs are fitted one at a time)."""
-    from mjxsysid.identify.mode import _discrepancy, _project
+    from mjxsysid.identify.mode import _discrepancies, _project
     from mjxsysid.identify.target import NUIS_BOUNDS, full_x
     logs = make_logs(datas)
     ys = np.asarray(ys, np.float32)
     ls = ys[:, L.Y_LOG_NOISE]
     k = 1 if len(datas) == 1 else starts
     for _ in range(ROUNDS):
-        ld = np.stack([np.clip(_discrepancy(y, d), NUIS_BOUNDS[2], NUIS_BOUNDS[3])
-                       for y, d in zip(ys, datas)]).astype(np.float32)
+        ld = np.clip(_discrepancies(logs, ys), NUIS_BOUNDS[2], NUIS_BOUNDS[3]).astype(np.float32)
         z = np.repeat(L.z_from_y(ys)[:, None], k, 1)
         z = np.asarray(logs.fit(z, ld, ls))[:, 0]
         ys = L.y_from_x(_project(np.asarray(full_x(L.y_from_z(z, ls), ld)), prior))

@@ -293,6 +293,15 @@ def _batched_against_alone(refine: bool, monkeypatch=None) -> None:
             for i, d in enumerate(datas):
                 for got, want in zip(out, residuals_jit(jax.numpy.asarray(x[i]), d)):
                     np.testing.assert_allclose(got[i], np.asarray(want), rtol=1e-5, atol=1e-6)
+        # the mode's discrepancies, the logs together (two calls) against each alone
+        from mjxsysid.identify import logspace as LS
+        from mjxsysid.identify.mode import _discrepancies
+        datas, x, _ = seen[0]
+        ys = LS.y_from_x(x).astype(np.float32)
+        together = _discrepancies(_Logs(datas), ys)
+        alone = np.concatenate([_discrepancies(_Logs([d]), ys[i:i + 1]) for i, d in enumerate(datas)])
+        assert together.shape == (3, 4) and np.all(np.isfinite(together))
+        np.testing.assert_allclose(together, alone, atol=1e-5)
 
 
 def test_logs_batched_give_each_logs_posterior(monkeypatch):
