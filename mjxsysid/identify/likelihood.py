@@ -246,14 +246,14 @@ def log_likelihood(x, data: LogData, weights=None):
     return res + noise + speed_loglik(x[L.X_V], data)
 
 
-def residual_weights(x, data: LogData) -> np.ndarray:
+def residual_weights(x, data: LogData, res=None) -> np.ndarray:
     """Per channel (4,), the weight that makes correlated residuals count as the independent
     evidence they are worth: at the parameters x (21,), the lag-1 autocorrelation φ of each
     channel's residuals in time order gives (1 − φ)/(1 + φ) (the variance of a mean of an AR(1)
     sequence over the white one's), 1 for φ ≤ 0, at least 0.02. A model error that follows the
     manoeuvre (a clean log's residuals are not white) then widens the posterior instead of being
-    counted once per window."""
-    rg, _, ra, _ = residuals_jit(jnp.asarray(x, jnp.float32), data)
+    counted once per window. ``res``: :func:`residuals` at x where the caller has them."""
+    rg, _, ra, _ = residuals_jit(jnp.asarray(x, jnp.float32), data) if res is None else res
     wv, bv = np.asarray(data.wmask) > 0, np.asarray(data.bmask) > 0
     rates = innovation_series(x, data) if data.rates == "innovations" else [np.asarray(rg)[wv, k] for k in range(3)]
     out = []

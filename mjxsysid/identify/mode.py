@@ -162,7 +162,9 @@ def find_modes(logs, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int 
         best = fits[rows, np.argmax(np.where(np.isfinite(lt), lt, -np.inf), 1)]
         ld = np.clip(_discrepancies(logs, best), NUIS_BOUNDS[2], NUIS_BOUNDS[3]).astype(np.float32)
         ys = fits       # every start refitted under the new δ: the same rows each round, one compiled fit
-    w = np.stack([residual_weights(full_x(best[i], ld[i]), d) for i, d in enumerate(logs.datas)])
+    xb = np.stack([np.asarray(full_x(best[i], ld[i]), np.float32) for i in range(nl)])
+    res = logs.residuals(xb)                                                 # the logs together: one call
+    w = np.stack([residual_weights(xb[i], d, [r[i] for r in res]) for i, d in enumerate(logs.datas)])
     jac = _with_speed_rows(np.asarray(logs.jacobians(L.z_from_y(best), ld, best[:, L.Y_LOG_NOISE], w)), logs.datas)
     return [(np.asarray(full_x(best[i][None], ld[i]))[0], ld[i], w[i], best[i], _laplace(best[i], jac[i], d, prior))
             for i, d in enumerate(logs.datas)]
