@@ -40,26 +40,23 @@ from __future__ import annotations
 import os
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from mjxsysid.identify import idlecheck
 from mjxsysid.identify import logspace as L
+from mjxsysid.identify.batched import _Logs
 from mjxsysid.identify.calibrate import SHIPPED, calibrate, for_method, load, log_features, window_features
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, theta_from, visible_from_theta
-from mjxsysid.identify.likelihood import (N_NUIS, _rate_loglik_jit, drag_at, linear_start, rate_loglik_logs,
-                                          residuals_jit, residuals_logs)
+from mjxsysid.identify.likelihood import N_NUIS, drag_at, linear_start
 from mjxsysid.identify.posterior_config import PosteriorConfig, resolve
 from mjxsysid.identify.logdata import LogData, LogTooShort, prepare
-from mjxsysid.identify.mode import (LAPLACE_WIDEN, _fit_ls_logs, _fit_ls_many, _ls_jacobian,
-                                    _ls_jacobian_logs, find_modes)
-from mjxsysid.identify.nuts import run_chains, unmixed_not_seen
+from mjxsysid.identify.mode import LAPLACE_WIDEN, find_modes
+from mjxsysid.identify.nuts import unmixed_not_seen
 from mjxsysid.identify.nuts import refine as nuts_refine
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
-from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc, _smc_logs, _smc_start, rw_scale_update
+from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc_start, rw_scale_update
 from mjxsysid.identify.windowcheck import run as window_check
-from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, target_evals,
-                                      _batch_log_target_logs, _y_lo_hi, full_precision, full_x,
+from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, full_precision, full_x,
                                       log_prior, log_target)
 
 __all__ = ["ACC_BIAS_SD", "LAPLACE_WIDEN", "LOG_BATCH", "MAX_KHAT", "MIN_ESS_FRACTION", "N_Y", "NUIS_BOUNDS",
@@ -72,139 +69,6 @@ MIN_ESS_FRACTION = 0.05
 
 MAX_KHAT = 0.7
 """Importance sampling is trusted when ESS ≥ 5 % of the draws and k̂ ≤ 0.7 (PSIS's threshold)."""
-
-
-def _take(tree, idx):
-    """The logs ``idx`` of a stacked pytree (leading axis: the log)."""
-    idx = np.asarray(idx)
-    return jax.tree.map(lambda a: a[idx], tree)
-
-
-def _pow2_pad(idx):
-    """Indices padded to the next power of two by repeating the first: a subset of a batch takes
-    one of a few compiled shapes, not one per size."""
-    idx = list(idx)
-    n = 1 << int(np.ceil(np.log2(max(len(idx), 1))))
-    return np.asarray(idx + [idx[0]] * (n - len(idx)))
-
-
-def _pad_rows(a, n: int) -> np.ndarray:
-    """``a`` (m, ...) padded to n rows by repeating its first (the rows of :func:`_pow2_pad`)."""
-    a = np.asarray(a)
-    return np.concatenate([a, np.broadcast_to(a[:1], (n - len(a),) + a.shape[1:])]) if n > len(a) else a  # rows, not coordinates
-
-
-class _Logs:
-    """Logs of one shape (their :class:`LogData` pytrees' leaves alike) evaluated together.
-
-    One log runs the single-log programs (on a CPU the starts one after the other, see
-    :func:`_fit_ls_many`); several run programs vmapped over a leading log axis (:data:`LOG_BATCH`),
-    the logs (or a subset of them) padded to a power of two (:func:`_pow2_pad`): a batch's last,
-    shorter chunk reuses the programs the full ones compiled."""
-
-    def __init__(self, datas):
-        self.datas = list(datas)
-        self.stack = None
-        if len(self.datas) > 1:         # the logs padded to a power of two, on the device once
-            padded = [self.datas[i] for i in _pow2_pad(range(len(self.datas)))]
-            self.stack = jax.tree.map(lambda *a: jnp.asarray(np.stack(a)), *padded)
-
-    def __len__(self):
-        return len(self.datas)
-
-    def _sub(self, idx):
-        """The padded indices of the logs ``idx`` and their stacked data (all of them: the stack)."""
-        p = _pow2_pad(idx)
-        return p, self.stack if list(idx) == list(range(len(self))) else _take(self.stack, p)
-
-    def targets(self, y, ld, w, prior, idx=None):
-        """log target of y (m, N, 17) for the logs ``idx`` (m,) (default all), each with its log δ
-        (m, 4) and weights (m, 4) (None: 1) -> (m, N)."""
-        idx = list(range(len(self))) if idx is None else list(idx)
-        w = np.ones((len(idx), L.N_CHANNELS), np.float32) if w is None else np.asarray(w, np.float32)
-        if self.stack is None:
-            return np.asarray(log_target(y[0], self.datas[idx[0]], ld[0], w[0], prior))[None]  # rows, not coordinates
-        p, data = self._sub(idx)
-        y, ld, w = (_pad_rows(np.asarray(a, np.float32), len(p)) for a in (y, ld, w))
-        n = y.shape[1]
-        chunk = max(16, target_evals() // len(p))
-        padn = -n % chunk
-        if padn:
-            y = np.concatenate([y, np.broadcast_to(y[:, :1], (len(p), padn, y.shape[2]))], 1)  # rows, not coordinates
-        out = [np.asarray(_batch_log_target_logs(jnp.asarray(y[:, i:i + chunk]), data, jnp.asarray(ld), jnp.asarray(w), prior))
-               for i in range(0, y.shape[1], chunk)]
-        return np.concatenate(out, 1)[:len(idx), :n]
-
-    def fit(self, z, ld, ls):
-        """Levenberg–Marquardt from every start z (L, K, 13) -> (L, K, 13)."""
-        if self.stack is None:
-            z0 = z[0]  # rows, not coordinates
-            return np.asarray(_fit_ls_many(jnp.asarray(z0), self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])))[None]
-        p, data = self._sub(range(len(self)))
-        z, ld, ls = (_pad_rows(np.asarray(a, np.float32), len(p)) for a in (z, ld, ls))
-        return np.asarray(_fit_ls_logs(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls)))[:len(self)]
-
-    def residuals(self, x):
-        """:func:`~.likelihood.residuals` of every log at x (L, 21) -> its four arrays (rates (L, R, 3), their
-        scales, acc_z (L, Wa), its scale (L,)), as NumPy arrays."""
-        if self.stack is None:
-            x0 = x[0]  # rows, not coordinates
-            return [np.asarray(a)[None] for a in residuals_jit(jnp.asarray(x0, jnp.float32), self.datas[0])]
-        p, data = self._sub(range(len(self)))
-        x = _pad_rows(np.asarray(x, np.float32), len(p))
-        return [np.asarray(a)[:len(self)] for a in residuals_logs(jnp.asarray(x), data)]
-
-    def rate_logliks(self, xs):
-        """The innovations' log-likelihood per gyro axis of every log at its xs (L, D, 21) -> (L, D, 3)."""
-        if self.stack is None:
-            xs0 = xs[0]  # rows, not coordinates
-            return np.asarray(_rate_loglik_jit(jnp.asarray(xs0, jnp.float32), self.datas[0]))[None]
-        p, data = self._sub(range(len(self)))
-        xs = _pad_rows(np.asarray(xs, np.float32), len(p))
-        return np.asarray(rate_loglik_logs(jnp.asarray(xs), data))[:len(self)]
-
-    def jacobians(self, z, ld, ls, w):
-        """The tempered residuals' Jacobians at z (L, 13) -> (L, R, 13)."""
-        if self.stack is None:
-            z0 = z[0]  # rows, not coordinates
-            return np.asarray(_ls_jacobian(jnp.asarray(z0), (self.datas[0], jnp.asarray(ld[0]), jnp.asarray(ls[0])),
-                                           jnp.asarray(w[0])))[None]
-        p, data = self._sub(range(len(self)))
-        z, ld, ls, w = (_pad_rows(np.asarray(a, np.float32), len(p)) for a in (z, ld, ls, w))
-        return np.asarray(_ls_jacobian_logs(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls), jnp.asarray(w)))[:len(self)]
-
-    def smc(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages):
-        """The tempered SMC of the logs ``idx`` (m,) from their particles y0 (m, P, 17) -> the
-        outputs of :func:`_smc`, each with a leading axis m."""
-        idx = list(idx)
-        args = (np.asarray(keys, np.uint32), np.asarray(y0, np.float32), np.asarray(ld, np.float32), np.asarray(w, np.float32))
-        if self.stack is None:
-            out = _smc(*(jnp.asarray(a[0]) for a in args[:2]), self.datas[idx[0]], *(jnp.asarray(a[0]) for a in args[2:]),
-                       qv[0], qn[0], lap[0], prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
-            return [np.asarray(o)[None] for o in out]
-        p, data = self._sub(idx)
-        args = [_pad_rows(a, len(p)) for a in args]
-        pad = len(p) - len(idx)
-        stk = lambda ts: None if ts[0] is None else jax.tree.map(lambda *a: jnp.stack(a), *(ts + [ts[0]] * pad))  # noqa: E731
-        out = _smc_logs(*(jnp.asarray(a) for a in args[:2]), data, *(jnp.asarray(a) for a in args[2:]),
-                        stk(list(qv)), stk(list(qn)), stk(list(lap)), prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
-        return [np.asarray(o)[:len(idx)] for o in out]
-
-    def nuts(self, idx, keys, u0, ld, w, m, chol, prior, warmup, draws):
-        """NUTS of the logs ``idx`` (m,) from their starts (:func:`.nuts.start`: keys (m, C, 2), u0
-        (m, C, 17), m (m, 17), chol (m, 17, 17)) with their log δ and weights (m, 4) -> the outputs of
-        :func:`.nuts._chains`, each with a leading axis m."""
-        idx = list(idx)
-        lo, hi = (jnp.asarray(a, jnp.float32) for a in _y_lo_hi(prior))
-        args = [np.asarray(keys, np.uint32)] + [np.asarray(a, np.float32) for a in (u0, ld, w, m, chol)]
-        if self.stack is None:
-            k, u, a, b, mm, c = (jnp.asarray(x[0]) for x in args)  # rows, not coordinates
-            out = run_chains(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior=prior, warmup=warmup, draws=draws)
-            return [np.asarray(o)[None] for o in out]
-        p, data = self._sub(idx)
-        k, u, a, b, mm, c = (jnp.asarray(_pad_rows(x, len(p))) for x in args)
-        out = run_chains(k, u, data, a, b, lo, hi, mm, c, prior=prior, warmup=warmup, draws=draws, logs=True)
-        return [np.asarray(o)[:len(idx)] for o in out]
 
 
 @full_precision
