@@ -22,7 +22,8 @@ def logs_and_modes(vehicles: int, seed: int):
     from mjxsysid import theta as P
     from mjxsysid.experiments.posterior_calibration import parse_reference
     from mjxsysid.identify.coords import PHYSICAL_PRIOR
-    from mjxsysid.identify.inference import _Logs, _starts
+    from mjxsysid.identify.batched import _Logs
+    from mjxsysid.identify.inference import _starts
     from mjxsysid.identify.logdata import prepare
     from mjxsysid.identify.mode import find_modes
     from mjxsysid.identify.posterior_config import DEFAULT
@@ -47,7 +48,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=3)
     a = ap.parse_args()
     from mjxsysid.identify import idlecheck as I
-    from mjxsysid.identify.inference import _Logs
+    from mjxsysid.identify.batched import _Logs
     logs = logs_and_modes(a.vehicles, a.seed)
     sets = {"every map (shipped)": I.MAPS, "four linear maps": tuple(m for m in I.MAPS if m[1] == 1.0)}
     shipped = I.MAPS

@@ -37,7 +37,8 @@ def statistics_of(datas, seed: int = 0) -> list[dict]:
     """The window check of each log (:class:`~mjxsysid.identify.logdata.LogData`) from its mode, as the
     posterior computes it (:func:`~mjxsysid.identify.windowcheck.run`)."""
     from mjxsysid.identify.coords import PHYSICAL_PRIOR
-    from mjxsysid.identify.inference import _Logs, _starts
+    from mjxsysid.identify.batched import _Logs
+    from mjxsysid.identify.inference import _starts
     from mjxsysid.identify.mode import find_modes
     from mjxsysid.identify.posterior_config import DEFAULT
     from mjxsysid.identify import idlecheck

@@ -174,14 +174,13 @@ def _residual_ss(res, z, use, w) -> float:
 def _fit_and_ss(make_logs, datas, ys, lds, lss, ws, starts: int):
     """Logs of one shape re-fitted from ys (m, 17), δ and σ held -> (z (m, 13), SS (m,)); ``ws`` (m, 4) the
     correlation discounts. The residuals come from the programs the mode already built (one call for the logs
-    together, :meth:`~.inference._Logs.residuals`): the check compiles nothing new."""
+    together, :meth:`~.batched._Logs.residuals`): the check compiles nothing new."""
     logs = make_logs(datas)
     k = 1 if len(datas) == 1 else starts
     z0 = np.repeat(L.z_from_y(np.asarray(ys, np.float32))[:, None], k, 1)
     z = np.asarray(logs.fit(z0, lds, lss))[:, 0]
-    x = np.stack([L.x_from_y(L.y_from_z(zi, np.asarray(b, np.float32)), np.asarray(a, np.float32))
-                  for zi, a, b in zip(z, lds, lss)]).astype(np.float32)
-    res = logs.residuals(x)
+    res = logs.residuals(L.x_from_y(L.y_from_z(z.astype(np.float32), np.asarray(lss, np.float32)),
+                                    np.asarray(lds, np.float32)))
     ss = np.array([_residual_ss([r[i] for r in res], z[i], d.use, ws[i]) for i, d in enumerate(datas)])
     return z, ss
 
@@ -209,7 +208,7 @@ def run(make_logs, datas, modes, starts: int = 1, shared=()) -> list:
     span too), power (the largest |gain|)}, or {gain: None, why} where it cannot run. ``shared``: maps other
     flights of the vehicle showed (:data:`~.posterior_config.PosteriorConfig.shared_maps`): a map the vehicle
     has is plausible for each of its flights, whatever one flight's fit says, where it carries the log. Logs of
-    one shape are re-fitted together (``make_logs``: :class:`~.inference._Logs`; ``starts``: the starts per log
+    one shape are re-fitted together (``make_logs``: :class:`~.batched._Logs`; ``starts``: the starts per log
     its batched fit was compiled for)."""
     out = [None] * len(datas)
     idx = []

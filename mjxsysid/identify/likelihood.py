@@ -292,12 +292,6 @@ def innovation_series(x, data: LogData) -> np.ndarray:
     return np.stack(out)
 
 
-def best_log_delta(x, data: LogData, grid: np.ndarray) -> np.ndarray:
-    """Per gyro axis (3,), the process noise log δ of ``grid`` (D,) that maximises the innovations'
-    likelihood at the other coordinates of x (21,) (the empirical-Bayes δ of the inference)."""
-    return log_delta_of(grid, _rate_loglik_jit(jnp.asarray(delta_grid_x(x, grid)), data))
-
-
 def _rate_loglik(xs, data):
     """The innovations' log-likelihood per gyro axis of each x of xs (D, 21) -> (D, 3)."""
     return jax.vmap(lambda x: _innovation_loglik(*innovations(x, data), data.kf_n))(xs)
@@ -309,7 +303,8 @@ rate_loglik_logs = jax.jit(jax.vmap(_rate_loglik))
 
 
 def log_delta_of(grid, ll) -> np.ndarray:
-    """The gyro's log δ per axis (3,) of ``grid`` (D,) with the largest innovations' log-likelihood ``ll`` (D, 3)."""
+    """The gyro's process noise per axis (3,): the log δ of ``grid`` (D,) with the largest innovations'
+    log-likelihood ``ll`` (D, 3) at the other coordinates (the empirical-Bayes δ of the inference)."""
     ll = np.asarray(ll, np.float64)
     return np.asarray(grid, np.float64)[np.argmax(np.where(np.isfinite(ll), ll, -np.inf), 0)]
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
-from mjxsysid.identify.likelihood import (NU, best_log_delta, delta_grid_x, log_delta_of, noise_information, rate_rows,
+from mjxsysid.identify.likelihood import (NU, delta_grid_x, log_delta_of, noise_information, rate_rows,
                                           residual_weights, residuals)
 from mjxsysid.identify.logdata import LogData
 from mjxsysid.identify.proposals import StudentT
@@ -110,32 +110,24 @@ def _ls_jacobian_logs(z, data, ld, ls, w):
 
 
 def _discrepancies(logs, ys) -> np.ndarray:
-    """δ per channel of every log of ``logs`` (:class:`~.inference._Logs`) at its y (L, 17) -> (L, 4) log δ,
-    float32: what the residuals' mean square leaves beyond the scale they have without a discrepancy (noise,
-    resolution, the windows' floor; at least 1e-6); the gyro's of an innovations log the grid's δ the
-    innovations' likelihood prefers (:data:`_DELTA_GRID`). The residuals and the likelihoods of the logs come
-    from one call each (on a GPU, one a log waited on the device each time)."""
+    """δ per channel of every log of ``logs`` (:class:`~.batched._Logs`: one shape, so one ``rates``) at its y
+    (L, 17) -> (L, 4) log δ, float32: what the residuals' mean square leaves beyond the scale they have without a
+    discrepancy (noise, resolution, the windows' floor; at least 1e-6); for innovations logs the gyro's is the
+    grid's δ the innovations' likelihood prefers (:data:`_DELTA_GRID`). The residuals and the likelihoods of the
+    logs come from one call each (on a GPU, one a log waited on the device each time)."""
     datas = logs.datas
-    res = logs.residuals(np.stack([full_x(y, np.full(L.N_CHANNELS, -30.0)) for y in ys]).astype(np.float32))
+    innovations = datas[0].rates == "innovations"
+    res = logs.residuals(np.asarray(full_x(ys, np.full(L.N_CHANNELS, -30.0)), np.float32))
     out = np.zeros((len(datas), L.N_CHANNELS))
     for i, d in enumerate(datas):
         rg, sg, ra, sa = (np.asarray(a[i], np.float64) for a in res)
-        bv = np.asarray(d.bmask) > 0
-        ms_acc = np.mean(ra[bv] ** 2) - sa ** 2
-        if d.rates == "innovations":    # the gyro's δ: the process noise that makes the innovations most likely
-            ms = np.array([1e-12] * 3 + [ms_acc])
-        else:
-            wv = np.asarray(d.wmask) > 0
-            ms = np.array([np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)] + [ms_acc])
-        out[i] = np.log(np.sqrt(np.maximum(ms, 1e-12)))
-    inn = [i for i, d in enumerate(datas) if d.rates == "innovations"]
-    if inn and len(inn) == len(datas):
-        ll = logs.rate_logliks(np.stack([delta_grid_x(full_x(ys[i], out[i]), _DELTA_GRID) for i in inn]))
-        for i in inn:
-            out[i, L.GYRO] = log_delta_of(_DELTA_GRID, ll[i])
-    else:                               # innovations logs among others (not one shape): one at a time
-        for i in inn:
-            out[i, L.GYRO] = best_log_delta(full_x(ys[i], out[i]), datas[i], _DELTA_GRID)
+        ms_acc = np.mean(ra[np.asarray(d.bmask) > 0] ** 2) - sa ** 2
+        wv = np.asarray(d.wmask) > 0
+        ms_gyro = [1e-12] * 3 if innovations else [np.mean(rg[wv, k] ** 2 - sg[wv, k] ** 2) for k in range(3)]
+        out[i] = np.log(np.sqrt(np.maximum(np.array(ms_gyro + [ms_acc]), 1e-12)))
+    if innovations:                     # the gyro's δ: the process noise that makes the innovations most likely
+        ll = logs.rate_logliks(np.stack([delta_grid_x(full_x(y, o), _DELTA_GRID) for y, o in zip(ys, out)]))
+        out[:, L.GYRO] = [log_delta_of(_DELTA_GRID, li) for li in ll]
     return out.astype(np.float32)
 
 
@@ -144,7 +136,7 @@ _DELTA_GRID = np.linspace(NUIS_BOUNDS[2], NUIS_BOUNDS[3], 64)
 
 
 def find_modes(logs, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int = 3) -> list:
-    """The mode of every log of ``logs`` (:class:`~.inference._Logs`: their ``datas`` and the batched
+    """The mode of every log of ``logs`` (:class:`~.batched._Logs`: their ``datas`` and the batched
     ``fit``, ``targets``, ``jacobians``) at once from its starts (L, K, 21) -> L tuples of
     :func:`~.inference.find_mode`."""
     starts = np.asarray(starts, np.float32)
@@ -162,7 +154,7 @@ def find_modes(logs, starts, prior: PhysicalPrior = PHYSICAL_PRIOR, rounds: int 
         best = fits[rows, np.argmax(np.where(np.isfinite(lt), lt, -np.inf), 1)]
         ld = np.clip(_discrepancies(logs, best), NUIS_BOUNDS[2], NUIS_BOUNDS[3]).astype(np.float32)
         ys = fits       # every start refitted under the new δ: the same rows each round, one compiled fit
-    xb = np.stack([np.asarray(full_x(best[i], ld[i]), np.float32) for i in range(nl)])
+    xb = np.asarray(full_x(best, ld), np.float32)
     res = logs.residuals(xb)                                                 # the logs together: one call
     w = np.stack([residual_weights(xb[i], d, [r[i] for r in res]) for i, d in enumerate(logs.datas)])
     jac = _with_speed_rows(np.asarray(logs.jacobians(L.z_from_y(best), ld, best[:, L.Y_LOG_NOISE], w)), logs.datas)

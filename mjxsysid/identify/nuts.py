@@ -234,7 +234,7 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
     bands by where they started (× 5 vibration, 7 of 12 such logs: the SMC's draws held 78 of 84 truths, the
     pooled chains 74). Each log's
     ``nuts`` entry: its chains' diagnostics, whether they mixed and which draws were kept. ``logs``:
-    :class:`~.inference._Logs` (its ``nuts``)."""
+    :class:`~.batched._Logs` (its ``nuts``)."""
     per = -(-samples // CHAINS)
     smc_draws = {i: draws_y[i] for i in need}
     starts = [start(draws_y[i], my, CHAINS, sd, prior) for i, my, sd in zip(need, modes_y, seeds)]

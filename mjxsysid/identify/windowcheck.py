@@ -103,7 +103,7 @@ def variants(data, factors=WINDOW_FACTORS) -> list:
 def refits(make_logs, datas, ys, prior, starts: int = 1) -> np.ndarray:
     """Logs of one shape ``datas`` (m) re-fitted from their modes ys (m, 17), log δ re-set from the residuals
     before each of :data:`ROUNDS` fits -> y (m, 17). ``make_logs``: datas -> the posterior's
-    batched evaluator (:class:`~.inference._Logs`); ``starts``: the starts per log its batched fit was
+    batched evaluator (:class:`~.batched._Logs`); ``starts``: the starts per log its batched fit was
     compiled for (the mode's; one where the logs are fitted one at a time)."""
     from mjxsysid.identify.mode import _discrepancies, _project
     from mjxsysid.identify.target import NUIS_BOUNDS, full_x

@@ -256,23 +256,23 @@ def test_the_identify_room_is_callable_and_gives_a_posterior_object():
         mjxsysid.identify(3.0)
 
 
-def _batched_against_alone(refine: bool, monkeypatch=None) -> None:
+def _batched_against_alone(refine: bool, monkeypatch) -> None:
     """Three logs vmapped together (padded to four) against each alone: the same method, bands within a fifth
     of their width (NUTS's trajectories part under float rounding: the same chains, not the same draws).
-    ``monkeypatch``: also the motor-map check's residuals, computed for the logs together
-    (``_Logs.residuals``), against each log's own."""
-    from mjxsysid.identify.inference import _Logs, log_grounded_posteriors
+    Also the residuals computed for the logs together (``_Logs.residuals``: the motor-map check's, the mode's)
+    against each log's own, and the mode's discrepancies."""
+    from mjxsysid.identify.batched import _Logs
+    from mjxsysid.identify.inference import log_grounded_posteriors
     from mjxsysid.identify.likelihood import residuals_jit
     seen = []
-    if monkeypatch is not None:
-        together_residuals = _Logs.residuals
+    together_residuals = _Logs.residuals
 
-        def spy(self, x):
-            out = together_residuals(self, x)
-            if len(self) > 1:
-                seen.append((list(self.datas), np.array(x), out))
-            return out
-        monkeypatch.setattr(_Logs, "residuals", spy)
+    def spy(self, x):
+        out = together_residuals(self, x)
+        if len(self) > 1:
+            seen.append((list(self.datas), np.array(x), out))
+        return out
+    monkeypatch.setattr(_Logs, "residuals", spy)
     base = P.paper_hardware().copy()
     slow = base * np.where(np.arange(19) == P.TAU_M, 1.5, 1.0).astype(np.float32)
     recs = [synthetic_log(t, seconds=3.0, gyro_noise=0.05, acc_noise=0.5, seed=k)
@@ -286,22 +286,21 @@ def _batched_against_alone(refine: bool, monkeypatch=None) -> None:
         assert np.all(np.abs(qa - qb) <= 0.2 * (qa[2] - qa[0]) + 1e-5), np.abs(qa - qb) / (qa[2] - qa[0])
     with pytest.raises(ValueError, match="one of each per log"):
         log_grounded_posteriors(recs, seeds=[1, 2])
-    if monkeypatch is not None:                     # 33 calls for the logs together: the first and the last
-        assert len(seen) >= 2
-        for datas, x, out in (seen[0], seen[-1]):
-            assert len(datas) == 3 and all(len(o) == 3 for o in out)
-            for i, d in enumerate(datas):
-                for got, want in zip(out, residuals_jit(jax.numpy.asarray(x[i]), d)):
-                    np.testing.assert_allclose(got[i], np.asarray(want), rtol=1e-5, atol=1e-6)
-        # the mode's discrepancies, the logs together (two calls) against each alone
-        from mjxsysid.identify import logspace as LS
-        from mjxsysid.identify.mode import _discrepancies
-        datas, x, _ = seen[0]
-        ys = LS.y_from_x(x).astype(np.float32)
-        together = _discrepancies(_Logs(datas), ys)
-        alone = np.concatenate([_discrepancies(_Logs([d]), ys[i:i + 1]) for i, d in enumerate(datas)])
-        assert together.shape == (3, 4) and np.all(np.isfinite(together))
-        np.testing.assert_allclose(together, alone, atol=1e-5)
+    assert len(seen) >= 2                           # dozens of calls for the logs together: the first and the last
+    for datas, x, out in (seen[0], seen[-1]):
+        assert len(datas) == 3 and all(len(o) == 3 for o in out)
+        for i, d in enumerate(datas):
+            for got, want in zip(out, residuals_jit(jax.numpy.asarray(x[i]), d)):
+                np.testing.assert_allclose(got[i], np.asarray(want), rtol=1e-5, atol=1e-6)
+    # the mode's discrepancies, the logs together (two calls) against each alone
+    from mjxsysid.identify import logspace as LS
+    from mjxsysid.identify.mode import _discrepancies
+    datas, x, _ = seen[0]
+    ys = LS.y_from_x(x).astype(np.float32)
+    together = _discrepancies(_Logs(datas), ys)
+    alone = np.concatenate([_discrepancies(_Logs([d]), ys[i:i + 1]) for i, d in enumerate(datas)])
+    assert together.shape == (3, 4) and np.all(np.isfinite(together))
+    np.testing.assert_allclose(together, alone, atol=1e-5)
 
 
 def test_logs_batched_give_each_logs_posterior(monkeypatch):
@@ -312,9 +311,9 @@ def test_logs_batched_give_each_logs_posterior(monkeypatch):
 
 
 @pytest.mark.slow
-def test_logs_batched_give_each_logs_posterior_refined_by_nuts():
+def test_logs_batched_give_each_logs_posterior_refined_by_nuts(monkeypatch):
     """The same with NUTS's chains batched over the logs."""
-    _batched_against_alone(refine=True)
+    _batched_against_alone(refine=True, monkeypatch=monkeypatch)
 
 
 def test_logs_are_evaluated_together_only_with_logs_of_their_shape_and_proposal():

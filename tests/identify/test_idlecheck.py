@@ -10,7 +10,8 @@ from mjxsysid.identify import calibrate as C
 from mjxsysid.identify import idlecheck as I
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, visible_from_theta
-from mjxsysid.identify.inference import _Logs, _starts
+from mjxsysid.identify.batched import _Logs
+from mjxsysid.identify.inference import _starts
 from mjxsysid.identify.logdata import prepare
 from mjxsysid.identify.mode import find_modes
 from support.exact_model_log import synthetic_log

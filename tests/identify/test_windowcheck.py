@@ -10,7 +10,8 @@ from mjxsysid import theta as P
 from mjxsysid.identify import calibrate as C
 from mjxsysid.identify import windowcheck as W
 from mjxsysid.identify.coords import PHYSICAL_PRIOR
-from mjxsysid.identify.inference import _Logs, _starts
+from mjxsysid.identify.batched import _Logs
+from mjxsysid.identify.inference import _starts
 from mjxsysid.identify.logdata import prepare
 from mjxsysid.identify.mode import find_modes
 from support.exact_model_log import synthetic_log
