@@ -128,33 +128,53 @@ def equivalent(y, u_mean: float, iota: float, inverse: bool = False, kappa: floa
 
 def variant(data, iota: float, kappa: float = 1.0):
     """The log of ``data`` (prepared in this process: it keeps the log's arrays) reduced again with its
-    commands mapped through idle ``iota`` and curvature ``kappa`` (:func:`mapped`), padded to its shapes."""
-    from mjxsysid.identify.logdata import prepare
+    commands mapped through idle ``iota`` and curvature ``kappa`` (:func:`mapped`), padded to its shapes: the
+    arrays alone (no ``_rows``)."""
+    return _reduced(*_job(data), iota, kappa)
+
+
+def _job(data) -> tuple:
+    """What :func:`_reduced` needs of the log of ``data``: its arrays, prepare's settings and its padding."""
     rows = data._rows
-    rec = dict(rows["rec"])
+    return rows["rec"], rows["rec_args"], (int(data.wmask.shape[0]), int(data.bmask.shape[0]))
+
+
+def _reduced(rec: dict, rec_args: dict, pad: tuple, iota: float, kappa: float = 1.0):
+    """The log's arrays ``rec`` reduced (:func:`~.logdata.prepare` with ``rec_args``, padded to ``pad``) with its
+    commands mapped through (``iota``, ``kappa``). A module-level function: it runs in another process too."""
+    from mjxsysid.identify.logdata import prepare
+    rec = dict(rec)
     rec["motor"] = mapped(rec["motor"], iota, kappa)
     if (rec.get("native") or {}).get("motor") is not None:     # a slowly logged motor: prepare reads its samples
         t_nat, u_nat = rec["native"]["motor"]
         rec["native"] = dict(rec["native"]) | {"motor": (t_nat, mapped(u_nat, iota, kappa))}
-    pad = (int(data.wmask.shape[0]), int(data.bmask.shape[0]))
-    return prepare(rec, pad_to=pad, **rows["rec_args"])
+    return prepare(rec, pad_to=pad, rows=False, **rec_args)
 
 
 VARIANTS_AT_ONCE = 64
-"""The most reduced variants (:func:`variant`, about 0.6 MB each for a 10 s log) held at once by :func:`_variants`."""
+"""The most reduced variants (:func:`variant`, about 0.2 MB each for a 10 s log, 0.9 MB with the innovations)
+held at once by :func:`_variants`."""
 
 
-def _variants(base, maps):
+def _variants(base, maps, workers: int = 1):
     """Each map of ``maps`` with the logs of ``base`` reduced again under it (:func:`variant`), in the maps'
-    order: (map, [LogData, ...]). The reductions run on a pool of threads (scipy's filters release the
-    interpreter: 1.65× on 2 cores), :data:`VARIANTS_AT_ONCE` at a time; the results are the same as one by one."""
+    order: (map, [LogData, ...]), :data:`VARIANTS_AT_ONCE` at a time; the results are the same as one by one.
+    ``workers`` > 1: on that many processes (beside an accelerator: a reduction is many small NumPy calls, and
+    threads wait on each other's interpreter lock); else on a pool of threads (scipy's filters release the
+    interpreter: 1.65× on 2 cores)."""
+    import multiprocessing
     import os
-    from concurrent.futures import ThreadPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
     step = max(1, VARIANTS_AT_ONCE // max(len(base), 1))
-    with ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 16))) as pool:
+    jobs = [_job(d) for d in base]
+    procs = workers > 1 and len(base) * len(maps) >= 4 * workers
+    pool = (ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) if procs
+            else ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 16))))
+    with pool:
         for k in range(0, len(maps), step):
             chunk = maps[k:k + step]
-            done = list(pool.map(lambda md: variant(md[1], *md[0]), [(m, d) for m in chunk for d in base]))
+            pairs = [j + m for m in chunk for j in jobs]
+            done = list(pool.map(_reduced, *zip(*pairs), chunksize=max(1, len(pairs) // (4 * workers)) if procs else 1))
             for j, m in enumerate(chunk):
                 yield m, done[j * len(base):(j + 1) * len(base)]
 
@@ -195,7 +215,7 @@ def checkable(data) -> str | None:
     return None
 
 
-def run(make_logs, datas, modes, starts: int = 1, shared=()) -> list:
+def run(make_logs, datas, modes, starts: int = 1, shared=(), workers: int = 1) -> list:
     """The check of every log of ``datas`` from its mode (``modes``: :func:`~.mode.find_modes`' tuples) ->
     per log {gain (the statistic), map (the best (ι, κ) of :data:`MAPS`, None where none gains), gains {(ι, κ) (None
     where the map cannot carry the log, :data:`MIN_SPEED`):
@@ -209,7 +229,7 @@ def run(make_logs, datas, modes, starts: int = 1, shared=()) -> list:
     flights of the vehicle showed (:data:`~.posterior_config.PosteriorConfig.shared_maps`): a map the vehicle
     has is plausible for each of its flights, whatever one flight's fit says, where it carries the log. Logs of
     one shape are re-fitted together (``make_logs``: :class:`~.batched._Logs`; ``starts``: the starts per log
-    its batched fit was compiled for)."""
+    its batched fit was compiled for; ``workers``: processes that reduce the logs under each map, :func:`_variants`)."""
     out = [None] * len(datas)
     idx = []
     for i, d in enumerate(datas):
@@ -231,7 +251,7 @@ def run(make_logs, datas, modes, starts: int = 1, shared=()) -> list:
         z0, ss0 = _fit_and_ss(make_logs, base, ys, lds, lss, ws, starts)
         z_mode = z0                                  # the linear map re-fitted from the mode: the shifts' origin
         ss, zs = {}, {}
-        for (iota, kappa), var in _variants(base, MAPS):
+        for (iota, kappa), var in _variants(base, MAPS, workers):
             fits = mapped(um, iota, kappa) >= MIN_SPEED      # the map carries each log at its mean command
             y_m = np.stack([equivalent(y, u, iota, kappa=kappa) if f else y for y, u, f in zip(ys, um, fits)])
             zs[iota, kappa], ss[iota, kappa] = _fit_and_ss(make_logs, var, y_m, lds, lss, ws, starts)

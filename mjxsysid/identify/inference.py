@@ -150,7 +150,8 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     of proposal are evaluated ``batch`` at a time (default :data:`LOG_BATCH` on an accelerator, 1 on
     a CPU) by programs vmapped over the logs. ``decoded_thetas``: None, or one (S, 19) or None per
     log; ``seeds``: one per log, or an int (log i gets seeds + i); ``workers``: processes that reduce
-    the logs (:func:`~.logdata.prepare`; default 1 on a CPU, up to 16 beside an accelerator);
+    the logs (:func:`~.logdata.prepare`, and again under each motor map, :func:`~.idlecheck.run`; default 1
+    on a CPU, up to 16 beside an accelerator);
     ``desc``: a progress bar's label; ``config`` and ``settings`` as :func:`log_grounded_posterior`'s.
     A log too short for the posterior raises
     :class:`~.logdata.LogTooShort` naming its index.
@@ -180,7 +181,7 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     out = [None] * n
     for chunk in progress(chunks, desc=desc or "log-grounded posteriors", enabled=False if len(chunks) < 2 else None):
         res = _posterior_batch([datas[i] for i in chunk], [dec[i] for i in chunk], [qvs[i] for i in chunk],
-                               [seeds[i] for i in chunk], **cfg)
+                               [seeds[i] for i in chunk], workers=int(workers), **cfg)
         for i, r in zip(chunk, res):
             out[i] = r
     return out
@@ -270,7 +271,7 @@ def refine_posterior(rec_or_data, post: dict, *, seed: int = 0, prior: PhysicalP
 
 
 def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particles, n_mcmc, max_stages, starts,
-                     force_smc, refine, calibration, shared_maps=()) -> list[dict]:
+                     force_smc, refine, calibration, shared_maps=(), workers: int = 1) -> list[dict]:
     """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc)."""
     nl = len(datas)
     logs = _Logs(datas)
@@ -285,7 +286,7 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
     w = np.stack([m[2] for m in modes]).astype(np.float32)
     laps = [m[4] for m in modes]
     checks = window_check(_Logs, datas, modes, prior, starts)        # the fit at longer rate windows (.windowcheck)
-    idles = idlecheck.run(_Logs, datas, modes, starts, shared_maps)   # the fit under other motor maps (.idlecheck)
+    idles = idlecheck.run(_Logs, datas, modes, starts, shared_maps, workers)   # the fit under other motor maps (.idlecheck)
     outs = [{"proposal": "decoded" if qvs[i] is not None else "prior", "mode": modes[i][0], "weights": modes[i][2],
              "channels_used": np.asarray(d.use), "rates": d.rates, "window_check": checks[i], "idle_check": idles[i]}
             for i, d in enumerate(datas)]

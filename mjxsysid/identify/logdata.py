@@ -262,7 +262,7 @@ class LogTooShort(ValueError):
 
 def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = MAX_WINDOWS,
             rates: str = RATES, speeds: str = "model", vibration: bool = True,
-            pad_to: tuple[int, int] | None = None) -> LogData:
+            pad_to: tuple[int, int] | None = None, rows: bool = True) -> LogData:
     """A log's arrays (``imu`` (T, 6) the reading each row's motor command was given, ``motor``
     (T, 4) normalised rotor-speed commands, optional ``native``, ``rotor_speed``) -> :class:`LogData`.
     ``rates``: the rate term (:data:`RATES`). ``speeds``: what the thrust and torque terms read where the
@@ -271,7 +271,9 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
     or "raw", the measured samples at every τ (a diagnostic). ``vibration``: whether the innovations whiten a
     rotor vibration detected in the gyro (:mod:`.vibration`; False, the white-noise filter alone: a diagnostic).
     ``pad_to``: (windows, blocks) padded to at least these counts (another log's: one compiled program serves
-    both, :mod:`.windowcheck`)."""
+    both, :mod:`.windowcheck`). ``rows``: keep the log's rows and the host diagnostics beside the arrays
+    (``_rows``: what the model checks and the report read); False, the arrays alone (a motor-map variant,
+    :func:`~.idlecheck.variant`: the vibration's spectra and the body drag are not computed)."""
     if speeds not in ("model", "shared", "raw"):
         raise ValueError(f"speeds must be 'model', 'shared' or 'raw', got {speeds!r}")
     if rates not in ("innovations", "windows"):
@@ -351,6 +353,8 @@ def prepare(rec: dict, *, window_steps: int = WINDOW_STEPS, max_windows: int = M
                    f32(KF_LOGIT_GRID if rates == "innovations" else KF_LOGIT_GRID[:1]), f32(n_kf - (whiten.shape[1] - 1)),
                    f32(rscale), f32(_pad(vz, nb)),
                    f32(speed_ll), f32(speed_sum), rates)
+    if not rows:
+        return data
     # the log's rows, for host-side diagnostics of the innovations (residual_weights): not a
     # pytree field, so never passed into a compiled program
     object.__setattr__(data, "_rows", {"imu": imu, "motor": u, "start": start, "n": n_kf,

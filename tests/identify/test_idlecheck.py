@@ -204,18 +204,23 @@ def test_a_convex_map_is_flagged_and_refitted_near_the_truth():
     assert abs(np.log(c["thrust_to_weight"][c["map"]]) - true_tw) < 0.1, c["thrust_to_weight"]
 
 
-def test_the_variants_reduced_on_threads_are_the_ones_reduced_one_by_one(monkeypatch):
-    """idlecheck._variants: every (map, log) pair, in order, equal to variant() called one by one, also when the
+def test_the_variants_reduced_on_threads_and_processes_are_the_ones_reduced_one_by_one(monkeypatch):
+    """idlecheck._variants: every (map, log) pair, in order, equal to variant() called one by one and to the
+    arrays of a full prepare() of the mapped log, on threads and on processes (``workers``), also when the
     pairs come a few at a time."""
     import jax
     logs = [prepare(synthetic_log(P.paper_hardware(), seconds=6.0, seed=s)) for s in (0, 1)]
     maps = I.MAPS[:3] + I.MAPS[-2:]
     monkeypatch.setattr(I, "VARIANTS_AT_ONCE", 4)                       # two maps × two logs per round
-    got = list(I._variants(logs, maps))
-    assert [m for m, _ in got] == list(maps)
-    for m, vs in got:
-        for d, v in zip(logs, vs):
-            want = I.variant(d, *m)
-            for a, b in zip(jax.tree.leaves(v), jax.tree.leaves(want)):
-                np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    for workers in (1, 2):
+        got = list(I._variants(logs, maps, workers))
+        assert [m for m, _ in got] == list(maps)
+        for m, vs in got:
+            for d, v in zip(logs, vs):
+                assert not hasattr(v, "_rows")                          # the arrays alone
+                rec = dict(d._rows["rec"], motor=I.mapped(d._rows["rec"]["motor"], *m))
+                full = prepare(rec, pad_to=(d.wmask.shape[0], d.bmask.shape[0]), **d._rows["rec_args"])
+                for want in (I.variant(d, *m), full):
+                    for a, b in zip(jax.tree.leaves(v), jax.tree.leaves(want), strict=True):
+                        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
