@@ -82,7 +82,7 @@ def threshold_entry(rows, quantile: float = QUANTILE) -> dict | None:
 def variants(data, factors=WINDOW_FACTORS) -> list:
     """The log of ``data`` (a :class:`~.logdata.LogData` that :func:`~.logdata.prepare` made in this process:
     it keeps the log's arrays) reduced again with windows ``factors`` × as long, padded to its shapes ->
-    [(factor, LogData)], the lengths the log is long enough for; [] where it cannot be reduced again (the
+    [(factor, LogData: the arrays alone)], the lengths the log is long enough for; [] where it cannot be reduced again (the
     innovations' rate term, or a LogData built otherwise)."""
     from mjxsysid.identify.logdata import DT, LogTooShort, prepare
     rows = getattr(data, "_rows", None) or {}
@@ -94,7 +94,7 @@ def variants(data, factors=WINDOW_FACTORS) -> list:
     out = []
     for k in factors:
         try:
-            out.append((k, prepare(rec, window_steps=k * w, pad_to=pad, **rows.get("rec_args", {}))))
+            out.append((k, prepare(rec, window_steps=k * w, pad_to=pad, rows=False, **rows.get("rec_args", {}))))
         except LogTooShort:
             break
     return out
