@@ -178,6 +178,7 @@ def main():
         "shift_over_width_batched_vs_one_at_a_time": dev,
         "shift_over_width_another_seed": noise,
     }
+    res = {k: None if isinstance(v, float) and not np.isfinite(v) else v for k, v in res.items()}  # valid JSON
     for key, val in res.items():
         print(f"{key}: {val}")
     if a.out:

@@ -208,10 +208,15 @@ def test_the_variants_reduced_on_threads_and_processes_are_the_ones_reduced_one_
     """idlecheck._variants: every (map, log) pair, in order, equal to variant() called one by one and to the
     arrays of a full prepare() of the mapped log, on threads and on processes (``workers``), also when the
     pairs come a few at a time."""
+    import sys
+
     import jax
     logs = [prepare(synthetic_log(P.paper_hardware(), seconds=6.0, seed=s)) for s in (0, 1)]
     maps = I.MAPS[:3] + I.MAPS[-2:]
     monkeypatch.setattr(I, "VARIANTS_AT_ONCE", 4)                       # two maps × two logs per round
+    # a pytest-xdist worker's __main__ lacks the __spec__ a script's has (None), which spawning a process reads
+    monkeypatch.setattr(sys.modules["__main__"], "__spec__", getattr(sys.modules["__main__"], "__spec__", None),
+                        raising=False)
     for workers in (1, 2):
         got = list(I._variants(logs, maps, workers))
         assert [m for m, _ in got] == list(maps)
