@@ -69,13 +69,16 @@ def shifts(ref, posts) -> dict:
 
 
 PHASES: dict = {}
+CALLS: list = []
+"""Each call of NUTS (:meth:`~mjxsysid.identify.batched._Logs.nuts`): (its logs, seconds)."""
 
 
 def timed_phases():
     """Accumulate the wall time of the batched posterior's phases in :data:`PHASES` (the mode, the model checks
     (``window_check``, the motor-map check's ``run``), the targets, the SMC, NUTS, each log's finish; and the
     batched calls inside them: ``fit``, ``residuals``, ``rate_logliks``), printed as the run goes. Phases nest:
-    ``fit`` is counted inside the mode and the checks too."""
+    ``fit`` is counted inside the mode and the checks too. Each NUTS call's logs and seconds go to :data:`CALLS`
+    (the chains that did not mix run again, longer)."""
     import functools
 
     from mjxsysid.identify import idlecheck
@@ -90,7 +93,10 @@ def timed_phases():
         def run(*args, **kw):
             t = time.perf_counter()
             out = f(*args, **kw)
-            PHASES[name] = PHASES.get(name, 0.0) + time.perf_counter() - t
+            dt = time.perf_counter() - t
+            PHASES[name] = PHASES.get(name, 0.0) + dt
+            if name == "nuts":                     # each call: (logs, seconds), NUTS's first run and its retry
+                CALLS.append((len(args[1]), round(dt, 1)))
             return out
         setattr(owner, name, run)
     for name in ("find_modes", "_finish", "_prepare_all", "window_check"):
@@ -138,13 +144,16 @@ def main():
     cold_s = time.perf_counter() - t0
     say(f"cold: {nb} logs in {cold_s:.0f} s")
     phases = {k: round(v, 1) for k, v in PHASES.items()}
+    nuts_calls = list(CALLS)
     posts, warm_s = cold, float("nan")
     if a.warm:
         PHASES.clear()
+        CALLS.clear()
         t0 = time.perf_counter()
         posts = log_grounded_posteriors(recs, seeds=seeds, batch=a.batch, workers=a.workers)
         warm_s = time.perf_counter() - t0
         phases = {k: round(v, 1) for k, v in PHASES.items()}
+        nuts_calls = list(CALLS)
         say(f"warm: {n} logs in {warm_s:.0f} s")
     else:
         truth, levels = truth[:nb], levels[:nb]
@@ -168,7 +177,7 @@ def main():
         "batch": a.batch, "workers": a.workers, "fly_s": round(fly_s, 1),
         "prepare_s_per_log_one_thread": round(prep_one, 4),
         "cold_s": round(cold_s, 1), "cold_logs": len(cold),
-        "batched_s": round(warm_s, 1), "batched_phases_s": phases, "batched_logs_per_s": round(len(posts) / warm_s, 2),
+        "batched_s": round(warm_s, 1), "batched_phases_s": phases, "nuts_calls_logs_s": nuts_calls, "batched_logs_per_s": round(len(posts) / warm_s, 2),
         "sequential_s_per_log": round(seq_s, 3), "sequential_first_call_s": round(seq_first, 1),
         "speedup": round(seq_s * n / warm_s, 1),
         "methods": {mm: sum(p["method"] == mm for p in posts) for mm in ("decoded_is", "laplace_is", "smc", "smc_nuts")},
