@@ -52,7 +52,6 @@ from mjxsysid.identify.posterior_config import PosteriorConfig, resolve
 from mjxsysid.identify.logdata import LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import LAPLACE_WIDEN, find_modes
 from mjxsysid.identify.nuts import unmixed_not_seen
-from mjxsysid.identify.nuts import compile_ahead as nuts_compile_ahead
 from mjxsysid.identify.nuts import refine as nuts_refine
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
 from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc_start, rw_scale_update
@@ -275,8 +274,6 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
                      force_smc, refine, calibration, shared_maps=(), workers: int = 1) -> list[dict]:
     """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc)."""
     nl = len(datas)
-    if refine and nl == 1:              # NUTS's program compiles on a thread while the mode and the SMC run
-        nuts_compile_ahead(datas[0], samples, prior)
     logs = _Logs(datas)
     # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
     rng = [_streams(seed) for seed in seeds]

@@ -178,38 +178,7 @@ def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, wa
     static = {"prior": prior, "warmup": int(warmup), "draws": int(draws),
               "target_acceptance": float(target_acceptance), "max_doublings": int(max_doublings)}
     fn, name = (_chains_logs, "nuts_logs") if logs else (_chains, "nuts")
-    while _PENDING:                                  # a program compiling ahead (compile_ahead): wait for it
-        try:
-            _PENDING.pop().result()
-        except Exception:                            # noqa: BLE001  the call below compiles it, and raises
-            pass
     return exported.call(name, fn, static, keys, u0, data, log_delta, weights, lo, hi, m, chol)
-
-
-_PENDING: list = []
-"""Futures of :func:`compile_ahead`'s threads not yet waited for."""
-
-
-def compile_ahead(data, samples: int, prior: PhysicalPrior = PHYSICAL_PRIOR) -> None:
-    """Start compiling one log's NUTS program (the shapes of ``data``, :data:`CHAINS` chains, :data:`WARMUP`
-    and the draws of ``samples``) on a thread, while the mode and the SMC run: a cold ``decode --log`` spent
-    12 s tracing and compiling it after them. :func:`run_chains` waits for it. Nothing where JAX's persistent
-    compilation cache is off (:func:`mjxsysid.runtime.exported.compile_ahead`)."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    from mjxsysid.runtime import exported
-    from mjxsysid.identify.target import full_precision
-    if exported.folder() is None:
-        return
-    lo, hi = (np.asarray(a, np.float32) for a in _y_lo_hi(prior))
-    f32 = np.float32
-    args = (np.zeros((CHAINS, 2), np.uint32), np.zeros((CHAINS, N_Y), f32), data, np.zeros(4, f32), np.ones(4, f32),
-            lo, hi, np.zeros(N_Y, f32), np.eye(N_Y, dtype=f32))
-    static = {"prior": prior, "warmup": WARMUP, "draws": -(-samples // CHAINS),
-              "target_acceptance": float(TARGET_ACCEPTANCE), "max_doublings": int(MAX_DOUBLINGS)}
-    pool = ThreadPoolExecutor(1, thread_name_prefix="nuts-ahead")
-    _PENDING.append(pool.submit(full_precision(exported.compile_ahead), "nuts", _chains, static, *args))
-    pool.shutdown(wait=False)
 
 
 def _f32(a):

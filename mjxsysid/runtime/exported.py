@@ -12,7 +12,6 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
-import threading
 from pathlib import Path
 
 import jax
@@ -70,43 +69,18 @@ def call(name: str, fn, static: dict, *args):
     arrays (``args``: pytrees of them, of any registered node type: they travel flattened) returning a tuple
     of arrays, with the hashable ``static`` keyword arguments. Without a compilation cache, it is jitted as usual."""
     leaves, tree = jax.tree.flatten(args)
+    jitted = _jitted(fn, tuple(sorted(static.items())), tree)
     where = folder()
     if where is None:
-        return _jitted(fn, tuple(sorted(static.items())), tree)(*leaves)
-    return _runner(str(_program(where, name, fn, static, leaves, tree)))(*leaves)
-
-
-def compile_ahead(name: str, fn, static: dict, *args) -> bool:
-    """Trace (or load) and compile the program :func:`call` would run for ``args`` (arrays or LogData of the
-    same shapes and dtypes), without running it: the compiled program lands in the persistent compilation
-    cache, so that the later :func:`call` loads it. Meant for a thread while other work runs. -> False (nothing
-    done) where that cache is off or this process compiled it already."""
-    where = folder()
-    if where is None:
-        return False
-    leaves, tree = jax.tree.flatten(args)
-    path = str(_program(where, name, fn, static, leaves, tree))
-    if path in _AHEAD:
-        return False
-    _AHEAD.add(path)
-    _runner(path).lower(*leaves).compile()
-    return True
-
-
-_AHEAD: set = set()
-"""The programs :func:`compile_ahead` compiled in this process."""
-
-
-def _program(where: Path, name: str, fn, static: dict, leaves, tree) -> Path:
-    """The file of ``fn``'s program for these arguments in ``where``, traced and written the first time."""
+        return jitted(*leaves)
     path = where / f"{name}-{_key(name, static, leaves, tree)}.bin"
     if not path.is_file():
-        exp = jax.export.export(_jitted(fn, tuple(sorted(static.items())), tree))(*leaves)
+        exp = jax.export.export(jitted)(*leaves)
         where.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp")
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
         tmp.write_bytes(exp.serialize())
         tmp.replace(path)                            # atomic: a reader never sees half a file
-    return path
+    return _runner(str(path))(*leaves)
 
 
 @functools.lru_cache(maxsize=16)
@@ -123,4 +97,4 @@ def _runner(path: str):
     return jax.jit(jax.export.deserialize(bytearray(Path(path).read_bytes())).call)
 
 
-__all__ = ["call", "compile_ahead", "can_serialize", "folder", "source_hash", "FOLDER"]
+__all__ = ["call", "can_serialize", "folder", "source_hash", "FOLDER"]
