@@ -173,13 +173,13 @@ def main():
     ins = inside(posts, truth)
     res = {
         "device": str(jax.devices()[0]), "backend": jax.default_backend(), "jax": jax.__version__,
-        "date": time.strftime("%Y-%m-%d"), "logs": n, "levels": sorted(set(levels)), "seconds_of_flight": 10.0,
+        "date": time.strftime("%Y-%m-%d"), "logs": len(posts), "levels": sorted(set(levels)), "seconds_of_flight": 10.0,
         "batch": a.batch, "workers": a.workers, "fly_s": round(fly_s, 1),
         "prepare_s_per_log_one_thread": round(prep_one, 4),
         "cold_s": round(cold_s, 1), "cold_logs": len(cold),
         "batched_s": round(warm_s, 1), "batched_phases_s": phases, "nuts_calls_logs_s": nuts_calls, "batched_logs_per_s": round(len(posts) / warm_s, 2),
         "sequential_s_per_log": round(seq_s, 3), "sequential_first_call_s": round(seq_first, 1),
-        "speedup": round(seq_s * n / warm_s, 1),
+        "speedup": round(seq_s * len(posts) / warm_s, 1),
         "methods": {mm: sum(p["method"] == mm for p in posts) for mm in ("decoded_is", "laplace_is", "smc", "smc_nuts")},
         "smc_stages_max": max((p.get("smc_stages", 0) for p in posts), default=0),
         "truth_inside_90": round(float(ins.mean()), 3),

@@ -174,7 +174,7 @@ def _variants(base, maps, workers: int = 1):
         for k in range(0, len(maps), step):
             chunk = maps[k:k + step]
             pairs = [j + m for m in chunk for j in jobs]
-            done = list(pool.map(_reduced, *zip(*pairs), chunksize=max(1, len(pairs) // (4 * workers)) if procs else 1))
+            done = list(pool.map(_reduced, *zip(*pairs), chunksize=max(1, len(pairs) // (4 * workers))))  # threads: ignored
             for j, m in enumerate(chunk):
                 yield m, done[j * len(base):(j + 1) * len(base)]
 

@@ -222,7 +222,7 @@ residuals_jit = jax.jit(residuals)
 
 residuals_logs = jax.jit(jax.vmap(residuals))
 """:func:`residuals` of logs of one shape at once: x (L, 21) and the logs' stacked data -> its four arrays,
-each with a leading log axis (one device call for a batch, where one a log waited on the device each time)."""
+each with a leading log axis (one device call for a batch)."""
 
 
 def log_likelihood(x, data: LogData, weights=None):

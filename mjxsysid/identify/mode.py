@@ -114,7 +114,7 @@ def _discrepancies(logs, ys) -> np.ndarray:
     (L, 17) -> (L, 4) log δ, float32: what the residuals' mean square leaves beyond the scale they have without a
     discrepancy (noise, resolution, the windows' floor; at least 1e-6); for innovations logs the gyro's is the
     grid's δ the innovations' likelihood prefers (:data:`_DELTA_GRID`). The residuals and the likelihoods of the
-    logs come from one call each (on a GPU, one a log waited on the device each time)."""
+    logs come from one call each."""
     datas = logs.datas
     innovations = datas[0].rates == "innovations"
     res = logs.residuals(np.asarray(full_x(ys, np.full(L.N_CHANNELS, -30.0)), np.float32))
