@@ -41,6 +41,46 @@ def test_unconstrained_map_round_trips_into_the_support_with_its_log_jacobian():
 
 
 
+def test_one_scan_draws_are_blackjax_window_adaptation_s():
+    """:func:`S.window_nuts` (one scan, the kernel once) draws what blackjax's public ``window_adaptation``
+    followed by ``nuts`` draws, to the bit, on a correlated Gaussian: a blackjax that changed its engine's
+    internals, or a scan that used the final step size too early, would fail here."""
+    import blackjax
+    import jax
+
+    cov = jnp.asarray([[1.0, 0.8, 0.0], [0.8, 1.0, 0.3], [0.0, 0.3, 0.5]], jnp.float32)
+    prec = jnp.linalg.inv(cov)
+
+    def logdensity(u):
+        return -0.5 * u @ prec @ u
+
+    key, u = jax.random.PRNGKey(3), jnp.asarray([2.0, -1.0, 0.5], jnp.float32)
+    kw = {"target_acceptance": 0.9, "max_doublings": 5}
+    for warmup, draws in ((40, 8), (160, 12)):              # Stan's short schedule, then its windows
+        pos, div, leap, step = jax.jit(lambda k, x: S.window_nuts(logdensity, k, x, warmup=warmup, draws=draws,
+                                                                     **kw))(key, u)
+        def reference(key, u):                          # the public API's two stages, compiled as one
+            k_warm, k_draw = jax.random.split(key)
+            adapt = blackjax.window_adaptation(blackjax.nuts, logdensity, is_mass_matrix_diagonal=False,
+                                               target_acceptance_rate=kw["target_acceptance"],
+                                               max_num_doublings=kw["max_doublings"])
+            (state, params), _ = adapt.run(k_warm, u, num_steps=warmup)
+            kernel = blackjax.nuts(logdensity, **params)
+
+            def one(s, k):
+                s, info = kernel.step(k, s)
+                return s, (s.position, info.is_divergent, info.num_integration_steps)
+
+            return jax.lax.scan(one, state, jax.random.split(k_draw, draws))[1], params["step_size"]
+
+        (ref_pos, ref_div, ref_leap), ref_step = jax.jit(reference)(key, u)
+        np.testing.assert_array_equal(np.asarray(pos), np.asarray(ref_pos))
+        np.testing.assert_array_equal(np.asarray(leap), np.asarray(ref_leap))
+        np.testing.assert_array_equal(np.asarray(div), np.asarray(ref_div))
+        assert float(step) == float(ref_step)
+        assert np.ptp(np.asarray(pos), 0).min() > 0          # the chain moved in every coordinate
+
+
 def test_converged_names_the_coordinate_whose_chains_disagree_and_asks_enough_draws():
     ok = {"rhat": np.full(N_Y, 1.01), "ess_bulk": np.full(N_Y, 400.0), "divergences": 30}
     assert S.converged(ok)[0]                       # divergent draws at ρ_4's wall are rejected moves: reported
