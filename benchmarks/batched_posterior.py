@@ -23,6 +23,7 @@ how far another seed's bands lie (the sampler's own Monte Carlo spread).
 from __future__ import annotations
 
 import argparse
+import collections
 import time
 from pathlib import Path
 
@@ -110,6 +111,16 @@ def say(msg: str) -> None:
     print(f"[{time.strftime('%H:%M:%S')}] {msg} | phases {({k: round(v, 1) for k, v in PHASES.items()})}", flush=True)
 
 
+def retried(posts) -> dict:
+    """The logs NUTS ran twice: how many, how many mixed the second time, and why the first did not mix
+    (a count per reason: R̂ on a coordinate, or too few effective draws)."""
+    again = [p["nuts"] for p in posts if p.get("nuts", {}).get("attempts", 1) > 1]
+    why = collections.Counter(("split R̂ on " + n["first"]["why"].rsplit(" on ", 1)[1].rstrip(")"))
+                              if "R̂" in n["first"]["why"] else "too few effective draws" for n in again)
+    return {"logs": len(again), "mixed_second": sum(bool(n["converged"]) for n in again),
+            "first_why": dict(why.most_common())}
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--vehicles", type=int, default=1000)
@@ -181,6 +192,7 @@ def main():
         "sequential_s_per_log": round(seq_s, 3), "sequential_first_call_s": round(seq_first, 1),
         "speedup": round(seq_s * len(posts) / warm_s, 1),
         "methods": {mm: sum(p["method"] == mm for p in posts) for mm in ("decoded_is", "laplace_is", "smc", "smc_nuts")},
+        "nuts_retried": retried(posts),
         "smc_stages_max": max((p.get("smc_stages", 0) for p in posts), default=0),
         "truth_inside_90": round(float(ins.mean()), 3),
         "truth_inside_90_by_level": {lv: round(float(ins[[x == lv for x in levels]].mean()), 3) for lv in sorted(set(levels))},

@@ -121,8 +121,9 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
     ``weights`` (4,) the channels' correlation discounts, ``mode`` (21,), ``channels_used`` (4,),
     and for SMC ``smc_stages``, ``smc_acceptance`` (the moves' acceptance rate, mean over the stages),
     ``smc_acceptance_min`` (the lowest stage's), ``smc_tempering`` (1 when it reached the target),
-    and after NUTS ``nuts`` (chains, warm-up, draws per chain, ``converged``, ``why`` and ``kept``, the largest
-    split R̂, the smallest bulk ESS, divergences, leapfrog steps per draw). ``refine=False`` keeps the
+    and after NUTS ``nuts`` (``attempts``, chains, warm-up, draws per chain, ``converged``, ``why`` and ``kept``, the largest
+    split R̂, the smallest bulk ESS, divergences, leapfrog steps per draw; after a second attempt ``first``: the first's
+    ``why``, largest R̂ and smallest ESS). ``refine=False`` keeps the
     SMC's draws (step 3 of the module doc skipped).
 
     ``calibration``: "shipped" (default: the table fitted on simulated logs,

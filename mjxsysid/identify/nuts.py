@@ -261,8 +261,8 @@ def converged(diag: dict) -> tuple[bool, str]:
 def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> None:
     """Step 3 of :mod:`.inference`: the SMC's draws of the logs ``need`` replaced by NUTS's (:data:`CHAINS`
     chains from the mode, preconditioned by the SMC's draws), in place; logs whose chains did not mix
-    run once more with :data:`LONGER` times the warm-up and draws (thinned), and keep the
-    SMC's draws (``method`` 'smc') if they still do not: chains that did not meet would set the
+    run once more with :data:`LONGER` times the warm-up and draws (thinned; ``attempts`` 2, ``first``: the first's
+    ``why``, largest R̂ and smallest ESS), and keep the SMC's draws (``method`` 'smc') if they still do not: chains that did not meet would set the
     bands by where they started (× 5 vibration, 7 of 12 such logs: the SMC's draws held 78 of 84 truths, the
     pooled chains 74). Each log's
     ``nuts`` entry: its chains' diagnostics, whether they mixed and which draws were kept. ``logs``:
@@ -285,7 +285,8 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
             i = need[j]
             draws_y[i] = yj.transpose(1, 0, 2).reshape(-1, N_Y)[:samples]   # every chain's draws in turn
             outs[i]["method"] = "smc_nuts"
-            outs[i]["nuts"] = {"chains": CHAINS, "warmup": warmup, "draws": per * thin, "thin": thin, "converged": ok,
+            first = {"first": {k: outs[i]["nuts"][k] for k in ("why", "rhat_max", "ess_bulk_min")}} if attempt else {}
+            outs[i]["nuts"] = {**first, "attempts": attempt + 1, "chains": CHAINS, "warmup": warmup, "draws": per * thin, "thin": thin, "converged": ok,
                                "why": why, "kept": "NUTS's draws", "rhat_max": float(np.max(diag["rhat"])),
                                "ess_bulk_min": float(np.min(diag["ess_bulk"])), "divergences": diag["divergences"],
                                "rhat_v": np.round(diag["rhat"][L.Y_V], 4).tolist(),

@@ -117,6 +117,8 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch):
     kept = log_grounded_posterior(data, None, force_smc=True, refine=True, seed=1, calibration=None, particles=256,
                                   samples=400)
     assert kept["method"] == "smc" and kept["nuts"]["warmup"] == S.WARMUP and "SMC" in kept["nuts"]["kept"]
+    assert kept["nuts"]["attempts"] == 2 and kept["nuts"]["first"]["why"] == "forced"     # why it ran again
+    assert post["nuts"]["attempts"] == 1 and "first" not in post["nuts"]
     np.testing.assert_array_equal(kept["v_raw"], smc["v_raw"])      # the SMC's own draws, after the longer try
     y = np.concatenate([post["v_raw"], post["nuisance"][:, :4], post["nuisance"][:, 8:]], 1)
     mode = post["mode"]
