@@ -114,9 +114,10 @@ def say(msg: str) -> None:
 def retried(posts) -> dict:
     """The logs NUTS ran twice: how many, how many mixed the second time, and why the first did not mix
     (a count per reason: R̂ on a coordinate, or too few effective draws)."""
+    from mjxsysid.identify.nuts import RHAT_OK
     again = [p["nuts"] for p in posts if p.get("nuts", {}).get("attempts", 1) > 1]
-    why = collections.Counter(("split R̂ on " + n["first"]["why"].rsplit(" on ", 1)[1].rstrip(")"))
-                              if "R̂" in n["first"]["why"] else "too few effective draws" for n in again)
+    why = collections.Counter(("split R̂ on " + n["first"]["why"].rsplit(" on ", 1)[-1].rstrip(")"))
+                              if not n["first"]["rhat_max"] < RHAT_OK else "too few effective draws" for n in again)
     return {"logs": len(again), "mixed_second": sum(bool(n["converged"]) for n in again),
             "first_why": dict(why.most_common())}
 
