@@ -165,7 +165,7 @@ def test_stage_list_is_the_pipeline():
         if s.name != "posterior_calibration":                           # resumes by piece (below)
             assert 0 < s.estimate_s <= 600, s.name                      # each fits a 10-minute GPU call
     assert sum(s.estimate_s for s in STAGES if s.name != "posterior_calibration") <= 45 * 60
-    # the calibration's ≈ 8,200 logs at 0.5 logs/s: hours, in pieces that fit a call or resume over several
+    # the calibration's ≈ 8,200 logs at 1.1 logs/s: hours, in pieces that fit a call or resume over several
     from mjxsysid.release.sizes import FULL_CALIBRATION as cal
     from mjxsysid.release.stages.calibration import LOGS_PER_S, pieces
     est = STAGES["posterior_calibration"].estimate_s

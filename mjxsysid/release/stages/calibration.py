@@ -12,14 +12,12 @@ from mjxsysid.release.record import now
 from mjxsysid.release.sizes import FULL_CALIBRATION, CalibrationSet, CalibrationSizes
 from mjxsysid.release.stages.registry import STAGES, ReleaseView, StageResult
 
-LOGS_PER_S = 0.5
+LOGS_PER_S = 1.1
 """Rows collected per second on one H200 GPU (the log-grounded posterior with NUTS refinement and the model
 checks, docs/identify.md): the stage's GPU estimate. Pieces of 224 logs in one batch (padded to 256), flying
-included, 2026-11-30 at 82e011d: 0.43 logs/s on one H200 compiling cold, 0.47 on a GPU of `nvidia-h200-x2`
-with part of the cache carried, 0.49–0.53 with most or all of it (BENCHMARKS.md). Since then the motor-map
-check's re-reductions run on the worker processes: a cold batch of 192 logs took 235 s against 480 s (0.82 logs/s,
-2026-11-30); the pieces were not timed again, so this estimate is high. A piece of 320 logs (the slow and motor sets) does not fit one 10-minute call: it
-resumes (:func:`collect_piece`)."""
+included, one process on a GPU of `nvidia-h200-x2`, 2026-11-30: 198 s (1.13 logs/s) with the compilation cache of
+earlier calls carried and NUTS's program compiled, 169 s (1.32) with every program cached (BENCHMARKS.md). A piece
+of 320 logs (the slow and motor sets) may not fit one 10-minute call: it resumes (:func:`collect_piece`)."""
 TABLE = "posterior_calibration.json"
 """The fitted table in the stage folder (shipped as mjxsysid/pretrained/posterior_calibration.json)."""
 ROWS = "rows"
