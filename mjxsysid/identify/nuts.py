@@ -55,7 +55,7 @@ logs take 20–80 a draw; vmapped over logs and chains, every step waits for the
 The long reference runs keep 10."""
 LONGER = (2, 4)
 """A fit that did not mix runs once more with these times the warm-up and the draws (the draws
-thinned back to as many)."""
+thinned back to as many), in the same compiled program (:func:`window_nuts`)."""
 
 _A = L.Y_INDEX["log_authority"]
 AX, AY, AZ = range(_A.start, _A.stop)
@@ -145,72 +145,115 @@ def _window_engine(target_acceptance: float):
     return (*staged._make_engine(core, target_acceptance_rate=target_acceptance), schedule)
 
 
-def window_nuts(logdensity, key, u, *, warmup: int, draws: int, target_acceptance: float, max_doublings: int,
-                emit=lambda u: u):
-    """One chain from u (D,): Stan's window adaptation for ``warmup`` steps, then ``draws`` NUTS draws
-    (trees of at most 2^``max_doublings`` leapfrog steps) -> (``emit`` of each draw's position (draws, ...),
-    divergent (draws,), leapfrog steps (draws,), the final step size ()).
+def plan(keys, warmup: int, draws: int, total: int, target_acceptance: float = TARGET_ACCEPTANCE):
+    """The steps of chains that warm up for ``warmup`` steps and then draw ``draws``, padded to ``total``:
+    keys (..., 2) -> (each step's key (..., total, 2): the first half of each key split into ``warmup``
+    keys, then its second half into ``draws``, as blackjax's ``window_adaptation(...).run`` and a scan of
+    ``nuts(...).step`` split them; the warm-up's schedule (total, 2) int32: Stan's windows, then zeros)."""
+    if warmup + draws > total:
+        raise ValueError(f"NUTS's {warmup} warm-up steps and {draws} draws exceed the {total} steps planned")
+    schedule = _window_engine(target_acceptance)[3]
+    steps = _step_keys(warmup, draws, total)(jnp.asarray(keys, jnp.uint32))
+    stages = np.zeros((total, 2), np.int32)
+    stages[:warmup] = np.asarray(schedule(warmup), np.int32)
+    return np.asarray(steps), stages
 
-    One scan of ``warmup + draws`` steps holds the one NUTS kernel: during the warm-up it runs with the
-    adaptation's step size and mass matrix and updates them, after it with their final values. The
-    draws are those of blackjax's ``window_adaptation(...).run`` (key split: the first half) followed by
-    ``nuts(...).step`` (the second half's ``draws`` keys), to the bit; the program holds the kernel once
-    instead of twice (on 2 cores, a 10 s log: trace and compile about 3 s shorter)."""
+
+@functools.lru_cache(maxsize=8)
+def _step_keys(warmup: int, draws: int, total: int):
+    """:func:`plan`'s keys, compiled once per lengths: keys (..., 2) -> (..., total, 2)."""
+    def one(key):
+        k_warm, k_draw = jax.random.split(key)
+        return jnp.concatenate([jax.random.split(k_warm, warmup), jax.random.split(k_draw, draws),
+                                jnp.zeros((total - warmup - draws, 2), key.dtype)])
+    return jax.jit(jnp.vectorize(one, signature="(k)->(t,k)"))
+
+
+def window_nuts(logdensity, keys, stages, u, warmup, n_steps, thin, *, kept: int, target_acceptance: float,
+                max_doublings: int, emit=lambda u: u):
+    """One chain from u (D,) over the steps of :func:`plan` (keys (T, 2), stages (T, 2)): Stan's window
+    adaptation for ``warmup`` steps, then NUTS draws (trees of at most 2^``max_doublings`` leapfrog steps)
+    up to step ``n_steps``, every ``thin``-th kept (``warmup``, ``n_steps`` and ``thin`` may be traced:
+    one program serves any lengths up to T) -> (``emit`` of the kept draws' positions (kept, ...),
+    divergent transitions (), leapfrog steps (), both summed over every draw, the final step size ()).
+
+    One loop holds the one NUTS kernel: during the warm-up it runs with the adaptation's step size and
+    mass matrix and updates them, after it with their final values. The draws are those of blackjax's
+    ``window_adaptation(...).run`` followed by ``nuts(...).step``, to the bit (the test
+    ``test_one_loop_draws_are_blackjax_window_adaptation_s``); a program that held the two stages apart
+    compiled the kernel twice, and another program for each length (on 2 cores, a 10 s log: 3 s to trace
+    and compile each)."""
     import blackjax
-    a_init, a_update, a_final, schedule = _window_engine(target_acceptance)
+    a_init, a_update, a_final, _ = _window_engine(target_acceptance)
     kernel = blackjax.nuts.build_kernel()
-    stages = jnp.concatenate([jnp.asarray(schedule(warmup), jnp.int32), jnp.zeros((draws, 2), jnp.int32)])
-    k_warm, k_draw = jax.random.split(key)
-    keys = jnp.concatenate([jax.random.split(k_warm, warmup), jax.random.split(k_draw, draws)])
 
-    def step(carry, xs):
-        i, k, stage = xs
-        s, ad = carry
+    def step(i, carry):
+        s, ad, out, div, leap = carry
         warm = i < warmup
         final_step, final_imm = a_final(ad)
-        s, info = kernel(k, s, logdensity, jnp.where(warm, ad.step_size, final_step),
+        s, info = kernel(keys[i], s, logdensity, jnp.where(warm, ad.step_size, final_step),
                          jnp.where(warm, ad.inverse_mass_matrix, final_imm), max_num_doublings=max_doublings)
-        new = a_update(ad, (stage[0], stage[1]), s.position, s.logdensity_grad, info.acceptance_rate, i)
+        new = a_update(ad, (stages[i, 0], stages[i, 1]), s.position, s.logdensity_grad, info.acceptance_rate, i)
         ad = jax.tree.map(lambda x, y: jnp.where(warm, x, y), new, ad)
-        return (s, ad), (emit(s.position), info.is_divergent, info.num_integration_steps)
+        j = i - warmup
+        slot = jnp.clip(j // thin, 0, kept - 1)
+        keep = (j >= 0) & (j % thin == 0)
+        out = jax.tree.map(lambda o, e: o.at[slot].set(jnp.where(keep, e, o[slot])), out, emit(s.position))
+        return s, ad, out, div + (~warm & info.is_divergent), leap + jnp.where(warm, 0, info.num_integration_steps)
 
-    start = (blackjax.nuts.init(u, logdensity), a_init(u, 1.0))
-    (_, ad), out = jax.lax.scan(step, start, (jnp.arange(warmup + draws), keys, stages))
-    return (*(o[warmup:] for o in out), a_final(ad)[0])
+    out = jax.tree.map(lambda e: jnp.zeros((kept,) + e.shape, e.dtype), jax.eval_shape(emit, u))
+    start = (blackjax.nuts.init(u, logdensity), a_init(u, 1.0), out, jnp.int32(0), jnp.int32(0))
+    _, ad, out, div, leap = jax.lax.fori_loop(0, n_steps, step, start)
+    return out, div, leap, a_final(ad)[0]
 
 
-def _chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance,
-            max_doublings):
-    """:func:`window_nuts` per chain (keys (C, 2), u0 (C, 17)) on the log-grounded target in u, z = m +
-    chol u -> y (C, draws, 17), divergent (C, draws), leapfrog steps (C, draws), step size (C,)."""
+def _chains(keys, stages, u0, data, log_delta, weights, lo, hi, m, chol, warmup, n_steps, thin, prior, kept,
+            target_acceptance, max_doublings):
+    """:func:`window_nuts` per chain (keys (C, T, 2), u0 (C, 17); stages (T, 2) shared) on the
+    log-grounded target in u, z = m + chol u -> y (C, kept, 17), divergent transitions (C,), leapfrog
+    steps (C,), step size (C,)."""
     def logdensity(u):
         return unconstrained_log_density(m + chol @ u, data, log_delta, weights, lo, hi, prior)
 
-    def chain(key, u):
-        return window_nuts(logdensity, key, u, warmup=warmup, draws=draws, target_acceptance=target_acceptance,
-                           max_doublings=max_doublings, emit=lambda u: to_constrained(m + chol @ u, lo, hi))
+    def chain(k, u):
+        return window_nuts(logdensity, k, stages, u, warmup, n_steps, thin, kept=kept,
+                           target_acceptance=target_acceptance, max_doublings=max_doublings,
+                           emit=lambda u: to_constrained(m + chol @ u, lo, hi))
 
     return jax.vmap(chain)(keys, u0)
 
 
-def _chains_logs(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior, warmup, draws, target_acceptance,
-                 max_doublings):
+def _chains_logs(keys, stages, u0, data, log_delta, weights, lo, hi, m, chol, warmup, n_steps, thin, prior, kept,
+                 target_acceptance, max_doublings):
     """:func:`_chains` vmapped over logs (keys, u0, data, log δ, weights, m and chol with a leading log axis)."""
     def one(k, u, d, a, b, mm, c):
-        return _chains(k, u, d, a, b, lo, hi, mm, c, prior, warmup, draws, target_acceptance, max_doublings)
+        return _chains(k, stages, u, d, a, b, lo, hi, mm, c, warmup, n_steps, thin, prior, kept, target_acceptance,
+                       max_doublings)
     return jax.vmap(one)(keys, u0, data, log_delta, weights, m, chol)
 
 
-def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, warmup: int, draws: int,
-               target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = MAX_DOUBLINGS, logs: bool = False):
-    """:func:`_chains` (``logs``: :func:`_chains_logs`, a leading log axis) compiled through
-    :func:`mjxsysid.runtime.exported.call`: its trace (blackjax's window adaptation and sampler, 3.6 s of a
-    warm ``decode --log``) is kept on disk beside the compilation cache."""
+def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, warmup: int, draws: int, thin: int = 1,
+               total: int | None = None, target_acceptance: float = TARGET_ACCEPTANCE,
+               max_doublings: int = MAX_DOUBLINGS, logs: bool = False):
+    """``draws`` NUTS draws after ``warmup`` steps, every ``thin``-th kept, of chains keys (C, 2), u0 (C, 17)
+    (``logs``: a leading log axis on keys, u0, data, log δ, weights, m and chol) -> y (..., C, draws //
+    thin, 17), divergent transitions (..., C), leapfrog steps per draw (..., C), step size (..., C).
+    :func:`_chains` (``logs``: :func:`_chains_logs`) is compiled for ``total`` steps (default ``warmup +
+    draws``) and ``draws // thin`` kept draws, whatever the lengths within them, through
+    :func:`mjxsysid.runtime.exported.call`: its trace (blackjax's window adaptation and NUTS) is kept on
+    disk beside the compilation cache."""
     from mjxsysid.runtime import exported
-    static = {"prior": prior, "warmup": int(warmup), "draws": int(draws),
-              "target_acceptance": float(target_acceptance), "max_doublings": int(max_doublings)}
+    if draws % thin:
+        raise ValueError(f"NUTS's {draws} draws are not a multiple of the thinning {thin}")
+    total = warmup + draws if total is None else int(total)
+    steps, stages = plan(keys, warmup, draws, total, target_acceptance)
+    static = {"prior": prior, "kept": draws // thin, "target_acceptance": float(target_acceptance),
+              "max_doublings": int(max_doublings)}
     fn, name = (_chains_logs, "nuts_logs") if logs else (_chains, "nuts")
-    return exported.call(name, fn, static, keys, u0, data, log_delta, weights, lo, hi, m, chol)
+    lengths = (np.int32(warmup), np.int32(warmup + draws), np.int32(thin))
+    y, div, leap, step = exported.call(name, fn, static, steps, stages, u0, data, log_delta, weights, lo, hi, m, chol,
+                                       *lengths)
+    return y, div, np.asarray(leap) / draws, step
 
 
 def _f32(a):
@@ -237,7 +280,7 @@ def _rhat_ess():
 
 
 def diagnostics(y, divergent, leapfrog, step_size) -> dict:
-    """Chains' draws y (C, D, 17), divergent (C, D), leapfrog steps (C, D), step sizes (C,) ->
+    """Chains' draws y (C, D, 17), divergent transitions (C,), leapfrog steps per draw (C,), step sizes (C,) ->
     rank-normalised split R̂ (17,) (the larger of bulk and tail), bulk ESS (17,), divergences,
     leapfrog steps per draw, step sizes (blackjax.diagnostics)."""
     r, e = _rhat_ess()(jnp.asarray(y, jnp.float32))
@@ -268,6 +311,7 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
     ``nuts`` entry: its chains' diagnostics, whether they mixed and which draws were kept. ``logs``:
     :class:`~.batched._Logs` (its ``nuts``)."""
     per = -(-samples // CHAINS)
+    total = max(WARMUP + per, LONGER[0] * WARMUP + per * LONGER[1])     # one program for both attempts
     smc_draws = {i: draws_y[i] for i in need}
     starts = [start(draws_y[i], my, CHAINS, sd, prior) for i, my, sd in zip(need, modes_y, seeds)]
     todo, warmup, thin = list(range(len(need))), WARMUP, 1
@@ -276,10 +320,10 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
         if attempt:
             keys = keys ^ np.uint32(0x9E3779B9)          # fresh chains
         y, div, leap, step = logs.nuts([need[j] for j in todo], keys, u0, ld[todo], w[todo], m, chol, prior,
-                                       warmup, per * thin)
+                                       warmup, per * thin, thin, total)
         again = []
         for t, j in enumerate(todo):
-            yj = np.asarray(y[t])[:, ::thin]
+            yj = np.asarray(y[t])
             diag = diagnostics(yj, div[t], leap[t], step[t])
             ok, why = converged(diag)
             i = need[j]

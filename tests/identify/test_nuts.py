@@ -41,10 +41,11 @@ def test_unconstrained_map_round_trips_into_the_support_with_its_log_jacobian():
 
 
 
-def test_one_scan_draws_are_blackjax_window_adaptation_s():
-    """:func:`S.window_nuts` (one scan, the kernel once) draws what blackjax's public ``window_adaptation``
-    followed by ``nuts`` draws, to the bit, on a correlated Gaussian: a blackjax that changed its engine's
-    internals, or a scan that used the final step size too early, would fail here."""
+def test_one_loop_draws_are_blackjax_window_adaptation_s():
+    """:func:`S.window_nuts` (one loop, the kernel once, one program for any lengths up to its plan's) draws
+    what blackjax's public ``window_adaptation`` followed by ``nuts`` draws, to the bit, on a correlated
+    Gaussian, thinned where asked: a blackjax that changed its engine's internals, a loop that used the final
+    step size too early, or a thinning that kept the wrong draws would fail here."""
     import blackjax
     import jax
 
@@ -56,29 +57,36 @@ def test_one_scan_draws_are_blackjax_window_adaptation_s():
 
     key, u = jax.random.PRNGKey(3), jnp.asarray([2.0, -1.0, 0.5], jnp.float32)
     kw = {"target_acceptance": 0.9, "max_doublings": 5}
-    for warmup, draws in ((40, 8), (160, 12)):              # Stan's short schedule, then its windows
-        pos, div, leap, step = jax.jit(lambda k, x: S.window_nuts(logdensity, k, x, warmup=warmup, draws=draws,
-                                                                     **kw))(key, u)
-        def reference(key, u):                          # the public API's two stages, compiled as one
-            k_warm, k_draw = jax.random.split(key)
-            adapt = blackjax.window_adaptation(blackjax.nuts, logdensity, is_mass_matrix_diagonal=False,
-                                               target_acceptance_rate=kw["target_acceptance"],
-                                               max_num_doublings=kw["max_doublings"])
-            (state, params), _ = adapt.run(k_warm, u, num_steps=warmup)
-            kernel = blackjax.nuts(logdensity, **params)
+    total, kept = 2 * 160 + 24, 12
+    run = jax.jit(lambda steps, stages, u, warmup, n, thin: S.window_nuts(logdensity, steps, stages, u, warmup, n, thin,
+                                                                           kept=kept, **kw))
 
-            def one(s, k):
-                s, info = kernel.step(k, s)
-                return s, (s.position, info.is_divergent, info.num_integration_steps)
+    def reference(key, u, warmup, draws):               # the public API's two stages, compiled as one
+        k_warm, k_draw = jax.random.split(key)
+        adapt = blackjax.window_adaptation(blackjax.nuts, logdensity, is_mass_matrix_diagonal=False,
+                                           target_acceptance_rate=kw["target_acceptance"],
+                                           max_num_doublings=kw["max_doublings"])
+        (state, params), _ = adapt.run(k_warm, u, num_steps=warmup)
+        kernel = blackjax.nuts(logdensity, **params)
 
-            return jax.lax.scan(one, state, jax.random.split(k_draw, draws))[1], params["step_size"]
+        def one(s, k):
+            s, info = kernel.step(k, s)
+            return s, (s.position, info.is_divergent, info.num_integration_steps)
 
-        (ref_pos, ref_div, ref_leap), ref_step = jax.jit(reference)(key, u)
-        np.testing.assert_array_equal(np.asarray(pos), np.asarray(ref_pos))
-        np.testing.assert_array_equal(np.asarray(leap), np.asarray(ref_leap))
-        np.testing.assert_array_equal(np.asarray(div), np.asarray(ref_div))
+        return jax.lax.scan(one, state, jax.random.split(k_draw, draws))[1], params["step_size"]
+
+    for warmup, thin in ((40, 1), (160, 1), (320, 2)):  # Stan's short schedule, its windows, a longer thinned run
+        draws = kept * thin
+        steps, stages = S.plan(key, warmup, draws, total, kw["target_acceptance"])
+        pos, div, leap, step = run(steps, stages, u, warmup, warmup + draws, thin)
+        (ref_pos, ref_div, ref_leap), ref_step = jax.jit(reference, static_argnums=(2, 3))(key, u, warmup, draws)
+        np.testing.assert_array_equal(np.asarray(pos), np.asarray(ref_pos)[::thin])
+        assert int(leap) == int(np.sum(ref_leap)) and int(div) == int(np.sum(ref_div))
         assert float(step) == float(ref_step)
         assert np.ptp(np.asarray(pos), 0).min() > 0          # the chain moved in every coordinate
+    assert run._cache_size() == 1                           # one program for the three lengths
+    with pytest.raises(ValueError, match="exceed the 344 steps"):
+        S.plan(key, 330, 24, total)
 
 
 def test_converged_names_the_coordinate_whose_chains_disagree_and_asks_enough_draws():
