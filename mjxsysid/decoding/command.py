@@ -57,19 +57,35 @@ def printed_summary(summary: dict) -> dict:
 
 
 def _model_check_lines(g: dict) -> list[str]:
-    """summary.md's model check: the window-length and motor-map tests' verdicts and every reason a coordinate failed."""
+    """summary.md's model check: the window-length and motor-map tests' verdicts, NUTS's chains, and every reason a
+    coordinate failed."""
     chk = (g.get("calibration") or {}).get("model_check")
     if not chk:
         return []
     win, idle = chk.get("window") or {}, chk.get("idle") or {}
     lines = ["", "## The model check", "", f"- window length: {win.get('why', 'not run')}",
-             f"- motor map: {idle.get('why', 'not run')}"]
+             f"- motor map: {idle.get('why', 'not run')}"] + _nuts_line(g)
     if (g["calibration"].get("features") or {}).get("vibration"):
         from mjxsysid.identify.calibrate import VIBRATING
         on = [k for k, v in (g["calibration"].get("calibrated_on") or {}).items() if v == VIBRATING]
         lines.append("- rotor vibration: a narrow-band peak in the gyro; calibrated on vibrating simulated logs: "
                      + (", ".join(on) if on else "none of the bands (each failed a check or was left raw)"))
     return lines + [f"- failed: {r}" for r in chk.get("reasons", []) if r not in (win.get("why"), idle.get("why"))]
+
+
+def _nuts_line(g: dict) -> list[str]:
+    """summary.md's line on NUTS's chains (``g['nuts']``): whether they mixed, at which attempt, and why the
+    first did not."""
+    n = g.get("nuts")
+    if not n:
+        return []
+    first = (n.get("first") or {}).get("why")
+    if not n.get("converged"):
+        return [f"- NUTS: the chains did not mix in {n.get('attempts', 1)} attempt(s) ({n['why']}); the SMC's draws "
+                "are kept, and a coordinate whose chains disagree is not seen"]
+    again = (f" on a second, longer run ({n['warmup']} warm-up steps, {n['draws']} draws thinned by {n['thin']}); "
+             f"the first did not: {first}") if first else ""
+    return [f"- NUTS: {n['chains']} chains mixed{again} ({n['why']})"]
 
 
 def _khat(isd: dict) -> str:

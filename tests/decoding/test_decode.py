@@ -188,3 +188,20 @@ def test_summary_md_says_a_vibrating_log_was_calibrated_on_vibrating_logs():
                          "log_motor_time_constant")
     g["calibration"]["features"]["vibration"] = False
     assert not any("vibration" in ln for ln in _model_check_lines(g))
+
+
+def test_summary_md_says_whether_nuts_mixed_and_why_it_ran_again():
+    from mjxsysid.decoding.command import _model_check_lines
+    chk = {"model_check": {"window": {"why": "w"}, "idle": {"why": "i"}, "reasons": []}}
+    nuts = {"attempts": 1, "chains": 8, "warmup": 200, "draws": 125, "thin": 1, "converged": True,
+            "why": "split R̂ ≤ 1.02, bulk ESS ≥ 457, 0 divergent"}
+    assert "- NUTS: 8 chains mixed (split R̂ ≤ 1.02, bulk ESS ≥ 457, 0 divergent)" in _model_check_lines(
+        {"calibration": chk, "nuts": nuts})
+    again = dict(nuts, attempts=2, warmup=400, draws=500, thin=4,
+                 first={"why": "NUTS's chains disagree (split R̂ 1.31 ≥ 1.1 on log_yaw_authority)"})
+    line = [ln for ln in _model_check_lines({"calibration": chk, "nuts": again}) if "NUTS" in ln][0]
+    assert "second, longer run (400 warm-up steps, 500 draws thinned by 4)" in line and "log_yaw_authority" in line
+    failed = dict(again, converged=False, why="NUTS's chains disagree (split R̂ 1.2 ≥ 1.1 on ext_acc[2])")
+    line = [ln for ln in _model_check_lines({"calibration": chk, "nuts": failed}) if "NUTS" in ln][0]
+    assert "did not mix in 2 attempt(s)" in line and "SMC's draws are kept" in line and "ext_acc[2]" in line
+    assert not any("NUTS" in ln for ln in _model_check_lines({"calibration": chk}))       # the SMC alone: no line
