@@ -105,6 +105,8 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch):
     widths, which hold the truth; without ``refine``, or where the chains never mix, the SMC's draws stay."""
     theta = P.paper_hardware().copy()
     data = prepare(exact_model_log(theta, 4.0, gyro_noise=0.05, acc_noise=0.5, seed=3))
+    assert min(S.LONGER) > 1
+    monkeypatch.setattr(S, "LONGER", (1, 1))   # a retry as long as the first run (the tier runs unoptimised code)
     post = log_grounded_posterior(data, None, force_smc=True, refine=True, seed=1, calibration=None, particles=256,
                                   samples=400)
     assert post["method"] == "smc_nuts" and post["nuts"]["converged"], post["nuts"]
@@ -120,8 +122,6 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch):
     with pytest.raises(ValueError, match="SMC posterior without NUTS"):
         inference.refine_posterior(data, post, seed=1)
     monkeypatch.setattr(S, "converged", lambda diag: (False, "forced"))   # chains that never mix
-    assert min(S.LONGER) > 1
-    monkeypatch.setattr(S, "LONGER", (1, 1))   # the longer try as long as the first: nothing compiled again
     kept = log_grounded_posterior(data, None, force_smc=True, refine=True, seed=1, calibration=None, particles=256,
                                   samples=400)
     assert kept["method"] == "smc" and kept["nuts"]["warmup"] == S.WARMUP and "SMC" in kept["nuts"]["kept"]
