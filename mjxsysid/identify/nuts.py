@@ -145,28 +145,20 @@ def _window_engine(target_acceptance: float):
     return (*staged._make_engine(core, target_acceptance_rate=target_acceptance), schedule)
 
 
-def plan(keys, warmup: int, draws: int, total: int, target_acceptance: float = TARGET_ACCEPTANCE):
-    """The steps of chains that warm up for ``warmup`` steps and then draw ``draws``, padded to ``total``:
-    keys (..., 2) -> (each step's key (..., total, 2): the first half of each key split into ``warmup``
-    keys, then its second half into ``draws``, as blackjax's ``window_adaptation(...).run`` and a scan of
-    ``nuts(...).step`` split them; the warm-up's schedule (total, 2) int32: Stan's windows, then zeros)."""
+def plan(key, warmup: int, draws: int, total: int, target_acceptance: float = TARGET_ACCEPTANCE):
+    """The steps of a chain that warms up for ``warmup`` steps and then draws ``draws``, padded to ``total``:
+    key (2,) -> (each step's key (total, 2): the key's first half split into ``warmup`` keys, then its second
+    half into ``draws``, as blackjax's ``window_adaptation(...).run`` and a scan of ``nuts(...).step`` split
+    them; the warm-up's schedule (total, 2) int32: Stan's windows, then zeros). Traceable."""
     if warmup + draws > total:
         raise ValueError(f"NUTS's {warmup} warm-up steps and {draws} draws exceed the {total} steps planned")
-    schedule = _window_engine(target_acceptance)[3]
-    steps = _step_keys(warmup, draws, total)(jnp.asarray(keys, jnp.uint32))
+    k_warm, k_draw = jax.random.split(key)
+    keys = jnp.concatenate([jax.random.split(k_warm, warmup), jax.random.split(k_draw, draws),
+                            jnp.zeros((total - warmup - draws, 2), key.dtype)])
     stages = np.zeros((total, 2), np.int32)
-    stages[:warmup] = np.asarray(schedule(warmup), np.int32)
-    return np.asarray(steps), stages
-
-
-@functools.lru_cache(maxsize=8)
-def _step_keys(warmup: int, draws: int, total: int):
-    """:func:`plan`'s keys, compiled once per lengths: keys (..., 2) -> (..., total, 2)."""
-    def one(key):
-        k_warm, k_draw = jax.random.split(key)
-        return jnp.concatenate([jax.random.split(k_warm, warmup), jax.random.split(k_draw, draws),
-                                jnp.zeros((total - warmup - draws, 2), key.dtype)])
-    return jax.jit(jnp.vectorize(one, signature="(k)->(t,k)"))
+    with jax.ensure_compile_time_eval():                 # blackjax builds it with jnp: a constant, not a tracer
+        stages[:warmup] = np.asarray(_window_engine(target_acceptance)[3](warmup), np.int32)
+    return keys, stages
 
 
 def window_nuts(logdensity, keys, stages, u, warmup, n_steps, thin, *, kept: int, target_acceptance: float,
@@ -207,52 +199,60 @@ def window_nuts(logdensity, keys, stages, u, warmup, n_steps, thin, *, kept: int
     return out, div, leap, a_final(ad)[0]
 
 
-def _chains(keys, stages, u0, data, log_delta, weights, lo, hi, m, chol, warmup, n_steps, thin, prior, kept,
-            target_acceptance, max_doublings):
-    """:func:`window_nuts` per chain (keys (C, T, 2), u0 (C, 17); stages (T, 2) shared) on the
-    log-grounded target in u, z = m + chol u -> y (C, kept, 17), divergent transitions (C,), leapfrog
-    steps (C,), step size (C,)."""
+def _chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, attempt, prior, plans, target_acceptance,
+            max_doublings):
+    """:func:`window_nuts` per chain (keys (C, 2), u0 (C, 17)) on the log-grounded target in u, with the
+    lengths ``plans[attempt]`` ((warm-up, draws, thinning) each; ``attempt`` traced: one program for every
+    plan), z = m + chol u -> y (C, kept, 17), divergent transitions (C,), leapfrog steps (C,), step size (C,)."""
+    total = max(w + d for w, d, _ in plans)
+    kept = plans[0][1] // plans[0][2]
+
     def logdensity(u):
         return unconstrained_log_density(m + chol @ u, data, log_delta, weights, lo, hi, prior)
 
-    def chain(k, u):
-        return window_nuts(logdensity, k, stages, u, warmup, n_steps, thin, kept=kept,
-                           target_acceptance=target_acceptance, max_doublings=max_doublings,
-                           emit=lambda u: to_constrained(m + chol @ u, lo, hi))
+    def pick(values):
+        return jnp.asarray(values)[attempt]
+
+    def chain(key, u):
+        ks, stages = zip(*(plan(key, w, d, total, target_acceptance) for w, d, _ in plans))
+        return window_nuts(logdensity, pick(jnp.stack(ks)), pick(np.stack(stages)), u,
+                           pick([w for w, _, _ in plans]), pick([w + d for w, d, _ in plans]),
+                           pick([t for _, _, t in plans]), kept=kept, target_acceptance=target_acceptance,
+                           max_doublings=max_doublings, emit=lambda u: to_constrained(m + chol @ u, lo, hi))
 
     return jax.vmap(chain)(keys, u0)
 
 
-def _chains_logs(keys, stages, u0, data, log_delta, weights, lo, hi, m, chol, warmup, n_steps, thin, prior, kept,
-                 target_acceptance, max_doublings):
+def _chains_logs(keys, u0, data, log_delta, weights, lo, hi, m, chol, attempt, prior, plans, target_acceptance,
+                 max_doublings):
     """:func:`_chains` vmapped over logs (keys, u0, data, log δ, weights, m and chol with a leading log axis)."""
     def one(k, u, d, a, b, mm, c):
-        return _chains(k, stages, u, d, a, b, lo, hi, mm, c, warmup, n_steps, thin, prior, kept, target_acceptance,
-                       max_doublings)
+        return _chains(k, u, d, a, b, lo, hi, mm, c, attempt, prior, plans, target_acceptance, max_doublings)
     return jax.vmap(one)(keys, u0, data, log_delta, weights, m, chol)
 
 
-def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, warmup: int, draws: int, thin: int = 1,
-               total: int | None = None, target_acceptance: float = TARGET_ACCEPTANCE,
-               max_doublings: int = MAX_DOUBLINGS, logs: bool = False):
-    """``draws`` NUTS draws after ``warmup`` steps, every ``thin``-th kept, of chains keys (C, 2), u0 (C, 17)
-    (``logs``: a leading log axis on keys, u0, data, log δ, weights, m and chol) -> y (..., C, draws //
-    thin, 17), divergent transitions (..., C), leapfrog steps per draw (..., C), step size (..., C).
-    :func:`_chains` (``logs``: :func:`_chains_logs`) is compiled for ``total`` steps (default ``warmup +
-    draws``) and ``draws // thin`` kept draws, whatever the lengths within them, through
-    :func:`mjxsysid.runtime.exported.call`: its trace (blackjax's window adaptation and NUTS) is kept on
-    disk beside the compilation cache."""
+def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, warmup: int, draws: int,
+               plans: tuple = (), target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = MAX_DOUBLINGS,
+               logs: bool = False):
+    """``draws`` NUTS draws after ``warmup`` steps of chains keys (C, 2), u0 (C, 17) (``logs``: a leading log
+    axis on keys, u0, data, log δ, weights, m and chol) -> y (..., C, kept, 17), divergent transitions (...,
+    C), leapfrog steps per draw (..., C), step size (..., C). ``plans``: every (warm-up, draws, thinning) the
+    program serves, this call's among them with its thinning (default: this one alone, unthinned); each
+    keeps as many draws. :func:`_chains` (``logs``: :func:`_chains_logs`) is compiled once for them all,
+    through :func:`mjxsysid.runtime.exported.call`: its trace (blackjax's window adaptation and NUTS) is kept
+    on disk beside the compilation cache."""
     from mjxsysid.runtime import exported
-    if draws % thin:
-        raise ValueError(f"NUTS's {draws} draws are not a multiple of the thinning {thin}")
-    total = warmup + draws if total is None else int(total)
-    steps, stages = plan(keys, warmup, draws, total, target_acceptance)
-    static = {"prior": prior, "kept": draws // thin, "target_acceptance": float(target_acceptance),
+    plans = tuple(tuple(int(x) for x in p) for p in (plans or ((warmup, draws, 1),)))
+    attempt = next((i for i, (w, d, _) in enumerate(plans) if (w, d) == (warmup, draws)), None)
+    if attempt is None:
+        raise ValueError(f"NUTS's {warmup} warm-up steps and {draws} draws are not among its plans {plans}")
+    if any(d % t or d // t != plans[0][1] // plans[0][2] for _, d, t in plans):
+        raise ValueError(f"NUTS's plans {plans} must keep as many draws each, their draws a multiple of the thinning")
+    static = {"prior": prior, "plans": plans, "target_acceptance": float(target_acceptance),
               "max_doublings": int(max_doublings)}
     fn, name = (_chains_logs, "nuts_logs") if logs else (_chains, "nuts")
-    lengths = (np.int32(warmup), np.int32(warmup + draws), np.int32(thin))
-    y, div, leap, step = exported.call(name, fn, static, steps, stages, u0, data, log_delta, weights, lo, hi, m, chol,
-                                       *lengths)
+    y, div, leap, step = exported.call(name, fn, static, keys, u0, data, log_delta, weights, lo, hi, m, chol,
+                                       np.int32(attempt))
     return y, div, np.asarray(leap) / draws, step
 
 
@@ -311,7 +311,7 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
     ``nuts`` entry: its chains' diagnostics, whether they mixed and which draws were kept. ``logs``:
     :class:`~.batched._Logs` (its ``nuts``)."""
     per = -(-samples // CHAINS)
-    total = max(WARMUP + per, LONGER[0] * WARMUP + per * LONGER[1])     # one program for both attempts
+    plans = ((WARMUP, per, 1), (LONGER[0] * WARMUP, per * LONGER[1], LONGER[1]))     # one program for both attempts
     smc_draws = {i: draws_y[i] for i in need}
     starts = [start(draws_y[i], my, CHAINS, sd, prior) for i, my, sd in zip(need, modes_y, seeds)]
     todo, warmup, thin = list(range(len(need))), WARMUP, 1
@@ -320,7 +320,7 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
         if attempt:
             keys = keys ^ np.uint32(0x9E3779B9)          # fresh chains
         y, div, leap, step = logs.nuts([need[j] for j in todo], keys, u0, ld[todo], w[todo], m, chol, prior,
-                                       warmup, per * thin, thin, total)
+                                       warmup, per * thin, plans)
         again = []
         for t, j in enumerate(todo):
             yj = np.asarray(y[t])
