@@ -132,10 +132,11 @@ def preconditioner(draws_y, centre_y, lo, hi, ridge: float = 1e-3):
 
 # ---- NUTS ---------------------------------------------------------------------------------------
 
+@functools.lru_cache(maxsize=4)
 def _window_engine(target_acceptance: float):
     """Stan's window adaptation as ``blackjax.window_adaptation`` runs it, dense mass matrix: its (init,
     update, final) and its schedule of ``num_steps`` -> (num_steps, 2) (blackjax's staged engine; the
-    test ``test_one_scan_draws_are_blackjax_window_adaptation_s`` holds it to the public API's draws)."""
+    test ``test_one_loop_draws_are_blackjax_window_adaptation_s`` holds it to the public API's draws)."""
     from blackjax.adaptation import staged_adaptation as staged
     from blackjax.adaptation.metric_recipes import lookup_recipe
     from blackjax.adaptation.window_adaptation import _pick_recipe_name

@@ -1,4 +1,5 @@
-"""Old (static lengths, 14b9d63) against new (traced lengths, one program) NUTS, the same inputs: one captured log's
+"""Ran at cbd6be6, against that commit's interface (`nuts.plan` of batched keys, `_chains_logs(steps, stages, ...)`);
+HEAD builds the keys inside the program. Old (static lengths, 14b9d63) against new (traced lengths, one program) NUTS, the same inputs: one captured log's
 NUTS arguments replicated to L logs; each program's first and retry shapes, warm, timed 3× alternated."""
 import functools, importlib.util, pickle, sys, time
 import jax, jax.numpy as jnp, numpy as np
