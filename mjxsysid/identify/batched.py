@@ -131,20 +131,20 @@ class _Logs:
                         stk(list(qv)), stk(list(qn)), stk(list(lap)), prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
         return [np.asarray(o)[:len(idx)] for o in out]
 
-    def nuts(self, idx, keys, u0, ld, w, m, chol, prior, warmup, draws, plans=()):
+    def nuts(self, idx, keys, u0, ld, w, m, chol, prior, plans, attempt):
         """NUTS of the logs ``idx`` (m,) from their starts (:func:`.nuts.start`: keys (m, C, 2), u0
-        (m, C, 17), m (m, 17), chol (m, 17, 17)) with their log δ and weights (m, 4) -> the outputs of
-        :func:`.nuts.run_chains`, each with a leading axis m."""
+        (m, C, 17), m (m, 17), chol (m, 17, 17)) with their log δ and weights (m, 4), run with the lengths
+        ``plans[attempt]`` -> the outputs of :func:`.nuts.run_chains`, each with a leading axis m."""
         idx = list(idx)
         lo, hi = (jnp.asarray(a, jnp.float32) for a in _y_lo_hi(prior))
         args = [np.asarray(keys, np.uint32)] + [np.asarray(a, np.float32) for a in (u0, ld, w, m, chol)]
         if self.stack is None:
             k, u, a, b, mm, c = (jnp.asarray(x[0]) for x in args)  # rows, not coordinates
-            out = run_chains(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior=prior, warmup=warmup, draws=draws,
-                             plans=plans)
+            out = run_chains(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior=prior, plans=plans,
+                             attempt=attempt)
             return [np.asarray(o)[None] for o in out]
         p, data = self._sub(idx)
         k, u, a, b, mm, c = (jnp.asarray(_pad_rows(x, len(p))) for x in args)
-        out = run_chains(k, u, data, a, b, lo, hi, mm, c, prior=prior, warmup=warmup, draws=draws, plans=plans,
+        out = run_chains(k, u, data, a, b, lo, hi, mm, c, prior=prior, plans=plans, attempt=attempt,
                          logs=True)
         return [np.asarray(o)[:len(idx)] for o in out]

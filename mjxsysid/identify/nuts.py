@@ -232,21 +232,20 @@ def _chains_logs(keys, u0, data, log_delta, weights, lo, hi, m, chol, attempt, p
     return jax.vmap(one)(keys, u0, data, log_delta, weights, m, chol)
 
 
-def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, warmup: int, draws: int,
-               plans: tuple = (), target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = MAX_DOUBLINGS,
-               logs: bool = False):
-    """``draws`` NUTS draws after ``warmup`` steps of chains keys (C, 2), u0 (C, 17) (``logs``: a leading log
-    axis on keys, u0, data, log δ, weights, m and chol) -> y (..., C, kept, 17), divergent transitions (...,
-    C), leapfrog steps per draw (..., C), step size (..., C). ``plans``: every (warm-up, draws, thinning) the
-    program serves, this call's among them with its thinning (default: this one alone, unthinned); each
-    keeps as many draws. :func:`_chains` (``logs``: :func:`_chains_logs`) is compiled once for them all,
-    through :func:`mjxsysid.runtime.exported.call`: its trace (blackjax's window adaptation and NUTS) is kept
-    on disk beside the compilation cache."""
+def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, plans: tuple, attempt: int = 0,
+               target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = MAX_DOUBLINGS, logs: bool = False):
+    """NUTS chains keys (C, 2), u0 (C, 17) (``logs``: a leading log axis on keys, u0, data, log δ, weights, m
+    and chol) run with the lengths ``plans[attempt]`` -> y (..., C, kept, 17), divergent transitions (..., C),
+    leapfrog steps per draw (..., C), step size (..., C). ``plans``: every (warm-up, draws, thinning) the
+    program serves, each keeping as many draws. :func:`_chains` (``logs``: :func:`_chains_logs`) is compiled
+    once for them all, through :func:`mjxsysid.runtime.exported.call`: its trace (blackjax's window adaptation
+    and NUTS) is kept on disk beside the compilation cache."""
     from mjxsysid.runtime import exported
-    plans = tuple(tuple(int(x) for x in p) for p in (plans or ((warmup, draws, 1),)))
-    attempt = next((i for i, (w, d, _) in enumerate(plans) if (w, d) == (warmup, draws)), None)
-    if attempt is None:
-        raise ValueError(f"NUTS's {warmup} warm-up steps and {draws} draws are not among its plans {plans}")
+    plans = tuple(tuple(int(x) for x in p) for p in plans)
+    if not plans or any(len(p) != 3 for p in plans):
+        raise ValueError(f"NUTS's plans must be (warm-up, draws, thinning) triples; got {plans}")
+    if not 0 <= attempt < len(plans):
+        raise ValueError(f"NUTS's attempt {attempt} is not among its {len(plans)} plans {plans}")
     if any(d % t or d // t != plans[0][1] // plans[0][2] for _, d, t in plans):
         raise ValueError(f"NUTS's plans {plans} must keep as many draws each, their draws a multiple of the thinning")
     static = {"prior": prior, "plans": plans, "target_acceptance": float(target_acceptance),
@@ -254,7 +253,7 @@ def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, wa
     fn, name = (_chains_logs, "nuts_logs") if logs else (_chains, "nuts")
     y, div, leap, step = exported.call(name, fn, static, keys, u0, data, log_delta, weights, lo, hi, m, chol,
                                        np.int32(attempt))
-    return y, div, np.asarray(leap) / draws, step
+    return y, div, np.asarray(leap) / plans[attempt][1], step
 
 
 def _f32(a):
@@ -315,13 +314,13 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
     plans = ((WARMUP, per, 1), (LONGER[0] * WARMUP, per * LONGER[1], LONGER[1]))     # one program for both attempts
     smc_draws = {i: draws_y[i] for i in need}
     starts = [start(draws_y[i], my, CHAINS, sd, prior) for i, my, sd in zip(need, modes_y, seeds)]
-    todo, warmup, thin = list(range(len(need))), WARMUP, 1
-    for attempt in range(2):
+    todo = list(range(len(need)))
+    for attempt, (warmup, draws, thin) in enumerate(plans):
         keys, u0, m, chol = (np.stack([starts[j][k] for j in todo]) for k in range(4))
         if attempt:
             keys = keys ^ np.uint32(0x9E3779B9)          # fresh chains
         y, div, leap, step = logs.nuts([need[j] for j in todo], keys, u0, ld[todo], w[todo], m, chol, prior,
-                                       warmup, per * thin, plans)
+                                       plans, attempt)
         again = []
         for t, j in enumerate(todo):
             yj = np.asarray(y[t])
@@ -331,7 +330,7 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
             draws_y[i] = yj.transpose(1, 0, 2).reshape(-1, N_Y)[:samples]   # every chain's draws in turn
             outs[i]["method"] = "smc_nuts"
             first = {"first": {k: outs[i]["nuts"][k] for k in ("why", "rhat_max", "ess_bulk_min")}} if attempt else {}
-            outs[i]["nuts"] = {**first, "attempts": attempt + 1, "chains": CHAINS, "warmup": warmup, "draws": per * thin, "thin": thin, "converged": ok,
+            outs[i]["nuts"] = {**first, "attempts": attempt + 1, "chains": CHAINS, "warmup": warmup, "draws": draws, "thin": thin, "converged": ok,
                                "why": why, "kept": "NUTS's draws", "rhat_max": float(np.max(diag["rhat"])),
                                "ess_bulk_min": float(np.min(diag["ess_bulk"])), "divergences": diag["divergences"],
                                "rhat_v": np.round(diag["rhat"][L.Y_V], 4).tolist(),
@@ -347,7 +346,7 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
                 draws_y[i] = smc_draws[i]
                 outs[i]["method"] = "smc"
                 outs[i]["nuts"]["kept"] = "the SMC's draws: NUTS's chains did not mix"
-        todo, warmup, thin = again, LONGER[0] * WARMUP, LONGER[1]
+        todo = again
 
 
 def mixed_coords(rhat_v) -> np.ndarray:
@@ -396,6 +395,6 @@ def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: in
     keys, u0, m, chol = start(scale_draws, start_y, chains, seed, prior)
     with jax.default_matmul_precision("highest"):       # as the SMC's target (target.full_precision)
         y, div, n_leap, step = run_chains(jnp.asarray(keys), _f32(u0), data, _f32(log_delta), _f32(weights), _f32(lo),
-                                          _f32(hi), _f32(m), _f32(chol), prior=prior, warmup=warmup, draws=draws,
+                                          _f32(hi), _f32(m), _f32(chol), prior=prior, plans=((warmup, draws, 1),),
                                           target_acceptance=target_acceptance, max_doublings=max_doublings)
     return {"y": np.asarray(y, np.float64), **diagnostics(y, div, n_leap, step)}
