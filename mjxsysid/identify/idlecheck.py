@@ -156,27 +156,24 @@ VARIANTS_AT_ONCE = 64
 held at once by :func:`_variants`."""
 
 
-def _variants(base, maps, workers: int = 1):
+def _variants(base, maps, pool=None):
     """Each map of ``maps`` with the logs of ``base`` reduced again under it (:func:`variant`), in the maps'
     order: (map, [LogData, ...]), :data:`VARIANTS_AT_ONCE` at a time; the results are the same as one by one.
-    ``workers`` > 1: on that many processes (beside an accelerator: a reduction is many small NumPy calls, and
-    threads wait on each other's interpreter lock); else on a pool of threads (scipy's filters release the
-    interpreter: 1.65× on 2 cores)."""
-    import multiprocessing
-    import os
-    from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor
+    ``pool``: a :class:`~mjxsysid.runtime.hostpool.HostPool`, whose processes take them where it has enough
+    work for them (beside an accelerator: a reduction is many small NumPy calls, and threads wait on each
+    other's interpreter lock); else a pool of threads (scipy's filters release the interpreter: 1.65× on 2
+    cores)."""
+    from mjxsysid.runtime.hostpool import HostPool
+    pool = HostPool(1) if pool is None else pool
     step = max(1, VARIANTS_AT_ONCE // max(len(base), 1))
     jobs = [_job(d) for d in base]
-    procs = workers > 1 and len(base) * len(maps) >= 4 * workers
-    pool = (ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) if procs
-            else ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 16))))
-    with pool:
-        for k in range(0, len(maps), step):
-            chunk = maps[k:k + step]
-            pairs = [j + m for m in chunk for j in jobs]
-            done = list(pool.map(_reduced, *zip(*pairs), chunksize=max(1, len(pairs) // (4 * workers))))  # threads: ignored
-            for j, m in enumerate(chunk):
-                yield m, done[j * len(base):(j + 1) * len(base)]
+    procs = pool.processes(len(base) * len(maps))
+    for k in range(0, len(maps), step):
+        chunk = maps[k:k + step]
+        pairs = [j + m for m in chunk for j in jobs]
+        done = pool.map(_reduced, *zip(*pairs), threads=True, processes=procs)
+        for j, m in enumerate(chunk):
+            yield m, done[j * len(base):(j + 1) * len(base)]
 
 
 def _residual_ss(res, z, use, w) -> float:
@@ -215,7 +212,7 @@ def checkable(data) -> str | None:
     return None
 
 
-def run(make_logs, datas, modes, starts: int = 1, shared=(), workers: int = 1) -> list:
+def run(make_logs, datas, modes, starts: int = 1, shared=(), pool=None) -> list:
     """The check of every log of ``datas`` from its mode (``modes``: :func:`~.mode.find_modes`' tuples) ->
     per log {gain (the statistic), map (the best (ι, κ) of :data:`MAPS`, None where none gains), gains {(ι, κ) (None
     where the map cannot carry the log, :data:`MIN_SPEED`):
@@ -229,7 +226,8 @@ def run(make_logs, datas, modes, starts: int = 1, shared=(), workers: int = 1) -
     flights of the vehicle showed (:data:`~.posterior_config.PosteriorConfig.shared_maps`): a map the vehicle
     has is plausible for each of its flights, whatever one flight's fit says, where it carries the log. Logs of
     one shape are re-fitted together (``make_logs``: :class:`~.batched._Logs`; ``starts``: the starts per log
-    its batched fit was compiled for; ``workers``: processes that reduce the logs under each map, :func:`_variants`)."""
+    its batched fit was compiled for; ``pool``: the :class:`~mjxsysid.runtime.hostpool.HostPool` that reduces the
+    logs under each map, :func:`_variants`)."""
     out = [None] * len(datas)
     idx = []
     for i, d in enumerate(datas):
@@ -251,7 +249,7 @@ def run(make_logs, datas, modes, starts: int = 1, shared=(), workers: int = 1) -
         z0, ss0 = _fit_and_ss(make_logs, base, ys, lds, lss, ws, starts)
         z_mode = z0                                  # the linear map re-fitted from the mode: the shifts' origin
         ss, zs = {}, {}
-        for (iota, kappa), var in _variants(base, MAPS, workers):
+        for (iota, kappa), var in _variants(base, MAPS, pool):
             fits = mapped(um, iota, kappa) >= MIN_SPEED      # the map carries each log at its mean command
             y_m = np.stack([equivalent(y, u, iota, kappa=kappa) if f else y for y, u, f in zip(ys, um, fits)])
             zs[iota, kappa], ss[iota, kappa] = _fit_and_ss(make_logs, var, y_m, lds, lss, ws, starts)

@@ -56,6 +56,7 @@ from mjxsysid.identify.nuts import refine as nuts_refine
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
 from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc_start, rw_scale_update
 from mjxsysid.identify.windowcheck import run as window_check
+from mjxsysid.runtime.hostpool import HostPool
 from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, full_precision, full_x,
                                       log_prior, log_target)
 
@@ -151,8 +152,9 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     of proposal are evaluated ``batch`` at a time (default :data:`LOG_BATCH` on an accelerator, 1 on
     a CPU) by programs vmapped over the logs. ``decoded_thetas``: None, or one (S, 19) or None per
     log; ``seeds``: one per log, or an int (log i gets seeds + i); ``workers``: processes that reduce
-    the logs (:func:`~.logdata.prepare`, and again under each motor map, :func:`~.idlecheck.run`; default 1
-    on a CPU, up to 16 beside an accelerator);
+    the logs (:func:`~.logdata.prepare`, and again under the longer rate windows and each motor map,
+    :func:`~.windowcheck.run`, :func:`~.idlecheck.run`: one :class:`~mjxsysid.runtime.hostpool.HostPool` for
+    the call; default 1 on a CPU, up to 16 beside an accelerator);
     ``desc``: a progress bar's label; ``config`` and ``settings`` as :func:`log_grounded_posterior`'s.
     A log too short for the posterior raises
     :class:`~.logdata.LogTooShort` naming its index.
@@ -173,18 +175,21 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     rates = c.rates
     if workers is None:
         workers = 1 if jax.default_backend() == "cpu" else min(16, os.cpu_count() or 1)
-    datas = _prepare_all(logs, rates, int(workers))
-    qvs = [None if d is None else decoded_proposal(d, prior) for d in dec]
     batch = (1 if jax.default_backend() == "cpu" else LOG_BATCH) if batch is None else int(batch)
     if batch < 1:
         raise ValueError(f"log_grounded_posteriors: batch must be ≥ 1, got {batch}")
-    chunks = log_chunks(datas, [q is None for q in qvs], batch)
+    if int(workers) < 1:
+        raise ValueError(f"log_grounded_posteriors: workers must be ≥ 1, got {workers}")
     out = [None] * n
-    for chunk in progress(chunks, desc=desc or "log-grounded posteriors", enabled=False if len(chunks) < 2 else None):
-        res = _posterior_batch([datas[i] for i in chunk], [dec[i] for i in chunk], [qvs[i] for i in chunk],
-                               [seeds[i] for i in chunk], workers=int(workers), **cfg)
-        for i, r in zip(chunk, res):
-            out[i] = r
+    with HostPool(int(workers)) as pool:                    # one pool of processes for every reduction of the call
+        datas = _prepare_all(logs, rates, pool)
+        qvs = [None if d is None else decoded_proposal(d, prior) for d in dec]
+        chunks = log_chunks(datas, [q is None for q in qvs], batch)
+        for chunk in progress(chunks, desc=desc or "log-grounded posteriors", enabled=False if len(chunks) < 2 else None):
+            res = _posterior_batch([datas[i] for i in chunk], [dec[i] for i in chunk], [qvs[i] for i in chunk],
+                                   [seeds[i] for i in chunk], pool=pool, **cfg)
+            for i, r in zip(chunk, res):
+                out[i] = r
     return out
 
 
@@ -212,15 +217,12 @@ def _prepare_one(x, rates: str, i: int):
         raise LogTooShort(f"log {i}: {e}") from None
 
 
-def _prepare_all(logs, rates: str, workers: int) -> list:
-    """Each log's :class:`LogData` (those given as one kept), in ``workers`` processes (a reduction
-    is many small NumPy calls: threads wait on each other's interpreter lock)."""
-    if workers <= 1 or len(logs) < 2 * workers or all(isinstance(x, LogData) for x in logs):
-        return [_prepare_one(x, rates, i) for i, x in enumerate(logs)]
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as ex:
-        return list(ex.map(_prepare_one, logs, [rates] * len(logs), range(len(logs)), chunksize=8))
+def _prepare_all(logs, rates: str, pool: HostPool) -> list:
+    """Each log's :class:`LogData` (those given as one kept), on the processes of ``pool`` where it has
+    enough logs for them (a reduction is many small NumPy calls: threads wait on each other's interpreter lock)."""
+    if all(isinstance(x, LogData) for x in logs):
+        return list(logs)
+    return pool.map(_prepare_one, logs, [rates] * len(logs), range(len(logs)))
 
 
 def _starts(data, decoded_theta, rng, prior, starts: int) -> np.ndarray:
@@ -272,7 +274,7 @@ def refine_posterior(rec_or_data, post: dict, *, seed: int = 0, prior: PhysicalP
 
 
 def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particles, n_mcmc, max_stages, starts,
-                     force_smc, refine, calibration, shared_maps=(), workers: int = 1) -> list[dict]:
+                     force_smc, refine, calibration, shared_maps=(), pool: HostPool | None = None) -> list[dict]:
     """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc)."""
     nl = len(datas)
     logs = _Logs(datas)
@@ -286,8 +288,9 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
     ld = np.stack([m[1] for m in modes]).astype(np.float32)
     w = np.stack([m[2] for m in modes]).astype(np.float32)
     laps = [m[4] for m in modes]
-    checks = window_check(_Logs, datas, modes, prior, starts)        # the fit at longer rate windows (.windowcheck)
-    idles = idlecheck.run(_Logs, datas, modes, starts, shared_maps, workers)   # the fit under other motor maps (.idlecheck)
+    pool = HostPool(1) if pool is None else pool
+    checks = window_check(_Logs, datas, modes, prior, starts, pool)        # the fit at longer rate windows (.windowcheck)
+    idles = idlecheck.run(_Logs, datas, modes, starts, shared_maps, pool)   # the fit under other motor maps (.idlecheck)
     outs = [{"proposal": "decoded" if qvs[i] is not None else "prior", "mode": modes[i][0], "weights": modes[i][2],
              "channels_used": np.asarray(d.use), "rates": d.rates, "window_check": checks[i], "idle_check": idles[i]}
             for i, d in enumerate(datas)]

@@ -84,17 +84,31 @@ def variants(data, factors=WINDOW_FACTORS) -> list:
     it keeps the log's arrays) reduced again with windows ``factors`` × as long, padded to its shapes ->
     [(factor, LogData: the arrays alone)], the lengths the log is long enough for; [] where it cannot be reduced again (the
     innovations' rate term, or a LogData built otherwise)."""
-    from mjxsysid.identify.logdata import DT, LogTooShort, prepare
+    job = _job(data)
+    return [] if job is None else _reduced(*job, factors)
+
+
+def _job(data) -> tuple | None:
+    """What :func:`_reduced` needs of the log of ``data``: its arrays, prepare's settings, its window in steps
+    and its padding; None where it cannot be reduced again."""
+    from mjxsysid.identify.logdata import DT
     rows = getattr(data, "_rows", None) or {}
     rec = rows.get("rec")
     if rec is None or data.rates != "windows" or not np.any(np.asarray(data.use)[L.GYRO] > 0):
-        return []
-    w = int(round(float(data.span) / DT))
-    pad = (int(data.wmask.shape[0]), int(data.bmask.shape[0]))
+        return None
+    return (rec, rows.get("rec_args", {}), int(round(float(data.span) / DT)),
+            (int(data.wmask.shape[0]), int(data.bmask.shape[0])))
+
+
+def _reduced(rec: dict, rec_args: dict, w: int, pad: tuple, factors=WINDOW_FACTORS) -> list:
+    """The log's arrays ``rec`` reduced (:func:`~.logdata.prepare` with ``rec_args``, padded to ``pad``) with
+    windows ``factors`` × ``w`` steps -> [(factor, LogData)], up to the first the log is too short for. A
+    module-level function: it runs in another process too."""
+    from mjxsysid.identify.logdata import LogTooShort, prepare
     out = []
     for k in factors:
         try:
-            out.append((k, prepare(rec, window_steps=k * w, pad_to=pad, rows=False, **rows.get("rec_args", {}))))
+            out.append((k, prepare(rec, window_steps=k * w, pad_to=pad, rows=False, **rec_args)))
         except LogTooShort:
             break
     return out
@@ -138,12 +152,19 @@ def statistic(mode_v, fitted: dict, noise_share, skip=()) -> dict:
             "noise_share": share.tolist()}
 
 
-def run(make_logs, datas, modes, prior, starts: int = 1) -> list:
+def run(make_logs, datas, modes, prior, starts: int = 1, pool=None) -> list:
     """The check of every log of ``datas`` from its mode (``modes``: :func:`~.mode.find_modes`' tuples) ->
     per log :func:`statistic`'s dict, or {"shift": None, "why": ...} where the log cannot be reduced again.
-    Logs whose reductions share a shape are re-fitted together (``make_logs``, ``starts``: :func:`refits`')."""
+    Logs whose reductions share a shape are re-fitted together (``make_logs``, ``starts``: :func:`refits`');
+    ``pool``: a :class:`~mjxsysid.runtime.hostpool.HostPool` that reduces the logs again."""
     import jax
-    var = [dict(variants(d)) for d in datas]
+    from mjxsysid.runtime.hostpool import HostPool
+    jobs = [_job(d) for d in datas]
+    todo = [i for i, j in enumerate(jobs) if j is not None]
+    done = (HostPool(1) if pool is None else pool).map(_reduced, *zip(*(jobs[i] for i in todo))) if todo else []
+    var = [{} for _ in datas]
+    for i, v in zip(todo, done):
+        var[i] = dict(v)
     fitted = [{} for _ in datas]
     for k in WINDOW_FACTORS:
         groups: dict = {}

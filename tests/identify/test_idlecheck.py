@@ -207,7 +207,7 @@ def test_a_convex_map_is_flagged_and_refitted_near_the_truth():
 def test_the_variants_reduced_on_threads_and_processes_are_the_ones_reduced_one_by_one(monkeypatch):
     """idlecheck._variants: every (map, log) pair, in order, equal to variant() called one by one and to the
     arrays of a full prepare() of the mapped log, on threads and on processes (``workers``), also when the
-    pairs come a few at a time."""
+    pairs come a few at a time; the window check's reductions on the same pool equal windowcheck.variants()."""
     import sys
 
     import jax
@@ -217,8 +217,20 @@ def test_the_variants_reduced_on_threads_and_processes_are_the_ones_reduced_one_
     # a pytest-xdist worker's __main__ lacks the __spec__ a script's has (None), which spawning a process reads
     monkeypatch.setattr(sys.modules["__main__"], "__spec__", getattr(sys.modules["__main__"], "__spec__", None),
                         raising=False)
+    from mjxsysid.identify import windowcheck as W
+    from mjxsysid.runtime.hostpool import HostPool
     for workers in (1, 2):
-        got = list(I._variants(logs, maps, workers))
+        with HostPool(workers) as pool:
+            got = list(I._variants(logs, maps, pool))
+            jobs = [W._job(d) for d in logs] * 2                        # four logs: two per process
+            windows = pool.map(W._reduced, *zip(*jobs))
+            assert pool.processes(len(jobs)) == (workers == 2)
+        for d, ws in zip(logs * 2, windows):
+            want = W.variants(d)
+            assert [k for k, _ in ws] == [k for k, _ in want] == list(W.WINDOW_FACTORS)
+            for (_, a), (_, b) in zip(ws, want):
+                for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
+                    np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
         assert [m for m, _ in got] == list(maps)
         for m, vs in got:
             for d, v in zip(logs, vs):
