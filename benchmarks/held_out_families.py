@@ -6,7 +6,7 @@ the default sampler, the SMC refined by NUTS, calibrated by the shipped table. T
 
 ``collect`` flies every family's vehicles (the lag-aware oracle, the 10 s figure-eight with its body velocity,
 a seed the calibration never used) at every noise level, the held-out × 2 and × 10 included, and identifies
-all of them in batches of :data:`~mjxsysid.identify.inference.LOG_BATCH` (the families mixed: each NUTS step of a
+all of them in batches of :data:`~mjxsysid.experiments.posterior_calibration.BATCH` (the families mixed: each NUTS step of a
 batch waits for its slowest chain, so fewer, fuller batches cost less): ``calibrate-posterior --collect``'s rows,
 each naming its family (``prior``), written after every batch; a file already at OUT is resumed. The committed
 rows came from this script's first version, which seeded each posterior 4711 + the vehicle index (now the

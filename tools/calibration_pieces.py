@@ -5,7 +5,7 @@ where the deadline cut it. A device call is 10 minutes: about 600 logs a call on
 sets (a 20 s lemniscate and a hover; 320 logs a piece) are slower: two processes on `nvidia-h200-x2` compiled
 for 193-203 s each, then 64 resumed logs took about 260 s; a fresh piece's first batch (256, or 160 logs) did
 not finish within one call there (2026-11-29). Run a fresh one alone on one GPU, or with a smaller
-``inference.LOG_BATCH``.
+``posterior_calibration.BATCH``.
 A piece whose ``.partial`` file is in OUT/rows/ already resumes: only the logs it lacks are identified
 (``--resume-from DIR`` puts the partial pieces landed in DIR there first, so a piece longer than a call
 finishes over several).

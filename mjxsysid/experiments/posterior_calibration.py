@@ -45,6 +45,11 @@ REFERENCES_ALL = ("lemniscate:10", "lemniscate:20", "minsnap:10", "hover:8")
 """The flights of a calibration: 'lemniscate:PERIOD', 'minsnap:SECONDS' or 'hover:SECONDS' (the oracle
 flies each; a slower lemniscate and hover excite the rates less)."""
 
+BATCH = 256
+"""Logs identified together on an accelerator, the rows written after each batch. A larger batch costs less
+a log (:data:`~mjxsysid.identify.inference.LOG_BATCH`), but a run cut by its budget or the device loses more,
+and the committed rows were collected in batches of this size."""
+
 
 def parse_reference(spec: str) -> dict:
     """'lemniscate:10' -> fly_vehicles' reference, period and duration."""
@@ -77,7 +82,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     run the budget or the machine cut, the same settings: ValueError naming those that differ) and identify only
     the logs it lacks (the flights are seeded, so a resumed file holds the logs one run would). The result's
     ``skipped`` counts the logs the set lacks and why: flights that failed (crashed or diverged), logs too short."""
-    from mjxsysid.identify.inference import LOG_BATCH, log_grounded_posteriors
+    from mjxsysid.identify.inference import log_grounded_posteriors
     from mjxsysid.identify.logdata import LogTooShort, prepare
     from mjxsysid.sim import SimConfig
     import jax
@@ -96,7 +101,7 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
     done = {(r.get("prior", priors[0]), r["vehicle"], r["level"], r["flight"]) for r in res["rows"]}
     tag = {"motor": [motor_idle, motor_kappa]} if motor.motor_map else {}
     t_start = time.perf_counter()
-    step = 1 if jax.default_backend() == "cpu" else LOG_BATCH      # logs identified together (batched on a GPU)
+    step = 1 if jax.default_backend() == "cpu" else BATCH          # logs identified together (batched on a GPU)
     logs = []                                                       # (data, vehicle, θ, level, flight name, prior)
     skipped = {"flight failed": 0, "log too short": 0}
     res["skipped"] = skipped                                        # logs the set lacks, and why
@@ -118,7 +123,8 @@ def collect(*, prior: str = "wide_actuators", vehicles: int = 64, levels=TRAIN_L
             break
         chunk = [logs[k] for k in order[c:c + step]]
         t0 = time.perf_counter()
-        posts = log_grounded_posteriors([d for d, *_ in chunk], seeds=[v for _, v, *_ in chunk], calibration=None)
+        posts = log_grounded_posteriors([d for d, *_ in chunk], seeds=[v for _, v, *_ in chunk], calibration=None,
+                                        batch=step)
         sec = (time.perf_counter() - t0) / len(chunk)
         for (_, vehicle, th, lv, flight, p), post in zip(chunk, posts):
             res["rows"].append(row(post, th, lv, vehicle, sec) | {"flight": flight, "aero": aero} | tag

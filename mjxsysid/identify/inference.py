@@ -137,9 +137,38 @@ def log_grounded_posterior(rec_or_data, decoded_theta=None, *, prior: PhysicalPr
                                    **settings)[0]
 
 
-LOG_BATCH = 256
-"""Logs evaluated together on an accelerator (:func:`log_grounded_posteriors`; on a CPU one at a
-time: its cores are busy with one log's particles already)."""
+LOG_BATCH = 1024
+"""The most logs evaluated together on an accelerator (:func:`default_batch`; on a CPU one at a time: its
+cores are busy with one log's particles already). Batches of 10 s logs at × 1 on one H200, each cold from an
+empty cache: 256 logs 1.43 logs/s, 512 1.81–1.97, 1,024 2.32 (``benchmarks/batched_posterior.py --vehicles N
+--batch N``, 2026-11-30): each NUTS step of a batch waits for its deepest tree, so fuller batches cost less."""
+
+PEAK_BYTES_PER_DATA_BYTE = 250
+"""The accelerator memory a log holds at the batch's peak, per byte of its reduced arrays (:class:`LogData`):
+1,024 logs of 10 s (172 kB each) peaked at 37.8 GB on an H200 (224 bytes a byte; rounded up)."""
+
+MEMORY_SHARE = 0.6
+"""The share of the accelerator's memory (its allocator's limit) a batch may fill."""
+
+
+def batch_for(data_bytes: int, device_bytes: int | None) -> int:
+    """Logs of ``data_bytes`` each (their :class:`LogData`) evaluated together on an accelerator whose
+    allocator may hold ``device_bytes`` (None: it does not say): the largest power of two up to
+    :data:`LOG_BATCH` whose peak (:data:`PEAK_BYTES_PER_DATA_BYTE`) fills at most :data:`MEMORY_SHARE` of it;
+    256 where the device does not say."""
+    if not device_bytes:
+        return 256
+    n = int(MEMORY_SHARE * device_bytes // (PEAK_BYTES_PER_DATA_BYTE * max(int(data_bytes), 1)))
+    return max(1, min(LOG_BATCH, 1 << (n.bit_length() - 1) if n else 1))
+
+
+def default_batch(data: LogData) -> int:
+    """Logs of ``data``'s shape evaluated together by default: one on a CPU, else :func:`batch_for` of its
+    size and the first device's memory (longer logs, smaller batches)."""
+    if jax.default_backend() == "cpu":
+        return 1
+    stats = jax.devices()[0].memory_stats() or {}
+    return batch_for(sum(np.asarray(a).nbytes for a in jax.tree.leaves(data)), stats.get("bytes_limit"))
 
 
 @full_precision
@@ -149,8 +178,8 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     """The posteriors of many logs (paths of any format, or what :func:`log_grounded_posterior`
     takes), batched:
     logs of one shape (their windows and blocks bucketed, :func:`~.logdata.bucket`) and of one kind
-    of proposal are evaluated ``batch`` at a time (default :data:`LOG_BATCH` on an accelerator, 1 on
-    a CPU) by programs vmapped over the logs. ``decoded_thetas``: None, or one (S, 19) or None per
+    of proposal are evaluated ``batch`` at a time (default :func:`default_batch`: up to :data:`LOG_BATCH` on an
+    accelerator, as its memory holds; 1 on a CPU) by programs vmapped over the logs. ``decoded_thetas``: None, or one (S, 19) or None per
     log; ``seeds``: one per log, or an int (log i gets seeds + i); ``workers``: processes that reduce
     the logs (:func:`~.logdata.prepare`, and again under the longer rate windows and each motor map,
     :func:`~.windowcheck.run`, :func:`~.idlecheck.run`: one :class:`~mjxsysid.runtime.hostpool.HostPool` for
@@ -175,8 +204,7 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     rates = c.rates
     if workers is None:
         workers = 1 if jax.default_backend() == "cpu" else min(16, os.cpu_count() or 1)
-    batch = (1 if jax.default_backend() == "cpu" else LOG_BATCH) if batch is None else int(batch)
-    if batch < 1:
+    if batch is not None and int(batch) < 1:
         raise ValueError(f"log_grounded_posteriors: batch must be ≥ 1, got {batch}")
     if int(workers) < 1:
         raise ValueError(f"log_grounded_posteriors: workers must be ≥ 1, got {workers}")
@@ -193,15 +221,19 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     return out
 
 
-def log_chunks(datas: list[LogData], plain: list[bool], batch: int) -> list[list[int]]:
+def log_chunks(datas: list[LogData], plain: list[bool], batch: int | None) -> list[list[int]]:
     """The logs' indices evaluated together: logs of one shape (rates and every array's shape) and one
-    kind of proposal (``plain``: no decoded ensemble), ``batch`` at a time, in order within a group.
-    -> chunks of indices covering 0…len(datas)-1 once."""
+    kind of proposal (``plain``: no decoded ensemble), ``batch`` at a time (None: :func:`default_batch` of
+    the group's shape), in order within a group. -> chunks of indices covering 0…len(datas)-1 once."""
     groups: dict = {}
     for i, (d, q) in enumerate(zip(datas, plain)):
         key = (d.rates, bool(q), tuple(np.shape(a) for a in jax.tree.leaves(d)))
         groups.setdefault(key, []).append(i)
-    return [idx[c:c + batch] for idx in groups.values() for c in range(0, len(idx), batch)]
+    out = []
+    for idx in groups.values():
+        b = default_batch(datas[idx[0]]) if batch is None else int(batch)
+        out += [idx[c:c + b] for c in range(0, len(idx), b)]
+    return out
 
 
 def _prepare_one(x, rates: str, i: int):

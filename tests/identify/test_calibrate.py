@@ -209,13 +209,14 @@ def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_
     import mjxsysid.identify.inference as I
     calls = []
 
-    def fake(datas, seeds, calibration):
+    def fake(datas, seeds, calibration, batch):
+        assert batch == 3
         calls.append(len(datas))
         return [{"method": "stub", "v_raw": np.zeros((8, N_V)), "features": {"rates_used": True}, "weights": [1.0] * 4}
                 for _ in datas]
     monkeypatch.setattr(I, "log_grounded_posteriors", fake)
-    monkeypatch.setattr(I, "LOG_BATCH", 3)
-    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")       # batches of LOG_BATCH, as on an accelerator
+    monkeypatch.setattr(pc, "BATCH", 3)
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")       # batches of BATCH, as on an accelerator
     out = tmp_path / "rows.json"
     res = pc.collect(vehicles=2, levels=("clean", "x1"), references=("hover:2",), out=out)
     levels = [r["level"] for r in res["rows"]]

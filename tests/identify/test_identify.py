@@ -325,3 +325,28 @@ def test_logs_are_evaluated_together_only_with_logs_of_their_shape_and_proposal(
     assert log_chunks(d, [True] * 6, 4) == [[0, 1, 3, 4], [5], [2]]
     assert log_chunks(d, [True, False, True, True, False, True], 2) == [[0, 3], [5], [1, 4], [2]]
     assert log_chunks(d, [True] * 6, 1) == [[0], [1], [3], [4], [5], [2]]
+
+
+def test_the_default_batch_is_what_the_accelerators_memory_holds_of_logs_that_long(monkeypatch):
+    """default_batch: one log at a time on a CPU; on an accelerator the largest power of two up to LOG_BATCH
+    whose peak fits its share of the device's memory: 10 s logs (172 kB) 1,024 on an H200, 512 on an 80 GB
+    card, 256 on a 24 GB one; logs six times as long, a quarter as many; 256 where the device does not say."""
+    import jax
+
+    import mjxsysid.identify.inference as I
+    from mjxsysid.identify.inference import batch_for, default_batch, log_chunks
+    gib, kb10 = 2 ** 30, 172_308
+    assert batch_for(kb10, 0.75 * 141 * gib) == I.LOG_BATCH == 1024
+    assert batch_for(kb10, 0.75 * 80 * gib) == 512
+    assert batch_for(kb10, 0.75 * 24 * gib) == 256
+    assert batch_for(6 * kb10, 0.75 * 141 * gib) == 256
+    assert batch_for(kb10, None) == 256 and batch_for(10 ** 9, 10 ** 6) == 1
+    d = [LD.prepare(synthetic_log(P.paper_hardware().copy(), seconds=3.0, seed=k)) for k in range(3)]
+    assert default_batch(d[0]) == 1 and log_chunks(d, [True] * 3, None) == [[0], [1], [2]]     # a CPU
+
+    class Device:
+        def memory_stats(self):
+            return {"bytes_limit": 3 * 250 * sum(np.asarray(a).nbytes for a in jax.tree.leaves(d[0])) / I.MEMORY_SHARE}
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    monkeypatch.setattr(jax, "devices", lambda: [Device()])
+    assert default_batch(d[0]) == 2 and log_chunks(d, [True] * 3, None) == [[0, 1], [2]]
