@@ -158,7 +158,8 @@ held at once by :func:`_variants`."""
 
 def _variants(base, maps, pool=None):
     """Each map of ``maps`` with the logs of ``base`` reduced again under it (:func:`variant`), in the maps'
-    order: (map, [LogData, ...]), :data:`VARIANTS_AT_ONCE` at a time; the results are the same as one by one.
+    order: (map, [LogData, ...]), :data:`VARIANTS_AT_ONCE` at a time, the next chunk reduced while the caller
+    fits the last (two chunks held at once); the results are the same as one by one.
     ``pool``: a :class:`~mjxsysid.runtime.hostpool.HostPool`, whose processes take them where it has enough
     work for them (beside an accelerator: a reduction is many small NumPy calls, and threads wait on each
     other's interpreter lock); else a pool of threads (scipy's filters release the interpreter: 1.65× on 2
@@ -168,10 +169,14 @@ def _variants(base, maps, pool=None):
     step = max(1, VARIANTS_AT_ONCE // max(len(base), 1))
     jobs = [_job(d) for d in base]
     procs = pool.processes(len(base) * len(maps))
-    for k in range(0, len(maps), step):
-        chunk = maps[k:k + step]
-        pairs = [j + m for m in chunk for j in jobs]
-        done = pool.map(_reduced, *zip(*pairs), threads=True, processes=procs)
+    chunks = [maps[k:k + step] for k in range(0, len(maps), step)]
+
+    def start(chunk):
+        return pool.later(_reduced, *zip(*[j + m for m in chunk for j in jobs]), threads=True, processes=procs)
+    pending = start(chunks[0]) if chunks else None
+    for k, chunk in enumerate(chunks):
+        done = pending()
+        pending = start(chunks[k + 1]) if k + 1 < len(chunks) else None     # reduced while the caller fits these
         for j, m in enumerate(chunk):
             yield m, done[j * len(base):(j + 1) * len(base)]
 

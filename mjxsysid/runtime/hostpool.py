@@ -34,20 +34,34 @@ class HostPool:
         :meth:`processes` of the items' count; ``fn`` a module-level function, its arguments and results
         picklable), else on a pool of threads where ``threads`` (for work that releases the interpreter lock,
         such as scipy's filters), else one by one here."""
+        return self.later(fn, *iterables, threads=threads, processes=processes)()
+
+    def later(self, fn, *iterables, threads: bool = False, processes: bool | None = None):
+        """:meth:`map` started now, its results waited for later: -> a function that returns them. On
+        processes or threads the work runs meanwhile (the next batch of reductions while the accelerator
+        fits the last); one by one here, it runs when asked."""
         args = list(zip(*iterables))
         if not args:
-            return []
+            return list
         if self.workers > 1 and (self.processes(len(args)) if processes is None else processes):
             if self._procs is None:
                 import multiprocessing
                 from concurrent.futures import ProcessPoolExecutor
                 self._procs = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
-            return list(self._procs.map(fn, *zip(*args), chunksize=max(1, len(args) // (4 * self.workers))))
+            it = self._procs.map(fn, *zip(*args), chunksize=max(1, len(args) // (4 * self.workers)))
+            return lambda: list(it)
         if threads and len(args) > 1:
             from concurrent.futures import ThreadPoolExecutor
-            with ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 16, len(args)))) as ex:
-                return list(ex.map(fn, *zip(*args)))
-        return [fn(*a) for a in args]
+            ex = ThreadPoolExecutor(max(1, min(os.cpu_count() or 1, 16, len(args))))
+            it = ex.map(fn, *zip(*args))
+
+            def wait():
+                try:
+                    return list(it)
+                finally:
+                    ex.shutdown()
+            return wait
+        return lambda: [fn(*a) for a in args]
 
     def close(self) -> None:
         """Stop the processes, if any were started."""

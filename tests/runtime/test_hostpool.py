@@ -11,7 +11,9 @@ def test_a_pool_maps_in_order_here_or_on_threads_and_goes_to_processes_only_with
     with HostPool(1) as pool:
         assert pool.map(operator.add, range(5), range(5)) == [0, 2, 4, 6, 8]
         assert pool.map(operator.add, range(5), range(5), threads=True) == [0, 2, 4, 6, 8]
-        assert pool.map(operator.add, [], []) == []
+        assert pool.map(operator.add, [], []) == [] and pool.later(operator.add, [], [])() == []
+        first, second = (pool.later(operator.mul, range(4), [k] * 4, threads=True) for k in (2, 3))
+        assert second() == [0, 3, 6, 9] and first() == [0, 2, 4, 6]      # started together, collected in any order
         assert not pool.processes(10 ** 6)                    # one worker: never processes
     four = HostPool(4)
     assert not four.processes(MIN_PER_WORKER * 4 - 1) and four.processes(MIN_PER_WORKER * 4)
