@@ -17,6 +17,7 @@ from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior, visible_from
 from mjxsysid.identify.logspace import N_V
 from mjxsysid.identify.likelihood import QUANTISATION_VAR, noise_estimate
 from mjxsysid.identify.logdata import LogData
+from mjxsysid.identify.smalllinalg import solve_lower
 from mjxsysid.identify.target import NUIS_BOUNDS
 
 PROPOSAL_WIDEN = 1.5
@@ -24,10 +25,10 @@ PROPOSAL_WIDEN = 1.5
 
 
 def _solve_lower(chol, d):
-    """z with chol z = d for a batch d (..., k) (SciPy on the host, jax.scipy under jit)."""
+    """z with chol z = d for a batch d (..., k) (SciPy on the host; under jit by forward substitution,
+    :func:`~.smalllinalg.solve_lower`: no LAPACK kernel in a program vmapped over logs)."""
     if xp_of(d, chol) is jnp:
-        c = jnp.asarray(chol, jnp.float32)
-        return jax.scipy.linalg.solve_triangular(c, jnp.reshape(d, (-1, c.shape[0])).T, lower=True).T.reshape(d.shape)
+        return solve_lower(jnp.asarray(chol, jnp.float32), d)
     from scipy.linalg import solve_triangular
     d = np.asarray(d, np.float64)
     return solve_triangular(np.asarray(chol, np.float64), d.reshape(-1, d.shape[-1]).T, lower=True).T.reshape(d.shape)

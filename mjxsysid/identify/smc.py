@@ -12,6 +12,7 @@ import numpy as np
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PhysicalPrior
 from mjxsysid.identify.target import _log_target_y
+from mjxsysid.identify.smalllinalg import cholesky
 
 
 PRIOR_SHARE = 0.3
@@ -57,7 +58,7 @@ def _smc_impl(key, y0, data, ld, w, qv, qn, lap, prior, n_mcmc, max_stages, shar
     dim = y0.shape[1]
 
     def chol_of(p):
-        return 2.38 / jnp.sqrt(dim) * jnp.linalg.cholesky(jnp.cov(p.T) + 1e-8 * jnp.eye(dim))
+        return 2.38 / jnp.sqrt(dim) * cholesky(jnp.cov(p.T) + 1e-8 * jnp.eye(dim))
 
     smc = blackjax.inner_kernel_tuning(
         smc_algorithm=blackjax.adaptive_tempered_smc, logprior_fn=logq, loglikelihood_fn=logrest,

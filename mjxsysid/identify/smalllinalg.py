@@ -1,0 +1,35 @@
+"""Small dense linear algebra inside the posterior's programs, without LAPACK's custom calls.
+
+On a CPU, jaxlib's LAPACK kernels split a batch of matrices into tasks on XLA's thread pool and wait for them
+from inside that pool (``ParallelBatchMap``, once a batch holds 2·10⁵ FLOP). In a program vmapped over logs,
+two such kernels at once hold both threads of a 2-core machine, and the program waits forever: the SMC of 8 logs
+of 10 s in one batch hung in ``lapack_strsm`` (the proposals' triangular solves), with or without
+``--xla_cpu_multi_thread_eigen=false``. The matrices here are at most 17 × 17, so a row-by-row loop unrolled
+at trace time costs what LAPACK's does, on every backend.
+"""
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+
+def solve_lower(c, d):
+    """z with c zᵀ = dᵀ for a lower-triangular c (k, k) (what lies above its diagonal ignored) and right-hand
+    sides d (..., k), by forward substitution -> (..., k)."""
+    k = c.shape[-1]
+    z = jnp.zeros(jnp.shape(d), jnp.result_type(c, d))
+    for i in range(k):
+        row = jnp.where(jnp.arange(k) < i, c[i], 0)
+        z = z.at[..., i].set((d[..., i] - z @ row) / c[i, i])
+    return z
+
+
+def cholesky(a):
+    """The lower Cholesky factor of a symmetric positive-definite a (k, k), column by column -> (k, k); NaN where
+    a is not positive definite, as LAPACK's."""
+    k = a.shape[-1]
+    out = jnp.zeros_like(a)
+    for j in range(k):
+        v = a[:, j] - out @ out[j]                  # the columns filled so far: 0 … j − 1
+        d = jnp.sqrt(v[j])
+        out = out.at[:, j].set(jnp.where(jnp.arange(k) > j, v / d, 0).at[j].set(d))
+    return out
