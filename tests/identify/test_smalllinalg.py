@@ -1,6 +1,6 @@
-"""mjxsysid.identify.smalllinalg: forward substitution and Cholesky without LAPACK's kernels, equal to LAPACK's
-to rounding, and the posterior's proposals traced without a LAPACK custom call (jaxlib's batched LAPACK kernels
-wait inside XLA:CPU's thread pool: a program vmapped over logs hung in them on 2 cores)."""
+"""mjxsysid.identify.smalllinalg on a CPU: forward substitution and Cholesky without LAPACK's kernels, equal to
+LAPACK's to rounding, and the posterior's proposals traced without a LAPACK custom call (jaxlib's batched LAPACK
+kernels wait inside XLA:CPU's thread pool: a program vmapped over logs hung in them on 2 cores)."""
 import jax
 import jax.numpy as jnp
 import numpy as np
