@@ -18,7 +18,7 @@ def _fake_posteriors(calls):
     from mjxsysid.identify.coords import N_V
     rng = np.random.default_rng(0)
 
-    def fake(datas, seeds, calibration):
+    def fake(datas, seeds, calibration, batch):
         calls.append(len(datas))
         return [{"method": ("smc_nuts", "smc")[(len(calls) + k) % 2], "v_raw": rng.normal(0.0, 0.5, (64, N_V)), "weights": [1.0] * 4,
                  "features": {"rates_nsr": rng.uniform(-2, -1), "acc_nsr": rng.uniform(-2, -1),
