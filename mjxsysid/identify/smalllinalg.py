@@ -5,7 +5,7 @@ from inside that pool (``ParallelBatchMap``, once a batch holds 2·10⁵ FLOP). 
 two such kernels at once hold both threads of a 2-core machine, and the program waits forever: the SMC of 8 logs
 of 10 s in one batch hung in ``lapack_strsm`` (the proposals' triangular solves), with or without
 ``--xla_cpu_multi_thread_eigen=false``. The matrices here are at most 17 × 17, so on a CPU a row-by-row loop
-unrolled at trace time does the work instead. Other backends keep their solvers (cuBLAS, cuSOLVER: the GPU
+(one loop in the program) does the work instead. Other backends keep their solvers (cuBLAS, cuSOLVER: the GPU
 measurements were made with them).
 """
 from __future__ import annotations
@@ -24,11 +24,13 @@ def solve_lower(c, d):
     k = c.shape[-1]
     if not _on_cpu():
         return jax.scipy.linalg.solve_triangular(c, jnp.reshape(d, (-1, k)).T, lower=True).T.reshape(jnp.shape(d))
-    z = jnp.zeros(jnp.shape(d), jnp.result_type(c, d))
-    for i in range(k):
-        row = jnp.where(jnp.arange(k) < i, c[i], 0)
-        z = z.at[..., i].set((d[..., i] - z @ row) / c[i, i])
-    return z
+    idx = jnp.arange(k)
+
+    def row(i, z):
+        ci = jnp.where(idx < i, c[i], 0)
+        zi = (jnp.take(d, i, axis=-1) - z @ ci) / c[i, i]
+        return jnp.where(idx == i, zi[..., None], z)
+    return jax.lax.fori_loop(0, k, row, jnp.zeros(jnp.shape(d), jnp.result_type(c, d)))
 
 
 def cholesky(a):
@@ -37,9 +39,10 @@ def cholesky(a):
     if not _on_cpu():
         return jnp.linalg.cholesky(a)
     k = a.shape[-1]
-    out = jnp.zeros_like(a)
-    for j in range(k):
+    idx = jnp.arange(k)
+
+    def column(j, out):
         v = a[:, j] - out @ out[j]                  # the columns filled so far: 0 … j − 1
         d = jnp.sqrt(v[j])
-        out = out.at[:, j].set(jnp.where(jnp.arange(k) > j, v / d, 0).at[j].set(d))
-    return out
+        return jnp.where(idx[None, :] == j, jnp.where(idx > j, v / d, jnp.where(idx == j, d, 0))[:, None], out)
+    return jax.lax.fori_loop(0, k, column, jnp.zeros_like(a))
