@@ -56,9 +56,9 @@ from mjxsysid.identify.nuts import refine as nuts_refine
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
 from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc_start, rw_scale_update
 from mjxsysid.identify.windowcheck import run as window_check
-from mjxsysid.runtime.hostpool import HostPool
 from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, full_precision, full_x,
                                       log_prior, log_target)
+from mjxsysid.runtime.hostpool import HostPool
 
 __all__ = ["ACC_BIAS_SD", "LAPLACE_WIDEN", "LOG_BATCH", "MAX_KHAT", "MIN_ESS_FRACTION", "N_Y", "NUIS_BOUNDS",
            "PRIOR_SHARE", "RW_TARGET_ACCEPTANCE", "TARGET_CHUNK", "default_method", "find_mode", "find_modes",
