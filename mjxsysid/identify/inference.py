@@ -145,7 +145,7 @@ empty cache: 256 logs 1.43 logs/s, 512 1.81–1.97, 1,024 2.32 (``benchmarks/bat
 
 PEAK_BYTES_PER_DATA_BYTE = 250
 """The accelerator memory a log holds at the batch's peak, per byte of its reduced arrays (:class:`LogData`):
-1,024 logs of 10 s (172 kB each) peaked at 37.8 GB on an H200 (224 bytes a byte; rounded up)."""
+1,024 logs of 10 s (172 kB each) peaked at 37,753 MiB on an H200 (nvidia-smi; 224 bytes a byte, rounded up)."""
 
 MEMORY_SHARE = 0.6
 """The share of the accelerator's memory (its allocator's limit) a batch may fill."""
