@@ -303,6 +303,7 @@ def _batched_against_alone(refine: bool, monkeypatch) -> None:
     np.testing.assert_allclose(together, alone, atol=1e-5)
 
 
+@pytest.mark.usefixtures("xla_optimised_test")   # run time, not compiles: cold 30-38 -> 21-26 s
 def test_logs_batched_give_each_logs_posterior(monkeypatch):
     """Several logs at once (vmapped over logs, three padded to four) give each log the SMC's posterior it
     gets alone (NUTS's refinement batched too: the slow test below), and the motor-map check's residuals of

@@ -99,6 +99,7 @@ def test_converged_names_the_coordinate_whose_chains_disagree_and_asks_enough_dr
     assert not good and "ESS ≥ 40" in why
 
 
+@pytest.mark.usefixtures("xla_optimised_test")   # run time, not compiles: cold 30-38 -> 21-26 s
 def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch):
     """On a 4 s exact-model log: the SMC's draws replaced by short NUTS chains that mixed; their 5/50/95 %
     quantiles of thrust-to-weight and the roll and pitch authorities within 0.3 of a longer run's band

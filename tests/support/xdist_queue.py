@@ -13,13 +13,16 @@ XDIST_GROUPS = {
     "policy-training": ("test_policy", "test_sequence"),
 }
 _GROUP_OF = {f: g for g, files in XDIST_GROUPS.items() for f in files}
-# Queue order, longest first (seconds of the default tier, `pytest --durations=0`, 2026-11-27), so
-# that the short files come last and fill in; files not listed after them. (test_identify, 27 s, was
-# not listed and ran last: one worker went on 23 s after the other had finished.)
-_QUEUE = ("policy-training", "policy-flights", "test_control", "test_sim", "test_tune", "test_experiments_robustness",
-          "test_cfm", "test_identify", "test_distributed", "test_resume", "test_logcheck", "test_render",
-          "test_docs_generated", "test_references", "test_export", "test_focus", "test_train_options", "test_inputs",
-          "test_heldout", "test_theta", "test_probe_loop", "test_architecture", "test_sensor_randomization")
+# Queue order, longest first (seconds of the default tier, `pytest --durations=0`, 2026-11-30), so
+# that the short files come last and fill in; files not listed after them. (A long file not listed
+# runs last: test_identify, 27 s, once kept one worker going 23 s after the other had finished.)
+_QUEUE = ("policy-training", "policy-flights", "test_identify", "test_calibrate", "test_control", "test_nuts",
+          "test_experiments_robustness", "test_tune", "test_cfm", "test_sim", "test_calibration_stage", "test_speeds",
+          "test_idlecheck", "test_docs_generated", "test_distributed", "test_resume", "test_logcheck", "test_render",
+          "test_references", "test_export", "test_theta", "test_sampler_reference", "test_mujoco_sysid",
+          "test_vibration", "test_heldout", "test_log_holes", "test_motor_map", "test_windowcheck", "test_focus",
+          "test_logspace", "test_train_options", "test_sensor_randomization", "test_inputs", "test_probe_loop",
+          "test_architecture")
 
 
 def pytest_configure(config):
