@@ -134,6 +134,8 @@ def main():
                     help="also time a second, warm pass over every log (--no-warm: the cold pass's phases alone)")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
+    from mjxsysid.runtime.xla_flags import GPU_LOOP_GRAPHS, use_xla_flags
+    use_xla_flags(GPU_LOOP_GRAPHS)                      # as `mjxsysid decode` runs it; before JAX starts its backend
     from mjxsysid.identify import inference as I
     from mjxsysid.identify.inference import log_grounded_posteriors
     from mjxsysid.identify.logdata import prepare

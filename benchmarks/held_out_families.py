@@ -89,6 +89,8 @@ def main(argv=None) -> None:
     r.add_argument("rows", type=Path, nargs="+")
     r.add_argument("--out", type=Path, default=None)
     a = ap.parse_args(argv)
+    from mjxsysid.runtime.xla_flags import GPU_LOOP_GRAPHS, use_xla_flags
+    use_xla_flags(GPU_LOOP_GRAPHS)                      # as `mjxsysid decode` runs it
     if a.cmd == "collect":
         collect(a.out, a.vehicles, a.shard, a.families.split(",") if a.families else None, a.budget)
     else:

@@ -171,6 +171,8 @@ def land(sources: list[Path], rows: Path = ROWS) -> list[Path]:
 
 
 def main(argv: list[str]) -> None:
+    from mjxsysid.runtime.xla_flags import GPU_LOOP_GRAPHS, use_xla_flags
+    use_xla_flags(GPU_LOOP_GRAPHS)                      # as `mjxsysid calibrate-posterior` runs it
     if argv[:1] == ["--land"]:
         if len(argv) < 2:
             raise SystemExit(__doc__)

@@ -28,7 +28,7 @@ import sys
 from mjxsysid.cli import (decoders, decoding, experiment, flights, identify, logs, policy, probe, profile, release, tune,
                           uses)
 from mjxsysid.runtime.startup import compilation_cache, start_processes
-from mjxsysid.runtime.xla_flags import QUICK_FIRST_RUN, use_fast_cpu_compile, use_xla_flags
+from mjxsysid.runtime.xla_flags import GPU_LOOP_GRAPHS, QUICK_FIRST_RUN, use_fast_cpu_compile, use_xla_flags
 
 COMMANDS = (
     flights.add_demo,
@@ -64,14 +64,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+POSTERIOR_COMMANDS = ("decode", "calibrate-posterior", "experiment", "release")
+"""The commands that run the log-grounded posterior, batched over logs on a GPU."""
+
+
+def command_xla_flags(command: str) -> tuple[str, ...]:
+    """The XLA flags ``command`` adds to :func:`~mjxsysid.runtime.xla_flags.FAST_CPU_COMPILE`'s: the demo's
+    quicker first run (``QUICK_FIRST_RUN``: compiling is most of it), the posterior's loops as CUDA graphs on a
+    GPU (``GPU_LOOP_GRAPHS``, :data:`POSTERIOR_COMMANDS`)."""
+    return (QUICK_FIRST_RUN if command == "demo" else ()) + (GPU_LOOP_GRAPHS if command in POSTERIOR_COMMANDS else ())
+
+
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     # XLA:CPU's faster compiling (mjxsysid.runtime.xla_flags: ~30 % less compile time for a first run on a
     # CPU, same results to float rounding) unless XLA_FLAGS sets the flag itself; XLA reads it when
     # JAX starts its backend, so a process that already computed keeps its flags
     use_fast_cpu_compile()
-    if args.command == "demo":                  # a first run: compiling is most of it (xla_flags.QUICK_FIRST_RUN)
-        use_xla_flags(QUICK_FIRST_RUN)
+    use_xla_flags(command_xla_flags(args.command))
     from mjxsysid.runtime.progress import set_quiet
     set_quiet(True if args.quiet else None)
     try:

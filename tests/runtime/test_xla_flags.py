@@ -1,10 +1,14 @@
-"""XLA:CPU's flags: the faster compiling added to XLA_FLAGS by the CLI and the test tier, and the
-tier's one Eigen thread per worker."""
+"""XLA's flags: the faster compiling added to XLA_FLAGS by the CLI and the test tier, the tier's one Eigen
+thread per worker, and the flags each command adds."""
 import os
+import subprocess
+import sys
 
 from mjxsysid.runtime.xla_flags import (
     FAST_CPU_COMPILE,
+    GPU_LOOP_GRAPHS,
     ONE_EIGEN_THREAD,
+    QUICK_FIRST_RUN,
     use_fast_cpu_compile,
     use_xla_flags,
     with_fast_cpu_compile,
@@ -76,3 +80,20 @@ def test_the_demo_alone_compiles_with_llvm_at_level_1(monkeypatch):
     assert not set(QUICK_FIRST_RUN) & set(seen[-1].split())
     assert main(["demo"]) == 0
     assert set(QUICK_FIRST_RUN) <= set(seen[-1].split())
+
+
+def test_the_posteriors_commands_add_cuda_graphs_of_loops_which_a_cpu_accepts():
+    """GPU_LOOP_GRAPHS goes with the commands that run the log-grounded posterior (each one the CLI has) and
+    no other; the demo adds its quick first run. XLA exits on a flag it does not know: a CPU process with the
+    flag computes."""
+    from mjxsysid.cli import POSTERIOR_COMMANDS, build_parser, command_xla_flags
+    commands = set(build_parser()._subparsers._group_actions[0].choices)
+    assert set(POSTERIOR_COMMANDS) <= commands
+    for c in commands:
+        want = (QUICK_FIRST_RUN if c == "demo" else ()) + (GPU_LOOP_GRAPHS if c in POSTERIOR_COMMANDS else ())
+        assert command_xla_flags(c) == want, c
+    assert command_xla_flags("train-policy") == () and command_xla_flags("decode") == GPU_LOOP_GRAPHS
+    env = dict(os.environ, XLA_FLAGS=" ".join(GPU_LOOP_GRAPHS), JAX_PLATFORMS="cpu")
+    r = subprocess.run([sys.executable, "-c", "import jax.numpy as jnp; print(float(jnp.arange(4.0).sum()))"],
+                       env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and r.stdout.strip() == "6.0", r.stderr[-2000:]
