@@ -64,8 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-POSTERIOR_COMMANDS = ("decode", "calibrate-posterior", "experiment", "release")
-"""The commands that run the log-grounded posterior, batched over logs on a GPU."""
+POSTERIOR_COMMANDS = ("decode", "calibrate-posterior")
+"""The commands whose GPU work is the log-grounded posterior, batched over logs. ``release`` and ``experiment``
+also train and fly, whose programs were not measured with the flag: they keep XLA's default."""
 
 
 def command_xla_flags(command: str) -> tuple[str, ...]:
