@@ -1,20 +1,16 @@
 """Ran at cbd6be6, against that commit's interface (`nuts.plan` of batched keys, `_chains_logs(steps, stages, ...)`);
 HEAD builds the keys inside the program. Old (static lengths, 14b9d63) against new (traced lengths, one program) NUTS, the same inputs: one captured log's
 NUTS arguments replicated to L logs; each program's first and retry shapes, warm, timed 3× alternated."""
-import functools, importlib.util, pickle, sys, time
-import jax, jax.numpy as jnp, numpy as np
+import functools, importlib.util, sys, time
+import jax, numpy as np
 from mjxsysid.runtime import startup  # noqa: F401
 import mjxsysid.identify.nuts as N
 spec = importlib.util.spec_from_file_location("nuts_old", sys.argv[1]); O = importlib.util.module_from_spec(spec); spec.loader.exec_module(O)
 L = int(sys.argv[2])
-(a, k) = pickle.load(open(sys.argv[3], "rb"))
-prior = k["prior"]
-keys, u0, data, ld, w, lo, hi, m, chol = a
-rep = lambda x: jax.tree.map(lambda y: jnp.broadcast_to(jnp.asarray(y), (L,) + jnp.shape(y)), x)
-rng = np.random.default_rng(0)
-keysL = jnp.asarray(np.asarray(jax.random.split(jax.random.PRNGKey(1), L * 8)).reshape(L, 8, 2), jnp.uint32)
-u0L = jnp.asarray(rng.normal(size=(L, 8, 17)), jnp.float32)
-args = (keysL, u0L, rep(data), rep(ld), rep(w), lo, hi, rep(m), rep(chol))
+sys.path.insert(0, str(__import__("pathlib").Path(__file__).parent))
+from nuts_cmdbuf import replicated  # noqa: E402   the same inputs (this run's copy held them inline)
+args, prior = replicated(sys.argv[3], L)
+keysL = args[0]
 res = {}
 SHAPES = {"first": (200, 125, 1), "retry": (400, 500, 4)}
 for W, D, thin in [SHAPES[x] for x in sys.argv[4].split(",")]:
