@@ -22,9 +22,10 @@ xdist workers), whose per-process pools of one thread per core only contend with
 GPU_LOOP_GRAPHS = ("--xla_gpu_enable_command_buffer=FUSION,CUBLAS,CUBLASLT,CUSTOM_CALL,CUDNN,WHILE,CONDITIONAL",)
 """XLA:GPU's CUDA graphs (command buffers) for while loops and conditionals too, besides its default kinds: a
 batch of NUTS's chains is a loop of small kernels, one launch each. On one H200 (jax 0.11): 512 logs' first
-attempt, warm, 28.4 -> 23.8 s with the same draws to the bit; 999 logs with the defaults, cold, 374 -> 351 s
-(NUTS 228 -> 202 s; docs/runs/measurements/log-grounded/batched/gpu_loop_graphs.json). Set for the commands and scripts that run the
-log-grounded posterior; XLA:CPU ignores it."""
+attempt, warm, 28.4 -> 23.8 s, the draws a default-flag run gives (a fresh compile gives one of two sets, under
+either flag); 999 logs with the defaults, cold, 374 -> 351 s (NUTS 228 -> 202 s;
+docs/runs/measurements/log-grounded/batched/gpu_loop_graphs.json). Set by ``decode``, ``calibrate-posterior``
+(``cli.POSTERIOR_COMMANDS``) and the scripts that run the posterior on a GPU; XLA:CPU ignores it."""
 
 
 REMOVED_IN_JAXLIB = {"--xla_cpu_use_fusion_emitters": (0, 11)}
