@@ -83,16 +83,15 @@ def test_the_demo_alone_compiles_with_llvm_at_level_1(monkeypatch):
 
 
 def test_the_posteriors_commands_add_cuda_graphs_of_loops_which_a_cpu_accepts():
-    """GPU_LOOP_GRAPHS goes with the commands that run the log-grounded posterior (each one the CLI has) and
-    no other; the demo adds its quick first run. XLA exits on a flag it does not know: a CPU process with the
-    flag computes."""
+    """GPU_LOOP_GRAPHS goes with `decode` and `calibrate-posterior` (commands the CLI has) and no other; the demo
+    adds its quick first run, every other command nothing. XLA exits on a flag it does not know: a CPU process
+    with the flag computes."""
     from mjxsysid.cli import POSTERIOR_COMMANDS, build_parser, command_xla_flags
     commands = set(build_parser()._subparsers._group_actions[0].choices)
-    assert set(POSTERIOR_COMMANDS) <= commands
-    for c in commands:
-        want = (QUICK_FIRST_RUN if c == "demo" else ()) + (GPU_LOOP_GRAPHS if c in POSTERIOR_COMMANDS else ())
-        assert command_xla_flags(c) == want, c
-    assert command_xla_flags("train-policy") == () and command_xla_flags("decode") == GPU_LOOP_GRAPHS
+    assert set(POSTERIOR_COMMANDS) == {"decode", "calibrate-posterior"} <= commands
+    assert {c for c in commands if command_xla_flags(c) == GPU_LOOP_GRAPHS} == {"decode", "calibrate-posterior"}
+    assert command_xla_flags("demo") == QUICK_FIRST_RUN
+    assert {c for c in commands if command_xla_flags(c) == ()} == commands - {"decode", "calibrate-posterior", "demo"}
     env = dict(os.environ, XLA_FLAGS=" ".join(GPU_LOOP_GRAPHS), JAX_PLATFORMS="cpu")
     r = subprocess.run([sys.executable, "-c", "import jax.numpy as jnp; print(float(jnp.arange(4.0).sum()))"],
                        env=env, capture_output=True, text=True, timeout=120)
