@@ -156,16 +156,14 @@ VARIANTS_AT_ONCE = 64
 held at once by :func:`_variants`."""
 
 
-def _variants(base, maps, pool=None):
+def _variants(base, maps, pool):
     """Each map of ``maps`` with the logs of ``base`` reduced again under it (:func:`variant`), in the maps'
     order: (map, [LogData, ...]), :data:`VARIANTS_AT_ONCE` at a time, the next chunk reduced while the caller
     fits the last (two chunks held at once); the results are the same as one by one.
     ``pool``: a :class:`~mjxsysid.runtime.hostpool.HostPool`, whose processes take them where it has enough
     work for them (beside an accelerator: a reduction is many small NumPy calls, and threads wait on each
-    other's interpreter lock); else a pool of threads (scipy's filters release the interpreter: 1.65× on 2
+    other's interpreter lock); else threads (scipy's filters release the interpreter: 1.65× on 2
     cores)."""
-    from mjxsysid.runtime.hostpool import HostPool
-    pool = HostPool(1) if pool is None else pool
     step = max(1, VARIANTS_AT_ONCE // max(len(base), 1))
     jobs = [_job(d) for d in base]
     procs = pool.processes(len(base) * len(maps))
@@ -232,7 +230,9 @@ def run(make_logs, datas, modes, starts: int = 1, shared=(), pool=None) -> list:
     has is plausible for each of its flights, whatever one flight's fit says, where it carries the log. Logs of
     one shape are re-fitted together (``make_logs``: :class:`~.batched._Logs`; ``starts``: the starts per log
     its batched fit was compiled for; ``pool``: the :class:`~mjxsysid.runtime.hostpool.HostPool` that reduces the
-    logs under each map, :func:`_variants`)."""
+    logs under each map, :func:`_variants`; default: one here, on threads)."""
+    from mjxsysid.runtime.hostpool import HostPool
+    pool = HostPool(1) if pool is None else pool
     out = [None] * len(datas)
     idx = []
     for i, d in enumerate(datas):

@@ -306,7 +306,7 @@ def refine_posterior(rec_or_data, post: dict, *, seed: int = 0, prior: PhysicalP
 
 
 def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particles, n_mcmc, max_stages, starts,
-                     force_smc, refine, calibration, shared_maps=(), pool: HostPool | None = None) -> list[dict]:
+                     force_smc, refine, calibration, pool: HostPool, shared_maps=()) -> list[dict]:
     """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc)."""
     nl = len(datas)
     logs = _Logs(datas)
@@ -320,7 +320,6 @@ def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particle
     ld = np.stack([m[1] for m in modes]).astype(np.float32)
     w = np.stack([m[2] for m in modes]).astype(np.float32)
     laps = [m[4] for m in modes]
-    pool = HostPool(1) if pool is None else pool
     checks = window_check(_Logs, datas, modes, prior, starts, pool)        # the fit at longer rate windows (.windowcheck)
     idles = idlecheck.run(_Logs, datas, modes, starts, shared_maps, pool)   # the fit under other motor maps (.idlecheck)
     outs = [{"proposal": "decoded" if qvs[i] is not None else "prior", "mode": modes[i][0], "weights": modes[i][2],

@@ -87,7 +87,7 @@ def test_the_posteriors_commands_add_cuda_graphs_of_loops_which_a_cpu_accepts():
     adds its quick first run, every other command nothing. XLA exits on a flag it does not know: a CPU process
     with the flag computes."""
     from mjxsysid.cli import POSTERIOR_COMMANDS, build_parser, command_xla_flags
-    commands = set(build_parser()._subparsers._group_actions[0].choices)
+    commands = set(next(a for a in build_parser()._actions if a.dest == "command").choices)   # as test_api's
     assert set(POSTERIOR_COMMANDS) == {"decode", "calibrate-posterior"} <= commands
     assert {c for c in commands if command_xla_flags(c) == GPU_LOOP_GRAPHS} == {"decode", "calibrate-posterior"}
     assert command_xla_flags("demo") == QUICK_FIRST_RUN
