@@ -120,15 +120,17 @@ class LoopCarry(NamedTuple):
     low: object
 
 
-def start_loop(sim: Quadrotor, theta, low, high: Cascade, ref, key) -> LoopCarry:
+def start_loop(sim: Quadrotor, theta, low, high: Cascade, ref, key, imu_std=None) -> LoopCarry:
     """Initial closed-loop carry: the vehicle θ (19,) at rest at the reference start (yaw
-    aligned, hover rotor speeds). key: the ``k_sim`` / ``k_low`` keys of :func:`fly`."""
+    aligned, hover rotor speeds). key: the ``k_sim`` / ``k_low`` keys of :func:`fly`; imu_std: the
+    IMU's magnitudes (3, 6) given as data (None: the simulator's config, :meth:`Quadrotor.init`)."""
     k_sim, k_low = key
     theta = jnp.asarray(theta, jnp.float32)
     r0 = ref.at(jnp.float32(0.0))
     half = 0.5 * r0.yaw
     quat0 = jnp.array([jnp.cos(half), 0.0, 0.0, jnp.sin(half)])
-    state = sim.init(theta, k_sim, pos=r0.pos, quat=quat0, rotor_speed=hover_rotor_speed(theta))
+    imu = {} if imu_std is None else {"imu_std": imu_std}
+    state = sim.init(theta, k_sim, pos=r0.pos, quat=quat0, rotor_speed=hover_rotor_speed(theta), **imu)
     return LoopCarry(state, high.init(), low.init(k_low))
 
 
@@ -170,13 +172,14 @@ def run_loop(sim: Quadrotor, theta, low, high: Cascade, ref, carry: LoopCarry, f
 
 
 def start_flight(sim: Quadrotor, theta, low, high: Cascade, ref, disturbance: Disturbance, key,
-                 steps: int) -> tuple[jax.Array, LoopCarry, jax.Array]:
+                 steps: int, imu_std=None) -> tuple[jax.Array, LoopCarry, jax.Array]:
     """What :func:`fly` starts from: the flown θ (19,) (the disturbance's torque added to τ_ext),
-    the closed loop's carry at rest at the reference start, and the world forces (steps, 3) N."""
+    the closed loop's carry at rest at the reference start, and the world forces (steps, 3) N.
+    imu_std: as :func:`start_loop`'s."""
     k_sim, k_dist, k_low = jax.random.split(key, 3)
     theta = jnp.asarray(theta, jnp.float32)
     theta = theta.at[P.TAU_EXT].add(disturbance.torque)
-    carry0 = start_loop(sim, theta, low, high, ref, (k_sim, k_low))
+    carry0 = start_loop(sim, theta, low, high, ref, (k_sim, k_low), imu_std)
     return theta, carry0, disturbance.forces(k_dist, steps, sim.config.dt)
 
 
@@ -205,8 +208,8 @@ def _fly_batch(sim, steps, low_axes_def, low_axes_leaves, reduce=None):
         flight = run_loop(sim, theta, low, high, ref, carry0, forces, 0, steps, payload=disturbance)[1]
         return flight if reduce is None else reduce(flight)
 
-    def batch(theta, low, high, ref, disturbance, keys):
-        th, carry0, forces = jax.vmap(lambda *a: start_flight(sim, *a, steps),
+    def batch(theta, low, high, ref, disturbance, keys, imu_std):
+        th, carry0, forces = jax.vmap(lambda *a: start_flight(sim, *a, steps, imu_std),
                                       in_axes=(0, low_axes, 0, 0, 0, 0))(theta, low, high, ref, disturbance, keys)
         return jax.vmap(loop, in_axes=(0, low_axes, 0, 0, 0, 0, 0))(th, low, high, ref, disturbance, carry0, forces)
 
@@ -244,9 +247,10 @@ def fly_batch(sim: Quadrotor, theta, low, high, ref, disturbance, key, steps: in
         keys = jnp.broadcast_to(key, (n,) + key.shape) if same_key else jax.random.split(key, n)
     axes = low_level_axes(low)
     leaves, treedef = jax.tree_util.tree_flatten(axes, is_leaf=lambda x: x is None)
+    sim, imu_std = sim.imu_as_data()     # every noise level of one structure: one program
     fn = _fly_batch(sim, int(steps), treedef, tuple(leaves), reduce)
-    args = distributed.shard_batch((theta, low, high, ref, disturbance, keys), n,
-                                   axes=(0, axes, 0, 0, 0, 0))
+    args = distributed.shard_batch((theta, low, high, ref, disturbance, keys, imu_std), n,
+                                   axes=(0, axes, 0, 0, 0, 0, None))
     return distributed.unpad(fn(*args), n)
 
 

@@ -14,6 +14,7 @@ drag −D v_body, the constant body-frame torque τ_ext, the world-frame disturb
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import NamedTuple
 
@@ -131,8 +132,8 @@ class SimState:
       [gyro (3) rad/s, specific force (3) m/s²], body frame, with noise / bias / latency.
     imu_buffer: (imu_latency + 1, 6) true readings, oldest first. imu_bias: (6,).
     imu_vibration: (2, 6) the vibration filter's last two outputs (unit std; zeros when off).
-    imu_level: (2,) this episode's multipliers of the white noise and vibration, and of the bias
-    std (ones unless ``randomize_imu``).
+    imu_std: (3, 6) this episode's IMU magnitudes per channel: the white noise's std, the bias's std
+    and the vibration's amplitude (the config's, times ``randomize_imu``'s draw; :meth:`Quadrotor.imu_std`).
     key: PRNG key for IMU noise. diverged: () bool. step: () int32 control steps taken.
     """
     data: mjx.Data
@@ -141,7 +142,7 @@ class SimState:
     imu_buffer: jax.Array
     imu_bias: jax.Array
     imu_vibration: jax.Array
-    imu_level: jax.Array
+    imu_std: jax.Array
     key: jax.Array
     diverged: jax.Array
     step: jax.Array
@@ -357,11 +358,26 @@ class Quadrotor:
         return m.replace(body_mass=mass, body_inertia=inertia, site_pos=site_pos,
                          actuator_gear=gear, body_subtreemass=subtree)
 
+    # ------------------------------------------------------------------- IMU
+    def imu_std(self) -> np.ndarray:
+        """The config's IMU magnitudes (3, 6) float32, per channel [gyro (3) rad/s, accelerometer (3) m/s²]:
+        the white noise's std, the bias's std and the vibration's amplitude (randomize_imu's maxima)."""
+        c = self.config
+        return np.array([[c.gyro_noise] * 3 + [c.accel_noise] * 3, [c.gyro_bias] * 3 + [c.accel_bias] * 3,
+                         [c.gyro_vibration] * 3 + [c.accel_vibration] * 3], np.float32)
+
+    def imu_as_data(self) -> tuple[Quadrotor, np.ndarray]:
+        """(this simulator with the IMU's magnitudes left to :meth:`init`'s ``imu_std``, those magnitudes (3, 6)).
+        Flights of every noise level of one structure (rotor vibration on or off) then share one compiled
+        program, and fly as this simulator flies: the same noise to the bit (:func:`~mjxsysid.rollout.harness.fly_batch`)."""
+        return _imu_free(self), self.imu_std()
+
     # ------------------------------------------------------------------- init
     def init(self, theta, key, *, pos=(0.0, 0.0, 1.0), quat=(1.0, 0.0, 0.0, 0.0),
-             vel=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), rotor_speed=None) -> SimState:
+             vel=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), rotor_speed=None, imu_std=None) -> SimState:
         """Initial state of one vehicle: θ (19,), key; pos (3) m, quat (4) wxyz, vel (3) m/s world,
-        omega (3) rad/s body, rotor_speed (4) rad/s (default: the hover speeds)."""
+        omega (3) rad/s body, rotor_speed (4) rad/s (default: the hover speeds); imu_std (3, 6) the IMU's
+        magnitudes (default the config's, :meth:`imu_std`; data, so that one program serves every level)."""
         theta = jnp.asarray(theta, jnp.float32)
         c = self.config
         k_bias, k_noise = jax.random.split(key)
@@ -379,11 +395,12 @@ class Quadrotor:
             if c.imu_clean_fraction > 0:   # that share of flights has a clean IMU (levels 0)
                 k_level, k_clean = jax.random.split(k_level)
                 level = jnp.where(jax.random.uniform(k_clean) < c.imu_clean_fraction, 0.0, level)
-        scale = jnp.array([c.gyro_bias] * 3 + [c.accel_bias] * 3, jnp.float32)
-        bias = level[1] * scale * jax.random.normal(k_bias, (6,))
+        std = jnp.asarray(self.imu_std() if imu_std is None else imu_std, jnp.float32)
+        std = jnp.stack([level[0] * std[0], level[1] * std[1], level[0] * std[2]])
+        bias = std[1] * jax.random.normal(k_bias, (6,))
         true0, buf = initial_imu(omega, c.imu_latency)
         return SimState(data=data, rotor_speed=speed, imu=true0 + bias, imu_buffer=buf,
-                        imu_bias=bias, imu_vibration=jnp.zeros((2, 6), jnp.float32), imu_level=level,
+                        imu_bias=bias, imu_vibration=jnp.zeros((2, 6), jnp.float32), imu_std=std,
                         key=k_noise, diverged=jnp.array(False),
                         step=jnp.array(0, jnp.int32))
 
@@ -455,16 +472,14 @@ class Quadrotor:
         true = jnp.concatenate([data.qvel[3:6], self.specific_force(theta, data, speed, force_world)])
         buf = jnp.concatenate([state.imu_buffer[1:], true[None]], 0)
         key, k = jax.random.split(state.key)
-        sigma = jnp.array([c.gyro_noise] * 3 + [c.accel_noise] * 3, jnp.float32)
-        imu = buf[0] + state.imu_bias + state.imu_level[0] * sigma * jax.random.normal(k, (6,))
+        imu = buf[0] + state.imu_bias + state.imu_std[0] * jax.random.normal(k, (6,))
         vib = state.imu_vibration
         if c.vibration:  # a Python branch: with vibration off the key stream is unchanged
             key, kv = jax.random.split(key)
             f = c.vibration_hz if c.vibration_hz > 0 else jnp.mean(speed) / (2 * jnp.pi)
             vib = vibration_step(vib, jax.random.normal(kv, (6,)), aliased_hz(f, c.dt),
                                  c.vibration_bandwidth_hz, c.dt)
-            amp = jnp.array([c.gyro_vibration] * 3 + [c.accel_vibration] * 3, jnp.float32)
-            imu = imu + state.imu_level[0] * amp * vib[-1]
+            imu = imu + state.imu_std[2] * vib[-1]
 
         new = state.replace(data=data, rotor_speed=speed, imu=imu, imu_buffer=buf, imu_vibration=vib,
                             key=key, step=state.step + 1)
@@ -490,3 +505,13 @@ class Quadrotor:
 
 
 _step_jit = jax.jit(Quadrotor._step, static_argnums=0)
+
+
+@functools.lru_cache(maxsize=16)
+def _imu_free(sim: Quadrotor) -> Quadrotor:
+    """``sim`` with the IMU's magnitudes zeroed in its config and the vibration's structure kept (on: a unit
+    gyro amplitude): what its flights compile when :meth:`Quadrotor.init` is given the magnitudes."""
+    c = sim.config
+    free = dataclasses.replace(c, gyro_noise=0.0, accel_noise=0.0, gyro_bias=0.0, accel_bias=0.0,
+                               gyro_vibration=float(c.vibration), accel_vibration=0.0)
+    return sim if free == c else type(sim)(free, sim._key[1])

@@ -88,6 +88,11 @@ class RigidSim:
     def __eq__(self, other):
         return isinstance(other, RigidSim) and other.config == self.config
 
+    def imu_as_data(self) -> tuple[RigidSim, None]:
+        """(this simulator, no IMU magnitudes): the twin draws no noise (:meth:`Quadrotor.imu_as_data
+        <mjxsysid.sim.quadrotor.Quadrotor.imu_as_data>`)."""
+        return self, None
+
     def init(self, theta, key=None, *, pos=(0.0, 0.0, 1.0), quat=(1.0, 0.0, 0.0, 0.0),
              vel=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), rotor_speed=None) -> RigidState:
         """Initial state of one vehicle, as :meth:`Quadrotor.init <mjxsysid.sim.quadrotor.Quadrotor.init>`

@@ -58,7 +58,8 @@ def test_a_share_of_clean_flights():
     sim = Quadrotor(SimConfig(**RANGE, imu_clean_fraction=0.3))
     keys = jax.random.split(jax.random.PRNGKey(0), 1000)
     st = jax.jit(jax.vmap(lambda k: sim.init(P.PAPER_HARDWARE, k)))(keys)
-    level, bias = np.asarray(st.imu_level), np.asarray(st.imu_bias)
+    std, bias = np.asarray(st.imu_std), np.asarray(st.imu_bias)
+    level = std[:, :2, 0] / np.array([RANGE["gyro_noise"], RANGE["gyro_bias"]])     # the white noise's, the bias's
     clean = np.all(level == 0, 1)
     assert 0.25 < clean.mean() < 0.35, clean.mean()
     assert np.all(bias[clean] == 0) and level[~clean].min() > 0 and level[~clean].max() < 1

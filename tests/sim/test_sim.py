@@ -331,7 +331,10 @@ def test_imu_vibration_and_randomized_levels_in_flight():
                               gyro_bias=0.025, accel_bias=0.25, randomize_imu=True))
     s0 = init_batch(sim, th, jax.random.PRNGKey(1))
     _, fr = rollout_batch(sim, th, s0, u)
-    level = np.asarray(s0.imu_level)
+    std = np.asarray(s0.imu_std)                        # the drawn levels times the maxima
+    assert std.shape == (n, 3, 6)
+    level = np.stack([std[:, 0, 0] / 0.05, std[:, 1, 0] / 0.025], 1)
+    np.testing.assert_allclose(std[:, 2, 3], 0.5 * level[:, 0], rtol=1e-6)     # vibration: the white noise's level
     assert level.shape == (n, 2) and np.all((level >= 0) & (level <= 1)) and level.std(0).min() > 0.1
     bias = np.asarray(s0.imu_bias)
     assert np.all(np.abs(bias[:, :3]) <= 0.025 * 4.5 * level[:, 1:]) and np.abs(bias).max() > 0
@@ -347,7 +350,7 @@ def test_imu_vibration_and_randomized_levels_in_flight():
 
 def test_imu_noise_without_vibration_or_randomisation_is_drawn_as_before():
     """Off (the default): the white noise is drawn exactly as before vibration and randomisation
-    existed (its first reading = σ · normal(split(key)[1])), no vibration state, unit levels. The
+    existed (its first reading = σ · normal(split(key)[1])), no vibration state, the config's magnitudes. The
     fast check beside the slow in-flight statistics above."""
     th = no_torque(prior_batch(3, 1))
     u = hover_cmd(th)[:, None]
@@ -357,7 +360,29 @@ def test_imu_noise_without_vibration_or_randomisation_is_drawn_as_before():
     _, k = jax.random.split(s.key)
     want = np.array([0.01] * 3 + [0.1] * 3) * np.asarray(jax.random.normal(k, (6,)))
     np.testing.assert_allclose(np.asarray(s1.imu) - np.asarray(s1.imu_buffer[0]), want, atol=1e-6)
-    assert not np.asarray(s1.imu_vibration).any() and np.all(np.asarray(s1.imu_level) == 1)
+    assert not np.asarray(s1.imu_vibration).any() and np.all(np.asarray(s1.imu_std) == off.imu_std())
+
+
+def test_flights_at_every_noise_level_share_one_program_and_read_their_levels_noise():
+    """fly_batch compiles one flight for every IMU level of one structure (the magnitudes are data,
+    :meth:`Quadrotor.imu_as_data`), and each flight's gyro reads its own level's white noise and bias
+    about the true rate (2 hovering vehicles, 0.4 s). The vibration's structure stays in the program."""
+    from mjxsysid.rollout import harness
+    from mjxsysid.rollout.flight import fly_vehicles
+    from mjxsysid.sim.quadrotor import _imu_free
+    from mjxsysid.uses.imu_noise import LEVELS
+    th = no_torque(prior_batch(5, 2))
+    before = harness._fly_batch.cache_info().misses
+    for lv, sigma, bias in (("clean", 0.0, 0.0), ("x1", 0.01, 0.005), ("x5_white", 0.05, 0.0)):
+        fl, _, _ = fly_vehicles(th, controller="oracle", reference="hover", duration=0.4, seed=1,
+                                sim=Quadrotor(SimConfig(**LEVELS[lv])))
+        resid = np.asarray(fl.frame.imu[..., :3]) - np.asarray(fl.frame.omega)      # (2, 200, 3) noise + bias
+        np.testing.assert_allclose(resid.std(1).mean(), sigma, rtol=0.15, atol=1e-7)
+        assert np.abs(resid.mean(1)).max() <= 4 * bias + 3 * sigma / np.sqrt(200) + 1e-7, lv
+    assert harness._fly_batch.cache_info().misses - before == 1
+    vib = Quadrotor(SimConfig(**LEVELS["x5_vibration"]))
+    assert _imu_free(vib).config.vibration and not _imu_free(vib).imu_std()[[0, 1]].any()
+    assert _imu_free(Quadrotor(SimConfig(**LEVELS["x20"]))) == Quadrotor(SimConfig())
 
 
 def test_aero_option_is_rotorpy_form_scaled_to_the_vehicle():
