@@ -176,12 +176,13 @@ TINY = Sizes(
         "noise_sensitivity.json": ("clean", "x1"), "noise_sensitivity_low.json": ("clean", "x1_white")})),
     quick=True, fidelity=FidelitySizes(vehicles=2, models=2, duration=1.0),
     # hover:2 leaves the 5 rate windows a log needs; logs without velocity (no velocity stratum to fill);
-    # 6 training rows: a group of fewer than 19 has no finite conformal quantile (an infinite band)
+    # 4 training rows: a group of fewer than 19 has no finite conformal quantile (an infinite band). Every set
+    # flies 2 vehicles: one flight program (the levels are data) serves them all
     calibration=CalibrationSizes(
-        train=_frozen(train=_CAL(3, 5, ("hover:2",), velocity=False)),
+        train=_frozen(train=_CAL(2, 5, ("hover:2",), velocity=False)),
         held_out=_frozen(test=_CAL(2, 71, ("hover:2",), velocity=False)),
         train_levels=("clean", "x1"), held_out_levels=("clean", "x1"), shards=1, bins=1, min_group=2,
-        misfit=_frozen(motor=_CAL(1, 12, ("hover:2",), velocity=False, motor_idle=0.1)), window_logs=2))
+        misfit=_frozen(motor=_CAL(2, 12, ("hover:2",), velocity=False, motor_idle=0.1)), window_logs=2))
 
 SIZES = {"full": FULL, "tiny": TINY}
 """Per scale, its sizes."""

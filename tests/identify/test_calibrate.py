@@ -231,19 +231,19 @@ def test_collect_identifies_every_level_interleaved_and_stops_at_its_budget(tmp_
     res = pc.collect(vehicles=2, levels=("clean",), references=("hover:2",), out=out, motor_idle=0.1)
     assert {r["flight"] for r in res["rows"]} == {"hover:2 motor 0.1/1"}
     assert all(r["motor"] == [0.1, 1.0] for r in res["rows"]) and res["motor_idle"] == 0.1
-    assert "motor" not in pc.collect(vehicles=1, levels=("clean",), references=("hover:2",), out=out)["rows"][0]
+    assert "motor" not in pc.collect(vehicles=2, levels=("clean",), references=("hover:2",), out=out)["rows"][0]
     with pytest.raises(ValueError, match="motor_kappa"):
         pc.collect(vehicles=1, levels=("clean",), references=("hover:2",), out=out, motor_kappa=2.5)
     # several priors (the held-out families): flown alike, identified in one batch, each row naming its prior;
     # resumed, nothing is identified again
     calls.clear()
     fam = tmp_path / "fam.json"
-    res = pc.collect(prior=["weak_motor", "yaw_torque"], vehicles=1, levels=("clean",), references=("hover:2",),
+    res = pc.collect(prior=["weak_motor", "yaw_torque"], vehicles=2, levels=("clean",), references=("hover:2",),
                      out=fam)
-    assert sorted(r["prior"] for r in res["rows"]) == ["weak_motor", "yaw_torque"] and calls == [2]
+    assert sorted(r["prior"] for r in res["rows"]) == ["weak_motor"] * 2 + ["yaw_torque"] * 2 and calls == [3, 1]
     assert res["prior"] == ["weak_motor", "yaw_torque"]
     calls.clear()
-    again = pc.collect(prior=("weak_motor", "yaw_torque"), vehicles=1, levels=("clean",), references=("hover:2",),
+    again = pc.collect(prior=("weak_motor", "yaw_torque"), vehicles=2, levels=("clean",), references=("hover:2",),
                        out=fam, resume=True)                    # a tuple resumes the list the file holds
     assert calls == [] and again["rows"] == res["rows"]
 
@@ -524,7 +524,7 @@ def test_paths_fly_each_group_of_vehicles_on_its_own_seeded_path(tmp_path, monke
         return real(th, **kw)
     monkeypatch.setattr(F, "fly_vehicles", spy)
     st = {"prior": "wide_actuators", "vehicles": 4, "seed": 3, "shard": None, "levels": ["clean"],
-          "references": ["hover:1"]}
+          "references": ["hover:2"]}              # the groups of 2: the flight of the test above
     one = [v for _, v, *_ in pc.flights(st)]
     assert seen == [(4, 3 + 97 * 0)] and one == [0, 1, 2, 3]
     seen.clear()
