@@ -6,7 +6,8 @@
 
 As a pytest plugin (``-p tier_compile_census``, loaded in every xdist worker) it listens to JAX's
 trace / lower / backend-compile duration events (:mod:`mjxsysid.runtime.profiling`'s events) and writes,
-per worker, [test file, program, kind, seconds] rows to ``$MJXSYSID_CENSUS_DIR``. Programs
+per worker, [test file, program, kind, seconds] rows to ``$MJXSYSID_CENSUS_DIR`` (``MJXSYSID_CENSUS_BY=test``:
+per test). Programs
 compiled in subprocesses the tests start (CLI runs, notebook kernels) are not counted. Run as a
 script on that folder, it prints the totals per kind, per test file and per program (with the
 number of files that built it).
@@ -38,7 +39,8 @@ def pytest_configure(config):
 
 
 def pytest_runtest_logstart(nodeid, location):
-    _current[0] = nodeid.split("::")[0]
+    # MJXSYSID_CENSUS_BY=test: per test instead of per file
+    _current[0] = nodeid if os.environ.get("MJXSYSID_CENSUS_BY") == "test" else nodeid.split("::")[0]
 
 
 def _write(config):

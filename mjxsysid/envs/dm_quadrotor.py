@@ -39,7 +39,8 @@ from dm_control.utils import rewards  # noqa: E402
 from mjxsysid import theta as P
 from mjxsysid.control.high_level import Cascade, Estimate
 from mjxsysid.rollout.flight import make_reference
-from mjxsysid.sim.quadrotor import ASSET, BODY, SimConfig, hover_rotor_speed, mean_square_speed
+from mjxsysid.sim.motors import mean_square_speed
+from mjxsysid.sim.quadrotor import ASSET, BODY, SimConfig, hover_rotor_speed
 
 
 TASKS = ("hover", "lemniscate", "minsnap", "force_step")

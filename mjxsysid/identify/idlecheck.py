@@ -96,7 +96,7 @@ SPEED_SKIP = "not run: the measured rotor speeds fit the command→speed map, id
 def mapped(u, iota: float, kappa: float = 1.0) -> np.ndarray:
     """Commands u (T, 4) in [0, 1] -> the speeds' share of Ω_max under idle ``iota`` and curvature ``kappa``:
     max(0, ι + (1 − ι) s), s = √(κ u² + (1 − κ) u) for κ ≤ 1 (concave: √u at 0), u √(2 − κ + (κ − 1) u²) for
-    κ > 1 (convex: u² at 2), the simulator's map (:func:`mjxsysid.sim.quadrotor.commanded_speed`)."""
+    κ > 1 (convex: u² at 2), the simulator's map (:func:`mjxsysid.sim.motors.commanded_speed`)."""
     u = np.clip(np.asarray(u, np.float64), 0.0, 1.0)
     shape = (u if kappa == 1.0 else np.sqrt(kappa * u * u + (1.0 - kappa) * u) if kappa < 1.0
              else u * np.sqrt(2.0 - kappa + (kappa - 1.0) * u * u))

@@ -18,7 +18,7 @@ log is cut into non-overlapping windows of 2 × :data:`~.logdata.WINDOW_STEPS` c
   share of the specific force is left to the discrepancy δ and to the calibration.
 
 The rotor speeds are the commands through the simulator's first-order lag, integrated exactly
-(:func:`~mjxsysid.sim.quadrotor.mean_square_speed`: the exact mean of s² over each step for the
+(:func:`~mjxsysid.sim.motors.mean_square_speed`: the exact mean of s² over each step for the
 rates, the end-of-step s² for the accelerometer); where the log's rotor speeds are used, through the
 fitted command→speed map as well (:func:`~.speeds.model_features`). The lag depends on τ_m alone, so the window
 sums of s² are computed once per log on a grid of τ_m (:data:`~.logdata.TAU_GRID`, :mod:`.logdata`) and interpolated in

@@ -21,13 +21,12 @@ import jax.numpy as jnp
 from flax import struct
 
 from mjxsysid import theta as P
+from mjxsysid.sim.motors import commanded_speed, mean_square_speed
 from mjxsysid.sim.quadrotor import (
     Frame,
     SimConfig,
-    commanded_speed,
     hover_rotor_speed,
     initial_imu,
-    mean_square_speed,
     quat_to_mat,
 )
 

@@ -10,7 +10,8 @@ import jax.numpy as jnp
 
 from mjxsysid import theta as P
 from mjxsysid.rollout.harness import LoopCarry
-from mjxsysid.sim.quadrotor import SimConfig, hover_rotor_speed, rotor_speed_after
+from mjxsysid.sim.motors import rotor_speed_after
+from mjxsysid.sim.quadrotor import SimConfig, hover_rotor_speed
 
 ROTOR_STATES = ("estimate", "steady", "true")
 """Where the predictive rollouts start the rotors (``TunerConfig.rotor_state``)."""

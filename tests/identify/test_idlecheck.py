@@ -49,7 +49,8 @@ def test_mapped_commands_and_the_equivalent_vehicle():
     assert e[L.LOG_TAU_M] == y[L.LOG_TAU_M] and e[L.LOG_AUTH_Z] == y[L.LOG_AUTH_Z]
     assert np.allclose(I.equivalent(e, 0.5, 0.1, inverse=True), y, atol=1e-6)
     # the simulator's map, curved: the same share of Ω_max, and the torque per differential by its slope
-    from mjxsysid.sim.quadrotor import SimConfig, commanded_speed
+    from mjxsysid.sim.motors import commanded_speed
+    from mjxsysid.sim.quadrotor import SimConfig
     uu = np.linspace(0.0, 1.0, 41)[:, None].repeat(4, 1)
     for kappa in (0.3, 1.6, 2.0):                      # concave, and convex (u² at κ 2)
         cfg = SimConfig(motor_idle=-0.1, motor_kappa=kappa)

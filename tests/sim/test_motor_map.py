@@ -6,7 +6,7 @@ import pytest
 
 from mjxsysid import theta as P
 from mjxsysid.sim import Quadrotor, SimConfig, hover_rotor_speed, init_batch, rollout_batch
-from mjxsysid.sim.quadrotor import commanded_speed, mean_square_speed, rotor_speed_after
+from mjxsysid.sim.motors import commanded_speed, mean_square_speed, rotor_speed_after
 
 B, T = 8, 500  # tests/sim/test_sim.py's compiled shape
 IDLE, KAPPA = 0.1, 0.5
