@@ -351,10 +351,12 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
     return np.stack([lo, hi]), ok
 
 
-def evaluate(rows: list[dict], table: dict | None, by: str = "level") -> dict:
+def evaluate(rows: list[dict], table: dict | None, by: str = "level", bands: list | None = None) -> dict:
     """Coverage, widths and clustering per ``by`` ('level', 'flight' or 'velocity': whether the logs carried
     it, and whether they were flown with rotor aerodynamics or another motor map) of ``rows`` under
-    ``table`` (None: the raw posterior)."""
+    ``table`` (None: the raw posterior); ``bands``: the rows' :func:`calibrated_bands` under it, where already
+    computed (one per row, in order)."""
+    bands = [calibrated_bands(r, table) for r in rows] if bands is None else bands
     out = {}
     order = ("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20") + REFERENCES_ALL
     if by == "velocity":
@@ -363,8 +365,9 @@ def evaluate(rows: list[dict], table: dict | None, by: str = "level") -> dict:
     else:
         key = lambda r: r.get(by, "lemniscate:10")    # noqa: E731  (rows of one flight name none)
     for lv in sorted({key(r) for r in rows}, key=lambda x: (order.index(x) if x in order else len(order), x)):
-        rs = [r for r in rows if key(r) == lv]
-        band, ok = zip(*(calibrated_bands(r, table) for r in rs))
+        pick = [i for i, r in enumerate(rows) if key(r) == lv]
+        rs = [rows[i] for i in pick]
+        band, ok = zip(*(bands[i] for i in pick))
         band, ok = np.array(band), np.array(ok)
         tv = np.array([r["truth_v"] for r in rs])
         med = np.array([r["bands"][1] for r in rs])
@@ -385,15 +388,16 @@ def evaluate(rows: list[dict], table: dict | None, by: str = "level") -> dict:
 LEVEL_Q = 0.9
 
 
-def rank_histograms(rows: list[dict], table: dict | None, path: Path) -> None:
+def rank_histograms(rows: list[dict], table: dict | None, path: Path, bands: list | None = None) -> None:
     """Where each truth falls inside its band (0 at q05, 1 at q95; below 0 / above 1 outside), per
-    coordinate: a calibrated band spreads them evenly over 0…1 with 5 % beyond each side."""
+    coordinate: a calibrated band spreads them evenly over 0…1 with 5 % beyond each side. ``bands``: as
+    :func:`evaluate`'s."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    bands = [calibrated_bands(r, table) for r in rows] if bands is None else bands
     pos = []
-    for r in rows:
-        b, _ = calibrated_bands(r, table)
+    for r, (b, _) in zip(rows, bands):
         finite = np.isfinite(b[0]) & np.isfinite(b[1])       # a group too small for its level: an infinite band
         width = np.where(finite, np.maximum(b[1] - b[0], 1e-12), 1.0)
         pos.append(np.where(finite, (np.asarray(r["truth_v"]) - np.where(finite, b[0], 0.0)) / width, np.nan))
@@ -471,9 +475,10 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     table = load(table_path)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    raw, cal = evaluate(rows, None), evaluate(rows, table)
-    flights = evaluate(rows, table, by="flight")
-    vel = evaluate(rows, table, by="velocity")
+    bands = [calibrated_bands(r, table) for r in rows]             # each row's, once
+    raw, cal = evaluate(rows, None), evaluate(rows, table, bands=bands)
+    flights = evaluate(rows, table, by="flight", bands=bands)
+    vel = evaluate(rows, table, by="velocity", bands=bands)
     shipped = table_path is not None and Path(table_path).resolve() == SHIPPED.resolve()
     named = str(SHIPPED.relative_to(SHIPPED.parents[2])) if shipped else str(table_path)   # not this machine's path
     res = {"rows": len(rows), "table": named, "raw": raw, "calibrated": cal, "calibrated_by_flight": flights,
@@ -484,14 +489,15 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
           + ["", "## Raw", ""] + table_markdown(raw))
     (out / "evaluation.md").write_text("\n".join(md) + "\n")
     coverage_width_figure(raw, cal, out / "coverage_width.png")
-    rank_histograms(rows, table, out / "ranks.png")
+    rank_histograms(rows, table, out / "ranks.png", bands)
     if not record:
         return res
     path = Path(table_path) if table_path is not None else SHIPPED
     for method in sorted({r.get("method") for r in rows}, key=str):    # each sampler's rows, in its own table
-        own = [r for r in rows if r.get("method") == method]
+        own = [k for k, r in enumerate(rows) if r.get("method") == method]
         held = for_method(table, method).setdefault("provenance", {}).setdefault("held_out", {})
-        held[str(out)] = {"rows": len(own), "mean_coverage": mean_coverage(evaluate(own, table))}
+        cov = mean_coverage(evaluate([rows[k] for k in own], table, bands=[bands[k] for k in own]))
+        held[str(out)] = {"rows": len(own), "mean_coverage": cov}
     path.write_text(json.dumps(table, indent=1) + "\n")
     return res
 
