@@ -28,6 +28,33 @@ def xla_optimised_test():
 
 
 @pytest.fixture(scope="session")
+def exact_model_posteriors():
+    """What tests/identify/test_nuts.py and tests/experiments/test_sampler_reference.py read of one 4 s log
+    whose likelihood's model is exact (the paper vehicle, ×5-like noise, seed 3), computed once, XLA optimised
+    (run time, not compiles): the log, the SMC's posterior (400 draws), the same refined by NUTS (its retry
+    as long as its first run), and a longer NUTS run from the SMC's mode and draws (4 chains × (300 + 500))."""
+    import numpy as np
+    from mjxsysid import theta as P
+    from mjxsysid.identify import nuts as S
+    from mjxsysid.identify.inference import log_grounded_posterior
+    from mjxsysid.identify.logdata import prepare
+    from support.exact_model_log import exact_model_log
+    from support.jax_setup import xla_optimised
+    theta = P.paper_hardware().copy()
+    data = prepare(exact_model_log(theta, 4.0, gyro_noise=0.05, acc_noise=0.5, seed=3))
+    kw = dict(force_smc=True, seed=1, calibration=None, particles=256, samples=400)
+    with xla_optimised(), pytest.MonkeyPatch.context() as mp:
+        mp.setattr(S, "LONGER", (1, 1))      # the retry's length: test_nuts's forced retry runs it again
+        refined = log_grounded_posterior(data, None, refine=True, **kw)
+        smc = log_grounded_posterior(data, None, refine=False, **kw)
+        mode = smc["mode"]
+        smc_y = np.concatenate([smc["v_raw"], smc["nuisance"][:, :4], smc["nuisance"][:, 8:]], 1)
+        ref = S.nuts_reference(data, smc["nuisance"][0, 4:8], smc["weights"], np.r_[mode[:16], mode[20:]], smc_y,
+                               chains=4, warmup=300, draws=500, seed=7)
+    return {"theta": theta, "data": data, "refined": refined, "smc": smc, "reference": ref}
+
+
+@pytest.fixture(scope="session")
 def sim():
     from mjxsysid.sim import Quadrotor
     return Quadrotor()

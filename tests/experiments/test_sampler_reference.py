@@ -3,13 +3,10 @@ measure, and NUTS against the log-grounded posterior's SMC on a short exact-mode
 import numpy as np
 import pytest
 
-from mjxsysid import theta as P
 from mjxsysid.experiments import sampler_reference as S
 from mjxsysid.identify.coords import visible_from_theta
-from mjxsysid.identify.inference import default_method, log_grounded_posterior
+from mjxsysid.identify.inference import default_method
 from mjxsysid.identify.target import N_Y
-from mjxsysid.identify.logdata import prepare
-from support.exact_model_log import exact_model_log
 
 def test_compare_measures_the_sampler_error_in_band_widths():
     rng = np.random.default_rng(1)
@@ -22,20 +19,13 @@ def test_compare_measures_the_sampler_error_in_band_widths():
     np.testing.assert_allclose(out["model_error"], 1.5 / 3.29, atol=0.05)
 
 
-def test_nuts_and_the_smc_agree_on_an_exact_model_log():
+def test_nuts_and_the_smc_agree_on_an_exact_model_log(exact_model_posteriors):
     """On a 4 s log where the likelihood's model is exact: for thrust-to-weight and the roll and pitch
     authorities, NUTS's median inside the SMC's 90 % band and the SMC's inside NUTS's, the truth inside
-    NUTS's band, the chains mixed."""
-    theta = P.paper_hardware().copy()
-    data = prepare(exact_model_log(theta, 4.0, gyro_noise=0.05, acc_noise=0.5, seed=3))
-    post = log_grounded_posterior(data, None, force_smc=True, refine=False, seed=1, calibration=None, particles=256,
-                                  samples=500)
-    mode = post["mode"]
-    smc_y = np.concatenate([post["v_raw"], post["nuisance"][:, :4], post["nuisance"][:, 8:]], 1)
-    ref = S.nuts_reference(data, post["nuisance"][0, 4:8], post["weights"], np.r_[mode[:16], mode[20:]], smc_y,
-                           chains=2, warmup=100, draws=150, seed=0, target_acceptance=0.8)
-    assert ref["y"].shape == (2, 150, N_Y)
-    out = S.compare(post["v_raw"], ref["y"].reshape(-1, N_Y)[:, :12], visible_from_theta(theta))
+    NUTS's band, the chains mixed (tests/conftest.py's run: 4 chains × (300 + 500) from the SMC's draws)."""
+    post, ref = exact_model_posteriors["smc"], exact_model_posteriors["reference"]
+    assert ref["y"].shape == (4, 500, N_Y)
+    out = S.compare(post["v_raw"], ref["y"].reshape(-1, N_Y)[:, :12], visible_from_theta(exact_model_posteriors["theta"]))
     for j in (0, 5, 6):
         (s5, s50, s95), (m5, m50, m95) = out["smc"][:, j], out["mcmc"][:, j]
         assert s5 <= m50 <= s95 and m5 <= s50 <= m95, (j, out["smc"][:, j], out["mcmc"][:, j])

@@ -4,13 +4,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from mjxsysid import theta as P
 from mjxsysid.identify import nuts as S
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, visible_from_theta
-from mjxsysid.identify.inference import log_grounded_posterior
-from mjxsysid.identify.logdata import prepare
 from mjxsysid.identify.target import N_Y, _y_lo_hi
-from support.exact_model_log import exact_model_log
 
 LO, HI = _y_lo_hi(PHYSICAL_PRIOR)
 
@@ -99,21 +95,17 @@ def test_converged_names_the_coordinate_whose_chains_disagree_and_asks_enough_dr
     assert not good and "ESS ≥ 40" in why
 
 
-@pytest.mark.usefixtures("xla_optimised_test")   # run time, not compiles: cold 30-38 -> 21-26 s
-def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch):
+@pytest.mark.usefixtures("xla_optimised_test")   # run time, not compiles
+def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch, exact_model_posteriors):
     """On a 4 s exact-model log: the SMC's draws replaced by short NUTS chains that mixed; their 5/50/95 %
     quantiles of thrust-to-weight and the roll and pitch authorities within 0.3 of a longer run's band
     widths, which hold the truth; without ``refine``, or where the chains never mix, the SMC's draws stay."""
-    theta = P.paper_hardware().copy()
-    data = prepare(exact_model_log(theta, 4.0, gyro_noise=0.05, acc_noise=0.5, seed=3))
+    ex = exact_model_posteriors
+    data, post, smc, ref = ex["data"], ex["refined"], ex["smc"], ex["reference"]
     assert min(S.LONGER) > 1
-    monkeypatch.setattr(S, "LONGER", (1, 1))   # a retry as long as the first run (the tier runs unoptimised code)
-    post = log_grounded_posterior(data, None, force_smc=True, refine=True, seed=1, calibration=None, particles=256,
-                                  samples=400)
+    monkeypatch.setattr(S, "LONGER", (1, 1))   # a retry as long as the first run, as the fixture's
     assert post["method"] == "smc_nuts" and post["nuts"]["converged"], post["nuts"]
     assert post["nuts"]["chains"] * post["nuts"]["draws"] >= 400 and len(post["v_raw"]) == 400
-    smc = log_grounded_posterior(data, None, force_smc=True, refine=False, seed=1, calibration=None, particles=256,
-                                 samples=400)
     assert smc["method"] == "smc" and "nuts" not in smc
     from mjxsysid.identify import inference
     again = inference.refine_posterior(data, smc, seed=1, calibration=None)      # the same SMC draws, refined after
@@ -123,18 +115,13 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch):
     with pytest.raises(ValueError, match="SMC posterior without NUTS"):
         inference.refine_posterior(data, post, seed=1)
     monkeypatch.setattr(S, "converged", lambda diag: (False, "forced"))   # chains that never mix
-    kept = log_grounded_posterior(data, None, force_smc=True, refine=True, seed=1, calibration=None, particles=256,
-                                  samples=400)
+    kept = inference.refine_posterior(data, smc, seed=1, calibration=None)
     assert kept["method"] == "smc" and kept["nuts"]["warmup"] == S.WARMUP and "SMC" in kept["nuts"]["kept"]
     assert kept["nuts"]["attempts"] == 2 and kept["nuts"]["first"]["why"] == "forced"     # why it ran again
     assert post["nuts"]["attempts"] == 1 and "first" not in post["nuts"]
     np.testing.assert_array_equal(kept["v_raw"], smc["v_raw"])      # the SMC's own draws, after the longer try
-    y = np.concatenate([post["v_raw"], post["nuisance"][:, :4], post["nuisance"][:, 8:]], 1)
-    mode = post["mode"]
-    ref = S.nuts_reference(data, post["nuisance"][0, 4:8], post["weights"], np.r_[mode[:16], mode[20:]], y,
-                           chains=4, warmup=300, draws=500, seed=7)
     q, qr = (np.quantile(a, [0.05, 0.5, 0.95], 0) for a in (post["v_raw"], ref["y"].reshape(-1, N_Y)[:, :12]))
-    truth = visible_from_theta(theta)
+    truth = visible_from_theta(ex["theta"])
     for j in (0, 5, 6):
         width = qr[2, j] - qr[0, j]
         assert np.all(np.abs(q[:, j] - qr[:, j]) < 0.3 * width), (j, q[:, j], qr[:, j])

@@ -11,15 +11,17 @@ XDIST_GROUPS = {
     "policy-flights": ("test_api", "test_decode", "test_envs", "test_interface", "test_notebooks", "test_replay"),
     # the tiny Trainer, and the collect run of conftest.collected_pairs
     "policy-training": ("test_policy", "test_sequence"),
+    # conftest.exact_model_posteriors: one exact-model log's SMC, NUTS and longer NUTS run, read by both
+    "exact-model": ("test_nuts", "test_sampler_reference"),
 }
 _GROUP_OF = {f: g for g, files in XDIST_GROUPS.items() for f in files}
 # Queue order, longest first (seconds of the default tier, `pytest --durations=0`, 2026-11-30), so
 # that the short files come last and fill in; files not listed after them. (A long file not listed
 # runs last: test_identify, 27 s, once kept one worker going 23 s after the other had finished.)
-_QUEUE = ("policy-training", "policy-flights", "test_identify", "test_calibrate", "test_control", "test_nuts",
+_QUEUE = ("policy-training", "policy-flights", "test_identify", "test_calibrate", "test_control", "exact-model",
           "test_experiments_robustness", "test_tune", "test_cfm", "test_sim", "test_calibration_stage", "test_speeds",
           "test_idlecheck", "test_docs_generated", "test_distributed", "test_resume", "test_logcheck", "test_render",
-          "test_references", "test_export", "test_theta", "test_sampler_reference", "test_mujoco_sysid",
+          "test_references", "test_export", "test_theta", "test_mujoco_sysid",
           "test_vibration", "test_heldout", "test_log_holes", "test_motor_map", "test_windowcheck", "test_focus",
           "test_logspace", "test_train_options", "test_sensor_randomization", "test_inputs", "test_probe_loop",
           "test_architecture")
