@@ -3,13 +3,12 @@
 - ``collect``: fly vehicles of a prior with the lag-aware oracle (MJX, 10 s lemniscate) at IMU noise
   levels (:data:`mjxsysid.uses.imu_noise.LEVELS`), run the *raw* log-grounded posterior on each
   flight's IMU and motor commands (no decoded proposal), and keep one row per log: the truth and
-  raw 5/50/95 % bands in the visible coordinates v, the features, the residual discounts. Sharded
-  (``shard`` 'i/k': every k-th vehicle from the i-th) so that processes share a GPU; several flights
-  (a lemniscate, a slower one, min-snap, hover: excitation from strong to none).
+  raw 5/50/95 % bands in the visible coordinates v, the features, the residual discounts. Sharded (``shard``
+  'i/k': every k-th vehicle from the i-th); several flights (lemniscates, min-snap, hover: strong to no excitation).
 - ``fit``: rows -> the calibration table (:func:`~mjxsysid.identify.calibration_fit.fit`) with provenance.
-- ``evaluate``: a table applied to rows it never saw -> coverage and median width per coordinate
-  and level, the oracle width (the 90 % quantile of the median's error), the share of logs holding
-  fewer than half of their truths, a coverage-against-width figure and SBC-style rank histograms.
+- ``evaluate``: a table applied to rows it never saw -> coverage and median width per coordinate and level, the
+  oracle width (the 90 % quantile of the median's error), the share of logs holding fewer than half of their
+  truths, a coverage-against-width figure and SBC-style rank histograms.
 """
 from __future__ import annotations
 
@@ -354,8 +353,7 @@ def calibrated_bands(row: dict, table: dict | None) -> tuple[np.ndarray, np.ndar
 def evaluate(rows: list[dict], table: dict | None, by: str = "level", bands: list | None = None) -> dict:
     """Coverage, widths and clustering per ``by`` ('level', 'flight' or 'velocity': whether the logs carried
     it, and whether they were flown with rotor aerodynamics or another motor map) of ``rows`` under
-    ``table`` (None: the raw posterior); ``bands``: the rows' :func:`calibrated_bands` under it, where already
-    computed (one per row, in order)."""
+    ``table`` (None: the raw posterior); ``bands``: the rows' :func:`calibrated_bands` under it, if computed."""
     bands = [calibrated_bands(r, table) for r in rows] if bands is None else bands
     out = {}
     order = ("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20") + REFERENCES_ALL
@@ -366,12 +364,10 @@ def evaluate(rows: list[dict], table: dict | None, by: str = "level", bands: lis
         key = lambda r: r.get(by, "lemniscate:10")    # noqa: E731  (rows of one flight name none)
     for lv in sorted({key(r) for r in rows}, key=lambda x: (order.index(x) if x in order else len(order), x)):
         pick = [i for i, r in enumerate(rows) if key(r) == lv]
-        rs = [rows[i] for i in pick]
-        band, ok = zip(*(bands[i] for i in pick))
+        rs, (band, ok) = [rows[i] for i in pick], zip(*(bands[i] for i in pick))
         band, ok = np.array(band), np.array(ok)
         tv = np.array([r["truth_v"] for r in rs])
-        med = np.array([r["bands"][1] for r in rs])
-        inside = (band[:, 0] <= tv) & (tv <= band[:, 1])
+        med, inside = np.array([r["bands"][1] for r in rs]), (band[:, 0] <= tv) & (tv <= band[:, 1])
         width = band[:, 1] - band[:, 0]
         oracle = 2 * np.quantile(np.abs(tv - med), LEVEL_Q, axis=0)
         cov = np.where(ok.any(0), (inside & ok).sum(0) / np.maximum(ok.sum(0), 1), np.nan)
@@ -390,8 +386,7 @@ LEVEL_Q = 0.9
 
 def rank_histograms(rows: list[dict], table: dict | None, path: Path, bands: list | None = None) -> None:
     """Where each truth falls inside its band (0 at q05, 1 at q95; below 0 / above 1 outside), per
-    coordinate: a calibrated band spreads them evenly over 0…1 with 5 % beyond each side. ``bands``: as
-    :func:`evaluate`'s."""
+    coordinate: a calibrated band spreads them evenly over 0…1 with 5 % beyond each side (``bands``: :func:`evaluate`'s)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -496,8 +491,8 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     for method in sorted({r.get("method") for r in rows}, key=str):    # each sampler's rows, in its own table
         own = [k for k, r in enumerate(rows) if r.get("method") == method]
         held = for_method(table, method).setdefault("provenance", {}).setdefault("held_out", {})
-        cov = mean_coverage(evaluate([rows[k] for k in own], table, bands=[bands[k] for k in own]))
-        held[str(out)] = {"rows": len(own), "mean_coverage": cov}
+        held[str(out)] = {"rows": len(own), "mean_coverage": mean_coverage(
+            evaluate([rows[k] for k in own], table, bands=[bands[k] for k in own]))}
     path.write_text(json.dumps(table, indent=1) + "\n")
     return res
 
