@@ -379,7 +379,7 @@ def test_flights_at_every_noise_level_share_one_program_and_read_their_levels_no
         resid = np.asarray(fl.frame.imu[..., :3]) - np.asarray(fl.frame.omega)      # (2, 200, 3) noise + bias
         np.testing.assert_allclose(resid.std(1).mean(), sigma, rtol=0.15, atol=1e-7)
         assert np.abs(resid.mean(1)).max() <= 4 * bias + 3 * sigma / np.sqrt(200) + 1e-7, lv
-    assert harness._fly_batch.cache_info().misses - before == 1
+    assert harness._fly_batch.cache_info().misses - before <= 1     # 0 where an earlier test flew this shape
     vib = Quadrotor(SimConfig(**LEVELS["x5_vibration"]))
     assert _imu_free(vib).config.vibration and not _imu_free(vib).imu_std()[[0, 1]].any()
     assert _imu_free(Quadrotor(SimConfig(**LEVELS["x20"]))) == Quadrotor(SimConfig())
