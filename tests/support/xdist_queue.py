@@ -13,13 +13,15 @@ XDIST_GROUPS = {
     "policy-training": ("test_policy", "test_sequence"),
     # conftest.exact_model_posteriors: one exact-model log's SMC, NUTS and longer NUTS run, read by both
     "exact-model": ("test_nuts", "test_sampler_reference"),
+    # the calibration's flights: 2 vehicles a set, one program per motor map
+    "calibration": ("test_calibrate", "test_calibration_stage"),
 }
 _GROUP_OF = {f: g for g, files in XDIST_GROUPS.items() for f in files}
 # Queue order, longest first (seconds of the default tier, `pytest --durations=0`, 2026-11-30), so
 # that the short files come last and fill in; files not listed after them. (A long file not listed
 # runs last: test_identify, 27 s, once kept one worker going 23 s after the other had finished.)
-_QUEUE = ("policy-training", "policy-flights", "test_identify", "test_calibrate", "test_control", "exact-model",
-          "test_experiments_robustness", "test_tune", "test_cfm", "test_sim", "test_calibration_stage", "test_speeds",
+_QUEUE = ("policy-training", "policy-flights", "test_identify", "calibration", "test_control", "exact-model",
+          "test_experiments_robustness", "test_tune", "test_cfm", "test_sim", "test_speeds",
           "test_idlecheck", "test_docs_generated", "test_distributed", "test_resume", "test_logcheck", "test_render",
           "test_references", "test_export", "test_theta", "test_mujoco_sysid",
           "test_vibration", "test_heldout", "test_log_holes", "test_motor_map", "test_windowcheck", "test_focus",
