@@ -282,7 +282,8 @@ def test_cfm_models_are_the_decoders_samples():
     cfg = TunerConfig(models=3, decoder_steps=4)
     z = jnp.linspace(-0.5, 0.5, 8)
     key = jax.random.PRNGKey(5)
-    th = jax.jit(lambda zz, k: draw_models("cfm", k, None, zz, DecoderArgs(dec.params, dec.normalizer), dec.cfg, cfg))(z, key)
+    # the decoder's weights as arguments (as the tuner passes them), not constants folded into the program
+    th = jax.jit(lambda zz, k, a: draw_models("cfm", k, None, zz, a, dec.cfg, cfg))(z, key, DecoderArgs(dec.params, dec.normalizer))
     ref = dec.sample_theta(z, key, 3, steps=4)
     np.testing.assert_allclose(np.asarray(th), P.project_valid(np.asarray(ref))[0], rtol=2e-4, atol=1e-9)
     assert th.shape == (3, P.N_PARAMS) and P.validate_theta(np.asarray(th)).shape == (3, P.N_PARAMS)
