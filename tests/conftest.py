@@ -32,7 +32,8 @@ def exact_model_posteriors():
     """What tests/identify/test_nuts.py and tests/experiments/test_sampler_reference.py read of one 4 s log
     whose likelihood's model is exact (the paper vehicle, ×5-like noise, seed 3), computed once, XLA optimised
     (run time, not compiles): the log, the SMC's posterior (400 draws), the same refined by NUTS (its retry
-    as long as its first run), and a longer NUTS run from the SMC's mode and draws (4 chains × (300 + 500))."""
+    as long as its first run), and a longer NUTS run from the SMC's mode and draws: the refinement's own
+    program (one NUTS compile for both) at five seeds, pooled (40 chains × (200 + 50), 2,000 draws)."""
     import numpy as np
     from mjxsysid import theta as P
     from mjxsysid.identify import nuts as S
@@ -49,8 +50,13 @@ def exact_model_posteriors():
         smc = log_grounded_posterior(data, None, refine=False, **kw)
         mode = smc["mode"]
         smc_y = np.concatenate([smc["v_raw"], smc["nuisance"][:, :4], smc["nuisance"][:, 8:]], 1)
-        ref = S.nuts_reference(data, smc["nuisance"][0, 4:8], smc["weights"], np.r_[mode[:16], mode[20:]], smc_y,
-                               chains=4, warmup=300, draws=500, seed=7)
+        per = -(-kw["samples"] // S.CHAINS)
+        plans = ((S.WARMUP, per, 1), (S.WARMUP, per, 1))          # the refinement's, LONGER (1, 1)
+        runs = [S.nuts_reference(data, smc["nuisance"][0, 4:8], smc["weights"], np.r_[mode[:16], mode[20:]], smc_y,
+                                 chains=S.CHAINS, warmup=S.WARMUP, draws=per, seed=seed, plans=plans,
+                                 max_doublings=S.MAX_DOUBLINGS) for seed in range(7, 12)]
+        y = np.concatenate([r["y"] for r in runs])
+        ref = {"y": y, **S.diagnostics(y, np.zeros(len(y)), np.zeros(len(y)), np.zeros(len(y)))}
     return {"theta": theta, "data": data, "refined": refined, "smc": smc, "reference": ref}
 
 

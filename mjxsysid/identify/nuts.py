@@ -383,18 +383,23 @@ def unmixed_not_seen(report: dict, nuts: dict, v=None, prior_draws=None):
 
 def nuts_reference(data, log_delta, weights, start_y, scale_draws, *, chains: int, warmup: int, draws: int,
                    seed: int = 0, target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = 10,
-                   prior: PhysicalPrior = PHYSICAL_PRIOR) -> dict:
+                   prior: PhysicalPrior = PHYSICAL_PRIOR, plans: tuple | None = None) -> dict:
     """NUTS on the log-grounded target of ``data`` (a LogData) at fixed log δ (4,) and weights (4,),
     in the coordinates :func:`preconditioner` makes of ``start_y`` (17,) (the mode) and
     ``scale_draws`` (S, 17) (the SMC's draws); ``chains`` chains started at the mode jittered by
-    :data:`INIT_JITTER`; ``target_acceptance``: the warm-up's. -> dict: ``y`` (chains, draws, 17)
-    and :func:`diagnostics`."""
+    :data:`INIT_JITTER`; ``target_acceptance``: the warm-up's; ``plans``: those of the compiled program it runs in
+    (:func:`run_chains`), the first (``warmup``, ``draws``, 1) (default: that alone; the refinement's own plans, with
+    its chains and ``max_doublings``, run in the refinement's program). -> dict: ``y`` (chains, draws, 17) and
+    :func:`diagnostics`."""
     if chains < 2 or warmup < 10 or draws < 4:
         raise ValueError(f"NUTS needs chains >= 2, warmup >= 10 and draws >= 4; got {chains}, {warmup}, {draws}")
+    plans = ((warmup, draws, 1),) if plans is None else tuple(tuple(int(x) for x in p) for p in plans)
+    if plans[0] != (warmup, draws, 1):
+        raise ValueError(f"NUTS's reference runs the first of its plans {plans}, which must be ({warmup}, {draws}, 1)")
     lo, hi = (np.asarray(a, np.float32) for a in _y_lo_hi(prior))
     keys, u0, m, chol = start(scale_draws, start_y, chains, seed, prior)
     with jax.default_matmul_precision("highest"):       # as the SMC's target (target.full_precision)
         y, div, n_leap, step = run_chains(jnp.asarray(keys), _f32(u0), data, _f32(log_delta), _f32(weights), _f32(lo),
-                                          _f32(hi), _f32(m), _f32(chol), prior=prior, plans=((warmup, draws, 1),),
+                                          _f32(hi), _f32(m), _f32(chol), prior=prior, plans=plans,
                                           target_acceptance=target_acceptance, max_doublings=max_doublings)
     return {"y": np.asarray(y, np.float64), **diagnostics(y, div, n_leap, step)}

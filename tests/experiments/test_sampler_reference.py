@@ -22,9 +22,9 @@ def test_compare_measures_the_sampler_error_in_band_widths():
 def test_nuts_and_the_smc_agree_on_an_exact_model_log(exact_model_posteriors):
     """On a 4 s log where the likelihood's model is exact: for thrust-to-weight and the roll and pitch
     authorities, NUTS's median inside the SMC's 90 % band and the SMC's inside NUTS's, the truth inside
-    NUTS's band, the chains mixed (tests/conftest.py's run: 4 chains × (300 + 500) from the SMC's draws)."""
+    NUTS's band, the chains mixed (tests/conftest.py's run: 40 chains × (200 + 50) from the SMC's draws)."""
     post, ref = exact_model_posteriors["smc"], exact_model_posteriors["reference"]
-    assert ref["y"].shape == (4, 500, N_Y)
+    assert ref["y"].shape == (40, 50, N_Y)
     out = S.compare(post["v_raw"], ref["y"].reshape(-1, N_Y)[:, :12], visible_from_theta(exact_model_posteriors["theta"]))
     for j in (0, 5, 6):
         (s5, s50, s95), (m5, m50, m95) = out["smc"][:, j], out["mcmc"][:, j]
