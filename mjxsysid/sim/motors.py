@@ -1,16 +1,12 @@
 """The rotors of :mod:`.quadrotor`: first-order speed dynamics, integrated exactly over a step, and the static
-motor map from a normalised command to the speed it settles at. Pure and unbatched."""
+motor map from a normalised command to the speed it settles at. Pure and unbatched; ``config`` is the
+simulator's :class:`~mjxsysid.sim.quadrotor.SimConfig` (its motor map, substeps and physics step)."""
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 
 from mjxsysid import theta as P
-
-if TYPE_CHECKING:
-    from mjxsysid.sim.quadrotor import SimConfig
 
 
 def mean_square_speed(omega0, omega_cmd, tau_m, h, exp=jnp.exp):
@@ -26,7 +22,7 @@ def mean_square_speed(omega0, omega_cmd, tau_m, h, exp=jnp.exp):
     return omega_cmd**2 + 2.0 * omega_cmd * d * r1 + d * d * r2, omega_cmd + d * a
 
 
-def commanded_speed(cmd, omega_max, config: "SimConfig"):
+def commanded_speed(cmd, omega_max, config):
     """The steady-state rotor speed (rad/s) of the normalised command ``cmd`` (..., 4), clipped to [0, 1],
     at ``omega_max`` (rad/s, broadcast): Ω_max u by default; with ``config.motor_map``,
     Ω_max max(0, idle + (1 − idle) s(u)) (idle ``motor_idle``, κ ``motor_kappa``; s: Indiflight's
@@ -40,7 +36,7 @@ def commanded_speed(cmd, omega_max, config: "SimConfig"):
     return jnp.maximum(idle + (1.0 - idle) * shape, 0.0) * omega_max
 
 
-def rotor_speed_after(theta, speed0, motor_cmds, config: "SimConfig", mask=None) -> jax.Array:
+def rotor_speed_after(theta, speed0, motor_cmds, config, mask=None) -> jax.Array:
     """The rotor speeds (4,) rad/s after the motor commands ``motor_cmds`` (W, 4) (normalised, one
     per control step, oldest first) starting from ``speed0`` (4,) rad/s, by θ's (19,) motor lag
     (τ_m, Ω_max) and ``config``'s motor map (:func:`commanded_speed`): the simulator's own
