@@ -153,3 +153,12 @@ def test_a_coordinate_whose_chains_disagree_is_drawn_from_the_prior():
     def never(n):
         raise AssertionError("prior drawn though every coordinate mixed")
     assert S.unmixed_not_seen(dict(report), {"rhat_v": [1.0] * 12}, v, never) is v
+
+
+def test_a_reference_runs_the_first_of_the_plans_it_is_given():
+    """nuts_reference in another program's plans (the refinement's, to share its compile): the first plan must
+    be the reference's own lengths, and a wrong one is refused before anything runs."""
+    with pytest.raises(ValueError, match=r"first of its plans .* must be \(300, 500, 1\)"):
+        S.nuts_reference(None, None, None, None, None, chains=4, warmup=300, draws=500, plans=((200, 50, 1),))
+    with pytest.raises(ValueError, match="chains >= 2"):
+        S.nuts_reference(None, None, None, None, None, chains=1, warmup=300, draws=500)
