@@ -56,7 +56,8 @@ def exact_model_posteriors():
                                  chains=S.CHAINS, warmup=S.WARMUP, draws=per, seed=seed, plans=plans,
                                  max_doublings=S.MAX_DOUBLINGS) for seed in range(7, 12)]
         y = np.concatenate([r["y"] for r in runs])
-        ref = {"y": y, **S.diagnostics(y, np.zeros(len(y)), np.zeros(len(y)), np.zeros(len(y)))}
+        ref = {"y": y, **S.diagnostics(y, [r["divergences"] for r in runs], [r["leapfrog_mean"] for r in runs],
+                                       np.concatenate([r["step_size"] for r in runs]))}
     return {"theta": theta, "data": data, "refined": refined, "smc": smc, "reference": ref}
 
 

@@ -129,8 +129,7 @@ def start_loop(sim: Quadrotor, theta, low, high: Cascade, ref, key, imu_std=None
     r0 = ref.at(jnp.float32(0.0))
     half = 0.5 * r0.yaw
     quat0 = jnp.array([jnp.cos(half), 0.0, 0.0, jnp.sin(half)])
-    imu = {} if imu_std is None else {"imu_std": imu_std}
-    state = sim.init(theta, k_sim, pos=r0.pos, quat=quat0, rotor_speed=hover_rotor_speed(theta), **imu)
+    state = sim.init(theta, k_sim, pos=r0.pos, quat=quat0, rotor_speed=hover_rotor_speed(theta), imu_std=imu_std)
     return LoopCarry(state, high.init(), low.init(k_low))
 
 

@@ -264,7 +264,8 @@ class Quadrotor:
 
     def __init__(self, config: SimConfig = SimConfig(), xml_path: str | Path = ASSET):
         self.config = config
-        self._key = (config, str(Path(xml_path).resolve()))
+        self.xml_path = Path(xml_path).resolve()
+        self._key = (config, str(self.xml_path))
         mj = mujoco.MjModel.from_xml_path(str(xml_path))
         mj.opt.timestep = config.physics_dt
         if config.contacts:
@@ -462,4 +463,4 @@ def _imu_free(sim: Quadrotor) -> Quadrotor:
     c = sim.config
     free = dataclasses.replace(c, gyro_noise=0.0, accel_noise=0.0, gyro_bias=0.0, accel_bias=0.0,
                                gyro_vibration=float(c.vibration), accel_vibration=0.0)
-    return sim if free == c else type(sim)(free, sim._key[1])
+    return sim if free == c else type(sim)(free, sim.xml_path)

@@ -93,9 +93,9 @@ class RigidSim:
         return self, None
 
     def init(self, theta, key=None, *, pos=(0.0, 0.0, 1.0), quat=(1.0, 0.0, 0.0, 0.0),
-             vel=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), rotor_speed=None) -> RigidState:
+             vel=(0.0, 0.0, 0.0), omega=(0.0, 0.0, 0.0), rotor_speed=None, imu_std=None) -> RigidState:
         """Initial state of one vehicle, as :meth:`Quadrotor.init <mjxsysid.sim.quadrotor.Quadrotor.init>`
-        makes it without IMU bias (``key`` is accepted and unused: the twin draws no noise)."""
+        makes it without IMU bias (``key`` and ``imu_std`` are accepted and unused: the twin draws no noise)."""
         theta = jnp.asarray(theta, jnp.float32)
         quat = jnp.asarray(quat, jnp.float32)
         omega = jnp.asarray(omega, jnp.float32)
