@@ -55,9 +55,12 @@ class SizeFactorPrior:
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
         """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static. One
-        compiled program per prior and n (called eagerly, the sampler's fifty-odd operations are
-        each compiled on their own for every n)."""
-        return _sampled(self, key, int(n))
+        compiled program per prior and size bucket (:func:`sample_bucket`): the first n of the
+        bucket's draws, which are the n vehicles drawn on their own (JAX's partitionable threefry
+        gives every draw its own counter)."""
+        n = int(n)
+        m = sample_bucket(n)
+        return _sampled(self, key, m) if m == n else _sampled(self, key, m)[:n]
 
     def _draw(self, key, n: int) -> jax.Array:
         """The sampler itself (traced by :meth:`sample`)."""
@@ -161,6 +164,16 @@ class HeldOutFamily(Prior):
 @functools.partial(jax.jit, static_argnums=(0, 2))
 def _sampled(p: SizeFactorPrior, key, n: int):
     return p._draw(key, n)
+
+
+def sample_bucket(n: int) -> int:
+    """The number of vehicles compiled for a draw of n: the next power of two from 16 up to 4,096
+    (at most twice the work of n's own program, a cheap one). n itself for one vehicle and above
+    4,096 (compiled for its shape, the arithmetic of either can round differently in the last bit),
+    and where JAX's threefry is not partitionable (the first n draws of more would then differ)."""
+    if n <= 1 or n > 4096 or not jax.config.jax_threefry_partitionable:
+        return n
+    return max(16, 1 << (n - 1).bit_length())
 
 
 def _uniforms(p: SizeFactorPrior, n: int):
