@@ -3,6 +3,7 @@ one command for what ``mjxsysid calibrate-posterior --fit/--evaluate`` does in s
 
     python tools/refit_calibration.py            # writes mjxsysid/pretrained/posterior_calibration.json
     python tools/refit_calibration.py --table /tmp/t.json --evaluations /tmp/ev   # a trial, nothing shipped
+    python tools/refit_calibration.py --table /tmp/t.json --evaluations /tmp/ev --no-figures   # its numbers only
 
 1. The SMC's (pooled) table on docs/runs/measurements/log-grounded/calibrated/rows/cal*.json.xz.
 2. NUTS's table (``--method smc_nuts``) on nuts-calibration/rows/train, added to it.
@@ -64,6 +65,7 @@ def main(argv=None) -> None:
     ap.add_argument("--table", type=Path, default=SHIPPED, help="where the table is written (default the shipped one)")
     ap.add_argument("--evaluations", type=Path, default=None,
                     help="a folder for the evaluations (default each one's docs/runs folder)")
+    ap.add_argument("--no-figures", action="store_true", help="the evaluations' numbers only (no coverage_width.png, ranks.png)")
     ap.add_argument("--nuts-note", default=None, help="NUTS's rows' provenance note (default the replaced table's)")
     a = ap.parse_args(argv)
     a.table = a.table.resolve()
@@ -78,9 +80,9 @@ def main(argv=None) -> None:
              command="python tools/refit_calibration.py (step 2)", window_rows=window_rows())
     print(f"fitted both tables in {time.perf_counter() - t0:.1f} s -> {a.table}", flush=True)
     for paths, folder in HELD_OUT:
-        res = report(paths, a.table, out(folder), record=True)
+        res = report(paths, a.table, out(folder), record=True, figures=not a.no_figures)
         print(f"{folder}: {res['rows']} logs, mean coverage {mean_coverage(res['calibrated'])}", flush=True)
-    res = report(MISFIT[0], a.table, out(MISFIT[1]))
+    res = report(MISFIT[0], a.table, out(MISFIT[1]), figures=not a.no_figures)
     print(f"{MISFIT[1]} (apart): {res['rows']} logs, mean coverage {mean_coverage(res['calibrated'])}", flush=True)
     print(f"done in {time.perf_counter() - t0:.0f} s", flush=True)
 

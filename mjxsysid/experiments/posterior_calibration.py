@@ -459,9 +459,9 @@ def mean_coverage(levels: dict) -> dict:
     return {lv: round(float(np.nanmean(list(r["coverage"].values()))), 3) for lv, r in levels.items()}
 
 
-def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
+def report(paths, table_path: Path, out: Path, record: bool = False, figures: bool = True) -> dict:
     """Evaluate the table at ``table_path`` (default the shipped one) on the rows of ``paths`` (held out)
-    against the raw posterior; write ``out``/evaluation.json, evaluation.md, coverage_width.png,
+    against the raw posterior; write ``out``/evaluation.json, evaluation.md and (``figures``) coverage_width.png,
     ranks.png; ``record``: also the mean coverage per level into the table's provenance (``held_out``, keyed by
     ``out``): per sampler, of its own rows, in the provenance of the table that calibrates them
     (:func:`~mjxsysid.identify.calibrate.for_method`)."""
@@ -476,15 +476,15 @@ def report(paths, table_path: Path, out: Path, record: bool = False) -> dict:
     vel = evaluate(rows, table, by="velocity", bands=bands)
     shipped = table_path is not None and Path(table_path).resolve() == SHIPPED.resolve()
     named = str(SHIPPED.relative_to(SHIPPED.parents[2])) if shipped else str(table_path)   # not this machine's path
-    res = {"rows": len(rows), "table": named, "raw": raw, "calibrated": cal, "calibrated_by_flight": flights,
-           "calibrated_by_velocity": vel}
+    res = {"rows": len(rows), "table": named, "raw": raw, "calibrated": cal, "calibrated_by_flight": flights, "calibrated_by_velocity": vel}
     (out / "evaluation.json").write_text(json.dumps(res, indent=1) + "\n")
     md = (["## Calibrated", ""] + table_markdown(cal) + ["", "## Calibrated, by flight", ""] + table_markdown(flights)
           + ["", "## Calibrated, by whether the log carried velocity", ""] + table_markdown(vel)
           + ["", "## Raw", ""] + table_markdown(raw))
     (out / "evaluation.md").write_text("\n".join(md) + "\n")
-    coverage_width_figure(raw, cal, out / "coverage_width.png")
-    rank_histograms(rows, table, out / "ranks.png", bands)
+    if figures:
+        coverage_width_figure(raw, cal, out / "coverage_width.png")
+        rank_histograms(rows, table, out / "ranks.png", bands)
     if not record:
         return res
     path = Path(table_path) if table_path is not None else SHIPPED
