@@ -55,9 +55,9 @@ class SizeFactorPrior:
 
     def sample(self, key: jax.Array, n: int) -> jax.Array:
         """Draw n vehicles. key: PRNG key -> θ (n, 19) float32. Pure; jit-able with n static. One
-        compiled program per prior and size bucket (:func:`sample_bucket`): the first n of the
-        bucket's draws, which are the n vehicles drawn on their own (JAX's partitionable threefry
-        gives every draw its own counter)."""
+        compiled program per prior for any n up to 4,096 (:func:`sample_bucket`): the first n of the
+        bucket's draws, which are the n vehicles drawn on their own to the last bit's rounding (JAX's
+        partitionable threefry gives every draw its own counter)."""
         n = int(n)
         m = sample_bucket(n)
         return _sampled(self, key, m) if m == n else _sampled(self, key, m)[:n]
@@ -167,13 +167,16 @@ def _sampled(p: SizeFactorPrior, key, n: int):
 
 
 def sample_bucket(n: int) -> int:
-    """The number of vehicles compiled for a draw of n: the next power of two from 16 up to 4,096
-    (at most twice the work of n's own program, a cheap one). n itself for one vehicle and above
-    4,096 (compiled for its shape, the arithmetic of either can round differently in the last bit),
-    and where JAX's threefry is not partitionable (the first n draws of more would then differ)."""
-    if n <= 1 or n > 4096 or not jax.config.jax_threefry_partitionable:
+    """The number of vehicles compiled for a draw of n: 4,096 for any n from 2 to 4,096, so one program per
+    prior (drawing 4,096 costs about what drawing 2 does; compiling is the cost). n itself for one vehicle,
+    above 4,096, and where JAX's threefry is not partitionable (the first n draws of more would then be
+    other vehicles)."""
+    if n <= 1 or n > SAMPLE_BUCKET or not jax.config.jax_threefry_partitionable:
         return n
-    return max(16, 1 << (n - 1).bit_length())
+    return SAMPLE_BUCKET
+
+
+SAMPLE_BUCKET = 4096
 
 
 def _uniforms(p: SizeFactorPrior, n: int):
