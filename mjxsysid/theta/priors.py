@@ -171,7 +171,7 @@ def sample_bucket(n: int) -> int:
     prior (drawing 4,096 costs about what drawing 2 does; compiling is the cost). n itself for one vehicle,
     above 4,096, and where JAX's threefry is not partitionable (the first n draws of more would then be
     other vehicles)."""
-    if n <= 1 or n > SAMPLE_BUCKET or not jax.config.jax_threefry_partitionable:
+    if n <= 1 or n > SAMPLE_BUCKET or not getattr(jax.config, "jax_threefry_partitionable", True):
         return n
     return SAMPLE_BUCKET
 
