@@ -71,7 +71,7 @@ def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-l
     if caption:
         fig.text(0.5, top, caption, ha="center", va="top", fontsize=9.5, wrap=True)
         top -= 0.045 * (caption.count("\n") + 1)
-    # fixed margins: what tight_layout found for this grid, with room for five-character tick labels (it took half the plot's time)
+    # fixed margins: what tight_layout found for this grid, room for five-character tick labels (0.54 -> 0.32 CPU-s a figure)
     fig.subplots_adjust(left=0.05, right=0.99, bottom=0.13, top=top - 0.05, wspace=0.19, hspace=0.37)
     fig.savefig(path, dpi=100)
     plt.close(fig)
@@ -191,7 +191,8 @@ def plot_information_gap(gap: dict, path, title: str = "what the policy's latent
     names = list(gap)
     cols = 5
     rows = int(np.ceil(len(names) / cols))
-    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 1.9 * rows + 0.8))
+    height = 1.9 * rows + 0.8
+    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, height))
     for ax, n in zip(axes.flat, names):
         g = gap[n]
         ax.plot([g["decoder_q05"], g["decoder_q95"]], [1, 1], lw=7, color="tab:blue", solid_capstyle="butt")
@@ -211,7 +212,8 @@ def plot_information_gap(gap: dict, path, title: str = "what the policy's latent
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")
     fig.suptitle(title, fontsize=11)
-    fig.tight_layout()
+    # fixed margins, in inches above and below: what tight_layout found for 2 and 3 rows (0.54 -> 0.43 CPU-s a figure)
+    fig.subplots_adjust(left=0.045, right=0.99, bottom=0.37 / height, top=1 - 0.84 / height, wspace=0.32, hspace=0.57)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return Path(path)
