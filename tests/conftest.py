@@ -50,10 +50,9 @@ def exact_model_posteriors():
         smc = log_grounded_posterior(data, None, refine=False, **kw)
         mode = smc["mode"]
         smc_y = np.concatenate([smc["v_raw"], smc["nuisance"][:, :4], smc["nuisance"][:, 8:]], 1)
-        per = -(-kw["samples"] // S.CHAINS)
-        plans = ((S.WARMUP, per, 1), (S.WARMUP, per, 1))          # the refinement's, LONGER (1, 1)
+        plans = S.refine_plans(kw["samples"])                     # the refinement's, LONGER (1, 1)
         runs = [S.nuts_reference(data, smc["nuisance"][0, 4:8], smc["weights"], np.r_[mode[:16], mode[20:]], smc_y,
-                                 chains=S.CHAINS, warmup=S.WARMUP, draws=per, seed=seed, plans=plans,
+                                 chains=S.CHAINS, warmup=S.WARMUP, draws=plans[0][1], seed=seed, plans=plans,
                                  max_doublings=S.MAX_DOUBLINGS) for seed in range(7, 12)]
         y = np.concatenate([r["y"] for r in runs])
         ref = {"y": y, **S.diagnostics(y, [r["divergences"] for r in runs], [r["leapfrog_mean"] for r in runs],

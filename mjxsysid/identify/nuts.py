@@ -301,6 +301,13 @@ def converged(diag: dict) -> tuple[bool, str]:
     return True, what
 
 
+def refine_plans(samples: int) -> tuple:
+    """The refinement's two runs, (warm-up, draws, thinning) per chain for ``samples`` draws over :data:`CHAINS`
+    chains: the first, and the retry :data:`LONGER` times as long (thinned back to as many draws)."""
+    per = -(-samples // CHAINS)
+    return (WARMUP, per, 1), (LONGER[0] * WARMUP, per * LONGER[1], LONGER[1])
+
+
 def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> None:
     """Step 3 of :mod:`.inference`: the SMC's draws of the logs ``need`` replaced by NUTS's (:data:`CHAINS`
     chains from the mode, preconditioned by the SMC's draws), in place; logs whose chains did not mix
@@ -310,8 +317,7 @@ def refine(logs, need, draws_y, modes_y, ld, w, prior, seeds, samples, outs) -> 
     pooled chains 74). Each log's
     ``nuts`` entry: its chains' diagnostics, whether they mixed and which draws were kept. ``logs``:
     :class:`~.batched._Logs` (its ``nuts``)."""
-    per = -(-samples // CHAINS)
-    plans = ((WARMUP, per, 1), (LONGER[0] * WARMUP, per * LONGER[1], LONGER[1]))     # one program for both attempts
+    plans = refine_plans(samples)                 # one program for both attempts
     smc_draws = {i: draws_y[i] for i in need}
     starts = [start(draws_y[i], my, CHAINS, sd, prior) for i, my, sd in zip(need, modes_y, seeds)]
     todo = list(range(len(need)))

@@ -59,8 +59,8 @@ class SizeFactorPrior:
         bucket's draws, which are the n vehicles drawn on their own to the last bit's rounding (JAX's
         partitionable threefry gives every draw its own counter)."""
         n = int(n)
-        m = sample_bucket(n)
-        return _sampled(self, key, m) if m == n else _sampled(self, key, m)[:n]
+        draws = _sampled(self, key, sample_bucket(n))
+        return draws if len(draws) == n else draws[:n]
 
     def _draw(self, key, n: int) -> jax.Array:
         """The sampler itself (traced by :meth:`sample`)."""
@@ -166,6 +166,10 @@ def _sampled(p: SizeFactorPrior, key, n: int):
     return p._draw(key, n)
 
 
+SAMPLE_BUCKET = 4096
+"""Draws of 2 to this many vehicles share one compiled sampler per prior (:func:`sample_bucket`)."""
+
+
 def sample_bucket(n: int) -> int:
     """The number of vehicles compiled for a draw of n: 4,096 for any n from 2 to 4,096, so one program per
     prior (drawing 4,096 costs about what drawing 2 does; compiling is the cost). n itself for one vehicle,
@@ -174,9 +178,6 @@ def sample_bucket(n: int) -> int:
     if n <= 1 or n > SAMPLE_BUCKET or not getattr(jax.config, "jax_threefry_partitionable", True):
         return n
     return SAMPLE_BUCKET
-
-
-SAMPLE_BUCKET = 4096
 
 
 def _uniforms(p: SizeFactorPrior, n: int):
