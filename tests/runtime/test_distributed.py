@@ -329,7 +329,7 @@ def test_two_processes_equal_one(tmp_path):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     base = dict(os.environ, JAX_PLATFORMS="cpu", PYTHONPATH=str(ROOT),
-                MJXSYSID_JAX_CACHE=os.environ.get("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache")))
+                MJXSYSID_JAX_CACHE=os.environ["MJXSYSID_JAX_CACHE"])
     for k in ("XLA_FLAGS", "MJXSYSID_DEVICES", "JAX_COORDINATOR_ADDRESS"):
         base.pop(k, None)
     single = subprocess.run([sys.executable, "-c", code, str(tmp_path / "single.npy")], env=base,

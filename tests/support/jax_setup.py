@@ -60,8 +60,11 @@ def xla_optimised():
 
 
 # The compiled programs kept across runs: the suite's cache, also for the `mjxsysid` commands the tests run as subprocesses (the CLI's own
-# default is ~/.cache/mjxsysid/jax).
-os.environ.setdefault("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache"))
+# default is ~/.cache/mjxsysid/jax/<CPU fingerprint>). A folder per CPU model and instruction set, as the CLI's: a checkout
+# moved to another host does not load programs built for the old one's CPU.
+from mjxsysid.runtime.startup import cpu_fingerprint  # noqa: E402
+
+os.environ.setdefault("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache" / cpu_fingerprint()))
 jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)

@@ -29,7 +29,7 @@ def run_notebook(name: str, cwd: Path, monkeypatch, *, kernel: bool = False, env
         pytest.importorskip("ipykernel")
         # The kernel imports this checkout and shares the suite's persistent compilation cache.
         monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", os.environ.get("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache")))
+        monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", os.environ["MJXSYSID_JAX_CACHE"])
         monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
         monkeypatch.setenv("JAX_PERSISTENT_CACHE_MIN_ENTRY_SIZE_BYTES", "0")
         nbclient.NotebookClient(nb, timeout=900, kernel_name="python3",
