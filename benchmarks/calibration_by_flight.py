@@ -138,20 +138,24 @@ SUBSETS = {"every flight (shipped)": lambda r: True,
 """Section 5's training subsets, by the flight's name (which no log shows)."""
 
 
-def upper_bounds(mixed: list[dict], held: list[dict]) -> dict:
-    """Section 5: NUTS's table fitted on subsets of the training rows chosen by flight (:data:`SUBSETS`; the
-    shipped windows, vibrating logs apart, the checks' shipped thresholds), scored on the held-out rows as the
-    top table of docs/identify.md is: what a feature telling those flights apart could give at most."""
-    from mjxsysid.experiments.posterior_calibration import evaluate
+def nuts_table(rows: list[dict]) -> dict:
+    """The shipped table with NUTS's entry fitted on ``rows`` as the release fits it (its windows, vibrating logs
+    apart); the SMC's entry and the checks' thresholds stay the shipped ones."""
     from mjxsysid.identify.calibrate import VIBRATION_COORDS, load, with_method
     from mjxsysid.identify.calibration_fit import WINDOWED, fit
-    base = load()
+    return with_method(load(), fit(rows, windows=WINDOWED["smc_nuts"], vibration=VIBRATION_COORDS["smc_nuts"]),
+                       "smc_nuts")
+
+
+def upper_bounds(mixed: list[dict], held: list[dict]) -> dict:
+    """Section 5: NUTS's table fitted on subsets of the training rows chosen by flight (:data:`SUBSETS`,
+    :func:`nuts_table`), scored on the held-out rows as the top table of docs/identify.md is: what a feature
+    telling those flights apart could give at most."""
+    from mjxsysid.experiments.posterior_calibration import evaluate
     out = {}
     for name, keep in SUBSETS.items():
         rows = [r for r in mixed if keep(r)]
-        table = with_method(base, fit(rows, windows=WINDOWED["smc_nuts"], vibration=VIBRATION_COORDS["smc_nuts"]),
-                            "smc_nuts")
-        out[name] = {"rows": len(rows), **score([evaluate(held, table)])}
+        out[name] = {"rows": len(rows), **score([evaluate(held, nuts_table(rows))])}
     return out
 
 
@@ -169,12 +173,8 @@ def in_sample(mixed: list[dict]) -> dict:
     (the mean over the coordinates and ρ1's), and per level the share of logs whose ρ1 median lies within 10⁻⁴ of
     the truth (a tie no conformal quantile splits)."""
     from mjxsysid.experiments.posterior_calibration import evaluate
-    from mjxsysid.identify.calibrate import VIBRATION_COORDS, load, with_method
-    from mjxsysid.identify.calibration_fit import WINDOWED, fit
-    table = with_method(load(), fit(mixed, windows=WINDOWED["smc_nuts"], vibration=VIBRATION_COORDS["smc_nuts"]),
-                        "smc_nuts")
     out = {}
-    for lv, c in evaluate(mixed, table).items():
+    for lv, c in evaluate(mixed, nuts_table(mixed)).items():
         d = np.array([abs(r["truth_v"][1] - r["bands"][1][1]) for r in mixed if r["level"] == lv])
         out[lv] = (c["logs"], float(np.nanmean(list(c["coverage"].values()))), c["coverage"]["rel_effectiveness[0]"],
                    float(np.mean(d <= 1e-4)))
