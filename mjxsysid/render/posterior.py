@@ -83,7 +83,7 @@ def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from matplotlib.ticker import MaxNLocator, NullFormatter
+    from matplotlib.ticker import MaxNLocator, NullLocator
     fig, axes = plt.subplots(4, 5, figsize=(17, 11))
     for j, ax in enumerate(axes.flat):
         if j >= P.N_PARAMS:
@@ -95,16 +95,19 @@ def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior
         ax.hist(x, bins=bins, color="tab:blue", alpha=0.7, histtype="stepfilled")
         if log:
             ax.set_xscale("log")
-            # three labelled ticks over the samples' range (log axes' minor labels overlap)
-            ax.xaxis.set_minor_formatter(NullFormatter())
-            lo, hi = np.log(x.min()), np.log(x.max())
-            ticks = np.exp(lo + (hi - lo) * np.array([0.15, 0.5, 0.85])) if hi > lo else [x.min()]
-            ax.set_xticks(ticks, [f"{v:.3g}" for v in ticks])
-        else:
-            ax.xaxis.set_major_locator(MaxNLocator(5))
         ax.axvline(truth[j], color="k", lw=2, label="true")
         if point is not None:
             ax.axvline(point[j], color="tab:orange", ls="--", label="regression")
+        if log:
+            # three labelled ticks over the axis (the samples, the truth and the point estimate) and no minor ticks
+            # (log axes' minor labels overlap)
+            ax.xaxis.set_minor_locator(NullLocator())
+            lo, hi = np.log(ax.get_xlim())
+            ticks = np.exp(lo + (hi - lo) * np.array([0.15, 0.5, 0.85])) if hi > lo else [x.min()]
+            ax.set_xticks(ticks, [f"{v:.3g}" for v in ticks])
+        else:          # four ticks; small or large values as a mantissa and a power of ten at the axis' end
+            ax.xaxis.set_major_locator(MaxNLocator(4))
+            ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4), useMathText=True)
         ax.set_title(f"{P.PARAM_NAMES[j]} [{P.PARAM_UNITS[j]}]", fontsize=9)
         ax.set_yticks([])
     axes.flat[0].legend(fontsize=8)

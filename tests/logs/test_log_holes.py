@@ -119,30 +119,16 @@ def test_decode_prints_what_the_log_pins_first():
 def test_information_gap_tick_labels_do_not_overlap(tmp_path):
     """information_gap.png's log-scale panels (authorities spanning 50–4000 rad/s²): no two tick
     labels of a panel overlap."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from support.figures import kept_figure, overlapping_tick_labels
 
     from mjxsysid.render.posterior import plot_information_gap
     band = {"unit": "rad/s^2", "width_ratio": 2.0}
     gap = {f"q{i}": dict(band, decoder_q05=lo, decoder_q95=hi, log_q05=2 * lo, log_q95=hi / 2, log_median=3 * lo)
            for i, (lo, hi) in enumerate([(50, 4000), (5, 400), (0.005, 0.12), (2, 200), (10, 45), (0.3, 1.6)])}
-    shown = {}
-    orig = plt.close
-    plt.close = lambda fig=None: shown.setdefault("fig", fig)
-    try:
+    with kept_figure() as shown:
         plot_information_gap(gap, tmp_path / "gap.png")
-    finally:
-        plt.close = orig
-    fig = shown["fig"]
-    r = fig.canvas.get_renderer()
-    for ax in fig.axes[:len(gap)]:
-        lo, hi = sorted(ax.get_xlim())
-        ticks = [t for t in ax.xaxis.get_major_ticks() + ax.xaxis.get_minor_ticks()
-                 if t.label1.get_visible() and t.label1.get_text() and lo <= t.get_loc() <= hi]
-        boxes = sorted(((t.label1.get_window_extent(r), t.label1.get_text()) for t in ticks), key=lambda b: b[0].x0)
-        assert all(a.x1 <= b.x0 for (a, _), (b, _) in zip(boxes, boxes[1:])), [t for _, t in boxes]
-    plt.close(fig)
+        for ax in shown["fig"].axes[:len(gap)]:
+            assert overlapping_tick_labels(ax) == []
 
 
 def test_the_logs_minimum_rows_are_the_policys_history():

@@ -150,6 +150,30 @@ def test_plots_write_pngs(flight, tmp_path):
         assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_marginals_tick_labels_are_readable(tmp_path):
+    """marginals.png, as `decode --log` draws it: a log-grounded band far narrower than the axis (the regression's
+    point far off), small values on linear axes. No two tick labels of a panel overlap, and the log axes' labels
+    span the axis (they once crowded the samples' corner)."""
+    from support.figures import kept_figure, overlapping_tick_labels
+
+    from mjxsysid.render.posterior import plot_marginals
+    rng = np.random.default_rng(0)
+    samples = np.array(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(2), 400))
+    samples[:, P.TAU_M] = 0.03 * (1 + 1e-3 * rng.standard_normal(400))          # a narrow band
+    samples[:, P.TAU_EXT] = 1e-6 * rng.standard_normal((400, 3))                # small values
+    point = P.PAPER_HARDWARE.copy()
+    point[P.TAU_M], point[P.TAU_EXT] = 0.036, [9e-4, -3e-3, -6e-4]
+    with kept_figure() as shown:
+        plot_marginals(samples, P.PAPER_HARDWARE, tmp_path / "m.png", point=point)
+        axes = shown["fig"].axes[:P.N_PARAMS]
+        for ax in axes:
+            assert overlapping_tick_labels(ax) == [], ax.get_title()
+        ax = axes[P.TAU_M]
+        assert ax.get_xscale() == "log"
+        ticks = [t for t in ax.get_xticks() if t > 0]
+        assert ticks[-1] > 0.033 and ticks[0] < 0.031, ticks      # over the axis, not the samples' 0.0299–0.0301
+
+
 def test_bad_inputs_raise(gl, flight, tmp_path):
     from mjxsysid.render import plot_prior_marginals, render_frame, render_rollout
     theta, frames = flight
