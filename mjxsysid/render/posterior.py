@@ -103,7 +103,7 @@ def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior
             # (log axes' minor labels overlap)
             ax.xaxis.set_minor_locator(NullLocator())
             lo, hi = np.log(ax.get_xlim())
-            ticks = np.exp(lo + (hi - lo) * np.array([0.15, 0.5, 0.85])) if hi > lo else [x.min()]
+            ticks = np.exp(lo + (hi - lo) * np.array([0.15, 0.5, 0.85]))
             ax.set_xticks(ticks, [f"{v:.3g}" for v in ticks])
         else:          # four ticks; small or large values as a mantissa and a power of ten at the axis' end
             ax.xaxis.set_major_locator(MaxNLocator(4))
