@@ -10,8 +10,9 @@ without velocity, from the committed rows alone (no flight).
    velocity, min-snap flights without) against the rest.
 2. The motor-map check's statistic: its 99th percentile per flight and level over the rows carrying it, and the
    logs the shipped threshold flags.
-3. Logs without velocity: the median of ``acc_nsr`` and ``acc_noise`` per level, and thrust-to-weight's 90 %
-   error quantile per flight and level (training and held-out rows).
+3. Logs without velocity: the median of ``acc_nsr`` and ``acc_noise`` per level, thrust-to-weight's 90 %
+   error quantile per flight and level (training and held-out rows), and its held-out width and coverage per
+   level with velocity and without.
 4. Min-snap paths without velocity: a piece flies ``paths`` path draws a level (``MinSnap.random``'s seed is the
    flight's; :func:`~mjxsysid.experiments.posterior_calibration.path_of`), so per row file, level and path,
    thrust-to-weight's 90 % error quantile and the median ``drag_signal``; and per
@@ -108,6 +109,20 @@ def no_velocity(train: list[dict], held: list[dict]) -> dict:
             if not r["features"].get("velocity_used") and r.get("method") == "smc_nuts":
                 err[f"{name} {r.get('flight')}, {r['level']}"].append(abs(r["truth_v"][0] - r["bands"][1][0]))
     out["tw_error_q90"] = {k: (len(v), float(np.quantile(v, 0.9))) for k, v in sorted(err.items())}
+    out["tw_held_out"] = tw_by_velocity(held)
+    return out
+
+
+def tw_by_velocity(held: list[dict]) -> dict:
+    """Thrust-to-weight on the held-out rows under the shipped table, per level and whether the log carried
+    velocity -> {level: {"velocity" / "no velocity": (logs, median half-width %, coverage)}}: the level's median
+    width (the top table's) lies between its two halves."""
+    from mjxsysid.experiments.posterior_calibration import evaluate
+    from mjxsysid.identify.calibrate import load
+    table, out = load(), {}
+    for lv in dict.fromkeys(r["level"] for r in held):
+        ev = evaluate([r for r in held if r["level"] == lv], table, by="velocity")
+        out[lv] = {k: (c["logs"], c["tw_width_pct"], c["coverage"]["log_thrust_to_weight"]) for k, c in ev.items()}
     return out
 
 
@@ -214,6 +229,12 @@ def main(argv=None) -> dict:
     lines += [f"| {lv} | {x:.2f} | {y:.2f} |" for lv, (x, y) in res["no_velocity"]["features"].items()]
     lines += ["", "| rows, flight, level | logs | T/W error, 90 % quantile (log) |", "|---|---|---|"]
     lines += [f"| {k} | {n} | {q:.4f} |" for k, (n, q) in res["no_velocity"]["tw_error_q90"].items()]
+    lines += ["", "Thrust-to-weight held out, shipped table: logs, median half-width and coverage, with velocity and without.",
+              "", "| level | with velocity | without |", "|---|---|---|"]
+    order = ("clean", "x1", "x2", "x5_white", "x5_vibration", "x10", "x20")
+    for lv, c in sorted(res["no_velocity"]["tw_held_out"].items(), key=lambda kv: order.index(kv[0]) if kv[0] in order else 99):
+        cell = [f"{c[k][0]}: ±{c[k][1]:.1f} %, {c[k][2]:.3f}" if k in c else "—" for k in ("velocity", "no velocity")]
+        lines.append(f"| {lv} | {cell[0]} | {cell[1]} |")
     lines += ["", "## 4. Min-snap paths without velocity (a row file's path draws per level)", "",
               "| row file, level, path | logs | T/W error, 90 % quantile (log) | drag_signal, median |", "|---|---|---|---|"]
     lines += [f"| {k} | {n} | {q:.4f} | {d:.2f} |" for k, (n, q, d) in res["minsnap_paths"]["paths"].items()]
