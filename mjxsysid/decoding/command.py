@@ -57,8 +57,8 @@ def printed_summary(summary: dict) -> dict:
 
 
 def _model_check_lines(g: dict) -> list[str]:
-    """summary.md's model check: the window-length and motor-map tests' verdicts, NUTS's chains, and every reason a
-    coordinate failed."""
+    """summary.md's model check: the window-length and motor-map tests' verdicts, NUTS's chains, the strata a
+    vibrating log or a log without velocity was calibrated on, and every reason a coordinate failed."""
     chk = (g.get("calibration") or {}).get("model_check")
     if not chk:
         return []
@@ -70,6 +70,11 @@ def _model_check_lines(g: dict) -> list[str]:
         on = [k for k, v in (g["calibration"].get("calibrated_on") or {}).items() if v == VIBRATING]
         lines.append("- rotor vibration: a narrow-band peak in the gyro; calibrated on vibrating simulated logs: "
                      + (", ".join(on) if on else "none of the bands (each failed a check or was left raw)"))
+    if (g["calibration"].get("features") or {}).get("velocity_used") is False:
+        from mjxsysid.identify.calibrate import NO_VELOCITY, NO_VELOCITY_WHY
+        on = [k for k, v in (g["calibration"].get("calibrated_on") or {}).items() if v == NO_VELOCITY]
+        if on:
+            lines.append(f"- velocity: {NO_VELOCITY_WHY} ({', '.join(on)})")
     return lines + [f"- failed: {r}" for r in chk.get("reasons", []) if r not in (win.get("why"), idle.get("why"))]
 
 

@@ -181,7 +181,16 @@ VIBRATING = "vibrating simulated logs"
 STRATA = (("vibration_coords", "vibration", VIBRATING),
           ("velocity_coords", "velocity_used", "simulated logs with velocity"))
 """The table's strata, in the order a log is matched to them: (the table's key, the log's feature, the name the
-report gives); a log in neither takes the coordinate's entry fitted on the rest ("the other simulated logs")."""
+report gives); a log in neither takes the coordinate's entry fitted on the rest ("the other simulated logs", or
+:data:`NO_VELOCITY` where the coordinate has a velocity stratum)."""
+
+
+NO_VELOCITY = "simulated logs without velocity"
+"""The report's name for the entry of a coordinate that has a velocity stratum, taken by a log outside it: that
+entry was fitted on the logs without velocity."""
+NO_VELOCITY_WHY = ("the log carries no velocity, so the body drag is not seen: the band is as wide as simulated "
+                   "logs without velocity need, wider than a log with velocity gets")
+"""What a thrust-to-weight band of a log without velocity says besides its stratum."""
 
 
 def coord_stratum(table: dict, j: int, features: dict) -> tuple[str, dict]:
@@ -195,6 +204,8 @@ def coord_stratum(table: dict, j: int, features: dict) -> tuple[str, dict]:
         c = table.get(key, {}).get(str(j))
         if c is not None and features.get(flag) and features[c["feature"]] <= c["feature_max"]:
             return name, c
+    if str(j) in table.get("velocity_coords", {}):
+        return NO_VELOCITY, table["coords"][j]
     return "the other simulated logs", table["coords"][j]
 
 
@@ -456,6 +467,8 @@ def calibrate(v, features: dict, weights, table: dict, prior: PhysicalPrior = PH
         if why[j]:
             continue
         note = f"; {SPEED_WHY}" if speed_tau and j == L.LOG_TAU_M else f"; calibrated on {strata[j]}"
+        if strata[j] == NO_VELOCITY and not features.get("velocity_used"):
+            note += f"; {NO_VELOCITY_WHY}"
         flagged = check["idle"]["ok"] is False
         if j == L.LOG_TW and idlecheck.blind(check["idle"], features):
             note += "; " + idlecheck.BLIND_WHY.format(grid=", ".join(f"{g:+g}" for g in idlecheck.GRID))

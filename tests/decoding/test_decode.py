@@ -190,6 +190,18 @@ def test_summary_md_says_a_vibrating_log_was_calibrated_on_vibrating_logs():
     assert not any("vibration" in ln for ln in _model_check_lines(g))
 
 
+
+def test_summary_md_says_a_log_without_velocity_leaves_the_body_drag_unseen():
+    from mjxsysid.decoding.command import _model_check_lines
+    from mjxsysid.identify.calibrate import NO_VELOCITY, NO_VELOCITY_WHY
+    g = {"calibration": {"model_check": {"window": {"why": "w"}, "idle": {"why": "i"}, "reasons": []},
+                         "features": {"velocity_used": False},
+                         "calibrated_on": {"log_thrust_to_weight": NO_VELOCITY, "log_yaw_authority": "x"}}}
+    assert f"- velocity: {NO_VELOCITY_WHY} (log_thrust_to_weight)" in _model_check_lines(g)
+    g["calibration"]["features"]["velocity_used"] = True
+    assert not any(ln.startswith("- velocity") for ln in _model_check_lines(g))
+
+
 def test_summary_md_says_whether_nuts_mixed_and_why_it_ran_again():
     from mjxsysid.decoding.command import _model_check_lines
     chk = {"model_check": {"window": {"why": "w"}, "idle": {"why": "i"}, "reasons": []}}

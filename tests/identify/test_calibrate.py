@@ -81,6 +81,26 @@ def test_vibrating_logs_are_calibrated_apart():
         assert rep["stratum"][1] == name and f"calibrated on {name}" in rep["why"][1], rep["why"][1]
 
 
+def test_a_log_without_velocity_is_told_why_its_thrust_to_weight_band_is_wide():
+    """Thrust-to-weight has a velocity stratum: a log with velocity takes it; a log without takes the entry
+    fitted on the logs without velocity, and its band says so and why (the body drag unseen), the wider."""
+    rng = np.random.default_rng(4)
+    rows = _rows(1200, rng, spread=0.6) + _rows(1200, rng, spread=2.5)
+    for i, r in enumerate(rows):
+        r["features"]["velocity_used"] = i < 1200          # with velocity: the smaller errors
+    table = F.fit(rows)
+    assert sorted(table["velocity_coords"]) == ["0"]
+    v = np.array(rows[0]["bands"][1]) + 0.01 * np.random.default_rng(5).standard_normal((2000, N_V))
+    feats = dict(rows[0]["features"])
+    with_vel, rep_vel = C.calibrate(v, feats, [0.5] * 4, table)
+    without, rep = C.calibrate(v, feats | {"velocity_used": False}, [0.5] * 4, table)
+    assert rep_vel["stratum"][0] == "simulated logs with velocity" and "body drag" not in rep_vel["why"][0]
+    assert rep["stratum"][0] == C.NO_VELOCITY and C.NO_VELOCITY_WHY in rep["why"][0], rep["why"][0]
+    assert rep["stratum"][1] == "the other simulated logs" and "body drag" not in rep["why"][1]
+    width = lambda d: float(np.subtract(*np.percentile(d[:, 0], [95, 5])))   # noqa: E731
+    assert width(without) > 2 * width(with_vel)
+
+
 def test_rows_without_the_vibration_feature_take_it_from_their_level(tmp_path):
     rows = [{"level": lv, "features": {"rates_nsr": -3.0}} for lv in ("x5_white", "x5_vibration")]
     rows.append({"level": "x1", "features": {"rates_nsr": -3.0, "vibration": True}})     # the detector's, kept
