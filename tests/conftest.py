@@ -33,7 +33,8 @@ def exact_model_posteriors():
     whose likelihood's model is exact (the paper vehicle, ×5-like noise, seed 3), computed once, XLA optimised
     (run time, not compiles): the log, the SMC's posterior (400 draws), the same refined by NUTS (its retry
     as long as its first run), and a longer NUTS run from the SMC's mode and draws: the refinement's own
-    program (one NUTS compile for both) at five seeds, pooled (40 chains × (200 + 50), 2,000 draws)."""
+    program (one NUTS compile for both) at five seeds, pooled (40 chains × (200 + 50), 2,000 draws); ``ahead``:
+    each program the refined call waited for and whether its thread had compiled it (runtime/ahead.py)."""
     import numpy as np
     from mjxsysid import theta as P
     from mjxsysid.identify import nuts as S
@@ -44,9 +45,13 @@ def exact_model_posteriors():
     theta = P.paper_hardware().copy()
     data = prepare(exact_model_log(theta, 4.0, gyro_noise=0.05, acc_noise=0.5, seed=3))
     kw = dict(force_smc=True, seed=1, calibration=None, particles=256, samples=400)
+    from mjxsysid.runtime.ahead import Ahead
+    waits, wait = [], Ahead.wait           # which programs the refined call found compiled ahead
     with xla_optimised(), pytest.MonkeyPatch.context() as mp:
         mp.setattr(S, "LONGER", (1, 1))      # the retry's length: test_nuts's forced retry runs it again
+        mp.setattr(Ahead, "wait", lambda self, name: waits.append((name[0], wait(self, name))) or waits[-1][1])
         refined = log_grounded_posterior(data, None, refine=True, **kw)
+        mp.setattr(Ahead, "wait", wait)
         smc = log_grounded_posterior(data, None, refine=False, **kw)
         mode = smc["mode"]
         smc_y = np.concatenate([smc["v_raw"], smc["nuisance"][:, :4], smc["nuisance"][:, 8:]], 1)
@@ -57,7 +62,7 @@ def exact_model_posteriors():
         y = np.concatenate([r["y"] for r in runs])
         ref = {"y": y, **S.diagnostics(y, [r["divergences"] for r in runs], [r["leapfrog_mean"] for r in runs],
                                        np.concatenate([r["step_size"] for r in runs]))}
-    return {"theta": theta, "data": data, "refined": refined, "smc": smc, "reference": ref}
+    return {"theta": theta, "data": data, "refined": refined, "smc": smc, "reference": ref, "ahead": waits}
 
 
 @pytest.fixture(scope="session")

@@ -10,9 +10,11 @@ import numpy as np
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.likelihood import _rate_loglik_jit, rate_loglik_logs, residuals_jit, residuals_logs
 from mjxsysid.identify.mode import _fit_ls_logs, _fit_ls_many, _ls_jacobian, _ls_jacobian_logs
-from mjxsysid.identify.nuts import run_chains
+from mjxsysid.identify.nuts import CHAINS, compile_chains, run_chains
+from mjxsysid.identify.proposals import StudentT
 from mjxsysid.identify.smc import PRIOR_SHARE, _smc, _smc_logs
 from mjxsysid.identify.target import _batch_log_target_logs, _y_lo_hi, log_target, target_evals
+from mjxsysid.runtime.ahead import Ahead, signature
 
 
 def _take(tree, idx):
@@ -45,6 +47,7 @@ class _Logs:
 
     def __init__(self, datas):
         self.datas = list(datas)
+        self.ahead = Ahead(on=False)         # programs compiled ahead (:meth:`compile_ahead`)
         self.stack = None
         if len(self.datas) > 1:         # the logs padded to a power of two, on the device once
             padded = [self.datas[i] for i in _pow2_pad(range(len(self.datas)))]
@@ -114,37 +117,66 @@ class _Logs:
         z, ld, ls, w = (_pad_rows(np.asarray(a, np.float32), len(p)) for a in (z, ld, ls, w))
         return np.asarray(_ls_jacobian_logs(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls), jnp.asarray(w)))[:len(self)]
 
-    def smc(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages):
-        """The tempered SMC of the logs ``idx`` (m,) from their particles y0 (m, P, 17) -> the
-        outputs of :func:`_smc`, each with a leading axis m."""
+    def _smc_call(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages):
+        """The SMC's program for the logs ``idx`` and its arguments (the one-log program where there is one log)."""
         idx = list(idx)
+        static = (prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
         args = (np.asarray(keys, np.uint32), np.asarray(y0, np.float32), np.asarray(ld, np.float32), np.asarray(w, np.float32))
         if self.stack is None:
-            out = _smc(*(jnp.asarray(a[0]) for a in args[:2]), self.datas[idx[0]], *(jnp.asarray(a[0]) for a in args[2:]),
-                       qv[0], qn[0], lap[0], prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
-            return [np.asarray(o)[None] for o in out]
+            return _smc, (*(jnp.asarray(a[0]) for a in args[:2]), self.datas[idx[0]],
+                          *(jnp.asarray(a[0]) for a in args[2:]), qv[0], qn[0], lap[0], *static)
         p, data = self._sub(idx)
         args = [_pad_rows(a, len(p)) for a in args]
         pad = len(p) - len(idx)
         stk = lambda ts: None if ts[0] is None else jax.tree.map(lambda *a: jnp.stack(a), *(ts + [ts[0]] * pad))  # noqa: E731
-        out = _smc_logs(*(jnp.asarray(a) for a in args[:2]), data, *(jnp.asarray(a) for a in args[2:]),
-                        stk(list(qv)), stk(list(qn)), stk(list(lap)), prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
-        return [np.asarray(o)[:len(idx)] for o in out]
+        return _smc_logs, (*(jnp.asarray(a) for a in args[:2]), data, *(jnp.asarray(a) for a in args[2:]),
+                           stk(list(qv)), stk(list(qn)), stk(list(lap)), *static)
 
-    def nuts(self, idx, keys, u0, ld, w, m, chol, prior, plans, attempt):
-        """NUTS of the logs ``idx`` (m,) from their starts (:func:`.nuts.start`: keys (m, C, 2), u0
-        (m, C, 17), m (m, 17), chol (m, 17, 17)) with their log δ and weights (m, 4), run with the lengths
-        ``plans[attempt]`` -> the outputs of :func:`.nuts.run_chains`, each with a leading axis m."""
+    def smc(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages):
+        """The tempered SMC of the logs ``idx`` (m,) from their particles y0 (m, P, 17) -> the
+        outputs of :func:`_smc`, each with a leading axis m."""
+        fn, args = self._smc_call(idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages)
+        self.ahead.wait(("smc", signature(*args)))
+        out = fn(*args)
+        return [np.asarray(o)[None] for o in out] if self.stack is None else [np.asarray(o)[:len(idx)] for o in out]
+
+    def _nuts_call(self, idx, keys, u0, ld, w, m, chol, prior) -> tuple:
+        """The arguments of :func:`.nuts.run_chains` for the logs ``idx`` (the one-log program where there is one
+        log), and whether they carry a leading log axis."""
         idx = list(idx)
         lo, hi = (jnp.asarray(a, jnp.float32) for a in _y_lo_hi(prior))
         args = [np.asarray(keys, np.uint32)] + [np.asarray(a, np.float32) for a in (u0, ld, w, m, chol)]
         if self.stack is None:
             k, u, a, b, mm, c = (jnp.asarray(x[0]) for x in args)  # rows, not coordinates
-            out = run_chains(k, u, self.datas[idx[0]], a, b, lo, hi, mm, c, prior=prior, plans=plans,
-                             attempt=attempt)
-            return [np.asarray(o)[None] for o in out]
+            return (k, u, self.datas[idx[0]], a, b, lo, hi, mm, c), False
         p, data = self._sub(idx)
         k, u, a, b, mm, c = (jnp.asarray(_pad_rows(x, len(p))) for x in args)
-        out = run_chains(k, u, data, a, b, lo, hi, mm, c, prior=prior, plans=plans, attempt=attempt,
-                         logs=True)
-        return [np.asarray(o)[:len(idx)] for o in out]
+        return (k, u, data, a, b, lo, hi, mm, c), True
+
+    def nuts(self, idx, keys, u0, ld, w, m, chol, prior, plans, attempt):
+        """NUTS of the logs ``idx`` (m,) from their starts (:func:`.nuts.start`: keys (m, C, 2), u0
+        (m, C, 17), m (m, 17), chol (m, 17, 17)) with their log δ and weights (m, 4), run with the lengths
+        ``plans[attempt]`` -> the outputs of :func:`.nuts.run_chains`, each with a leading axis m."""
+        args, logs = self._nuts_call(idx, keys, u0, ld, w, m, chol, prior)
+        self.ahead.wait(("nuts", signature(*args), tuple(plans), logs))
+        out = run_chains(*args, prior=prior, plans=plans, attempt=attempt, logs=logs)
+        return [np.asarray(o)[:len(idx)] if logs else np.asarray(o)[None] for o in out]
+
+    def compile_ahead(self, ahead, qv, qn, prior, *, particles: int, n_mcmc: int, max_stages: int, plans=None):
+        """Start compiling, on ``ahead``'s thread (:class:`~mjxsysid.runtime.ahead.Ahead`), the programs the SMC of
+        every log (``particles`` each, the logs' decoded proposals ``qv`` and nuisance proposals ``qn``) and
+        NUTS with ``plans`` (None: no NUTS) will run; :meth:`smc` and :meth:`nuts` wait for them. Their shapes
+        are the logs'; only a Laplace proposal, known at the mode, stands in (zeros of its shapes)."""
+        self.ahead = ahead
+        n, eye = len(self), np.eye(L.N_Y, dtype=np.float32)
+        zeros = lambda *shape: np.zeros((n,) + shape, np.float32)  # noqa: E731
+        lap = [StudentT(np.zeros(L.N_Y, np.float32), eye)] * n
+        smc = self._smc_call(range(n), np.zeros((n, 2), np.uint32), zeros(particles, L.N_Y), zeros(L.N_CHANNELS),
+                             zeros(L.N_CHANNELS), qv, qn, lap, prior, n_mcmc, max_stages)
+        ahead.submit(("smc", signature(*smc[1])), lambda: smc[0].lower(*smc[1]).compile())
+        if plans is None:
+            return
+        args, logs = self._nuts_call(range(n), np.zeros((n, CHAINS, 2), np.uint32), zeros(CHAINS, L.N_Y),
+                                     zeros(L.N_CHANNELS), zeros(L.N_CHANNELS), zeros(L.N_Y), np.broadcast_to(eye, (n,) + eye.shape), prior)
+        ahead.submit(("nuts", signature(*args), tuple(plans), logs),
+                     lambda: compile_chains(*args, prior=prior, plans=plans, logs=logs))

@@ -53,11 +53,13 @@ from mjxsysid.identify.logdata import LogData, LogTooShort, prepare
 from mjxsysid.identify.mode import LAPLACE_WIDEN, find_modes
 from mjxsysid.identify.nuts import unmixed_not_seen
 from mjxsysid.identify.nuts import refine as nuts_refine
+from mjxsysid.identify.nuts import refine_plans
 from mjxsysid.identify.proposals import decoded_proposal, ess, nuisance_proposal, pareto_khat
 from mjxsysid.identify.smc import PRIOR_SHARE, RW_TARGET_ACCEPTANCE, _smc_start, rw_scale_update
 from mjxsysid.identify.windowcheck import run as window_check
 from mjxsysid.identify.target import (ACC_BIAS_SD, N_Y, NUIS_BOUNDS, TARGET_CHUNK, full_precision, full_x,
                                       log_prior, log_target)
+from mjxsysid.runtime.ahead import Ahead
 from mjxsysid.runtime.hostpool import HostPool
 
 __all__ = ["ACC_BIAS_SD", "LAPLACE_WIDEN", "LOG_BATCH", "MAX_KHAT", "MIN_ESS_FRACTION", "N_Y", "NUIS_BOUNDS",
@@ -184,7 +186,9 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     the logs (:func:`~.logdata.prepare`, and again under the longer rate windows and each motor map,
     :func:`~.windowcheck.run`, :func:`~.idlecheck.run`: one :class:`~mjxsysid.runtime.hostpool.HostPool` for
     the call; default 1 on a CPU, up to 16 beside an accelerator);
-    ``desc``: a progress bar's label; ``config`` and ``settings`` as :func:`log_grounded_posterior`'s.
+    ``desc``: a progress bar's label; ``config`` and ``settings`` as :func:`log_grounded_posterior`'s. The SMC's
+    and NUTS's programs compile on a thread of the call's own (:class:`~mjxsysid.runtime.ahead.Ahead`) while the
+    mode is found.
     A log too short for the posterior raises
     :class:`~.logdata.LogTooShort` naming its index.
     -> one dict per log, in order, as :func:`log_grounded_posterior` returns it (the same draws up
@@ -209,13 +213,13 @@ def log_grounded_posteriors(logs, decoded_thetas=None, *, prior: PhysicalPrior =
     if int(workers) < 1:
         raise ValueError(f"log_grounded_posteriors: workers must be ≥ 1, got {workers}")
     out = [None] * n
-    with HostPool(int(workers)) as pool:                    # one pool of processes for every reduction of the call
+    with HostPool(int(workers)) as pool, Ahead() as ahead:  # one pool of processes for every reduction of the call
         datas = _prepare_all(logs, rates, pool)
         qvs = [None if d is None else decoded_proposal(d, prior) for d in dec]
         chunks = log_chunks(datas, [q is None for q in qvs], batch)
         for chunk in progress(chunks, desc=desc or "log-grounded posteriors", enabled=False if len(chunks) < 2 else None):
             res = _posterior_batch([datas[i] for i in chunk], [dec[i] for i in chunk], [qvs[i] for i in chunk],
-                                   [seeds[i] for i in chunk], pool=pool, **cfg)
+                                   [seeds[i] for i in chunk], pool=pool, ahead=ahead, **cfg)
             for i, r in zip(chunk, res):
                 out[i] = r
     return out
@@ -306,14 +310,17 @@ def refine_posterior(rec_or_data, post: dict, *, seed: int = 0, prior: PhysicalP
 
 
 def _posterior_batch(datas, decs, qvs, seeds, *, prior, samples, draws, particles, n_mcmc, max_stages, starts,
-                     force_smc, refine, calibration, pool: HostPool, shared_maps=()) -> list[dict]:
-    """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc)."""
+                     force_smc, refine, calibration, pool: HostPool, ahead: Ahead, shared_maps=()) -> list[dict]:
+    """:func:`log_grounded_posteriors` of logs of one shape and one kind of proposal (module doc); the SMC's and
+    NUTS's programs compile on ``ahead``'s thread while the mode is found."""
     nl = len(datas)
     logs = _Logs(datas)
     # host draws from NumPy generators (they compile nothing); the SMC's key is PRNGKey(seed)'s bits
     rng = [_streams(seed) for seed in seeds]
     r_is, r_n, r_mix, r_h, r_res, r_st, r_lp, r_nuts = ([g[k] for g in rng] for k in _STREAMS)
     qns = [nuisance_proposal(d, ACC_BIAS_SD) for d in datas]
+    logs.compile_ahead(ahead, qvs, qns, prior, particles=particles, n_mcmc=n_mcmc, max_stages=max_stages,
+                       plans=refine_plans(samples) if refine else None)
     # 0. the mode
     st = np.stack([_starts(d, dc, r_st[i], prior, starts) for i, (d, dc) in enumerate(zip(datas, decs))])
     modes = find_modes(logs, st.astype(np.float32), prior)

@@ -232,15 +232,10 @@ def _chains_logs(keys, u0, data, log_delta, weights, lo, hi, m, chol, attempt, p
     return jax.vmap(one)(keys, u0, data, log_delta, weights, m, chol)
 
 
-def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, plans: tuple, attempt: int = 0,
-               target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = MAX_DOUBLINGS, logs: bool = False):
-    """NUTS chains keys (C, 2), u0 (C, 17) (``logs``: a leading log axis on keys, u0, data, log δ, weights, m
-    and chol) run with the lengths ``plans[attempt]`` -> y (..., C, kept, 17), divergent transitions (..., C),
-    leapfrog steps per draw (..., C), step size (..., C). ``plans``: every (warm-up, draws, thinning) the
-    program serves, each keeping as many draws. :func:`_chains` (``logs``: :func:`_chains_logs`) is compiled
-    once for them all, through :func:`mjxsysid.runtime.exported.call`: its trace (blackjax's window adaptation
-    and NUTS) is kept on disk beside the compilation cache."""
-    from mjxsysid.runtime import exported
+def _program(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, plans: tuple, attempt: int,
+             target_acceptance: float, max_doublings: int, logs: bool) -> tuple:
+    """:func:`run_chains`'s checked plans and the (name, function, static arguments, arguments) of
+    :func:`mjxsysid.runtime.exported.call` that runs them."""
     plans = tuple(tuple(int(x) for x in p) for p in plans)
     if not plans or any(len(p) != 3 for p in plans):
         raise ValueError(f"NUTS's plans must be (warm-up, draws, thinning) triples; got {plans}")
@@ -251,9 +246,34 @@ def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, pl
     static = {"prior": prior, "plans": plans, "target_acceptance": float(target_acceptance),
               "max_doublings": int(max_doublings)}
     fn, name = (_chains_logs, "nuts_logs") if logs else (_chains, "nuts")
-    y, div, leap, step = exported.call(name, fn, static, keys, u0, data, log_delta, weights, lo, hi, m, chol,
-                                       np.int32(attempt))
+    return plans, (name, fn, static, keys, u0, data, log_delta, weights, lo, hi, m, chol, np.int32(attempt))
+
+
+def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, plans: tuple, attempt: int = 0,
+               target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = MAX_DOUBLINGS, logs: bool = False):
+    """NUTS chains keys (C, 2), u0 (C, 17) (``logs``: a leading log axis on keys, u0, data, log δ, weights, m
+    and chol) run with the lengths ``plans[attempt]`` -> y (..., C, kept, 17), divergent transitions (..., C),
+    leapfrog steps per draw (..., C), step size (..., C). ``plans``: every (warm-up, draws, thinning) the
+    program serves, each keeping as many draws. :func:`_chains` (``logs``: :func:`_chains_logs`) is compiled
+    once for them all, through :func:`mjxsysid.runtime.exported.call`: its trace (blackjax's window adaptation
+    and NUTS) is kept on disk beside the compilation cache."""
+    from mjxsysid.runtime import exported
+    plans, call = _program(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior=prior, plans=plans,
+                           attempt=attempt, target_acceptance=target_acceptance, max_doublings=max_doublings, logs=logs)
+    y, div, leap, step = exported.call(*call)
     return y, div, np.asarray(leap) / plans[attempt][1], step
+
+
+def compile_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, plans: tuple,
+                   target_acceptance: float = TARGET_ACCEPTANCE, max_doublings: int = MAX_DOUBLINGS,
+                   logs: bool = False) -> None:
+    """Compile the program :func:`run_chains` runs with these arguments' shapes (every attempt), and run nothing;
+    then R̂ and ESS of its draws (:func:`diagnostics`)."""
+    from mjxsysid.runtime import exported
+    plans, call = _program(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior=prior, plans=plans,
+                           attempt=0, target_acceptance=target_acceptance, max_doublings=max_doublings, logs=logs)
+    exported.compile_only(*call)
+    _rhat_ess().lower(np.zeros((np.shape(keys)[-2], plans[0][1] // plans[0][2], N_Y), np.float32)).compile()
 
 
 def _f32(a):

@@ -68,11 +68,25 @@ def call(name: str, fn, static: dict, *args):
     :func:`folder`: the first call traces and saves it, later processes load it. ``fn`` is a pure function of
     arrays (``args``: pytrees of them, of any registered node type: they travel flattened) returning a tuple
     of arrays, with the hashable ``static`` keyword arguments. Without a compilation cache, it is jitted as usual."""
+    program, leaves = _program(name, fn, static, args)
+    return program(*leaves)
+
+
+def compile_only(name: str, fn, static: dict, *args) -> None:
+    """Compile what :func:`call` with these arguments would run, and run nothing (``args``: arrays of the shapes
+    and dtypes the call will pass; their values are not read): the call then finds it compiled."""
+    program, leaves = _program(name, fn, static, args)
+    program.lower(*leaves).compile()
+
+
+def _program(name: str, fn, static: dict, args) -> tuple:
+    """The jitted program :func:`call` runs for ``args`` (exported and saved where the key has no file yet), and
+    the arguments' flat leaves."""
     leaves, tree = jax.tree.flatten(args)
     jitted = _jitted(fn, tuple(sorted(static.items())), tree)
     where = folder()
     if where is None:
-        return jitted(*leaves)
+        return jitted, leaves
     path = where / f"{name}-{_key(name, static, leaves, tree)}.bin"
     if not path.is_file():
         exp = jax.export.export(jitted)(*leaves)
@@ -80,7 +94,7 @@ def call(name: str, fn, static: dict, *args):
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
         tmp.write_bytes(exp.serialize())
         tmp.replace(path)                            # atomic: a reader never sees half a file
-    return _runner(str(path))(*leaves)
+    return _runner(str(path)), leaves
 
 
 @functools.lru_cache(maxsize=16)
@@ -97,4 +111,4 @@ def _runner(path: str):
     return jax.jit(jax.export.deserialize(bytearray(Path(path).read_bytes())).call)
 
 
-__all__ = ["call", "can_serialize", "folder", "source_hash", "FOLDER"]
+__all__ = ["call", "can_serialize", "compile_only", "folder", "source_hash", "FOLDER"]

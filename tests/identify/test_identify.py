@@ -273,6 +273,9 @@ def _batched_against_alone(refine: bool, monkeypatch) -> None:
             seen.append((list(self.datas), np.array(x), out))
         return out
     monkeypatch.setattr(_Logs, "residuals", spy)
+    from mjxsysid.runtime.ahead import Ahead
+    waits, wait = [], Ahead.wait          # the programs compiled ahead, alone and together, are the ones run
+    monkeypatch.setattr(Ahead, "wait", lambda self, name: waits.append((name[0], wait(self, name))) or waits[-1][1])
     base = P.paper_hardware().copy()
     slow = base * np.where(np.arange(19) == P.TAU_M, 1.5, 1.0).astype(np.float32)
     recs = [synthetic_log(t, seconds=3.0, gyro_noise=0.05, acc_noise=0.5, seed=k)
@@ -284,6 +287,8 @@ def _batched_against_alone(refine: bool, monkeypatch) -> None:
         assert a["method"] == b["method"] == ("smc_nuts" if refine else "smc")
         qa, qb = (np.percentile(x["v"], [5, 50, 95], 0) for x in (a, b))
         assert np.all(np.abs(qa - qb) <= 0.2 * (qa[2] - qa[0]) + 1e-5), np.abs(qa - qb) / (qa[2] - qa[0])
+    smc = [found for kind, found in waits if kind == "smc"]
+    assert len(smc) == 4 and all(smc), waits                        # three logs alone, then together
     with pytest.raises(ValueError, match="one of each per log"):
         log_grounded_posteriors(recs, seeds=[1, 2])
     assert len(seen) >= 2                           # dozens of calls for the logs together: the first and the last
