@@ -289,6 +289,8 @@ def _batched_against_alone(refine: bool, monkeypatch) -> None:
         assert np.all(np.abs(qa - qb) <= 0.2 * (qa[2] - qa[0]) + 1e-5), np.abs(qa - qb) / (qa[2] - qa[0])
     smc = [found for kind, found in waits if kind == "smc"]
     assert len(smc) == 4 and all(smc), waits                        # three logs alone, then together
+    if refine:                                                      # each call's first NUTS run; a retry reuses it
+        assert sum(found for kind, found in waits if kind == "nuts") == 4, waits
     with pytest.raises(ValueError, match="one of each per log"):
         log_grounded_posteriors(recs, seeds=[1, 2])
     assert len(seen) >= 2                           # dozens of calls for the logs together: the first and the last
