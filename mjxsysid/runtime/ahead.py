@@ -2,10 +2,12 @@
 are known, and overlap the work that comes before their first call.
 
 A cold ``decode --log`` of a 10 s log on 2 cores spent 12 s tracing and compiling NUTS's program and 8 s the
-SMC's, one after the other on the main thread, while the second core waited. The log's shapes fix both
-programs' before the mode is found, so :class:`Ahead` compiles them meanwhile: ``jit(f).lower(*args).compile()``
-fills the cache that the later call ``jit(f)(*args)`` reads. The caller :meth:`~Ahead.wait` s for a program
-before its first call rather than compile it a second time.
+SMC's, on the main thread after the mode. The log's shapes fix both programs before the mode is found, so
+:class:`Ahead` compiles them meanwhile: ``jit(f).lower(*args).compile()`` fills the cache that the later call
+``jit(f)(*args)`` reads. The caller :meth:`~Ahead.wait` s for a program before its first call rather than compile
+it a second time. What it gains is the main thread's Python (the mode's fits and checks) overlapping the compiles:
+XLA:CPU's compile of one program already takes both cores of a 2-core machine (a cold decode 0.93× as long); on a
+GPU host's many cores, more (998 logs 351 → 303 s; BENCHMARKS.md).
 
 A program compiled ahead is the one the call would compile: the thread enters the caller's matmul precision
 (the only thread-local JAX setting this package sets). A failure there costs only the time: the call compiles
@@ -15,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import os
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 
 import jax
 import numpy as np
@@ -38,7 +40,7 @@ class Ahead:
     def __init__(self, on: bool | None = None):
         self.on = enabled() if on is None else bool(on)
         self._pool = ThreadPoolExecutor(1, thread_name_prefix="mjxsysid-ahead") if self.on else None
-        self._jobs: dict[str, Future] = {}
+        self._jobs: dict = {}
 
     def submit(self, name, compile_fn) -> None:
         """Run ``compile_fn()`` (it lowers and compiles a program) on the thread, as ``name`` (hashable: a
