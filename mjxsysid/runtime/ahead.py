@@ -9,6 +9,10 @@ it a second time. What it gains is the main thread's Python (the mode's fits and
 XLA:CPU's compile of one program already takes both cores of a 2-core machine (a cold decode 0.93× as long); on a
 GPU host's many cores, more (998 logs 351 → 303 s; BENCHMARKS.md).
 
+The policy trainer compiles its first step and its iteration side by side on two such threads
+(:meth:`~mjxsysid.policy.adaptive.trainer.Trainer.start_compile`), and calls the executables they return
+(:meth:`Ahead.result`).
+
 A program compiled ahead is the one the call would compile: the thread enters the caller's matmul precision
 (the only thread-local JAX setting this package sets). A failure there costs only the time: the call compiles
 the program itself, and raises what it raises.
@@ -17,6 +21,7 @@ from __future__ import annotations
 
 import logging
 import os
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import jax
@@ -34,34 +39,48 @@ def enabled() -> bool:
 
 
 class Ahead:
-    """One background thread that compiles programs in the order they are submitted; a no-op where
-    :func:`enabled` is false. Use as a context manager: leaving it ends the thread (:meth:`close`)."""
+    """Background threads (``threads``, one by default) that compile programs in the order they are submitted;
+    a no-op where :func:`enabled` is false. Use as a context manager: leaving it ends the threads (:meth:`close`).
+    ``seconds``: each finished compile's wall time, by name."""
 
-    def __init__(self, on: bool | None = None):
+    def __init__(self, on: bool | None = None, threads: int = 1):
         self.on = enabled() if on is None else bool(on)
-        self._pool = ThreadPoolExecutor(1, thread_name_prefix="mjxsysid-ahead") if self.on else None
+        self._pool = ThreadPoolExecutor(threads, thread_name_prefix="mjxsysid-ahead") if self.on else None
         self._jobs: dict = {}
+        self.seconds: dict = {}
+
+    def __contains__(self, name) -> bool:
+        return name in self._jobs
 
     def submit(self, name, compile_fn) -> None:
-        """Run ``compile_fn()`` (it lowers and compiles a program) on the thread, as ``name`` (hashable: a
-        :func:`signature` of the call's arguments keeps programs of other shapes apart); a name already
-        submitted is not submitted again."""
+        """Run ``compile_fn()`` (it lowers and compiles a program, and may return it) on a thread, as ``name``
+        (hashable: a :func:`signature` of the call's arguments keeps programs of other shapes apart); a name
+        already submitted is not submitted again."""
         if not self.on or name in self._jobs:
             return
         precision = jax.config.jax_default_matmul_precision
 
         def job():
+            t0 = time.perf_counter()
             with jax.default_matmul_precision(precision):
-                compile_fn()
+                out = compile_fn()
+            self.seconds[name] = time.perf_counter() - t0
+            return out
         self._jobs[name] = self._pool.submit(job)
 
-    def wait(self, name) -> bool:
-        """Block until ``name`` is compiled -> whether it was (False: never submitted, or it failed)."""
+    def result(self, name):
+        """Block until ``name`` is compiled -> what its ``compile_fn`` returned (None: never submitted); raises
+        what it raised."""
         job = self._jobs.pop(name, None)
-        if job is None:
+        return None if job is None else job.result()
+
+    def wait(self, name) -> bool:
+        """Block until ``name`` is compiled -> whether it was (False: never submitted, or it failed: the caller's
+        call compiles the program itself and raises what is real)."""
+        if name not in self._jobs:
             return False
         try:
-            job.result()
+            self.result(name)
         except Exception as e:  # noqa: BLE001 - the call compiles it and raises what is real
             _log.debug("compiling %s ahead failed: %r", name, e)
             return False

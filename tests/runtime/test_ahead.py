@@ -47,16 +47,26 @@ def test_a_program_compiled_ahead_is_the_one_its_call_runs():
 
 def test_a_failure_ahead_costs_only_time_and_the_switch_turns_it_off(monkeypatch):
     """A compile that fails on the thread: wait says so and raises nothing (the call compiles it itself and
-    raises what is real); ``close`` drops what has not started; MJXSYSID_COMPILE_AHEAD=0 runs nothing."""
+    raises what is real), result raises it; ``close`` drops what has not started; MJXSYSID_COMPILE_AHEAD=0 runs
+    nothing."""
     started = threading.Event()
     release = threading.Event()
-    with Ahead(on=True) as ahead:
+    with Ahead(on=True, threads=2) as ahead:
         ahead.submit("bad", lambda: 1 / 0)
         assert ahead.wait("bad") is False
-        ahead.submit("slow", lambda: (started.set(), release.wait(5)))
-        ahead.submit("never", lambda: pytest.fail("a job after close ran"))
+        ahead.submit("value", lambda: 42)                        # what the trainer does: take what it compiled
+        ahead.submit("raises", lambda: 1 / 0)
+        assert "value" in ahead and ahead.result("value") == 42 and "value" not in ahead
+        with pytest.raises(ZeroDivisionError):
+            ahead.result("raises")
+        assert ahead.result("never submitted") is None and set(ahead.seconds) == {"value"}
+    ran = []
+    with Ahead(on=True) as one:                                     # one thread: "never" waits behind "slow"
+        one.submit("slow", lambda: (started.set(), release.wait(5)))
+        one.submit("never", lambda: ran.append("never"))
         started.wait(5)
-        release.set()
+        threading.Timer(0.5, release.set).start()                    # "slow" still runs when the block is left
+    assert ran == [] and release.is_set()                                                # dropped on leaving: nothing asked for it
     monkeypatch.setenv(ENV, "0")
     off = Ahead()
     off.submit("x", lambda: pytest.fail("ran while off"))

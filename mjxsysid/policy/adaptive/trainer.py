@@ -8,8 +8,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import threading
-import time
 from pathlib import Path
 
 import jax
@@ -19,6 +17,7 @@ from flax import struct
 from jax.sharding import NamedSharding, PartitionSpec
 
 from mjxsysid.runtime import distributed
+from mjxsysid.runtime.ahead import Ahead
 from mjxsysid.policy.adaptive.config import TrainConfig
 from mjxsysid.policy.adaptive.env import EnvState, TrainEnv, training_env
 from mjxsysid.policy.adaptive.focus import load_weak
@@ -94,7 +93,7 @@ class Trainer:
                                                       yaw_authority=cfg.ident_yaw_authority)
         self.nets = self.env.nets
         self.opt = optimizer(cfg)
-        self._compiling = {}     # background compiles (start_compile): name -> (thread, box)
+        self._compiling = None   # background compiles (start_compile): an Ahead
         self._compiled = {}
         self.mesh = mesh if mesh is not None and mesh.size > 1 else None
         if self.mesh is None:
@@ -159,42 +158,30 @@ class Trainer:
 
     def _ready(self, name):
         """The executable of a background compile ``name`` (waiting for it), or None."""
-        if name in self._compiling:
-            thread, box = self._compiling.pop(name)
-            thread.join()
-            if "error" in box:
-                raise box["error"]
-            self._compiled[name] = box["compiled"]
+        if self._compiling is not None and name in self._compiling:
+            self._compiled[name] = self._compiling.result(name)
+            if not any(n in self._compiling for n in ("start", "iteration")):
+                self._compiling.close()          # both taken: end the threads
         return self._compiled.get(name)
 
+    @property
+    def compile_seconds(self) -> dict:
+        """Each background compile's wall time once done (:meth:`start_compile`)."""
+        return {} if self._compiling is None else dict(self._compiling.seconds)
+
     def start_compile(self) -> None:
-        """Compile the iteration and :meth:`start` in background threads (XLA compiles without
-        holding the GIL), so that they compile side by side and the iteration's compile overlaps
-        the setup that follows (starting, loading a checkpoint): the cold start of ``train`` costs
-        the longest of them instead of their sum. :meth:`start` and :meth:`iteration` wait for
-        their executable (and raise what its compile raised). ``compile_seconds``: each compile's
-        wall time once done."""
-        if self._compiling or self._compiled:
+        """Compile the iteration and :meth:`start` on two background threads (:class:`~mjxsysid.runtime.ahead.Ahead`:
+        XLA compiles without holding the GIL), so that they compile side by side and the iteration's compile
+        overlaps the setup that follows (starting, loading a checkpoint): the cold start of ``train`` costs the
+        longest of them instead of their sum. :meth:`start` and :meth:`iteration` wait for their executable (and
+        raise what its compile raised)."""
+        if self._compiling is not None or self._compiled:
             return
         params, key = self._abstract_start_inputs()
         ts, env = jax.eval_shape(self._start, params, key)
-        self.compile_seconds = {}
-        jobs = {"start": lambda: self._start_jit.lower(params, key),
-                "iteration": lambda: self._iteration_jit.lower(ts, env, self.weights)}
-        for name, lower in jobs.items():
-            box = {}
-
-            def work(lower=lower, box=box, name=name):
-                try:
-                    t0 = time.time()
-                    box["compiled"] = lower().compile()
-                    self.compile_seconds[name] = time.time() - t0
-                except Exception as e:   # noqa: BLE001 - re-raised in the caller's thread by _ready()
-                    box["error"] = e
-
-            thread = threading.Thread(target=work, name=f"mjxsysid-compile-{name}", daemon=True)
-            thread.start()
-            self._compiling[name] = (thread, box)
+        self._compiling = Ahead(on=True, threads=2)
+        self._compiling.submit("start", lambda: self._start_jit.lower(params, key).compile())
+        self._compiling.submit("iteration", lambda: self._iteration_jit.lower(ts, env, self.weights).compile())
 
     def reweighted(self, cfg: TrainConfig) -> "Trainer":
         """A trainer for ``cfg`` sharing this one's compiled iteration; ``cfg`` may differ from
