@@ -28,14 +28,16 @@ import jax
 import numpy as np
 
 ENV = "MJXSYSID_COMPILE_AHEAD"
-"""Set to 0 to compile every program on its first call instead (the default: ahead)."""
+"""Set to 0 to compile every program on its first call instead (the default: ahead): the posterior's and the
+policy trainer's. ``MJXSYSID_BACKGROUND_COMPILE``, the trainer's older name for it, is read too."""
 
 _log = logging.getLogger(__name__)
 
 
 def enabled() -> bool:
     """Whether programs are compiled ahead (:data:`ENV`)."""
-    return os.environ.get(ENV, "1").strip().lower() not in ("0", "false", "no", "off")
+    return all(os.environ.get(k, "1").strip().lower() not in ("0", "false", "no", "off")
+               for k in (ENV, "MJXSYSID_BACKGROUND_COMPILE"))
 
 
 class Ahead:

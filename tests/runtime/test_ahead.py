@@ -67,6 +67,11 @@ def test_a_failure_ahead_costs_only_time_and_the_switch_turns_it_off(monkeypatch
         started.wait(5)
         threading.Timer(0.5, release.set).start()                    # "slow" still runs when the block is left
     assert ran == [] and release.is_set()                                                # dropped on leaving: nothing asked for it
+    from mjxsysid.runtime.ahead import enabled
+    monkeypatch.setenv("MJXSYSID_BACKGROUND_COMPILE", "0")           # the trainer's older name for the switch
+    assert not enabled()
+    monkeypatch.delenv("MJXSYSID_BACKGROUND_COMPILE")
+    assert enabled()
     monkeypatch.setenv(ENV, "0")
     off = Ahead()
     off.submit("x", lambda: pytest.fail("ran while off"))

@@ -5,13 +5,12 @@ checkpoints that resume exactly, and ships ``policy.npz`` at the end.
 from __future__ import annotations
 
 import json
-import os
 import time
 from pathlib import Path
 
 import jax
 
-from mjxsysid.runtime import jsonout
+from mjxsysid.runtime import ahead, jsonout
 from mjxsysid.runtime import distributed
 from mjxsysid.runtime.checkpoint import load_meta, load_tree, save_tree
 from mjxsysid.policy.adaptive.config import TrainConfig
@@ -48,13 +47,13 @@ def train(cfg: TrainConfig, out_dir, *, resume: bool = True, log=print, trainer:
     format) and ``train_log.jsonl``. Returns the last stats and wall time. A progress bar
     (:mod:`mjxsysid.runtime.progress`) advances per iteration with the key metrics. ``trainer``: a
     prebuilt :class:`Trainer` for ``cfg`` (e.g. from :meth:`Trainer.reweighted`, to share its
-    compile). ``background_compile`` (default on; the environment variable
-    ``MJXSYSID_BACKGROUND_COMPILE=0`` turns it off, for timing the difference): the iteration
-    compiles in a background thread while the states are made (:meth:`Trainer.start_compile`)."""
+    compile). ``background_compile`` (default on; ``MJXSYSID_COMPILE_AHEAD=0`` turns it off, for timing the
+    difference: :func:`mjxsysid.runtime.ahead.enabled`): the iteration compiles in a background thread while
+    the states are made (:meth:`Trainer.start_compile`)."""
 
     t_enter = time.time()
     if background_compile is None:
-        background_compile = os.environ.get("MJXSYSID_BACKGROUND_COMPILE", "1") != "0"
+        background_compile = ahead.enabled()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     if trainer is not None and trainer.cfg != cfg:
