@@ -45,13 +45,12 @@ def exact_model_posteriors():
     theta = P.paper_hardware().copy()
     data = prepare(exact_model_log(theta, 4.0, gyro_noise=0.05, acc_noise=0.5, seed=3))
     kw = dict(force_smc=True, seed=1, calibration=None, particles=256, samples=400)
-    from mjxsysid.runtime.ahead import Ahead
-    waits, wait = [], Ahead.wait           # which programs the refined call found compiled ahead
+    from support.ahead import record_waits
     with xla_optimised(), pytest.MonkeyPatch.context() as mp:
         mp.setattr(S, "LONGER", (1, 1))      # the retry's length: test_nuts's forced retry runs it again
-        mp.setattr(Ahead, "wait", lambda self, name: waits.append((name[0], wait(self, name))) or waits[-1][1])
-        refined = log_grounded_posterior(data, None, refine=True, **kw)
-        mp.setattr(Ahead, "wait", wait)
+        with pytest.MonkeyPatch.context() as spy:
+            waits = record_waits(spy)        # which programs the refined call found compiled ahead
+            refined = log_grounded_posterior(data, None, refine=True, **kw)
         smc = log_grounded_posterior(data, None, refine=False, **kw)
         mode = smc["mode"]
         smc_y = np.concatenate([smc["v_raw"], smc["nuisance"][:, :4], smc["nuisance"][:, 8:]], 1)

@@ -65,16 +65,15 @@ def _model_check_lines(g: dict) -> list[str]:
     win, idle = chk.get("window") or {}, chk.get("idle") or {}
     lines = ["", "## The model check", "", f"- window length: {win.get('why', 'not run')}",
              f"- motor map: {idle.get('why', 'not run')}"] + _nuts_line(g)
-    if (g["calibration"].get("features") or {}).get("vibration"):
-        from mjxsysid.identify.calibrate import VIBRATING
-        on = [k for k, v in (g["calibration"].get("calibrated_on") or {}).items() if v == VIBRATING]
+    from mjxsysid.identify.calibrate import NO_VELOCITY, NO_VELOCITY_WHY, VIBRATING
+    features, strata = g["calibration"].get("features") or {}, g["calibration"].get("calibrated_on") or {}
+    if features.get("vibration"):
+        on = [k for k, v in strata.items() if v == VIBRATING]
         lines.append("- rotor vibration: a narrow-band peak in the gyro; calibrated on vibrating simulated logs: "
                      + (", ".join(on) if on else "none of the bands (each failed a check or was left raw)"))
-    if (g["calibration"].get("features") or {}).get("velocity_used") is False:
-        from mjxsysid.identify.calibrate import NO_VELOCITY, NO_VELOCITY_WHY
-        on = [k for k, v in (g["calibration"].get("calibrated_on") or {}).items() if v == NO_VELOCITY]
-        if on:
-            lines.append(f"- velocity: {NO_VELOCITY_WHY} ({', '.join(on)})")
+    on = [k for k, v in strata.items() if v == NO_VELOCITY]
+    if features.get("velocity_used") is False and on:
+        lines.append(f"- velocity: {NO_VELOCITY_WHY} ({', '.join(on)})")
     return lines + [f"- failed: {r}" for r in chk.get("reasons", []) if r not in (win.get("why"), idle.get("why"))]
 
 

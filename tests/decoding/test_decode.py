@@ -190,7 +190,6 @@ def test_summary_md_says_a_vibrating_log_was_calibrated_on_vibrating_logs():
     assert not any("vibration" in ln for ln in _model_check_lines(g))
 
 
-
 def test_summary_md_says_a_log_without_velocity_leaves_the_body_drag_unseen():
     from mjxsysid.decoding.command import _model_check_lines
     from mjxsysid.identify.calibrate import NO_VELOCITY, NO_VELOCITY_WHY

@@ -273,9 +273,8 @@ def _batched_against_alone(refine: bool, monkeypatch) -> None:
             seen.append((list(self.datas), np.array(x), out))
         return out
     monkeypatch.setattr(_Logs, "residuals", spy)
-    from mjxsysid.runtime.ahead import Ahead
-    waits, wait = [], Ahead.wait          # the programs compiled ahead, alone and together, are the ones run
-    monkeypatch.setattr(Ahead, "wait", lambda self, name: waits.append((name[0], wait(self, name))) or waits[-1][1])
+    from support.ahead import record_waits
+    waits = record_waits(monkeypatch)     # the programs compiled ahead, alone and together, are the ones run
     base = P.paper_hardware().copy()
     slow = base * np.where(np.arange(19) == P.TAU_M, 1.5, 1.0).astype(np.float32)
     recs = [synthetic_log(t, seconds=3.0, gyro_noise=0.05, acc_noise=0.5, seed=k)

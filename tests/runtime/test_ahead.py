@@ -35,9 +35,11 @@ def test_a_program_compiled_ahead_is_the_one_its_call_runs():
     key = ("f", signature(x))
     assert key == ("f", signature(x.astype(np.float64))) and key != ("f", signature(x[:6]))
     with jax.default_matmul_precision("highest"), Ahead(on=True) as ahead:
-        ahead.submit(key, lambda: f.lower(x).compile())
-        ahead.submit(key, lambda: pytest.fail("submitted twice"))      # a name already submitted: not again
-        ahead_threads = _compiles_by_thread(lambda: ahead.wait(key))
+        def submit_and_wait():
+            ahead.submit(key, lambda: f.lower(x).compile())
+            ahead.submit(key, lambda: pytest.fail("submitted twice"))  # a name already submitted: not again
+            assert ahead.wait(key) is True
+        ahead_threads = _compiles_by_thread(submit_and_wait)
         assert ahead.wait(key) is False                                 # waited for already
         main = _compiles_by_thread(lambda: np.asarray(f(x)))
     assert ahead_threads and all(t.startswith("mjxsysid-ahead") for t in ahead_threads), ahead_threads
