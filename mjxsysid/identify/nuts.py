@@ -4,7 +4,8 @@ that make its draws the target's, and the long runs that check them.
 The SMC's particles come from few ancestors on a clean log: its 90 % bands are about half as wide
 as a long NUTS run's on the same target and shifted by up to one of its band widths
 (``mjxsysid experiment sampler-reference``). Its draws still give a good scale: NUTS, preconditioned
-by their covariance, mixes within a few hundred steps. So every SMC posterior ends with
+by their covariance, mixes within a few hundred steps (preconditioned by the Laplace proposal's draws
+instead, 3 of 9 logs mixed, against 9 of 9: docs/identify.md). So every SMC posterior ends with
 :data:`CHAINS` chains of NUTS (blackjax: Stan's window adaptation with a dense mass matrix for
 :data:`WARMUP` steps, then the draws), and its split R̂, bulk ESS and divergences are the fit's
 check (:func:`converged`).
