@@ -12,8 +12,9 @@ from mjxsysid.identify.likelihood import _rate_loglik_jit, rate_loglik_logs, res
 from mjxsysid.identify.mode import _fit_ls_logs, _fit_ls_many, _ls_jacobian, _ls_jacobian_logs
 from mjxsysid.identify.nuts import CHAINS, compile_chains, run_chains
 from mjxsysid.identify.proposals import StudentT
-from mjxsysid.identify.smc import PRIOR_SHARE, _smc, _smc_logs
+from mjxsysid.identify.smc import program as smc_program
 from mjxsysid.identify.target import _batch_log_target_logs, _y_lo_hi, log_target, target_evals
+from mjxsysid.runtime import exported
 from mjxsysid.runtime.ahead import Ahead, signature
 
 
@@ -117,27 +118,28 @@ class _Logs:
         z, ld, ls, w = (_pad_rows(np.asarray(a, np.float32), len(p)) for a in (z, ld, ls, w))
         return np.asarray(_ls_jacobian_logs(jnp.asarray(z), data, jnp.asarray(ld), jnp.asarray(ls), jnp.asarray(w)))[:len(self)]
 
-    def _smc_call(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages):
-        """The SMC's program for the logs ``idx`` and its arguments (the one-log program where there is one log)."""
+    def _smc_call(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages) -> tuple:
+        """The SMC's program for the logs ``idx`` (:func:`.smc.program`: the one-log program where there is one
+        log) and its arguments: the (name, function, static arguments, arguments) of
+        :func:`mjxsysid.runtime.exported.call`."""
         idx = list(idx)
-        static = (prior, n_mcmc, max_stages, float(PRIOR_SHARE), 0.5)
         args = (np.asarray(keys, np.uint32), np.asarray(y0, np.float32), np.asarray(ld, np.float32), np.asarray(w, np.float32))
         if self.stack is None:
-            return _smc, (*(jnp.asarray(a[0]) for a in args[:2]), self.datas[idx[0]],
-                          *(jnp.asarray(a[0]) for a in args[2:]), qv[0], qn[0], lap[0], *static)
+            return (*smc_program(False, prior, n_mcmc, max_stages), *(jnp.asarray(a[0]) for a in args[:2]),
+                    self.datas[idx[0]], *(jnp.asarray(a[0]) for a in args[2:]), qv[0], qn[0], lap[0])
         p, data = self._sub(idx)
         args = [_pad_rows(a, len(p)) for a in args]
         pad = len(p) - len(idx)
         stk = lambda ts: None if ts[0] is None else jax.tree.map(lambda *a: jnp.stack(a), *(ts + [ts[0]] * pad))  # noqa: E731
-        return _smc_logs, (*(jnp.asarray(a) for a in args[:2]), data, *(jnp.asarray(a) for a in args[2:]),
-                           stk(list(qv)), stk(list(qn)), stk(list(lap)), *static)
+        return (*smc_program(True, prior, n_mcmc, max_stages), *(jnp.asarray(a) for a in args[:2]), data,
+                *(jnp.asarray(a) for a in args[2:]), stk(list(qv)), stk(list(qn)), stk(list(lap)))
 
     def smc(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages):
         """The tempered SMC of the logs ``idx`` (m,) from their particles y0 (m, P, 17) -> the
-        outputs of :func:`_smc`, each with a leading axis m."""
-        fn, args = self._smc_call(idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages)
-        self.ahead.wait(("smc", signature(*args)))
-        out = fn(*args)
+        outputs of :func:`.smc._smc_impl`, each with a leading axis m."""
+        call = self._smc_call(idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages)
+        self.ahead.wait(("smc", signature(*call[3:])))
+        out = exported.call(*call)
         return [np.asarray(o)[None] for o in out] if self.stack is None else [np.asarray(o)[:len(idx)] for o in out]
 
     def _nuts_call(self, idx, keys, u0, ld, w, m, chol, prior) -> tuple:
@@ -173,7 +175,7 @@ class _Logs:
         lap = [StudentT(np.zeros(L.N_Y, np.float32), eye)] * n
         smc = self._smc_call(range(n), np.zeros((n, 2), np.uint32), zeros(particles, L.N_Y), zeros(L.N_CHANNELS),
                              zeros(L.N_CHANNELS), qv, qn, lap, prior, n_mcmc, max_stages)
-        ahead.submit(("smc", signature(*smc[1])), lambda: smc[0].lower(*smc[1]).compile())
+        ahead.submit(("smc", signature(*smc[3:])), lambda: exported.compile_only(*smc))
         if plans is None:
             return
         args, logs = self._nuts_call(range(n), np.zeros((n, CHAINS, 2), np.uint32), zeros(CHAINS, L.N_Y),
