@@ -51,8 +51,7 @@ def _ls_residuals(z, args):
     return jnp.concatenate([g.ravel(), a, b[None]])
 
 
-@functools.partial(jax.jit, static_argnames=("max_steps", "normal"))
-def _fit_ls(z0, data, ld, ls, max_steps=200, normal=False):
+def _fit_ls_impl(z0, data, ld, ls, max_steps=200, normal=False):
     """Levenberg–Marquardt (optimistix) on the standardised residuals from one start (13,).
     ``normal``: each step's damped least squares by its normal equations (lineax's Cholesky of a
     13 × 13 matrix) instead of a QR of the residuals' Jacobian, what every vmapped fit uses: the
@@ -66,6 +65,10 @@ def _fit_ls(z0, data, ld, ls, max_steps=200, normal=False):
     else:
         solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8)
     return optx.least_squares(_ls_residuals, solver, z0, args=(data, ld, ls), max_steps=max_steps, throw=False).value
+
+
+_fit_ls = jax.jit(_fit_ls_impl, static_argnames=("max_steps", "normal"))
+""":func:`_fit_ls_impl` jitted."""
 
 
 @functools.partial(jax.jit, static_argnames=("max_steps",))
@@ -82,7 +85,10 @@ def _fit_ls_many(z0, data, ld, ls, max_steps=200):
     a time against 388 s batched)."""
     if jax.default_backend() != "cpu":
         return _fit_ls_batched(jnp.asarray(z0), data, ld, ls, max_steps=max_steps)
-    return jnp.stack([_fit_ls(z, data, ld, ls, max_steps=max_steps) for z in np.asarray(z0, np.float32)])
+    from mjxsysid.runtime import exported           # its trace (optimistix's solver) kept on disk
+    static = {"max_steps": int(max_steps), "normal": False}
+    return jnp.stack([exported.call("fit_ls", _fit_ls_impl, static, jnp.asarray(z), data, ld, ls)
+                      for z in np.asarray(z0, np.float32)])
 
 
 @jax.jit

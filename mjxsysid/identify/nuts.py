@@ -274,7 +274,8 @@ def compile_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior
     plans, call = _program(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior=prior, plans=plans,
                            attempt=0, target_acceptance=target_acceptance, max_doublings=max_doublings, logs=logs)
     exported.compile_only(*call)
-    _rhat_ess().lower(np.zeros((np.shape(keys)[-2], plans[0][1] // plans[0][2], N_Y), np.float32)).compile()
+    exported.compile_only("rhat_ess", _rhat_ess_impl, {},
+                          jnp.zeros((np.shape(keys)[-2], plans[0][1] // plans[0][2], N_Y), jnp.float32))
 
 
 def _f32(a):
@@ -292,19 +293,24 @@ def start(draws_y, centre_y, chains: int, seed: int, prior: PhysicalPrior = PHYS
     return keys, u0, m, chol
 
 
-@functools.lru_cache(maxsize=1)
-def _rhat_ess():
-    """blackjax's split R̂ and bulk ESS of draws (C, D, 17), compiled once per shape: called eagerly,
-    its ESS's scans and conds were rebuilt for every log (on a GPU, 116 s of XLA compiles in 320 logs)."""
+def _rhat_ess_impl(y):
+    """blackjax's split R̂ and bulk ESS of draws y (C, D, 17) -> ((17,), (17,))."""
     from blackjax.diagnostics import ess_bulk, rhat
-    return jax.jit(lambda y: (rhat(y), ess_bulk(y)))
+    return rhat(y), ess_bulk(y)
+
+
+def _rhat_ess(y):
+    """:func:`_rhat_ess_impl` compiled once per shape and exported (:func:`mjxsysid.runtime.exported.call`): called
+    eagerly, its ESS's scans and conds were rebuilt for every log (on a GPU, 116 s of XLA compiles in 320 logs)."""
+    from mjxsysid.runtime import exported
+    return exported.call("rhat_ess", _rhat_ess_impl, {}, jnp.asarray(y, jnp.float32))
 
 
 def diagnostics(y, divergent, leapfrog, step_size) -> dict:
     """Chains' draws y (C, D, 17), divergent transitions (C,), leapfrog steps per draw (C,), step sizes (C,) ->
     rank-normalised split R̂ (17,) (the larger of bulk and tail), bulk ESS (17,), divergences,
     leapfrog steps per draw, step sizes (blackjax.diagnostics)."""
-    r, e = _rhat_ess()(jnp.asarray(y, jnp.float32))
+    r, e = _rhat_ess(y)
     return {"rhat": np.asarray(r, np.float64), "ess_bulk": np.asarray(e, np.float64),
             "divergences": int(np.sum(divergent)), "leapfrog_mean": float(np.mean(leapfrog)),
             "step_size": np.asarray(step_size, np.float64)}

@@ -2,7 +2,9 @@
 instead of tracing them in Python, as JAX's persistent compilation cache spares their compile.
 
 A warm ``decode --log`` of a 10 s log spent 3.6 s tracing NUTS's program (blackjax's window adaptation and
-sampler, :func:`mjxsysid.identify.nuts._chains`) and 0.3 s lowering it, of 20.6 s. The files live beside the
+sampler, :func:`mjxsysid.identify.nuts._chains`) and 0.3 s lowering it, of 20.6 s. The SMC's program
+(:func:`mjxsysid.identify.smc.program`), the mode's Levenberg–Marquardt on a CPU
+(:func:`mjxsysid.identify.mode._fit_ls_many`) and NUTS's R̂ and ESS go through here too. The files live beside the
 compilation cache (``<cache>/exported``) and only while that cache is on. A file's key holds everything the
 trace depends on: the package's source, blackjax's and JAX's versions, the backend, the matmul precision and
 x64 setting, the function's name and static arguments, and the shapes and dtypes of its arguments.
@@ -89,12 +91,25 @@ def _program(name: str, fn, static: dict, args) -> tuple:
         return jitted, leaves
     path = where / f"{name}-{_key(name, static, leaves, tree)}.bin"
     if not path.is_file():
-        exp = jax.export.export(jitted)(*leaves)
+        try:
+            exp = jax.export.export(jitted, disabled_checks=_disabled_checks())(*leaves)
+        except (ValueError, NotImplementedError):    # a custom call or host callback JAX will not serialize: jitted
+            return jitted, leaves
         where.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
         tmp.write_bytes(exp.serialize())
         tmp.replace(path)                            # atomic: a reader never sees half a file
     return _runner(str(path)), leaves
+
+
+LOCAL_CUSTOM_CALLS = ("lapack_sormqr_ffi", "lapack_dormqr_ffi")
+"""LAPACK's calls that ``jax.export`` does not promise to keep (the QR solve of the mode's Levenberg–Marquardt on a
+CPU): serialized anyway, since a file is read only by the JAX, jaxlib and backend its key names."""
+
+
+def _disabled_checks() -> list:
+    """``jax.export``'s checks waived for :data:`LOCAL_CUSTOM_CALLS`."""
+    return [jax.export.DisabledSafetyCheck.custom_call(t) for t in LOCAL_CUSTOM_CALLS]
 
 
 @functools.lru_cache(maxsize=16)

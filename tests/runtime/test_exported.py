@@ -8,6 +8,7 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 
 from mjxsysid.runtime import exported
 
@@ -50,3 +51,36 @@ def test_without_a_place_to_write_it_is_plain_jit(monkeypatch):
     got = exported.call("g", _f, {"n": 2}, x, p)
     np.testing.assert_array_equal(got[0], jax.jit(_f, static_argnames="n")(x, p, n=2)[0])
     assert not list((Path(jax.config.jax_compilation_cache_dir) / exported.FOLDER).glob("g-*"))
+
+
+def test_a_program_jax_will_not_serialize_is_plain_jit(tmp_path, monkeypatch):
+    """A program with a custom call ``jax.export`` refuses (a ValueError) runs jitted, and no file is written."""
+    monkeypatch.setattr(exported, "folder", lambda: tmp_path)
+
+    def refuse(*a, **k):
+        raise ValueError("Cannot serialize code with custom calls whose targets have no compatibility guarantees")
+    monkeypatch.setattr(jax.export, "export", refuse)
+    x, p = jnp.arange(3.0), _Pair(jnp.float32(0.5), jnp.ones(3))
+    got = exported.call("h", _f, {"n": 3}, x, p)
+    np.testing.assert_array_equal(got[0], jax.jit(_f, static_argnames="n")(x, p, n=3)[0])
+    assert not list(tmp_path.glob("h-*"))
+
+
+def test_a_qr_solve_is_kept_with_its_lapack_calls(tmp_path, monkeypatch):
+    """LAPACK's QR solve (what the mode's Levenberg–Marquardt runs on a CPU, ``LOCAL_CUSTOM_CALLS``) is written to
+    disk and gives jit's results, read back from the file."""
+    monkeypatch.setattr(exported, "folder", lambda: tmp_path)
+
+    import lineax as lx
+
+    def lstsq(a, b):
+        return (lx.linear_solve(lx.MatrixLinearOperator(a), b, lx.QR(), throw=False).value,)
+    a = jnp.asarray(np.random.default_rng(0).normal(size=(30, 4)), jnp.float32)
+    b = jnp.asarray(np.random.default_rng(1).normal(size=30), jnp.float32)
+    with pytest.raises(ValueError, match="no compatibility guarantees"):
+        jax.export.export(jax.jit(lstsq))(a, b)
+    want = jax.jit(lstsq)(a, b)[0]
+    exported.call("qr", lstsq, {}, a, b)
+    assert len(list(tmp_path.glob("qr-*.bin"))) == 1
+    exported._runner.cache_clear()
+    np.testing.assert_allclose(exported.call("qr", lstsq, {}, a, b)[0], want, rtol=1e-6)
