@@ -90,10 +90,13 @@ def _program(name: str, fn, static: dict, args) -> tuple:
     if where is None:
         return jitted, leaves
     path = where / f"{name}-{_key(name, static, leaves, tree)}.bin"
+    if str(path) in _REFUSED:
+        return jitted, leaves
     if not path.is_file():
         try:
             exp = jax.export.export(jitted, disabled_checks=_disabled_checks())(*leaves)
         except (ValueError, NotImplementedError):    # a custom call or host callback JAX will not serialize: jitted
+            _REFUSED.add(str(path))                  # and not traced for export again in this process
             return jitted, leaves
         where.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp")
@@ -101,6 +104,9 @@ def _program(name: str, fn, static: dict, args) -> tuple:
         tmp.replace(path)                            # atomic: a reader never sees half a file
     return _runner(str(path)), leaves
 
+
+_REFUSED: set = set()
+"""The files of programs ``jax.export`` refused in this process."""
 
 LOCAL_CUSTOM_CALLS = ("lapack_sormqr_ffi", "lapack_dormqr_ffi")
 """LAPACK's calls that ``jax.export`` does not promise to keep (the QR solve of the mode's Levenberg–Marquardt on a
