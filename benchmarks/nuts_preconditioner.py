@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
 
 def laplace_smc(self, idx, keys, y0, ld, w, qv, qn, lap, prior, n_mcmc, max_stages):
     """A stand-in for ``_Logs.smc``: each log's Laplace draws, as many as the SMC's particles, equally weighted."""
@@ -71,10 +73,10 @@ def main(argv=None) -> int:
                      f"{np.median([r['seconds'] for r in rs]):.1f} |")
     print("\n".join(lines))
     if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        a.out.write_text(json.dumps({"date": datetime.date.today().isoformat(), "machine": platform.platform(),
-                                     "command": "python benchmarks/nuts_preconditioner.py " + " ".join(argv or sys.argv[1:]),
-                                     "settings": settings, "rows": rows, "table": lines}, indent=1) + "\n")
+        from _bench import write_json
+        write_json(a.out, {"date": datetime.date.today().isoformat(), "machine": platform.platform(),
+                           "command": "python benchmarks/nuts_preconditioner.py " + " ".join(argv or sys.argv[1:]),
+                           "settings": settings, "rows": rows, "table": lines})
     return 0
 
 
