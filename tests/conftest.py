@@ -34,7 +34,8 @@ def exact_model_posteriors():
     (run time, not compiles): the log, the SMC's posterior (400 draws), the same refined by NUTS (its retry
     as long as its first run), and a longer NUTS run from the SMC's mode and draws: the refinement's own
     program (one NUTS compile for both) at five seeds, pooled (40 chains × (200 + 50), 2,000 draws); ``ahead``:
-    each program the refined call waited for and whether its thread had compiled it (runtime/ahead.py)."""
+    each program the refined call waited for and whether its thread had compiled it (runtime/ahead.py); ``exported``:
+    the programs it ran from their files (runtime/exported.py)."""
     import numpy as np
     from mjxsysid import theta as P
     from mjxsysid.identify import nuts as S
@@ -45,11 +46,12 @@ def exact_model_posteriors():
     theta = P.paper_hardware().copy()
     data = prepare(exact_model_log(theta, 4.0, gyro_noise=0.05, acc_noise=0.5, seed=3))
     kw = dict(force_smc=True, seed=1, calibration=None, particles=256, samples=400)
-    from support.ahead import record_waits
+    from support.ahead import record_exported, record_waits
     with xla_optimised(), pytest.MonkeyPatch.context() as mp:
         mp.setattr(S, "LONGER", (1, 1))      # the retry's length: test_nuts's forced retry runs it again
         with pytest.MonkeyPatch.context() as spy:
             waits = record_waits(spy)        # which programs the refined call found compiled ahead
+            files = record_exported(spy)     # and which it ran from their exported files
             refined = log_grounded_posterior(data, None, refine=True, **kw)
         smc = log_grounded_posterior(data, None, refine=False, **kw)
         mode = smc["mode"]
@@ -61,7 +63,8 @@ def exact_model_posteriors():
         y = np.concatenate([r["y"] for r in runs])
         ref = {"y": y, **S.diagnostics(y, [r["divergences"] for r in runs], [r["leapfrog_mean"] for r in runs],
                                        np.concatenate([r["step_size"] for r in runs]))}
-    return {"theta": theta, "data": data, "refined": refined, "smc": smc, "reference": ref, "ahead": waits}
+    return {"theta": theta, "data": data, "refined": refined, "smc": smc, "reference": ref, "ahead": waits,
+            "exported": files}
 
 
 @pytest.fixture(scope="session")

@@ -17,6 +17,7 @@ from mjxsysid.identify.likelihood import (NU, delta_grid_x, log_delta_of, noise_
 from mjxsysid.identify.logdata import LogData
 from mjxsysid.identify.proposals import StudentT
 from mjxsysid.identify.target import ACC_BIAS_SD, N_Y, NUIS_BOUNDS, _nuis_lo_hi, _y_lo_hi, full_x
+from mjxsysid.runtime import exported
 
 
 def _project(x, prior):
@@ -85,8 +86,7 @@ def _fit_ls_many(z0, data, ld, ls, max_steps=200):
     a time against 388 s batched)."""
     if jax.default_backend() != "cpu":
         return _fit_ls_batched(jnp.asarray(z0), data, ld, ls, max_steps=max_steps)
-    from mjxsysid.runtime import exported           # its trace (optimistix's solver) kept on disk
-    static = {"max_steps": int(max_steps), "normal": False}
+    static = {"max_steps": int(max_steps), "normal": False}      # its trace (optimistix's solver) kept on disk
     return jnp.stack([exported.call("fit_ls", _fit_ls_impl, static, jnp.asarray(z), data, ld, ls)
                       for z in np.asarray(z0, np.float32)])
 

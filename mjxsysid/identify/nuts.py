@@ -29,6 +29,7 @@ import numpy as np
 from mjxsysid.identify import logspace as L
 from mjxsysid.identify.coords import PHYSICAL_PRIOR, PhysicalPrior
 from mjxsysid.identify.target import N_Y, _log_target_y, _y_lo_hi
+from mjxsysid.runtime import exported
 from mjxsysid.theta import xp_of
 
 CHAINS = 8
@@ -258,7 +259,6 @@ def run_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior, pl
     program serves, each keeping as many draws. :func:`_chains` (``logs``: :func:`_chains_logs`) is compiled
     once for them all, through :func:`mjxsysid.runtime.exported.call`: its trace (blackjax's window adaptation
     and NUTS) is kept on disk beside the compilation cache."""
-    from mjxsysid.runtime import exported
     plans, call = _program(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior=prior, plans=plans,
                            attempt=attempt, target_acceptance=target_acceptance, max_doublings=max_doublings, logs=logs)
     y, div, leap, step = exported.call(*call)
@@ -270,7 +270,6 @@ def compile_chains(keys, u0, data, log_delta, weights, lo, hi, m, chol, *, prior
                    logs: bool = False) -> None:
     """Compile the program :func:`run_chains` runs with these arguments' shapes (every attempt), and run nothing;
     then R̂ and ESS of its draws (:func:`diagnostics`)."""
-    from mjxsysid.runtime import exported
     plans, call = _program(keys, u0, data, log_delta, weights, lo, hi, m, chol, prior=prior, plans=plans,
                            attempt=0, target_acceptance=target_acceptance, max_doublings=max_doublings, logs=logs)
     exported.compile_only(*call)
@@ -302,7 +301,6 @@ def _rhat_ess_impl(y):
 def _rhat_ess(y):
     """:func:`_rhat_ess_impl` compiled once per shape and exported (:func:`mjxsysid.runtime.exported.call`): called
     eagerly, its ESS's scans and conds were rebuilt for every log (on a GPU, 116 s of XLA compiles in 320 logs)."""
-    from mjxsysid.runtime import exported
     return exported.call("rhat_ess", _rhat_ess_impl, {}, jnp.asarray(y, jnp.float32))
 
 

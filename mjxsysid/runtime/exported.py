@@ -14,6 +14,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import os
+import threading
 from pathlib import Path
 
 import jax
@@ -99,7 +100,7 @@ def _program(name: str, fn, static: dict, args) -> tuple:
             _REFUSED.add(str(path))                  # and not traced for export again in this process
             return jitted, leaves
         where.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        tmp = path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp")   # a writer per thread
         tmp.write_bytes(exp.serialize())
         tmp.replace(path)                            # atomic: a reader never sees half a file
     return _runner(str(path)), leaves

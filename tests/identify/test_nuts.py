@@ -108,6 +108,7 @@ def test_the_smcs_draws_are_refined_by_nuts_to_a_longer_runs_bands(monkeypatch, 
     assert post["nuts"]["chains"] * post["nuts"]["draws"] >= 400 and len(post["v_raw"]) == 400
     assert smc["method"] == "smc" and "nuts" not in smc
     assert ex["ahead"][:2] == [("smc", True), ("nuts", True)], ex["ahead"]   # the programs compiled while the mode was found
+    assert {"fit_ls", "smc", "nuts", "rhat_ess"} <= ex["exported"], ex["exported"]   # traces a warm run loads
     from mjxsysid.identify import inference
     again = inference.refine_posterior(data, smc, seed=1, calibration=None)      # the same SMC draws, refined after
     assert again["method"] == post["method"] and again["nuts"] == post["nuts"]
