@@ -40,6 +40,14 @@ def write_results(folder, stem: str, res: dict, lines: list[str]) -> None:
     (dst / f"{stem}.md").write_text("\n".join(lines) + "\n")
 
 
+def emit(folder, stem: str, res: dict, lines: list[str]) -> dict:
+    """Print a benchmark's table ``lines`` and, where ``folder`` is given, write it (:func:`write_results`) -> res."""
+    print("\n".join(lines))
+    if folder:
+        write_results(folder, stem, res, lines)
+    return res
+
+
 def config_overrides(pairs: list[str]) -> dict:
     """``KEY=VALUE`` strings (``--set``) -> a dict of TrainConfig overrides, values read as JSON
     (``true``, ``2``, ``0.1``) or else kept as strings."""

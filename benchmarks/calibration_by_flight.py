@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _bench import write_results
+from _bench import emit
 from calibration_strata import fitted, folds, score
 
 RUNS = Path("docs/runs/measurements/log-grounded")
@@ -254,10 +254,7 @@ def main(argv=None) -> dict:
     lines += ["", "## 7. In sample: the table fitted on every training row, scored on them", "",
               "| level | logs | mean coverage | ρ1 | ρ1's median within 10⁻⁴ of the truth |", "|---|---|---|---|---|"]
     lines += [f"| {lv} | {n} | {m:.3f} | {r:.3f} | {t:.2f} |" for lv, (n, m, r, t) in res["in_sample"].items()]
-    print("\n".join(lines))
-    if a.out:
-        write_results(a.out, "results", res, lines)
-    return res
+    return emit(a.out, "results", res, lines)
 
 
 if __name__ == "__main__":

@@ -21,6 +21,9 @@ split on 4,027 rows): windows with both tails at 95 % and the bins' :data:`MIN_S
 with this guard 136, with both 156. The SMC's table stays in bins with :data:`MIN_SIDE` (on its split, 140 →
 136 of 180 with this guard)."""
 
+MIN_FAMILY = 20
+"""The fewest logs of a family that :func:`_sides` holds at the level on its own (a window's group holds 150)."""
+
 B_GRID_QUANTILES = np.linspace(0.0, 0.95, 20)
 """The floors b tried: these quantiles of the group's errors (0 included)."""
 
@@ -33,15 +36,18 @@ def conformal_quantile(scores, level: float = LEVEL) -> float:
     return float(s[k - 1]) if k <= len(s) else float("inf")
 
 
-def fit_scale_floor(err, half, level: float = LEVEL) -> tuple[float, float]:
+def fit_scale_floor(err, half, level=LEVEL, families=None) -> tuple[float, float]:
     """Errors beyond the median on one side (n,) (0 where the truth is on the other side) and the raw
     band's extent on that side (n,) of one group -> (a, b): the calibrated extent a·w + b that holds
     the truth with probability ``level`` (split conformal), the narrowest median over the floors of
-    :data:`B_GRID_QUANTILES`."""
+    :data:`B_GRID_QUANTILES`. ``families`` (n,) labels: a holds each family's logs at its own level
+    (``level``: {label: level}), the largest of their quantiles."""
     err, half = np.asarray(err, np.float64), np.maximum(np.asarray(half, np.float64), 1e-12)
+    parts = [(np.ones(len(err), bool), level)] if families is None else \
+        [(np.asarray(families) == f, lv) for f, lv in level.items()]
     best = None
     for b in np.quantile(err, B_GRID_QUANTILES):
-        a = conformal_quantile(np.maximum(err - b, 0.0) / half, level)
+        a = max(conformal_quantile(np.maximum(err[m] - b, 0.0) / half[m], lv) for m, lv in parts)
         width = float(np.median(a * half + b))
         if best is None or width < best[0]:
             best = (width, a, float(b))
@@ -96,18 +102,26 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
             "min_weight": min_weight.tolist(), "logs": len(rows)}
 
 
-def _sides(d, below, above, level: float, shares: bool) -> tuple[tuple[float, float], tuple[float, float]]:
+def _sides(d, below, above, level: float, shares: bool, families=None) -> tuple[tuple[float, float], tuple[float, float]]:
     """One group's truths beyond the median d (n,) (> 0 above) and raw extents below and above (n,) -> the
     (a, b) of :func:`fit_scale_floor` below and above. Each side misses half of 1 − ``level`` (inf where the
     group is too small for that), or with ``shares`` the share of it that the truths on that side hold: a group
-    whose truths all lie below misses its 10 % below, instead of holding 95 % there and every truth above."""
+    whose truths all lie below misses its 10 % below, instead of holding 95 % there and every truth above.
+    ``families`` (n,) labels (with ``shares``): each family of :data:`MIN_FAMILY` logs or more is held at
+    ``level`` on its own, its shares its own (:func:`fit_scale_floor`)."""
     if not shares:
         lv = 1 - (1 - level) / 2
         return fit_scale_floor(np.maximum(-d, 0), below, lv), fit_scale_floor(np.maximum(d, 0), above, lv)
-    p_hi = float(np.mean(d > 0))
-    cap = len(d) / (len(d) + 1.0)    # a side few truths lie on: its largest score, not inf (0 where none does)
-    lv_lo, lv_hi = (min(1 - (1 - level) * p, cap) for p in (1 - p_hi, p_hi))
-    return (fit_scale_floor(np.maximum(-d, 0), below, lv_lo), fit_scale_floor(np.maximum(d, 0), above, lv_hi))
+    fam = np.zeros(len(d), int) if families is None else np.asarray(families)
+    labels = [f for f in dict.fromkeys(fam.tolist()) if (fam == f).sum() >= MIN_FAMILY] or list(dict.fromkeys(fam.tolist()))
+    lv = {}
+    for f in labels:
+        m = fam == f
+        p_hi = float(np.mean(d[m] > 0))
+        cap = m.sum() / (m.sum() + 1.0)  # a side few truths lie on: its largest score, not inf (0 where none does)
+        lv[f] = tuple(min(1 - (1 - level) * p, cap) for p in (1 - p_hi, p_hi))
+    return tuple(fit_scale_floor(e, h, {f: v[i] for f, v in lv.items()}, fam)
+                 for i, (e, h) in enumerate(((np.maximum(-d, 0), below), (np.maximum(d, 0), above))))
 
 
 def _entry(j: int, x, sides: list, guard: tuple[float, float], **entry) -> dict:
@@ -142,12 +156,13 @@ def _fit_bins(j: int, truth, bands, x, level: float, bins: int, min_group: int) 
 
 
 def _fit_windows(j: int, truth, bands, x, level: float, windows: int, logs: int, relative: float,
-                 least: float) -> dict:
+                 least: float, families=None) -> dict:
     """Coordinate j's entry from its logs' truths (n, 12), raw bands (n, 3, 12) and feature x (n,) in
     ``windows`` windows: at the quantiles (i + ½) / windows of x, the ``logs`` logs nearest in x's rank, split at
     their median raw width into two groups, each side's tail given its truths' share of the miss
-    (:func:`_sides`). The windows' centres (their median x) are what :func:`stretch` interpolates between;
-    ``edges`` (midway between centres) only name a log's group."""
+    (:func:`_sides`; ``families`` (n,): each family held at ``level`` apart). The windows' centres (their
+    median x) are what :func:`stretch` interpolates between; ``edges`` (midway between centres) only name a
+    log's group."""
     n = len(x)
     order = np.argsort(x, kind="stable")
     width, d, below, above = _errors(truth, bands, j)
@@ -159,7 +174,8 @@ def _fit_windows(j: int, truth, bands, x, level: float, windows: int, logs: int,
         split.append(float(np.median(width[idx])))
         for g in (idx[width[idx] <= split[-1]], idx[width[idx] > split[-1]]):
             g = g if len(g) else idx                 # tied widths: the window whole
-            sides.append(_sides(d[g], below[g], above[g], level, shares=True))
+            sides.append(_sides(d[g], below[g], above[g], level, shares=True,
+                                families=None if families is None else np.asarray(families)[g]))
             counts.append(len(g))
     centres = np.maximum.accumulate(centres)
     return _entry(j, x, sides, (relative, least), edges=((centres[1:] + centres[:-1]) / 2).tolist(),

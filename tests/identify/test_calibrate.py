@@ -310,6 +310,35 @@ def test_windows_give_each_tail_its_truths_share_of_the_miss():
     assert all(cw["median_width"][k] < 0.9 * cb["median_width"][k] for k in cw["median_width"])
 
 
+def test_windows_with_families_hold_each_family_at_the_level():
+    """Two families no feature tells apart: 70 % of logs err by N(0, (0.3 w)²), 30 % by N(0, (1.5 w)²). Pooled,
+    the windows hold 90 % of all logs and too few of the wide family's; with ``families``, each holds 0.86 or
+    more on fresh logs (the sharp family over-covered: the price of not telling them apart)."""
+    def logs(n, seed):
+        g = np.random.default_rng(seed)
+        wide = g.random(n) < 0.3
+        w = g.uniform(0.01, 0.1, n)
+        d = np.where(wide, 1.5, 0.3) * w * g.standard_normal(n)
+        truth, bands = np.zeros((n, N_V)), np.zeros((n, 3, N_V))
+        truth[:, 0], bands[:, 0, 0], bands[:, 2, 0] = d, -w, w
+        return truth, bands, g.uniform(-2, -1, n), np.where(wide, "wide", "sharp")
+    t, b, x, fam = logs(1500, 0)
+    tf, bf, xf, famf = logs(4000, 1)
+
+    def coverage(coord):
+        inside = []
+        for q, tr, xi in zip(bf[:, :, 0], tf[:, 0], xf):
+            _, k_lo, k_hi = C.stretch(q, coord, xi)
+            inside.append(q[1] - k_lo * (q[1] - q[0]) <= tr <= q[1] + k_hi * (q[2] - q[1]))
+        inside = np.array(inside)
+        return {f: float(inside[famf == f].mean()) for f in ("sharp", "wide")}
+    pooled = coverage(F._fit_windows(0, t, b, x, 0.9, **WINDOWS))
+    apart = coverage(F._fit_windows(0, t, b, x, 0.9, **WINDOWS, families=fam))
+    assert pooled["wide"] < 0.8, pooled
+    assert apart["wide"] >= 0.86 and apart["sharp"] >= 0.86, apart
+    assert F._fit_windows(0, t, b, x, 0.9, **WINDOWS, families=np.zeros(len(x))) == F._fit_windows(0, t, b, x, 0.9, **WINDOWS)
+
+
 NUTS_ROWS = RUNS.parent.parent / "nuts-calibration" / "rows"
 
 
