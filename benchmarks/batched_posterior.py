@@ -132,10 +132,16 @@ def main():
     ap.add_argument("--sequential", type=int, default=16, help="logs also identified one at a time")
     ap.add_argument("--warm", action=argparse.BooleanOptionalAction, default=True,
                     help="also time a second, warm pass over every log (--no-warm: the cold pass's phases alone)")
+    ap.add_argument("--cache", action="store_true",
+                    help="JAX's persistent compilation cache and the exported programs on, as the CLI runs "
+                         "(MJXSYSID_JAX_CACHE names the folder); default off: every run compiles and traces")
     ap.add_argument("--out", default=None)
     a = ap.parse_args()
     from mjxsysid.runtime.xla_flags import GPU_LOOP_GRAPHS, use_xla_flags
     use_xla_flags(GPU_LOOP_GRAPHS)                      # as `mjxsysid decode` runs it; before JAX starts its backend
+    if a.cache:
+        from mjxsysid.runtime.startup import compilation_cache
+        compilation_cache()
     from mjxsysid.identify import inference as I
     from mjxsysid.identify.inference import log_grounded_posteriors
     from mjxsysid.identify.logdata import prepare
