@@ -87,7 +87,8 @@ def main(argv=None) -> dict:
     a = ap.parse_args(argv)
     t0 = time.perf_counter()
     train, held, paths = (no_velocity_rows([p]) for p in (ROWS / "train", ROWS / "held_out", PATHS))
-    sets = {**{f"training, {f}": [r for r in train if r.get("flight") == f] for f in sorted({r.get("flight") for r in train})},
+    flights = sorted({r.get("flight") for r in train})
+    sets = {**{f"training, {f}": [r for r in train if r.get("flight") == f] for f in flights},
             "held out (test_novel)": held, "a path per vehicle (minsnap-paths)": paths}
     res = {"rows": {k: len(v) for k, v in sets.items()}, "variants": {}}
     for name, (feature, logs, fam) in VARIANTS.items():
@@ -97,8 +98,8 @@ def main(argv=None) -> dict:
              f"`python benchmarks/no_velocity_families.py` ({time.perf_counter() - t0:.0f} s, no flight). Each cell: "
              "coverage / median half-width (%), per level.", ""]
     for k, v in sets.items():
-        lines += [f"## {k} ({len(v)} logs)", "", "| grouped by | " + " | ".join(lv for lv in ORDER if any(r["level"] == lv for r in v)) + " |",
-                  "|---|" + "---|" * len({r["level"] for r in v} & set(ORDER))]
+        levels = [lv for lv in ORDER if any(r["level"] == lv for r in v)]
+        lines += [f"## {k} ({len(v)} logs)", "", "| grouped by | " + " | ".join(levels) + " |", "|---|" + "---|" * len(levels)]
         for name, by_set in res["variants"].items():
             lines.append(f"| {name} | " + " | ".join(f"{c:.2f} / ±{w:.1f}" for _, c, w in by_set[k].values()) + " |")
         lines.append("")

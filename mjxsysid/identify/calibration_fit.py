@@ -102,7 +102,8 @@ def fit(rows: list[dict], *, level: float = LEVEL, bins: int = BINS, min_group: 
             "min_weight": min_weight.tolist(), "logs": len(rows)}
 
 
-def _sides(d, below, above, level: float, shares: bool, families=None) -> tuple[tuple[float, float], tuple[float, float]]:
+def _sides(d, below, above, level: float, shares: bool,
+           families=None) -> tuple[tuple[float, float], tuple[float, float]]:
     """One group's truths beyond the median d (n,) (> 0 above) and raw extents below and above (n,) -> the
     (a, b) of :func:`fit_scale_floor` below and above. Each side misses half of 1 − ``level`` (inf where the
     group is too small for that), or with ``shares`` the share of it that the truths on that side hold: a group
@@ -113,7 +114,8 @@ def _sides(d, below, above, level: float, shares: bool, families=None) -> tuple[
         lv = 1 - (1 - level) / 2
         return fit_scale_floor(np.maximum(-d, 0), below, lv), fit_scale_floor(np.maximum(d, 0), above, lv)
     fam = np.zeros(len(d), int) if families is None else np.asarray(families)
-    labels = [f for f in dict.fromkeys(fam.tolist()) if (fam == f).sum() >= MIN_FAMILY] or list(dict.fromkeys(fam.tolist()))
+    every = list(dict.fromkeys(fam.tolist()))
+    labels = [f for f in every if (fam == f).sum() >= MIN_FAMILY] or every
     lv = {}
     for f in labels:
         m = fam == f
