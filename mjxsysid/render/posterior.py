@@ -182,11 +182,15 @@ def _log_x(ax, ticks: int = 4) -> None:
     ax.xaxis.set_minor_formatter(NullFormatter())
 
 
+UNSEEN_COLOR = "0.7"
+"""The log-grounded band's colour in :func:`plot_information_gap` where the log does not see the quantity."""
+
+
 def plot_information_gap(gap: dict, path, title: str = "what the policy's latent knows vs what the log shows"):
     """One panel per log-identifiable quantity (``gap`` of
     :func:`mjxsysid.identify.gap.information_gap`): the decoder-only 5–95 % band (blue) against the
-    log-grounded one (green, its median as a dot), the truth as a black line if known; log scale
-    for positive quantities."""
+    log-grounded one (green, its median as a dot; grey, titled "not seen by the log", where the log does not pin
+    the quantity: ``seen_by_log`` False), the truth as a black line if known; log scale for positive quantities."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -199,8 +203,10 @@ def plot_information_gap(gap: dict, path, title: str = "what the policy's latent
     for ax, n in zip(axes.flat, names):
         g = gap[n]
         ax.plot([g["decoder_q05"], g["decoder_q95"]], [1, 1], lw=7, color="tab:blue", solid_capstyle="butt")
-        ax.plot([g["log_q05"], g["log_q95"]], [0, 0], lw=7, color="tab:green", solid_capstyle="butt")
-        ax.plot([g["log_median"]], [0], "o", color="darkgreen", ms=4)
+        seen = g.get("seen_by_log", True)
+        ax.plot([g["log_q05"], g["log_q95"]], [0, 0], lw=7, color=UNSEEN_COLOR if not seen else "tab:green",
+                solid_capstyle="butt")
+        ax.plot([g["log_median"]], [0], "o", color="darkgreen" if seen else "0.35", ms=4)
         if "true" in g:
             ax.axvline(g["true"], color="k", lw=1.5)
         vals = [g["decoder_q05"], g["decoder_q95"], g["log_q05"], g["log_q95"]] + ([g["true"]] if "true" in g else [])
@@ -210,7 +216,8 @@ def plot_information_gap(gap: dict, path, title: str = "what the policy's latent
             ax.xaxis.set_major_locator(MaxNLocator(4))
         ax.set_yticks([0, 1], ["log", "decoder"], fontsize=8)
         ax.set_ylim(-0.7, 1.7)
-        ax.set_title(f"{n} [{g['unit']}]\nwidth ratio {g['width_ratio']:.2g}", fontsize=9)
+        ax.set_title(f"{n} [{g['unit']}]\n" + (f"width ratio {g['width_ratio']:.2g}" if seen else "not seen by the log"),
+                     fontsize=9)
         ax.tick_params(axis="x", labelsize=8)
     for ax in list(axes.flat)[len(names):]:
         ax.axis("off")

@@ -116,19 +116,24 @@ def test_decode_prints_what_the_log_pins_first():
     assert list(printed_summary({"thrust_to_weight": band, "x": 1})) == ["thrust_to_weight"]
 
 
-def test_information_gap_tick_labels_do_not_overlap(tmp_path):
+def test_information_gap_tick_labels_do_not_overlap_and_unseen_bands_are_grey(tmp_path):
     """information_gap.png's log-scale panels (authorities spanning 50–4000 rad/s²): no two tick
     labels of a panel overlap."""
     from support.figures import kept_figure, overlapping_tick_labels
 
-    from mjxsysid.render.posterior import plot_information_gap
+    from mjxsysid.render.posterior import UNSEEN_COLOR, plot_information_gap
     band = {"unit": "rad/s^2", "width_ratio": 2.0}
     gap = {f"q{i}": dict(band, decoder_q05=lo, decoder_q95=hi, log_q05=2 * lo, log_q95=hi / 2, log_median=3 * lo)
            for i, (lo, hi) in enumerate([(50, 4000), (5, 400), (0.005, 0.12), (2, 200), (10, 45), (0.3, 1.6)])}
+    gap["q5"]["seen_by_log"] = False
     with kept_figure() as shown:
         plot_information_gap(gap, tmp_path / "gap.png")
         for ax in shown["fig"].axes[:len(gap)]:
             assert overlapping_tick_labels(ax) == []
+        # a quantity the log does not see: its log band grey and its title says so, the others green with their ratio
+        axes = shown["fig"].axes
+        assert axes[5].get_title().endswith("not seen by the log") and axes[5].lines[1].get_color() == UNSEEN_COLOR
+        assert axes[0].get_title().endswith("width ratio 2") and axes[0].lines[1].get_color() == "tab:green"
 
 
 def test_the_logs_minimum_rows_are_the_policys_history():
