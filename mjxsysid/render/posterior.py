@@ -79,7 +79,8 @@ def plot_decoded_over_time(dec: dict, truth, path, window_label: str = "flight-l
 
 
 def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior vs truth"):
-    """Histograms of decoded θ samples (n, 19), truth (19,) marked; optional point estimate."""
+    """Histograms of decoded θ samples (n, 19), the truth (19,) marked where known (None, or NaN entries, for a
+    real log: no line and no "true" in the legend); optional point estimate."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -95,7 +96,8 @@ def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior
         ax.hist(x, bins=bins, color="tab:blue", alpha=0.7, histtype="stepfilled")
         if log:
             ax.set_xscale("log")
-        ax.axvline(truth[j], color="k", lw=2, label="true")
+        if truth is not None and np.isfinite(truth[j]):
+            ax.axvline(truth[j], color="k", lw=2, label="true")
         if point is not None:
             ax.axvline(point[j], color="tab:orange", ls="--", label="regression")
         if log:
@@ -110,7 +112,8 @@ def plot_marginals(samples, truth, path, *, point=None, title="decoded posterior
             ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4), useMathText=True)
         ax.set_title(f"{P.PARAM_NAMES[j]} [{P.PARAM_UNITS[j]}]", fontsize=9)
         ax.set_yticks([])
-    axes.flat[0].legend(fontsize=8)
+    if axes.flat[0].get_legend_handles_labels()[0]:
+        axes.flat[0].legend(fontsize=8)
     fig.suptitle(title)
     # fixed margins (tight_layout measured every tick label: half the time of this plot)
     fig.subplots_adjust(left=0.02, right=0.99, bottom=0.05, top=0.92, wspace=0.15, hspace=0.45)

@@ -174,6 +174,23 @@ def test_marginals_tick_labels_are_readable(tmp_path):
         assert ticks[-1] > 0.033 and ticks[0] < 0.031, ticks      # over the axis, not the samples' 0.0299–0.0301
 
 
+def test_marginals_of_a_real_log_mark_no_truth(tmp_path):
+    """A real log has no truth (``decode --log`` passes NaN): no black line, and the legend names the regression
+    alone; with no point either, no legend."""
+    from support.figures import kept_figure
+
+    from mjxsysid.render.posterior import plot_marginals
+    samples = np.array(P.DEFAULT_PRIOR.sample(jax.random.PRNGKey(2), 200))
+    with kept_figure() as shown:
+        plot_marginals(samples, np.full(P.N_PARAMS, np.nan), tmp_path / "m.png", point=P.PAPER_HARDWARE)
+        ax = shown["fig"].axes[0]
+        assert [t.get_text() for t in ax.get_legend().get_texts()] == ["regression"]
+        assert all(line.get_color() != "k" for a in shown["fig"].axes for line in a.lines)
+    with kept_figure() as shown:
+        plot_marginals(samples, None, tmp_path / "n.png")
+        assert shown["fig"].axes[0].get_legend() is None
+
+
 def test_bad_inputs_raise(gl, flight, tmp_path):
     from mjxsysid.render import plot_prior_marginals, render_frame, render_rollout
     theta, frames = flight
