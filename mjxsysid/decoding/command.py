@@ -24,17 +24,18 @@ OUT_OF_PRIOR_TITLE = "OUT OF THE DECODERS' PRIOR — bands not calibrated: "
 
 
 def _posterior_table(summary: dict) -> list[str]:
-    """summary.md's table rows of a posterior's summary entries (mean, 5–95 %, truth, inside; for a
-    log-grounded posterior, whether the log saw the quantity)."""
-    seen = any(isinstance(v, dict) and "seen_by_log" in v for v in summary.values())
-    rows = ["| quantity | mean | 5 % | 95 % | true | inside |" + (" seen by the log |" if seen else ""),
-            "|---|---|---|---|---|---|" + ("---|" if seen else "")]
-    for k, v in summary.items():
-        if isinstance(v, dict) and "mean" in v and "q05" in v:
-            true = f"{v['true']:.4g}" if "true" in v else ""
-            inside = ("yes" if v["inside"] else "no") if "inside" in v else ""
-            rows.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} | {true} | {inside} |"
-                        + ((" yes |" if v.get("seen_by_log") else " no: as broad as the prior |") if seen else ""))
+    """summary.md's table rows of a posterior's summary entries (mean, 5–95 %; the truth and whether the band
+    holds it where a simulated flight knows it; for a log-grounded posterior, whether the log saw the quantity)."""
+    entries = {k: v for k, v in summary.items() if isinstance(v, dict) and "mean" in v and "q05" in v}
+    seen = any("seen_by_log" in v for v in entries.values())
+    known = any("true" in v for v in entries.values())
+    rows = ["| quantity | mean | 5 % | 95 % |" + (" true | inside |" if known else "") + (" seen by the log |" if seen else ""),
+            "|---|---|---|---|" + ("---|---|" if known else "") + ("---|" if seen else "")]
+    for k, v in entries.items():
+        true = f"{v['true']:.4g}" if "true" in v else ""
+        inside = ("yes" if v["inside"] else "no") if "inside" in v else ""
+        rows.append(f"| {k} | {v['mean']:.4g} | {v['q05']:.4g} | {v['q95']:.4g} |" + (f" {true} | {inside} |" if known else "")
+                    + ((" yes |" if v.get("seen_by_log") else " no: as broad as the prior |") if seen else ""))
     return rows
 
 

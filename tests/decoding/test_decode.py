@@ -216,3 +216,16 @@ def test_summary_md_says_whether_nuts_mixed_and_why_it_ran_again():
     line = [ln for ln in _model_check_lines({"calibration": chk, "nuts": failed}) if "NUTS" in ln][0]
     assert "did not mix in 2 attempt(s)" in line and "SMC's draws are kept" in line and "ext_acc[2]" in line
     assert not any("NUTS" in ln for ln in _model_check_lines({"calibration": chk}))       # the SMC alone: no line
+
+
+def test_summary_tables_carry_truth_columns_only_where_a_truth_is_known():
+    """A real log has no truth: summary.md's posterior tables drop the empty "true" and "inside" columns; a simulated
+    flight keeps them."""
+    from mjxsysid.decoding.command import _posterior_table
+    real = _posterior_table({"a": {"mean": 1.0, "q05": 0.5, "q95": 2.0, "seen_by_log": True},
+                             "b": {"mean": 1.0, "q05": 0.1, "q95": 9.0, "seen_by_log": False}})
+    assert real[0] == "| quantity | mean | 5 % | 95 % | seen by the log |"
+    assert real[3] == "| b | 1 | 0.1 | 9 | no: as broad as the prior |"
+    sim = _posterior_table({"a": {"mean": 1.0, "q05": 0.5, "q95": 2.0, "true": 1.2, "inside": True}})
+    assert sim[0] == "| quantity | mean | 5 % | 95 % | true | inside |" and sim[2] == "| a | 1 | 0.5 | 2 | 1.2 | yes |"
+    assert all(r.count("|") == sim[0].count("|") for r in sim) and all(r.count("|") == real[0].count("|") for r in real)
