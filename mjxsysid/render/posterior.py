@@ -207,7 +207,7 @@ def plot_information_gap(gap: dict, path, title: str = "what the policy's latent
         g = gap[n]
         ax.plot([g["decoder_q05"], g["decoder_q95"]], [1, 1], lw=7, color="tab:blue", solid_capstyle="butt")
         seen = g.get("seen_by_log", True)
-        ax.plot([g["log_q05"], g["log_q95"]], [0, 0], lw=7, color=UNSEEN_COLOR if not seen else "tab:green",
+        ax.plot([g["log_q05"], g["log_q95"]], [0, 0], lw=7, color="tab:green" if seen else UNSEEN_COLOR,
                 solid_capstyle="butt")
         ax.plot([g["log_median"]], [0], "o", color="darkgreen" if seen else "0.35", ms=4)
         if "true" in g:

@@ -41,6 +41,18 @@ def test_docs_runs_stays_under_12_5_mb():
     assert size < 12.5e6, f"docs/runs/ holds {size / 1e6:.1f} MB"
 
 
+def test_no_compiled_program_is_tracked():
+    """JAX's compilation cache and the exported programs (``<cache>/exported``) are per machine and JAX version:
+    none is committed, wherever a run wrote them."""
+    import re
+    files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
+    if not files:
+        import pytest
+        pytest.skip("not a git checkout")
+    cached = [f for f in files if re.search(r"(^|/)exported/[^/]+\.bin$|(^|/)jit_[^/]*-cache$", f)]
+    assert cached == [], cached[:5]
+
+
 PER_ALGORITHM = {"networks.py", "train.py", "controller.py"}
 """Module names the field repeats per algorithm (the adaptive policy's, the released policy's, the decoders')."""
 MIRRORS = {"cli", "release", "render"}

@@ -65,7 +65,8 @@ def xla_optimised():
 from mjxsysid.runtime.startup import cpu_fingerprint  # noqa: E402
 
 os.environ.setdefault("MJXSYSID_JAX_CACHE", str(ROOT / ".jax_cache" / cpu_fingerprint()))
-jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
+if os.environ["MJXSYSID_JAX_CACHE"] != "0":            # "0": off, as for the CLI (not a folder named 0)
+    jax.config.update("jax_compilation_cache_dir", os.environ["MJXSYSID_JAX_CACHE"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
 # Python's cyclic garbage collector: a worker's heap (JAX's traces, jaxprs and caches) makes every
